@@ -1,0 +1,43 @@
+"""stewart_gym: simulator, RL environments, kinematics and hardware tools for servo Stewart platforms.
+
+Quick start::
+
+    import numpy as np
+    from stewart_gym import load_preset, inverse_kinematics, ServoCalibration
+
+    geo = load_preset("servo-hexapod")
+    ik = inverse_kinematics(geo, np.array([0.01, 0, 0, 0, np.radians(5), 0]))
+    pulses = ServoCalibration.default(geo).pulse_widths(ik.servo_angles)
+"""
+
+from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry, load_preset, preset_names
+from stewart_gym.kinematics import (
+    FKResult,
+    IKResult,
+    LegStatus,
+    actuator_jacobian,
+    forward_kinematics,
+    inverse_kinematics,
+    rotation_matrix,
+)
+from stewart_gym.servo import CalibrationError, PulseRangeError, ServoCalibration
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "CalibrationError",
+    "FKResult",
+    "GeometryError",
+    "IKResult",
+    "LegStatus",
+    "PlatformGeometry",
+    "PulseRangeError",
+    "ServoCalibration",
+    "actuator_jacobian",
+    "forward_kinematics",
+    "inverse_kinematics",
+    "load_geometry",
+    "load_preset",
+    "preset_names",
+    "rotation_matrix",
+]

@@ -1,0 +1,73 @@
+"""Shared fixtures and reference implementations for the tests."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stewart_gym.geometry import PlatformGeometry, load_preset, preset_names
+
+#: Half-widths of a box of poses around home that is mostly reachable, per preset:
+#: (translation m, angle rad). Used to sample workspaces in property tests.
+WORKSPACE_BOX = {
+    "servo-hexapod": (0.010, math.radians(6)),
+    "memememe-liverpool": (0.02, math.radians(10)),
+    "senilov2018": (0.05, math.radians(10)),
+    "mathcad-micro": (0.0006, math.radians(3)),
+}
+
+
+@pytest.fixture(params=preset_names())
+def preset(request: pytest.FixtureRequest) -> PlatformGeometry:
+    return load_preset(request.param)
+
+
+def reference_rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Rz(yaw)·Ry(pitch)·Rx(roll) from the three elementary matrices of seed 000."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def reference_servo_angles(geo: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> np.ndarray:
+    """Seed 000 eq. 9 literally, one pose and one leg at a time: asin(L/√(M²+N²)) − atan2(N, M)."""
+    c = np.zeros(3) if pivot is None else np.asarray(pivot)
+    rot = reference_rotation(*pose[3:])
+    out = np.empty(6)
+    for i in range(6):
+        q = np.array([0, 0, geo.home_height]) + pose[:3] + c + rot @ (geo.platform_anchors[i] - c)
+        b = geo.base_anchors[i]
+        leg = q - b
+        a, s, beta = geo.horn_length, geo.rod_length, geo.servo_beta[i]
+        big_l = leg @ leg - (s * s - a * a)
+        big_m = 2 * a * (q[2] - b[2])
+        big_n = 2 * a * (math.cos(beta) * (q[0] - b[0]) + math.sin(beta) * (q[1] - b[1]))
+        ratio = big_l / math.hypot(big_m, big_n)
+        out[i] = math.asin(ratio) - math.atan2(big_n, big_m) if abs(ratio) <= 1 else math.nan
+    return out
+
+
+def random_poses(name: str, n: int, seed: int = 0) -> np.ndarray:
+    """n poses uniformly in the preset's WORKSPACE_BOX."""
+    t, a = WORKSPACE_BOX[name]
+    rng = np.random.default_rng(seed)
+    return rng.uniform(-1, 1, (n, 6)) * np.array([t, t, t, a, a, a])
+
+
+def mirror_permutation(geo: PlatformGeometry) -> np.ndarray:
+    """π with mirror_x(b_i) = b_π(i) and mirror_x(p_i) = p_π(i), mirroring x → −x."""
+    flip = np.array([-1.0, 1.0, 1.0])
+    perm = np.empty(6, dtype=int)
+    for i in range(6):
+        d = np.linalg.norm(geo.base_anchors - geo.base_anchors[i] * flip, axis=1) + np.linalg.norm(
+            geo.platform_anchors - geo.platform_anchors[i] * flip, axis=1
+        )
+        perm[i] = int(np.argmin(d))
+        assert d[perm[i]] < 1e-9, f"{geo.name} is not mirror-symmetric about the y-z plane"
+    return perm

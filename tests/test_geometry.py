@@ -1,0 +1,155 @@
+"""Geometry presets, TOML loading and validation."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry, load_preset, preset_names
+
+MM = 1e-3
+
+
+def test_preset_names() -> None:
+    assert set(preset_names()) == {"servo-hexapod", "memememe-liverpool", "senilov2018", "mathcad-micro"}
+    with pytest.raises(KeyError, match="known presets"):
+        load_preset("nope")
+
+
+def test_presets_are_immutable(preset: PlatformGeometry) -> None:
+    with pytest.raises(ValueError):
+        preset.base_anchors[0, 0] = 1.0
+    with pytest.raises(AttributeError):
+        preset.rod_length = 1.0  # type: ignore[misc]
+
+
+def test_memememe_matches_reference() -> None:
+    g = load_preset("memememe-liverpool")
+    base_deg = [314.9, 345.1, 74.9, 105.1, 194.9, 225.1]
+    top_deg = [322.9, 337.1, 82.9, 97.1, 202.9, 217.1]
+    for i in range(6):
+        assert g.base_anchors[i, :2] == pytest.approx(
+            [65.43 * MM * math.cos(math.radians(base_deg[i])), 65.43 * MM * math.sin(math.radians(base_deg[i]))]
+        )
+        assert g.platform_anchors[i, :2] == pytest.approx(
+            [76.35 * MM * math.cos(math.radians(top_deg[i])), 76.35 * MM * math.sin(math.radians(top_deg[i]))]
+        )
+    assert g.servo_beta == pytest.approx([-8 * math.pi / 3, math.pi / 3, 0, -math.pi, -4 * math.pi / 3, -7 * math.pi / 3])
+    assert (g.horn_length, g.rod_length) == pytest.approx((36 * MM, 125 * MM))
+    # The initial height is the given 120 mm, not eq. 10's value (which differs).
+    assert g.home_height == pytest.approx(0.120)
+    assert abs(g.home_heights_eq10()[0] - 0.120) > 5 * MM
+
+
+def test_senilov_matches_seed_001() -> None:
+    g = load_preset("senilov2018")
+    dt = 10
+    b_deg = [330 + dt, 90 - dt, 90 + dt, 210 - dt, 210 + dt, 330 - dt]
+    p_deg = [30 - dt, 30 + dt, 150 - dt, 150 + dt, 270 - dt, 270 + dt]
+    for i in range(6):
+        b = np.radians(b_deg[i])
+        p = np.radians(p_deg[i])
+        assert g.base_anchors[i] == pytest.approx([0.5 * math.cos(b), 0.5 * math.sin(b), 0.02])
+        assert g.platform_anchors[i] == pytest.approx([0.2 * math.cos(p), 0.2 * math.sin(p), 0.0])
+    assert g.kind == "linear" and g.home_height == 0.25
+    assert g.leg_length_range == pytest.approx((0.2, 0.5))  # stroke 0…0.3 m on a 0.2 m fixed part
+
+
+def test_mathcad_matches_seed_002() -> None:
+    g = load_preset("mathcad-micro")
+    assert g.base_anchors[:, 0] / MM == pytest.approx([4, 26, 22, -22, -26, -4])
+    assert g.base_anchors[:, 1] / MM == pytest.approx([27.7, -10.39, -17.32, -17.32, -10.39, 27.7])
+    assert g.platform_anchors[:, 0] / MM == pytest.approx([5.5, 7.5, 2, -2, -7.5, -5.5])
+    assert g.platform_anchors[:, 1] / MM == pytest.approx([5.48, 2.02, -7.5, -7.5, 2.02, 5.48])
+    assert g.home_height == pytest.approx(22.19 * MM)
+    assert np.array(g.leg_length_range) / MM == pytest.approx([31.44 - 1.24, 31.44 + 1.24])
+
+
+def test_servo_hexapod_is_documented_reference() -> None:
+    g = load_preset("servo-hexapod")
+    assert g.horn_length == pytest.approx(0.025) and g.rod_length == pytest.approx(0.160)
+    assert g.home_heights_eq10() == pytest.approx(np.full(6, g.home_height), abs=1e-12)
+    assert g.home_height == pytest.approx(0.15961, abs=1e-5)
+    assert np.max(np.linalg.norm(g.platform_anchors[:, :2], axis=1)) < 0.150  # anchors under a 300 mm plate
+    lo, hi = g.servo_angle_range
+    assert math.degrees(hi - lo) == pytest.approx(90.0)
+
+
+def test_toml_round_trip(preset: PlatformGeometry, tmp_path: Path) -> None:
+    path = tmp_path / "g.toml"
+    path.write_text(preset.to_toml())
+    back = PlatformGeometry.from_toml(path)
+    assert back == preset
+    assert np.array_equal(back.base_anchors, preset.base_anchors)
+    assert load_geometry(path) == preset
+
+
+GOOD = """
+name = "test"
+length_unit = "mm"
+angle_unit = "deg"
+base_anchors = [[100, 0, 0], [0, 100, 0], [-100, 0, 0], [0, -100, 0], [60, 80, 0], [-60, -80, 0]]
+platform_anchors = [[80, 0, 0], [0, 80, 0], [-80, 0, 0], [0, -80, 0], [48, 64, 0], [-48, -64, 0]]
+horn_length = 25
+rod_length = 160
+servo_beta = [90, 180, 270, 0, 135, 315]
+servo_angle_range = [-45, 45]
+"""
+
+
+def test_toml_units_and_eq10_home_height(tmp_path: Path) -> None:
+    path = tmp_path / "g.toml"
+    path.write_text(GOOD)
+    g = PlatformGeometry.from_toml(path)
+    assert g.rod_length == pytest.approx(0.160)
+    assert g.servo_angle_range == pytest.approx((-math.pi / 4, math.pi / 4))
+    # eq. 10 with 20 mm radial offset on every leg
+    assert g.home_height == pytest.approx(math.sqrt(0.160**2 + 0.025**2 - 0.020**2))
+
+
+@pytest.mark.parametrize(
+    ("edit", "field"),
+    [
+        (("base_anchors = [[100, 0, 0], [0, 100, 0]", "base_anchors = [[100, 0], [0, 100, 0]"), "base_anchors"),
+        (("rod_length = 160", "rod_length = -160"), "rod_length"),
+        (("rod_length = 160", "rod_length = nan"), "rod_length"),
+        (("rod_length = 160", "rod_length = \"long\""), "rod_length"),
+        (("rod_length = 160\n", ""), "rod_length"),
+        (("horn_length = 25", "horn_length = 0"), "horn_length"),
+        (("servo_beta = [90, 180, 270, 0, 135, 315]", "servo_beta = [90, 180]"), "servo_beta"),
+        (("servo_angle_range = [-45, 45]", "servo_angle_range = [45, -45]"), "servo_angle_range"),
+        (("servo_angle_range = [-45, 45]\n", ""), "servo_angle_range"),
+        (("platform_anchors = [[80, 0, 0]", "platform_anchors = [[inf, 0, 0]"), "platform_anchors"),
+        (("name = \"test\"", "name = \"test\"\nwheels = 4"), "wheels"),
+        (("length_unit = \"mm\"", "length_unit = \"inch\""), "length_unit"),
+        (("[48, 64, 0], [-48", "[48, 60, 0], [-48"), "home_height"),  # asymmetric: eq. 10 legs disagree
+    ],
+)
+def test_bad_toml_names_the_field(tmp_path: Path, edit: tuple[str, str], field: str) -> None:
+    old, new = edit
+    assert old in GOOD
+    path = tmp_path / "bad.toml"
+    path.write_text(GOOD.replace(old, new, 1))
+    with pytest.raises(GeometryError, match=field):
+        PlatformGeometry.from_toml(path)
+
+
+def test_invalid_toml_syntax(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text("rod_length = = 3")
+    with pytest.raises(GeometryError, match="not valid TOML"):
+        PlatformGeometry.from_toml(path)
+
+
+def test_linear_needs_home_height_and_range() -> None:
+    base = load_preset("senilov2018")
+    with pytest.raises(GeometryError, match="leg_length_range"):
+        PlatformGeometry("x", base.base_anchors, base.platform_anchors, 0.2, 0.25)
+    with pytest.raises(GeometryError, match="home_height"):
+        PlatformGeometry.from_dict(
+            {"base_anchors": base.base_anchors.tolist(), "platform_anchors": base.platform_anchors.tolist(),
+             "rod_length": 0.2, "leg_length_range": [0.2, 0.5]}
+        )  # fmt: skip

@@ -1,0 +1,76 @@
+"""Property tests (hypothesis) over each preset's workspace."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from conftest import WORKSPACE_BOX, mirror_permutation
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from stewart_gym.geometry import load_preset, preset_names
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, rotation_matrix
+from stewart_gym.servo import ServoCalibration
+
+unit = st.floats(-1.0, 1.0, allow_nan=False)
+poses_unit = st.tuples(*[unit] * 6).map(np.array)
+GEOMETRIES = {name: load_preset(name) for name in preset_names()}
+ROTARY = [n for n, g in GEOMETRIES.items() if g.is_rotary]
+
+
+def _pose(name: str, u: np.ndarray) -> np.ndarray:
+    t, a = WORKSPACE_BOX[name]
+    return u * np.array([t, t, t, a, a, a])
+
+
+@settings(max_examples=150, deadline=None)
+@given(name=st.sampled_from(sorted(GEOMETRIES)), u=poses_unit)
+def test_ik_fk_round_trip(name: str, u: np.ndarray) -> None:
+    geo = GEOMETRIES[name]
+    pose = _pose(name, u)
+    ik = inverse_kinematics(geo, pose)
+    assume(bool(ik.reachable))
+    if geo.is_rotary:
+        fk = forward_kinematics(geo, servo_angles=ik.servo_angles)
+    else:
+        fk = forward_kinematics(geo, leg_lengths=ik.leg_lengths)
+    assert bool(fk.converged)
+    assert np.abs(fk.pose - pose).max() <= 1e-9
+
+
+@settings(max_examples=200, deadline=None)
+@given(angles=st.tuples(*[st.floats(-10.0, 10.0, allow_nan=False)] * 3))
+def test_rotation_is_orthonormal(angles: tuple[float, float, float]) -> None:
+    r = rotation_matrix(*angles)
+    assert np.allclose(r @ r.T, np.eye(3), atol=1e-14)
+    assert math.isclose(np.linalg.det(r), 1.0, abs_tol=1e-14)
+
+
+@settings(max_examples=150, deadline=None)
+@given(name=st.sampled_from(ROTARY), u=st.tuples(*[unit] * 6).map(np.array),
+       trims=st.tuples(*[st.floats(-40, 40)] * 6).map(np.array))  # fmt: skip
+def test_pulse_angle_pulse_identity(name: str, u: np.ndarray, trims: np.ndarray) -> None:
+    cal = ServoCalibration.default(GEOMETRIES[name], trims_us=trims)
+    pulses = cal.min_us + (u + 1) / 2 * (cal.max_us - cal.min_us)
+    assert np.allclose(cal.pulse_widths(cal.angles(pulses)), pulses, rtol=0, atol=1e-9)
+
+
+@settings(max_examples=150, deadline=None)
+@given(name=st.sampled_from(sorted(GEOMETRIES)), u=poses_unit)
+def test_mirrored_servo_pairs(name: str, u: np.ndarray) -> None:
+    """Mirroring a pose in the y-z plane swaps mirrored legs; their pulse offsets flip sign."""
+    geo = GEOMETRIES[name]
+    perm = mirror_permutation(geo)
+    pose = _pose(name, u)
+    mirrored = pose * np.array([-1, 1, 1, 1, -1, -1])  # x, pitch and yaw change sign
+    a, b = inverse_kinematics(geo, pose), inverse_kinematics(geo, mirrored)
+    assert np.allclose(a.leg_lengths, b.leg_lengths[perm], atol=1e-14)
+    assert bool(a.reachable) == bool(b.reachable)
+    if geo.is_rotary:
+        assert np.allclose(a.servo_angles, b.servo_angles[perm], atol=1e-12, equal_nan=True)
+        assume(bool(a.reachable))
+        cal = ServoCalibration.default(geo)
+        assert np.all(cal.direction == -cal.direction[perm])  # mirrored pairs turn opposite ways
+        wa, wb = cal.pulse_widths(a.servo_angles), cal.pulse_widths(b.servo_angles)
+        assert np.allclose(wa - cal.neutral_us, -(wb - cal.neutral_us)[perm], atol=1e-9)

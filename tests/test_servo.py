@@ -1,0 +1,125 @@
+"""Servo calibration: eqs 13/14, limits, TOML."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stewart_gym.geometry import load_preset
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.servo import CalibrationError, PulseRangeError, ServoCalibration
+
+
+@pytest.fixture
+def cal() -> ServoCalibration:
+    return ServoCalibration.default("servo-hexapod")
+
+
+def test_default_is_seed_000(cal: ServoCalibration) -> None:
+    g = load_preset("servo-hexapod")
+    home = inverse_kinematics(g, np.zeros(6)).servo_angles
+    assert cal.pulse_widths(home) == pytest.approx(np.full(6, 1500.0))
+    assert cal.direction.tolist() == [1, -1, 1, -1, 1, -1]
+    assert cal.us_per_rad == pytest.approx(np.full(6, 1600 / math.pi))
+    # 45° of travel is 400 µs, even servos up, odd servos down (mirrored mounting)
+    w = cal.pulse_widths(home + math.radians(45))
+    assert w == pytest.approx([1900, 1100, 1900, 1100, 1900, 1100])
+    # the limits bound the geometry's ±45° travel exactly
+    assert cal.min_us == pytest.approx(np.full(6, 1100.0)) and cal.max_us == pytest.approx(np.full(6, 1900.0))
+
+
+def test_eq13_eq14_with_trims() -> None:
+    cal = ServoCalibration.default("servo-hexapod", trims_us=np.array([10, -20, 0, 5, 0, -5]))
+    angles = cal.home_angle + np.array([0.1, 0.1, -0.2, -0.2, 0.0, 0.05])
+    r = 1600 / math.pi
+    expected = [1510 + 0.1 * r, 1480 - 0.1 * r, 1500 - 0.2 * r, 1505 + 0.2 * r, 1500, 1495 - 0.05 * r]
+    assert cal.pulse_widths(angles) == pytest.approx(expected)
+    assert cal.angles(cal.pulse_widths(angles)) == pytest.approx(angles)
+
+
+def test_out_of_range_is_an_error_unless_asked(cal: ServoCalibration) -> None:
+    angles = np.tile(cal.home_angle, (3, 1))
+    angles[1, 3] += math.radians(50)  # servo 3 is mirrored: 1500 − 444 µs
+    with pytest.raises(PulseRangeError, match="servo 3"):
+        cal.pulse_widths(angles)
+    clipped = cal.pulse_widths(angles, out_of_range="clip")
+    assert clipped[1, 3] == pytest.approx(1100.0) and clipped[0] == pytest.approx(np.full(6, 1500.0))
+    nan = cal.pulse_widths(angles, out_of_range="nan")
+    assert np.isnan(nan[1, 3]) and np.isfinite(np.delete(nan.ravel(), 9)).all()
+    angles[2, 0] = np.nan
+    with pytest.raises(PulseRangeError):
+        cal.pulse_widths(angles, out_of_range="clip")  # NaN is never clipped into range
+    with pytest.raises(PulseRangeError):
+        cal.check(np.array([1500, 1500, 1500, 1500, 1500, 2500.0]))
+    assert cal.in_range(np.array([1100, 1900, 1500, 1099.9, 1900.1, np.inf])).tolist() == [
+        True, True, True, False, False, False]  # fmt: skip
+
+
+CAL_TOML = """
+geometry = "servo-hexapod"
+us_per_degree = 10.0
+[[servo]]
+channel = 6
+trim_us = 12
+[[servo]]
+channel = 7
+direction = 1
+[[servo]]
+channel = 8
+min_us = 1000
+max_us = 2000
+[[servo]]
+channel = 9
+[[servo]]
+channel = 10
+[[servo]]
+channel = 11
+trim_us = -8
+"""
+
+
+def test_calibration_toml(tmp_path: Path) -> None:
+    path = tmp_path / "cal.toml"
+    path.write_text(CAL_TOML)
+    cal = ServoCalibration.from_toml(path)
+    assert cal.channels == (6, 7, 8, 9, 10, 11)
+    assert cal.neutral_us.tolist() == [1512, 1500, 1500, 1500, 1500, 1492]
+    assert cal.direction.tolist() == [1, 1, 1, -1, 1, -1]
+    assert cal.us_per_rad == pytest.approx(np.full(6, 10 * 180 / math.pi))
+    assert (cal.min_us[2], cal.max_us[2]) == (1000, 2000)
+    # default limits follow the geometry's ±45° around the trimmed neutral
+    assert (cal.min_us[0], cal.max_us[0]) == pytest.approx((1512 - 450, 1512 + 450))
+    # round trip
+    again = tmp_path / "again.toml"
+    again.write_text(cal.to_toml())
+    assert ServoCalibration.from_toml(again) == cal
+
+
+@pytest.mark.parametrize(
+    ("edit", "field"),
+    [
+        (("channel = 6\ntrim_us = 12", "channel = 6\ntrim_us = \"x\""), r"servo\[0\].trim_us"),
+        (("channel = 7\ndirection = 1", "channel = 7\ndirection = 2"), "direction"),
+        (("min_us = 1000", "min_us = 2100"), "min_us"),
+        (("channel = 9", "channel = 8"), "channels"),
+        (("channel = 10", "channel = 10\nspeed = 3"), r"servo\[4\]"),
+        (("us_per_degree = 10.0", "us_per_degree = 10.0\nport = 3"), "port"),
+        (("[[servo]]\nchannel = 11\ntrim_us = -8", ""), "servo"),
+        (("geometry = \"servo-hexapod\"", ""), "geometry"),
+    ],
+)
+def test_bad_calibration_names_the_field(tmp_path: Path, edit: tuple[str, str], field: str) -> None:
+    old, new = edit
+    assert old in CAL_TOML
+    path = tmp_path / "cal.toml"
+    path.write_text(CAL_TOML.replace(old, new, 1))
+    with pytest.raises(CalibrationError, match=field):
+        ServoCalibration.from_toml(path)
+
+
+def test_linear_geometry_has_no_servo_calibration() -> None:
+    with pytest.raises(CalibrationError, match="linear"):
+        ServoCalibration.default("senilov2018")
