@@ -1,0 +1,367 @@
+"""PyBullet simulation of a servo-driven Stewart platform with closed kinematic loops.
+
+Structure: the URDF tree base → horns → (universal joint) → rods is one
+multibody; the plate is a second body; six point-to-point constraints join each
+rod top to its plate anchor. Servos are position motors on the horn joints,
+commanded in pulse widths through :class:`~stewart_gym.sim.servos.HobbyServos`.
+An optional ball rolls on the plate.
+
+Rates are explicit: ``physics_hz`` must be a multiple of ``control_hz``; one
+:meth:`StewartSim.step` advances one control period (one servo frame at the
+default 50 Hz). Every PyBullet call goes through this instance's own client, so
+several simulators can live in one process or in worker processes. The world is
+built once; :meth:`StewartSim.reset` restores a saved state.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pybullet as pb
+from pybullet_utils.bullet_client import BulletClient
+
+from stewart_gym.geometry import PlatformGeometry, load_geometry
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.servo import ServoCalibration
+from stewart_gym.sim.servos import HobbyServos, ServoSpec
+from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
+
+__all__ = ["BallSpec", "PhysicsSpec", "StewartSim"]
+
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class BallSpec:
+    """The ball. Default: a 25.4 mm (1 in) solid steel ball, heavy enough for a resistive touch panel.
+
+    Attributes:
+        radius: m.
+        mass: kg.
+        hollow: True for a thin shell (I = 2/3 m r², e.g. a ping-pong ball:
+            radius 0.02, mass 0.0027); False for a solid ball (I = 2/5 m r²).
+        lateral_friction, rolling_friction, spinning_friction: PyBullet
+            friction coefficients of the ball (rolling friction in m).
+        restitution: bounciness, 0…1.
+    """
+
+    radius: float = 0.0127
+    mass: float = 0.0668
+    hollow: bool = False
+    lateral_friction: float = 0.6
+    rolling_friction: float = 1e-5
+    spinning_friction: float = 1e-5
+    restitution: float = 0.1
+
+    @property
+    def inertia(self) -> float:
+        """kg·m², about any diameter."""
+        return (2.0 / 3.0 if self.hollow else 2.0 / 5.0) * self.mass * self.radius**2
+
+
+@dataclass(frozen=True)
+class PhysicsSpec:
+    """Constraint-solver settings, chosen by measurement (``bench/bench_sim.py --solvers``).
+
+    With the exact Dantzig LCP solver the loop gap comes only from integrating
+    each step, so it shrinks with dt² and with a firmer ``erp``; the iterative
+    solver leaves loops open by ~1 mm and is slower.
+
+    Attributes:
+        solver: ``"dantzig"`` (exact LCP) or ``"si"`` (PyBullet's default
+            sequential impulse, iterative).
+        solver_iterations: iterations of the iterative solver.
+        erp: error reduction of joints and constraints per step (PyBullet's
+            global ``erp``; a multibody constraint ignores its own). Contacts
+            keep PyBullet's default.
+        constraint_max_force: N, the most a loop constraint may pull.
+        plate_friction: lateral friction of the plate surface.
+    """
+
+    solver: Literal["dantzig", "si"] = "dantzig"
+    solver_iterations: int = 50
+    erp: float = 0.9
+    constraint_max_force: float = 1000.0
+    plate_friction: float = 0.6
+
+
+class StewartSim:
+    """A servo Stewart platform in PyBullet, commanded in pulse widths.
+
+    Args:
+        geometry: Preset name, TOML path or :class:`PlatformGeometry` (rotary).
+        calibration: Pulse ↔ angle mapping shared with hardware; default
+            :meth:`ServoCalibration.default` of the geometry.
+        physics_hz: Physics rate, a multiple of ``control_hz``. The default 150 Hz
+            (3 steps per servo frame) keeps loops closed within 0.06 mm at
+            ~4,800 control steps/s; see ``bench/bench_sim.py --solvers``.
+        control_hz: Rate of :meth:`step` (servo frames).
+        ball: Add a ball on the plate.
+        ball_spec, servo_spec, mechanism, physics: Physical parameters.
+        render_mode: ``None``, ``"rgb_array"`` (headless TinyRenderer) or ``"human"`` (GUI).
+        render_size: (width, height) of ``rgb_array`` frames.
+    """
+
+    def __init__(
+        self,
+        geometry: PlatformGeometry | str = "servo-hexapod",
+        calibration: ServoCalibration | None = None,
+        physics_hz: int = 150,
+        control_hz: int = 50,
+        ball: bool = False,
+        *,
+        ball_spec: BallSpec | None = None,
+        servo_spec: ServoSpec | None = None,
+        mechanism: MechanismSpec | None = None,
+        physics: PhysicsSpec | None = None,
+        render_mode: Literal["rgb_array", "human"] | None = None,
+        render_size: tuple[int, int] = (480, 360),
+    ) -> None:
+        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
+            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        if render_mode not in (None, "rgb_array", "human"):
+            raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
+        self.geometry = load_geometry(geometry)
+        if not self.geometry.is_rotary:
+            raise ValueError(f"geometry {self.geometry.name!r} is linear: StewartSim models servo platforms")
+        self.calibration = calibration or ServoCalibration.default(self.geometry)
+        self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
+        self.substeps = self.physics_hz // self.control_hz
+        self.dt = 1.0 / self.control_hz
+        self.has_ball = bool(ball)
+        self.ball_spec = ball_spec or BallSpec()
+        self.servo_spec = servo_spec or ServoSpec()
+        self.mechanism = mechanism or MechanismSpec()
+        self.physics = physics or PhysicsSpec()
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
+        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
+        self._step_count = 0
+        self._closed = False
+        self._tmp = Path(tempfile.mkdtemp(prefix="stewart_gym_"))
+        try:
+            self._build()
+        except Exception:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------- building
+    def _build(self) -> None:
+        c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
+        self._client = c
+        c.setGravity(0, 0, -GRAVITY)
+        c.setTimeStep(1.0 / self.physics_hz)
+        solver = pb.CONSTRAINT_SOLVER_LCP_DANTZIG if self.physics.solver == "dantzig" else pb.CONSTRAINT_SOLVER_LCP_SI
+        c.setPhysicsEngineParameter(
+            constraintSolverType=solver, numSolverIterations=self.physics.solver_iterations,
+            erp=self.physics.erp, deterministicOverlappingPairs=1,
+        )  # fmt: skip
+        geo = self.geometry
+        mech_path, plate_path = self._tmp / "mechanism.urdf", self._tmp / "plate.urdf"
+        mech_path.write_text(mechanism_urdf(geo, self.mechanism, stall_torque=self.servo_spec.stall_torque,
+                                            max_speed=self.servo_spec.max_speed))  # fmt: skip
+        plate_path.write_text(plate_urdf(geo, self.mechanism))
+        flags = pb.URDF_USE_INERTIA_FROM_FILE
+        self.mech = c.loadURDF(str(mech_path), useFixedBase=True, flags=flags)
+        self.plate = c.loadURDF(str(plate_path), basePosition=geo.home_position.tolist(), flags=flags)
+        names = {c.getJointInfo(self.mech, j)[1].decode(): j for j in range(c.getNumJoints(self.mech))}
+        self._servo_joints = [names[f"servo_{i}"] for i in range(6)]
+        self._rod_links = [names[f"rod_{i}_u2"] for i in range(6)]  # a joint's index is its child link's
+        passive = [names[f"rod_{i}_{u}"] for i in range(6) for u in ("u1", "u2")]
+        c.setJointMotorControlArray(self.mech, passive, pb.VELOCITY_CONTROL, forces=[0.0] * len(passive))
+        # Nothing in the mechanism collides (with itself, the plate or the ball).
+        for link in range(-1, c.getNumJoints(self.mech)):
+            c.setCollisionFilterGroupMask(self.mech, link, 0, 0)
+            c.changeDynamics(self.mech, link, linearDamping=0.0, angularDamping=0.0)
+        c.changeDynamics(self.plate, -1, lateralFriction=self.physics.plate_friction, linearDamping=0.0,
+                         angularDamping=0.0)  # fmt: skip
+        self._plate_com = np.array(c.getDynamicsInfo(self.plate, -1)[3])  # inertial origin in the plate frame
+        self._constraints = []
+        s = geo.rod_length
+        for i in range(6):
+            rod_com = np.array(c.getDynamicsInfo(self.mech, self._rod_links[i])[3])
+            cid = c.createConstraint(
+                self.mech, self._rod_links[i], self.plate, -1, pb.JOINT_POINT2POINT, [0, 0, 0],
+                parentFramePosition=(np.array([0, 0, s]) - rod_com).tolist(),
+                childFramePosition=(geo.platform_anchors[i] - self._plate_com).tolist(),
+            )  # fmt: skip
+            c.changeConstraint(cid, maxForce=self.physics.constraint_max_force)
+            self._constraints.append(cid)
+        self.ball = self._make_ball() if self.has_ball else None
+        self._apply_targets(self._servos.reset())
+        self._state = c.saveState()
+
+    def _make_ball(self) -> int:
+        c, spec = self._client, self.ball_spec
+        shape = c.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius)
+        visual = c.createVisualShape(pb.GEOM_SPHERE, radius=spec.radius, rgbaColor=[0.85, 0.85, 0.9, 1])
+        ball = c.createMultiBody(spec.mass, shape, visual, basePosition=self._plate_point([0, 0]).tolist())
+        c.changeDynamics(ball, -1, localInertiaDiagonal=[spec.inertia] * 3, lateralFriction=spec.lateral_friction,
+                         rollingFriction=spec.rolling_friction, spinningFriction=spec.spinning_friction,
+                         restitution=spec.restitution, linearDamping=0.0, angularDamping=0.0)  # fmt: skip
+        return ball
+
+    # ------------------------------------------------------------ commanding
+    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
+        """Send pulse widths (6,) µs to the servos; they take effect after the servo lag.
+
+        Raises :class:`~stewart_gym.servo.PulseRangeError` if any pulse is outside
+        the calibration's channel limits (or not finite); nothing is sent then.
+        Returns the pulses as the servos received them (quantised).
+        """
+        return self._servos.command(pulse_widths_us, self._step_count)
+
+    def step(self) -> None:
+        """Advance one control period (``substeps`` physics steps)."""
+        c = self._client
+        for _ in range(self.substeps):
+            targets = self._servos.update(self._step_count)
+            if targets is not None:
+                self._apply_targets(targets)
+            c.stepSimulation()
+            self._step_count += 1
+
+    def _apply_targets(self, angles: np.ndarray) -> None:
+        spec = self.servo_spec
+        joint = angles - self._home_alpha
+        for j, target in zip(self._servo_joints, joint):
+            self._client.setJointMotorControl2(
+                self.mech, j, pb.POSITION_CONTROL, targetPosition=float(target), force=spec.stall_torque,
+                maxVelocity=spec.max_speed, positionGain=spec.position_gain, velocityGain=spec.velocity_gain,
+            )  # fmt: skip
+
+    def reset(self) -> None:
+        """Restore the home state saved at build time (no reloading); servos hold neutral pulses."""
+        self._client.restoreState(self._state)
+        self._step_count = 0
+        self._apply_targets(self._servos.reset())
+
+    # ------------------------------------------------------------ state
+    @property
+    def time(self) -> float:
+        """s of simulated time since the last reset."""
+        return self._step_count / self.physics_hz
+
+    def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """Platform frame in the world: origin (3,) m and rotation (3, 3)."""
+        pos, orn = self._client.getBasePositionAndOrientation(self.plate)
+        rot = np.array(self._client.getMatrixFromQuaternion(orn)).reshape(3, 3)
+        return np.array(pos) - rot @ self._plate_com, rot
+
+    def platform_pose(self) -> np.ndarray:
+        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
+        origin, rot = self._plate_frame()
+        roll = math.atan2(rot[2, 1], rot[2, 2])
+        pitch = -math.asin(max(-1.0, min(1.0, rot[2, 0])))
+        yaw = math.atan2(rot[1, 0], rot[0, 0])
+        return np.array([*(origin - self.geometry.home_position), roll, pitch, yaw])
+
+    def servo_angles(self) -> np.ndarray:
+        """(6,) rad: the horn angles α (from the horizontal, as in eq. 9)."""
+        states = self._client.getJointStates(self.mech, self._servo_joints)
+        return np.array([s[0] for s in states]) + self._home_alpha
+
+    def servo_velocities(self) -> np.ndarray:
+        """(6,) rad/s."""
+        return np.array([s[1] for s in self._client.getJointStates(self.mech, self._servo_joints)])
+
+    def held_pulses(self) -> np.ndarray:
+        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
+        return self._servos.held_us.copy()
+
+    def constraint_error(self) -> float:
+        """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
+        c, s = self._client, self.geometry.rod_length
+        states = c.getLinkStates(self.mech, self._rod_links, computeForwardKinematics=True)
+        tops = np.array([
+            np.array(st[4]) + np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3)[:, 2] * s for st in states
+        ])  # fmt: skip
+        origin, rot = self._plate_frame()
+        anchors = origin + self.geometry.platform_anchors @ rot.T
+        return float(np.max(np.linalg.norm(tops - anchors, axis=1)))
+
+    # --------------------------------------------------------------- ball
+    def _require_ball(self) -> int:
+        if self.ball is None:
+            raise RuntimeError("this StewartSim was built without a ball (ball=False)")
+        return self.ball
+
+    def _plate_point(self, xy: np.ndarray, lift: float = 0.0) -> np.ndarray:
+        """World position of a ball resting at plate coordinates ``xy`` (m) on the top surface."""
+        origin, rot = self._plate_frame()
+        local = np.array([xy[0], xy[1], self.mechanism.plate_top + self.ball_spec.radius + lift])
+        return origin + rot @ local
+
+    def place_ball(self, xy: np.ndarray, velocity_xy: np.ndarray = (0.0, 0.0)) -> None:
+        """Put the ball on the plate at ``xy`` (m, plate frame) rolling with ``velocity_xy`` (m/s, plate frame)."""
+        ball, c = self._require_ball(), self._client
+        _, rot = self._plate_frame()
+        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
+        # rolling without slipping: ω = n × v / r
+        omega = np.cross(rot[:, 2], vel) / self.ball_spec.radius
+        c.resetBasePositionAndOrientation(ball, self._plate_point(np.asarray(xy)).tolist(), [0, 0, 0, 1])
+        c.resetBaseVelocity(ball, vel.tolist(), omega.tolist())
+
+    def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position and velocity in the platform frame: ((3,) m, (3,) m/s).
+
+        x, y lie in the plate; z is the height of the ball centre above the
+        platform frame origin (``plate_top + radius`` while it rests on the plate).
+        """
+        ball, c = self._require_ball(), self._client
+        pos, _ = c.getBasePositionAndOrientation(ball)
+        vel, _ = c.getBaseVelocity(ball)
+        origin, rot = self._plate_frame()
+        return rot.T @ (np.array(pos) - origin), rot.T @ np.array(vel)
+
+    def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
+        ball, c = self._require_ball(), self._client
+        pos, _ = c.getBasePositionAndOrientation(ball)
+        vel, _ = c.getBaseVelocity(ball)
+        return np.array(pos), np.array(vel)
+
+    # -------------------------------------------------------------- render
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (height, width, 3) uint8 for ``rgb_array``; None for ``human`` (the GUI shows it)."""
+        if self.render_mode != "rgb_array":
+            return None
+        width, height = self.render_size
+        c = self._client
+        target = [0.0, 0.0, self.geometry.home_height * 0.55]
+        view = c.computeViewMatrixFromYawPitchRoll(target, 0.62, 35.0, -28.0, 0.0, 2)
+        proj = c.computeProjectionMatrixFOV(45.0, width / height, 0.01, 5.0)
+        _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                            lightDirection=[0.4, -0.6, 1.0], shadow=0)  # fmt: skip
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    # ------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        """Disconnect and remove temporary files; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        client = getattr(self, "_client", None)
+        if client is not None:
+            try:
+                client.disconnect()
+            except pb.error:
+                pass
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> StewartSim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            self.close()
