@@ -7,12 +7,16 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stewart_gym.geometry import load_geometry, preset_names
 from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.servo import ServoCalibration
+
+if TYPE_CHECKING:
+    from stewart_gym.sim import StewartSim
 
 
 def _geometry_arg(parser: argparse.ArgumentParser) -> None:
@@ -80,6 +84,45 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_urdf(args: argparse.Namespace) -> int:
+    """Write the mechanism and plate URDFs of a rotary geometry."""
+    from stewart_gym.sim.urdf import write_urdfs
+
+    for path in write_urdfs(args.out, args.geometry):
+        print(path)
+    return 0
+
+
+def settle_at(sim: StewartSim, pose: np.ndarray, seconds: float = 1.0) -> np.ndarray:
+    """Command ``pose`` through IK → pulses, step ``seconds``, and return the pulses sent."""
+    ik = inverse_kinematics(sim.geometry, pose)
+    if not ik.reachable:
+        raise ValueError(ik.explain())
+    pulses = sim.calibration.pulse_widths(ik.servo_angles)
+    sim.command(pulses)
+    for _ in range(int(round(seconds * sim.control_hz))):
+        sim.step()
+    return pulses
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    """Render the simulated mechanism at a pose to a PNG file."""
+    import imageio.v3 as iio
+
+    from stewart_gym.sim import StewartSim
+
+    pose = np.array([v * 1e-3 for v in args.pose[:3]] + [math.radians(v) for v in args.pose[3:]])
+    size = (args.width, args.height)
+    with StewartSim(args.geometry, ball=args.ball, render_mode="rgb_array", render_size=size) as sim:
+        settle_at(sim, pose)
+        if args.ball:
+            sim.place_ball(np.zeros(2))
+        iio.imwrite(args.out, sim.render())
+        print(f"{args.out}: pose reached {np.round(sim.platform_pose()[:3] * 1e3, 3).tolist()} mm, "
+              f"{np.round(np.degrees(sim.platform_pose()[3:]), 3).tolist()} deg")  # fmt: skip
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stewart-gym", description="Servo Stewart platform toolkit")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -88,6 +131,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("pose", nargs=6, type=float, metavar=("X_MM", "Y_MM", "Z_MM", "ROLL_DEG", "PITCH_DEG", "YAW_DEG"))
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_ik)
+    p = sub.add_parser("urdf", help=cmd_urdf.__doc__)
+    _geometry_arg(p)
+    p.add_argument("--out", default="urdf", help="directory (default urdf/)")
+    p.set_defaults(func=cmd_urdf)
+    p = sub.add_parser("render", help=cmd_render.__doc__)
+    _geometry_arg(p)
+    p.add_argument("pose", nargs=6, type=float, metavar=("X_MM", "Y_MM", "Z_MM", "ROLL_DEG", "PITCH_DEG", "YAW_DEG"))
+    p.add_argument("--out", required=True, help="PNG file")
+    p.add_argument("--ball", action="store_true", help="put a ball on the plate")
+    p.add_argument("--width", type=int, default=640)
+    p.add_argument("--height", type=int, default=480)
+    p.set_defaults(func=cmd_render)
     p = sub.add_parser("demo", help=cmd_demo.__doc__)
     _geometry_arg(p)
     p.set_defaults(func=cmd_demo)

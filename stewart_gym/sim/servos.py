@@ -38,7 +38,8 @@ class ServoSpec:
         max_speed: rad/s, no-load speed (0.17 s/60° ≈ 6.16 rad/s).
         stall_torque: N·m, the most the motor applies (9.4 kgf·cm ≈ 0.92 N·m).
         deadband_us: µs, pulse changes this small are ignored.
-        resolution_us: µs, command quantisation (1 µs; a PCA9685 at 50 Hz has 4.88 µs).
+        resolution_us: µs, command quantisation (0.25 µs: a Pololu Maestro's quarter-µs
+            units; a PCA9685 at 50 Hz has 4.88 µs).
         lag_s: s, dead time from pulse to motion.
         trim_error_us: (6,) µs, physical neutral minus calibrated neutral, per servo.
         position_gain, velocity_gain: gains of the simulator's position motor.
@@ -47,7 +48,7 @@ class ServoSpec:
     max_speed: float = math.radians(60.0) / 0.17
     stall_torque: float = 9.4 * 9.80665 / 100.0
     deadband_us: float = 5.0
-    resolution_us: float = 1.0
+    resolution_us: float = 0.25
     lag_s: float = 0.010
     trim_error_us: tuple[float, ...] = field(default=(0.0,) * 6)
     position_gain: float = 0.3

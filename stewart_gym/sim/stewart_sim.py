@@ -165,8 +165,7 @@ class StewartSim:
         )  # fmt: skip
         geo = self.geometry
         mech_path, plate_path = self._tmp / "mechanism.urdf", self._tmp / "plate.urdf"
-        mech_path.write_text(mechanism_urdf(geo, self.mechanism, stall_torque=self.servo_spec.stall_torque,
-                                            max_speed=self.servo_spec.max_speed))  # fmt: skip
+        mech_path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec))
         plate_path.write_text(plate_urdf(geo, self.mechanism))
         flags = pb.URDF_USE_INERTIA_FROM_FILE
         self.mech = c.loadURDF(str(mech_path), useFixedBase=True, flags=flags)
@@ -336,7 +335,7 @@ class StewartSim:
         width, height = self.render_size
         c = self._client
         target = [0.0, 0.0, self.geometry.home_height * 0.55]
-        view = c.computeViewMatrixFromYawPitchRoll(target, 0.62, 35.0, -28.0, 0.0, 2)
+        view = c.computeViewMatrixFromYawPitchRoll(target, 0.58, 35.0, -20.0, 0.0, 2)
         proj = c.computeProjectionMatrixFOV(45.0, width / height, 0.01, 5.0)
         _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
                                             lightDirection=[0.4, -0.6, 1.0], shadow=0)  # fmt: skip

@@ -28,6 +28,7 @@ import numpy as np
 
 from stewart_gym.geometry import PlatformGeometry, load_geometry
 from stewart_gym.kinematics import horn_tips, inverse_kinematics
+from stewart_gym.sim.servos import ServoSpec
 
 __all__ = ["MechanismSpec", "mechanism_urdf", "plate_urdf", "rod_frames", "write_urdfs"]
 
@@ -39,6 +40,10 @@ class MechanismSpec:
     Attributes:
         base_mass: kg, the base plate with servos (fixed, so only for completeness).
         horn_mass: kg, one servo horn with its ball stud.
+        rotor_inertia: kg·m², the servo motor's rotor inertia reflected through the
+            gearbox (J_motor · N², about 5e-8 · 200² for an MG996R), added to the
+            horn about its shaft: it limits how fast a servo reaches full speed
+            (stall torque / rotor inertia ≈ 460 rad/s², ~13 ms to 6 rad/s).
         rod_mass: kg, one rod with two rod ends.
         cross_mass: kg, the universal joint's cross-piece (small but non-zero).
         rod_radius: m, visual and inertia radius of a rod.
@@ -51,6 +56,7 @@ class MechanismSpec:
 
     base_mass: float = 1.2
     horn_mass: float = 0.010
+    rotor_inertia: float = 2e-3
     rod_mass: float = 0.015
     cross_mass: float = 0.002
     rod_radius: float = 0.003
@@ -133,18 +139,20 @@ def _servo_axis(beta: float) -> np.ndarray:
 
 
 def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: MechanismSpec | None = None,
-                   *, stall_torque: float = 0.92, max_speed: float = math.radians(60) / 0.17) -> str:  # fmt: skip
+                   servo: ServoSpec | None = None) -> str:  # fmt: skip
     """URDF text of base, horns and rods of a rotary platform in its home configuration.
 
-    ``stall_torque`` (N·m) and ``max_speed`` (rad/s) become each servo joint's
-    ``effort`` and ``velocity`` (MG996R at 4.8 V: 9.4 kgf·cm, 0.17 s/60°).
+    The servo's stall torque (N·m) and speed (rad/s) become each servo joint's
+    ``effort`` and ``velocity`` (default MG996R at 4.8 V: 9.4 kgf·cm, 0.17 s/60°).
     Servo joint limits are the geometry's servo angle range relative to α0.
     """
     geo = load_geometry(geometry)
     spec = spec or MechanismSpec()
+    servo = servo or ServoSpec()
+    stall_torque, max_speed = servo.stall_torque, servo.max_speed
+    tips, _, frames = rod_frames(geo)  # rejects linear geometries
     alpha0 = inverse_kinematics(geo, np.zeros(6)).servo_angles
     assert alpha0 is not None and geo.horn_length is not None and geo.servo_beta is not None
-    tips, _, frames = rod_frames(geo)
     a, s = geo.horn_length, geo.rod_length
     lo, hi = geo.servo_angle_range  # type: ignore[misc]
     base_r = float(np.max(np.linalg.norm(geo.base_anchors[:, :2], axis=1))) + 0.03
@@ -164,9 +172,7 @@ def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
         _shape("collision", f'<cylinder radius="{_f(base_r)}" length="0.006"/>', np.array([0, 0, base_z]), "0 0 0"),
     ]
     for i in range(6):
-        beta = float(geo.servo_beta[i])
-        u = np.array([math.cos(beta), math.sin(beta), 0.0])
-        axis = _servo_axis(beta)
+        axis = _servo_axis(float(geo.servo_beta[i]))
         # servo body: a box below the shaft, long side along the shaft axis
         body_rot = _frame_along(np.array([0, 0, 1.0]), axis)
         out.append(_shape("visual", '<box size="0.040 0.020 0.036"/>',
@@ -179,7 +185,7 @@ def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
         horn_dir = math.cos(alpha0[i]) * u + math.sin(alpha0[i]) * np.array([0, 0, 1.0])
         tip = tips[i] - geo.base_anchors[i]  # horn tip relative to the shaft
         horn_rot = _rpy(_frame_along(horn_dir, _servo_axis(beta)))
-        horn_i = _rod_inertia(spec.horn_mass, a, 0.004)
+        horn_i = tuple(v + spec.rotor_inertia for v in _rod_inertia(spec.horn_mass, a, 0.004))  # any axis: the shaft's
         rod_i = _rod_inertia(spec.rod_mass, s, spec.rod_radius)
         out += [
             f'  <joint name="servo_{i}" type="revolute">\n    <parent link="base"/>\n    <child link="horn_{i}"/>\n'
@@ -188,7 +194,7 @@ def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
             f'velocity="{_f(max_speed)}"/>\n  </joint>\n',
             f'  <link name="horn_{i}">\n',
             _inertial(spec.horn_mass, tip / 2, horn_i, horn_rot),
-            _shape("visual", f'<box size="0.008 0.004 {_f(a + 0.008)}"/>', tip / 2, horn_rot, "horn_white"),
+            _shape("visual", f'<box size="0.012 0.006 {_f(a + 0.010)}"/>', tip / 2, horn_rot, "horn_white"),
             _shape("collision", f'<box size="0.008 0.004 {_f(a + 0.008)}"/>', tip / 2, horn_rot),
             "  </link>\n",
             f'  <joint name="rod_{i}_u1" type="continuous">\n    <parent link="horn_{i}"/>\n'
@@ -241,13 +247,13 @@ def plate_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mechani
 
 
 def write_urdfs(directory: str | Path, geometry: PlatformGeometry | str = "servo-hexapod",
-                spec: MechanismSpec | None = None) -> tuple[Path, Path]:  # fmt: skip
+                spec: MechanismSpec | None = None, servo: ServoSpec | None = None) -> tuple[Path, Path]:  # fmt: skip
     """Write ``<name>.urdf`` (mechanism) and ``<name>_plate.urdf`` into ``directory``; return both paths."""
     geo = load_geometry(geometry)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     stem = geo.name.replace("-", "_")
     mech, plate = directory / f"{stem}.urdf", directory / f"{stem}_plate.urdf"
-    mech.write_text(mechanism_urdf(geo, spec))
+    mech.write_text(mechanism_urdf(geo, spec, servo))
     plate.write_text(plate_urdf(geo, spec))
     return mech, plate
