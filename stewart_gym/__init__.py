@@ -10,6 +10,7 @@ Quick start::
     pulses = ServoCalibration.default(geo).pulse_widths(ik.servo_angles)
 """
 
+from stewart_gym.envs import ENV_IDS, register_envs
 from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry, load_preset, preset_names
 from stewart_gym.kinematics import (
     FKResult,
@@ -24,7 +25,10 @@ from stewart_gym.servo import CalibrationError, PulseRangeError, ServoCalibratio
 
 __version__ = "0.1.0"
 
+register_envs()
+
 __all__ = [
+    "ENV_IDS",
     "CalibrationError",
     "FKResult",
     "GeometryError",

@@ -16,9 +16,12 @@ built once; :meth:`StewartSim.reset` restores a saved state.
 from __future__ import annotations
 
 import math
+import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Literal
 
@@ -154,8 +157,19 @@ class StewartSim:
 
     # ------------------------------------------------------------- building
     def _build(self) -> None:
+        if self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            # PyBullet's GUI ends the whole process when it cannot open a window.
+            raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array' headless")
         c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
         self._client = c
+        # Hot-path calls bound once: BulletClient builds a new partial on every attribute access.
+        cid = c._client
+        self._pb_step = partial(pb.stepSimulation, physicsClientId=cid)
+        self._pb_motor = partial(pb.setJointMotorControl2, physicsClientId=cid)
+        self._pb_base_pose = partial(pb.getBasePositionAndOrientation, physicsClientId=cid)
+        self._pb_base_velocity = partial(pb.getBaseVelocity, physicsClientId=cid)
+        self._pb_force = partial(pb.applyExternalForce, physicsClientId=cid)
+        self._frame: tuple[np.ndarray, np.ndarray] | None = None
         c.setGravity(0, 0, -GRAVITY)
         c.setTimeStep(1.0 / self.physics_hz)
         solver = pb.CONSTRAINT_SOLVER_LCP_DANTZIG if self.physics.solver == "dantzig" else pb.CONSTRAINT_SOLVER_LCP_SI
@@ -193,15 +207,21 @@ class StewartSim:
             )  # fmt: skip
             c.changeConstraint(cid, maxForce=self.physics.constraint_max_force)
             self._constraints.append(cid)
-        self.ball = self._make_ball() if self.has_ball else None
         self._apply_targets(self._servos.reset())
-        self._state = c.saveState()
+        self._state = c.saveState()  # without the ball: it is rebuilt on reset, so its size can change
+        self._ball_shapes: dict[float, tuple[int, int]] = {}
+        self._plate_load: tuple[float, np.ndarray] | None = None
+        self.ball = self._make_ball() if self.has_ball else None
 
     def _make_ball(self) -> int:
+        """Create the ball resting at the plate centre (collision shapes are cached per radius)."""
         c, spec = self._client, self.ball_spec
-        shape = c.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius)
-        visual = c.createVisualShape(pb.GEOM_SPHERE, radius=spec.radius, rgbaColor=[0.85, 0.85, 0.9, 1])
-        ball = c.createMultiBody(spec.mass, shape, visual, basePosition=self._plate_point([0, 0]).tolist())
+        shapes = self._ball_shapes.get(spec.radius)
+        if shapes is None:
+            shapes = (c.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius),
+                      c.createVisualShape(pb.GEOM_SPHERE, radius=spec.radius, rgbaColor=[0.85, 0.85, 0.9, 1]))  # fmt: skip
+            self._ball_shapes[spec.radius] = shapes
+        ball = c.createMultiBody(spec.mass, shapes[0], shapes[1], basePosition=self._plate_point([0, 0]).tolist())
         c.changeDynamics(ball, -1, localInertiaDiagonal=[spec.inertia] * 3, lateralFriction=spec.lateral_friction,
                          rollingFriction=spec.rolling_friction, spinningFriction=spec.spinning_friction,
                          restitution=spec.restitution, linearDamping=0.0, angularDamping=0.0)  # fmt: skip
@@ -219,27 +239,56 @@ class StewartSim:
 
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
-        c = self._client
+        step, update = self._pb_step, self._servos.update
         for _ in range(self.substeps):
-            targets = self._servos.update(self._step_count)
+            targets = update(self._step_count)
             if targets is not None:
                 self._apply_targets(targets)
-            c.stepSimulation()
+            if self._plate_load is not None:
+                self._frame = None
+                self._apply_plate_load()
+            step()
             self._step_count += 1
+        self._frame = None
+
+    def _apply_plate_load(self) -> None:
+        """The weight of the extra plate mass, at its offset (cleared by PyBullet after each physics step)."""
+        mass, offset = self._plate_load  # type: ignore[misc]
+        origin, rot = self._plate_frame()
+        point = origin + rot @ offset
+        self._pb_force(self.plate, -1, [0.0, 0.0, -mass * GRAVITY], point.tolist(), pb.WORLD_FRAME)
 
     def _apply_targets(self, angles: np.ndarray) -> None:
-        spec = self.servo_spec
-        joint = angles - self._home_alpha
-        for j, target in zip(self._servo_joints, joint):
-            self._client.setJointMotorControl2(
-                self.mech, j, pb.POSITION_CONTROL, targetPosition=float(target), force=spec.stall_torque,
-                maxVelocity=spec.max_speed, positionGain=spec.position_gain, velocityGain=spec.velocity_gain,
-            )  # fmt: skip
+        spec, motor, mech = self.servo_spec, self._pb_motor, self.mech
+        for j, target in zip(self._servo_joints, (angles - self._home_alpha).tolist()):
+            motor(mech, j, pb.POSITION_CONTROL, targetPosition=target, force=spec.stall_torque,
+                  maxVelocity=spec.max_speed, positionGain=spec.position_gain, velocityGain=spec.velocity_gain)  # fmt: skip
 
-    def reset(self) -> None:
-        """Restore the home state saved at build time (no reloading); servos hold neutral pulses."""
-        self._client.restoreState(self._state)
+    def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
+              plate_friction: float | None = None, plate_load: tuple[float, np.ndarray] | None = None) -> None:  # fmt: skip
+        """Restore the home state saved at build time (no reloading); servos hold neutral pulses.
+
+        Optional per-episode changes (domain randomisation): a new ``servo_spec``
+        or ``ball_spec`` (the ball is rebuilt, at rest at the plate centre), the
+        plate's ``plate_friction``, and ``plate_load`` = (mass kg, (3,) offset m
+        in the platform frame), an extra mass on the plate applied as its weight.
+        """
+        c = self._client
+        if self.ball is not None:
+            c.removeBody(self.ball)
+        c.restoreState(self._state)
+        self._frame = None
         self._step_count = 0
+        if servo_spec is not None:
+            self.servo_spec = servo_spec
+            self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
+        if plate_friction is not None:
+            c.changeDynamics(self.plate, -1, lateralFriction=float(plate_friction))
+        self._plate_load = None if plate_load is None else (float(plate_load[0]), np.asarray(plate_load[1], float))
+        if self.has_ball:
+            if ball_spec is not None:
+                self.ball_spec = ball_spec
+            self.ball = self._make_ball()
         self._apply_targets(self._servos.reset())
 
     # ------------------------------------------------------------ state
@@ -249,10 +298,12 @@ class StewartSim:
         return self._step_count / self.physics_hz
 
     def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
-        """Platform frame in the world: origin (3,) m and rotation (3, 3)."""
-        pos, orn = self._client.getBasePositionAndOrientation(self.plate)
-        rot = np.array(self._client.getMatrixFromQuaternion(orn)).reshape(3, 3)
-        return np.array(pos) - rot @ self._plate_com, rot
+        """Platform frame in the world: origin (3,) m and rotation (3, 3); cached until the next step."""
+        if self._frame is None:
+            pos, orn = self._pb_base_pose(self.plate)
+            rot = np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
+            self._frame = (np.array(pos) - rot @ self._plate_com, rot)
+        return self._frame
 
     def platform_pose(self) -> np.ndarray:
         """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
@@ -314,18 +365,16 @@ class StewartSim:
         x, y lie in the plate; z is the height of the ball centre above the
         platform frame origin (``plate_top + radius`` while it rests on the plate).
         """
-        ball, c = self._require_ball(), self._client
-        pos, _ = c.getBasePositionAndOrientation(ball)
-        vel, _ = c.getBaseVelocity(ball)
+        ball = self._require_ball()
+        pos, _ = self._pb_base_pose(ball)
+        vel, _ = self._pb_base_velocity(ball)
         origin, rot = self._plate_frame()
-        return rot.T @ (np.array(pos) - origin), rot.T @ np.array(vel)
+        return (np.array(pos) - origin) @ rot, np.array(vel) @ rot
 
     def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
-        ball, c = self._require_ball(), self._client
-        pos, _ = c.getBasePositionAndOrientation(ball)
-        vel, _ = c.getBaseVelocity(ball)
-        return np.array(pos), np.array(vel)
+        ball = self._require_ball()
+        return np.array(self._pb_base_pose(ball)[0]), np.array(self._pb_base_velocity(ball)[0])
 
     # -------------------------------------------------------------- render
     def render(self) -> np.ndarray | None:

@@ -1,0 +1,289 @@
+"""Gymnasium environments: a ball on the plate of the servo hexapod."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
+from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.envs.targets import TRAJECTORIES, Fixed, Target, make_trajectory
+from stewart_gym.sensing import ObservationBuilder, SimulatedTouchPanel, TouchPanelSpec, VelocityEstimator
+from stewart_gym.sim import BallSpec, ServoSpec, StewartSim
+
+__all__ = ["StewartBallBalanceEnv", "StewartBallEnv", "StewartBallTrackEnv"]
+
+
+class StewartBallEnv(gym.Env, EzPickle):
+    """A ball rolling on the plate of a six-servo Stewart platform (base class of the ball tasks).
+
+    ## Description
+    A PyBullet model of a hobby servo hexapod (``servo-hexapod``: MG996R
+    servos, 25 mm horns, 160 mm rods, 300 × 300 mm plate; all six loops closed)
+    carries a ball (default a 25.4 mm, 66.8 g solid steel ball, the kind a
+    resistive touch panel senses). The agent tilts the plate to bring the ball
+    to a target. Every action goes through the analytic inverse kinematics and
+    the servo calibration to pulse widths (µs), exactly as on hardware; the
+    simulated servos act on those pulses with hobby-servo speed, dead band and
+    lag. The ball is sensed as a resistive touch panel would report it.
+
+    ## Action Space
+    ``Box(-1, 1, (n,), float32)``; ``action_mode`` picks the mapping:
+
+    ============ === ==================================================== ======
+    action_mode  n   meaning of the action                                 unit
+    ============ === ==================================================== ======
+    ``"tilt"``   2   roll, pitch = action · ``max_tilt`` (default 10°)     rad
+    ``"pose"``   6   x, y, z, roll, pitch, yaw = action · reach·0.9        m, rad
+    ``"pulse"``  6   pulse widths, −1…1 across each channel's range        µs
+    ============ === ==================================================== ======
+
+    A commanded pose that is out of reach is replaced by the nearest reachable
+    pose on the ray from home; ``info["action_scaled"]`` flags it and
+    ``info["unreachable_count"]`` counts it over the episode.
+
+    ## Observation Space
+    ``Box(float32)`` of size 10 + n, each entry scaled to about ±1 and clipped:
+
+    ===== ================================================ ========== ======
+    index observation                                      scale      bounds
+    ===== ================================================ ========== ======
+    0, 1  ball x, y from the touch panel (plate frame)     m / 0.15   ±2
+    2, 3  ball velocity, estimated from panel positions    m/s / 0.5  ±5
+    4, 5  target x, y (plate frame)                        m / 0.15   ±2
+    6, 7  target velocity                                  m/s / 0.5  ±5
+    8, 9  commanded roll, pitch (0 in ``"pulse"`` mode)    rad / 0.25 ±2
+    10…   previous action                                  1          ±1
+    ===== ================================================ ========== ======
+
+    The panel (:class:`~stewart_gym.sensing.TouchPanelSpec`) samples at 100 Hz
+    with 10 ms latency and 1 mm noise; when the ball is not touching, the last
+    reading is held. Velocity is a low-passed finite difference of readings.
+
+    ## Rewards
+    Per step, with d the true ball-to-target distance (m):
+    ``1 − d / 0.15 − 0.1 · mean((a_t − a_{t−1})²)`` (distance, servo wear), and
+    ``−50`` on the step the ball leaves the plate.
+
+    ## Starting State
+    Platform at home. The ball rests on the plate at a uniform random position
+    in ±0.10 m (each axis) rolling at a uniform random speed up to 0.1 m/s in a
+    random direction. ``reset(options={"ball_position": (x, y), "ball_velocity":
+    (vx, vy)})`` sets them (m, m/s, plate frame).
+
+    ## Episode End
+    ``terminated`` when the ball centre leaves the plate (|x| or |y| > 0.15 m)
+    or drops below its surface, or when the physics blows up (non-finite or
+    absurd state: ``info["physics_error"]`` is True and the last finite
+    observation is returned). Time limits come from ``max_episode_steps``
+    (500 steps = 10 s at 50 Hz). ``info["is_success"]`` (every step) is true
+    while the ball is on the plate and has stayed within ``success_radius`` of
+    the target for the last ``success_window_s``.
+
+    ## Arguments
+    ``action_mode``, ``randomize`` (domain randomisation, see
+    :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
+    ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
+    ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz``,
+    ``control_hz``, ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
+    (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
+    (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``.
+
+    ## Version History
+    * v0: initial release.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+    PLATE_HALF = 0.15
+    FALL_PENALTY = 50.0
+    RATE_PENALTY = 0.1
+
+    def __init__(
+        self,
+        task: Literal["balance", "track"] = "balance",
+        trajectory: str = "circle",
+        action_mode: Literal["tilt", "pose", "pulse"] = "tilt",
+        randomize: bool = False,
+        render_mode: str | None = None,
+        *,
+        max_tilt: float = DEFAULT_MAX_TILT,
+        success_radius: float = 0.010,
+        success_window_s: float = 1.0,
+        physics_hz: int = 150,
+        control_hz: int = 50,
+        ball: BallSpec | None = None,
+        servo: ServoSpec | None = None,
+        sensor: TouchPanelSpec | None = None,
+        geometry: str = "servo-hexapod",
+        randomization: RandomizationRanges | None = None,
+    ) -> None:
+        EzPickle.__init__(self, task, trajectory, action_mode, randomize, render_mode, max_tilt=max_tilt,
+                          success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
+                          control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
+                          randomization=randomization)  # fmt: skip
+        if task not in ("balance", "track"):
+            raise ValueError(f"task must be 'balance' or 'track', got {task!r}")
+        if task == "track" and trajectory not in TRAJECTORIES:
+            raise ValueError(f"trajectory must be one of {TRAJECTORIES}, got {trajectory!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.task, self.trajectory, self.randomize = task, trajectory, bool(randomize)
+        self.render_mode = render_mode
+        self.metadata = {**self.metadata, "render_fps": int(control_hz)}
+        self.success_radius = float(success_radius)
+        self.success_steps = max(1, int(round(success_window_s * control_hz)))
+        self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
+        self.nominal_sensor = sensor or TouchPanelSpec()
+        self.ranges = randomization or RandomizationRanges()
+        self.sim = StewartSim(geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True,
+                              ball_spec=self.nominal_ball, servo_spec=self.nominal_servo,
+                              render_mode=render_mode)  # fmt: skip
+        self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
+        self.action_mode = action_mode
+        self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
+        self.observer = ObservationBuilder(self.mapper.size)
+        self.observation_space = self.observer.space
+        self.panel = SimulatedTouchPanel(self.nominal_sensor)
+        self.velocity = VelocityEstimator()
+        self._plate_top = self.sim.mechanism.plate_top
+        self._target: Target = Fixed()
+        self._reset_episode_state()
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        options = options or {}
+        if self.randomize:
+            params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
+        else:
+            params = EpisodeParams(self.nominal_ball, self.nominal_servo, self.nominal_sensor, 0.6, None)
+        self.params = params
+        self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
+                       plate_load=params.plate_load)  # fmt: skip
+        if "ball_position" in options:
+            xy = np.asarray(options["ball_position"], dtype=np.float64)
+        else:
+            xy = rng.uniform(-0.10, 0.10, 2)
+        if "ball_velocity" in options:
+            vel = np.asarray(options["ball_velocity"], dtype=np.float64)
+        else:
+            ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
+            vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
+        self.sim.place_ball(xy, vel)
+        self._target = Fixed() if self.task == "balance" else make_trajectory(self.trajectory, rng)
+        self.panel.spec = params.sensor
+        self.panel.reset(0.0, xy, rng)
+        self.velocity.reset(0.0, xy)
+        self._reset_episode_state()
+        self._reading = (float(xy[0]), float(xy[1]))
+        obs = self._observe(0.0)
+        self._last_obs = obs
+        target_xy, _ = self._target(0.0)
+        return obs, self._info(xy.copy(), target_xy, float(np.hypot(*(xy - target_xy))))
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        mapped = self.mapper(action)
+        self.sim.command(mapped.pulses)
+        self.sim.step()
+        self._pulses = mapped.pulses
+        self._scaled = mapped.scaled
+        self._unreachable += mapped.scaled
+        if self.action_mode != "pulse":
+            self._roll_pitch = (float(mapped.pose[3]), float(mapped.pose[4]))
+        t = self.sim.time
+        pos, _ = self.sim.ball_state()
+        x, y, z = pos.tolist()
+        if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
+            info = self._info(np.full(2, np.nan), np.full(2, np.nan), math.nan)
+            info["physics_error"] = True
+            return self._last_obs, -self.FALL_PENALTY, True, False, info
+        half = self.PLATE_HALF
+        on_plate = abs(x) <= half and abs(y) <= half and z > self._plate_top
+        self.panel.record(t, (x, y), on_plate and z < self._plate_top + 1.5 * self.params.ball.radius)
+        a = np.clip(np.asarray(action, dtype=np.float64).reshape(self.mapper.size), -1.0, 1.0)
+        diff = a - self._prev_action
+        rate = float(diff @ diff) / self.mapper.size
+        self._prev_action = a
+        obs = self._observe(t)
+        self._last_obs = obs
+        target_xy, _ = self._target(t)
+        dist = math.hypot(x - target_xy[0], y - target_xy[1])
+        self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
+        terminated = not on_plate
+        reward = 1.0 - min(dist, 2 * half) / half - self.RATE_PENALTY * rate - (self.FALL_PENALTY if terminated else 0.0)
+        info = self._info(pos[:2], target_xy, dist)
+        info["is_success"] = on_plate and self._inside >= self.success_steps
+        return obs, reward, terminated, False, info
+
+    def render(self) -> np.ndarray | None:
+        return self.sim.render()
+
+    def close(self) -> None:
+        sim = getattr(self, "sim", None)
+        if sim is not None:
+            sim.close()
+
+    # ------------------------------------------------------------- helpers
+    def _reset_episode_state(self) -> None:
+        self._prev_action = np.zeros(self.mapper.size)
+        self._roll_pitch = (0.0, 0.0)
+        self._inside = 0
+        self._unreachable = 0
+        self._scaled = False
+        self._pulses = self.sim.calibration.neutral_us.copy()
+
+    def _observe(self, t: float) -> np.ndarray:
+        reading = self.panel.read(t)
+        if reading is not None:
+            self._reading = reading[0]
+            velocity = self.velocity.update(reading[1], reading[0])
+        else:
+            velocity = (self.velocity.vx, self.velocity.vy)
+        target_xy, target_vel = self._target(t)
+        return self.observer.build(self._reading, velocity, target_xy, target_vel, self._roll_pitch, self._prev_action)
+
+    def _info(self, xy: np.ndarray, target_xy: np.ndarray, dist: float) -> dict[str, Any]:
+        return {
+            "is_success": False,
+            "distance_mm": dist * 1e3,
+            "ball_xy_m": xy,
+            "target_xy_m": target_xy,
+            "pulse_widths_us": self._pulses,
+            "action_scaled": self._scaled,
+            "unreachable_count": self._unreachable,
+            "physics_error": False,
+        }
+
+
+class StewartBallBalanceEnv(StewartBallEnv):
+    __doc__ = (
+        "Hold the ball at the plate centre (``StewartBallBalance-v0``).\n\n"
+        "Success: the ball stays within 10 mm of the centre for the last second.\n\n" + (StewartBallEnv.__doc__ or "")
+    )
+
+    def __init__(self, action_mode: Literal["tilt", "pose", "pulse"] = "tilt", randomize: bool = False,
+                 render_mode: str | None = None, **kwargs: Any) -> None:  # fmt: skip
+        super().__init__("balance", "circle", action_mode, randomize, render_mode, **kwargs)
+        EzPickle.__init__(self, action_mode, randomize, render_mode, **kwargs)
+
+
+class StewartBallTrackEnv(StewartBallEnv):
+    __doc__ = (
+        "Make the ball follow a moving target (``StewartBallTrack-v0``).\n\n"
+        "``trajectory``: ``\"circle\"`` (radius 60 mm, 8 s a turn, like seed 001's circle),\n"
+        "``\"figure8\"`` (±70 mm, 10 s a loop) or ``\"waypoints\"`` (random points within 70 mm,\n"
+        "held 2 s, 1 s moves). Success: the ball has stayed within 20 mm of the moving target\n"
+        "for the last second (``success_radius`` 0.02).\n\n" + (StewartBallEnv.__doc__ or "")
+    )
+
+    def __init__(self, trajectory: str = "circle", action_mode: Literal["tilt", "pose", "pulse"] = "tilt",
+                 randomize: bool = False, render_mode: str | None = None, **kwargs: Any) -> None:  # fmt: skip
+        kwargs.setdefault("success_radius", 0.020)
+        super().__init__("track", trajectory, action_mode, randomize, render_mode, **kwargs)
+        EzPickle.__init__(self, trajectory, action_mode, randomize, render_mode, **kwargs)

@@ -1,0 +1,244 @@
+"""The Gymnasium environments: API contracts, determinism, sensing, action mapping and ball physics."""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+from stable_baselines3.common.vec_env import SubprocVecEnv
+
+import stewart_gym
+from stewart_gym.actions import ACTION_MODES, ActionMapper
+from stewart_gym.envs.ball_env import StewartBallEnv
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.sensing import SimulatedTouchPanel, TouchPanelSpec, VelocityEstimator
+from stewart_gym.sim import BallSpec, StewartSim
+
+ENV_IDS = sorted(stewart_gym.ENV_IDS)
+CASES = [(env_id, mode) for env_id in ENV_IDS for mode in ACTION_MODES]
+
+
+@pytest.mark.parametrize(("env_id", "mode"), CASES)
+def test_env_checkers(env_id: str, mode: str) -> None:
+    env = gym.make(env_id, action_mode=mode, randomize=True)
+    try:
+        check_env(env.unwrapped, skip_render_check=True)
+        sb3_check_env(env.unwrapped)
+        assert env.action_space.dtype == np.float32 and np.all(env.action_space.low == -1)
+        assert env.observation_space.shape == (10 + (2 if mode == "tilt" else 6),)
+        assert np.all(np.isfinite(env.observation_space.low)) and np.all(np.isfinite(env.observation_space.high))
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize(("env_id", "mode"), CASES)
+def test_reset_is_deterministic_under_randomization(env_id: str, mode: str) -> None:
+    def rollout() -> tuple[np.ndarray, list[float]]:
+        env = gym.make(env_id, action_mode=mode, randomize=True)
+        obs, _ = env.reset(seed=123)
+        rng = np.random.default_rng(0)
+        out, rewards = [obs], []
+        for _ in range(40):
+            obs, r, term, trunc, info = env.step(rng.uniform(-0.5, 0.5, env.action_space.shape).astype(np.float32))
+            out.append(obs)
+            rewards.append(r)
+            if term:
+                break
+        env.close()
+        return np.array(out), rewards
+
+    a, b = rollout(), rollout()
+    assert np.array_equal(a[0], b[0]) and a[1] == b[1]
+    env = gym.make(env_id, action_mode=mode, randomize=True)
+    other, _ = env.reset(seed=124)
+    env.close()
+    assert not np.array_equal(other, a[0][0])
+
+
+def test_registration_without_import_prefix_and_metadata() -> None:
+    env = gym.make("stewart_gym:StewartBallBalance-v0", render_mode="rgb_array")
+    try:
+        assert env.spec.max_episode_steps == 500
+        assert env.metadata["render_fps"] == round(1 / env.unwrapped.sim.dt) == 50
+        env.reset(seed=0)
+        frame = env.render()
+        assert frame.dtype == np.uint8 and frame.ndim == 3 and frame.shape[2] == 3
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="action mode"):
+        gym.make("StewartBallBalance-v0", action_mode="joystick")
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_pickle_and_double_close(env_id: str) -> None:
+    env = gym.make(env_id, action_mode="pose", randomize=True)
+    env.reset(seed=1)
+    clone = pickle.loads(pickle.dumps(env))
+    clone.reset(seed=1)
+    assert clone.unwrapped.action_mode == "pose" and clone.unwrapped.randomize
+    for e in (env, clone):
+        e.close()
+        e.close()
+
+
+def test_make_vec_and_subproc_vec_env() -> None:
+    # A process that has used PyBullet must not fork workers: use the spawn context.
+    for mode, kwargs in (("sync", {}), ("async", {"context": "spawn"})):
+        venv = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode=mode, vector_kwargs=kwargs)
+        obs, _ = venv.reset(seed=0)
+        obs, rew, term, trunc, info = venv.step(venv.action_space.sample())
+        assert obs.shape == (2, 12) and rew.shape == (2,)
+        venv.close()
+    # spawned workers have not imported stewart_gym: the "stewart_gym:" prefix imports it
+    venv = SubprocVecEnv([lambda: gym.make("stewart_gym:StewartBallTrack-v0") for _ in range(2)], start_method="spawn")
+    try:
+        venv.seed(0)
+        obs = venv.reset()
+        obs, rew, done, info = venv.step(np.zeros((2, 2), dtype=np.float32))
+        assert obs.shape == (2, 12) and "pulse_widths_us" in info[0]
+    finally:
+        venv.close()
+
+
+# ------------------------------------------------------------------ episode
+def test_success_needs_a_full_second_inside_the_radius() -> None:
+    env = gym.make("StewartBallBalance-v0")
+    env.reset(seed=0, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
+    flags = [env.step(np.zeros(2, dtype=np.float32))[4]["is_success"] for _ in range(60)]
+    env.close()
+    assert not any(flags[:49]) and all(flags[50:])
+
+
+def test_ball_leaving_the_plate_terminates_with_penalty() -> None:
+    env = gym.make("StewartBallBalance-v0")
+    env.reset(seed=0, options={"ball_position": (0.13, 0.0), "ball_velocity": (0.4, 0.0)})
+    for k in range(100):
+        _, reward, terminated, truncated, info = env.step(np.array([0.0, 0.5], dtype=np.float32))
+        if terminated:
+            break
+    env.close()
+    assert terminated and not truncated and reward < -40 and not info["is_success"]
+
+
+def test_physics_blow_up_ends_the_episode_without_nan(monkeypatch: pytest.MonkeyPatch) -> None:
+    env = gym.make("StewartBallBalance-v0")
+    obs, _ = env.reset(seed=0)
+    sim = env.unwrapped.sim
+    monkeypatch.setattr(sim, "ball_state", lambda: (np.full(3, np.nan), np.full(3, np.nan)))
+    obs, reward, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
+    env.close()
+    assert terminated and info["physics_error"] and np.all(np.isfinite(obs)) and math.isfinite(reward)
+
+
+def test_info_reports_the_pulses_sent_and_the_sim_obeys() -> None:
+    env = gym.make("StewartBallBalance-v0")
+    env.reset(seed=0)
+    for _ in range(5):
+        _, _, _, _, info = env.step(np.array([0.5, -0.3], dtype=np.float32))
+    sim = env.unwrapped.sim
+    pose = env.unwrapped.mapper.pose(np.array([0.5, -0.3]))
+    expected = sim.calibration.pulse_widths(inverse_kinematics(sim.geometry, pose).servo_angles)
+    assert info["pulse_widths_us"] == pytest.approx(expected)
+    assert sim.held_pulses() == pytest.approx(expected, abs=0.13)  # quantised to 0.25 µs
+    env.close()
+
+
+@pytest.mark.slow
+def test_100k_random_steps_all_modes_no_nan() -> None:
+    rng = np.random.default_rng(7)
+    total = 0
+    for env_id, mode in CASES:
+        env = gym.make(env_id, action_mode=mode, randomize=True)
+        obs, _ = env.reset(seed=int(rng.integers(1000)))
+        for _ in range(100_000 // len(CASES) + 1):
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+            assert np.all(np.isfinite(obs)) and math.isfinite(reward) and not info["physics_error"]
+            assert np.all(np.isfinite(info["pulse_widths_us"]))
+            total += 1
+            if terminated or truncated:
+                obs, _ = env.reset()
+        env.close()
+    assert total >= 100_000
+
+
+# ------------------------------------------------------------ action mapping
+def test_unreachable_pose_goes_to_the_nearest_reachable_on_the_ray() -> None:
+    mapper = ActionMapper(mode="pose")
+    action = np.ones(6)
+    mapped = mapper(action)
+    commanded = mapper.pose(action)
+    assert mapped.scaled and 0.0 < mapped.scale < 1.0
+    assert mapped.pose == pytest.approx(mapped.scale * commanded)
+    geo = mapper.geometry
+    assert inverse_kinematics(geo, mapped.pose).reachable
+    assert not inverse_kinematics(geo, (mapped.scale + 1 / 2048) * commanded).reachable  # nearest, to 1/4096
+    assert np.all(mapper.calibration.in_range(mapped.pulses))
+    tilt = ActionMapper(mode="tilt")(np.array([0.5, -0.5]))
+    assert not tilt.scaled and tilt.pose[3] == pytest.approx(math.radians(5))
+    pulse = ActionMapper(mode="pulse")
+    assert pulse(np.full(6, 1.0)).pulses == pytest.approx(pulse.calibration.max_us)
+    with pytest.raises(ValueError, match="finite"):
+        pulse(np.array([0, 0, np.nan, 0, 0, 0]))
+
+
+# ------------------------------------------------------------------ sensing
+def test_touch_panel_noise_rate_and_latency() -> None:
+    spec = TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.030)
+    panel = SimulatedTouchPanel(spec)
+    panel.reset(0.0, np.zeros(2), np.random.default_rng(0))
+    readings, truths = [], []
+    for k in range(1, 2001):
+        t = k * 0.02
+        panel.record(t, np.array([0.1 * t, 0.0]), True)  # moving at 0.1 m/s along x
+        (x, y), ts = panel.read(t)
+        readings.append((x, y))
+        truths.append(0.1 * ts)
+        assert ts == pytest.approx(math.floor((t - 0.030) * 100 + 1e-9) / 100)
+    err = np.array(readings) - np.stack([truths, np.zeros(len(truths))], 1)
+    assert err.std(axis=0) == pytest.approx([1e-3, 1e-3], rel=0.1)
+    assert abs(err.mean()) < 1e-4  # unbiased: the lag is exactly the sample time
+    panel.record(41.0, np.zeros(2), False)
+    assert panel.read(41.05) is None  # no touch, no reading
+
+
+def test_velocity_estimator_converges() -> None:
+    est = VelocityEstimator(cutoff_hz=8.0)
+    est.reset(0.0, (0.0, 0.0))
+    for k in range(1, 200):
+        vx, vy = est.update(k * 0.01, (0.2 * k * 0.01, -0.1 * k * 0.01))
+    assert (vx, vy) == pytest.approx((0.2, -0.1), rel=1e-6)
+
+
+# ------------------------------------------------------------- ball physics
+@pytest.mark.parametrize(("hollow", "factor"), [(False, 5 / 7), (True, 3 / 5)])
+@pytest.mark.parametrize("tilt_deg", [3.0, 6.0])
+def test_ball_acceleration_matches_rolling_theory(hollow: bool, factor: float, tilt_deg: float) -> None:
+    """On a plate held at pitch θ, a rolling ball accelerates at (5/7) g sin θ (solid) or (3/5) g sin θ (hollow)."""
+    spec = BallSpec(radius=0.02, mass=0.0027, hollow=True) if hollow else BallSpec()
+    with StewartSim(ball=True, ball_spec=spec, physics_hz=150) as sim:
+        pose = np.array([0, 0, 0, 0, math.radians(tilt_deg), 0])
+        sim.command(sim.calibration.pulse_widths(inverse_kinematics(sim.geometry, pose).servo_angles))
+        for _ in range(50):
+            sim.step()
+        sim.place_ball(np.array([-0.08, 0.0]))
+        ts, xs = [], []
+        for _ in range(20):
+            sim.step()
+            ts.append(sim.time)
+            xs.append(sim.ball_state()[0][0])
+    accel = 2 * np.polyfit(ts, xs, 2)[0]  # along the plate's x axis, downhill for positive pitch
+    theory = factor * 9.80665 * math.sin(math.radians(tilt_deg))
+    print(f"{'hollow' if hollow else 'solid'} {tilt_deg}°: {accel:.4f} m/s² vs {theory:.4f} ({accel / theory:.4f})")
+    assert accel == pytest.approx(theory, rel=0.03)
+
+
+def test_env_class_docstring_has_mujoco_sections() -> None:
+    doc = StewartBallEnv.__doc__
+    for section in ("## Description", "## Action Space", "## Observation Space", "## Rewards", "## Starting State",
+                    "## Episode End", "## Arguments", "## Version History"):  # fmt: skip
+        assert section in doc
