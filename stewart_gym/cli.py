@@ -7,6 +7,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -62,25 +63,23 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """Pulse widths along a demo trajectory: a 20 mm circle with a tilt that follows it."""
-    geo = load_geometry(args.geometry)
-    cal = ServoCalibration.default(geo)
-    t = np.linspace(0.0, 2.0, 9)
-    phase = 2 * math.pi * t / 2.0
-    poses = np.zeros((len(t), 6))
-    poses[:, 0] = 0.02 * np.cos(phase)
-    poses[:, 1] = 0.02 * np.sin(phase)
-    poses[:, 3] = math.radians(5) * np.sin(phase)
-    poses[:, 4] = -math.radians(5) * np.cos(phase)
-    ik = inverse_kinematics(geo, poses)
-    pulses = cal.pulse_widths(ik.servo_angles, out_of_range="nan")
-    print(f"{geo.name}: h0 = {geo.home_height * 1e3:.2f} mm, α0 = {math.degrees(cal.home_angle[0]):.2f}°, "
-          f"pulse limits {cal.min_us[0]:.0f}…{cal.max_us[0]:.0f} µs")  # fmt: skip
-    print(f"{'t s':>5} {'x mm':>7} {'y mm':>7} {'roll°':>6} {'pitch°':>6}  " + " ".join(f"{'W' + str(i) + ' µs':>8}" for i in range(6)))
-    for k in range(len(t)):
-        print(f"{t[k]:5.2f} {poses[k, 0] * 1e3:7.2f} {poses[k, 1] * 1e3:7.2f} {math.degrees(poses[k, 3]):6.2f} "
-              f"{math.degrees(poses[k, 4]):6.2f}  " + " ".join(f"{w:8.1f}" for w in pulses[k]))  # fmt: skip
-    print(f"reachable: {int(ik.reachable.sum())}/{len(t)} poses")
+    """The main job: evaluate the shipped policy next to the PID baseline; write a GIF and a pulse-width plot."""
+    from stewart_gym.evaluation import evaluate, format_table, load_policy
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    env_id = "StewartBallBalance-v0"
+    results = {}
+    for name in ("shipped", "pid"):
+        policy = load_policy(name, env_id)
+        print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation…", flush=True)
+        results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed)
+    print()
+    print(format_table(results))
+    (out / "demo_metrics.json").write_text(json.dumps(_json_safe(results), indent=2) + "\n")
+    _episode_figures(env_id, load_policy("shipped", env_id), args.seed, True, str(out / "demo.gif"),
+                     str(out / "demo_pulses.png"), "shipped")  # fmt: skip
+    print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} and {out / 'demo_metrics.json'}")
     return 0
 
 
@@ -123,6 +122,53 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train an agent with Stable-Baselines3 (PPO, SAC, TD3); hyperparameters from train/hyperparams/<algo>.yml."""
+    from stewart_gym.training import TrainConfig, train
+
+    cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
+                      seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
+                      eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
+                      tensorboard=not args.no_tensorboard)  # fmt: skip
+    metrics = train(cfg, max_wall_s=args.max_minutes * 60 if args.max_minutes else None)
+    print(json.dumps(metrics, indent=2))
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Evaluate a policy (shipped, pid or a path) on N seeded episodes; table or JSON."""
+    from stewart_gym.evaluation import evaluate, format_table, load_policy
+
+    policy = load_policy(args.policy, args.env)
+    metrics = evaluate(args.env, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize)
+    if args.gif or args.plot:
+        _episode_figures(args.env, policy, args.seed, not args.no_randomize, args.gif, args.plot, args.policy)
+    if args.json:
+        print(json.dumps(_json_safe(metrics)))
+    else:
+        print(format_table({args.policy: metrics}))
+    return 0
+
+
+def _episode_figures(env_id: str, policy: object, seed: int, randomize: bool, gif: str | None, plot: str | None,
+                     title: str) -> None:  # fmt: skip
+    """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
+    import gymnasium as gym
+
+    from stewart_gym.evaluation import SETTLING_OFFSET, plot_episode, run_episode, write_gif
+
+    env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None)
+    try:
+        opts = {"ball_position": (SETTLING_OFFSET, 0.0), "ball_velocity": (0.0, 0.0)}
+        log = run_episode(env, policy, seed, opts if env.unwrapped.task == "balance" else None, frames=bool(gif))
+    finally:
+        env.close()
+    if gif:
+        write_gif(log.frames, gif)
+    if plot:
+        plot_episode(log, plot, f"{env_id}, policy {title}")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stewart-gym", description="Servo Stewart platform toolkit")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -143,8 +189,35 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--width", type=int, default=640)
     p.add_argument("--height", type=int, default=480)
     p.set_defaults(func=cmd_render)
+    p = sub.add_parser("train", help=cmd_train.__doc__)
+    p.add_argument("--env", default="StewartBallBalance-v0")
+    p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
+    p.add_argument("--hyperparams", help="YAML file (default train/hyperparams/<algo>.yml)")
+    p.add_argument("--run-dir", default="runs/latest")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--timesteps", type=int, help="override n_timesteps")
+    p.add_argument("--n-envs", type=int, help="override n_envs")
+    p.add_argument("--eval-freq", type=int, help="env steps between evaluations")
+    p.add_argument("--eval-episodes", type=int)
+    p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
+    p.add_argument("--max-minutes", type=float, help="stop after this much wall time")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-tensorboard", action="store_true")
+    p.set_defaults(func=cmd_train)
+    p = sub.add_parser("evaluate", help=cmd_evaluate.__doc__)
+    p.add_argument("--env", default="StewartBallBalance-v0")
+    p.add_argument("--policy", default="shipped", help="shipped, pid, a run folder, a model .zip or PID gains .json")
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
+    p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
+    p.set_defaults(func=cmd_evaluate)
     p = sub.add_parser("demo", help=cmd_demo.__doc__)
-    _geometry_arg(p)
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
     p.set_defaults(func=cmd_demo)
     return parser
 

@@ -157,7 +157,8 @@ class ObservationBuilder:
         self._raw = np.empty(self.size)
 
     def build(self, ball_xy: tuple[float, float], ball_velocity: tuple[float, float], target_xy: np.ndarray,
-              target_velocity: np.ndarray, roll_pitch: tuple[float, float], previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
+              target_velocity: np.ndarray, roll_pitch: tuple[float, float],
+              previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
         """Assemble, scale and clip one observation; shape (size,), float32."""
         raw = self._raw
         raw[0:2] = ball_xy

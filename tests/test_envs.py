@@ -117,7 +117,7 @@ def test_success_needs_a_full_second_inside_the_radius() -> None:
 def test_ball_leaving_the_plate_terminates_with_penalty() -> None:
     env = gym.make("StewartBallBalance-v0")
     env.reset(seed=0, options={"ball_position": (0.13, 0.0), "ball_velocity": (0.4, 0.0)})
-    for k in range(100):
+    for _ in range(100):
         _, reward, terminated, truncated, info = env.step(np.array([0.0, 0.5], dtype=np.float32))
         if terminated:
             break

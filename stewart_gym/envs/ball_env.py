@@ -67,8 +67,10 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     ## Rewards
     Per step, with d the true ball-to-target distance (m):
-    ``1 − d / 0.15 − 0.1 · mean((a_t − a_{t−1})²)`` (distance, servo wear), and
-    ``−50`` on the step the ball leaves the plate.
+    ``1 − d / 0.15 + exp(−d / 0.015) − 0.1 · mean((a_t − a_{t−1})²)``: a
+    distance term over the whole plate, a sharper one near the target (0.51 at
+    10 mm, 1 at 0), and an action-rate penalty (servo wear); ``−50`` on the step
+    the ball leaves the plate.
 
     ## Starting State
     Platform at home. The ball rests on the plate at a uniform random position
@@ -102,6 +104,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     PLATE_HALF = 0.15
     FALL_PENALTY = 50.0
     RATE_PENALTY = 0.1
+    NEAR_SCALE = 0.015
 
     def __init__(
         self,
@@ -216,7 +219,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
-        reward = 1.0 - min(dist, 2 * half) / half - self.RATE_PENALTY * rate - (self.FALL_PENALTY if terminated else 0.0)
+        reward = (1.0 - min(dist, 2 * half) / half + math.exp(-dist / self.NEAR_SCALE) - self.RATE_PENALTY * rate
+                  - (self.FALL_PENALTY if terminated else 0.0))  # fmt: skip
         info = self._info(pos[:2], target_xy, dist)
         info["is_success"] = on_plate and self._inside >= self.success_steps
         return obs, reward, terminated, False, info

@@ -1,0 +1,190 @@
+"""Train Stable-Baselines3 agents (PPO, SAC, TD3) on the registered environments.
+
+Hyperparameters live in RL-Zoo-style YAML files, one section per env id
+(``train/hyperparams/<algo>.yml``): ``n_envs``, ``n_timesteps``, ``normalize``,
+``policy``, ``policy_kwargs``, ``env_kwargs`` and the algorithm's own keywords.
+
+A run folder holds ``config.yaml`` (the hyperparameters and options used),
+``git.txt`` (revision), ``model.zip`` + ``vecnormalize.pkl`` (final),
+``best/`` (best by evaluation, with its statistics), ``checkpoints/``,
+``tb/`` (TensorBoard), ``eval.csv`` (learning curve: timesteps, wall time,
+mean reward, success rate) and ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
+
+import stewart_gym  # noqa: F401  (registers the environments)
+
+__all__ = ["ALGOS", "TrainConfig", "load_hyperparams", "make_env", "train"]
+
+ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
+HYPERPARAM_DIR = Path(__file__).resolve().parents[1] / "train" / "hyperparams"
+_ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
+
+
+@dataclass
+class TrainConfig:
+    """Options of one training run (besides the YAML hyperparameters)."""
+
+    env_id: str = "StewartBallBalance-v0"
+    algo: str = "ppo"
+    hyperparams: str | None = None  # YAML file; default train/hyperparams/<algo>.yml
+    run_dir: str = "runs/latest"
+    seed: int = 0
+    n_timesteps: int | None = None  # overrides the YAML
+    n_envs: int | None = None  # overrides the YAML
+    eval_freq: int | None = None  # env steps between evaluations (total over all envs)
+    eval_episodes: int | None = None
+    checkpoint_freq: int = 100_000
+    resume: str | None = None  # a run folder or checkpoint .zip to continue from
+    progress_bar: bool = True
+    tensorboard: bool = True
+    verbose: int = 0
+
+
+def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+    """The YAML section for ``env_id`` (a copy); raises ``KeyError`` naming the file if it is absent."""
+    path = Path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
+    data = yaml.safe_load(path.read_text()) or {}
+    if env_id not in data:
+        raise KeyError(f"{path} has no section for {env_id!r} (sections: {sorted(data)})")
+    return dict(data[env_id])
+
+
+def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None) -> VecEnv:
+    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``."""
+    vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
+    return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls)
+
+
+class _EvalLog(EvalCallback):
+    """EvalCallback that also writes the learning curve with wall time, and saves VecNormalize with the best model."""
+
+    def __init__(self, *args: Any, csv_path: Path, started: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.csv_path, self.started = csv_path, started
+        with csv_path.open("w", newline="") as fh:
+            csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate"])
+
+    def _on_step(self) -> bool:
+        n_before = len(self.evaluations_timesteps)
+        best_before = self.best_mean_reward
+        ok = super()._on_step()
+        if len(self.evaluations_timesteps) > n_before:
+            success = float(np.mean(self._is_success_buffer)) if self._is_success_buffer else float("nan")
+            with self.csv_path.open("a", newline="") as fh:
+                csv.writer(fh).writerow([self.num_timesteps, round(time.time() - self.started, 1),
+                                         round(float(self.last_mean_reward), 3), success])  # fmt: skip
+            train_env = self.model.get_env()
+            if self.best_mean_reward > best_before and isinstance(train_env, VecNormalize) and self.best_model_save_path:
+                train_env.save(str(Path(self.best_model_save_path) / "vecnormalize.pkl"))
+        return ok
+
+
+class _Deadline(BaseCallback):
+    """Stop training after ``seconds`` of wall time (keeps results for the time budget)."""
+
+    def __init__(self, seconds: float | None) -> None:
+        super().__init__()
+        self.seconds, self.started = seconds, time.time()
+
+    def _on_step(self) -> bool:
+        return self.seconds is None or time.time() - self.started < self.seconds
+
+
+def _git_revision() -> str:
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip()
+        return rev + (" (with uncommitted changes)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any]:
+    """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``)."""
+    algo_cls = ALGOS[config.algo]
+    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    n_envs = int(config.n_envs or hp.get("n_envs", 1))
+    n_timesteps = int(config.n_timesteps or hp.get("n_timesteps", 100_000))
+    normalize = hp.get("normalize", False)
+    env_kwargs = hp.get("env_kwargs", {})
+    eval_freq = int(config.eval_freq or hp.get("eval_freq", 20_000))
+    eval_episodes = int(config.eval_episodes or hp.get("eval_episodes", 20))
+    algo_kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
+    policy = hp.get("policy", "MlpPolicy")
+    run = Path(config.run_dir)
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
+    (run / "git.txt").write_text(_git_revision() + "\n")
+
+    env = make_env(config.env_id, n_envs, config.seed, env_kwargs)
+    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs)])
+    resume = Path(config.resume) if config.resume else None
+    stats = None
+    if resume is not None:
+        stats = (resume / "vecnormalize.pkl") if resume.is_dir() else resume.with_name(
+            resume.name.replace("model_", "model_vecnormalize_").replace(".zip", ".pkl"))  # fmt: skip
+    if normalize:
+        norm_kwargs = normalize if isinstance(normalize, dict) else {}
+        if stats is not None and stats.exists():
+            env = VecNormalize.load(str(stats), env)
+        else:
+            env = VecNormalize(env, **{"norm_obs": True, "norm_reward": True, **norm_kwargs})
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
+                                                                                if k not in ("norm_reward",)})  # fmt: skip
+    tb = str(run / "tb") if config.tensorboard else None
+    if resume is not None:
+        zip_path = resume / "model.zip" if resume.is_dir() else resume
+        model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb)
+    else:
+        model = algo_cls(policy, env, seed=config.seed, device="cpu", tensorboard_log=tb, verbose=config.verbose,
+                         **algo_kwargs)  # fmt: skip
+    started = time.time()
+    callbacks = CallbackList([
+        _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
+                 best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
+                 csv_path=run / "eval.csv", started=started, verbose=0),
+        CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
+                           save_vecnormalize=bool(normalize)),
+        _Deadline(max_wall_s),
+    ])  # fmt: skip
+    model.learn(n_timesteps, callback=callbacks, progress_bar=config.progress_bar,
+                reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
+    wall = time.time() - started
+    model.save(run / "model.zip")
+    if isinstance(env, VecNormalize):
+        env.save(str(run / "vecnormalize.pkl"))
+    metrics = {"env_id": config.env_id, "algo": config.algo, "timesteps": int(model.num_timesteps),
+               "wall_time_s": round(wall, 1), "n_envs": n_envs, "seed": config.seed}  # fmt: skip
+    rows = list(csv.DictReader((run / "eval.csv").open()))
+    if rows:
+        metrics["last_eval"] = rows[-1]
+        metrics["best_eval_success_rate"] = max(float(r["success_rate"]) for r in rows)
+    (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    env.close()
+    eval_env.close()
+    return metrics
+
+
+def _monitored(env_id: str, env_kwargs: dict) -> Any:
+    import gymnasium as gym
+    from stable_baselines3.common.monitor import Monitor
+
+    return Monitor(gym.make(env_id, **env_kwargs))

@@ -1,0 +1,90 @@
+"""Training smoke runs (each algorithm, a few hundred steps), evaluation, save/load round trips, the PID baseline."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from stewart_gym.cli import main
+from stewart_gym.controllers import CascadedPID, PIDGains
+from stewart_gym.evaluation import evaluate, format_table, load_policy, load_sb3
+from stewart_gym.training import TrainConfig, load_hyperparams, train
+
+SMOKE = {
+    "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
+    "sac": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
+    "td3": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
+}
+
+
+@pytest.mark.parametrize("algo", sorted(SMOKE))
+def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
+    hp = {"StewartBallBalance-v0": {"n_envs": 1, "n_timesteps": 300, "normalize": True, "policy": "MlpPolicy",
+                                    "env_kwargs": {"randomize": True}, "policy_kwargs": {"net_arch": [16, 16]},
+                                    **SMOKE[algo]}}  # fmt: skip
+    hp_file = tmp_path / "hp.yml"
+    hp_file.write_text(yaml.safe_dump(hp))
+    run = tmp_path / "run"
+    metrics = train(TrainConfig(algo=algo, hyperparams=str(hp_file), run_dir=str(run), eval_freq=150,
+                                eval_episodes=1, checkpoint_freq=200, progress_bar=False, tensorboard=True))  # fmt: skip
+    assert metrics["timesteps"] >= 300 and metrics["algo"] == algo
+    for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "git.txt", "metrics.json", "eval.csv"):
+        assert (run / name).exists(), name
+    assert (run / "best" / "best_model.zip").exists() and list((run / "checkpoints").glob("*.zip"))
+    assert list((run / "tb").rglob("events.out.tfevents.*"))
+    rows = (run / "eval.csv").read_text().splitlines()
+    assert rows[0] == "timesteps,wall_s,mean_reward,success_rate" and len(rows) >= 3
+    # load: same actions as the trained model on the same normalised observations
+    policy = load_sb3(run)
+    obs = np.random.default_rng(0).normal(size=(5, 12)).astype(np.float32)
+    expected = policy.model.predict(policy.normalize(obs), deterministic=True)[0]
+    assert np.allclose(load_sb3(run / "model.zip").predict(obs)[0], expected)
+    assert policy.obs_rms is not None and policy.obs_rms.mean.shape == (12,)
+    m = evaluate("StewartBallBalance-v0", policy, episodes=1, seed=0, settling=False)
+    assert 0.0 <= m["success_rate"] <= 1.0 and m["rms_error_mm"] >= 0
+    # resume from the run folder continues counting timesteps
+    more = train(TrainConfig(algo=algo, hyperparams=str(hp_file), run_dir=str(tmp_path / "run2"), resume=str(run),
+                             n_timesteps=200, eval_freq=1000, eval_episodes=1, progress_bar=False,
+                             tensorboard=False))  # fmt: skip
+    assert more["timesteps"] >= metrics["timesteps"] + 200
+
+
+def test_hyperparameter_files_have_every_env() -> None:
+    import stewart_gym
+
+    for algo in ("ppo", "sac", "td3"):
+        for env_id in stewart_gym.ENV_IDS:
+            hp = load_hyperparams(algo, env_id)
+            assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
+    with pytest.raises(KeyError, match="no section"):
+        load_hyperparams("ppo", "CartPole-v1")
+
+
+def test_pid_balances_the_ball() -> None:
+    m = evaluate("StewartBallBalance-v0", CascadedPID(PIDGains(kp_pos=1.5, kp_vel=4.0, ki_vel=2.0)), episodes=4,
+                 seed=0, randomize=False)  # fmt: skip
+    assert m["success_rate"] == 1.0 and m["rms_error_mm"] < 5.0
+    assert m["settled_fraction"] == 1.0 and 0.5 < m["settling_time_s"] < 10.0
+    assert "success rate" in format_table({"pid": m})
+
+
+def test_pid_gains_round_trip(tmp_path: Path) -> None:
+    pid = CascadedPID(PIDGains(kp_pos=2.5, kp_vel=6.0, ki_vel=1.5))
+    pid.save(tmp_path / "g.json")
+    again = load_policy(str(tmp_path / "g.json"))
+    obs = np.random.default_rng(1).normal(size=(3, 12))
+    assert np.array_equal(again.predict(obs)[0], CascadedPID(pid.gains).predict(obs)[0])
+
+
+def test_evaluate_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", "--env", "StewartBallBalance-v0", "--policy", "pid", "--episodes", "2", "--seed", "3",
+                 "--json"]) == 0  # fmt: skip
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    for key in ("success_rate", "rms_error_mm", "settling_time_s", "final_error_mm", "max_tilt_deg",
+                "pulse_rate_us_per_s"):  # fmt: skip
+        assert key in out
+    assert out["episodes"] == 2 and out["seed"] == 3
