@@ -169,6 +169,114 @@ def _episode_figures(env_id: str, policy: object, seed: int, randomize: bool, gi
         plot_episode(log, plot, f"{env_id}, policy {title}")
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """Export a policy (shipped, pid, a run folder or model .zip) to a deployable ONNX/JSON bundle."""
+    from stewart_gym.evaluation import POLICY_DIR
+    from stewart_gym.hardware.export import export_pid, export_sb3
+
+    if args.policy == "pid":
+        out = export_pid(POLICY_DIR / "pid_gains.json", args.out, args.env)
+    else:
+        src = POLICY_DIR / "balance" if args.policy == "shipped" else Path(args.policy)
+        out = export_sb3(src, args.out, args.env)
+    print(f"bundle written to {out}")
+    return 0
+
+
+def _load_calibration(args: argparse.Namespace) -> tuple[ServoCalibration, dict]:
+    from stewart_gym.servo import hardware_settings
+
+    if args.calibration:
+        return ServoCalibration.from_toml(args.calibration, "servo-hexapod"), hardware_settings(args.calibration)
+    return ServoCalibration.default("servo-hexapod"), {}
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
+    from stewart_gym.actions import ActionMapper
+    from stewart_gym.evaluation import POLICY_DIR
+    from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
+    from stewart_gym.hardware.devices import DeviceError, LineController, open_controller
+    from stewart_gym.hardware.export import BundlePolicy, export_pid
+
+    calibration, hw = _load_calibration(args)
+    port = args.port or hw.get("port")
+    protocol = args.protocol or hw.get("protocol", "maestro")
+    if not port:
+        print("error: no serial port (--port or [hardware] port in the calibration file)", file=sys.stderr)
+        return 1
+    if args.policy == "pid":
+        bundle = export_pid(POLICY_DIR / "pid_gains.json", Path(args.log).with_suffix(".pid_bundle"))
+    elif args.policy == "shipped":
+        bundle = POLICY_DIR / "balance" / "bundle"
+    else:
+        bundle = Path(args.policy)
+    policy = BundlePolicy(bundle)
+    try:
+        controller = open_controller(protocol, port, calibration.channels, args.baudrate or hw.get("baudrate"))
+    except DeviceError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.sensor == "panel":
+        if not isinstance(controller, LineController):
+            print("error: --sensor panel needs --protocol line (the Arduino reports the panel)", file=sys.stderr)
+            controller.close()
+            return 1
+        sensor = PanelSensor(controller)
+    else:
+        sensor = SimulatedPlant(seed=args.seed, randomize=not args.no_randomize)
+    mapper = ActionMapper("servo-hexapod", calibration, policy.action_mode)
+    config = DeployConfig(rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
+                          max_step_us=args.max_step_us, log_path=args.log)  # fmt: skip
+    loop = DeployLoop(policy, mapper, controller, sensor, config)
+    summary = loop.run()
+    if isinstance(sensor, SimulatedPlant):
+        summary.message += f"; simulated ball {sensor.ball_error_mm():.1f} mm from the centre"
+    print(summary.text())
+    print(f"log: {args.log}")
+    return summary.exit_code
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Find servo trims: step one servo at a time; keys on stdin: + / - (trim), n (next servo), q (save and quit)."""
+    from stewart_gym.hardware.devices import open_controller
+
+    calibration, hw = _load_calibration(args)
+    port, protocol = args.port or hw.get("port"), args.protocol or hw.get("protocol", "maestro")
+    if not port:
+        print("error: no serial port (--port or [hardware] port in the calibration file)", file=sys.stderr)
+        return 1
+    controller = open_controller(protocol, port, calibration.channels, args.baudrate or hw.get("baudrate"))
+    trims = calibration.neutral_us - 1500.0
+    servo = 0
+    try:
+        print("servo 0: + / - move by", args.step, "µs, n = next servo, q = save and quit", flush=True)
+        controller.send(np.clip(1500.0 + trims, calibration.min_us, calibration.max_us))
+        for line in sys.stdin:
+            key = line.strip()
+            if key in ("+", "-"):
+                trims[servo] += args.step if key == "+" else -args.step
+            elif key == "n":
+                servo = (servo + 1) % 6
+            elif key == "q":
+                break
+            pulses = np.clip(1500.0 + trims, calibration.min_us, calibration.max_us)
+            controller.send(pulses)
+            print(f"servo {servo}: trims {np.round(trims, 1).tolist()} µs", flush=True)
+    finally:
+        controller.send(calibration.neutral_us)
+        controller.close()
+    shift = trims - (calibration.neutral_us - 1500.0)  # the channel limits move with the neutral pulse
+    cal = ServoCalibration(1500.0 + trims, calibration.direction, calibration.home_angle, calibration.us_per_rad,
+                           calibration.min_us + shift, calibration.max_us + shift, calibration.channels)
+    text = cal.to_toml()
+    if hw:
+        text += "\n[hardware]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in hw.items())
+    Path(args.out).write_text(text)
+    print(f"calibration written to {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="stewart-gym", description="Servo Stewart platform toolkit")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -214,6 +322,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
     p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
     p.set_defaults(func=cmd_evaluate)
+    p = sub.add_parser("export", help=cmd_export.__doc__)
+    p.add_argument("--policy", default="shipped")
+    p.add_argument("--env", default="StewartBallBalance-v0")
+    p.add_argument("--out", required=True, help="bundle folder")
+    p.set_defaults(func=cmd_export)
+    p = sub.add_parser("deploy", help=cmd_deploy.__doc__)
+    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped' or 'pid'")
+    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
+    p.add_argument("--protocol", choices=["maestro", "ssc32", "line"])
+    p.add_argument("--baudrate", type=int)
+    p.add_argument("--sensor", choices=["sim", "panel"], default="sim")
+    p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
+    p.add_argument("--duration", type=float, help="seconds (default: until Ctrl-C)")
+    p.add_argument("--rate", type=float, default=50.0, help="control rate, Hz")
+    p.add_argument("--watchdog-ms", type=float, default=100.0)
+    p.add_argument("--max-step-us", type=float, default=40.0, help="rate limit per channel per tick")
+    p.add_argument("--log", default="deploy_log.csv")
+    p.add_argument("--seed", type=int, default=0, help="simulated plant's seed (--sensor sim)")
+    p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")
+    p.set_defaults(func=cmd_deploy)
+    p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__)
+    p.add_argument("--port")
+    p.add_argument("--protocol", choices=["maestro", "ssc32", "line"])
+    p.add_argument("--baudrate", type=int)
+    p.add_argument("--calibration", help="start from this calibration TOML")
+    p.add_argument("--step", type=float, default=5.0, help="µs per key press")
+    p.add_argument("--out", default="calibration.toml")
+    p.set_defaults(func=cmd_calibrate)
     p = sub.add_parser("demo", help=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)

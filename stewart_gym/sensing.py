@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["ObservationBuilder", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator"]
+__all__ = ["BallObserver", "ObservationBuilder", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator"]
 
 
 @dataclass(frozen=True)
@@ -170,3 +170,33 @@ class ObservationBuilder:
         raw *= self._scale
         np.clip(raw, self.low, self.high, out=raw)
         return raw.astype(np.float32)
+
+
+class BallObserver:
+    """Panel readings → observation, the same way in the environments and on hardware.
+
+    Holds the last reading while the panel reports none, estimates velocity from
+    the readings' sample times, and builds the observation with
+    :class:`ObservationBuilder`.
+    """
+
+    def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0) -> None:
+        self.builder = ObservationBuilder(action_size)
+        self.velocity = VelocityEstimator(velocity_cutoff_hz)
+        self.reading = (0.0, 0.0)
+
+    def reset(self, t: float, xy: tuple[float, float] | np.ndarray) -> None:
+        """Start at time ``t`` (s) with the ball believed at rest at ``xy`` (m)."""
+        self.velocity.reset(t, xy)
+        self.reading = (float(xy[0]), float(xy[1]))
+
+    def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: np.ndarray,
+                target_velocity: np.ndarray, roll_pitch: tuple[float, float],
+                previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
+        """One observation from a panel ``reading`` ((x, y) m, sample time s) or None (no touch)."""
+        if reading is not None:
+            self.reading = reading[0]
+            vel = self.velocity.update(reading[1], reading[0])
+        else:
+            vel = (self.velocity.vx, self.velocity.vy)
+        return self.builder.build(self.reading, vel, target_xy, target_velocity, roll_pitch, previous_action)

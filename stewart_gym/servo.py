@@ -30,7 +30,8 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-__all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration"]
+__all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
+           "hardware_settings"]
 
 #: 400 µs per 45° (seed 000).
 DEFAULT_US_PER_RAD = 1600.0 / math.pi
@@ -139,9 +140,11 @@ class ServoCalibration:
         ``us_per_rad`` (default 1600/π) or ``us_per_degree``, and six
         ``[[servo]]`` tables with optional ``channel``, ``trim_us``,
         ``direction``, ``min_us``, ``max_us``, ``home_angle_deg``. Missing
-        channel limits default to those of :meth:`default`.
+        channel limits default to those of :meth:`default`. An optional
+        ``[hardware]`` table (``port``, ``protocol``, ``baudrate``) is for the
+        deploy tools (:func:`hardware_settings`) and ignored here.
         """
-        known_top = {"geometry", "neutral_us", "us_per_rad", "us_per_degree", "servo"}
+        known_top = {"geometry", "neutral_us", "us_per_rad", "us_per_degree", "servo", "hardware"}
         known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
         unknown = sorted(set(data) - known_top)
         if unknown:
@@ -279,6 +282,16 @@ class ServoCalibration:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def hardware_settings(path: str | Path) -> dict[str, Any]:
+    """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
+    with Path(path).open("rb") as fh:
+        table = tomllib.load(fh).get("hardware", {})
+    unknown = sorted(set(table) - {"port", "protocol", "baudrate"})
+    if unknown:
+        raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")
+    return dict(table)
 
 
 def _scalar(key: str, value: Any) -> float:

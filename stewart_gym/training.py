@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 import yaml
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
@@ -120,6 +121,7 @@ def _git_revision() -> str:
 def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any]:
     """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``)."""
     algo_cls = ALGOS[config.algo]
+    torch.set_num_threads(1)  # small MLPs: extra threads only fight the env workers for the cores
     hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
     n_envs = int(config.n_envs or hp.get("n_envs", 1))
     n_timesteps = int(config.n_timesteps or hp.get("n_timesteps", 100_000))

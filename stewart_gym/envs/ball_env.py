@@ -13,7 +13,7 @@ from gymnasium.utils import EzPickle
 from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.targets import TRAJECTORIES, Fixed, Target, make_trajectory
-from stewart_gym.sensing import ObservationBuilder, SimulatedTouchPanel, TouchPanelSpec, VelocityEstimator
+from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec, StewartSim
 
 __all__ = ["StewartBallBalanceEnv", "StewartBallEnv", "StewartBallTrackEnv"]
@@ -149,10 +149,9 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
-        self.observer = ObservationBuilder(self.mapper.size)
-        self.observation_space = self.observer.space
+        self.observer = BallObserver(self.mapper.size)
+        self.observation_space = self.observer.builder.space
         self.panel = SimulatedTouchPanel(self.nominal_sensor)
-        self.velocity = VelocityEstimator()
         self._plate_top = self.sim.mechanism.plate_top
         self._target: Target = Fixed()
         self._reset_episode_state()
@@ -182,9 +181,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._target = Fixed() if self.task == "balance" else make_trajectory(self.trajectory, rng)
         self.panel.spec = params.sensor
         self.panel.reset(0.0, xy, rng)
-        self.velocity.reset(0.0, xy)
+        self.observer.reset(0.0, xy)
         self._reset_episode_state()
-        self._reading = (float(xy[0]), float(xy[1]))
         obs = self._observe(0.0)
         self._last_obs = obs
         target_xy, _ = self._target(0.0)
@@ -243,14 +241,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._pulses = self.sim.calibration.neutral_us.copy()
 
     def _observe(self, t: float) -> np.ndarray:
-        reading = self.panel.read(t)
-        if reading is not None:
-            self._reading = reading[0]
-            velocity = self.velocity.update(reading[1], reading[0])
-        else:
-            velocity = (self.velocity.vx, self.velocity.vy)
         target_xy, target_vel = self._target(t)
-        return self.observer.build(self._reading, velocity, target_xy, target_vel, self._roll_pitch, self._prev_action)
+        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
 
     def _info(self, xy: np.ndarray, target_xy: np.ndarray, dist: float) -> dict[str, Any]:
         return {

@@ -1,0 +1,289 @@
+"""The fixed-rate control loop that drives real servos: sensor → observation → policy → IK → pulses → safety → bytes.
+
+Every tick (default 50 Hz):
+
+1. read the ball sensor (touch panel on the serial line, or the simulated plant);
+2. build the observation exactly as the environment does (:class:`~stewart_gym.sensing.BallObserver`);
+3. run the policy (an ONNX bundle or the PID baseline: numpy + onnxruntime only);
+4. map the action through the IK and the calibration (:class:`~stewart_gym.actions.ActionMapper`);
+5. pass the pulses through the :class:`~stewart_gym.hardware.safety.SafetyLayer`:
+   channel limits always, a per-channel rate limit, and *hold the last safe
+   command* when the action is NaN/inf or the pose is unreachable;
+6. write the protocol's bytes.
+
+Watchdog: sensor data older than ``watchdog_s`` or a missed deadline moves the
+platform home (rate-limited) until fresh data returns. On Ctrl-C, on any
+exception and at the end, the servos are driven home before the port closes.
+Every tick is written to a CSV log flushed line by line, so a crash keeps it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.actions import ActionMapper
+from stewart_gym.envs.targets import Fixed, Target
+from stewart_gym.hardware.devices import DeviceError, LineController, ServoController
+from stewart_gym.hardware.safety import SafetyLayer
+from stewart_gym.sensing import BallObserver
+
+__all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Sensor", "SimulatedPlant"]
+
+
+class Sensor(ABC):
+    """A source of ball positions for the loop."""
+
+    @abstractmethod
+    def read(self) -> tuple[tuple[float, float], float] | None:
+        """((x, y) m in the plate frame, age of that sample s) or None if there is none."""
+
+    def apply(self, pulses_us: np.ndarray) -> None:  # noqa: B027  (optional hook)
+        """The pulses just sent (the simulated plant acts on them; a real panel ignores them)."""
+
+    def close(self) -> None:  # noqa: B027  (optional hook)
+        """Release resources."""
+
+
+class PanelSensor(Sensor):
+    """The touch panel reported by the Arduino line protocol (``B x,y`` in mm)."""
+
+    def __init__(self, controller: LineController) -> None:
+        self.controller = controller
+
+    def read(self) -> tuple[tuple[float, float], float] | None:
+        got = self.controller.poll_ball()
+        if got is None:
+            return None
+        (x_mm, y_mm), arrived = got
+        return (x_mm * 1e-3, y_mm * 1e-3), time.monotonic() - arrived
+
+
+class SimulatedPlant(Sensor):
+    """The PyBullet environment as the plant of a hardware-in-the-loop dry run.
+
+    The pulses the loop sends to the serial device also drive the simulated
+    servos (one control period per tick); the ball is read through the env's
+    touch-panel model.
+    """
+
+    def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
+                 ball_position: tuple[float, float] | None = None) -> None:  # fmt: skip
+        import gymnasium as gym
+
+        import stewart_gym  # noqa: F401  (registers the ids)
+
+        self.env = gym.make(env_id, randomize=randomize).unwrapped
+        options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
+        self.env.reset(seed=seed, options=options)
+        self.sim = self.env.sim
+
+    def read(self) -> tuple[tuple[float, float], float] | None:
+        t = self.sim.time
+        got = self.env.panel.read(t)
+        if got is None:
+            return None
+        return got[0], t - got[1]
+
+    def apply(self, pulses_us: np.ndarray) -> None:
+        self.sim.command(pulses_us)
+        self.sim.step()
+        pos, _ = self.sim.ball_state()
+        half, top = self.env.PLATE_HALF, self.env._plate_top
+        on = abs(pos[0]) <= half and abs(pos[1]) <= half and top < pos[2] < top + 1.5 * self.env.params.ball.radius
+        self.env.panel.record(self.sim.time, pos[:2], on)
+
+    def ball_error_mm(self) -> float:
+        """True distance of the ball from the plate centre, mm (for reports)."""
+        pos, _ = self.sim.ball_state()
+        return float(math.hypot(pos[0], pos[1]) * 1e3)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+@dataclass
+class DeployConfig:
+    """Loop settings."""
+
+    rate_hz: float = 50.0
+    duration_s: float | None = None  # None: until Ctrl-C
+    watchdog_s: float = 0.100  # sensor data older than this → home
+    max_step_us: float = 40.0  # rate limit per channel per tick
+    log_path: str | None = "deploy_log.csv"
+    home_timeout_s: float = 2.0  # longest drive home at shutdown
+
+
+@dataclass
+class DeploySummary:
+    """What happened; ``exit_code`` 0 = clean stop, 1 = error, 2 = device failure."""
+
+    ticks: int = 0
+    frames_sent: int = 0
+    duration_s: float = 0.0
+    held: int = 0
+    clamped: int = 0
+    rate_limited: int = 0
+    homing: int = 0
+    stale: int = 0
+    missed_deadlines: int = 0
+    unreachable: int = 0
+    jitter_ms_mean: float = 0.0
+    jitter_ms_max: float = 0.0
+    compute_ms_p99: float = 0.0
+    homed: bool = False
+    exit_code: int = 0
+    message: str = "completed"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def text(self) -> str:
+        return (f"{self.message}: {self.ticks} ticks in {self.duration_s:.2f} s, {self.frames_sent} frames sent; "
+                f"held {self.held}, clamped {self.clamped}, rate-limited {self.rate_limited}, homing {self.homing}, "
+                f"stale sensor {self.stale}, missed deadlines {self.missed_deadlines}, unreachable {self.unreachable}; "
+                f"jitter mean {self.jitter_ms_mean:.2f} ms, max {self.jitter_ms_max:.2f} ms; "
+                f"compute p99 {self.compute_ms_p99:.3f} ms; servos homed: {self.homed}")  # fmt: skip
+
+
+class DeployLoop:
+    """Runs a policy on servos at a fixed rate. See the module docstring for the tick."""
+
+    def __init__(self, policy: Any, mapper: ActionMapper, controller: ServoController, sensor: Sensor,
+                 config: DeployConfig | None = None, target: Target | None = None) -> None:  # fmt: skip
+        self.policy, self.mapper, self.controller, self.sensor = policy, mapper, controller, sensor
+        self.config = config or DeployConfig()
+        self.target = target or Fixed()
+        self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
+        self.observer = BallObserver(mapper.size)
+        self.prev_action = np.zeros(mapper.size)
+        self.roll_pitch = (0.0, 0.0)
+
+    # --------------------------------------------------------------- one tick
+    def compute(self, reading: tuple[tuple[float, float], float] | None, t: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                           np.ndarray, dict]:  # fmt: skip
+        """Observation → policy → IK → safety for one tick; returns (obs, action, pulses, flags). No I/O."""
+        target_xy, target_vel = self.target(t)
+        sample = None if reading is None else (reading[0], t - reading[1])
+        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action)
+        flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
+        action = np.full(self.mapper.size, np.nan)
+        usable = False
+        pose = np.full(6, np.nan)
+        try:
+            action = np.asarray(self.policy(obs), dtype=np.float64).reshape(self.mapper.size)
+            if np.all(np.isfinite(action)):
+                pose_cmd = self.mapper.pose(action) if self.mapper.mode != "pulse" else None
+                mapped = self.mapper(action)
+                flags["unreachable"] = mapped.scaled
+                usable = not mapped.scaled
+                requested = mapped.pulses
+                pose = mapped.pose if pose_cmd is not None else pose
+            else:
+                requested = None
+        except (ValueError, FloatingPointError):
+            requested = None
+        res = self.safety.toward_home() if flags["stale"] else self.safety.filter(requested if usable else None,
+                                                                                  usable)  # fmt: skip
+        if usable and not flags["stale"] and not res.held:
+            self.prev_action = np.clip(action, -1.0, 1.0)
+            if self.mapper.mode != "pulse":
+                self.roll_pitch = (float(pose[3]), float(pose[4]))
+        flags.update(held=res.held, clamped=res.clamped, rate_limited=res.rate_limited, homing=res.homing)
+        return obs, action, res.pulses, {**flags, "pose": pose}
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> DeploySummary:
+        cfg = self.config
+        period = 1.0 / cfg.rate_hz
+        summary = DeploySummary()
+        writer, fh = self._open_log()
+        jitters, computes = [], []
+        start = time.monotonic()
+        next_tick = start
+        missed = False
+        try:
+            while cfg.duration_s is None or summary.ticks < round(cfg.duration_s * cfg.rate_hz):
+                now = time.monotonic()
+                jitter = (now - next_tick) * 1e3
+                t = now - start
+                reading = self.sensor.read()
+                c0 = time.perf_counter()
+                obs, action, pulses, flags = self.compute(reading, t)
+                if missed:  # the last tick overran: go home this tick
+                    pulses = self.safety.toward_home().pulses
+                    flags["homing"] = True
+                data = self.controller.send(pulses)
+                computes.append((time.perf_counter() - c0) * 1e3)
+                self.sensor.apply(pulses)
+                summary.ticks += 1
+                for key in ("held", "clamped", "rate_limited", "homing", "stale", "unreachable"):
+                    setattr(summary, key, getattr(summary, key) + int(bool(flags[key])))
+                jitters.append(jitter)
+                if writer is not None:
+                    bits = [int(bool(flags[k])) for k in ("held", "clamped", "rate_limited", "homing", "stale",
+                                                          "unreachable")]  # fmt: skip
+                    writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
+                                     *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data)])
+                    fh.flush()
+                next_tick += period
+                sleep = next_tick - time.monotonic()
+                missed = sleep < -period  # more than a whole period late
+                if missed:
+                    summary.missed_deadlines += 1
+                    next_tick = time.monotonic()
+                elif sleep > 0:
+                    time.sleep(sleep)
+        except KeyboardInterrupt:
+            summary.message = "stopped by Ctrl-C"
+        except DeviceError as exc:
+            summary.message, summary.exit_code = f"device failure: {exc}", 2
+        except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)
+            summary.message, summary.exit_code = f"error: {type(exc).__name__}: {exc}", 1
+        finally:
+            summary.homed = self._go_home(period) if summary.exit_code != 2 else False
+            self.controller.close()
+            if fh is not None:
+                fh.close()
+            self.sensor.close()
+        summary.duration_s = time.monotonic() - start
+        summary.frames_sent = self.controller.frames_sent
+        if jitters:
+            summary.jitter_ms_mean = float(np.mean(np.abs(jitters)))
+            summary.jitter_ms_max = float(np.max(np.abs(jitters)))
+            summary.compute_ms_p99 = float(np.percentile(computes, 99))
+        return summary
+
+    def _go_home(self, period: float) -> bool:
+        """Drive home at the rate limit (at most ``home_timeout_s``); True once the home frame was sent."""
+        deadline = time.monotonic() + self.config.home_timeout_s
+        try:
+            while time.monotonic() < deadline:
+                res = self.safety.toward_home()
+                self.controller.send(res.pulses)
+                if self.safety.at_home():
+                    return True
+                time.sleep(period)
+        except (DeviceError, KeyboardInterrupt):
+            return False
+        return False
+
+    def _open_log(self) -> tuple[Any, Any]:
+        if not self.config.log_path:
+            return None, None
+        path = Path(self.config.log_path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = path.open("w", newline="", buffering=1)
+        writer = csv.writer(fh)
+        n = self.mapper.size
+        writer.writerow(["t_s", "jitter_ms", *(f"obs{i}" for i in range(self.observer.builder.size)),
+                         *(f"action{i}" for i in range(n)), "x_m", "y_m", "z_m", "roll", "pitch", "yaw",
+                         *(f"pulse{i}_us" for i in range(6)), "held", "clamped", "rate_limited", "homing", "stale",
+                         "unreachable", "missed_deadline", "bytes"])  # fmt: skip
+        fh.flush()
+        return writer, fh
