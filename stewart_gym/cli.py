@@ -350,6 +350,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--step", type=float, default=5.0, help="µs per key press")
     p.add_argument("--out", default="calibration.toml")
     p.set_defaults(func=cmd_calibrate)
+    from stewart_gym.analysis.cli import register
+
+    register(sub)
     p = sub.add_parser("demo", help=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--seed", type=int, default=0)

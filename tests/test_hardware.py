@@ -199,7 +199,7 @@ def test_fuzz_one_million_actions_never_leave_limits_or_rate() -> None:
     for mode in ("tilt", "pose", "pulse"):
         mapper = ActionMapper("servo-hexapod", CAL, mode)
         rng = np.random.default_rng(2)
-        policy = _Fuzz(1) if mode == "tilt" else (lambda obs: rng.normal(0, 1e3, 6) *
+        policy = _Fuzz(1) if mode == "tilt" else (lambda obs, rng=rng: rng.normal(0, 1e3, 6) *
                                                     rng.choice([1, np.nan, np.inf], 6, p=[0.8, 0.1, 0.1]))  # fmt: skip
         loop = DeployLoop(policy, mapper, controller=None, sensor=_StaticSensor())  # type: ignore[arg-type]
         n = 600_000 if mode == "tilt" else 200_000

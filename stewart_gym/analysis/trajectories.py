@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 from stewart_gym.analysis.workspace import axis_ranges
 from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.servo import ServoCalibration
 
-__all__ = ["aggressive_moves"]
+__all__ = ["aggressive_moves", "circle", "load_pose_csv", "trajectory_check"]
 
 
 def aggressive_moves(geometry: PlatformGeometry, rate_hz: float = 50.0, *, fraction: float = 0.95,
@@ -35,3 +38,74 @@ def aggressive_moves(geometry: PlatformGeometry, rate_hz: float = 50.0, *, fract
         seg[:, k] = min(-reach[k, 0], reach[k, 1]) * np.sin(2 * math.pi * frequency_hz * t)
         parts.append(seg)
     return np.concatenate(parts)
+
+
+def circle(radius: float = 0.2, samples: int = 1000, turns: float = 1.0, z: float = 0.0,
+           duration_s: float = 40.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Seed 001's circular motion: (t (n,) s, poses (n, 6)), x = r cos φ, y = r sin φ at height z from home."""
+    t = np.linspace(0.0, duration_s, samples)
+    phi = 2 * math.pi * turns * t / duration_s
+    poses = np.zeros((samples, 6))
+    poses[:, 0], poses[:, 1], poses[:, 2] = radius * np.cos(phi), radius * np.sin(phi), z
+    return t, poses
+
+
+_UNITS = {"m": 1.0, "mm": 1e-3, "rad": 1.0, "deg": math.pi / 180}
+
+
+def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read a pose trajectory: (t (n,) s, poses (n, 6) m, rad).
+
+    The header names the columns with units: ``t_s`` (optional; else sample
+    index), ``x_m`` or ``x_mm`` (likewise y, z) and ``roll_rad`` or ``roll_deg``
+    (likewise pitch, yaw). Missing pose columns are zero.
+    """
+    import csv
+
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise ValueError(f"{path}: no rows")
+    header = set(rows[0])
+    poses = np.zeros((len(rows), 6))
+    for k, axis in enumerate(("x", "y", "z", "roll", "pitch", "yaw")):
+        cols = [c for c in header if c.split("_")[0] == axis]
+        if len(cols) > 1:
+            raise ValueError(f"{path}: more than one column for {axis}: {cols}")
+        if cols:
+            unit = cols[0].split("_", 1)[1] if "_" in cols[0] else ""
+            if unit not in _UNITS:
+                raise ValueError(f"{path}: column {cols[0]!r} needs a unit suffix (_m, _mm, _rad or _deg)")
+            try:
+                poses[:, k] = [float(r[cols[0]]) * _UNITS[unit] for r in rows]
+            except ValueError as exc:
+                raise ValueError(f"{path}: column {cols[0]!r}: {exc}") from None
+    t = np.array([float(r["t_s"]) for r in rows]) if "t_s" in header else np.arange(len(rows), dtype=float)
+    return t, poses
+
+
+def trajectory_check(geometry: PlatformGeometry, t: np.ndarray, poses: np.ndarray,
+                     calibration: ServoCalibration | None = None) -> dict[str, Any]:  # fmt: skip
+    """Run a trajectory through the IK: actuators and pulses over time against their limits.
+
+    Returns a dict with ``reachable`` (n,), ``actuators`` (n, 6: servo angles rad
+    or leg lengths m), ``actuator_limits``, ``pulses_us`` (n, 6; NaN outside the
+    channel limits; rotary only), ``first_unreachable`` (index or None) and its
+    ``first_unreachable_t`` and ``explanation``.
+    """
+    ik = inverse_kinematics(geometry, poses)
+    out: dict[str, Any] = {"t": np.asarray(t), "poses": poses, "reachable": ik.reachable, "actuators": ik.actuators,
+                           "kind": geometry.kind}  # fmt: skip
+    if geometry.is_rotary:
+        cal = calibration or ServoCalibration.default(geometry)
+        out["pulses_us"] = cal.pulse_widths(ik.servo_angles, out_of_range="nan")
+        out["pulse_limits_us"] = (cal.min_us, cal.max_us)
+        out["actuator_limits"] = geometry.servo_angle_range
+    else:
+        out["actuator_limits"] = geometry.leg_length_range
+    bad = np.flatnonzero(~ik.reachable)
+    out["first_unreachable"] = int(bad[0]) if bad.size else None
+    out["first_unreachable_t"] = float(t[bad[0]]) if bad.size else None
+    out["explanation"] = ik.explain(int(bad[0])) if bad.size else "every sample is reachable"
+    out["unreachable_fraction"] = float((~ik.reachable).mean())
+    return out

@@ -1,0 +1,304 @@
+"""``stewart-gym`` subcommands of the kinematics analyses: workspace, trajectory, sensitivity, conditioning,
+planar, assembly. Each takes ``--geometry NAME|FILE``, ``--json`` and, where it draws, ``--plot FILE.png``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.geometry import load_geometry
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib  # type: ignore[no-redef]
+
+#: Seed 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
+SEED_003_RANGES_MM = (25.0, 28.0, 15.0)
+
+#: 3-RPR parameter sets from Sauer's Reality Check 1 (the seed's source).
+PLANAR_PRESETS: dict[str, dict[str, float]] = {
+    "sauer-test": {"L1": 2.0, "L2": math.sqrt(2), "L3": math.sqrt(2), "gamma": math.pi / 2, "x1": 4.0, "x2": 0.0,
+                   "y2": 4.0, "p1": math.sqrt(5), "p2": math.sqrt(5), "p3": math.sqrt(5)},
+    "sauer": {"L1": 3.0, "L2": 3 * math.sqrt(2), "L3": 3.0, "gamma": math.pi / 4, "x1": 5.0, "x2": 0.0, "y2": 6.0,
+              "p1": 5.0, "p2": 5.0, "p3": 3.0},
+}  # fmt: skip
+PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
+
+
+def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) -> int:
+    if args.json:
+        print(json.dumps(_plain(result)))
+    else:
+        print("\n".join(lines))
+    return 0
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def _grid_extent(geo: Any) -> tuple[float, float]:
+    from stewart_gym.analysis.workspace import axis_ranges
+
+    r = axis_ranges(geo)
+    return float(max(-r[0, 0], r[0, 1], -r[1, 0], r[1, 1])) * 1.1, float(max(-r[2, 0], r[2, 1])) * 1.2
+
+
+def cmd_workspace(args: argparse.Namespace) -> int:
+    """Reach along each axis, the reachable-z map over x–y (seed 002) and sampled workspace volumes."""
+    from stewart_gym.analysis.plots import plot_height_map
+    from stewart_gym.analysis.workspace import axis_ranges, height_map, reachable_volume
+
+    geo = load_geometry(args.geometry)
+    pivot = None if args.pivot is None else np.array(args.pivot) * 1e-3
+    orient = tuple(math.radians(v) for v in args.orientation)
+    reach = axis_ranges(geo, pivot)
+    xy_ext, z_ext = _grid_extent(geo)
+    if args.range is not None:
+        xy_ext = args.range * 1e-3
+    step = args.z_step * 1e-3
+    levels = np.arange(-math.ceil(z_ext / step), math.ceil(z_ext / step) + 1) * step
+    grid = np.linspace(-xy_ext, xy_ext, args.n)
+    hm = height_map(geo, orient, pivot, x=grid, y=grid, z_levels=levels)
+    vol = reachable_volume(geo, samples=args.samples, pivot=pivot)
+    res: dict[str, Any] = {
+        "geometry": geo.name,
+        "axis_ranges": {"x_mm": reach[0] * 1e3, "y_mm": reach[1] * 1e3, "z_mm": reach[2] * 1e3,
+                        "roll_deg": np.degrees(reach[3]), "pitch_deg": np.degrees(reach[4]),
+                        "yaw_deg": np.degrees(reach[5])},  # fmt: skip
+        "height_map": {"grid_points": args.n, "xy_extent_mm": xy_ext * 1e3, "z_step_mm": args.z_step,
+                       "max_z_mm": round(float(np.nanmax(hm.z_max) * 1e3), 4) if np.isfinite(hm.z_max).any() else None,
+                       "min_z_mm": round(float(np.nanmin(hm.z_min) * 1e3), 4) if np.isfinite(hm.z_min).any() else None,
+                       "reachable_fraction": float(np.isfinite(hm.z_max).mean())},  # fmt: skip
+        "volume": vol,
+    }
+    lines = [f"{geo.name}: reach from home along each axis (others at 0)"]
+    for k, (axis, unit, scale) in enumerate([("x", "mm", 1e3), ("y", "mm", 1e3), ("z", "mm", 1e3),
+                                             ("roll", "°", 180 / math.pi), ("pitch", "°", 180 / math.pi),
+                                             ("yaw", "°", 180 / math.pi)]):  # fmt: skip
+        extra = f"   (seed 003's build: ±{SEED_003_RANGES_MM[k]:.0f} mm)" if geo.name == "servo-hexapod" and k < 3 else ""
+        lines.append(f"  {axis:5s} {reach[k, 0] * scale:9.2f} … {reach[k, 1] * scale:8.2f} {unit}{extra}")
+    if geo.name == "servo-hexapod":
+        res["seed_003_ranges_mm"] = SEED_003_RANGES_MM
+    hmr = res["height_map"]
+    lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm at {args.z_step} mm steps: "
+                 f"{hmr['min_z_mm']} … {hmr['max_z_mm']} mm, {hmr['reachable_fraction']:.1%} of the grid")  # fmt: skip
+    lines.append(f"translational workspace at home orientation ≈ {vol['volume_translation_m3'] * 1e9:,.1f} mm³; "
+                 f"{vol['fraction_6dof']:.2%} of the 6-DoF box is reachable ({vol['samples']:,} samples)")  # fmt: skip
+    if args.plot:
+        plot_height_map(hm, args.plot, f"{geo.name}: reachable z (orientation {args.orientation} °)")
+    return _emit(args, res, lines)
+
+
+def cmd_trajectory(args: argparse.Namespace) -> int:
+    """Run a trajectory (seed 001's circle or a CSV of poses) through the IK against the limits."""
+    from stewart_gym.analysis.plots import plot_trajectory
+    from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
+
+    geo = load_geometry(args.geometry)
+    if args.csv:
+        t, poses = load_pose_csv(args.csv)
+    else:
+        t, poses = circle(args.radius * 1e-3, args.samples, z=args.z * 1e-3)
+    res = trajectory_check(geo, t, poses)
+    lines = [f"{geo.name}: {len(t)} samples, {res['unreachable_fraction']:.1%} unreachable",
+             "first unreachable: " + ("none" if res["first_unreachable"] is None else
+                                      f"sample {res['first_unreachable']} at t = {res['first_unreachable_t']:.3f} s"),
+             res["explanation"]]  # fmt: skip
+    if args.plot:
+        plot_trajectory(res, args.plot, f"{geo.name}: trajectory against the actuator limits")
+    out = {k: res[k] for k in ("first_unreachable", "first_unreachable_t", "explanation", "unreachable_fraction",
+                               "actuator_limits")}  # fmt: skip
+    out["geometry"], out["samples"] = geo.name, len(t)
+    return _emit(args, out, lines)
+
+
+def cmd_sensitivity(args: argparse.Namespace) -> int:
+    """Platform motion per servo step (seed 003) over the x–y workspace; Jacobian cross-checked by FK."""
+    from stewart_gym.analysis.plots import plot_sensitivity
+    from stewart_gym.analysis.sensitivity import fd_check, sensitivity, xy_grid_poses
+
+    geo = load_geometry(args.geometry)
+    ext, _ = _grid_extent(geo)
+    grid = np.linspace(-ext, ext, args.n)
+    poses = xy_grid_poses(grid, grid)
+    res = sensitivity(geo, poses, math.radians(args.step_deg))
+    worst = res.worst()
+    rng = np.random.default_rng(0)
+    sample = poses.reshape(-1, 6)[res.reachable.ravel()]
+    fd = fd_check(geo, sample[rng.choice(len(sample), min(args.fd_samples, len(sample)), replace=False)],
+                  math.radians(args.step_deg))  # fmt: skip
+    i = np.unravel_index(np.nanargmax(res.position_step), res.position_step.shape)
+    out = {"geometry": geo.name, "servo_step_deg": args.step_deg, **worst, "fd_relative_error": fd,
+           "least_precise_xy_mm": [float(grid[i[1]] * 1e3), float(grid[i[0]] * 1e3)]}  # fmt: skip
+    lines = [f"{geo.name}: platform motion for a {args.step_deg}° servo step, over a {args.n}×{args.n} x–y grid",
+             f"  one servo: translation {worst['best_position_step_mm']:.4f} … {worst['worst_position_step_mm']:.4f} mm, "
+             f"rotation up to {worst['worst_angle_step_deg']:.4f}°",
+             f"  all six off by the step: x, y, z up to {np.round(worst['worst_all_servos_xyz_mm'], 4).tolist()} mm, "
+             f"roll, pitch, yaw up to {np.round(worst['worst_all_servos_rpy_deg'], 4).tolist()}°",
+             f"  least precise at x, y = {out['least_precise_xy_mm']} mm",
+             f"  seed 003's small-angle estimate a·Δα = {worst['small_angle_estimate_mm']:.4f} mm",
+             f"  Jacobian vs finite differences through FK: relative error {fd:.2e}"]  # fmt: skip
+    if args.plot:
+        plot_sensitivity(grid, grid, res.position_step, res.angle_step, args.plot,
+                         f"{geo.name}: motion per {args.step_deg}° servo step")  # fmt: skip
+    return _emit(args, out, lines)
+
+
+def cmd_conditioning(args: argparse.Namespace) -> int:
+    """Condition number of the Jacobian over the x–y workspace; near-singular poses flagged."""
+    from stewart_gym.analysis.plots import plot_conditioning
+    from stewart_gym.analysis.sensitivity import conditioning, xy_grid_poses
+
+    geo = load_geometry(args.geometry)
+    ext, _ = _grid_extent(geo)
+    grid = np.linspace(-ext, ext, args.n)
+    res = conditioning(geo, xy_grid_poses(grid, grid, orientation=tuple(math.radians(v) for v in args.orientation)),
+                       args.threshold)  # fmt: skip
+    cond, near = res["cond"], res["near_singular"]
+    gx, gy = np.meshgrid(grid, grid)
+    flagged = [[float(gx[i] * 1e3), float(gy[i] * 1e3), float(cond[i])] for i in zip(*np.nonzero(near))]
+    out = {"geometry": geo.name, "min_cond": float(np.nanmin(cond)), "max_cond": float(np.nanmax(cond)),
+           "threshold": args.threshold, "near_singular_count": int(near.sum()), "near_singular_xy_mm_cond": flagged[:50],
+           "length_scale_m": res["length_scale_m"]}  # fmt: skip
+    lines = [f"{geo.name}: cond(J) over the reachable {args.n}×{args.n} grid: {out['min_cond']:.2f} … "
+             f"{out['max_cond']:.2f}; {out['near_singular_count']} poses above {args.threshold:g}"]  # fmt: skip
+    if args.plot:
+        plot_conditioning(grid, grid, cond, near, args.plot, f"{geo.name}: conditioning of the Jacobian")
+    return _emit(args, out, lines)
+
+
+def _planar_params(args: argparse.Namespace) -> dict[str, float]:
+    if args.geometry in PLANAR_PRESETS:
+        params = dict(PLANAR_PRESETS[args.geometry])
+    else:
+        with Path(args.geometry).open("rb") as fh:
+            data = tomllib.load(fh)
+        missing = [k for k in PLANAR_KEYS if k not in data]
+        if missing:
+            raise ValueError(f"{args.geometry}: missing planar parameter(s) {missing}")
+        params = {k: float(data[k]) for k in PLANAR_KEYS}
+    for k in PLANAR_KEYS:
+        v = getattr(args, k)
+        if v is not None:
+            params[k] = v
+    return params
+
+
+def cmd_planar(args: argparse.Namespace) -> int:
+    """All poses of the planar 3-RPR platform (seed 004), optionally sweeping one strut."""
+    from stewart_gym.analysis.plots import plot_planar, plot_sweep
+    from stewart_gym.planar import solve_planar, sweep_strut
+
+    params = _planar_params(args)
+    poses = solve_planar(**params)
+    out: dict[str, Any] = {"parameters": params, "poses": poses, "count": len(poses)}
+    lines = [f"{len(poses)} pose(s) (x, y, θ):"] + [f"  {p[0]: .6f} {p[1]: .6f} {p[2]: .6f}" for p in poses]
+    if args.plot:
+        plot_planar(poses, params, args.plot)
+    if args.sweep:
+        strut, start, stop, n = args.sweep.split(":")
+        values = np.linspace(float(start), float(stop), int(n))
+        counts, changes = sweep_strut(params, strut, values, progress=not args.json)
+        out["sweep"] = {"strut": strut, "values": values, "counts": counts, "changes": changes}
+        lines.append(f"sweeping {strut} over {start}…{stop}: the number of poses changes at")
+        lines += [f"  {strut} = {v:.4f}: {a} → {b}" for v, a, b in changes]
+        if args.sweep_plot:
+            plot_sweep(values, counts, strut, changes, args.sweep_plot)
+    return _emit(args, out, lines)
+
+
+def cmd_assembly(args: argparse.Namespace) -> int:
+    """All real assembly modes (FK branches) found from many starting guesses, for given leg lengths."""
+    from stewart_gym.analysis.assembly import assembly_modes
+    from stewart_gym.kinematics import inverse_kinematics
+
+    geo = load_geometry(args.geometry)
+    if args.legs:
+        lengths = np.array(args.legs) * 1e-3
+    else:
+        pose = np.array([v * 1e-3 for v in args.pose[:3]] + [math.radians(v) for v in args.pose[3:]])
+        lengths = inverse_kinematics(geo, pose).leg_lengths
+    modes = assembly_modes(geo, lengths, guesses=args.guesses, progress=not args.json)
+    out = {"geometry": geo.name, "leg_lengths_mm": lengths * 1e3, "count": len(modes),
+           "modes_mm_deg": np.c_[modes[:, :3] * 1e3, np.degrees(modes[:, 3:])]}  # fmt: skip
+    lines = [f"{geo.name}: {len(modes)} distinct real assembly modes from {args.guesses} guesses "
+             "(x, y, z mm; roll, pitch, yaw °):"]  # fmt: skip
+    lines += ["  " + " ".join(f"{v:9.3f}" for v in row) for row in out["modes_mm_deg"]]
+    return _emit(args, out, lines)
+
+
+def register(sub: Any) -> None:
+    """Add the analysis subcommands to the ``stewart-gym`` parser."""
+    geo_help = "preset name or TOML file"
+    p = sub.add_parser("workspace", help=cmd_workspace.__doc__)
+    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"),
+                   help="degrees")  # fmt: skip
+    p.add_argument("--pivot", nargs=3, type=float, metavar=("X", "Y", "Z"), help="mm, platform frame")
+    p.add_argument("--range", type=float, help="half-width of the x–y grid, mm")
+    p.add_argument("--n", type=int, default=100, help="grid points per axis")
+    p.add_argument("--z-step", type=float, default=0.1, help="mm")
+    p.add_argument("--samples", type=int, default=200_000, help="Monte Carlo samples for the volumes")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=cmd_workspace)
+    p = sub.add_parser("trajectory", help=cmd_trajectory.__doc__)
+    p.add_argument("--geometry", default="senilov2018", help=geo_help)
+    p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
+    p.add_argument("--radius", type=float, default=200.0, help="circle radius, mm (seed 001: 200)")
+    p.add_argument("--z", type=float, default=0.0, help="circle height from home, mm")
+    p.add_argument("--samples", type=int, default=1000)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=cmd_trajectory)
+    p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__)
+    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    p.add_argument("--step-deg", type=float, default=0.1, help="servo step, degrees (seed 003: 0.1)")
+    p.add_argument("--n", type=int, default=61)
+    p.add_argument("--fd-samples", type=int, default=100, help="poses for the finite-difference check")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=cmd_sensitivity)
+    p = sub.add_parser("conditioning", help=cmd_conditioning.__doc__)
+    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"))
+    p.add_argument("--threshold", type=float, default=1e3)
+    p.add_argument("--n", type=int, default=61)
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", help="PNG file")
+    p.set_defaults(func=cmd_conditioning)
+    p = sub.add_parser("planar", help=cmd_planar.__doc__)
+    p.add_argument("--geometry", default="sauer", help=f"{', '.join(PLANAR_PRESETS)} or a TOML with {PLANAR_KEYS}")
+    for k in PLANAR_KEYS:
+        p.add_argument(f"--{k}", type=float, help="override" + (" (rad)" if k == "gamma" else ""))
+    p.add_argument("--sweep", help="STRUT:START:STOP:N, e.g. p2:0.5:12:231")
+    p.add_argument("--sweep-plot", help="PNG of the pose count against the swept strut")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--plot", help="PNG of every pose")
+    p.set_defaults(func=cmd_planar)
+    p = sub.add_parser("assembly", help=cmd_assembly.__doc__)
+    p.add_argument("--geometry", default="senilov2018", help=geo_help)
+    p.add_argument("--legs", nargs=6, type=float, help="leg lengths, mm")
+    p.add_argument("--pose", nargs=6, type=float, default=(10, 0, 0, 3, 1, 6), help="leg lengths of this pose (mm, °)")
+    p.add_argument("--guesses", type=int, default=4000)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_assembly)

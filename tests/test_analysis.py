@@ -1,0 +1,214 @@
+"""Kinematic analyses on cases with answers known independently."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stewart_gym.analysis.assembly import assembly_modes
+from stewart_gym.analysis.cli import PLANAR_PRESETS
+from stewart_gym.analysis.sensitivity import conditioning, fd_check, sensitivity, xy_grid_poses
+from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
+from stewart_gym.analysis.workspace import axis_ranges, height_map, reachable_volume
+from stewart_gym.cli import main
+from stewart_gym.geometry import load_preset
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.planar import planar_f, planar_struts, solve_planar, sweep_strut
+
+MM = 1e-3
+
+
+# ------------------------------------------------------------------ workspace
+def test_mathcad_height_map_agrees_with_the_seeds_check() -> None:
+    """Seed 002's Check(x, y): for k = 0…30, keep k/10 mm if every leg is within 31.44 ± 1.24 mm."""
+    g = load_preset("mathcad-micro")
+    pivot = np.array([10, 0, 10]) * MM
+    xs = np.linspace(-2.5, 2.5, 100) * MM
+    hm = height_map(g, pivot=pivot, x=xs, y=xs, z_levels=np.arange(31) / 10 * MM)
+
+    def check(x: float, y: float) -> float:  # literal transcription of the Mathcad procedure
+        temp = 0.0
+        for k in range(31):
+            t = np.array([x + 10 * MM, y, k / 10 * MM + 22.19 * MM + 10 * MM])
+            legs = t + (g.platform_anchors - pivot) - g.base_anchors
+            length = np.linalg.norm(legs, axis=1) - 31.44 * MM
+            if length.max() < 1.24 * MM and length.min() > -1.24 * MM:
+                temp = k / 10
+        return temp
+
+    rng = np.random.default_rng(0)
+    for i, j in rng.integers(0, 100, (200, 2)):
+        got = hm.z_max[i, j]
+        assert (0.0 if np.isnan(got) else got / MM) == pytest.approx(check(xs[j], xs[i]), abs=1e-9)
+
+
+def test_symmetric_geometry_has_a_symmetric_workspace() -> None:
+    g = load_preset("servo-hexapod")
+    xs = np.linspace(-0.05, 0.05, 41)
+    hm = height_map(g, x=xs, y=xs, z_levels=np.arange(-250, 251) * 1e-4)
+    assert np.array_equal(np.isnan(hm.z_max), np.isnan(hm.z_max[:, ::-1]))
+    assert np.allclose(hm.z_max, hm.z_max[:, ::-1], equal_nan=True)  # mirror x → −x
+    # 120° symmetry of the reach along x/y directions is not axis-aligned, but roll/pitch mirror: pitch range is ±
+    r = axis_ranges(g)
+    assert r[0, 0] == pytest.approx(-r[0, 1], rel=1e-6) and r[4, 0] == pytest.approx(-r[4, 1], rel=1e-6)
+    assert r[5, 0] == pytest.approx(-r[5, 1], rel=1e-6)
+
+
+def test_height_map_equals_a_full_scan() -> None:
+    g = load_preset("servo-hexapod")
+    xs = np.linspace(-0.06, 0.06, 9)
+    levels = np.arange(-250, 251) * 1e-4
+    hm = height_map(g, (0.05, -0.02, 0.1), x=xs, y=xs, z_levels=levels)
+    gx, gy = np.meshgrid(xs, xs)
+    poses = np.zeros(gx.shape + (len(levels), 6))
+    poses[..., 0], poses[..., 1] = gx[..., None], gy[..., None]
+    poses[..., 2], poses[..., 3:] = levels, (0.05, -0.02, 0.1)
+    reach = inverse_kinematics(g, poses).reachable
+    ref_max = np.where(reach.any(-1), levels[np.where(reach, np.arange(len(levels)), -1).max(-1)], np.nan)
+    ref_min = np.where(reach.any(-1), levels[np.where(reach, np.arange(len(levels)), 10**6).min(-1) % 10**6], np.nan)
+    assert np.allclose(hm.z_max, ref_max, equal_nan=True) and np.allclose(hm.z_min, ref_min, equal_nan=True)
+
+
+def test_reachable_volume_is_consistent() -> None:
+    v = reachable_volume(load_preset("servo-hexapod"), samples=50_000)
+    assert 0 < v["fraction_6dof"] < v["fraction_translation"] < 1
+    assert v["fraction_6dof_se"] < 0.01
+
+
+# --------------------------------------------------------------- trajectories
+def test_seed_001_circle_names_the_first_unreachable_sample() -> None:
+    t, poses = circle(0.2, 200)
+    res = trajectory_check(load_preset("senilov2018"), t, poses)
+    assert res["first_unreachable"] == 0 and "above the upper actuator limit" in res["explanation"]
+    small = trajectory_check(load_preset("servo-hexapod"), *circle(0.02, 200))
+    assert small["first_unreachable"] is None and np.all(np.isfinite(small["pulses_us"]))
+    t, poses = circle(0.045, 400)  # 45 mm: within the x reach (45.7 mm), beyond +y (44.2 mm)
+    res = trajectory_check(load_preset("servo-hexapod"), t, poses)
+    k = res["first_unreachable"]
+    assert k is not None and res["reachable"][:k].all() and not res["reachable"][k]
+
+
+def test_pose_csv_units(tmp_path: Path) -> None:
+    path = tmp_path / "p.csv"
+    path.write_text("t_s,x_mm,roll_deg\n0,1,0\n0.5,2,10\n")
+    t, poses = load_pose_csv(str(path))
+    assert t.tolist() == [0, 0.5] and poses[1, 0] == pytest.approx(0.002) and poses[1, 3] == pytest.approx(math.radians(10))
+    path.write_text("x\n1\n")
+    with pytest.raises(ValueError, match="unit suffix"):
+        load_pose_csv(str(path))
+
+
+# ---------------------------------------------------------------- sensitivity
+def test_sensitivity_jacobian_agrees_with_finite_differences() -> None:
+    g = load_preset("servo-hexapod")
+    rng = np.random.default_rng(1)
+    poses = rng.uniform(-1, 1, (60, 6)) * [0.01, 0.01, 0.008, 0.1, 0.1, 0.2]
+    assert fd_check(g, poses) < 1e-5
+    res = sensitivity(g, xy_grid_poses(np.linspace(-0.03, 0.03, 11), np.linspace(-0.03, 0.03, 11)))
+    worst = res.worst()
+    # one 0.1° servo step moves the plate by about the horn tip's arc, scaled by the linkage
+    assert 0.5 < worst["worst_position_step_mm"] / worst["small_angle_estimate_mm"] < 3
+    # a pure servo step at home: translation from F·Δα equals the IK-inverse (a single-servo step)
+    home = sensitivity(g, np.zeros(6))
+    assert home.position_step == pytest.approx(res.position_step[5, 5], rel=1e-9)
+
+
+def test_conditioning_flags_a_near_singular_pose() -> None:
+    g = load_preset("servo-hexapod")
+    c = conditioning(g, np.zeros((1, 6)))
+    assert 1 < c["cond"][0] < 100 and not c["near_singular"][0]
+    # with rods nearly in line with the horns (the workspace edge), conditioning degrades
+    edge = np.array([[0, 0, 0.0179, 0, 0, 0]])
+    ce = conditioning(g, edge, singular_threshold=c["cond"][0] * 1.5)
+    assert ce["cond"][0] > c["cond"][0]
+
+
+# --------------------------------------------------------------------- planar
+def test_planar_sauer_cases() -> None:
+    p = PLANAR_PRESETS["sauer-test"]
+    poses = solve_planar(**p)
+    assert poses[:, 2] == pytest.approx([-math.pi / 4, math.pi / 4], abs=1e-10)
+    assert np.allclose(poses[:, :2], [[1, 2], [2, 1]], atol=1e-9)
+    p4 = PLANAR_PRESETS["sauer"]
+    assert len(solve_planar(**p4)) == 4
+    assert len(solve_planar(**{**p4, "p2": 7.0})) == 6
+    f = planar_f(solve_planar(**p4)[:, 2], **p4)
+    assert np.abs(f).max() < 1e-8 * np.abs(planar_f(np.linspace(-3, 3, 100), **p4)).max()
+
+
+def test_planar_recovers_a_known_pose() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        params = {"L1": 0.0, "L2": rng.uniform(1, 3), "L3": rng.uniform(1, 3), "gamma": rng.uniform(0.5, 2.0),
+                  "x1": rng.uniform(3, 6), "x2": rng.uniform(-1, 1), "y2": rng.uniform(3, 6)}  # fmt: skip
+        params["L1"] = math.sqrt(params["L2"] ** 2 + params["L3"] ** 2
+                                 - 2 * params["L2"] * params["L3"] * math.cos(params["gamma"]))  # fmt: skip
+        pose = np.array([rng.uniform(1, 3), rng.uniform(1, 3), rng.uniform(-math.pi, math.pi)])
+        struts = planar_struts(pose, params["L2"], params["L3"], params["gamma"], params["x1"], params["x2"], params["y2"])
+        found = solve_planar(**params, p1=struts[0], p2=struts[1], p3=struts[2])
+        assert np.min(np.linalg.norm(found - pose, axis=1)) < 1e-7
+        assert np.all(np.diff(found[:, 2]) > 0)  # sorted by θ
+
+
+def test_planar_tangential_root_is_found() -> None:
+    """At a strut length where two poses merge, f touches zero without changing sign: that pose is still found."""
+    p = PLANAR_PRESETS["sauer"]
+    lo, hi = 4.85, 4.88  # the count goes 2 → 4 near p2 = 4.8637 (a double root appears)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        if len(solve_planar(**{**p, "p2": mid})) <= 2:
+            lo = mid
+        else:
+            hi = mid
+    at = solve_planar(**{**p, "p2": hi})
+    assert len(at) in (3, 4)
+    theta = np.linspace(-math.pi, math.pi, 200001)
+    f = planar_f(theta, **{**p, "p2": hi})
+    double = theta[np.argmin(np.abs(f))]
+    assert np.min(np.abs(at[:, 2] - double)) < 1e-3
+    counts, changes = sweep_strut(p, "p2", np.linspace(0.5, 12, 116))
+    assert [c for _, _, c in changes] == [2, 4, 6, 4, 2, 0]
+    assert [round(v, 2) for v, _, _ in changes] == [3.71, 4.86, 6.97, 7.02, 7.85, 9.26]
+
+
+def test_planar_no_solution_is_empty() -> None:
+    p = {**PLANAR_PRESETS["sauer"], "p2": 20.0}
+    assert solve_planar(**p).shape == (0, 3)
+    with pytest.raises(ValueError, match="p1"):
+        solve_planar(**{**p, "p1": -1.0})
+
+
+# ------------------------------------------------------------- assembly modes
+def test_assembly_modes_include_the_true_pose_and_satisfy_the_legs() -> None:
+    g = load_preset("senilov2018")
+    pose = np.array([0.01, 0.0, 0.0, 0.05, 0.02, 0.1])
+    lengths = inverse_kinematics(g, pose).leg_lengths
+    modes = assembly_modes(g, lengths, guesses=1500)
+    assert len(modes) >= 2 and len(modes) % 2 == 0  # coplanar base anchors: each mode has its mirror image
+    assert np.min(np.abs(modes - pose).max(axis=1)) < 1e-8
+    assert np.allclose(inverse_kinematics(g, modes).leg_lengths, lengths, atol=1e-9)
+
+
+# ----------------------------------------------------------------------- CLI
+@pytest.mark.parametrize("args", [
+    ["workspace", "--geometry", "mathcad-micro", "--n", "30", "--samples", "5000"],
+    ["trajectory", "--geometry", "senilov2018", "--samples", "50"],
+    ["sensitivity", "--n", "11", "--fd-samples", "10"],
+    ["conditioning", "--n", "11"],
+    ["planar", "--geometry", "sauer", "--p2", "7"],
+    ["assembly", "--geometry", "senilov2018", "--guesses", "300"],
+])  # fmt: skip
+def test_analysis_cli_json_and_plot(args: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    plot = tmp_path / "p.png"
+    extra = ["--plot", str(plot)] if args[0] != "assembly" else []
+    assert main([*args, "--json", *extra]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert isinstance(out, dict) and out
+    if extra:
+        assert plot.stat().st_size > 10_000
+    if args[0] == "planar":
+        assert out["count"] == 6
