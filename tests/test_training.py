@@ -40,10 +40,10 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
     assert rows[0] == "timesteps,wall_s,mean_reward,success_rate" and len(rows) >= 3
     # load: same actions as the trained model on the same normalised observations
     policy = load_sb3(run)
-    obs = np.random.default_rng(0).normal(size=(5, 12)).astype(np.float32)
+    obs = np.random.default_rng(0).normal(size=(5, 14)).astype(np.float32)
     expected = policy.model.predict(policy.normalize(obs), deterministic=True)[0]
     assert np.allclose(load_sb3(run / "model.zip").predict(obs)[0], expected)
-    assert policy.obs_rms is not None and policy.obs_rms.mean.shape == (12,)
+    assert policy.obs_rms is not None and policy.obs_rms.mean.shape == (14,)
     m = evaluate("StewartBallBalance-v0", policy, episodes=1, seed=0, settling=False)
     assert 0.0 <= m["success_rate"] <= 1.0 and m["rms_error_mm"] >= 0
     # resume from the run folder continues counting timesteps
@@ -76,7 +76,7 @@ def test_pid_gains_round_trip(tmp_path: Path) -> None:
     pid = CascadedPID(PIDGains(kp_pos=2.5, kp_vel=6.0, ki_vel=1.5))
     pid.save(tmp_path / "g.json")
     again = load_policy(str(tmp_path / "g.json"))
-    obs = np.random.default_rng(1).normal(size=(3, 12))
+    obs = np.random.default_rng(1).normal(size=(3, 14))
     assert np.array_equal(again.predict(obs)[0], CascadedPID(pid.gains).predict(obs)[0])
 
 
@@ -88,3 +88,25 @@ def test_evaluate_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
                 "pulse_rate_us_per_s"):  # fmt: skip
         assert key in out
     assert out["episodes"] == 2 and out["seed"] == 3
+
+
+def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["demo", "--episodes", "2", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "success rate" in out and "shipped" in out and "pid" in out
+    metrics = json.loads((tmp_path / "demo_metrics.json").read_text())
+    assert set(metrics) == {"shipped", "pid"} and metrics["shipped"]["episodes"] == 2
+    assert (tmp_path / "demo.gif").stat().st_size > 50_000 and (tmp_path / "demo_pulses.png").stat().st_size > 20_000
+
+
+def test_shipped_policy_files_are_small_and_complete() -> None:
+    from stewart_gym.evaluation import POLICY_DIR
+
+    folder = POLICY_DIR / "balance"
+    for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "metrics.json", "eval.csv", "bundle/policy.onnx",
+                 "bundle/bundle.json"):  # fmt: skip
+        assert (folder / name).exists(), name
+    assert sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) < 2_000_000
+    policy = load_policy("shipped")
+    obs = np.zeros((1, 14), dtype=np.float32)
+    assert policy.predict(obs)[0].shape == (1, 2)

@@ -48,18 +48,19 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``info["unreachable_count"]`` counts it over the episode.
 
     ## Observation Space
-    ``Box(float32)`` of size 10 + n, each entry scaled to about ±1 and clipped:
+    ``Box(float32)`` of size 12 + n, each entry scaled to about ±1 and clipped:
 
-    ===== ================================================ ========== ======
-    index observation                                      scale      bounds
-    ===== ================================================ ========== ======
-    0, 1  ball x, y from the touch panel (plate frame)     m / 0.15   ±2
-    2, 3  ball velocity, estimated from panel positions    m/s / 0.5  ±5
-    4, 5  target x, y (plate frame)                        m / 0.15   ±2
-    6, 7  target velocity                                  m/s / 0.5  ±5
-    8, 9  commanded roll, pitch (0 in ``"pulse"`` mode)    rad / 0.25 ±2
-    10…   previous action                                  1          ±1
-    ===== ================================================ ========== ======
+    ====== =============================================== ========== ======
+    index  observation                                     scale      bounds
+    ====== =============================================== ========== ======
+    0, 1   ball x, y from the touch panel (plate frame)    m / 0.15   ±2
+    2, 3   ball velocity, estimated from panel positions   m/s / 0.5  ±5
+    4, 5   target x, y (plate frame)                       m / 0.15   ±2
+    6, 7   target velocity                                 m/s / 0.5  ±5
+    8, 9   commanded roll, pitch (0 in ``"pulse"`` mode)   rad / 0.25 ±2
+    10, 11 integral of target − sensed position, ±0.05 m·s m·s / 0.05 ±1
+    12…    previous action                                 1          ±1
+    ====== =============================================== ========== ======
 
     The panel (:class:`~stewart_gym.sensing.TouchPanelSpec`) samples at 100 Hz
     with 10 ms latency and 1 mm noise; when the ball is not touching, the last
@@ -242,7 +243,7 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def _observe(self, t: float) -> np.ndarray:
         target_xy, target_vel = self._target(t)
-        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
+        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action, t)
 
     def _info(self, xy: np.ndarray, target_xy: np.ndarray, dist: float) -> dict[str, Any]:
         return {

@@ -170,7 +170,7 @@ class DeployLoop:
         """Observation → policy → IK → safety for one tick; returns (obs, action, pulses, flags). No I/O."""
         target_xy, target_vel = self.target(t)
         sample = None if reading is None else (reading[0], t - reading[1])
-        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action)
+        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action, t)
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)
         usable = False

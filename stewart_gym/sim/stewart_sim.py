@@ -15,11 +15,13 @@ built once; :meth:`StewartSim.reset` restores a saved state.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -94,6 +96,24 @@ class PhysicsSpec:
     plate_friction: float = 0.6
 
 
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Send file descriptor 1 to /dev/null for the block (C-level prints included)."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no usable stdout: nothing to protect
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 class StewartSim:
     """A servo Stewart platform in PyBullet, commanded in pulse widths.
 
@@ -160,7 +180,8 @@ class StewartSim:
         if self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet's GUI ends the whole process when it cannot open a window.
             raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array' headless")
-        c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
+        with _quiet_stdout():  # PyBullet's C code prints banners on stdout; keep it clean (e.g. for --json)
+            c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
         self._client = c
         # Hot-path calls bound once: BulletClient builds a new partial on every attribute access.
         cid = c._client
@@ -173,10 +194,11 @@ class StewartSim:
         c.setGravity(0, 0, -GRAVITY)
         c.setTimeStep(1.0 / self.physics_hz)
         solver = pb.CONSTRAINT_SOLVER_LCP_DANTZIG if self.physics.solver == "dantzig" else pb.CONSTRAINT_SOLVER_LCP_SI
-        c.setPhysicsEngineParameter(
-            constraintSolverType=solver, numSolverIterations=self.physics.solver_iterations,
-            erp=self.physics.erp, deterministicOverlappingPairs=1,
-        )  # fmt: skip
+        with _quiet_stdout():
+            c.setPhysicsEngineParameter(
+                constraintSolverType=solver, numSolverIterations=self.physics.solver_iterations,
+                erp=self.physics.erp, deterministicOverlappingPairs=1,
+            )  # fmt: skip
         geo = self.geometry
         mech_path, plate_path = self._tmp / "mechanism.urdf", self._tmp / "plate.urdf"
         mech_path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec))
