@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test bench train lint clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +23,15 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/bench_kinematics.py
+	$(PY) bench/bench_sim.py
+	$(PY) bench/bench_env.py
+	$(PY) bench/bench_deploy.py
+	$(PY) bench/bench_analysis.py
+
+# Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
+train: $(STAMP)
+	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --max-minutes 15
+	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
 
 lint: $(STAMP)
 	$(PY) -m ruff check stewart_gym tests bench

@@ -206,7 +206,9 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         print("error: no serial port (--port or [hardware] port in the calibration file)", file=sys.stderr)
         return 1
     if args.policy == "pid":
-        bundle = export_pid(POLICY_DIR / "pid_gains.json", Path(args.log).with_suffix(".pid_bundle"))
+        import tempfile
+
+        bundle = export_pid(POLICY_DIR / "pid_gains.json", Path(tempfile.mkdtemp(prefix="stewart_pid_")))
     elif args.policy == "shipped":
         bundle = POLICY_DIR / "balance" / "bundle"
     else:

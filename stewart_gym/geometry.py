@@ -24,18 +24,15 @@ raises :class:`GeometryError` naming the bad field.
 
 from __future__ import annotations
 
-import math
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+
+from stewart_gym.tomlio import read_toml
 
 __all__ = [
     "GeometryError",
@@ -234,13 +231,7 @@ class PlatformGeometry:
     @classmethod
     def from_toml(cls, path: str | Path) -> PlatformGeometry:
         """Load a geometry from a TOML file (see :meth:`from_dict` for the fields)."""
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise GeometryError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, source=str(path))
+        return cls.from_dict(read_toml(path, GeometryError), source=str(path))
 
     def to_toml(self) -> str:
         """This geometry as TOML text in SI units, loadable by :meth:`from_toml`."""

@@ -24,11 +24,7 @@ from typing import Any, Literal
 import numpy as np
 
 from stewart_gym.geometry import PlatformGeometry, load_geometry
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
+from stewart_gym.tomlio import read_toml
 
 __all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
            "hardware_settings"]
@@ -197,13 +193,7 @@ class ServoCalibration:
     @classmethod
     def from_toml(cls, path: str | Path, geometry: PlatformGeometry | str | None = None) -> ServoCalibration:
         """Load a calibration TOML file (layout in :meth:`from_dict`)."""
-        path = Path(path)
-        try:
-            with path.open("rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise CalibrationError(f"{path}: not valid TOML ({exc})") from None
-        return cls.from_dict(data, geometry, source=str(path))
+        return cls.from_dict(read_toml(path, CalibrationError), geometry, source=str(path))
 
     def to_toml(self) -> str:
         """TOML text that :meth:`from_toml` reads back to an equal calibration."""
@@ -286,8 +276,7 @@ class ServoCalibration:
 
 def hardware_settings(path: str | Path) -> dict[str, Any]:
     """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
-    with Path(path).open("rb") as fh:
-        table = tomllib.load(fh).get("hardware", {})
+    table = read_toml(path, CalibrationError).get("hardware", {})
     unknown = sorted(set(table) - {"port", "protocol", "baudrate"})
     if unknown:
         raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")

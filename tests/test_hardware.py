@@ -225,14 +225,21 @@ def test_unplug_stops_within_a_tick_and_keeps_the_log(device: FakeDevice, tmp_pa
     ctl = MaestroController(device.path)
     loop = DeployLoop(_pid_bundle(tmp_path), ActionMapper("servo-hexapod", CAL), ctl, _StaticSensor(),
                       DeployConfig(duration_s=5.0, log_path=str(log)))  # fmt: skip
-    timer = threading.Timer(0.3, device.unplug)
+    unplugged_at = []
+
+    def unplug() -> None:
+        unplugged_at.append(time.monotonic())
+        device.unplug()
+
+    timer = threading.Timer(0.3, unplug)
     timer.start()
     t0 = time.monotonic()
     summary = loop.run()
     assert summary.exit_code == 2 and "device failure" in summary.message and "unplugged" in summary.message
-    assert time.monotonic() - t0 < 0.3 + 0.2  # stopped within a tick or two of the unplug
-    rows = list(csv.reader(log.open()))
-    assert rows[0][0] == "t_s" and len(rows) > 5
+    rows = list(csv.DictReader(log.open()))
+    assert len(rows) > 5  # the log survived the failure
+    after = [r for r in rows if float(r["t_s"]) > unplugged_at[0] - t0]
+    assert len(after) <= 1  # the loop stopped at the first tick that could not write
 
 
 def test_stalled_sensor_triggers_the_watchdog(device: FakeDevice, tmp_path: Path) -> None:

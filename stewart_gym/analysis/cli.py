@@ -6,17 +6,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from stewart_gym.geometry import load_geometry
-
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python 3.10
-    import tomli as tomllib  # type: ignore[no-redef]
+from stewart_gym.tomlio import read_toml
 
 #: Seed 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
 SEED_003_RANGES_MM = (25.0, 28.0, 15.0)
@@ -190,8 +185,7 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
     if args.geometry in PLANAR_PRESETS:
         params = dict(PLANAR_PRESETS[args.geometry])
     else:
-        with Path(args.geometry).open("rb") as fh:
-            data = tomllib.load(fh)
+        data = read_toml(args.geometry)
         missing = [k for k in PLANAR_KEYS if k not in data]
         if missing:
             raise ValueError(f"{args.geometry}: missing planar parameter(s) {missing}")

@@ -163,6 +163,7 @@ class DeployLoop:
         self.observer = BallObserver(mapper.size)
         self.prev_action = np.zeros(mapper.size)
         self.roll_pitch = (0.0, 0.0)
+        self._observing = False  # the observer starts from the first reading, as the env's does at reset
 
     # --------------------------------------------------------------- one tick
     def compute(self, reading: tuple[tuple[float, float], float] | None, t: float) -> tuple[np.ndarray, np.ndarray,
@@ -170,6 +171,9 @@ class DeployLoop:
         """Observation → policy → IK → safety for one tick; returns (obs, action, pulses, flags). No I/O."""
         target_xy, target_vel = self.target(t)
         sample = None if reading is None else (reading[0], t - reading[1])
+        if sample is not None and not self._observing:
+            self.observer.reset(sample[1], sample[0])
+            self._observing = True
         obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action, t)
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)

@@ -28,7 +28,8 @@ class ServoController(ABC):
     """Six servos on a serial controller.
 
     Args:
-        port: a device path (opened here) or an open :class:`serial.Serial`.
+        port: a device path (opened here) or an open port: a :class:`serial.Serial`
+            or anything with its ``write``, ``flush``, ``read``, ``close`` and ``port``.
         channels: controller channel of servo 0…5.
         baudrate: line speed.
     """
@@ -40,7 +41,7 @@ class ServoController(ABC):
         self.channels = [int(c) for c in channels]
         if len(self.channels) != 6:
             raise ValueError(f"need 6 channels, got {self.channels}")
-        if isinstance(port, serial.Serial):
+        if not isinstance(port, str):
             self.serial = port
         else:
             try:

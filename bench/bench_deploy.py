@@ -1,0 +1,72 @@
+"""Deploy-loop compute latency per tick: observation → ONNX policy → IK → safety → protocol bytes.
+
+Run: ``.venv/bin/python bench/bench_deploy.py [--json]``. Uses the shipped policy's bundle
+(onnxruntime, one thread) and the Maestro framing; no serial I/O is timed.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from stewart_gym.actions import ActionMapper  # noqa: E402
+from stewart_gym.evaluation import POLICY_DIR  # noqa: E402
+from stewart_gym.hardware.deploy import DeployLoop  # noqa: E402
+from stewart_gym.hardware.devices import MaestroController  # noqa: E402
+from stewart_gym.hardware.export import BundlePolicy  # noqa: E402
+from stewart_gym.servo import ServoCalibration  # noqa: E402
+
+
+class _NullSerial:
+    """Stands in for the port: frames are built, not written."""
+
+    port = "null"
+    is_open = True
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        self.is_open = False
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--ticks", type=int, default=20_000)
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    cal = ServoCalibration.default("servo-hexapod")
+    policy = BundlePolicy(POLICY_DIR / "balance" / "bundle")
+    controller = MaestroController(_NullSerial())  # type: ignore[arg-type]
+    loop = DeployLoop(policy, ActionMapper("servo-hexapod", cal, policy.action_mode), controller, sensor=None)  # type: ignore[arg-type]
+    rng = np.random.default_rng(0)
+    readings = rng.normal(0, 0.03, (args.ticks, 2))
+    times = np.empty(args.ticks)
+    for k in range(args.ticks):
+        t0 = time.perf_counter()
+        _, _, pulses, _ = loop.compute(((float(readings[k, 0]), float(readings[k, 1])), 0.01), k * 0.02)
+        controller.send(pulses)
+        times[k] = time.perf_counter() - t0
+    times *= 1e3
+    res = {"ticks": args.ticks, "p50_ms": float(np.percentile(times, 50)), "p99_ms": float(np.percentile(times, 99)),
+           "max_ms": float(times.max())}  # fmt: skip
+    if args.json:
+        print(json.dumps(res))
+    else:
+        print(f"deploy tick compute (obs → ONNX → IK → safety → bytes), {args.ticks:,} ticks: "
+              f"p50 {res['p50_ms']:.3f} ms, p99 {res['p99_ms']:.3f} ms (target ≤ 1 ms), max {res['max_ms']:.3f} ms")
+
+
+if __name__ == "__main__":
+    main()
