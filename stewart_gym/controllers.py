@@ -50,7 +50,7 @@ class PIDGains:
 
 
 class CascadedPID:
-    """A policy: observation (…, 14) → tilt action (…, 2) in [-1, 1] (reads indices 0–7; keeps its own integral).
+    """A policy: observation (…, 12) → tilt action (…, 2) in [-1, 1] (reads indices 0–7; keeps its own integral).
 
     Args:
         gains: The gains.

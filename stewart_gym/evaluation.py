@@ -24,6 +24,8 @@ __all__ = ["EpisodeLog", "Policy", "evaluate", "format_table", "load_policy", "p
            "write_gif"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
+#: Folder under ``policies/`` of the shipped policy of each env id.
+SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track"}
 #: The standard offset for the settling-time test, m.
 SETTLING_OFFSET = 0.100
 
@@ -203,8 +205,8 @@ def load_policy(spec: str, env_id: str = "StewartBallBalance-v0") -> Policy:
     if spec == "pid":
         return CascadedPID.load(POLICY_DIR / "pid_gains.json")
     if spec == "shipped":
-        folder = POLICY_DIR / env_id.split("-")[0].replace("Stewart", "").lower()
-        if not (folder / "model.zip").exists():
+        folder = POLICY_DIR / SHIPPED.get(env_id, "")
+        if env_id not in SHIPPED or not (folder / "model.zip").exists():
             raise FileNotFoundError(f"no shipped policy for {env_id} (looked in {folder})")
         return load_sb3(folder)
     path = Path(spec)

@@ -129,42 +129,35 @@ class ObservationBuilder:
 
     Layout, each entry scaled to about [-1, 1] and clipped to the bounds below:
 
-    ====== ================================== ============ ======
-    index  what                               unit/scale   bounds
-    ====== ================================== ============ ======
-    0, 1   ball x, y (sensed, plate frame)     m / 0.15     ±2
-    2, 3   ball velocity (estimated)           m/s / 0.5    ±5
-    4, 5   target x, y                         m / 0.15     ±2
-    6, 7   target velocity                     m/s / 0.5    ±5
-    8, 9   commanded roll, pitch               rad / 0.25   ±2
-    10, 11 integral of the position error      m·s / 0.05   ±1
-    12…    previous action                     as sent      ±1
-    ====== ================================== ============ ======
-
-    The error integral (target − sensed position, clipped to ±0.05 m·s) lets a
-    policy remove steady offsets (servo trim errors, an off-centre load) as the
-    PID's integral term does.
+    ===== ============================== ========== ======
+    index what                           unit/scale bounds
+    ===== ============================== ========== ======
+    0, 1  ball x, y (sensed, plate frame) m / 0.15   ±2
+    2, 3  ball velocity (estimated)       m/s / 0.5  ±5
+    4, 5  target x, y                     m / 0.15   ±2
+    6, 7  target velocity                 m/s / 0.5  ±5
+    8, 9  commanded roll, pitch           rad / 0.25 ±2
+    10…   previous action                 as sent    ±1
+    ===== ============================== ========== ======
     """
 
     POSITION_SCALE = 0.15
     VELOCITY_SCALE = 0.5
     TILT_SCALE = 0.25
-    INTEGRAL_LIMIT = 0.05
 
     def __init__(self, action_size: int) -> None:
         self.action_size = int(action_size)
-        self.size = 12 + self.action_size
-        high = np.array([2, 2, 5, 5, 2, 2, 5, 5, 2, 2, 1, 1] + [1] * self.action_size, dtype=np.float32)
+        self.size = 10 + self.action_size
+        high = np.array([2, 2, 5, 5, 2, 2, 5, 5, 2, 2] + [1] * self.action_size, dtype=np.float32)
         self.low, self.high = -high, high
         self.space = spaces.Box(-high, high, dtype=np.float32)
         self._scale = np.array([1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2
                                + [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2
-                               + [1 / self.TILT_SCALE] * 2 + [1 / self.INTEGRAL_LIMIT] * 2
-                               + [1.0] * self.action_size)  # fmt: skip
+                               + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size)  # fmt: skip
         self._raw = np.empty(self.size)
 
     def build(self, ball_xy: tuple[float, float], ball_velocity: tuple[float, float], target_xy: np.ndarray,
-              target_velocity: np.ndarray, roll_pitch: tuple[float, float], error_integral: tuple[float, float],
+              target_velocity: np.ndarray, roll_pitch: tuple[float, float],
               previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
         """Assemble, scale and clip one observation; shape (size,), float32."""
         raw = self._raw
@@ -173,8 +166,7 @@ class ObservationBuilder:
         raw[4:6] = target_xy
         raw[6:8] = target_velocity
         raw[8:10] = roll_pitch
-        raw[10:12] = error_integral
-        raw[12:] = previous_action
+        raw[10:] = previous_action
         raw *= self._scale
         np.clip(raw, self.low, self.high, out=raw)
         return raw.astype(np.float32)
@@ -184,8 +176,8 @@ class BallObserver:
     """Panel readings → observation, the same way in the environments and on hardware.
 
     Holds the last reading while the panel reports none, estimates velocity from
-    the readings' sample times, integrates the position error over the calls'
-    times, and builds the observation with :class:`ObservationBuilder`.
+    the readings' sample times, and builds the observation with
+    :class:`ObservationBuilder`.
     """
 
     def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0) -> None:
@@ -194,24 +186,17 @@ class BallObserver:
         self.reset(0.0, (0.0, 0.0))
 
     def reset(self, t: float, xy: tuple[float, float] | np.ndarray) -> None:
-        """Start at time ``t`` (s) with the ball believed at rest at ``xy`` (m); the error integral is zero."""
+        """Start at time ``t`` (s) with the ball believed at rest at ``xy`` (m)."""
         self.velocity.reset(t, xy)
         self.reading = (float(xy[0]), float(xy[1]))
-        self.integral = [0.0, 0.0]
-        self._t = float(t)
 
     def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: np.ndarray,
-                target_velocity: np.ndarray, roll_pitch: tuple[float, float], previous_action: np.ndarray,
-                t: float) -> np.ndarray:  # fmt: skip
-        """One observation at time ``t`` (s) from a panel ``reading`` ((x, y) m, sample time s) or None (no touch)."""
+                target_velocity: np.ndarray, roll_pitch: tuple[float, float],
+                previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
+        """One observation from a panel ``reading`` ((x, y) m, sample time s) or None (no touch)."""
         if reading is not None:
             self.reading = reading[0]
             vel = self.velocity.update(reading[1], reading[0])
         else:
             vel = (self.velocity.vx, self.velocity.vy)
-        dt, self._t = max(0.0, float(t) - self._t), float(t)
-        lim = ObservationBuilder.INTEGRAL_LIMIT
-        for k in range(2):
-            self.integral[k] = min(lim, max(-lim, self.integral[k] + (float(target_xy[k]) - self.reading[k]) * dt))
-        return self.builder.build(self.reading, vel, target_xy, target_velocity, roll_pitch, self.integral,
-                                  previous_action)  # fmt: skip
+        return self.builder.build(self.reading, vel, target_xy, target_velocity, roll_pitch, previous_action)

@@ -154,7 +154,9 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     tb = str(run / "tb") if config.tensorboard else None
     if resume is not None:
         zip_path = resume / "model.zip" if resume.is_dir() else resume
-        model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb)
+        # the YAML's learning rate (and PPO's clip range) apply to the continued run, e.g. to fine-tune
+        custom = {k: algo_kwargs[k] for k in ("learning_rate", "clip_range") if k in algo_kwargs}
+        model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb, custom_objects=custom)
     else:
         model = algo_cls(policy, env, seed=config.seed, device="cpu", tensorboard_log=tb, verbose=config.verbose,
                          **algo_kwargs)  # fmt: skip

@@ -30,7 +30,7 @@ def test_env_checkers(env_id: str, mode: str) -> None:
         check_env(env.unwrapped, skip_render_check=True)
         sb3_check_env(env.unwrapped)
         assert env.action_space.dtype == np.float32 and np.all(env.action_space.low == -1)
-        assert env.observation_space.shape == (12 + (2 if mode == "tilt" else 6),)
+        assert env.observation_space.shape == (10 + (2 if mode == "tilt" else 6),)
         assert np.all(np.isfinite(env.observation_space.low)) and np.all(np.isfinite(env.observation_space.high))
     finally:
         env.close()
@@ -92,7 +92,7 @@ def test_make_vec_and_subproc_vec_env() -> None:
         venv = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode=mode, vector_kwargs=kwargs)
         obs, _ = venv.reset(seed=0)
         obs, rew, term, trunc, info = venv.step(venv.action_space.sample())
-        assert obs.shape == (2, 14) and rew.shape == (2,)
+        assert obs.shape == (2, 12) and rew.shape == (2,)
         venv.close()
     # spawned workers have not imported stewart_gym: the "stewart_gym:" prefix imports it
     venv = SubprocVecEnv([lambda: gym.make("stewart_gym:StewartBallTrack-v0") for _ in range(2)], start_method="spawn")
@@ -100,7 +100,7 @@ def test_make_vec_and_subproc_vec_env() -> None:
         venv.seed(0)
         obs = venv.reset()
         obs, rew, done, info = venv.step(np.zeros((2, 2), dtype=np.float32))
-        assert obs.shape == (2, 14) and "pulse_widths_us" in info[0]
+        assert obs.shape == (2, 12) and "pulse_widths_us" in info[0]
     finally:
         venv.close()
 

@@ -275,7 +275,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
 
     from stewart_gym.evaluation import load_sb3
 
-    obs = np.random.default_rng(0).normal(0, 1, (1000, 14)).astype(np.float32)
+    obs = np.random.default_rng(0).normal(0, 1, (1000, 12)).astype(np.float32)
     for algo in (PPO, SAC, TD3):
         venv = VecNormalize(DummyVecEnv([lambda: gym.make("StewartBallBalance-v0")]))
         kwargs = {"n_steps": 64, "batch_size": 32} if algo is PPO else {"learning_starts": 10, "buffer_size": 500}
@@ -302,7 +302,7 @@ def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
     bundle = export_pid(Path(__file__).resolve().parents[1] / "stewart_gym/policies/pid_gains.json", tmp_path / "b")
     code = ("import sys; sys.modules['torch'] = None\n"  # importing torch now fails
             "from stewart_gym.hardware.export import BundlePolicy\n"
-            f"import numpy as np; p = BundlePolicy({str(bundle)!r}); print(p(np.zeros(14)).shape)")  # fmt: skip
+            f"import numpy as np; p = BundlePolicy({str(bundle)!r}); print(p(np.zeros(12)).shape)")  # fmt: skip
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "(2,)" in out.stdout

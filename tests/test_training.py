@@ -40,10 +40,10 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
     assert rows[0] == "timesteps,wall_s,mean_reward,success_rate" and len(rows) >= 3
     # load: same actions as the trained model on the same normalised observations
     policy = load_sb3(run)
-    obs = np.random.default_rng(0).normal(size=(5, 14)).astype(np.float32)
+    obs = np.random.default_rng(0).normal(size=(5, 12)).astype(np.float32)
     expected = policy.model.predict(policy.normalize(obs), deterministic=True)[0]
     assert np.allclose(load_sb3(run / "model.zip").predict(obs)[0], expected)
-    assert policy.obs_rms is not None and policy.obs_rms.mean.shape == (14,)
+    assert policy.obs_rms is not None and policy.obs_rms.mean.shape == (12,)
     m = evaluate("StewartBallBalance-v0", policy, episodes=1, seed=0, settling=False)
     assert 0.0 <= m["success_rate"] <= 1.0 and m["rms_error_mm"] >= 0
     # resume from the run folder continues counting timesteps
@@ -76,7 +76,7 @@ def test_pid_gains_round_trip(tmp_path: Path) -> None:
     pid = CascadedPID(PIDGains(kp_pos=2.5, kp_vel=6.0, ki_vel=1.5))
     pid.save(tmp_path / "g.json")
     again = load_policy(str(tmp_path / "g.json"))
-    obs = np.random.default_rng(1).normal(size=(3, 14))
+    obs = np.random.default_rng(1).normal(size=(3, 12))
     assert np.array_equal(again.predict(obs)[0], CascadedPID(pid.gains).predict(obs)[0])
 
 
@@ -108,5 +108,5 @@ def test_shipped_policy_files_are_small_and_complete() -> None:
         assert (folder / name).exists(), name
     assert sum(f.stat().st_size for f in folder.rglob("*") if f.is_file()) < 2_000_000
     policy = load_policy("shipped")
-    obs = np.zeros((1, 14), dtype=np.float32)
+    obs = np.zeros((1, 12), dtype=np.float32)
     assert policy.predict(obs)[0].shape == (1, 2)

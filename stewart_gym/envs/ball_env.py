@@ -48,19 +48,18 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``info["unreachable_count"]`` counts it over the episode.
 
     ## Observation Space
-    ``Box(float32)`` of size 12 + n, each entry scaled to about ±1 and clipped:
+    ``Box(float32)`` of size 10 + n, each entry scaled to about ±1 and clipped:
 
-    ====== =============================================== ========== ======
-    index  observation                                     scale      bounds
-    ====== =============================================== ========== ======
-    0, 1   ball x, y from the touch panel (plate frame)    m / 0.15   ±2
-    2, 3   ball velocity, estimated from panel positions   m/s / 0.5  ±5
-    4, 5   target x, y (plate frame)                       m / 0.15   ±2
-    6, 7   target velocity                                 m/s / 0.5  ±5
-    8, 9   commanded roll, pitch (0 in ``"pulse"`` mode)   rad / 0.25 ±2
-    10, 11 integral of target − sensed position, ±0.05 m·s m·s / 0.05 ±1
-    12…    previous action                                 1          ±1
-    ====== =============================================== ========== ======
+    ===== ================================================ ========== ======
+    index observation                                      scale      bounds
+    ===== ================================================ ========== ======
+    0, 1  ball x, y from the touch panel (plate frame)     m / 0.15   ±2
+    2, 3  ball velocity, estimated from panel positions    m/s / 0.5  ±5
+    4, 5  target x, y (plate frame)                        m / 0.15   ±2
+    6, 7  target velocity                                  m/s / 0.5  ±5
+    8, 9  commanded roll, pitch (0 in ``"pulse"`` mode)    rad / 0.25 ±2
+    10…   previous action                                  1          ±1
+    ===== ================================================ ========== ======
 
     The panel (:class:`~stewart_gym.sensing.TouchPanelSpec`) samples at 100 Hz
     with 10 ms latency and 1 mm noise; when the ball is not touching, the last
@@ -68,10 +67,10 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     ## Rewards
     Per step, with d the true ball-to-target distance (m):
-    ``1 − d / 0.15 + exp(−d / 0.015) − 0.1 · mean((a_t − a_{t−1})²)``: a
-    distance term over the whole plate, a sharper one near the target (0.51 at
-    10 mm, 1 at 0), and an action-rate penalty (servo wear); ``−50`` on the step
-    the ball leaves the plate.
+    ``1 − d / 0.15 + exp(−d / 0.015) − rate_penalty · mean((a_t − a_{t−1})²)``:
+    a distance term over the whole plate, a sharper one near the target (0.51 at
+    10 mm, 1 at 0), and an action-rate penalty for servo wear (``rate_penalty``,
+    default 0.1); ``−50`` on the step the ball leaves the plate.
 
     ## Starting State
     Platform at home. The ball rests on the plate at a uniform random position
@@ -93,7 +92,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
     ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz``,
-    ``control_hz``, ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
+    ``control_hz``, ``rate_penalty``, ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
     (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
     (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``.
 
@@ -104,7 +103,6 @@ class StewartBallEnv(gym.Env, EzPickle):
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
     PLATE_HALF = 0.15
     FALL_PENALTY = 50.0
-    RATE_PENALTY = 0.1
     NEAR_SCALE = 0.015
 
     def __init__(
@@ -125,11 +123,12 @@ class StewartBallEnv(gym.Env, EzPickle):
         sensor: TouchPanelSpec | None = None,
         geometry: str = "servo-hexapod",
         randomization: RandomizationRanges | None = None,
+        rate_penalty: float = 0.1,
     ) -> None:
         EzPickle.__init__(self, task, trajectory, action_mode, randomize, render_mode, max_tilt=max_tilt,
                           success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
-                          randomization=randomization)  # fmt: skip
+                          randomization=randomization, rate_penalty=rate_penalty)  # fmt: skip
         if task not in ("balance", "track"):
             raise ValueError(f"task must be 'balance' or 'track', got {task!r}")
         if task == "track" and trajectory not in TRAJECTORIES:
@@ -144,6 +143,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
         self.nominal_sensor = sensor or TouchPanelSpec()
         self.ranges = randomization or RandomizationRanges()
+        self.rate_penalty = float(rate_penalty)
         self.sim = StewartSim(geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True,
                               ball_spec=self.nominal_ball, servo_spec=self.nominal_servo,
                               render_mode=render_mode)  # fmt: skip
@@ -218,7 +218,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
-        reward = (1.0 - min(dist, 2 * half) / half + math.exp(-dist / self.NEAR_SCALE) - self.RATE_PENALTY * rate
+        reward = (1.0 - min(dist, 2 * half) / half + math.exp(-dist / self.NEAR_SCALE) - self.rate_penalty * rate
                   - (self.FALL_PENALTY if terminated else 0.0))  # fmt: skip
         info = self._info(pos[:2], target_xy, dist)
         info["is_success"] = on_plate and self._inside >= self.success_steps
@@ -243,7 +243,7 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def _observe(self, t: float) -> np.ndarray:
         target_xy, target_vel = self._target(t)
-        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action, t)
+        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
 
     def _info(self, xy: np.ndarray, target_xy: np.ndarray, dist: float) -> dict[str, Any]:
         return {

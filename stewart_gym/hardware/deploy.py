@@ -174,7 +174,7 @@ class DeployLoop:
         if sample is not None and not self._observing:
             self.observer.reset(sample[1], sample[0])
             self._observing = True
-        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action, t)
+        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action)
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)
         usable = False
