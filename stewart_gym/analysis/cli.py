@@ -240,11 +240,18 @@ def cmd_assembly(args: argparse.Namespace) -> int:
     return _emit(args, out, lines)
 
 
+def _common(p: Any, geometry: str, plot: bool = True) -> None:
+    """The options every analysis takes."""
+    p.add_argument("--geometry", default=geometry, help="preset name or TOML file")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    if plot:
+        p.add_argument("--plot", help="PNG file")
+
+
 def register(sub: Any) -> None:
     """Add the analysis subcommands to the ``stewart-gym`` parser."""
-    geo_help = "preset name or TOML file"
     p = sub.add_parser("workspace", help=cmd_workspace.__doc__)
-    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    _common(p, "servo-hexapod")
     p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"),
                    help="degrees")  # fmt: skip
     p.add_argument("--pivot", nargs=3, type=float, metavar=("X", "Y", "Z"), help="mm, platform frame")
@@ -252,47 +259,38 @@ def register(sub: Any) -> None:
     p.add_argument("--n", type=int, default=100, help="grid points per axis")
     p.add_argument("--z-step", type=float, default=0.1, help="mm")
     p.add_argument("--samples", type=int, default=200_000, help="Monte Carlo samples for the volumes")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=cmd_workspace)
     p = sub.add_parser("trajectory", help=cmd_trajectory.__doc__)
-    p.add_argument("--geometry", default="senilov2018", help=geo_help)
+    _common(p, "senilov2018")
     p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
     p.add_argument("--radius", type=float, default=200.0, help="circle radius, mm (seed 001: 200)")
     p.add_argument("--z", type=float, default=0.0, help="circle height from home, mm")
     p.add_argument("--samples", type=int, default=1000)
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=cmd_trajectory)
     p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__)
-    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    _common(p, "servo-hexapod")
     p.add_argument("--step-deg", type=float, default=0.1, help="servo step, degrees (seed 003: 0.1)")
     p.add_argument("--n", type=int, default=61)
     p.add_argument("--fd-samples", type=int, default=100, help="poses for the finite-difference check")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=cmd_sensitivity)
     p = sub.add_parser("conditioning", help=cmd_conditioning.__doc__)
-    p.add_argument("--geometry", default="servo-hexapod", help=geo_help)
+    _common(p, "servo-hexapod")
     p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"))
     p.add_argument("--threshold", type=float, default=1e3)
     p.add_argument("--n", type=int, default=61)
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--plot", help="PNG file")
     p.set_defaults(func=cmd_conditioning)
     p = sub.add_parser("planar", help=cmd_planar.__doc__)
     p.add_argument("--geometry", default="sauer", help=f"{', '.join(PLANAR_PRESETS)} or a TOML with {PLANAR_KEYS}")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", help="PNG of every pose")
     for k in PLANAR_KEYS:
         p.add_argument(f"--{k}", type=float, help="override" + (" (rad)" if k == "gamma" else ""))
     p.add_argument("--sweep", help="STRUT:START:STOP:N, e.g. p2:0.5:12:231")
     p.add_argument("--sweep-plot", help="PNG of the pose count against the swept strut")
-    p.add_argument("--json", action="store_true")
-    p.add_argument("--plot", help="PNG of every pose")
     p.set_defaults(func=cmd_planar)
     p = sub.add_parser("assembly", help=cmd_assembly.__doc__)
-    p.add_argument("--geometry", default="senilov2018", help=geo_help)
+    _common(p, "senilov2018", plot=False)
     p.add_argument("--legs", nargs=6, type=float, help="leg lengths, mm")
     p.add_argument("--pose", nargs=6, type=float, default=(10, 0, 0, 3, 1, 6), help="leg lengths of this pose (mm, °)")
     p.add_argument("--guesses", type=int, default=4000)
-    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_assembly)
