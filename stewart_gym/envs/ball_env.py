@@ -204,7 +204,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
             info = self._info(np.full(2, np.nan), np.full(2, np.nan), math.nan)
             info["physics_error"] = True
-            return self._last_obs, -self.FALL_PENALTY, True, False, info
+            return self._last_obs.copy(), -self.FALL_PENALTY, True, False, info
         half = self.PLATE_HALF
         on_plate = abs(x) <= half and abs(y) <= half and z > self._plate_top
         self.panel.record(t, (x, y), on_plate and z < self._plate_top + 1.5 * self.params.ball.radius)
