@@ -182,12 +182,11 @@ class DeployLoop:
         try:
             action = np.asarray(self.policy(obs), dtype=np.float64).reshape(self.mapper.size)
             if np.all(np.isfinite(action)):
-                pose_cmd = self.mapper.pose(action) if self.mapper.mode != "pulse" else None
                 mapped = self.mapper(action)
                 flags["unreachable"] = mapped.scaled
                 usable = not mapped.scaled
                 requested = mapped.pulses
-                pose = mapped.pose if pose_cmd is not None else pose
+                pose = mapped.pose  # NaN in "pulse" mode
             else:
                 requested = None
         except (ValueError, FloatingPointError):
