@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from stewart_gym.analysis.cli import json_safe
 from stewart_gym.geometry import load_geometry, preset_names
 from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.servo import ServoCalibration
@@ -22,17 +23,6 @@ if TYPE_CHECKING:
 
 def _geometry_arg(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--geometry", default="servo-hexapod", help=f"preset ({', '.join(preset_names())}) or TOML file")
-
-
-def _json_safe(value: object) -> object:
-    """Replace NaN/inf floats by None so the output is strict JSON."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
 
 
 def cmd_ik(args: argparse.Namespace) -> int:
@@ -53,7 +43,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         cal = ServoCalibration.default(geo)
         out["pulse_widths_us"] = cal.pulse_widths(ik.servo_angles, out_of_range="nan").round(2).tolist()
     if args.json:
-        print(json.dumps(_json_safe(out)))
+        print(json.dumps(json_safe(out)))
     else:
         print(ik.explain())
         for key in ("leg_lengths_mm", "servo_angles_deg", "pulse_widths_us"):
@@ -76,7 +66,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed)
     print()
     print(format_table(results))
-    (out / "demo_metrics.json").write_text(json.dumps(_json_safe(results), indent=2) + "\n")
+    (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     _episode_figures(env_id, load_policy("shipped", env_id), args.seed, True, str(out / "demo.gif"),
                      str(out / "demo_pulses.png"), "shipped")  # fmt: skip
     print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} and {out / 'demo_metrics.json'}")
@@ -144,7 +134,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.gif or args.plot:
         _episode_figures(args.env, policy, args.seed, not args.no_randomize, args.gif, args.plot, args.policy)
     if args.json:
-        print(json.dumps(_json_safe(metrics)))
+        print(json.dumps(json_safe(metrics)))
     else:
         print(format_table({args.policy: metrics}))
     return 0

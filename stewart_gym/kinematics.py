@@ -34,6 +34,7 @@ __all__ = [
     "IKResult",
     "LegStatus",
     "actuator_jacobian",
+    "euler_from_matrix",
     "forward_kinematics",
     "horn_tips",
     "inverse_kinematics",
@@ -79,6 +80,14 @@ def rotation_matrix(roll: np.ndarray | float, pitch: np.ndarray | float, yaw: np
     out[..., 2, 1] = cp * sr
     out[..., 2, 2] = cp * cr
     return out
+
+
+def euler_from_matrix(rot: np.ndarray) -> tuple[float, float, float]:
+    """(roll, pitch, yaw) rad of a rotation matrix R = Rz(yaw)·Ry(pitch)·Rx(roll), pitch in [−π/2, π/2]."""
+    roll = math.atan2(rot[2, 1], rot[2, 2])
+    pitch = -math.asin(max(-1.0, min(1.0, rot[2, 0])))
+    yaw = math.atan2(rot[1, 0], rot[0, 0])
+    return roll, pitch, yaw
 
 
 def rotation_matrix_derivatives(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:

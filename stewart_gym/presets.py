@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -49,8 +50,7 @@ def servo_hexapod() -> PlatformGeometry:
     top = polar_anchors(80 * MM, top_deg)
     a, s = 25 * MM, 160 * MM
     h0 = float(np.mean(home_height_eq10(base, top, a, s)))
-    alpha0 = _home_angle(base, top, a, s, np.array(beta), h0)
-    return PlatformGeometry(
+    geo = PlatformGeometry(
         name="servo-hexapod",
         base_anchors=base,
         platform_anchors=top,
@@ -58,21 +58,13 @@ def servo_hexapod() -> PlatformGeometry:
         rod_length=s,
         servo_beta=np.array(beta),
         home_height=h0,
-        servo_angle_range=(alpha0 - 45 * DEG, alpha0 + 45 * DEG),
+        servo_angle_range=(-math.pi, math.pi),  # replaced below by ±45° about α0
         description="Reference hobby ball balancer: MG996R servos, 25 mm horns, 160 mm rods, 300 mm plate.",
     )
+    from stewart_gym.kinematics import inverse_kinematics
 
-
-def _home_angle(base: np.ndarray, top: np.ndarray, a: float, s: float, beta: np.ndarray, h0: float) -> float:
-    """Servo angle α0 at home (eq. 12), identical for every leg of a symmetric build."""
-    legs = top + [0.0, 0.0, h0] - base
-    big_l = np.sum(legs**2, axis=1) - (s * s - a * a)
-    big_m = 2 * a * legs[:, 2]
-    big_n = 2 * a * (np.cos(beta) * legs[:, 0] + np.sin(beta) * legs[:, 1])
-    alpha = np.arcsin(big_l / np.hypot(big_m, big_n)) - np.arctan2(big_n, big_m)
-    if np.ptp(alpha) > 1e-9:
-        raise ValueError(f"home servo angles differ per leg: {alpha}")
-    return float(alpha[0])
+    alpha0 = float(inverse_kinematics(geo, np.zeros(6)).servo_angles[0])  # eq. 12: the same for every leg
+    return replace(geo, servo_angle_range=(alpha0 - 45 * DEG, alpha0 + 45 * DEG))
 
 
 def memememe_liverpool() -> PlatformGeometry:

@@ -28,19 +28,20 @@ PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
 
 def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) -> int:
     if args.json:
-        print(json.dumps(_plain(result)))
+        print(json.dumps(json_safe(result)))
     else:
         print("\n".join(lines))
     return 0
 
 
-def _plain(v: Any) -> Any:
+def json_safe(v: Any) -> Any:
+    """Numpy values to plain Python, NaN/inf to None: strict JSON."""
     if isinstance(v, dict):
-        return {k: _plain(x) for k, x in v.items()}
+        return {k: json_safe(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+        return [json_safe(x) for x in v]
     if isinstance(v, np.ndarray):
-        return _plain(v.tolist())
+        return json_safe(v.tolist())
     if isinstance(v, (np.floating, float)):
         return float(v) if math.isfinite(v) else None
     if isinstance(v, np.integer):

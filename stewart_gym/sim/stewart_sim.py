@@ -16,7 +16,6 @@ built once; :meth:`StewartSim.reset` restores a saved state.
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import shutil
 import sys
@@ -32,7 +31,7 @@ import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
 from stewart_gym.geometry import PlatformGeometry, load_geometry
-from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.servo import ServoCalibration
 from stewart_gym.sim.servos import HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
@@ -330,10 +329,7 @@ class StewartSim:
     def platform_pose(self) -> np.ndarray:
         """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
         origin, rot = self._plate_frame()
-        roll = math.atan2(rot[2, 1], rot[2, 2])
-        pitch = -math.asin(max(-1.0, min(1.0, rot[2, 0])))
-        yaw = math.atan2(rot[1, 0], rot[0, 0])
-        return np.array([*(origin - self.geometry.home_position), roll, pitch, yaw])
+        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
 
     def servo_angles(self) -> np.ndarray:
         """(6,) rad: the horn angles α (from the horizontal, as in eq. 9)."""

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from stewart_gym.geometry import PlatformGeometry, load_geometry
-from stewart_gym.kinematics import horn_tips, inverse_kinematics
+from stewart_gym.kinematics import euler_from_matrix, horn_tips, inverse_kinematics
 from stewart_gym.sim.servos import ServoSpec
 
 __all__ = ["MechanismSpec", "mechanism_urdf", "plate_urdf", "rod_frames", "write_urdfs"]
@@ -81,10 +81,7 @@ def _xyz(v: np.ndarray) -> str:
 
 def _rpy(rot: np.ndarray) -> str:
     """URDF fixed-axis roll-pitch-yaw of a rotation matrix (R = Rz·Ry·Rx, as in the kinematics)."""
-    roll = math.atan2(rot[2, 1], rot[2, 2])
-    pitch = -math.asin(max(-1.0, min(1.0, rot[2, 0])))
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    return " ".join(_f(v) for v in (roll, pitch, yaw))
+    return " ".join(_f(v) for v in euler_from_matrix(rot))
 
 
 def _frame_along(direction: np.ndarray, hint: np.ndarray) -> np.ndarray:
