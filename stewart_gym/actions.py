@@ -14,14 +14,13 @@ and the result says so (``scaled``, ``scale``). Nothing is clipped silently.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import numpy as np
 
 from stewart_gym.analysis.workspace import axis_ranges
 from stewart_gym.geometry import PlatformGeometry, load_geometry
-from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.kinematics import inverse_kinematics, servo_angles_one
 from stewart_gym.servo import ServoCalibration
 
 __all__ = ["ACTION_MODES", "ActionMapper", "MappedAction"]
@@ -34,8 +33,7 @@ DEFAULT_MAX_TILT = math.radians(10.0)
 _RAY = np.linspace(0.0, 1.0, 65)
 
 
-@dataclass(frozen=True)
-class MappedAction:
+class MappedAction(NamedTuple):
     """The result of mapping one action.
 
     Attributes:
@@ -43,12 +41,14 @@ class MappedAction:
         pulses: (6,) µs: what goes to the servos, always within the channel limits.
         scaled: True if the commanded pose was unreachable and was scaled back.
         scale: the fraction of the commanded pose that was sent (1.0 if reachable).
+        action: the action as applied, clipped to [-1, 1] (Python floats).
     """
 
     pose: np.ndarray
     pulses: np.ndarray
     scaled: bool
     scale: float
+    action: tuple[float, ...]
 
 
 class ActionMapper:
@@ -77,18 +77,22 @@ class ActionMapper:
             reach = axis_ranges(self.geometry)
             pose_scale = 0.9 * np.minimum(-reach[:, 0], reach[:, 1])
         self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
+        self._pose_scale = self.pose_scale.tolist()
         self.size = 2 if mode == "tilt" else 6
-        self._half = (self.calibration.max_us - self.calibration.min_us) / 2
-        self._mid = (self.calibration.max_us + self.calibration.min_us) / 2
+        self._half = ((self.calibration.max_us - self.calibration.min_us) / 2).tolist()
+        self._mid = ((self.calibration.max_us + self.calibration.min_us) / 2).tolist()
 
     def pose(self, action: np.ndarray) -> np.ndarray:
         """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""
+        if self.mode == "pulse":
+            raise ValueError("'pulse' mode has no pose")
+        return np.array(self._pose_list(_clip_unit(np.asarray(action, dtype=np.float64).reshape(self.size).tolist())))
+
+    def _pose_list(self, clipped: list[float]) -> list[float]:
+        """:meth:`pose` of a clipped "tilt" or "pose" action, in and out as Python floats."""
         if self.mode == "tilt":
-            roll, pitch = (min(1.0, max(-1.0, float(v))) for v in action)
-            return np.array([0.0, 0.0, 0.0, roll * self.max_tilt, pitch * self.max_tilt, 0.0])
-        if self.mode == "pose":
-            return np.clip(np.asarray(action, dtype=np.float64), -1.0, 1.0) * self.pose_scale
-        raise ValueError("'pulse' mode has no pose")
+            return [0.0, 0.0, 0.0, clipped[0] * self.max_tilt, clipped[1] * self.max_tilt, 0.0]
+        return [v * k for v, k in zip(clipped, self._pose_scale)]
 
     def _feasible(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(ok, pulses) for poses (..., 6): reachable and every pulse within its channel's limits."""
@@ -118,12 +122,28 @@ class ActionMapper:
         return best, self._feasible(best)[1], float(lo)
 
     def __call__(self, action: np.ndarray) -> MappedAction:
-        """Map one action (size :attr:`size`) to pulses; non-finite actions raise ``ValueError``."""
-        a = np.asarray(action, dtype=np.float64).reshape(self.size)
-        if not math.isfinite(float(a.sum())):
-            raise ValueError(f"action must be finite, got {a.tolist()}")
+        """Map one action (size :attr:`size`) to pulses; non-finite actions raise ``ValueError``.
+
+        A reachable pose takes the scalar path (:func:`servo_angles_one`,
+        :meth:`ServoCalibration.pulse_widths_one`: ~10 µs); only an unreachable
+        one pays for the batched ray search.
+        """
+        values = np.asarray(action, dtype=np.float64).reshape(self.size).tolist()
+        if not math.isfinite(sum(values)):  # NaN for NaN or ±inf
+            raise ValueError(f"action must be finite, got {values}")
+        clipped = _clip_unit(values)
         if self.mode == "pulse":
-            pulses = self._mid + np.clip(a, -1.0, 1.0) * self._half
-            return MappedAction(np.full(6, np.nan), pulses, False, 1.0)
-        pose, pulses, scale = self.reachable_pose(self.pose(a))
-        return MappedAction(pose, pulses, scale < 1.0, scale)
+            pulses = [m + v * h for m, v, h in zip(self._mid, clipped, self._half)]
+            return MappedAction(np.full(6, np.nan), np.array(pulses), False, 1.0, tuple(clipped))
+        pose = self._pose_list(clipped)
+        angles, ok = servo_angles_one(self.geometry, pose)
+        fast = self.calibration.pulse_widths_one(angles) if ok else None
+        if fast is not None:
+            return MappedAction(np.array(pose), np.array(fast), False, 1.0, tuple(clipped))
+        best, pulses, scale = self.reachable_pose(np.array(pose))
+        return MappedAction(best, pulses, scale < 1.0, scale, tuple(clipped))
+
+
+def _clip_unit(values: list[float]) -> list[float]:
+    """Python floats clipped to [-1, 1]."""
+    return [1.0 if v > 1.0 else -1.0 if v < -1.0 else v for v in values]

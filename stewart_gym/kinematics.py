@@ -21,6 +21,7 @@ Everything is vectorised over the leading dimensions: no per-pose Python loop.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Literal
@@ -40,6 +41,7 @@ __all__ = [
     "inverse_kinematics",
     "rotation_matrix",
     "rotation_matrix_derivatives",
+    "servo_angles_one",
 ]
 
 #: Poses are processed in blocks of this many, so temporaries stay in cache.
@@ -191,6 +193,8 @@ class _IKConstants:
 
 
 _CONSTANTS: dict[tuple[int, bytes], tuple[PlatformGeometry, _IKConstants]] = {}
+_NO_PIVOT = np.zeros(3)
+_NO_SOLUTION, _BELOW, _ABOVE = int(LegStatus.NO_SOLUTION), int(LegStatus.BELOW_LIMIT), int(LegStatus.ABOVE_LIMIT)
 
 
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
@@ -280,52 +284,71 @@ def _ik_block(k: _IKConstants, poses: np.ndarray, aug: np.ndarray, legs: np.ndar
         alpha[back] += np.copysign(np.pi, num[back])
 
 
-def _ik_one(k: _IKConstants, pose: np.ndarray) -> IKResult:
-    """The same arithmetic as :func:`_ik_block` for a single pose, in scalar ``math`` (low latency)."""
-    x, y, z, roll, pitch, yaw = pose.tolist()
+def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[tuple[list[float], ...], list[float], list[float], list[int]]:
+    """The arithmetic of :func:`_ik_block` for one pose in scalar ``math``: (legs (3 lists of 6), lengths, actuator, status).
+
+    ``actuator`` is the servo angle (rad; NaN without a solution) of a rotary
+    platform or the leg length (m) of a linear one.
+    """
+    x, y, z, roll, pitch, yaw = pose
     cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
     cy_sp, sy_sp = cy * sp, sy * sp
-    rot = (
-        (cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr),
-        (sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr),
-        (-sp, cp * sr, cp * cr),
-    )
+    r00, r01, r02 = cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr
+    r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr
+    r20, r21, r22 = -sp, cp * sr, cp * cr
     px, py, pz, _, ox, oy, oz = k.rows
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
     lxs = [r00 * a + r01 * b + r02 * c + x + o for a, b, c, o in zip(px, py, pz, ox)]
     lys = [r10 * a + r11 * b + r12 * c + y + o for a, b, c, o in zip(px, py, pz, oy)]
     lzs = [r20 * a + r21 * b + r22 * c + z + o for a, b, c, o in zip(px, py, pz, oz)]
-    lengths, alpha, status = [], [], []
-    lo, hi, ok, below, above = k.lo, k.hi, 0, int(LegStatus.BELOW_LIMIT), int(LegStatus.ABOVE_LIMIT)
+    lengths, act, status = [], [], []
+    lo, hi, inv_2a, half_l0, rotary = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary
     for lx, ly, lz, cb, sb in zip(lxs, lys, lzs, k.beta_cs[0], k.beta_cs[1]):
         sq = lx * lx + ly * ly + lz * lz
         length = math.sqrt(sq)
         lengths.append(length)
-        if k.rotary:
-            big_l = sq * k.inv_2a - k.half_l0
+        if rotary:
+            big_l = sq * inv_2a - half_l0
             big_n = lx * cb + ly * sb
             root2 = lz * lz + big_n * big_n - big_l * big_l
             if root2 < 0.0:
-                alpha.append(math.nan)
-                status.append(int(LegStatus.NO_SOLUTION))
+                act.append(math.nan)
+                status.append(_NO_SOLUTION)
                 continue
             root = math.sqrt(root2)
-            act = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
-            alpha.append(act)
+            value = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
         else:
-            act = length
-        status.append(below if act < lo else above if act > hi else ok)
-    legs = (lxs, lys, lzs)
-    legs_arr = np.array(legs)
+            value = length
+        act.append(value)
+        status.append(_BELOW if value < lo else _ABOVE if value > hi else 0)
+    return (lxs, lys, lzs), lengths, act, status
+
+
+def _ik_one(k: _IKConstants, pose: np.ndarray) -> IKResult:
+    """:func:`inverse_kinematics` of a single pose (6,) through :func:`_ik_scalar` (low latency)."""
+    legs, lengths, act, status = _ik_scalar(k, pose.tolist())
     st = np.array(status, dtype=np.uint8)
     return IKResult(
         pose=pose,
-        leg_vectors=legs_arr.T,
+        leg_vectors=np.array(legs).T,
         leg_lengths=np.array(lengths),
-        servo_angles=np.array(alpha) if k.rotary else None,
+        servo_angles=np.array(act) if k.rotary else None,
         status=st,
         reachable=np.bool_(not st.any()),
     )
+
+
+def servo_angles_one(geometry: PlatformGeometry, pose: Sequence[float]) -> tuple[list[float], bool]:
+    """Servo angles of one pose as Python floats, for control loops: ((6,) rad, reachable).
+
+    The same arithmetic as :func:`inverse_kinematics` (pivot at the platform
+    origin) without building arrays. ``reachable`` is False if any leg has no
+    solution (its angle is NaN) or is outside the servo angle range.
+    """
+    k = _constants(geometry, _NO_PIVOT)
+    if not k.rotary:
+        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servo angles")
+    _, _, alpha, status = _ik_scalar(k, pose)
+    return alpha, not any(status)
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:

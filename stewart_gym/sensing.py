@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,12 +53,14 @@ class SimulatedTouchPanel:
         self.spec = spec
         self._history: deque[tuple[float, float, float, bool]] = deque(maxlen=max(8, int(history_s * 1000)))
         self._noise: dict[int, tuple[float, float]] = {}
+        self._draws: list[float] = []
         self._rng = np.random.default_rng()
 
     def reset(self, t: float, xy: np.ndarray, rng: np.random.Generator) -> None:
         """Start over at time ``t`` (s) with the ball at ``xy`` (m), drawing noise from ``rng``."""
         self._history.clear()
         self._noise.clear()
+        self._draws.clear()
         self._rng = rng
         # The ball was at rest there before t, so readings older than t are defined.
         self._history.append((t - self.spec.latency_s - 1.0 / self.spec.rate_hz - 1.0, float(xy[0]), float(xy[1]), True))
@@ -87,8 +90,10 @@ class SimulatedTouchPanel:
             return None
         noise = self._noise.get(k)
         if noise is None:
+            if not self._draws:  # standard normals in blocks: one generator call per 64 samples
+                self._draws = self._rng.standard_normal(128).tolist()
             sigma = spec.noise_mm * 1e-3
-            noise = (float(self._rng.normal(0.0, sigma)), float(self._rng.normal(0.0, sigma))) if sigma > 0 else (0.0, 0.0)
+            noise = (sigma * self._draws.pop(), sigma * self._draws.pop())
             if len(self._noise) > 256:
                 self._noise.clear()
             self._noise[k] = noise
@@ -151,25 +156,21 @@ class ObservationBuilder:
         high = np.array([2, 2, 5, 5, 2, 2, 5, 5, 2, 2] + [1] * self.action_size, dtype=np.float32)
         self.low, self.high = -high, high
         self.space = spaces.Box(-high, high, dtype=np.float32)
-        self._scale = np.array([1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2
-                               + [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2
-                               + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size)  # fmt: skip
-        self._raw = np.empty(self.size)
+        scale = [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.POSITION_SCALE] * 2 \
+            + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size
+        self._scale_high = list(zip(scale, high.tolist()))
 
-    def build(self, ball_xy: tuple[float, float], ball_velocity: tuple[float, float], target_xy: np.ndarray,
-              target_velocity: np.ndarray, roll_pitch: tuple[float, float],
-              previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
+    def build(self, ball_xy: Sequence[float], ball_velocity: Sequence[float], target_xy: Sequence[float],
+              target_velocity: Sequence[float], roll_pitch: Sequence[float],
+              previous_action: Sequence[float]) -> np.ndarray:  # fmt: skip
         """Assemble, scale and clip one observation; shape (size,), float32."""
-        raw = self._raw
-        raw[0:2] = ball_xy
-        raw[2:4] = ball_velocity
-        raw[4:6] = target_xy
-        raw[6:8] = target_velocity
-        raw[8:10] = roll_pitch
-        raw[10:] = previous_action
-        raw *= self._scale
-        np.clip(raw, self.low, self.high, out=raw)
-        return raw.astype(np.float32)
+        raw = [*ball_xy, *ball_velocity, *target_xy, *target_velocity, *roll_pitch, *previous_action]
+        if len(raw) != self.size:
+            raise ValueError(f"observation parts add up to {len(raw)} values, expected {self.size}")
+        # scalar arithmetic: for 12 values it is several times faster than numpy calls
+        clipped = [(hi if v > hi else -hi if v < -hi else v) for v, hi in
+                   ((float(x) * k, hi) for x, (k, hi) in zip(raw, self._scale_high))]  # fmt: skip
+        return np.array(clipped, dtype=np.float32)
 
 
 class BallObserver:

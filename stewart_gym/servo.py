@@ -17,7 +17,9 @@ the caller asks explicitly for clipping or NaN.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal
 
@@ -229,6 +231,32 @@ class ServoCalibration:
             raise ValueError(f"angles must have shape (..., 6), got {al.shape}")
         w = self.neutral_us + self.direction * self.us_per_rad * (al - self.home_angle)
         return self._limit(w, out_of_range)
+
+    def pulse_widths_one(self, angles: Sequence[float]) -> list[float] | None:
+        """Pulse widths (6 Python floats, µs) for six angles (rad), or None if any is outside its limits or NaN.
+
+        The scalar twin of :meth:`pulse_widths` for control loops (no arrays).
+        """
+        neutral, gain, home, _, _ = self._scalars
+        out = [n + k * (a - h) for n, k, a, h in zip(neutral, gain, angles, home)]
+        return out if self.in_range_one(out) else None
+
+    def in_range_one(self, pulse_widths: Sequence[float]) -> bool:
+        """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN)."""
+        _, _, _, lo, hi = self._scalars
+        return all(low <= w <= high for w, low, high in zip(pulse_widths, lo, hi))
+
+    def angles_one(self, pulse_widths: Sequence[float]) -> list[float]:
+        """The scalar twin of :meth:`angles`: six angles (rad) for six pulses (µs), as Python floats."""
+        neutral, gain, home, _, _ = self._scalars
+        return [h + (w - n) / k for n, k, w, h in zip(neutral, gain, pulse_widths, home)]
+
+    @cached_property
+    def _scalars(self) -> tuple[tuple[float, ...], ...]:
+        """(neutral, direction · µs/rad, home angle, min, max) per channel as Python floats."""
+        gain = self.direction * self.us_per_rad
+        return tuple(tuple(float(v) for v in arr)
+                     for arr in (self.neutral_us, gain, self.home_angle, self.min_us, self.max_us))  # fmt: skip
 
     def angles(self, pulse_widths: np.ndarray) -> np.ndarray:
         """Servo angles (..., 6) rad for pulse widths (..., 6) µs; the inverse of :meth:`pulse_widths`."""

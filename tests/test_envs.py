@@ -129,7 +129,7 @@ def test_physics_blow_up_ends_the_episode_without_nan(monkeypatch: pytest.Monkey
     env = gym.make("StewartBallBalance-v0")
     obs, _ = env.reset(seed=0)
     sim = env.unwrapped.sim
-    monkeypatch.setattr(sim, "ball_state", lambda: (np.full(3, np.nan), np.full(3, np.nan)))
+    monkeypatch.setattr(sim, "ball_position", lambda: (math.nan, math.nan, math.nan))
     obs, reward, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
     env.close()
     assert terminated and info["physics_error"] and np.all(np.isfinite(obs)) and math.isfinite(reward)

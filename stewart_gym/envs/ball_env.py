@@ -191,16 +191,16 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         mapped = self.mapper(action)
-        self.sim.command(mapped.pulses)
-        self.sim.step()
+        sim = self.sim
+        sim.command(mapped.pulses)
+        sim.step()
         self._pulses = mapped.pulses
         self._scaled = mapped.scaled
         self._unreachable += mapped.scaled
         if self.action_mode != "pulse":
             self._roll_pitch = (float(mapped.pose[3]), float(mapped.pose[4]))
-        t = self.sim.time
-        pos, _ = self.sim.ball_state()
-        x, y, z = pos.tolist()
+        t = sim.time
+        x, y, z = sim.ball_position()
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
             info = self._info(np.full(2, np.nan), np.full(2, np.nan), math.nan)
             info["physics_error"] = True
@@ -208,19 +208,18 @@ class StewartBallEnv(gym.Env, EzPickle):
         half = self.PLATE_HALF
         on_plate = abs(x) <= half and abs(y) <= half and z > self._plate_top
         self.panel.record(t, (x, y), on_plate and z < self._plate_top + 1.5 * self.params.ball.radius)
-        a = np.clip(np.asarray(action, dtype=np.float64).reshape(self.mapper.size), -1.0, 1.0)
-        diff = a - self._prev_action
-        rate = float(diff @ diff) / self.mapper.size
+        a = mapped.action
+        rate = sum((v - p) ** 2 for v, p in zip(a, self._prev_action)) / len(a)
         self._prev_action = a
-        obs = self._observe(t)
+        target_xy, target_vel = self._target(t)
+        obs = self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, a)
         self._last_obs = obs
-        target_xy, _ = self._target(t)
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
         reward = (1.0 - min(dist, 2 * half) / half + math.exp(-dist / self.NEAR_SCALE) - self.rate_penalty * rate
                   - (self.FALL_PENALTY if terminated else 0.0))  # fmt: skip
-        info = self._info(pos[:2], target_xy, dist)
+        info = self._info(np.array([x, y]), target_xy, dist)
         info["is_success"] = on_plate and self._inside >= self.success_steps
         return obs, reward, terminated, False, info
 
@@ -234,7 +233,7 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     # ------------------------------------------------------------- helpers
     def _reset_episode_state(self) -> None:
-        self._prev_action = np.zeros(self.mapper.size)
+        self._prev_action: tuple[float, ...] = (0.0,) * self.mapper.size
         self._roll_pitch = (0.0, 0.0)
         self._inside = 0
         self._unreachable = 0

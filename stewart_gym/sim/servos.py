@@ -78,14 +78,20 @@ class HobbyServos:
         self.spec = spec
         self.calibration = calibration
         self.delay_steps = int(round(spec.lag_s / physics_dt))
-        self._trim = np.asarray(spec.trim_error_us)
-        self._queue: deque[tuple[int, np.ndarray]] = deque()
-        self.held_us = calibration.neutral_us.copy()
+        self._trim = list(spec.trim_error_us)
+        self._queue: deque[tuple[int, list[float]]] = deque()
+        self._held = calibration.neutral_us.tolist()
 
-    def reset(self, pulses_us: np.ndarray | None = None) -> np.ndarray:
+    @property
+    def held_us(self) -> np.ndarray:
+        """(6,) µs: the pulses the servos act on now (after lag and dead band)."""
+        return np.array(self._held)
+
+    def reset(self, pulses_us: np.ndarray | None = None) -> list[float]:
         """Forget pending commands and hold ``pulses_us`` (default neutral); return the target angles."""
         self._queue.clear()
-        self.held_us = np.array(self.calibration.neutral_us if pulses_us is None else pulses_us, dtype=float)
+        held = self.calibration.neutral_us if pulses_us is None else pulses_us
+        self._held = np.asarray(held, dtype=np.float64).reshape(6).tolist()
         return self.target_angles()
 
     def command(self, pulses_us: np.ndarray, step: int) -> np.ndarray:
@@ -94,23 +100,26 @@ class HobbyServos:
         Raises :class:`~stewart_gym.servo.PulseRangeError` if any pulse is outside
         the calibration's channel limits or not finite: nothing is sent then.
         """
-        pulses = self.calibration.check(np.asarray(pulses_us, dtype=np.float64).reshape(6))
+        pulses = np.asarray(pulses_us, dtype=np.float64).reshape(6).tolist()
+        if not self.calibration.in_range_one(pulses):
+            self.calibration.check(np.array(pulses))  # raises, naming the channel
         res = self.spec.resolution_us
-        quantised = np.round(pulses / res) * res if res > 0 else pulses.copy()
+        quantised = [round(w / res) * res for w in pulses] if res > 0 else pulses
         self._queue.append((step + self.delay_steps, quantised))
-        return quantised
+        return np.array(quantised)
 
-    def update(self, step: int) -> np.ndarray | None:
+    def update(self, step: int) -> list[float] | None:
         """Apply commands due at ``step``; return new target angles (6,) rad, or None if unchanged."""
         changed = False
+        band = self.spec.deadband_us
         while self._queue and self._queue[0][0] <= step:
             _, pulses = self._queue.popleft()
-            move = np.abs(pulses - self.held_us) > self.spec.deadband_us
-            if move.any():
-                self.held_us = np.where(move, pulses, self.held_us)
+            held = [w if abs(w - h) > band else h for w, h in zip(pulses, self._held)]
+            if held != self._held:
+                self._held = held
                 changed = True
         return self.target_angles() if changed else None
 
-    def target_angles(self) -> np.ndarray:
+    def target_angles(self) -> list[float]:
         """(6,) rad: the shaft angles the servos aim for with the pulses they hold."""
-        return self.calibration.angles(self.held_us - self._trim)
+        return self.calibration.angles_one([w - t for w, t in zip(self._held, self._trim)])

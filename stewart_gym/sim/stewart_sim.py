@@ -1,8 +1,9 @@
 """PyBullet simulation of a servo-driven Stewart platform with closed kinematic loops.
 
-Structure: the URDF tree base → horns → (universal joint) → rods is one
-multibody; the plate is a second body; six point-to-point constraints join each
-rod top to its plate anchor. Servos are position motors on the horn joints,
+Structure: the URDF tree base → horns → (universal joint) → rods is loaded as
+six fixed-base bodies, one per leg (the base is fixed, so this is the same
+mechanism and a cheaper solve); the plate is another body; six point-to-point
+constraints join each rod top to its plate anchor. Servos are position motors on the horn joints,
 commanded in pulse widths through :class:`~stewart_gym.sim.servos.HobbyServos`.
 An optional ball rolls on the plate.
 
@@ -120,9 +121,9 @@ class StewartSim:
         geometry: Preset name, TOML path or :class:`PlatformGeometry` (rotary).
         calibration: Pulse ↔ angle mapping shared with hardware; default
             :meth:`ServoCalibration.default` of the geometry.
-        physics_hz: Physics rate, a multiple of ``control_hz``. The default 150 Hz
-            (3 steps per servo frame) keeps loops closed within 0.06 mm at
-            ~4,800 control steps/s; see ``bench/bench_sim.py --solvers``.
+        physics_hz: Physics rate, a multiple of ``control_hz``. The default 200 Hz
+            (4 steps per servo frame) keeps loops closed within 0.07 mm during
+            full-speed moves; see ``bench/bench_sim.py --solvers``.
         control_hz: Rate of :meth:`step` (servo frames).
         ball: Add a ball on the plate.
         ball_spec, servo_spec, mechanism, physics: Physical parameters.
@@ -134,7 +135,7 @@ class StewartSim:
         self,
         geometry: PlatformGeometry | str = "servo-hexapod",
         calibration: ServoCalibration | None = None,
-        physics_hz: int = 150,
+        physics_hz: int = 200,
         control_hz: int = 50,
         ball: bool = False,
         *,
@@ -164,6 +165,7 @@ class StewartSim:
         self.render_mode = render_mode
         self.render_size = render_size
         self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
+        self._home_list: list[float] = self._home_alpha.tolist()
         self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
         self._step_count = 0
         self._closed = False
@@ -185,7 +187,7 @@ class StewartSim:
         # Hot-path calls bound once: BulletClient builds a new partial on every attribute access.
         cid = c._client
         self._pb_step = partial(pb.stepSimulation, physicsClientId=cid)
-        self._pb_motor = partial(pb.setJointMotorControl2, physicsClientId=cid)
+        self._cid = cid
         self._pb_base_pose = partial(pb.getBasePositionAndOrientation, physicsClientId=cid)
         self._pb_base_velocity = partial(pb.getBaseVelocity, physicsClientId=cid)
         self._pb_force = partial(pb.applyExternalForce, physicsClientId=cid)
@@ -199,30 +201,38 @@ class StewartSim:
                 erp=self.physics.erp, deterministicOverlappingPairs=1,
             )  # fmt: skip
         geo = self.geometry
-        mech_path, plate_path = self._tmp / "mechanism.urdf", self._tmp / "plate.urdf"
-        mech_path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec))
-        plate_path.write_text(plate_urdf(geo, self.mechanism))
         flags = pb.URDF_USE_INERTIA_FROM_FILE
-        self.mech = c.loadURDF(str(mech_path), useFixedBase=True, flags=flags)
+        # One fixed-base body per leg (base → horn → universal joint → rod), from the same generator as the
+        # whole-tree URDF: with the base fixed the legs interact only through the plate, so the motion is
+        # the same, and each solver row costs O(3 links) instead of O(18) (~1.6× faster, bench_sim.py).
+        self.legs: list[int] = []
+        for i in range(6):
+            path = self._tmp / f"leg_{i}.urdf"
+            path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec, legs=[i], base_plate=i == 0))
+            self.legs.append(c.loadURDF(str(path), useFixedBase=True, flags=flags))
+        plate_path = self._tmp / "plate.urdf"
+        plate_path.write_text(plate_urdf(geo, self.mechanism))
         self.plate = c.loadURDF(str(plate_path), basePosition=geo.home_position.tolist(), flags=flags)
-        names = {c.getJointInfo(self.mech, j)[1].decode(): j for j in range(c.getNumJoints(self.mech))}
-        self._servo_joints = [names[f"servo_{i}"] for i in range(6)]
-        self._rod_links = [names[f"rod_{i}_u2"] for i in range(6)]  # a joint's index is its child link's
-        passive = [names[f"rod_{i}_{u}"] for i in range(6) for u in ("u1", "u2")]
-        c.setJointMotorControlArray(self.mech, passive, pb.VELOCITY_CONTROL, forces=[0.0] * len(passive))
-        # Nothing in the mechanism collides (with itself, the plate or the ball).
-        for link in range(-1, c.getNumJoints(self.mech)):
-            c.setCollisionFilterGroupMask(self.mech, link, 0, 0)
-            c.changeDynamics(self.mech, link, linearDamping=0.0, angularDamping=0.0)
+        # joint indices within each leg body (a joint's index is its child link's)
+        names = {c.getJointInfo(self.legs[0], j)[1].decode(): j for j in range(c.getNumJoints(self.legs[0]))}
+        self._servo_joint, self._rod_link = names["servo_0"], names["rod_0_u2"]
+        passive = [names["rod_0_u1"], names["rod_0_u2"]]
+        for leg in self.legs:
+            c.setJointMotorControlArray(leg, passive, pb.VELOCITY_CONTROL, forces=[0.0] * len(passive))
+            # Nothing in the mechanism collides (with itself, the plate or the ball).
+            for link in range(-1, c.getNumJoints(leg)):
+                c.setCollisionFilterGroupMask(leg, link, 0, 0)
+                c.changeDynamics(leg, link, linearDamping=0.0, angularDamping=0.0)
         c.changeDynamics(self.plate, -1, lateralFriction=self.physics.plate_friction, linearDamping=0.0,
                          angularDamping=0.0)  # fmt: skip
         self._plate_com = np.array(c.getDynamicsInfo(self.plate, -1)[3])  # inertial origin in the plate frame
+        self._plate_com_list: list[float] = self._plate_com.tolist()
         self._constraints = []
         s = geo.rod_length
-        for i in range(6):
-            rod_com = np.array(c.getDynamicsInfo(self.mech, self._rod_links[i])[3])
+        for i, leg in enumerate(self.legs):
+            rod_com = np.array(c.getDynamicsInfo(leg, self._rod_link)[3])
             cid = c.createConstraint(
-                self.mech, self._rod_links[i], self.plate, -1, pb.JOINT_POINT2POINT, [0, 0, 0],
+                leg, self._rod_link, self.plate, -1, pb.JOINT_POINT2POINT, [0, 0, 0],
                 parentFramePosition=(np.array([0, 0, s]) - rod_com).tolist(),
                 childFramePosition=(geo.platform_anchors[i] - self._plate_com).tolist(),
             )  # fmt: skip
@@ -261,29 +271,35 @@ class StewartSim:
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
         step, update = self._pb_step, self._servos.update
+        load = self._plate_load_force() if self._plate_load is not None else None
         for _ in range(self.substeps):
             targets = update(self._step_count)
             if targets is not None:
                 self._apply_targets(targets)
-            if self._plate_load is not None:
-                self._frame = None
-                self._apply_plate_load()
+            if load is not None:  # PyBullet clears external forces after every physics step
+                self._pb_force(self.plate, -1, load[0], load[1], pb.WORLD_FRAME)
             step()
             self._step_count += 1
         self._frame = None
 
-    def _apply_plate_load(self) -> None:
-        """The weight of the extra plate mass, at its offset (cleared by PyBullet after each physics step)."""
+    def _plate_load_force(self) -> tuple[list[float], list[float]]:
+        """The extra plate mass's weight (N) and the world point (m) it acts at, for this control period.
+
+        The point follows the plate once per control period (the plate turns by
+        a few hundredths of a radian in that time at most).
+        """
         mass, offset = self._plate_load  # type: ignore[misc]
         origin, rot = self._plate_frame()
-        point = origin + rot @ offset
-        self._pb_force(self.plate, -1, [0.0, 0.0, -mass * GRAVITY], point.tolist(), pb.WORLD_FRAME)
+        return [0.0, 0.0, -mass * GRAVITY], (origin + rot @ offset).tolist()
 
-    def _apply_targets(self, angles: np.ndarray) -> None:
-        spec, motor, mech = self.servo_spec, self._pb_motor, self.mech
-        for j, target in zip(self._servo_joints, (angles - self._home_alpha).tolist()):
-            motor(mech, j, pb.POSITION_CONTROL, targetPosition=target, force=spec.stall_torque,
-                  maxVelocity=spec.max_speed, positionGain=spec.position_gain, velocityGain=spec.velocity_gain)  # fmt: skip
+    def _apply_targets(self, angles: list[float]) -> None:
+        """Servo motors aim at ``angles`` (6,) rad, at most the stall torque and the servo speed."""
+        spec, joint, cid = self.servo_spec, self._servo_joint, self._cid
+        torque, kp, kd, speed = spec.stall_torque, spec.position_gain, spec.velocity_gain, spec.max_speed
+        for leg, angle, home in zip(self.legs, angles, self._home_list):
+            # positional arguments (bodyUniqueId, jointIndex, controlMode, targetPosition, targetVelocity, force,
+            # positionGain, velocityGain, maxVelocity, physicsClientId): keywords cost twice as much to parse
+            pb.setJointMotorControl2(leg, joint, pb.POSITION_CONTROL, angle - home, 0.0, torque, kp, kd, speed, cid)
 
     def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
               plate_friction: float | None = None, plate_load: tuple[float, np.ndarray] | None = None) -> None:  # fmt: skip
@@ -333,21 +349,24 @@ class StewartSim:
 
     def servo_angles(self) -> np.ndarray:
         """(6,) rad: the horn angles α (from the horizontal, as in eq. 9)."""
-        states = self._client.getJointStates(self.mech, self._servo_joints)
-        return np.array([s[0] for s in states]) + self._home_alpha
+        return np.array([s[0] for s in self._servo_states()]) + self._home_alpha
 
     def servo_velocities(self) -> np.ndarray:
         """(6,) rad/s."""
-        return np.array([s[1] for s in self._client.getJointStates(self.mech, self._servo_joints)])
+        return np.array([s[1] for s in self._servo_states()])
+
+    def _servo_states(self) -> list[tuple]:
+        get, joint = self._client.getJointState, self._servo_joint
+        return [get(leg, joint) for leg in self.legs]
 
     def held_pulses(self) -> np.ndarray:
         """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
-        return self._servos.held_us.copy()
+        return self._servos.held_us
 
     def constraint_error(self) -> float:
         """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
         c, s = self._client, self.geometry.rod_length
-        states = c.getLinkStates(self.mech, self._rod_links, computeForwardKinematics=True)
+        states = [c.getLinkState(leg, self._rod_link, computeForwardKinematics=True) for leg in self.legs]
         tops = np.array([
             np.array(st[4]) + np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3)[:, 2] * s for st in states
         ])  # fmt: skip
@@ -388,6 +407,17 @@ class StewartSim:
         vel, _ = self._pb_base_velocity(ball)
         origin, rot = self._plate_frame()
         return (np.array(pos) - origin) @ rot, np.array(vel) @ rot
+
+    def ball_position(self) -> tuple[float, float, float]:
+        """Ball centre (x, y, z) in the platform frame, m, as Python floats (the cheap part of :meth:`ball_state`)."""
+        (bx, by, bz), _ = self._pb_base_pose(self._require_ball())
+        (px, py, pz), orn = self._pb_base_pose(self.plate)
+        m = pb.getMatrixFromQuaternion(orn)  # R row by row
+        dx, dy, dz = bx - px, by - py, bz - pz
+        cx, cy, cz = self._plate_com_list
+        # Rᵀ (ball − plate centre of mass) + centre of mass in the plate frame, in scalar arithmetic (hot path)
+        return (m[0] * dx + m[3] * dy + m[6] * dz + cx, m[1] * dx + m[4] * dy + m[7] * dz + cy,
+                m[2] * dx + m[5] * dy + m[8] * dz + cz)  # fmt: skip
 
     def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
