@@ -65,8 +65,8 @@ def main() -> None:
     res["real_time_factor_ball"] = round(res["control_steps_per_s_ball"] / res["control_hz"], 1)
     if args.solvers:
         rows = []
-        for solver, hz, erp in [("si", 150, 0.2), ("si", 250, 0.2), ("dantzig", 150, 0.2), ("dantzig", 250, 0.2),
-                                ("dantzig", 100, 0.9), ("dantzig", 150, 0.9), ("dantzig", 200, 0.9)]:  # fmt: skip
+        for solver, hz, erp in [("si", 200, 0.2), ("si", 250, 0.2), ("dantzig", 200, 0.2), ("dantzig", 100, 0.9),
+                                ("dantzig", 150, 0.9), ("dantzig", 200, 0.9), ("dantzig", 250, 0.9)]:  # fmt: skip
             with StewartSim(ball=True, physics_hz=hz, physics=PhysicsSpec(solver=solver, erp=erp)) as sim:
                 gap = worst_gap(sim)
                 sim.reset()

@@ -128,7 +128,10 @@ class ActionMapper:
         :meth:`ServoCalibration.pulse_widths_one`: ~10 µs); only an unreachable
         one pays for the batched ray search.
         """
-        values = np.asarray(action, dtype=np.float64).reshape(self.size).tolist()
+        if type(action) is np.ndarray and action.shape == (self.size,) and action.dtype.kind == "f":
+            values = action.tolist()  # the common case, without an array conversion
+        else:
+            values = np.asarray(action, dtype=np.float64).reshape(self.size).tolist()
         if not math.isfinite(sum(values)):  # NaN for NaN or ±inf
             raise ValueError(f"action must be finite, got {values}")
         clipped = _clip_unit(values)

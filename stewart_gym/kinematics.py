@@ -181,8 +181,7 @@ class _IKConstants:
     """Per-(geometry, pivot) constants of the IK hot path."""
 
     rhs: np.ndarray  # (7, 6): rows (p_i − c)ᵀ, ones, ((0, 0, h0) + c − b_i)ᵀ
-    rows: tuple[tuple[float, ...], ...]  # rhs as Python floats, for the one-pose path
-    beta_cs: tuple[tuple[float, ...], tuple[float, ...]]  # (cos β, sin β) as Python floats
+    legs: tuple[tuple[float, ...], ...]  # per leg (p − c, (0, 0, h0) + c − b, cos β, sin β) as Python floats
     cos_beta: np.ndarray  # (6,), ones for a linear platform
     sin_beta: np.ndarray  # (6,)
     half_l0: float  # (s² − a²) / (2a)
@@ -194,11 +193,12 @@ class _IKConstants:
 
 _CONSTANTS: dict[tuple[int, bytes], tuple[PlatformGeometry, _IKConstants]] = {}
 _NO_PIVOT = np.zeros(3)
+_NO_PIVOT_KEY = _NO_PIVOT.tobytes()
 _NO_SOLUTION, _BELOW, _ABOVE = int(LegStatus.NO_SOLUTION), int(LegStatus.BELOW_LIMIT), int(LegStatus.ABOVE_LIMIT)
 
 
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
-    key = (id(geo), c.tobytes())
+    key = (id(geo), c.tobytes())  # servo_angles_one looks up (id, _NO_PIVOT_KEY) directly
     hit = _CONSTANTS.get(key)
     if hit is not None and hit[0] is geo:
         return hit[1]
@@ -209,8 +209,7 @@ def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
     rhs = np.vstack([(geo.platform_anchors - c).T, np.ones((1, 6)), (geo.home_position + c)[:, None] - geo.base_anchors.T])
     consts = _IKConstants(
         rhs=rhs,
-        rows=tuple(tuple(float(v) for v in row) for row in rhs),
-        beta_cs=(tuple(np.cos(beta).tolist()), tuple(np.sin(beta).tolist())),  # type: ignore[arg-type]
+        legs=tuple(tuple(float(v) for v in leg) for leg in np.vstack([rhs[:3], rhs[4:], np.cos(beta), np.sin(beta)]).T),
         cos_beta=np.cos(beta),  # type: ignore[arg-type]
         sin_beta=np.sin(beta),  # type: ignore[arg-type]
         half_l0=(geo.rod_length**2 - a * a) / (2 * a),
@@ -284,11 +283,12 @@ def _ik_block(k: _IKConstants, poses: np.ndarray, aug: np.ndarray, legs: np.ndar
         alpha[back] += np.copysign(np.pi, num[back])
 
 
-def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[tuple[list[float], ...], list[float], list[float], list[int]]:
-    """The arithmetic of :func:`_ik_block` for one pose in scalar ``math``: (legs (3 lists of 6), lengths, actuator, status).
+def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[list[tuple[float, ...]], bool]:
+    """The arithmetic of :func:`_ik_block` for one pose in scalar ``math``: (rows, reachable).
 
-    ``actuator`` is the servo angle (rad; NaN without a solution) of a rotary
-    platform or the leg length (m) of a linear one.
+    One row per leg: (l_x, l_y, l_z, |l|, actuator, status), where ``actuator``
+    is the servo angle (rad; NaN without a solution) of a rotary platform or the
+    leg length (m) of a linear one.
     """
     x, y, z, roll, pitch, yaw = pose
     cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
@@ -296,44 +296,44 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[tuple[list[float
     r00, r01, r02 = cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr
     r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr
     r20, r21, r22 = -sp, cp * sr, cp * cr
-    px, py, pz, _, ox, oy, oz = k.rows
-    lxs = [r00 * a + r01 * b + r02 * c + x + o for a, b, c, o in zip(px, py, pz, ox)]
-    lys = [r10 * a + r11 * b + r12 * c + y + o for a, b, c, o in zip(px, py, pz, oy)]
-    lzs = [r20 * a + r21 * b + r22 * c + z + o for a, b, c, o in zip(px, py, pz, oz)]
-    lengths, act, status = [], [], []
-    lo, hi, inv_2a, half_l0, rotary = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary
-    for lx, ly, lz, cb, sb in zip(lxs, lys, lzs, k.beta_cs[0], k.beta_cs[1]):
+    rows = []
+    reachable = True
+    lo, hi, inv_2a, half_l0, rotary, sqrt = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary, math.sqrt
+    for px, py, pz, ox, oy, oz, cb, sb in k.legs:
+        lx = r00 * px + r01 * py + r02 * pz + x + ox
+        ly = r10 * px + r11 * py + r12 * pz + y + oy
+        lz = r20 * px + r21 * py + r22 * pz + z + oz
         sq = lx * lx + ly * ly + lz * lz
-        length = math.sqrt(sq)
-        lengths.append(length)
+        length = sqrt(sq)
         if rotary:
             big_l = sq * inv_2a - half_l0
             big_n = lx * cb + ly * sb
             root2 = lz * lz + big_n * big_n - big_l * big_l
             if root2 < 0.0:
-                act.append(math.nan)
-                status.append(_NO_SOLUTION)
+                rows.append((lx, ly, lz, length, math.nan, _NO_SOLUTION))
+                reachable = False
                 continue
-            root = math.sqrt(root2)
+            root = sqrt(root2)
             value = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
         else:
             value = length
-        act.append(value)
-        status.append(_BELOW if value < lo else _ABOVE if value > hi else 0)
-    return (lxs, lys, lzs), lengths, act, status
+        status = _BELOW if value < lo else _ABOVE if value > hi else 0
+        rows.append((lx, ly, lz, length, value, status))
+        reachable = reachable and not status
+    return rows, reachable
 
 
 def _ik_one(k: _IKConstants, pose: np.ndarray) -> IKResult:
     """:func:`inverse_kinematics` of a single pose (6,) through :func:`_ik_scalar` (low latency)."""
-    legs, lengths, act, status = _ik_scalar(k, pose.tolist())
-    st = np.array(status, dtype=np.uint8)
+    rows, reachable = _ik_scalar(k, pose.tolist())
+    table = np.array(rows)
     return IKResult(
         pose=pose,
-        leg_vectors=np.array(legs).T,
-        leg_lengths=np.array(lengths),
-        servo_angles=np.array(act) if k.rotary else None,
-        status=st,
-        reachable=np.bool_(not st.any()),
+        leg_vectors=table[:, :3],
+        leg_lengths=table[:, 3],
+        servo_angles=table[:, 4] if k.rotary else None,
+        status=table[:, 5].astype(np.uint8),
+        reachable=np.bool_(reachable),
     )
 
 
@@ -344,11 +344,12 @@ def servo_angles_one(geometry: PlatformGeometry, pose: Sequence[float]) -> tuple
     origin) without building arrays. ``reachable`` is False if any leg has no
     solution (its angle is NaN) or is outside the servo angle range.
     """
-    k = _constants(geometry, _NO_PIVOT)
+    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
+    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
     if not k.rotary:
         raise ValueError(f"geometry {geometry.name!r} is linear: it has no servo angles")
-    _, _, alpha, status = _ik_scalar(k, pose)
-    return alpha, not any(status)
+    rows, reachable = _ik_scalar(k, pose)
+    return [row[4] for row in rows], reachable
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:

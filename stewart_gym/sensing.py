@@ -158,7 +158,7 @@ class ObservationBuilder:
         self.space = spaces.Box(-high, high, dtype=np.float32)
         scale = [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.POSITION_SCALE] * 2 \
             + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size
-        self._scale_high = list(zip(scale, high.tolist()))
+        self._scales, self._highs = scale, [float(v) for v in high]
 
     def build(self, ball_xy: Sequence[float], ball_velocity: Sequence[float], target_xy: Sequence[float],
               target_velocity: Sequence[float], roll_pitch: Sequence[float],
@@ -167,10 +167,9 @@ class ObservationBuilder:
         raw = [*ball_xy, *ball_velocity, *target_xy, *target_velocity, *roll_pitch, *previous_action]
         if len(raw) != self.size:
             raise ValueError(f"observation parts add up to {len(raw)} values, expected {self.size}")
-        # scalar arithmetic: for 12 values it is several times faster than numpy calls
-        clipped = [(hi if v > hi else -hi if v < -hi else v) for v, hi in
-                   ((float(x) * k, hi) for x, (k, hi) in zip(raw, self._scale_high))]  # fmt: skip
-        return np.array(clipped, dtype=np.float32)
+        # scalar arithmetic: for a dozen values it is several times faster than numpy calls
+        return np.array([hi if (v := x * k) > hi else -hi if v < -hi else v
+                         for x, k, hi in zip(raw, self._scales, self._highs)], dtype=np.float32)  # fmt: skip
 
 
 class BallObserver:
@@ -191,9 +190,9 @@ class BallObserver:
         self.velocity.reset(t, xy)
         self.reading = (float(xy[0]), float(xy[1]))
 
-    def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: np.ndarray,
-                target_velocity: np.ndarray, roll_pitch: tuple[float, float],
-                previous_action: np.ndarray) -> np.ndarray:  # fmt: skip
+    def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: Sequence[float],
+                target_velocity: Sequence[float], roll_pitch: Sequence[float],
+                previous_action: Sequence[float]) -> np.ndarray:  # fmt: skip
         """One observation from a panel ``reading`` ((x, y) m, sample time s) or None (no touch)."""
         if reading is not None:
             self.reading = reading[0]

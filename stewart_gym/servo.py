@@ -244,7 +244,10 @@ class ServoCalibration:
     def in_range_one(self, pulse_widths: Sequence[float]) -> bool:
         """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN)."""
         _, _, _, lo, hi = self._scalars
-        return all(low <= w <= high for w, low, high in zip(pulse_widths, lo, hi))
+        for w, low, high in zip(pulse_widths, lo, hi):
+            if not low <= w <= high:  # also False for NaN
+                return False
+        return True
 
     def angles_one(self, pulse_widths: Sequence[float]) -> list[float]:
         """The scalar twin of :meth:`angles`: six angles (rad) for six pulses (µs), as Python floats."""

@@ -1,7 +1,8 @@
 """Where the ball should be: fixed targets and moving reference trajectories on the plate.
 
-A target is called with the time t (s) and returns position (2,) m and velocity
-(2,) m/s in the plate frame.
+A target is called with the time t (s) and returns its position (x, y) m and
+velocity (vx, vy) m/s in the plate frame, as Python floats (it runs every
+control step).
 """
 
 from __future__ import annotations
@@ -14,18 +15,21 @@ import numpy as np
 __all__ = ["TRAJECTORIES", "Circle", "FigureEight", "Fixed", "Target", "Waypoints", "make_trajectory"]
 
 
+XY = tuple[float, float]
+
+
 class Target(Protocol):
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]: ...
+    def __call__(self, t: float) -> tuple[XY, XY]: ...
 
 
 class Fixed:
     """A fixed point (default the plate centre)."""
 
     def __init__(self, xy: tuple[float, float] = (0.0, 0.0)) -> None:
-        self.xy = np.asarray(xy, dtype=np.float64)
+        self.xy = (float(xy[0]), float(xy[1]))
 
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        return self.xy.copy(), np.zeros(2)
+    def __call__(self, t: float) -> tuple[XY, XY]:
+        return self.xy, (0.0, 0.0)
 
 
 class Circle:
@@ -34,10 +38,10 @@ class Circle:
     def __init__(self, radius: float = 0.06, period: float = 8.0, phase: float = 0.0) -> None:
         self.radius, self.omega, self.phase = radius, 2 * math.pi / period, phase
 
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, t: float) -> tuple[XY, XY]:
         a = self.omega * t + self.phase
         r, w = self.radius, self.omega
-        return np.array([r * math.cos(a), r * math.sin(a)]), np.array([-r * w * math.sin(a), r * w * math.cos(a)])
+        return (r * math.cos(a), r * math.sin(a)), (-r * w * math.sin(a), r * w * math.cos(a))
 
 
 class FigureEight:
@@ -46,11 +50,9 @@ class FigureEight:
     def __init__(self, amplitude: float = 0.07, period: float = 10.0, phase: float = 0.0) -> None:
         self.amplitude, self.omega, self.phase = amplitude, 2 * math.pi / period, phase
 
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, t: float) -> tuple[XY, XY]:
         a, w, amp = self.omega * t + self.phase, self.omega, self.amplitude
-        pos = np.array([amp * math.sin(a), amp * math.sin(a) * math.cos(a)])
-        vel = np.array([amp * w * math.cos(a), amp * w * math.cos(2 * a)])
-        return pos, vel
+        return (amp * math.sin(a), amp * math.sin(a) * math.cos(a)), (amp * w * math.cos(a), amp * w * math.cos(2 * a))
 
 
 class Waypoints:
@@ -60,19 +62,21 @@ class Waypoints:
                  count: int = 32) -> None:  # fmt: skip
         ang = rng.uniform(0, 2 * math.pi, count)
         rad = radius * np.sqrt(rng.uniform(0, 1, count))
-        self.points = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=1)
-        self.points[0] = 0.0
+        points = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=1)
+        points[0] = 0.0
+        self.points: list[XY] = [(float(x), float(y)) for x, y in points]
         self.hold_s, self.move_s = hold_s, move_s
 
-    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, t: float) -> tuple[XY, XY]:
         period = self.hold_s + self.move_s
         k = int(t // period)
-        a, b = self.points[k % len(self.points)], self.points[(k + 1) % len(self.points)]
+        (ax, ay), (bx, by) = self.points[k % len(self.points)], self.points[(k + 1) % len(self.points)]
         tau = t - k * period - self.hold_s
         if tau <= 0:
-            return a.copy(), np.zeros(2)
+            return (ax, ay), (0.0, 0.0)
         s = tau / self.move_s  # smoothstep 3s² − 2s³ from a to b
-        return a + (b - a) * (3 * s * s - 2 * s**3), (b - a) * (6 * s - 6 * s * s) / self.move_s
+        p, dp = 3 * s * s - 2 * s**3, (6 * s - 6 * s * s) / self.move_s
+        return (ax + (bx - ax) * p, ay + (by - ay) * p), ((bx - ax) * dp, (by - ay) * dp)
 
 
 TRAJECTORIES = ("circle", "figure8", "waypoints")
