@@ -16,11 +16,24 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from stewart_gym.geometry import PlatformGeometry, load_preset  # noqa: E402
-from stewart_gym.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, servo_angles_one  # noqa: E402
+from stewart_gym.servo import ServoCalibration  # noqa: E402
+
+
+def median_latency_us(call: Callable[[], object], repeats: int = 7, number: int = 5000) -> float:
+    """Median over ``repeats`` of the mean time of ``number`` calls, µs."""
+    lat = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            call()
+        lat.append((time.perf_counter() - t0) / number)
+    return float(np.median(lat)) * 1e6
 
 
 def naive_servo_ik(geo: PlatformGeometry, pose: np.ndarray) -> np.ndarray:
@@ -79,13 +92,9 @@ def main() -> None:
     api_rate = len(sub) / t_api
 
     one = poses[0]
-    lat = []
-    for _ in range(7):
-        t0 = time.perf_counter()
-        for _ in range(5000):
-            inverse_kinematics(geo, one)
-        lat.append((time.perf_counter() - t0) / 5000)
-    latency_us = float(np.median(lat)) * 1e6
+    latency_us = median_latency_us(lambda: inverse_kinematics(geo, one))
+    cal, reachable_one = ServoCalibration.default(geo), poses[:100][inverse_kinematics(geo, poses[:100]).reachable][0].tolist()
+    control_us = median_latency_us(lambda: cal.pulse_widths_one(servo_angles_one(geo, reachable_one)[0]))
 
     ik = inverse_kinematics(geo, poses[:100_000])
     angles = ik.servo_angles[ik.reachable]
@@ -102,6 +111,7 @@ def main() -> None:
         "speedup_vs_naive_loop": round(batch_rate / naive_rate, 1),
         "speedup_vs_api_loop": round(batch_rate / api_rate, 1),
         "single_pose_latency_us": round(latency_us, 2),
+        "control_path_latency_us": round(control_us, 2),
         "fk_solves_per_s": round(len(angles) / t_fk),
         "fk_mean_iterations": round(float(fk.iterations.mean()), 2),
         "fk_max_error": fk_err,
@@ -114,6 +124,7 @@ def main() -> None:
     print(f"  naive per-pose loop       {naive_rate:>14,.0f} poses/s   → batched is {batch_rate / naive_rate:.0f}×")
     print(f"  loop over single-pose API {api_rate:>14,.0f} poses/s   → batched is {batch_rate / api_rate:.0f}×")
     print(f"  single-pose latency       {latency_us:>14.1f} µs        (target ≤ 30)")
+    print(f"  one pose → pulses, scalar {control_us:>14.1f} µs        (servo_angles_one + pulse_widths_one)")
     print(f"  batched FK (Newton)       {len(angles) / t_fk:>14,.0f} solves/s  "
           f"({fk.iterations.mean():.1f} iterations, max error {fk_err:.1e})")  # fmt: skip
 

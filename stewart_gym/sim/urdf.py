@@ -21,8 +21,8 @@ Masses and inertias are of a hobby build (:class:`MechanismSpec`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
