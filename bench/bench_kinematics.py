@@ -21,7 +21,7 @@ from collections.abc import Callable  # noqa: E402
 import numpy as np  # noqa: E402
 
 from stewart_gym.geometry import PlatformGeometry, load_preset  # noqa: E402
-from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, servo_angles_one  # noqa: E402
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, servo_pulses_one  # noqa: E402
 from stewart_gym.servo import ServoCalibration  # noqa: E402
 
 
@@ -93,8 +93,9 @@ def main() -> None:
 
     one = poses[0]
     latency_us = median_latency_us(lambda: inverse_kinematics(geo, one))
-    cal, reachable_one = ServoCalibration.default(geo), poses[:100][inverse_kinematics(geo, poses[:100]).reachable][0].tolist()
-    control_us = median_latency_us(lambda: cal.pulse_widths_one(servo_angles_one(geo, reachable_one)[0]))
+    cal = ServoCalibration.default(geo)
+    reachable_one = poses[:100][inverse_kinematics(geo, poses[:100]).reachable][0].tolist()
+    control_us = median_latency_us(lambda: servo_pulses_one(geo, cal, reachable_one))
 
     ik = inverse_kinematics(geo, poses[:100_000])
     angles = ik.servo_angles[ik.reachable]
@@ -124,7 +125,7 @@ def main() -> None:
     print(f"  naive per-pose loop       {naive_rate:>14,.0f} poses/s   → batched is {batch_rate / naive_rate:.0f}×")
     print(f"  loop over single-pose API {api_rate:>14,.0f} poses/s   → batched is {batch_rate / api_rate:.0f}×")
     print(f"  single-pose latency       {latency_us:>14.1f} µs        (target ≤ 30)")
-    print(f"  one pose → pulses, scalar {control_us:>14.1f} µs        (servo_angles_one + pulse_widths_one)")
+    print(f"  one pose → pulses, scalar {control_us:>14.1f} µs        (servo_pulses_one)")
     print(f"  batched FK (Newton)       {len(angles) / t_fk:>14,.0f} solves/s  "
           f"({fk.iterations.mean():.1f} iterations, max error {fk_err:.1e})")  # fmt: skip
 

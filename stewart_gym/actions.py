@@ -20,7 +20,7 @@ import numpy as np
 
 from stewart_gym.analysis.workspace import axis_ranges
 from stewart_gym.geometry import PlatformGeometry, load_geometry
-from stewart_gym.kinematics import inverse_kinematics, servo_angles_one
+from stewart_gym.kinematics import inverse_kinematics, servo_pulses_one
 from stewart_gym.servo import ServoCalibration
 
 __all__ = ["ACTION_MODES", "ActionMapper", "MappedAction"]
@@ -124,9 +124,8 @@ class ActionMapper:
     def __call__(self, action: np.ndarray) -> MappedAction:
         """Map one action (size :attr:`size`) to pulses; non-finite actions raise ``ValueError``.
 
-        A reachable pose takes the scalar path (:func:`servo_angles_one`,
-        :meth:`ServoCalibration.pulse_widths_one`: ~10 µs); only an unreachable
-        one pays for the batched ray search.
+        A feasible pose takes the scalar path (:func:`servo_pulses_one`, ~6 µs);
+        only an unreachable one pays for the batched ray search.
         """
         if type(action) is np.ndarray and action.shape == (self.size,) and action.dtype.kind == "f":
             values = action.tolist()  # the common case, without an array conversion
@@ -139,8 +138,7 @@ class ActionMapper:
             pulses = [m + v * h for m, v, h in zip(self._mid, clipped, self._half)]
             return MappedAction(np.full(6, np.nan), np.array(pulses), False, 1.0, tuple(clipped))
         pose = self._pose_list(clipped)
-        angles, ok = servo_angles_one(self.geometry, pose)
-        fast = self.calibration.pulse_widths_one(angles) if ok else None
+        fast = servo_pulses_one(self.geometry, self.calibration, pose)
         if fast is not None:
             return MappedAction(np.array(pose), np.array(fast), False, 1.0, tuple(clipped))
         best, pulses, scale = self.reachable_pose(np.array(pose))

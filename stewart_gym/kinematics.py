@@ -24,11 +24,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from stewart_gym.geometry import PlatformGeometry
+
+if TYPE_CHECKING:
+    from stewart_gym.servo import ServoCalibration
 
 __all__ = [
     "FKResult",
@@ -42,6 +45,7 @@ __all__ = [
     "rotation_matrix",
     "rotation_matrix_derivatives",
     "servo_angles_one",
+    "servo_pulses_one",
 ]
 
 #: Poses are processed in blocks of this many, so temporaries stay in cache.
@@ -198,7 +202,7 @@ _NO_SOLUTION, _BELOW, _ABOVE = int(LegStatus.NO_SOLUTION), int(LegStatus.BELOW_L
 
 
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
-    key = (id(geo), c.tobytes())  # servo_angles_one looks up (id, _NO_PIVOT_KEY) directly
+    key = (id(geo), c.tobytes())  # _rotary_constants looks up (id, _NO_PIVOT_KEY) directly
     hit = _CONSTANTS.get(key)
     if hit is not None and hit[0] is geo:
         return hit[1]
@@ -283,12 +287,18 @@ def _ik_block(k: _IKConstants, poses: np.ndarray, aug: np.ndarray, legs: np.ndar
         alpha[back] += np.copysign(np.pi, num[back])
 
 
-def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[list[tuple[float, ...]], bool]:
-    """The arithmetic of :func:`_ik_block` for one pose in scalar ``math``: (rows, reachable).
+def _ik_scalar(k: _IKConstants, pose: Sequence[float],
+               pulse_map: Sequence[tuple[float, ...]] | None = None) -> list | None:  # fmt: skip
+    """The arithmetic of :func:`_ik_block` for one pose in scalar ``math``.
 
-    One row per leg: (l_x, l_y, l_z, |l|, actuator, status), where ``actuator``
-    is the servo angle (rad; NaN without a solution) of a rotary platform or the
-    leg length (m) of a linear one.
+    Without ``pulse_map``: one row per leg, (l_x, l_y, l_z, |l|, actuator,
+    status), where ``actuator`` is the servo angle (rad; NaN without a
+    solution) of a rotary platform or the leg length (m) of a linear one.
+
+    With ``pulse_map`` (per servo: neutral µs, signed µs/rad, home angle rad,
+    min µs, max µs; eqs 13/14): the six pulse widths (µs), or None as soon as a
+    leg has no solution, leaves the servo angle range or its pulse leaves the
+    channel's limits. One pass, no arrays: the control-loop path.
     """
     x, y, z, roll, pitch, yaw = pose
     cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
@@ -296,10 +306,9 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[list[tuple[float
     r00, r01, r02 = cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr
     r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr
     r20, r21, r22 = -sp, cp * sr, cp * cr
-    rows = []
-    reachable = True
+    out: list = []
     lo, hi, inv_2a, half_l0, rotary, sqrt = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary, math.sqrt
-    for px, py, pz, ox, oy, oz, cb, sb in k.legs:
+    for (px, py, pz, ox, oy, oz, cb, sb), pulse in zip(k.legs, pulse_map or _NO_PULSE_MAP):
         lx = r00 * px + r01 * py + r02 * pz + x + ox
         ly = r10 * px + r11 * py + r12 * pz + y + oy
         lz = r20 * px + r21 * py + r22 * pz + z + oz
@@ -310,46 +319,74 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float]) -> tuple[list[tuple[float
             big_n = lx * cb + ly * sb
             root2 = lz * lz + big_n * big_n - big_l * big_l
             if root2 < 0.0:
-                rows.append((lx, ly, lz, length, math.nan, _NO_SOLUTION))
-                reachable = False
+                if pulse is not None:
+                    return None
+                out.append((lx, ly, lz, length, math.nan, _NO_SOLUTION))
                 continue
             root = sqrt(root2)
             value = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
         else:
             value = length
         status = _BELOW if value < lo else _ABOVE if value > hi else 0
-        rows.append((lx, ly, lz, length, value, status))
-        reachable = reachable and not status
-    return rows, reachable
+        if pulse is None:
+            out.append((lx, ly, lz, length, value, status))
+            continue
+        neutral, gain, home, low, high = pulse
+        width = neutral + gain * (value - home)
+        if status or not low <= width <= high:
+            return None
+        out.append(width)
+    return out
+
+
+_NO_PULSE_MAP = (None,) * 6
 
 
 def _ik_one(k: _IKConstants, pose: np.ndarray) -> IKResult:
     """:func:`inverse_kinematics` of a single pose (6,) through :func:`_ik_scalar` (low latency)."""
-    rows, reachable = _ik_scalar(k, pose.tolist())
-    table = np.array(rows)
+    table = np.array(_ik_scalar(k, pose.tolist()))
+    status = table[:, 5].astype(np.uint8)
     return IKResult(
         pose=pose,
         leg_vectors=table[:, :3],
         leg_lengths=table[:, 3],
         servo_angles=table[:, 4] if k.rotary else None,
-        status=table[:, 5].astype(np.uint8),
-        reachable=np.bool_(reachable),
+        status=status,
+        reachable=np.bool_(not status.any()),
     )
 
 
+def _rotary_constants(geometry: PlatformGeometry) -> _IKConstants:
+    """The IK constants of a rotary geometry without a pivot (a dictionary hit on the hot path)."""
+    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
+    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
+    if not k.rotary:
+        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servos")
+    return k
+
+
 def servo_angles_one(geometry: PlatformGeometry, pose: Sequence[float]) -> tuple[list[float], bool]:
-    """Servo angles of one pose as Python floats, for control loops: ((6,) rad, reachable).
+    """Servo angles of one pose as Python floats: ((6,) rad, reachable).
 
     The same arithmetic as :func:`inverse_kinematics` (pivot at the platform
     origin) without building arrays. ``reachable`` is False if any leg has no
     solution (its angle is NaN) or is outside the servo angle range.
     """
-    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
-    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
-    if not k.rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servo angles")
-    rows, reachable = _ik_scalar(k, pose)
-    return [row[4] for row in rows], reachable
+    rows = _ik_scalar(_rotary_constants(geometry), pose)
+    assert rows is not None
+    return [row[4] for row in rows], not any(row[5] for row in rows)
+
+
+def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,
+                     pose: Sequence[float]) -> list[float] | None:  # fmt: skip
+    """Pulse widths (6 Python floats, µs) of one pose, or None if it cannot be commanded.
+
+    IK and the calibration's eqs 13/14 in one scalar pass (~6 µs), for control
+    loops: None if any leg is unreachable, outside the servo angle range or
+    would get a pulse outside its channel's limits. Agrees with
+    ``calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles)``.
+    """
+    return _ik_scalar(_rotary_constants(geometry), pose, calibration.pulse_map)
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:

@@ -232,34 +232,26 @@ class ServoCalibration:
         w = self.neutral_us + self.direction * self.us_per_rad * (al - self.home_angle)
         return self._limit(w, out_of_range)
 
-    def pulse_widths_one(self, angles: Sequence[float]) -> list[float] | None:
-        """Pulse widths (6 Python floats, µs) for six angles (rad), or None if any is outside its limits or NaN.
-
-        The scalar twin of :meth:`pulse_widths` for control loops (no arrays).
-        """
-        neutral, gain, home, _, _ = self._scalars
-        out = [n + k * (a - h) for n, k, a, h in zip(neutral, gain, angles, home)]
-        return out if self.in_range_one(out) else None
-
     def in_range_one(self, pulse_widths: Sequence[float]) -> bool:
         """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN)."""
-        _, _, _, lo, hi = self._scalars
-        for w, low, high in zip(pulse_widths, lo, hi):
+        for w, (_, _, _, low, high) in zip(pulse_widths, self.pulse_map):
             if not low <= w <= high:  # also False for NaN
                 return False
         return True
 
     def angles_one(self, pulse_widths: Sequence[float]) -> list[float]:
         """The scalar twin of :meth:`angles`: six angles (rad) for six pulses (µs), as Python floats."""
-        neutral, gain, home, _, _ = self._scalars
-        return [h + (w - n) / k for n, k, w, h in zip(neutral, gain, pulse_widths, home)]
+        return [h + (w - n) / k for w, (n, k, h, _, _) in zip(pulse_widths, self.pulse_map)]
 
     @cached_property
-    def _scalars(self) -> tuple[tuple[float, ...], ...]:
-        """(neutral, direction · µs/rad, home angle, min, max) per channel as Python floats."""
+    def pulse_map(self) -> tuple[tuple[float, float, float, float, float], ...]:
+        """Per servo (neutral µs, direction · µs/rad, home angle rad, min µs, max µs) as Python floats.
+
+        Eqs 13/14 for scalar control loops: pulse = neutral + gain · (α − home),
+        valid within [min, max] (:func:`~stewart_gym.kinematics.servo_pulses_one`).
+        """
         gain = self.direction * self.us_per_rad
-        return tuple(tuple(float(v) for v in arr)
-                     for arr in (self.neutral_us, gain, self.home_angle, self.min_us, self.max_us))  # fmt: skip
+        return tuple(zip(*(map(float, arr) for arr in (self.neutral_us, gain, self.home_angle, self.min_us, self.max_us))))
 
     def angles(self, pulse_widths: np.ndarray) -> np.ndarray:
         """Servo angles (..., 6) rad for pulse widths (..., 6) µs; the inverse of :meth:`pulse_widths`."""
