@@ -75,7 +75,7 @@ def sim_replay(env: StewartBallEnv, log: list[Episode]) -> float:
     return time.perf_counter() - t0
 
 
-def measure(env_id: str, randomize: bool, steps: int, rounds: int = 10) -> dict:
+def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20) -> dict:
     """Medians over ``rounds`` rounds of ``steps`` env steps, each followed at once by its replay.
 
     Interleaving keeps the env and its replay under the same machine load; the
@@ -121,7 +121,7 @@ def env_loop_gap(steps: int = 2000) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=1000, help="env steps per round")
-    parser.add_argument("--rounds", type=int, default=10)
+    parser.add_argument("--rounds", type=int, default=20)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     res = {"envs": [measure(env_id, randomize, args.steps, args.rounds)

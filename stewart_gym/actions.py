@@ -135,7 +135,10 @@ class ActionMapper:
             raise ValueError(f"action must be finite, got {values}")
         clipped = _clip_unit(values)
         if self.mode == "pulse":
-            pulses = [m + v * h for m, v, h in zip(self._mid, clipped, self._half)]
+            pulses = []
+            for v, mid, half, (_, _, _, low, high) in zip(clipped, self._mid, self._half, self.calibration.pulse_map):
+                w = mid + v * half  # at ±1 rounding can land a hair outside the limits: keep it on them
+                pulses.append(low if w < low else high if w > high else w)
             return MappedAction(np.full(6, np.nan), np.array(pulses), False, 1.0, tuple(clipped))
         pose = self._pose_list(clipped)
         fast = servo_pulses_one(self.geometry, self.calibration, pose)

@@ -60,6 +60,19 @@ def test_reset_is_deterministic_under_randomization(env_id: str, mode: str) -> N
     assert not np.array_equal(other, a[0][0])
 
 
+@pytest.mark.parametrize("mode", ["tilt", "pose", "pulse"])
+def test_extreme_actions_are_commanded_within_limits(mode: str) -> None:
+    """Actions at and beyond ±1 (where float rounding can land a pulse a hair outside a limit) never raise."""
+    env = gym.make("StewartBallBalance-v0", action_mode=mode)
+    env.reset(seed=0)
+    cal = env.unwrapped.sim.calibration
+    n = env.action_space.shape[0]
+    for a in (np.ones(n), -np.ones(n), np.full(n, 7.0), np.full(n, -7.0), np.r_[1.0, -1.0, np.ones(n - 2)]):
+        _, _, _, _, info = env.step(a.astype(np.float32))
+        assert cal.in_range(info["pulse_widths_us"]).all()
+    env.close()
+
+
 def test_registration_without_import_prefix_and_metadata() -> None:
     env = gym.make("stewart_gym:StewartBallBalance-v0", render_mode="rgb_array")
     try:

@@ -3,9 +3,9 @@
 Structure: the URDF tree base → horns → (universal joint) → rods is loaded as
 six fixed-base bodies, one per leg (the base is fixed, so this is the same
 mechanism and a cheaper solve); the plate is another body; six point-to-point
-constraints join each rod top to its plate anchor. Servos are position motors on the horn joints,
-commanded in pulse widths through :class:`~stewart_gym.sim.servos.HobbyServos`.
-An optional ball rolls on the plate.
+constraints join each rod top to its plate anchor. Servos are position motors
+on the horn joints, commanded in pulse widths through
+:class:`~stewart_gym.sim.servos.HobbyServos`. An optional ball rolls on the plate.
 
 Rates are explicit: ``physics_hz`` must be a multiple of ``control_hz``; one
 :meth:`StewartSim.step` advances one control period (one servo frame at the
@@ -204,7 +204,8 @@ class StewartSim:
         flags = pb.URDF_USE_INERTIA_FROM_FILE
         # One fixed-base body per leg (base → horn → universal joint → rod), from the same generator as the
         # whole-tree URDF: with the base fixed the legs interact only through the plate, so the motion is
-        # the same, and each solver row costs O(3 links) instead of O(18) (~1.6× faster, bench_sim.py).
+        # the same, and each solver row costs O(3 links) instead of O(18): measured with the ball at 200 Hz,
+        # 3,580 control steps/s as one tree, 5,300 as six legs, the same worst loop gap (0.0695 mm).
         self.legs: list[int] = []
         for i in range(6):
             path = self._tmp / f"leg_{i}.urdf"
