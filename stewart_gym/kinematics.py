@@ -307,13 +307,13 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float],
     r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr
     r20, r21, r22 = -sp, cp * sr, cp * cr
     out: list = []
-    lo, hi, inv_2a, half_l0, rotary, sqrt = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary, math.sqrt
+    lo, hi, inv_2a, half_l0, rotary = k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary
+    sqrt, atan2, below, above = math.sqrt, math.atan2, _BELOW, _ABOVE  # locals: this loop is the control-loop hot path
     for (px, py, pz, ox, oy, oz, cb, sb), pulse in zip(k.legs, pulse_map or _NO_PULSE_MAP):
         lx = r00 * px + r01 * py + r02 * pz + x + ox
         ly = r10 * px + r11 * py + r12 * pz + y + oy
         lz = r20 * px + r21 * py + r22 * pz + z + oz
         sq = lx * lx + ly * ly + lz * lz
-        length = sqrt(sq)
         if rotary:
             big_l = sq * inv_2a - half_l0
             big_n = lx * cb + ly * sb
@@ -321,15 +321,15 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float],
             if root2 < 0.0:
                 if pulse is not None:
                     return None
-                out.append((lx, ly, lz, length, math.nan, _NO_SOLUTION))
+                out.append((lx, ly, lz, sqrt(sq), math.nan, _NO_SOLUTION))
                 continue
             root = sqrt(root2)
-            value = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
+            value = atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
         else:
-            value = length
-        status = _BELOW if value < lo else _ABOVE if value > hi else 0
+            value = sqrt(sq)
+        status = below if value < lo else above if value > hi else 0
         if pulse is None:
-            out.append((lx, ly, lz, length, value, status))
+            out.append((lx, ly, lz, sqrt(sq), value, status))
             continue
         neutral, gain, home, low, high = pulse
         width = neutral + gain * (value - home)

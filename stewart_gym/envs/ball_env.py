@@ -169,6 +169,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         else:
             params = EpisodeParams(self.nominal_ball, self.nominal_servo, self.nominal_sensor, 0.6, None)
         self.params = params
+        self._touch_top = self._plate_top + 1.5 * params.ball.radius  # ball centre below this: touching the panel
         self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
                        plate_load=params.plate_load)  # fmt: skip
         if "ball_position" in options:
@@ -200,7 +201,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._scaled = mapped.scaled
         self._unreachable += mapped.scaled
         if self.action_mode != "pulse":
-            self._roll_pitch = (float(mapped.pose[3]), float(mapped.pose[4]))
+            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
         t = sim.time
         x, y, z = sim.ball_position()
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
@@ -209,7 +210,7 @@ class StewartBallEnv(gym.Env, EzPickle):
             return self._last_obs.copy(), -self.FALL_PENALTY, True, False, info
         half = self.PLATE_HALF
         on_plate = abs(x) <= half and abs(y) <= half and z > self._plate_top
-        self.panel.record(t, (x, y), on_plate and z < self._plate_top + 1.5 * self.params.ball.radius)
+        self.panel.record(t, (x, y), on_plate and z < self._touch_top)
         a = mapped.action
         rate = 0.0
         for v, p in zip(a, self._prev_action):
