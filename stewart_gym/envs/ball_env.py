@@ -94,7 +94,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz`` (default
     150: the envs trade the simulator's 200 Hz, loop gap ≤ 0.07 mm in full-range
     moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves and
-    ≤ 0.042 mm under ±10° bang-bang tilts), ``control_hz``, ``rate_penalty``, ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
+    ≤ 0.042 mm under ±10° bang-bang tilts), ``control_hz``, ``rate_penalty``,
+    ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
     (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
     (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``.
 
