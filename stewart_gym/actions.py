@@ -79,8 +79,6 @@ class ActionMapper:
         self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
         self._pose_scale = self.pose_scale.tolist()
         self.size = 2 if mode == "tilt" else 6
-        self._half = ((self.calibration.max_us - self.calibration.min_us) / 2).tolist()
-        self._mid = ((self.calibration.max_us + self.calibration.min_us) / 2).tolist()
 
     def pose(self, action: np.ndarray) -> np.ndarray:
         """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""
@@ -136,8 +134,8 @@ class ActionMapper:
         clipped = _clip_unit(values)
         if self.mode == "pulse":
             pulses = []
-            for v, mid, half, (_, _, _, low, high) in zip(clipped, self._mid, self._half, self.calibration.pulse_map):
-                w = mid + v * half  # at ±1 rounding can land a hair outside the limits: keep it on them
+            for v, (_, _, _, low, high) in zip(clipped, self.calibration.pulse_map):
+                w = low + (v + 1.0) * 0.5 * (high - low)  # at +1 rounding can land a hair outside: keep it on the limit
                 pulses.append(low if w < low else high if w > high else w)
             return MappedAction(np.full(6, np.nan), np.array(pulses), False, 1.0, tuple(clipped))
         pose = self._pose_list(clipped)

@@ -44,7 +44,6 @@ __all__ = [
     "inverse_kinematics",
     "rotation_matrix",
     "rotation_matrix_derivatives",
-    "servo_angles_one",
     "servo_pulses_one",
 ]
 
@@ -363,18 +362,6 @@ def _rotary_constants(geometry: PlatformGeometry) -> _IKConstants:
     if not k.rotary:
         raise ValueError(f"geometry {geometry.name!r} is linear: it has no servos")
     return k
-
-
-def servo_angles_one(geometry: PlatformGeometry, pose: Sequence[float]) -> tuple[list[float], bool]:
-    """Servo angles of one pose as Python floats: ((6,) rad, reachable).
-
-    The same arithmetic as :func:`inverse_kinematics` (pivot at the platform
-    origin) without building arrays. ``reachable`` is False if any leg has no
-    solution (its angle is NaN) or is outside the servo angle range.
-    """
-    rows = _ik_scalar(_rotary_constants(geometry), pose)
-    assert rows is not None
-    return [row[4] for row in rows], not any(row[5] for row in rows)
 
 
 def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,

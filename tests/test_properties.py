@@ -14,7 +14,6 @@ from stewart_gym.kinematics import (
     forward_kinematics,
     inverse_kinematics,
     rotation_matrix,
-    servo_angles_one,
     servo_pulses_one,
 )
 from stewart_gym.servo import ServoCalibration
@@ -85,14 +84,16 @@ def test_mirrored_servo_pairs(name: str, u: np.ndarray) -> None:
 @settings(max_examples=200, deadline=None)
 @given(name=st.sampled_from(ROTARY), u=poses_unit, scale=st.sampled_from([0.5, 1.0, 3.0]))
 def test_scalar_one_pose_path_equals_batched_ik(name: str, u: np.ndarray, scale: float) -> None:
-    """servo_angles_one and servo_pulses_one (the control-loop path) agree with the batched IK and calibration."""
+    """The scalar one-pose IK and servo_pulses_one (the control-loop path) agree with the batched IK and calibration."""
     geo = GEOMETRIES[name]
     pose = _pose(name, u) * scale  # scale 3 reaches far out of the workspace
     cal = ServoCalibration.default(geo)
-    angles, ok = servo_angles_one(geo, pose.tolist())
+    one = inverse_kinematics(geo, pose)  # a single pose takes the scalar path
     batch = inverse_kinematics(geo, pose[None])
+    ok = bool(one.reachable)
     assert ok == bool(batch.reachable[0])
-    assert np.allclose(angles, batch.servo_angles[0], rtol=0, atol=1e-12, equal_nan=True)
+    assert np.array_equal(one.status, batch.status[0])
+    assert np.allclose(one.servo_angles, batch.servo_angles[0], rtol=0, atol=1e-12, equal_nan=True)
     pulses = servo_pulses_one(geo, cal, pose.tolist())
     reference = cal.pulse_widths(batch.servo_angles[0], out_of_range="nan")
     if np.isnan(reference).any() or not ok:

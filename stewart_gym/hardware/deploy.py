@@ -161,7 +161,7 @@ class DeployLoop:
         self.target = target or Fixed()
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
         self.observer = BallObserver(mapper.size)
-        self.prev_action = np.zeros(mapper.size)
+        self.prev_action: tuple[float, ...] = (0.0,) * mapper.size
         self.roll_pitch = (0.0, 0.0)
         self._observing = False  # the observer starts from the first reading, as the env's does at reset
 
@@ -178,23 +178,22 @@ class DeployLoop:
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)
         usable = False
-        pose = np.full(6, np.nan)
+        mapped = None
         try:
             action = np.asarray(self.policy(obs), dtype=np.float64).reshape(self.mapper.size)
             if np.all(np.isfinite(action)):
                 mapped = self.mapper(action)
                 flags["unreachable"] = mapped.scaled
                 usable = not mapped.scaled
-                requested = mapped.pulses
-                pose = mapped.pose  # NaN in "pulse" mode
-            else:
-                requested = None
         except (ValueError, FloatingPointError):
-            requested = None
+            mapped = None
+        requested = mapped.pulses if mapped is not None else None
+        pose = mapped.pose if mapped is not None else np.full(6, np.nan)  # NaN in "pulse" mode too
         res = self.safety.toward_home() if flags["stale"] else self.safety.filter(requested if usable else None,
                                                                                   usable)  # fmt: skip
         if usable and not flags["stale"] and not res.held:
-            self.prev_action = np.clip(action, -1.0, 1.0)
+            assert mapped is not None
+            self.prev_action = mapped.action  # the action as applied, clipped to [-1, 1]
             if self.mapper.mode != "pulse":
                 self.roll_pitch = (float(pose[3]), float(pose[4]))
         flags.update(held=res.held, clamped=res.clamped, rate_limited=res.rate_limited, homing=res.homing)

@@ -403,11 +403,9 @@ class StewartSim:
         x, y lie in the plate; z is the height of the ball centre above the
         platform frame origin (``plate_top + radius`` while it rests on the plate).
         """
-        ball = self._require_ball()
-        pos, _ = self._pb_base_pose(ball)
-        vel, _ = self._pb_base_velocity(ball)
-        origin, rot = self._plate_frame()
-        return (np.array(pos) - origin) @ rot, np.array(vel) @ rot
+        vel, _ = self._pb_base_velocity(self._require_ball())
+        _, rot = self._plate_frame()
+        return np.array(self.ball_position()), np.array(vel) @ rot
 
     def ball_position(self) -> tuple[float, float, float]:
         """Ball centre (x, y, z) in the platform frame, m, as Python floats (the cheap part of :meth:`ball_state`)."""
