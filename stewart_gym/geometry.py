@@ -32,6 +32,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
 __all__ = [
@@ -47,7 +48,7 @@ __all__ = [
 HOME_HEIGHT_RTOL = 1e-6
 
 
-class GeometryError(ValueError):
+class GeometryError(ConfigError):
     """A geometry description is malformed; the message names the field."""
 
 
@@ -323,7 +324,7 @@ def load_preset(name: str) -> PlatformGeometry:
     try:
         builder = presets.PRESETS[name]
     except KeyError:
-        raise KeyError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
+        raise GeometryError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
     return builder()
 
 
@@ -338,4 +339,4 @@ def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
     path = Path(spec)
     if path.suffix == ".toml" or path.exists():
         return PlatformGeometry.from_toml(path)
-    raise KeyError(f"{spec!r} is neither a preset ({preset_names()}) nor a TOML file")
+    raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 
 if TYPE_CHECKING:
     from stewart_gym.servo import ServoCalibration
@@ -61,12 +61,18 @@ class LegStatus(IntEnum):
     BELOW_LIMIT = 2
     #: The servo angle or leg length is above its upper limit.
     ABOVE_LIMIT = 3
+    #: The pose is not finite (NaN or infinite), or so large that the leg cannot be computed.
+    NOT_FINITE = 4
+    #: Linear only: the platform anchor is not above its base anchor (the mirrored assembly through the base).
+    BELOW_BASE = 5
 
 
 _STATUS_TEXT = {
     LegStatus.NO_SOLUTION: "no horn angle reaches the anchor (|L| > sqrt(M²+N²): rod too short or too long for the pose)",
     LegStatus.BELOW_LIMIT: "below the lower actuator limit",
     LegStatus.ABOVE_LIMIT: "above the upper actuator limit",
+    LegStatus.NOT_FINITE: "the pose is not finite (NaN or infinite) or too large to compute",
+    LegStatus.BELOW_BASE: "the platform anchor is not above its base anchor (the platform would pass through the base)",
 }
 
 
@@ -198,6 +204,9 @@ _CONSTANTS: dict[tuple[int, bytes], tuple[PlatformGeometry, _IKConstants]] = {}
 _NO_PIVOT = np.zeros(3)
 _NO_PIVOT_KEY = _NO_PIVOT.tobytes()
 _NO_SOLUTION, _BELOW, _ABOVE = int(LegStatus.NO_SOLUTION), int(LegStatus.BELOW_LIMIT), int(LegStatus.ABOVE_LIMIT)
+_NOT_FINITE, _BELOW_BASE = int(LegStatus.NOT_FINITE), int(LegStatus.BELOW_BASE)
+#: Squared leg lengths (m²) at or above this are treated as not computable (a NaN compares False with it too).
+_HUGE = 1e200
 
 
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
@@ -313,6 +322,11 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float],
         ly = r10 * px + r11 * py + r12 * pz + y + oy
         lz = r20 * px + r21 * py + r22 * pz + z + oz
         sq = lx * lx + ly * ly + lz * lz
+        if not sq < _HUGE:  # NaN, infinite or absurd pose: never "reachable"
+            if pulse is not None:
+                return None
+            out.append((lx, ly, lz, sqrt(sq) if sq == sq else math.nan, math.nan, _NOT_FINITE))
+            continue
         if rotary:
             big_l = sq * inv_2a - half_l0
             big_n = lx * cb + ly * sb
@@ -324,9 +338,10 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float],
                 continue
             root = sqrt(root2)
             value = atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
+            status = 0 if lo <= value <= hi else below if value < lo else above
         else:
             value = sqrt(sq)
-        status = below if value < lo else above if value > hi else 0
+            status = _BELOW_BASE if lz <= 0.0 else 0 if lo <= value <= hi else below if value < lo else above
         if pulse is None:
             out.append((lx, ly, lz, sqrt(sq), value, status))
             continue
@@ -360,7 +375,7 @@ def _rotary_constants(geometry: PlatformGeometry) -> _IKConstants:
     hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
     k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
     if not k.rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servos")
+        raise GeometryError(f"geometry {geometry.name!r} is linear: it has no servos")
     return k
 
 
@@ -401,7 +416,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
     alpha = np.empty((n, 6)) if k.rotary else None
     aug = np.zeros((min(n, _CHUNK), 3, 7))
     aug[:, :, 4:] = np.eye(3)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         for start in range(0, n, _CHUNK):
             sl = slice(start, start + _CHUNK)
             _ik_block(k, flat[sl], aug, legs[sl], lengths[sl], None if alpha is None else alpha[sl])
@@ -410,6 +425,14 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
     status[act > k.hi] = LegStatus.ABOVE_LIMIT
     if alpha is not None:
         status[np.isnan(alpha)] = LegStatus.NO_SOLUTION
+    else:
+        status[legs[:, 2] <= 0.0] = LegStatus.BELOW_BASE
+    with np.errstate(invalid="ignore"):
+        not_finite = ~(lengths * lengths < _HUGE)  # NaN, inf or absurd: never reachable
+    if not_finite.any():
+        status[not_finite] = LegStatus.NOT_FINITE
+        if alpha is not None:
+            alpha[not_finite] = np.nan
     reachable = ~status.any(axis=1)
     return IKResult(
         pose=pose,
@@ -424,7 +447,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
 def horn_tips(geometry: PlatformGeometry, servo_angles: np.ndarray) -> np.ndarray:
     """Horn tip positions A_i = b_i + a (cos α cos β, cos α sin β, sin α), shape (..., 6, 3), m."""
     if not geometry.is_rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servo horns")
+        raise GeometryError(f"geometry {geometry.name!r} is linear: it has no servo horns")
     assert geometry.horn_length is not None and geometry.servo_beta is not None
     al = np.asarray(servo_angles, dtype=np.float64)
     if al.shape[-1:] != (6,):
@@ -474,7 +497,7 @@ def actuator_jacobian(
     if actuator != "servo":
         raise ValueError(f"actuator must be 'servo' or 'leg', got {actuator!r}")
     if not geometry.is_rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: it has no servo angles")
+        raise GeometryError(f"geometry {geometry.name!r} is linear: it has no servo angles")
     alpha = inverse_kinematics(geometry, pose, c).servo_angles
     assert alpha is not None and geometry.horn_length is not None and geometry.servo_beta is not None
     rod = q - horn_tips(geometry, alpha)  # (..., 6, 3) horn tip → anchor

@@ -26,6 +26,8 @@ import math
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
+from stewart_gym.errors import ConfigError
+
 __all__ = ["planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
 
 
@@ -77,7 +79,10 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
     """
     for name, v in (("L1", L1), ("L2", L2), ("L3", L3), ("p1", p1), ("p2", p2), ("p3", p3)):
         if not (math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be a positive length, got {v}")
+            raise ConfigError(f"{name} must be a positive, finite length, got {v}")
+    for name, v in (("gamma", gamma), ("x1", x1), ("x2", x2), ("y2", y2)):
+        if not math.isfinite(v):
+            raise ConfigError(f"{name} must be finite, got {v}")
     args = (L1, L2, L3, gamma, x1, x2, y2, p1, p2, p3)
 
     def f(t: float) -> float:
@@ -126,7 +131,7 @@ def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,
     grid values to 1e-6 of the sweep's span.
     """
     if strut not in ("p1", "p2", "p3"):
-        raise ValueError(f"strut must be p1, p2 or p3, got {strut!r}")
+        raise ConfigError(f"strut must be p1, p2 or p3, got {strut!r}")
     values = np.asarray(values, dtype=np.float64)
 
     def count(v: float) -> int:

@@ -25,6 +25,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from stewart_gym.errors import ConfigError, StewartGymError
 from stewart_gym.geometry import PlatformGeometry, load_geometry
 from stewart_gym.tomlio import read_toml
 
@@ -39,11 +40,11 @@ DEFAULT_DIRECTIONS = (1, -1, 1, -1, 1, -1)
 OutOfRange = Literal["raise", "clip", "nan"]
 
 
-class CalibrationError(ValueError):
+class CalibrationError(ConfigError):
     """A calibration description is malformed; the message names the field."""
 
 
-class PulseRangeError(ValueError):
+class PulseRangeError(StewartGymError, ValueError):
     """A pulse width falls outside its channel's limits (or is not finite)."""
 
 

@@ -15,7 +15,7 @@ MM = 1e-3
 
 def test_preset_names() -> None:
     assert set(preset_names()) == {"servo-hexapod", "memememe-liverpool", "senilov2018", "mathcad-micro"}
-    with pytest.raises(KeyError, match="known presets"):
+    with pytest.raises(GeometryError, match="known presets"):
         load_preset("nope")
 
 

@@ -38,10 +38,66 @@ def sim() -> StewartSim:
 
 
 # ---------------------------------------------------------------------- URDF
+def urdf_differences(a: str, b: str, tol: float = 1e-8) -> list[str]:
+    """Where two URDF texts differ beyond ``tol`` (absolute, m/rad/kg): same elements, same attributes, every
+    number within the tolerance. Comparing text would fail on rounding noise that depends on the CPU (a
+    coordinate of 6e-18 where another machine computes -0)."""
+    import xml.etree.ElementTree as ET
+
+    out: list[str] = []
+
+    def walk(x: ET.Element, y: ET.Element, where: str) -> None:
+        if x.tag != y.tag or set(x.attrib) != set(y.attrib) or len(x) != len(y):
+            out.append(f"{where}: <{x.tag} {sorted(x.attrib)}> vs <{y.tag} {sorted(y.attrib)}>")
+            return
+        for key, vx in x.attrib.items():
+            tx, ty = vx.split(), y.attrib[key].split()
+            try:
+                nx, ny = np.array(tx, dtype=float), np.array(ty, dtype=float)
+            except ValueError:
+                if tx != ty:
+                    out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
+                continue
+            if nx.shape != ny.shape or not np.allclose(nx, ny, rtol=0, atol=tol):
+                out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
+        for k, (cx, cy) in enumerate(zip(x, y)):
+            walk(cx, cy, f"{where}/{cx.tag}[{k}]")
+
+    walk(ET.fromstring(a), ET.fromstring(b), "robot")
+    return out
+
+
 def test_committed_urdf_matches_generator() -> None:
-    assert (ROOT / "urdf/servo_hexapod.urdf").read_text() == mechanism_urdf("servo-hexapod"), \
+    """The committed files equal what the generator writes, compared as numbers (tolerance 1e-8)."""
+    assert not urdf_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), mechanism_urdf("servo-hexapod")), \
         "urdf/servo_hexapod.urdf is stale: run `stewart-gym urdf`"  # fmt: skip
-    assert (ROOT / "urdf/servo_hexapod_plate.urdf").read_text() == plate_urdf("servo-hexapod")
+    assert not urdf_differences((ROOT / "urdf/servo_hexapod_plate.urdf").read_text(), plate_urdf("servo-hexapod"))
+
+
+def test_urdf_generation_does_not_depend_on_numpy_simd() -> None:
+    """Regenerated with every SIMD path numpy dispatches at run time switched off (as on an older CPU), the
+    URDF still matches the committed file; and no coordinate is printed as rounding noise."""
+    import os
+    import subprocess
+    import sys
+
+    core = getattr(np, "_core", None) or np.core  # numpy 2 / numpy 1
+    dispatched = core._multiarray_umath.__cpu_dispatch__
+    env = {**os.environ, "NPY_DISABLE_CPU_FEATURES": " ".join(dispatched)}
+    code = "import sys; from stewart_gym.sim import mechanism_urdf; sys.stdout.write(mechanism_urdf('servo-hexapod'))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert not urdf_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), out.stdout)
+    import re
+
+    tiny = re.findall(r"[-+]?\d\.?\d*e-(?:1[2-9]|[2-9]\d)", (ROOT / "urdf/servo_hexapod.urdf").read_text())
+    assert not tiny, f"rounding noise written to the URDF: {tiny[:5]}"
+
+
+def test_urdf_comparison_catches_a_real_change() -> None:
+    text = mechanism_urdf("servo-hexapod")
+    assert urdf_differences(text, text.replace('effort="', 'effort="1', 1))
+    assert not urdf_differences(text, text.replace('rpy="0 0 0"', 'rpy="0 -0 6e-18"', 1))
 
 
 def test_urdf_parses_with_standard_parser() -> None:

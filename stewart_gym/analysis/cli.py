@@ -189,7 +189,7 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
         data = read_toml(args.geometry)
         missing = [k for k in PLANAR_KEYS if k not in data]
         if missing:
-            raise ValueError(f"{args.geometry}: missing planar parameter(s) {missing}")
+            raise ConfigError(f"{args.geometry}: missing planar parameter(s) {missing}")
         params = {k: float(data[k]) for k in PLANAR_KEYS}
     for k in PLANAR_KEYS:
         v = getattr(args, k)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import actuator_jacobian, forward_kinematics, inverse_kinematics
 
 __all__ = ["SensitivityResult", "conditioning", "fd_check", "sensitivity", "xy_grid_poses"]
@@ -85,7 +85,7 @@ def _forward_jacobian(geometry: PlatformGeometry, poses: np.ndarray) -> tuple[np
 def sensitivity(geometry: PlatformGeometry, poses: np.ndarray, step: float = math.radians(0.1)) -> SensitivityResult:
     """Platform motion for a servo step of ``step`` rad (default 0.1°, seed 003's servo resolution) at ``poses``."""
     if not geometry.is_rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: servo sensitivity needs a rotary platform")
+        raise GeometryError(f"geometry {geometry.name!r} is linear: servo sensitivity needs a rotary platform")
     poses = np.asarray(poses, dtype=np.float64)
     reach, fwd = _forward_jacobian(geometry, poses)
     per_servo = np.abs(fwd) * step  # (..., 6 axes, 6 servos)

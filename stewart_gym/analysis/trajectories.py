@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.analysis.workspace import axis_ranges
+from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.servo import ServoCalibration
@@ -58,29 +59,51 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
 
     The header names the columns with units: ``t_s`` (optional; else sample
     index), ``x_m`` or ``x_mm`` (likewise y, z) and ``roll_rad`` or ``roll_deg``
-    (likewise pitch, yaw). Missing pose columns are zero.
+    (likewise pitch, yaw). Missing pose columns are zero, but at least one pose
+    column must be there. An unknown column, a non-numeric or non-finite value
+    or a time column that goes backwards raises :class:`ConfigError` naming it.
     """
     import csv
 
-    with open(path, newline="") as fh:
-        rows = list(csv.DictReader(fh))
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (expected a CSV of poses)") from None
+    except csv.Error as exc:
+        raise ConfigError(f"{path}: not a valid CSV file ({exc})") from None
     if not rows:
-        raise ValueError(f"{path}: no rows")
-    header = set(rows[0])
+        raise ConfigError(f"{path}: no rows (expected a header line and one pose per line)")
+    header = [c.strip() for c in rows[0]]
+    known = {"t_s"} | {f"{a}_{u}" for a in ("x", "y", "z") for u in ("m", "mm")} | {
+        f"{a}_{u}" for a in ("roll", "pitch", "yaw") for u in ("rad", "deg")}  # fmt: skip
+    unknown = [c for c in header if c not in known]
+    if unknown:
+        raise ConfigError(f"{path}: unknown column(s) {unknown}; use t_s, x_m|x_mm, y_…, z_…, roll_rad|roll_deg, "
+                          "pitch_…, yaw_…")  # fmt: skip
+    if not set(header) - {"t_s"}:
+        raise ConfigError(f"{path}: no pose column (x_mm, y_mm, z_mm, roll_deg, … )")
     poses = np.zeros((len(rows), 6))
+
+    def column(name: str) -> np.ndarray:
+        try:
+            values = np.array([float(r[name]) for r in rows])
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"{path}: column {name!r}: {exc}") from None
+        if not np.all(np.isfinite(values)):
+            row = int(np.argmin(np.isfinite(values))) + 2
+            raise ConfigError(f"{path}: column {name!r} has a non-finite value (line {row})")
+        return values
+
     for k, axis in enumerate(("x", "y", "z", "roll", "pitch", "yaw")):
         cols = [c for c in header if c.split("_")[0] == axis]
         if len(cols) > 1:
-            raise ValueError(f"{path}: more than one column for {axis}: {cols}")
+            raise ConfigError(f"{path}: more than one column for {axis}: {cols}")
         if cols:
-            unit = cols[0].split("_", 1)[1] if "_" in cols[0] else ""
-            if unit not in _UNITS:
-                raise ValueError(f"{path}: column {cols[0]!r} needs a unit suffix (_m, _mm, _rad or _deg)")
-            try:
-                poses[:, k] = [float(r[cols[0]]) * _UNITS[unit] for r in rows]
-            except ValueError as exc:
-                raise ValueError(f"{path}: column {cols[0]!r}: {exc}") from None
-    t = np.array([float(r["t_s"]) for r in rows]) if "t_s" in header else np.arange(len(rows), dtype=float)
+            poses[:, k] = column(cols[0]) * _UNITS[cols[0].split("_", 1)[1]]
+    t = column("t_s") if "t_s" in header else np.arange(len(rows), dtype=float)
+    if np.any(np.diff(t) < 0):
+        raise ConfigError(f"{path}: t_s goes backwards (row {int(np.argmax(np.diff(t) < 0)) + 3})")
     return t, poses
 
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import inverse_kinematics
 
 __all__ = ["HeightMap", "axis_ranges", "height_map", "reachable_volume"]
@@ -31,7 +31,7 @@ def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, 
     frac = np.linspace(0.0, 1.0, samples)
     reach = inverse_kinematics(geometry, rays[:, :, None, :] * frac[:, None], pivot).reachable  # (6, 2, n)
     if not reach[..., 0].all():
-        raise ValueError(f"home is not reachable for geometry {geometry.name!r}")
+        raise GeometryError(f"home is not reachable for geometry {geometry.name!r}")
     first_bad = np.where(reach.all(axis=-1), samples, np.argmin(reach, axis=-1))  # (6, 2)
     lo = frac[first_bad - 1]
     hi = np.where(first_bad < samples, frac[np.minimum(first_bad, samples - 1)], 1.0)

@@ -14,13 +14,14 @@ from collections.abc import Sequence
 import numpy as np
 import serial
 
+from stewart_gym.errors import ConfigError, DeviceFailure
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 
 __all__ = ["PROTOCOLS", "DeviceError", "LineController", "MaestroController", "ServoController", "SSC32Controller",
            "open_controller"]  # fmt: skip
 
 
-class DeviceError(RuntimeError):
+class DeviceError(DeviceFailure):
     """The serial device failed (unplugged, not answering, protocol error)."""
 
 
@@ -174,5 +175,5 @@ def open_controller(protocol: str, port: str | serial.Serial, channels: Sequence
     try:
         cls = PROTOCOLS[protocol]
     except KeyError:
-        raise ValueError(f"protocol must be one of {sorted(PROTOCOLS)}, got {protocol!r}") from None
+        raise ConfigError(f"protocol must be one of {sorted(PROTOCOLS)}, got {protocol!r}") from None
     return cls(port, channels, baudrate)

@@ -31,7 +31,7 @@ import numpy as np
 import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
-from stewart_gym.geometry import PlatformGeometry, load_geometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.servo import ServoCalibration
 from stewart_gym.sim.servos import HobbyServos, ServoSpec
@@ -152,7 +152,7 @@ class StewartSim:
             raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
         self.geometry = load_geometry(geometry)
         if not self.geometry.is_rotary:
-            raise ValueError(f"geometry {self.geometry.name!r} is linear: StewartSim models servo platforms")
+            raise GeometryError(f"geometry {self.geometry.name!r} is linear: StewartSim models servo platforms")
         self.calibration = calibration or ServoCalibration.default(self.geometry)
         self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
         self.substeps = self.physics_hz // self.control_hz

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stewart_gym.geometry import PlatformGeometry, load_geometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry
 from stewart_gym.kinematics import euler_from_matrix, horn_tips, inverse_kinematics
 from stewart_gym.sim.servos import ServoSpec
 
@@ -73,7 +73,8 @@ class MechanismSpec:
 
 
 def _f(v: float) -> str:
-    return f"{v:.9g}"
+    """9 significant digits; values below 1e-12 in size (rounding noise such as 6e-18 or -0) are written as 0."""
+    return "0" if abs(v) < 1e-12 else f"{v:.9g}"
 
 
 def _xyz(v: np.ndarray) -> str:
@@ -122,7 +123,7 @@ def rod_frames(geometry: PlatformGeometry) -> tuple[np.ndarray, np.ndarray, np.n
     so the rod top is at (0, 0, s) in that frame.
     """
     if not geometry.is_rotary:
-        raise ValueError(f"geometry {geometry.name!r} is linear: the simulator models servo (rotary) platforms")
+        raise GeometryError(f"geometry {geometry.name!r} is linear: the simulator models servo (rotary) platforms")
     alpha0 = inverse_kinematics(geometry, np.zeros(6)).servo_angles
     tips = horn_tips(geometry, alpha0)
     tops = geometry.platform_anchors + geometry.home_position
