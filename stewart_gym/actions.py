@@ -19,14 +19,17 @@ from typing import Literal, NamedTuple
 import numpy as np
 
 from stewart_gym.analysis.workspace import axis_ranges
+from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry, load_geometry
 from stewart_gym.kinematics import inverse_kinematics, servo_pulses_one
 from stewart_gym.servo import ServoCalibration
 
-__all__ = ["ACTION_MODES", "ActionMapper", "MappedAction"]
+__all__ = ["ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction"]
 
 ActionMode = Literal["tilt", "pose", "pulse"]
 ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
+#: Number of action values of each mode.
+ACTION_SIZES: dict[str, int] = {"tilt": 2, "pose": 6, "pulse": 6}
 #: Default largest tilt (roll or pitch) of the "tilt" mode, rad.
 DEFAULT_MAX_TILT = math.radians(10.0)
 #: Fractions of the ray tried at once, then refined once more between the bracketing pair.
@@ -68,7 +71,7 @@ class ActionMapper:
                  mode: ActionMode = "tilt", *, max_tilt: float = DEFAULT_MAX_TILT,
                  pose_scale: np.ndarray | None = None) -> None:  # fmt: skip
         if mode not in ACTION_MODES:
-            raise ValueError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
+            raise ConfigError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
         self.geometry = load_geometry(geometry)
         self.calibration = calibration or ServoCalibration.default(self.geometry)
         self.mode = mode
@@ -78,7 +81,7 @@ class ActionMapper:
             pose_scale = 0.9 * np.minimum(-reach[:, 0], reach[:, 1])
         self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
         self._pose_scale = self.pose_scale.tolist()
-        self.size = 2 if mode == "tilt" else 6
+        self.size = ACTION_SIZES[mode]
 
     def pose(self, action: np.ndarray) -> np.ndarray:
         """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""

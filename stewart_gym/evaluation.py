@@ -18,14 +18,11 @@ import gymnasium as gym
 import numpy as np
 
 import stewart_gym  # noqa: F401  (registers the environments)
-from stewart_gym.controllers import CascadedPID
+from stewart_gym.errors import PolicyError
 
-__all__ = ["EpisodeLog", "Policy", "evaluate", "format_table", "load_policy", "plot_episode", "run_episode",
+__all__ = ["EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "load_policy", "plot_episode", "run_episode",
            "write_gif"]  # fmt: skip
 
-POLICY_DIR = Path(__file__).resolve().parent / "policies"
-#: Folder under ``policies/`` of the shipped policy of each env id.
-SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track"}
 #: The standard offset for the settling-time test, m.
 SETTLING_OFFSET = 0.100
 
@@ -83,6 +80,16 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = 
             return log
 
 
+def check_fits(policy: Policy, env: gym.Env) -> None:
+    """Raise :class:`PolicyError` if the policy's observation or action size differs from the env's."""
+    name = env.spec.id if env.spec else "the env"
+    obs, act = getattr(policy, "obs_size", None), getattr(policy, "action_size", None)
+    if obs is not None and (obs,) != env.observation_space.shape:
+        raise PolicyError(f"the policy reads {obs} observation values but {name} gives {env.observation_space.shape[0]}")
+    if act is not None and (act,) != env.action_space.shape:
+        raise PolicyError(f"the policy gives {act} action values but {name} takes {env.action_space.shape[0]}")
+
+
 def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, randomize: bool = True,
              settling: bool = True, env_kwargs: dict | None = None) -> dict[str, Any]:  # fmt: skip
     """Metrics over ``episodes`` seeded episodes (seeds ``seed … seed+episodes−1``).
@@ -97,6 +104,7 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
       |ΔW| per servo per second (servo wear).
     """
     env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
+    check_fits(policy, env)
     try:
         logs = [run_episode(env, policy, seed + k) for k in range(episodes)]
         dt = env.unwrapped.sim.dt
@@ -158,6 +166,8 @@ class SB3Policy:
 
     def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8) -> None:
         self.model, self.obs_rms, self.clip_obs, self.epsilon = model, obs_rms, clip_obs, epsilon
+        self.obs_size = int(model.observation_space.shape[0])
+        self.action_size = int(model.action_space.shape[0])
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         if self.obs_rms is None:
@@ -174,6 +184,7 @@ def load_sb3(path: str | Path) -> SB3Policy:
     """Load a PPO, SAC or TD3 model (a ``.zip``, or a folder with ``model.zip`` or ``best_model.zip``)
     and the ``vecnormalize.pkl`` beside it if present."""
     import pickle
+    import zipfile
 
     from stable_baselines3 import PPO, SAC, TD3
 
@@ -181,38 +192,35 @@ def load_sb3(path: str | Path) -> SB3Policy:
     zip_path = path
     if path.is_dir():
         zip_path = next((path / n for n in ("model.zip", "best_model.zip") if (path / n).exists()), path / "model.zip")
-    if not zip_path.exists():
-        raise FileNotFoundError(f"no model at {zip_path}")
+    if not zip_path.is_file():
+        raise PolicyError(f"no model at {zip_path}")
+    if not zipfile.is_zipfile(zip_path):
+        raise PolicyError(f"{zip_path}: not a Stable-Baselines3 model (not a zip archive)")
     for algo in (PPO, SAC, TD3):
         try:
             model = algo.load(zip_path, device="cpu")
             break
-        except (ValueError, KeyError, TypeError, AttributeError):
+        except (ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, RuntimeError):
             continue
     else:
-        raise ValueError(f"{zip_path} is not a PPO, SAC or TD3 model")
+        raise PolicyError(f"{zip_path} is not a PPO, SAC or TD3 model")
     obs_rms, clip_obs = None, 10.0
     stats = zip_path.parent / "vecnormalize.pkl"
     if stats.exists():
-        with stats.open("rb") as fh:
-            vec = pickle.load(fh)
-        obs_rms, clip_obs = vec.obs_rms, vec.clip_obs
+        try:
+            with stats.open("rb") as fh:
+                vec = pickle.load(fh)
+            obs_rms, clip_obs = vec.obs_rms, vec.clip_obs
+        except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
+            raise PolicyError(f"{stats}: unreadable normalisation statistics ({type(exc).__name__})") from None
     return SB3Policy(model, obs_rms, clip_obs)
 
 
 def load_policy(spec: str, env_id: str = "StewartBallBalance-v0") -> Policy:
-    """``"pid"`` (the tuned baseline), ``"shipped"`` (the committed policy for ``env_id``) or a path."""
-    if spec == "pid":
-        return CascadedPID.load(POLICY_DIR / "pid_gains.json")
-    if spec == "shipped":
-        folder = POLICY_DIR / SHIPPED.get(env_id, "")
-        if env_id not in SHIPPED or not (folder / "model.zip").exists():
-            raise FileNotFoundError(f"no shipped policy for {env_id} (looked in {folder})")
-        return load_sb3(folder)
-    path = Path(spec)
-    if path.suffix == ".json":
-        return CascadedPID.load(path)
-    return load_sb3(path)
+    """``"pid"``, ``"shipped"`` (the committed policy for ``env_id``) or a path: see :mod:`stewart_gym.registry`."""
+    from stewart_gym.registry import load_policy as load
+
+    return load(spec, env_id)
 
 
 # ------------------------------------------------------------------- figures

@@ -210,10 +210,10 @@ class ServoCalibration:
                 "",
                 "[[servo]]",
                 f"channel = {self.channels[i]}",
-                f"trim_us = {float(self.neutral_us[i] - 1500.0)!r}",
+                f"trim_us = {_us(self.neutral_us[i] - 1500.0)!r}",
                 f"direction = {int(self.direction[i])}",
-                f"min_us = {float(self.min_us[i])!r}",
-                f"max_us = {float(self.max_us[i])!r}",
+                f"min_us = {_us(self.min_us[i])!r}",
+                f"max_us = {_us(self.max_us[i])!r}",
                 f"home_angle_deg = {math.degrees(float(self.home_angle[i]))!r}",
             ]
         return "\n".join(lines) + "\n"
@@ -296,6 +296,11 @@ class ServoCalibration:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _us(v: float) -> float:
+    """A pulse value for a file: rounded to 1e-6 µs, so float noise (1084.999999999) is not written."""
+    return round(float(v), 6) + 0.0  # + 0.0 turns -0.0 into 0.0
 
 
 def hardware_settings(path: str | Path) -> dict[str, Any]:

@@ -31,8 +31,9 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 import stewart_gym  # noqa: F401  (registers the environments)
+from stewart_gym.errors import ConfigError
 
-__all__ = ["ALGOS", "TrainConfig", "load_hyperparams", "make_env", "train"]
+__all__ = ["ALGOS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 HYPERPARAM_DIR = Path(__file__).resolve().parents[1] / "train" / "hyperparams"
@@ -60,12 +61,45 @@ class TrainConfig:
 
 
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    """The YAML section for ``env_id`` (a copy); raises ``KeyError`` naming the file if it is absent."""
+    """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong."""
     path = Path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
-    data = yaml.safe_load(path.read_text()) or {}
-    if env_id not in data:
-        raise KeyError(f"{path} has no section for {env_id!r} (sections: {sorted(data)})")
-    return dict(data[env_id])
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (expected YAML hyperparameters)") from None
+    if not isinstance(data, dict) or env_id not in data or not isinstance(data[env_id], dict):
+        sections = sorted(data) if isinstance(data, dict) else []
+        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sections})")
+    hp = dict(data[env_id])
+    for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
+        if key in hp and (isinstance(hp[key], bool) or not isinstance(hp[key], (int, float)) or not hp[key] >= 1):
+            raise ConfigError(f"{path}: {env_id}.{key} must be a number ≥ 1, got {hp[key]!r}")
+    return hp
+
+
+def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
+    """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
+    the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
+    another run's model unless ``overwrite`` or resuming) and the run to resume from."""
+    from stewart_gym.cliutil import output_dir
+
+    if config.algo not in ALGOS:
+        raise ConfigError(f"algo must be one of {sorted(ALGOS)}, got {config.algo!r}")
+    load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
+        value = getattr(config, key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
+    run = output_dir(config.run_dir)
+    if config.resume:
+        resume = Path(config.resume)
+        model = resume / "model.zip" if resume.is_dir() else resume
+        if not model.is_file():
+            raise ConfigError(f"--resume {config.resume}: no model at {model}")
+    elif not overwrite and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
+        raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
 
 
 def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None) -> VecEnv:
@@ -110,25 +144,40 @@ class _Deadline(BaseCallback):
 
 
 def _git_revision() -> str:
+    """The git revision of the stewart_gym source that runs (not of the current directory), or the version."""
+    from stewart_gym import __version__
+
+    here = Path(__file__).resolve().parent
+    installed = f"stewart_gym {__version__} (not a git checkout)"
     try:
-        rev = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True).stdout.strip()
-        return rev + (" (with uncommitted changes)" if dirty else "")
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=here, capture_output=True, text=True,
+                             check=True).stdout.strip()  # fmt: skip
+        if not top or Path(top).resolve() != here.parent:
+            return installed
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
+                             check=True).stdout.strip()  # fmt: skip
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", str(here)], cwd=here, capture_output=True,
+                               text=True).stdout.strip()  # fmt: skip
+        return f"stewart_gym {__version__} at {rev}" + (" (with uncommitted changes)" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+        return installed
 
 
 def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any]:
     """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``)."""
+    check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]
     torch.set_num_threads(1)  # small MLPs: extra threads only fight the env workers for the cores
     hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
-    n_envs = int(config.n_envs or hp.get("n_envs", 1))
-    n_timesteps = int(config.n_timesteps or hp.get("n_timesteps", 100_000))
+    def option(value: int | None, key: str, default: int) -> int:  # an explicit option wins, even a small one
+        return int(value if value is not None else hp.get(key, default))
+
+    n_envs = option(config.n_envs, "n_envs", 1)
+    n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
     normalize = hp.get("normalize", False)
     env_kwargs = hp.get("env_kwargs", {})
-    eval_freq = int(config.eval_freq or hp.get("eval_freq", 20_000))
-    eval_episodes = int(config.eval_episodes or hp.get("eval_episodes", 20))
+    eval_freq = option(config.eval_freq, "eval_freq", 20_000)
+    eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
     algo_kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
     policy = hp.get("policy", "MlpPolicy")
     run = Path(config.run_dir)
@@ -177,14 +226,24 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
         env.save(str(run / "vecnormalize.pkl"))
     metrics = {"env_id": config.env_id, "algo": config.algo, "timesteps": int(model.num_timesteps),
                "wall_time_s": round(wall, 1), "n_envs": n_envs, "seed": config.seed}  # fmt: skip
-    rows = list(csv.DictReader((run / "eval.csv").open()))
+    with (run / "eval.csv").open() as fh:
+        rows = [{k: _number(v) for k, v in r.items()} for r in csv.DictReader(fh)]
     if rows:
         metrics["last_eval"] = rows[-1]
-        metrics["best_eval_success_rate"] = max(float(r["success_rate"]) for r in rows)
+        metrics["best_eval_success_rate"] = max((r["success_rate"] for r in rows if r["success_rate"] is not None),
+                                                default=None)  # fmt: skip
     (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     env.close()
     eval_env.close()
     return metrics
+
+
+def _number(text: str) -> int | float | None:
+    """A CSV cell as a JSON number (None for NaN: strict JSON has no NaN)."""
+    value = float(text)
+    if value != value:
+        return None
+    return int(value) if value.is_integer() and "." not in text else value
 
 
 def _monitored(env_id: str, env_kwargs: dict) -> Any:

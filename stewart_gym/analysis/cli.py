@@ -10,6 +10,8 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.cliutil import EXIT_FAILED, EXIT_OK, bounded_float, finite_float, int_at_least, output_file, positive_float
+from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import load_geometry
 from stewart_gym.tomlio import read_toml
 
@@ -26,12 +28,18 @@ PLANAR_PRESETS: dict[str, dict[str, float]] = {
 PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
 
 
-def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str]) -> int:
+def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str], ok: bool = True) -> int:
     if args.json:
         print(json.dumps(json_safe(result)))
     else:
         print("\n".join(lines))
-    return 0
+    return EXIT_OK if ok else EXIT_FAILED
+
+
+def _plot_path(args: argparse.Namespace, name: str = "plot") -> Any:
+    """The PNG path of ``--plot`` (or ``--sweep-plot``), checked before the work starts."""
+    value = getattr(args, name, None)
+    return None if value is None else output_file(value, suffixes=(".png",))
 
 
 def json_safe(v: Any) -> Any:
@@ -64,6 +72,7 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     from stewart_gym.analysis.workspace import axis_ranges, height_map, reachable_volume
 
     geo = load_geometry(args.geometry)
+    _plot_path(args)
     pivot = None if args.pivot is None else np.array(args.pivot) * 1e-3
     orient = tuple(math.radians(v) for v in args.orientation)
     reach = axis_ranges(geo, pivot)
@@ -75,6 +84,8 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     grid = np.linspace(-xy_ext, xy_ext, args.n)
     hm = height_map(geo, orient, pivot, x=grid, y=grid, z_levels=levels)
     vol = reachable_volume(geo, samples=args.samples, pivot=pivot)
+    at_edge = bool(np.isfinite(hm.z_max).any() and (np.nanmin(hm.z_min) <= levels[0] + 1e-12
+                                                    or np.nanmax(hm.z_max) >= levels[-1] - 1e-12))  # fmt: skip
     res: dict[str, Any] = {
         "geometry": geo.name,
         "axis_ranges": {"x_mm": reach[0] * 1e3, "y_mm": reach[1] * 1e3, "z_mm": reach[2] * 1e3,
@@ -83,7 +94,8 @@ def cmd_workspace(args: argparse.Namespace) -> int:
         "height_map": {"grid_points": args.n, "xy_extent_mm": xy_ext * 1e3, "z_step_mm": args.z_step,
                        "max_z_mm": round(float(np.nanmax(hm.z_max) * 1e3), 4) if np.isfinite(hm.z_max).any() else None,
                        "min_z_mm": round(float(np.nanmin(hm.z_min) * 1e3), 4) if np.isfinite(hm.z_min).any() else None,
-                       "reachable_fraction": float(np.isfinite(hm.z_max).mean())},  # fmt: skip
+                       "reachable_fraction": float(np.isfinite(hm.z_max).mean()),
+                       "z_limited_by_grid": at_edge},  # fmt: skip
         "volume": vol,
     }
     lines = [f"{geo.name}: reach from home along each axis (others at 0)"]
@@ -97,6 +109,8 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     hmr = res["height_map"]
     lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm at {args.z_step} mm steps: "
                  f"{hmr['min_z_mm']} … {hmr['max_z_mm']} mm, {hmr['reachable_fraction']:.1%} of the grid")  # fmt: skip
+    if at_edge:
+        lines.append(f"  (z reaches the edge of the searched range ±{z_ext * 1e3:.1f} mm: the true extreme lies beyond)")
     lines.append(f"translational workspace at home orientation ≈ {vol['volume_translation_m3'] * 1e9:,.1f} mm³; "
                  f"{vol['fraction_6dof']:.2%} of the 6-DoF box is reachable ({vol['samples']:,} samples)")  # fmt: skip
     if args.plot:
@@ -110,6 +124,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
     from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
 
     geo = load_geometry(args.geometry)
+    _plot_path(args)
     if args.csv:
         t, poses = load_pose_csv(args.csv)
     else:
@@ -124,7 +139,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
     out = {k: res[k] for k in ("first_unreachable", "first_unreachable_t", "explanation", "unreachable_fraction",
                                "actuator_limits")}  # fmt: skip
     out["geometry"], out["samples"] = geo.name, len(t)
-    return _emit(args, out, lines)
+    return _emit(args, out, lines, ok=res["first_unreachable"] is None)
 
 
 def cmd_sensitivity(args: argparse.Namespace) -> int:
@@ -133,6 +148,7 @@ def cmd_sensitivity(args: argparse.Namespace) -> int:
     from stewart_gym.analysis.sensitivity import fd_check, sensitivity, xy_grid_poses
 
     geo = load_geometry(args.geometry)
+    _plot_path(args)
     ext, _ = _grid_extent(geo)
     grid = np.linspace(-ext, ext, args.n)
     poses = xy_grid_poses(grid, grid)
@@ -165,6 +181,7 @@ def cmd_conditioning(args: argparse.Namespace) -> int:
     from stewart_gym.analysis.sensitivity import conditioning, xy_grid_poses
 
     geo = load_geometry(args.geometry)
+    _plot_path(args)
     ext, _ = _grid_extent(geo)
     grid = np.linspace(-ext, ext, args.n)
     res = conditioning(geo, xy_grid_poses(grid, grid, orientation=tuple(math.radians(v) for v in args.orientation)),
@@ -190,6 +207,10 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
         missing = [k for k in PLANAR_KEYS if k not in data]
         if missing:
             raise ConfigError(f"{args.geometry}: missing planar parameter(s) {missing}")
+        bad = [k for k in PLANAR_KEYS if isinstance(data[k], bool) or not isinstance(data[k], (int, float))
+               or not math.isfinite(data[k])]  # fmt: skip
+        if bad:
+            raise ConfigError(f"{args.geometry}: planar parameter(s) {bad} must be finite numbers")
         params = {k: float(data[k]) for k in PLANAR_KEYS}
     for k in PLANAR_KEYS:
         v = getattr(args, k)
@@ -198,20 +219,38 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
     return params
 
 
+def _sweep_spec(text: str) -> tuple[str, float, float, int]:
+    """STRUT:START:STOP:N, checked: a strut name, two positive finite lengths, N ≥ 2."""
+    parts = text.split(":")
+    try:
+        if len(parts) != 4 or parts[0] not in ("p1", "p2", "p3"):
+            raise ValueError
+        start, stop, n = float(parts[1]), float(parts[2]), int(parts[3])
+        if not (math.isfinite(start) and math.isfinite(stop) and 0 < start < stop and 2 <= n <= 100_000):
+            raise ValueError
+    except ValueError:
+        raise ConfigError(f"--sweep {text!r}: expected STRUT:START:STOP:N with STRUT p1, p2 or p3, "
+                          "0 < START < STOP and 2 ≤ N ≤ 100000, e.g. p2:0.5:12:231") from None  # fmt: skip
+    return parts[0], start, stop, n
+
+
 def cmd_planar(args: argparse.Namespace) -> int:
     """All poses of the planar 3-RPR platform (seed 004), optionally sweeping one strut."""
     from stewart_gym.analysis.plots import plot_planar, plot_sweep
     from stewart_gym.planar import solve_planar, sweep_strut
 
     params = _planar_params(args)
+    _plot_path(args)
+    _plot_path(args, "sweep_plot")
+    sweep = _sweep_spec(args.sweep) if args.sweep else None
     poses = solve_planar(**params)
     out: dict[str, Any] = {"parameters": params, "poses": poses, "count": len(poses)}
     lines = [f"{len(poses)} pose(s) (x, y, θ):"] + [f"  {p[0]: .6f} {p[1]: .6f} {p[2]: .6f}" for p in poses]
     if args.plot:
         plot_planar(poses, params, args.plot)
-    if args.sweep:
-        strut, start, stop, n = args.sweep.split(":")
-        values = np.linspace(float(start), float(stop), int(n))
+    if sweep:
+        strut, start, stop, n = sweep
+        values = np.linspace(start, stop, n)
         counts, changes = sweep_strut(params, strut, values, progress=not args.json)
         out["sweep"] = {"strut": strut, "values": values, "counts": counts, "changes": changes}
         lines.append(f"sweeping {strut} over {start}…{stop}: the number of poses changes at")
@@ -229,6 +268,8 @@ def cmd_assembly(args: argparse.Namespace) -> int:
     geo = load_geometry(args.geometry)
     if args.legs:
         lengths = np.array(args.legs) * 1e-3
+        if not np.all(lengths > 0):
+            raise ConfigError("--legs: leg lengths must be positive (mm)")
     else:
         pose = np.array([v * 1e-3 for v in args.pose[:3]] + [math.radians(v) for v in args.pose[3:]])
         lengths = inverse_kinematics(geo, pose).leg_lengths
@@ -251,47 +292,53 @@ def _common(p: Any, geometry: str, plot: bool = True) -> None:
 
 def register(sub: Any) -> None:
     """Add the analysis subcommands to the ``stewart-gym`` parser."""
-    p = sub.add_parser("workspace", help=cmd_workspace.__doc__)
+    angles = dict(nargs=3, type=finite_float, metavar=("ROLL", "PITCH", "YAW"))
+    p = sub.add_parser("workspace", help=cmd_workspace.__doc__, description=cmd_workspace.__doc__)
     _common(p, "servo-hexapod")
-    p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"),
-                   help="degrees")  # fmt: skip
-    p.add_argument("--pivot", nargs=3, type=float, metavar=("X", "Y", "Z"), help="mm, platform frame")
-    p.add_argument("--range", type=float, help="half-width of the x–y grid, mm")
-    p.add_argument("--n", type=int, default=100, help="grid points per axis")
-    p.add_argument("--z-step", type=float, default=0.1, help="mm")
-    p.add_argument("--samples", type=int, default=200_000, help="Monte Carlo samples for the volumes")
+    p.add_argument("--orientation", default=(0.0, 0.0, 0.0), help="degrees", **angles)
+    p.add_argument("--pivot", nargs=3, type=finite_float, metavar=("X", "Y", "Z"), help="mm, platform frame")
+    p.add_argument("--range", type=positive_float, help="half-width of the x–y grid, mm")
+    p.add_argument("--n", type=int_at_least(2, 2000), default=100, help="grid points per axis (2–2000)")
+    p.add_argument("--z-step", type=bounded_float(0.001, 100.0), default=0.1, help="mm")
+    p.add_argument("--samples", type=int_at_least(1, 50_000_000), default=200_000,
+                   help="Monte Carlo samples for the volumes")  # fmt: skip
     p.set_defaults(func=cmd_workspace)
-    p = sub.add_parser("trajectory", help=cmd_trajectory.__doc__)
+    p = sub.add_parser("trajectory", help=cmd_trajectory.__doc__, description=cmd_trajectory.__doc__ +
+                       " Exit 1 if any sample is unreachable.")  # fmt: skip
     _common(p, "senilov2018")
     p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
-    p.add_argument("--radius", type=float, default=200.0, help="circle radius, mm (seed 001: 200)")
-    p.add_argument("--z", type=float, default=0.0, help="circle height from home, mm")
-    p.add_argument("--samples", type=int, default=1000)
+    p.add_argument("--radius", type=positive_float, default=200.0, help="circle radius, mm (seed 001: 200)")
+    p.add_argument("--z", type=finite_float, default=0.0, help="circle height from home, mm")
+    p.add_argument("--samples", type=int_at_least(2, 10_000_000), default=1000)
     p.set_defaults(func=cmd_trajectory)
-    p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__)
+    p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__, description=cmd_sensitivity.__doc__)
     _common(p, "servo-hexapod")
-    p.add_argument("--step-deg", type=float, default=0.1, help="servo step, degrees (seed 003: 0.1)")
-    p.add_argument("--n", type=int, default=61)
-    p.add_argument("--fd-samples", type=int, default=100, help="poses for the finite-difference check")
+    p.add_argument("--step-deg", type=bounded_float(0.0, 10.0, lo_open=True), default=0.1,
+                   help="servo step, degrees (seed 003: 0.1)")  # fmt: skip
+    p.add_argument("--n", type=int_at_least(2, 1000), default=61)
+    p.add_argument("--fd-samples", type=int_at_least(1, 100_000), default=100,
+                   help="poses for the finite-difference check")  # fmt: skip
     p.set_defaults(func=cmd_sensitivity)
-    p = sub.add_parser("conditioning", help=cmd_conditioning.__doc__)
+    p = sub.add_parser("conditioning", help=cmd_conditioning.__doc__, description=cmd_conditioning.__doc__)
     _common(p, "servo-hexapod")
-    p.add_argument("--orientation", nargs=3, type=float, default=(0.0, 0.0, 0.0), metavar=("ROLL", "PITCH", "YAW"))
-    p.add_argument("--threshold", type=float, default=1e3)
-    p.add_argument("--n", type=int, default=61)
+    p.add_argument("--orientation", default=(0.0, 0.0, 0.0), help="degrees", **angles)
+    p.add_argument("--threshold", type=positive_float, default=1e3)
+    p.add_argument("--n", type=int_at_least(2, 1000), default=61)
     p.set_defaults(func=cmd_conditioning)
-    p = sub.add_parser("planar", help=cmd_planar.__doc__)
+    p = sub.add_parser("planar", help=cmd_planar.__doc__, description=cmd_planar.__doc__)
     p.add_argument("--geometry", default="sauer", help=f"{', '.join(PLANAR_PRESETS)} or a TOML with {PLANAR_KEYS}")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", help="PNG of every pose")
     for k in PLANAR_KEYS:
-        p.add_argument(f"--{k}", type=float, help="override" + (" (rad)" if k == "gamma" else ""))
+        p.add_argument(f"--{k}", type=finite_float, help="override" + (" (rad)" if k == "gamma" else ""))
     p.add_argument("--sweep", help="STRUT:START:STOP:N, e.g. p2:0.5:12:231")
     p.add_argument("--sweep-plot", help="PNG of the pose count against the swept strut")
     p.set_defaults(func=cmd_planar)
-    p = sub.add_parser("assembly", help=cmd_assembly.__doc__)
+    p = sub.add_parser("assembly", help=cmd_assembly.__doc__, description=cmd_assembly.__doc__)
     _common(p, "senilov2018", plot=False)
-    p.add_argument("--legs", nargs=6, type=float, help="leg lengths, mm")
-    p.add_argument("--pose", nargs=6, type=float, default=(10, 0, 0, 3, 1, 6), help="leg lengths of this pose (mm, °)")
-    p.add_argument("--guesses", type=int, default=4000)
+    p.add_argument("--legs", nargs=6, type=finite_float, metavar="MM", help="leg lengths, mm (instead of --pose)")
+    p.add_argument("--pose", nargs=6, type=finite_float, default=(10, 0, 0, 3, 1, 6), metavar="V",
+                   help="a pose X Y Z (mm, from home) ROLL PITCH YAW (°) whose leg lengths are used; default "
+                        "10 0 0 3 1 6; ignored with --legs")  # fmt: skip
+    p.add_argument("--guesses", type=int_at_least(1, 1_000_000), default=4000)
     p.set_defaults(func=cmd_assembly)

@@ -13,6 +13,7 @@ from gymnasium.utils import EzPickle
 from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.targets import TRAJECTORIES, Fixed, Target, make_trajectory
+from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec, StewartSim
 
@@ -76,7 +77,10 @@ class StewartBallEnv(gym.Env, EzPickle):
     Platform at home. The ball rests on the plate at a uniform random position
     in ±0.10 m (each axis) rolling at a uniform random speed up to 0.1 m/s in a
     random direction. ``reset(options={"ball_position": (x, y), "ball_velocity":
-    (vx, vy)})`` sets them (m, m/s, plate frame).
+    (vx, vy)})`` sets them (m, m/s, plate frame); they are checked: two finite
+    numbers each, the ball's centre at most 0.15 m minus its radius from the
+    centre on each axis, at most 2 m/s, and no other keys
+    (:class:`~stewart_gym.errors.ConfigError` otherwise).
 
     ## Episode End
     ``terminated`` when the ball centre leaves the plate (|x| or |y| > 0.15 m)
@@ -164,7 +168,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         rng = self.np_random
-        options = options or {}
+        options = self._check_options(options)
         if self.randomize:
             params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
         else:
@@ -174,11 +178,11 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
                        plate_load=params.plate_load)  # fmt: skip
         if "ball_position" in options:
-            xy = np.asarray(options["ball_position"], dtype=np.float64)
+            xy = options["ball_position"]
         else:
             xy = rng.uniform(-0.10, 0.10, 2)
         if "ball_velocity" in options:
-            vel = np.asarray(options["ball_velocity"], dtype=np.float64)
+            vel = options["ball_velocity"]
         else:
             ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
             vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
@@ -192,6 +196,46 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._last_obs = obs
         target_xy, _ = self._target(0.0)
         return obs, self._info(xy.copy(), target_xy, math.hypot(xy[0] - target_xy[0], xy[1] - target_xy[1]))
+
+    #: The keys ``reset(options=…)`` accepts.
+    RESET_OPTIONS = ("ball_position", "ball_velocity")
+    #: m/s, the fastest ball speed a reset may ask for.
+    MAX_RESET_SPEED = 2.0
+
+    def _check_options(self, options: dict[str, Any] | None) -> dict[str, np.ndarray]:
+        """Reset options as arrays, checked: known keys, two finite numbers each, a start on the plate.
+
+        Raises :class:`~stewart_gym.errors.ConfigError` naming the option.
+        """
+        if options is None:
+            return {}
+        if not isinstance(options, dict):
+            raise ConfigError(f"reset options must be a dict, got {type(options).__name__}")
+        unknown = sorted(set(options) - set(self.RESET_OPTIONS))
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {unknown}; known: {list(self.RESET_OPTIONS)}")
+        out = {}
+        for key in self.RESET_OPTIONS:
+            if key not in options:
+                continue
+            try:
+                value = np.asarray(options[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ConfigError(f"reset option {key}: expected two numbers (x, y), got {options[key]!r}") from None
+            if value.shape != (2,):
+                raise ConfigError(f"reset option {key}: expected two numbers (x, y), got shape {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ConfigError(f"reset option {key}: must be finite, got {value.tolist()}")
+            out[key] = value
+        # the ball starts with its whole contact patch on the plate: centre inside the plate's edge
+        limit = self.PLATE_HALF - self.nominal_ball.radius
+        if "ball_position" in out and np.any(np.abs(out["ball_position"]) > limit):
+            raise ConfigError(f"reset option ball_position {out['ball_position'].tolist()} m is off the plate "
+                              f"(|x|, |y| ≤ {limit:.3f} m)")  # fmt: skip
+        if "ball_velocity" in out and float(np.hypot(*out["ball_velocity"])) > self.MAX_RESET_SPEED:
+            raise ConfigError(f"reset option ball_velocity {out['ball_velocity'].tolist()} m/s is faster than "
+                              f"{self.MAX_RESET_SPEED} m/s")  # fmt: skip
+        return out
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         mapped = self.mapper(action)

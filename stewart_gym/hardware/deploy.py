@@ -31,6 +31,7 @@ import numpy as np
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.envs.targets import Fixed, Target
+from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.hardware.devices import DeviceError, LineController, ServoController
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.sensing import BallObserver
@@ -84,6 +85,8 @@ class SimulatedPlant(Sensor):
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.sim = self.env.sim
+        #: mm, the ball's distance from the plate centre when the plant was closed (None while it runs)
+        self.final_error_mm: float | None = None
 
     def read(self) -> tuple[tuple[float, float], float] | None:
         t = self.sim.time
@@ -101,24 +104,48 @@ class SimulatedPlant(Sensor):
         self.env.panel.record(self.sim.time, pos[:2], on)
 
     def ball_error_mm(self) -> float:
-        """True distance of the ball from the plate centre, mm (for reports)."""
+        """True distance of the ball from the plate centre, mm (for reports); after :meth:`close`, the last one."""
+        if self.final_error_mm is not None:
+            return self.final_error_mm
         pos, _ = self.sim.ball_state()
         return float(math.hypot(pos[0], pos[1]) * 1e3)
 
     def close(self) -> None:
-        self.env.close()
+        """Record the ball's final distance from the centre (:attr:`final_error_mm`), then close the simulator."""
+        if self.final_error_mm is None:
+            self.final_error_mm = self.ball_error_mm()
+            self.env.close()
+
+
+#: Default rate limit, µs of pulse width per second per channel: just under the no-load speed of the
+#: reference servos (0.17 s/60° at 1600 µs per π rad ≈ 3,137 µs/s), so it never slows a move the servo
+#: could make, but stops a jump. At 50 Hz that is 60 µs per tick.
+DEFAULT_SLEW_US_PER_S = 3000.0
+#: Highest control rate the loop accepts, Hz (hobby servos take a new pulse every 3–20 ms).
+MAX_RATE_HZ = 500.0
+#: A run that misses more than this fraction of its deadlines has failed: the machine cannot keep the rate.
+MAX_MISSED_FRACTION = 0.05
 
 
 @dataclass
 class DeployConfig:
-    """Loop settings."""
+    """Loop settings; checked on creation (:class:`~stewart_gym.errors.ConfigError` names the bad one)."""
 
     rate_hz: float = 50.0
     duration_s: float | None = None  # None: until Ctrl-C
     watchdog_s: float = 0.100  # sensor data older than this → home
-    max_step_us: float = 40.0  # rate limit per channel per tick
+    max_step_us: float = 60.0  # rate limit per channel per tick (DEFAULT_SLEW_US_PER_S at 50 Hz)
     log_path: str | None = "deploy_log.csv"
     home_timeout_s: float = 2.0  # longest drive home at shutdown
+
+    def __post_init__(self) -> None:
+        checks = [("rate_hz", self.rate_hz, 0.0, MAX_RATE_HZ), ("watchdog_s", self.watchdog_s, 0.0, 60.0),
+                  ("max_step_us", self.max_step_us, 0.0, 1000.0), ("home_timeout_s", self.home_timeout_s, 0.0, 60.0)]
+        if self.duration_s is not None:
+            checks.append(("duration_s", self.duration_s, 0.0, math.inf))
+        for name, value, lo, hi in checks:
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and lo < value <= hi):
+                raise ConfigError(f"deploy: {name} must be a finite number in ({lo:g}, {hi:g}], got {value!r}")
 
 
 @dataclass
@@ -161,6 +188,10 @@ class DeployLoop:
         self.target = target or Fixed()
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
         self.observer = BallObserver(mapper.size)
+        sizes = (getattr(policy, "obs_size", self.observer.builder.size), getattr(policy, "action_size", mapper.size))
+        if sizes != (self.observer.builder.size, mapper.size):
+            raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "
+                              f"{mapper.mode!r} mode needs {self.observer.builder.size} and {mapper.size}")  # fmt: skip
         self.prev_action: tuple[float, ...] = (0.0,) * mapper.size
         self.roll_pitch = (0.0, 0.0)
         self._observing = False  # the observer starts from the first reading, as the env's does at reset
@@ -259,6 +290,14 @@ class DeployLoop:
             summary.jitter_ms_mean = float(np.mean(np.abs(jitters)))
             summary.jitter_ms_max = float(np.max(np.abs(jitters)))
             summary.compute_ms_p99 = float(np.percentile(computes, 99))
+        if summary.exit_code == 0 and summary.ticks:
+            if summary.missed_deadlines > MAX_MISSED_FRACTION * summary.ticks:
+                summary.message = (f"failed: missed {summary.missed_deadlines} of {summary.ticks} deadlines; this "
+                                   f"machine cannot keep {cfg.rate_hz:g} Hz (lower --rate)")  # fmt: skip
+                summary.exit_code = 1
+            elif summary.held == summary.ticks:
+                summary.message = "failed: the policy gave no usable action on any tick (every tick held the pose)"
+                summary.exit_code = 1
         return summary
 
     def _go_home(self, period: float) -> bool:

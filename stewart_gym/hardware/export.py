@@ -20,12 +20,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["BundlePolicy", "export_pid", "export_sb3"]
+from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.errors import PolicyError
+
+__all__ = ["BundlePolicy", "export_bundle_copy", "export_pid", "export_sb3", "pid_meta"]
+
 
 
 def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0",
-               action_mode: str = "tilt") -> Path:  # fmt: skip
-    """Export an SB3 model folder/zip (with its ``vecnormalize.pkl``) to a bundle in ``out_dir``."""
+               env_kwargs: dict[str, Any] | None = None) -> Path:  # fmt: skip
+    """Export an SB3 model folder/zip (with its ``vecnormalize.pkl``) to a bundle in ``out_dir``.
+
+    ``env_kwargs`` are the env keywords the model was trained with that define
+    its observation and action (``action_mode``, ``max_tilt``, ``control_hz``,
+    and the track's ``trajectory``); they go into ``bundle.json``.
+    """
     import torch
     from stable_baselines3 import PPO, SAC
 
@@ -57,10 +66,15 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         torch.onnx.export(net, torch.zeros(1, n_obs), str(out / "policy.onnx"), input_names=["obs"],
                           output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
                           dynamo=False)  # fmt: skip
+    env_kwargs = dict(env_kwargs or {})
+    action_mode = str(env_kwargs.get("action_mode", "tilt"))
+    if int(model.action_space.shape[0]) != ACTION_SIZES.get(action_mode, -1):
+        raise PolicyError(f"{model_path}: {model.action_space.shape[0]} actions do not fit action_mode {action_mode!r}")
     meta: dict[str, Any] = {
         "kind": "onnx",
         "env_id": env_id,
         "action_mode": action_mode,
+        "env_kwargs": env_kwargs,
         "algo": type(model).__name__.lower(),
         "obs_size": n_obs,
         "action_low": model.action_space.low.tolist(),
@@ -74,13 +88,30 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     return out
 
 
+def pid_meta(gains: dict[str, Any], env_id: str = "StewartBallBalance-v0") -> dict[str, Any]:
+    """The ``bundle.json`` content of the PID baseline with these gains."""
+    return {"kind": "pid", "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains}
+
+
 def export_pid(gains_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0") -> Path:
     """Export the PID baseline's gains to a bundle (``kind: "pid"``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     gains = json.loads(Path(gains_path).read_text())
-    (out / "bundle.json").write_text(json.dumps({"kind": "pid", "env_id": env_id, "action_mode": "tilt",
-                                                 "gains": gains}, indent=2) + "\n")  # fmt: skip
+    (out / "bundle.json").write_text(json.dumps(pid_meta(gains, env_id), indent=2) + "\n")
+    return out
+
+
+def export_bundle_copy(bundle_dir: str | Path, out_dir: str | Path) -> Path:
+    """Copy a bundle folder (``bundle.json`` and ``policy.onnx``) to ``out_dir``; checked by loading it."""
+    import shutil
+
+    src, out = Path(bundle_dir), Path(out_dir)
+    BundlePolicy(src)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("bundle.json", "policy.onnx"):
+        if (src / name).exists() and (src / name).resolve() != (out / name).resolve():
+            shutil.copyfile(src / name, out / name)
     return out
 
 
@@ -90,30 +121,74 @@ class BundlePolicy:
     def __init__(self, bundle_dir: str | Path) -> None:
         folder = Path(bundle_dir)
         meta_path = folder / "bundle.json"
-        if not meta_path.exists():
-            raise FileNotFoundError(f"{folder} is not a policy bundle (no bundle.json)")
-        self.meta = json.loads(meta_path.read_text())
-        self.kind = self.meta["kind"]
-        self.action_mode = self.meta.get("action_mode", "tilt")
+        if not meta_path.is_file():
+            raise PolicyError(f"{folder} is not a policy bundle (no bundle.json); write one with stewart-gym export")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise PolicyError(f"{meta_path}: not valid JSON ({exc})") from None
+        self._setup(meta, folder, meta_path)
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any]) -> BundlePolicy:
+        """A bundle held in memory (the PID's: no file is written)."""
+        self = cls.__new__(cls)
+        self._setup(meta, None, Path("<memory>"))
+        return self
+
+    def _setup(self, meta: Any, folder: Path | None, meta_path: Path) -> None:
+        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", "pid"):
+            kind = meta.get("kind") if isinstance(meta, dict) else None
+            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx' or 'pid')")
+        self.meta = meta
+        self.kind = meta["kind"]
+        self.env_id = str(meta.get("env_id", "StewartBallBalance-v0"))
+        self.action_mode = meta.get("action_mode", "tilt")
+        if self.action_mode not in ACTION_SIZES:
+            raise PolicyError(f"{meta_path}: action_mode must be one of {sorted(ACTION_SIZES)}, got {self.action_mode!r}")
+        self.action_size = ACTION_SIZES[self.action_mode]
         if self.kind == "pid":
             from stewart_gym.controllers import CascadedPID, PIDGains
 
-            self._pid = CascadedPID(PIDGains(**self.meta["gains"]))
+            if self.action_mode != "tilt":
+                raise PolicyError(f"{meta_path}: the PID commands tilt, not {self.action_mode!r}")
+            try:
+                self._pid = CascadedPID(PIDGains(**meta["gains"]))
+            except (KeyError, TypeError) as exc:
+                raise PolicyError(f"{meta_path}: malformed PID gains ({exc})") from None
+            self.obs_size = 10 + self.action_size
             return
-        if self.kind != "onnx":
-            raise ValueError(f"{meta_path}: unknown kind {self.kind!r}")
+        missing = [k for k in ("obs_size", "action_low", "action_high", "obs_mean", "obs_var", "clip_obs", "epsilon")
+                   if k not in meta]  # fmt: skip
+        if missing:
+            raise PolicyError(f"{meta_path}: missing field(s) {missing}; re-export the policy")
+        if len(meta["action_low"]) != self.action_size or len(meta["action_high"]) != self.action_size:
+            raise PolicyError(f"{meta_path}: {len(meta['action_low'])} action bounds, but action_mode "
+                              f"{self.action_mode!r} has {self.action_size}; re-export the policy")  # fmt: skip
+        self.obs_size = int(meta["obs_size"])
+        assert folder is not None
+        onnx_path = folder / "policy.onnx"
+        if not onnx_path.is_file():
+            raise PolicyError(f"{folder}: the bundle has no policy.onnx")
         import onnxruntime as ort
 
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = 1
         opts.inter_op_num_threads = 1
-        self._session = ort.InferenceSession(str(folder / "policy.onnx"), opts, providers=["CPUExecutionProvider"])
-        self._mean = None if self.meta["obs_mean"] is None else np.asarray(self.meta["obs_mean"], np.float64)
-        var = self.meta["obs_var"]
-        self._std = None if var is None else np.sqrt(np.asarray(var, np.float64) + self.meta["epsilon"])
-        self._clip = float(self.meta["clip_obs"])
-        self._low = np.asarray(self.meta["action_low"], np.float32)
-        self._high = np.asarray(self.meta["action_high"], np.float32)
+        try:
+            self._session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # noqa: BLE001  (onnxruntime raises its own classes for a bad file)
+            raise PolicyError(f"{onnx_path}: not a loadable ONNX model ({type(exc).__name__})") from None
+        outputs = self._session.get_outputs()[0].shape
+        if isinstance(outputs[-1], int) and outputs[-1] != self.action_size:
+            raise PolicyError(f"{onnx_path}: the network has {outputs[-1]} outputs but the bundle says action_mode "
+                              f"{self.action_mode!r} ({self.action_size}); re-export the policy")  # fmt: skip
+        self._mean = None if meta["obs_mean"] is None else np.asarray(meta["obs_mean"], np.float64)
+        var = meta["obs_var"]
+        self._std = None if var is None else np.sqrt(np.asarray(var, np.float64) + meta["epsilon"])
+        self._clip = float(meta["clip_obs"])
+        self._low = np.asarray(meta["action_low"], np.float32)
+        self._high = np.asarray(meta["action_high"], np.float32)
 
     def reset(self) -> None:
         """Start of an episode (clears the PID integrator)."""

@@ -1,0 +1,174 @@
+"""What every ``stewart-gym`` subcommand shares: argument types that check values at the edge, an argument
+parser whose mistakes are one ``error:`` line, output paths checked before long work, and the error handling
+of :func:`run`.
+
+Exit codes (documented in the README and ``stewart-gym --help``):
+
+* 0: the command did what was asked;
+* 1: a user mistake (bad option, missing or malformed file), or a result that failed: an unreachable pose,
+  a trajectory with unreachable samples, a deploy run that could not keep its rate;
+* 2: a device failure (serial port missing, unplugged, not answering);
+* 130: interrupted by Ctrl-C before the command could finish.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, NoReturn
+
+from stewart_gym.errors import ConfigError, DeviceFailure, StewartGymError
+
+__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_OK", "Parser", "bounded_float", "finite_float", "int_at_least",
+           "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
+
+EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line, ``error: …``, and exit code 1."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"error: {self.prog}: {message} (see {self.prog} --help)\n")
+        sys.exit(EXIT_FAILED)
+
+
+# ------------------------------------------------------------ argument types
+def finite_float(text: str) -> float:
+    """A float that is neither NaN nor infinite."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite float > 0."""
+    v = finite_float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be greater than 0")
+    return v
+
+
+def bounded_float(lo: float, hi: float, *, lo_open: bool = False) -> Callable[[str], float]:
+    """A finite float in [lo, hi] (or (lo, hi] with ``lo_open``)."""
+
+    def parse(text: str) -> float:
+        v = finite_float(text)
+        if v > hi or v < lo or (lo_open and v == lo):
+            raise argparse.ArgumentTypeError(f"{text!r} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """An integer ≥ ``lo`` (and ≤ ``hi``)."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"{text!r} must be at least {lo}" + (f" and at most {hi}" if hi else ""))
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+# ------------------------------------------------------------- output paths
+def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
+    """Check that ``path`` can be written, before any long work: its folder exists or can be created, it is
+    not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`."""
+    p = Path(path)
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise ConfigError(f"{p}: expected a file name ending in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise ConfigError(f"{p} is a folder; give a file name")
+    if p.exists() and not overwrite:
+        raise ConfigError(f"{p} exists; give another name or --overwrite")
+    _writable_dir(p.parent)
+    if p.exists() and not os.access(p, os.W_OK):
+        raise ConfigError(f"{p}: no permission to write")
+    return p
+
+
+def output_dir(path: str | Path) -> Path:
+    """Check that ``path`` is, or can be created as, a writable folder. Raises :class:`ConfigError`."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"{p} exists and is not a folder")
+    _writable_dir(p)
+    return p
+
+
+def _writable_dir(folder: Path) -> None:
+    existing = folder
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"{folder}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"{folder}: no permission to write in {existing}")
+
+
+# -------------------------------------------------------------------- run
+def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """Call a subcommand; a user's mistake or a device failure becomes one ``error:`` line and an exit code.
+
+    With ``--debug`` every error keeps its traceback. Errors that are not the
+    user's (bugs) always do.
+    """
+    debug = bool(getattr(args, "debug", False))
+    try:
+        return int(func(args))
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print("error: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except (StewartGymError, OSError, UnicodeDecodeError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"error: {describe(exc)}", file=sys.stderr)
+        is_device = isinstance(exc, DeviceFailure) or _is_serial_error(exc)
+        return EXIT_DEVICE if is_device else EXIT_FAILED
+
+
+def describe(exc: BaseException) -> str:
+    """One line for an error: the package's own message, or what an OS error says about which file."""
+    if isinstance(exc, OSError) and not _is_serial_error(exc) and exc.strerror:
+        name = f"{exc.filename}: " if exc.filename else ""
+        hint = {FileNotFoundError: "check the path", PermissionError: "check the permissions",
+                IsADirectoryError: "give a file, not a folder",
+                NotADirectoryError: "a part of the path is a file"}.get(type(exc), "")  # fmt: skip
+        return f"{name}{exc.strerror.lower()}" + (f" ({hint})" if hint else "")
+    if isinstance(exc, UnicodeDecodeError):
+        return "a file that should be text is not (binary or not UTF-8)"
+    text = " ".join(str(exc).split())  # one line
+    return text or type(exc).__name__
+
+
+def _is_serial_error(exc: BaseException) -> bool:
+    return type(exc).__module__.startswith("serial")
+
+
+def add_debug(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
+
+
+def namespace_get(args: Any, name: str, default: Any = None) -> Any:
+    return getattr(args, name, default)
