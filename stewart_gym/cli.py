@@ -255,10 +255,20 @@ def _port_settings(args: argparse.Namespace, hw: dict) -> tuple[str, str, int | 
     return str(port), args.protocol or hw.get("protocol", "maestro"), args.baudrate or hw.get("baudrate")
 
 
-def cmd_deploy(args: argparse.Namespace) -> int:
-    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
+def _new_log_name() -> str:
+    """deploy_log_<date>-<time>.csv in the current folder, with -2, -3, … if that exists: never an old log."""
     import time
 
+    stem = f"deploy_log_{time.strftime('%Y%m%d-%H%M%S')}"
+    name, k = f"{stem}.csv", 1
+    while Path(name).exists():
+        k += 1
+        name = f"{stem}-{k}.csv"
+    return name
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
     from stewart_gym.actions import ActionMapper
     from stewart_gym.envs.targets import Fixed, make_trajectory
     from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
@@ -278,7 +288,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     tracking = env_id == "StewartBallTrack-v0"
     if args.trajectory and not tracking:
         raise ConfigError(f"--trajectory needs a track policy; {args.policy} balances ({env_id})")
-    log = args.log or f"deploy_log_{time.strftime('%Y%m%d-%H%M%S')}.csv"
+    log = args.log or _new_log_name()
     output_file(log, suffixes=(".csv",), overwrite=args.overwrite)
     mapper = ActionMapper("servo-hexapod", calibration, policy.action_mode,
                           **({"max_tilt": float(policy.meta["env_kwargs"]["max_tilt"])}

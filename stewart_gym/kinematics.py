@@ -155,10 +155,10 @@ class IKResult:
         if status.ndim != 1:
             raise IndexError(f"index {index!r} does not select one pose of batch shape {self.reachable.shape}")
         pose = self.pose[index]
-        head = (
-            f"pose x={pose[0] * 1e3:.2f} mm y={pose[1] * 1e3:.2f} mm z={pose[2] * 1e3:.2f} mm "
-            f"roll={math.degrees(pose[3]):.2f}° pitch={math.degrees(pose[4]):.2f}° yaw={math.degrees(pose[5]):.2f}°"
-        )
+        mm = [_num(v * 1e3) for v in pose[:3]]
+        deg = [_num(math.degrees(v)) if math.isfinite(v) else _num(v) for v in pose[3:]]
+        head = (f"pose x={mm[0]} mm y={mm[1]} mm z={mm[2]} mm "
+                f"roll={deg[0]}° pitch={deg[1]}° yaw={deg[2]}°")  # fmt: skip
         bad = [i for i in range(6) if status[i] != LegStatus.OK]
         if not bad:
             return head + ": reachable"
@@ -167,6 +167,11 @@ class IKResult:
         scale = 180.0 / math.pi if self.servo_angles is not None else 1e3
         parts = [f"leg {i}: {_STATUS_TEXT[LegStatus(int(status[i]))]} ({acts[i] * scale:.3f}{unit})" for i in bad]
         return head + ": unreachable; " + "; ".join(parts)
+
+
+def _num(v: float) -> str:
+    """Two decimals, or three significant digits for values too large to print that way."""
+    return f"{v:.2f}" if abs(v) < 1e9 or not math.isfinite(v) else f"{v:.3g}"
 
 
 def _pivot(pivot: np.ndarray | None) -> np.ndarray:

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import math
+import os
+import pty
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -71,3 +75,65 @@ def mirror_permutation(geo: PlatformGeometry) -> np.ndarray:
         perm[i] = int(np.argmin(d))
         assert d[perm[i]] < 1e-9, f"{geo.name} is not mirror-symmetric about the y-z plane"
     return perm
+
+
+class FakeDevice:
+    """A pseudo-terminal: the code under test opens ``path`` with pyserial; the test reads/writes ``master``."""
+
+    def __init__(self) -> None:
+        self.master, slave = pty.openpty()
+        self.path = os.ttyname(slave)
+        self._slave = slave  # keep the slave open so the pty survives until the client opens it
+        os.set_blocking(self.master, False)
+
+    def read_all(self, wait: float = 0.1) -> bytes:
+        time.sleep(wait)
+        out = b""
+        while True:
+            try:
+                chunk = os.read(self.master, 4096)
+            except (BlockingIOError, OSError):
+                return out
+            if not chunk:
+                return out
+            out += chunk
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
+
+    def unplug(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
+
+    def close(self) -> None:
+        for fd in (self.master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+@pytest.fixture
+def device() -> FakeDevice:
+    d = FakeDevice()
+    yield d
+    d.close()
+
+
+class Drain:
+    """Collects everything the code under test writes to a :class:`FakeDevice`, in a background thread."""
+
+    def __init__(self, device: FakeDevice) -> None:
+        self.device, self.data, self._stop = device, bytearray(), threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.data.extend(self.device.read_all(0.01))
+
+    def stop(self) -> bytes:
+        time.sleep(0.05)
+        self._stop.set()
+        self._thread.join(1.0)
+        return bytes(self.data)

@@ -1,23 +1,491 @@
-"""The stewart-gym command line."""
+"""The ``stewart-gym`` command line, run as a user runs it: in a subprocess, checking exit codes and output.
+
+Two tables:
+
+* ``GOOD``: every subcommand's ``--help`` and every documented example, with its exit code and output;
+* ``BAD``: a user mistake of each kind for each subcommand. Each must exit non-zero (1, or 2 for a
+  device failure) with exactly one ``error: …`` line and no traceback, before any long work starts.
+
+Then end-to-end runs through the real command line with a fake serial device (a pty): the deploy dry run,
+an unplug, a track bundle, calibrate with scripted keys, and a policy trained in ``pose`` and ``pulse`` mode
+through train → evaluate → export → deploy.
+"""
 
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
 
+import numpy as np
 import pytest
 
-from stewart_gym.cli import main
+from tests.conftest import Drain, FakeDevice
+
+ROOT = Path(__file__).resolve().parents[1]
+SUBCOMMANDS = ("ik", "urdf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
+               "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo")  # fmt: skip
 
 
-def test_ik_json(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["ik", "0", "0", "5", "3", "0", "0", "--json"]) == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["reachable"] is True and len(out["pulse_widths_us"]) == 6
-    assert main(["ik", "0", "0", "30", "0", "0", "0", "--json"]) == 1  # unreachable: non-zero exit
-    out = json.loads(capsys.readouterr().out)
-    assert out["reachable"] is False and out["servo_angles_deg"] == [None] * 6
+def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,
+       env: dict | None = None) -> subprocess.CompletedProcess:  # fmt: skip
+    """Run ``python -m stewart_gym ARGS`` as a user would."""
+    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=timeout, input=stdin, env={**os.environ, **(env or {})})  # fmt: skip
 
 
-def test_ik_linear_geometry(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["ik", "--geometry", "senilov2018", "200", "0", "0", "0", "0", "0"]) == 1
-    assert "above the upper actuator limit" in capsys.readouterr().out
+def error_lines(proc: subprocess.CompletedProcess) -> list[str]:
+    """The stderr lines a user would read (PyBullet's own banner left out)."""
+    return [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("pybullet build time")]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Malformed and well-formed inputs of every kind the commands read."""
+    d = tmp_path_factory.mktemp("inputs")
+    (d / "binary.toml").write_bytes(bytes(range(256)) * 4)
+    (d / "binary.csv").write_bytes(b"\xff\xfe\x00\x81" * 64)
+    (d / "bad.toml").write_text("this is = = not toml\n")
+    (d / "partial.toml").write_text('kind = "rotary"\nlength_unit = "mm"\n')
+    (d / "planar_partial.toml").write_text("L1 = 2.0\n")
+    (d / "bad.yml").write_text("ppo: [unclosed\n")
+    (d / "other.yml").write_text("SomethingElse-v0:\n  n_envs: 1\n")
+    (d / "notes.txt").write_text("hello\n")
+    (d / "notazip.zip").write_text("not a zip archive\n")
+    (d / "bad.json").write_text("{not json")
+    (d / "wrong_gains.json").write_text('{"kp": 1}\n')
+    (d / "emptydir").mkdir()
+    (d / "unknown_cols.csv").write_text("t,a,b\n0,1,2\n1,2,3\n")
+    (d / "text_values.csv").write_text("t_s,x_mm\n0,abc\n")
+    (d / "nan_values.csv").write_text("t_s,x_mm\n0,nan\n")
+    (d / "good.csv").write_text("t_s,x_mm,roll_deg\n0,0,0\n0.5,5,1\n1,10,2\n")
+    (d / "existing.csv").write_text("keep me\n")
+    (d / "run_done").mkdir()
+    (d / "run_done" / "model.zip").write_text("a finished run\n")
+    bundle = d / "bad_bundle"
+    bundle.mkdir()
+    (bundle / "bundle.json").write_text(json.dumps({"kind": "onnx", "env_id": "StewartBallBalance-v0",
+                                                    "action_mode": "pose", "obs_size": 16, "action_low": [-1, -1],
+                                                    "action_high": [1, 1], "obs_mean": None, "obs_var": None,
+                                                    "clip_obs": 10.0, "epsilon": 1e-8}))  # fmt: skip
+    return d
+
+
+# ------------------------------------------------------------------ good
+def test_version() -> None:
+    from stewart_gym import __version__
+
+    proc = sg("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"stewart-gym {__version__}"
+
+
+@pytest.mark.parametrize("command", ("",) + SUBCOMMANDS)
+def test_help(command: str) -> None:
+    proc = sg(*([command] if command else []), "--help")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("usage: stewart-gym") and "Traceback" not in proc.stderr
+    if command == "":
+        assert "exit codes" in proc.stdout and all(c in proc.stdout for c in SUBCOMMANDS)
+
+
+GOOD = [
+    # (arguments, exit code, text the output must contain)
+    (["ik", "0", "0", "5", "3", "0", "0"], 0, "reachable"),  # the README's worked example
+    (["ik", "0", "0", "30", "0", "0", "0"], 1, "unreachable"),
+    (["ik", "--geometry", "senilov2018", "200", "0", "0", "0", "0", "0"], 1, "above the upper actuator limit"),
+    (["ik", "--geometry", "senilov2018", "0", "0", "-300", "0", "0", "0"], 1, "not above its base anchor"),
+    (["ik", "0", "0", "-5", "-3", "0", "0"], 0, "reachable"),  # negative numbers are values, not options
+    (["workspace", "--n", "20", "--samples", "2000"], 0, "reach from home"),
+    (["trajectory"], 1, "first unreachable: sample"),  # seed 001's 0.2 m circle leaves the stroke
+    (["trajectory", "--radius", "20"], 0, "every sample is reachable"),
+    (["trajectory", "--csv", "{files}/good.csv", "--geometry", "servo-hexapod"], 0, "3 samples"),
+    (["sensitivity", "--n", "11", "--fd-samples", "5"], 0, "Jacobian vs finite differences"),
+    (["conditioning", "--n", "11"], 0, "cond(J)"),
+    (["planar"], 0, "pose(s)"),
+    (["planar", "--sweep", "p2:0.5:12:31", "--json"], 0, '"sweep"'),
+    (["assembly", "--guesses", "200"], 0, "assembly modes"),
+    (["assembly", "--guesses", "200", "--legs", "300", "300", "300", "300", "300", "300"], 0, "assembly modes"),
+    (["evaluate", "--policy", "pid", "--episodes", "2", "--no-randomize"], 0, "success rate"),
+]
+
+
+@pytest.mark.parametrize("args,code,text", GOOD, ids=[" ".join(a[:3]) for a, _, _ in GOOD])
+def test_documented_commands(args: list[str], code: int, text: str, files: Path) -> None:
+    proc = sg(*(a.format(files=files) for a in args))
+    assert proc.returncode == code, proc.stdout + proc.stderr
+    assert text in proc.stdout, proc.stdout
+    assert "Traceback" not in proc.stderr
+
+
+def test_ik_json_reports_pulses(tmp_path: Path) -> None:
+    proc = sg("ik", "0", "0", "5", "3", "0", "0", "--json")
+    out = json.loads(proc.stdout)
+    assert proc.returncode == 0 and out["reachable"] is True and len(out["pulse_widths_us"]) == 6
+    proc = sg("ik", "0", "0", "30", "0", "0", "0", "--json")
+    out = json.loads(proc.stdout)
+    assert proc.returncode == 1 and out["reachable"] is False and out["servo_angles_deg"] == [None] * 6
+
+
+def test_huge_pose_is_unreachable_not_a_crash() -> None:
+    proc = sg("ik", "1e308", "0", "0", "0", "0", "0", "--json")
+    out = json.loads(proc.stdout)
+    assert proc.returncode == 1 and out["reachable"] is False and "Traceback" not in proc.stderr
+
+
+def test_urdf_and_render(tmp_path: Path) -> None:
+    proc = sg("urdf", "--out", str(tmp_path / "u"))
+    assert proc.returncode == 0 and (tmp_path / "u" / "servo_hexapod.urdf").exists()
+    proc = sg("render", "0", "0", "5", "3", "0", "0", "--out", str(tmp_path / "r.png"), "--width", "64",
+              "--height", "48")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "r.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_workspace_of_a_linear_platform_finds_its_real_lowest_z() -> None:
+    """The lowest z is where the platform reaches the base anchors' height (z = 20 − 250 mm), not the grid edge."""
+    out = json.loads(sg("workspace", "--geometry", "senilov2018", "--n", "30", "--samples", "2000", "--json").stdout)
+    hm = out["height_map"]
+    assert hm["z_limited_by_grid"] is False
+    assert -231.0 < hm["min_z_mm"] < -225.0
+
+
+def test_trajectory_json_and_exit_codes(files: Path) -> None:
+    proc = sg("trajectory", "--json")
+    out = json.loads(proc.stdout)
+    assert proc.returncode == 1 and out["first_unreachable"] == 0 and out["unreachable_fraction"] > 0.5
+
+
+# ------------------------------------------------------------------- bad
+DEV = "/dev/stewart-gym-no-such-port"
+BAD = [
+    # global
+    [],
+    ["bogus"],
+    # ik
+    ["ik"],
+    ["ik", "0", "0", "0"],
+    ["ik", "nan", "0", "0", "0", "0", "0"],
+    ["ik", "0", "0", "0", "0", "0", "inf"],
+    ["ik", "x", "0", "0", "0", "0", "0"],
+    ["ik", "0", "0", "0", "0", "0", "0", "7"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--bogus"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "nope"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/missing.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/binary.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/bad.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/partial.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/emptydir"],
+    # urdf
+    ["urdf", "--geometry", "senilov2018", "--out", "{tmp}/u"],
+    ["urdf", "--out", "{files}/notes.txt"],
+    ["urdf", "--out", "{files}/notes.txt/sub"],
+    # render
+    ["render", "0", "0", "0", "0", "0", "0"],
+    ["render", "nan", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png"],
+    ["render", "0", "0", "50", "0", "0", "0", "--out", "{tmp}/x.png"],
+    ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.jpg"],
+    ["render", "0", "0", "0", "0", "0", "0", "--out", "{files}/emptydir"],
+    ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png", "--width", "0"],
+    ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png", "--geometry", "senilov2018"],
+    # train
+    ["train", "--timesteps", "0"],
+    ["train", "--n-envs", "0"],
+    ["train", "--max-minutes", "0"],
+    ["train", "--max-minutes", "nan"],
+    ["train", "--algo", "foo"],
+    ["train", "--env", "Foo-v0"],
+    ["train", "--seed", "-1"],
+    ["train", "--hyperparams", "{files}/missing.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/bad.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/other.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--run-dir", "{files}/notes.txt"],
+    ["train", "--run-dir", "{files}/run_done"],
+    ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],
+    # evaluate
+    ["evaluate", "--policy", "nope"],
+    ["evaluate", "--episodes", "0"],
+    ["evaluate", "--episodes", "-3"],
+    ["evaluate", "--seed", "x"],
+    ["evaluate", "--env", "Foo-v0"],
+    ["evaluate", "--gif", "{files}/emptydir"],
+    ["evaluate", "--plot", "{tmp}/x.txt"],
+    ["evaluate", "--policy", "{files}/notazip.zip"],
+    ["evaluate", "--policy", "{files}/bad.json"],
+    ["evaluate", "--policy", "{files}/wrong_gains.json"],
+    ["evaluate", "--policy", "{files}/emptydir"],
+    ["evaluate", "--policy", "{files}/notes.txt"],
+    ["evaluate", "--policy", "{files}/bad_bundle"],
+    # export
+    ["export"],
+    ["export", "--policy", "nope", "--out", "{tmp}/b"],
+    ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
+    ["export", "--out", "{files}/notes.txt"],
+    # deploy: the arguments are checked before the port is opened
+    ["deploy", "--rate", "-5"],
+    ["deploy", "--rate", "0"],
+    ["deploy", "--rate", "100000"],
+    ["deploy", "--duration", "-1"],
+    ["deploy", "--duration", "nan"],
+    ["deploy", "--watchdog-ms", "0"],
+    ["deploy", "--max-step-us", "-1"],
+    ["deploy", "--baudrate", "5"],
+    ["deploy", "--protocol", "foo", "--port", DEV],
+    ["deploy", "--sensor", "camera", "--port", DEV],
+    ["deploy", "--log", "{tmp}/l.csv"],  # no port
+    ["deploy", "--policy", "nope", "--port", DEV],
+    ["deploy", "--policy", "{files}/bad_bundle", "--port", DEV],
+    ["deploy", "--policy", "{files}/emptydir", "--port", DEV],
+    ["deploy", "--port", DEV, "--sensor", "panel", "--protocol", "maestro"],
+    ["deploy", "--port", DEV, "--calibration", "{files}/missing.toml"],
+    ["deploy", "--port", DEV, "--calibration", "{files}/bad.toml"],
+    ["deploy", "--port", DEV, "--log", "{files}/existing.csv"],
+    ["deploy", "--port", DEV, "--log", "{files}/emptydir"],
+    ["deploy", "--port", DEV, "--trajectory", "circle"],
+    # calibrate
+    ["calibrate"],
+    ["calibrate", "--step", "0", "--port", DEV],
+    ["calibrate", "--port", DEV, "--out", "{files}/emptydir"],
+    ["calibrate", "--port", DEV, "--calibration", "{files}/bad.toml"],
+    # analyses
+    ["workspace", "--n", "0"],
+    ["workspace", "--samples", "0"],
+    ["workspace", "--orientation", "nan", "0", "0"],
+    ["workspace", "--pivot", "0", "0"],
+    ["workspace", "--z-step", "0"],
+    ["workspace", "--plot", "{tmp}/x.txt"],
+    ["workspace", "--geometry", "{files}/bad.toml"],
+    ["trajectory", "--csv", "{files}/missing.csv"],
+    ["trajectory", "--csv", "{files}/unknown_cols.csv"],
+    ["trajectory", "--csv", "{files}/text_values.csv"],
+    ["trajectory", "--csv", "{files}/nan_values.csv"],
+    ["trajectory", "--csv", "{files}/binary.csv"],
+    ["trajectory", "--radius", "nan"],
+    ["trajectory", "--samples", "0"],
+    ["sensitivity", "--geometry", "senilov2018"],
+    ["sensitivity", "--step-deg", "0"],
+    ["conditioning", "--threshold", "-1"],
+    ["planar", "--geometry", "{files}/missing.toml"],
+    ["planar", "--geometry", "{files}/planar_partial.toml"],
+    ["planar", "--L1", "-1"],
+    ["planar", "--gamma", "inf"],
+    ["planar", "--sweep", "p9:1:2:3"],
+    ["planar", "--sweep", "p2:1:2"],
+    ["assembly", "--legs", "1", "2", "3"],
+    ["assembly", "--legs", "-1", "-1", "-1", "-1", "-1", "-1"],
+    ["assembly", "--guesses", "0"],
+    # demo
+    ["demo", "--episodes", "0"],
+    ["demo", "--out", "{files}/notes.txt"],
+]
+DEVICE_FAILURES = {("deploy", DEV), ("calibrate", DEV)}  # a missing port is a device failure: exit 2
+
+
+@pytest.mark.parametrize("args", BAD, ids=[" ".join(a) or "(none)" for a in BAD])
+def test_bad_input_is_one_error_line(args: list[str], files: Path, tmp_path: Path) -> None:
+    started = time.monotonic()
+    proc = sg(*(a.format(files=files, tmp=tmp_path) for a in args), cwd=tmp_path, timeout=120)
+    lines = error_lines(proc)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert proc.returncode in (1, 2), proc.returncode
+    assert time.monotonic() - started < 60  # refused at the edge, not after long work
+    assert not list(tmp_path.glob("deploy_log*.csv")), "a refused deploy left a log behind"
+
+
+def test_bad_input_table_is_large() -> None:
+    assert len(BAD) >= 60 and {a[0] for a in BAD if a} >= set(SUBCOMMANDS)
+
+
+def test_a_missing_port_is_a_device_failure(tmp_path: Path) -> None:
+    for cmd in ("deploy", "calibrate"):
+        proc = sg(cmd, "--port", DEV, "--duration" if cmd == "deploy" else "--step", "1", cwd=tmp_path)
+        assert proc.returncode == 2 and error_lines(proc)[0].startswith("error: cannot open"), proc.stderr
+
+
+def test_debug_shows_the_traceback() -> None:
+    proc = sg("--debug", "ik", "0", "0", "0", "0", "0", "0", "--geometry", "nope")
+    assert proc.returncode == 1 and "Traceback" in proc.stderr and "error: " in proc.stderr
+    proc = sg("ik", "0", "0", "0", "0", "0", "0", "--geometry", "nope", "--debug")
+    assert proc.returncode == 1 and "Traceback" in proc.stderr
+
+
+# ------------------------------------------------------- deploy, end to end
+def deploy(device: FakeDevice, *args: str, cwd: Path, reply: bytes | None = None) -> tuple[subprocess.CompletedProcess,
+                                                                                           bytes]:  # fmt: skip
+    import threading
+
+    drain = Drain(device)
+    done = threading.Event()
+
+    def say_ready() -> None:  # the line protocol's sketch says "ready" after the reset that opening the port causes
+        while not done.wait(0.2):
+            device.write(reply)
+
+    if reply is not None:
+        threading.Thread(target=say_ready, daemon=True).start()
+    proc = sg("deploy", "--port", device.path, *args, cwd=cwd, timeout=120)
+    done.set()
+    return proc, drain.stop()
+
+
+def maestro_frames(data: bytes) -> np.ndarray:
+    """The pulse widths (µs) of each Set Target ×6 frame."""
+    assert len(data) % 24 == 0
+    raw = np.frombuffer(data, dtype=np.uint8).reshape(-1, 6, 4)
+    assert np.all(raw[:, :, 0] == 0x84) and np.all(raw[:, :, 1] == np.arange(6))
+    return (raw[:, :, 2].astype(int) + (raw[:, :, 3].astype(int) << 7)) / 4.0
+
+
+@pytest.mark.parametrize("protocol", ["maestro", "ssc32", "line"])
+def test_deploy_dry_run_prints_its_summary(protocol: str, device: FakeDevice, tmp_path: Path) -> None:
+    """The documented dry run: exits 0 and prints the summary with the simulated ball's final error."""
+    reply = b"ready\n" if protocol == "line" else None
+    proc, data = deploy(device, "--protocol", protocol, "--sensor", "sim", "--duration", "2", "--log",
+                        str(tmp_path / "log.csv"), cwd=tmp_path, reply=reply)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "completed; simulated ball" in proc.stdout and "servos homed: True" in proc.stdout
+    assert "Traceback" not in proc.stderr
+    rows = (tmp_path / "log.csv").read_text().splitlines()
+    assert 95 <= len(rows) - 1 <= 105
+    if protocol == "maestro":
+        pulses = maestro_frames(data)
+        assert len(pulses) >= 100 and np.all((pulses >= 1000) & (pulses <= 2000))
+
+
+def test_deploy_pid_leaves_no_temporary_folder(device: FakeDevice, tmp_path: Path) -> None:
+    before = set(Path(tempfile.gettempdir()).glob("stewart_pid_*"))
+    proc, _ = deploy(device, "--policy", "pid", "--duration", "0.5", "--log", str(tmp_path / "l.csv"), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert set(Path(tempfile.gettempdir()).glob("stewart_pid_*")) == before
+
+
+def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> None:
+    proc, _ = deploy(device, "--duration", "0.2", cwd=tmp_path)
+    logs = list(tmp_path.glob("deploy_log_*.csv"))
+    assert proc.returncode == 0 and len(logs) == 1, proc.stderr
+    proc, data = deploy(device, "--duration", "0.2", "--log", str(logs[0]), cwd=tmp_path)
+    assert proc.returncode == 1 and "--overwrite" in proc.stderr and data == b""  # refused before the port opened
+    proc, _ = deploy(device, "--duration", "0.2", "--log", str(logs[0]), "--overwrite", cwd=tmp_path)
+    assert proc.returncode == 0
+
+
+def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
+    drain = Drain(device)
+    proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "deploy", "--port", device.path, "--duration", "30",
+                             "--log", str(tmp_path / "l.csv")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=tmp_path)  # fmt: skip
+    deadline = time.monotonic() + 60
+    while len(drain.data) < 24 * 20 and time.monotonic() < deadline:  # wait until it runs
+        time.sleep(0.05)
+    drain.stop()
+    device.unplug()
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2, err
+    assert "device failure" in out and "Traceback" not in err
+    assert len((tmp_path / "l.csv").read_text().splitlines()) > 20  # the log is kept
+
+
+def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_path: Path) -> None:
+    proc = sg("export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "tb"))
+    assert proc.returncode == 0, proc.stderr
+    proc, _ = deploy(device, "--policy", str(tmp_path / "tb"), "--duration", "1", "--log", str(tmp_path / "l.csv"),
+                     cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0 and "tracking a circle target" in proc.stdout, proc.stderr
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "l.csv").open()))
+    targets = np.array([[float(r["obs4"]), float(r["obs5"])] for r in rows])
+    assert np.ptp(targets, axis=0).max() > 0.01  # the target in the observation moves
+
+
+def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path) -> None:
+    from stewart_gym.hardware.export import BundlePolicy
+    from stewart_gym.registry import POLICY_DIR
+
+    assert sg("export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "t")).returncode == 0
+    assert sg("export", "--policy", "shipped", "--out", str(tmp_path / "b")).returncode == 0
+    obs = np.random.default_rng(0).uniform(-1, 1, (50, 12))
+    track, balance = BundlePolicy(tmp_path / "t"), BundlePolicy(tmp_path / "b")
+    assert track.env_id == "StewartBallTrack-v0" and balance.env_id == "StewartBallBalance-v0"
+    assert np.allclose(track(obs), BundlePolicy(POLICY_DIR / "track" / "bundle")(obs), atol=1e-5)
+    assert not np.allclose(track(obs), balance(obs), atol=1e-3)
+
+
+# --------------------------------------------------------------- calibrate
+def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: Path) -> None:
+    from stewart_gym.servo import ServoCalibration, hardware_settings
+
+    drain = Drain(device)
+    out = tmp_path / "cal.toml"
+    proc = sg("calibrate", "--port", device.path, "--protocol", "maestro", "--step", "0.1", "--out", str(out),
+              stdin="+\n+\n+\nn\n-\nx\nq\n", cwd=tmp_path)  # fmt: skip
+    data = drain.stop()
+    assert proc.returncode == 0, proc.stderr
+    assert "unknown key 'x'" in proc.stdout
+    hw = hardware_settings(out)
+    assert hw == {"port": device.path, "protocol": "maestro"}
+    cal = ServoCalibration.from_toml(out, "servo-hexapod")
+    assert np.allclose(cal.neutral_us - 1500, [0.3, -0.1, 0, 0, 0, 0], atol=1e-9)
+    text = out.read_text()
+    assert "99999" not in text and "00000" not in text, text  # no float noise such as 1084.999999 or 0.30000000004
+    last = maestro_frames(data)[-1]
+    assert np.allclose(last, np.round(cal.neutral_us * 4) / 4)  # left at the new neutral, not the old one
+    # the file drives deploy with no more options
+    assert sg("deploy", "--calibration", str(out), "--duration", "0.2", "--log", str(tmp_path / "l.csv"),
+              cwd=tmp_path).returncode == 0  # fmt: skip
+
+
+# ------------------------------------------- pose- and pulse-mode policies
+@pytest.mark.parametrize("mode", ["pose", "pulse"])
+def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, device: FakeDevice,
+                                                                     tmp_path: Path) -> None:  # fmt: skip
+    """train → evaluate → export → deploy, all through the command line, keep the action mode."""
+    hp = tmp_path / "hp.yml"
+    hp.write_text(f"StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
+                  f"  env_kwargs:\n    action_mode: {mode}\n  n_steps: 64\n  batch_size: 32\n  n_epochs: 1\n"
+                  "  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
+    run = tmp_path / "run"
+    proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--eval-freq", "64", "--eval-episodes", "1",
+              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert isinstance(metrics["last_eval"]["timesteps"], int) and isinstance(metrics["last_eval"]["wall_s"], float)
+    assert "not a git checkout" in (run / "git.txt").read_text() or "stewart_gym" in (run / "git.txt").read_text()
+    proc = sg("evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["episodes"] == 1
+    proc = sg("export", "--policy", str(run), "--out", str(tmp_path / "bundle"), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
+    assert meta["action_mode"] == mode and len(meta["action_low"]) == 6
+    proc, data = deploy(device, "--policy", str(tmp_path / "bundle"), "--duration", "1", "--log",
+                        str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "l.csv").open()))
+    assert sum(int(r["held"]) for r in rows) < len(rows)  # the policy's actions reach the servos
+    assert "action5" in rows[0]  # six actions logged
+    proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), cwd=tmp_path)
+    assert proc.returncode == 1 and "--overwrite" in proc.stderr  # a finished run is not overwritten
+
+
+def test_training_records_the_package_revision_not_the_working_directory(tmp_path: Path) -> None:
+    """git.txt names the revision of the stewart_gym source, even when training runs inside another repository."""
+    from stewart_gym.training import _git_revision
+
+    other = tmp_path / "other_repo"
+    other.mkdir()
+    subprocess.run(["git", "init", "-q"], cwd=other, check=True)
+    cwd = os.getcwd()
+    try:
+        os.chdir(other)
+        text = _git_revision()
+    finally:
+        os.chdir(cwd)
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    assert (head and head in text) or "not a git checkout" in text

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import csv
-import os
-import pty
 import threading
 import time
 from pathlib import Path
@@ -19,52 +17,10 @@ from stewart_gym.hardware.export import BundlePolicy, export_pid, export_sb3
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.servo import ServoCalibration
+from tests.conftest import FakeDevice
 
 CAL = ServoCalibration.default("servo-hexapod")
 PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
-
-
-class FakeDevice:
-    """A pseudo-terminal: the code under test opens ``path`` with pyserial; the test reads/writes ``master``."""
-
-    def __init__(self) -> None:
-        self.master, slave = pty.openpty()
-        self.path = os.ttyname(slave)
-        self._slave = slave  # keep the slave open so the pty survives until the client opens it
-        os.set_blocking(self.master, False)
-
-    def read_all(self, wait: float = 0.1) -> bytes:
-        time.sleep(wait)
-        out = b""
-        while True:
-            try:
-                chunk = os.read(self.master, 4096)
-            except (BlockingIOError, OSError):
-                return out
-            if not chunk:
-                return out
-            out += chunk
-
-    def write(self, data: bytes) -> None:
-        os.write(self.master, data)
-
-    def unplug(self) -> None:
-        os.close(self.master)
-        os.close(self._slave)
-
-    def close(self) -> None:
-        for fd in (self.master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-
-
-@pytest.fixture
-def device() -> FakeDevice:
-    d = FakeDevice()
-    yield d
-    d.close()
 
 
 # ------------------------------------------------------------------ protocols
@@ -215,7 +171,7 @@ def test_fuzz_one_million_actions_never_leave_limits_or_rate() -> None:
 
 # ----------------------------------------------------------------- the loop
 def _pid_bundle(tmp_path: Path) -> BundlePolicy:
-    from stewart_gym.evaluation import POLICY_DIR
+    from stewart_gym.registry import POLICY_DIR
 
     return BundlePolicy(export_pid(POLICY_DIR / "pid_gains.json", tmp_path / "pid"))
 
@@ -311,7 +267,7 @@ def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
 # ----------------------------------------------------------------- end to end
 def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None:
     """deploy --sensor sim: 10 s at 50 Hz, pulses to a fake Maestro on a pty, the simulated ball stays balanced."""
-    from stewart_gym.evaluation import POLICY_DIR
+    from stewart_gym.registry import POLICY_DIR
 
     bundle_dir = POLICY_DIR / "balance" / "bundle"
     policy = BundlePolicy(bundle_dir) if (bundle_dir / "bundle.json").exists() else _pid_bundle(tmp_path)
@@ -326,20 +282,12 @@ def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None
     plant = SimulatedPlant(seed=3, ball_position=(0.05, -0.03))
     loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, policy.action_mode), MaestroController(device.path),
                       plant, DeployConfig(duration_s=10.0, log_path=str(tmp_path / "log.csv")))  # fmt: skip
-    error_before_close = []
-    original_close = plant.close
-
-    def close() -> None:
-        error_before_close.append(plant.ball_error_mm())
-        original_close()
-
-    plant.close = close  # type: ignore[method-assign]
     summary = loop.run()
     time.sleep(0.1)
     stop.set()
     frames = [bytes(received[i:i + 24]) for i in range(0, len(received) - len(received) % 24, 24)]
     well_formed = [f for f in frames if all(f[k] == 0x84 and f[k + 1] == k // 4 for k in range(0, 24, 4))]
-    print(summary.text(), f"final ball error {error_before_close[0]:.1f} mm")
+    print(summary.text(), f"final ball error {plant.final_error_mm:.1f} mm")
     assert summary.exit_code == 0 and 490 <= summary.ticks <= 510
     assert len(received) % 24 == 0 and len(well_formed) == len(frames) and len(frames) >= 490
-    assert error_before_close[0] < 15.0  # still balanced near the centre after 10 s
+    assert plant.final_error_mm is not None and plant.final_error_mm < 15.0  # still balanced near the centre after 10 s

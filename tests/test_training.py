@@ -100,7 +100,7 @@ def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFi
 
 
 def test_shipped_policy_files_are_small_and_complete() -> None:
-    from stewart_gym.evaluation import POLICY_DIR
+    from stewart_gym.registry import POLICY_DIR
 
     folder = POLICY_DIR / "balance"
     for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "metrics.json", "eval.csv", "bundle/policy.onnx",

@@ -12,7 +12,7 @@ import json
 import shutil
 from pathlib import Path
 
-from stewart_gym.evaluation import POLICY_DIR
+from stewart_gym.registry import POLICY_DIR
 from stewart_gym.hardware.export import export_sb3
 
 

@@ -17,7 +17,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 from stewart_gym.controllers import CascadedPID, PIDGains
-from stewart_gym.evaluation import POLICY_DIR, evaluate
+from stewart_gym.evaluation import evaluate
+from stewart_gym.registry import POLICY_DIR
 
 
 def main() -> None:
