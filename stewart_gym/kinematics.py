@@ -314,7 +314,11 @@ def _ik_scalar(k: _IKConstants, pose: Sequence[float],
     channel's limits. One pass, no arrays: the control-loop path.
     """
     x, y, z, roll, pitch, yaw = pose
-    cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+    try:
+        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        cy, sy = math.cos(yaw), math.sin(yaw)
+    except ValueError:  # an infinite angle (math.cos raises; NaN flows through and is caught below)
+        cr = sr = cp = sp = cy = sy = math.nan
     cy_sp, sy_sp = cy * sp, sy * sp
     r00, r01, r02 = cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr
     r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr

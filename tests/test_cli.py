@@ -23,8 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from tests.conftest import Drain, FakeDevice
+from conftest import Drain, FakeDevice
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",

@@ -255,3 +255,28 @@ def test_env_class_docstring_has_mujoco_sections() -> None:
     for section in ("## Description", "## Action Space", "## Observation Space", "## Rewards", "## Starting State",
                     "## Episode End", "## Arguments", "## Version History"):  # fmt: skip
         assert section in doc
+
+
+@pytest.mark.parametrize("options,match", [
+    ({"ball_position": (math.nan, 0.0)}, "finite"),
+    ({"ball_position": (0.0, math.inf)}, "finite"),
+    ({"ball_position": (0.01,)}, "two numbers"),
+    ({"ball_position": (0.01, 0.0, 0.0)}, "two numbers"),
+    ({"ball_position": "centre"}, "two numbers"),
+    ({"ball_position": (0.2, 0.0)}, "off the plate"),
+    ({"ball_position": (0.0, -0.145)}, "off the plate"),
+    ({"ball_velocity": (math.nan, 0.0)}, "finite"),
+    ({"ball_velocity": (5.0, 0.0)}, "faster"),
+    ({"ball_positon": (0.0, 0.0)}, "unknown reset option"),
+])  # fmt: skip
+def test_reset_options_are_checked(options: dict, match: str) -> None:
+    from stewart_gym.errors import ConfigError
+
+    env = gym.make("StewartBallBalance-v0")
+    try:
+        with pytest.raises(ConfigError, match=match):
+            env.reset(seed=0, options=options)
+        obs, _ = env.reset(seed=0, options={"ball_position": (0.13, -0.13), "ball_velocity": (0.1, 0.0)})
+        assert env.observation_space.contains(obs)  # a valid start near the edge still works after a refusal
+    finally:
+        env.close()

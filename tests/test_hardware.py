@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import csv
+import math
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import Drain, FakeDevice
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, Sensor, SimulatedPlant
@@ -17,7 +19,6 @@ from stewart_gym.hardware.export import BundlePolicy, export_pid, export_sb3
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.servo import ServoCalibration
-from tests.conftest import FakeDevice
 
 CAL = ServoCalibration.default("servo-hexapod")
 PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
@@ -291,3 +292,63 @@ def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None
     assert summary.exit_code == 0 and 490 <= summary.ticks <= 510
     assert len(received) % 24 == 0 and len(well_formed) == len(frames) and len(frames) >= 490
     assert plant.final_error_mm is not None and plant.final_error_mm < 15.0  # still balanced near the centre after 10 s
+
+
+# ------------------------------------------------------------ loop outcomes
+@pytest.mark.parametrize("field,value", [("rate_hz", -5.0), ("rate_hz", 0.0), ("rate_hz", 1e5), ("rate_hz", math.nan),
+                                         ("duration_s", -1.0), ("duration_s", math.inf), ("watchdog_s", 0.0),
+                                         ("max_step_us", -1.0)])  # fmt: skip
+def test_deploy_config_refuses_nonsense(field: str, value: float) -> None:
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=field):
+        DeployConfig(**{field: value})
+
+
+class _SlowSensor(Sensor):
+    """A sensor whose every read takes longer than two control periods: the loop misses its deadlines."""
+
+    def read(self) -> tuple[tuple[float, float], float] | None:
+        time.sleep(0.05)
+        return (0.0, 0.0), 0.0
+
+
+def test_a_loop_that_misses_its_deadlines_fails(device: FakeDevice, tmp_path: Path) -> None:
+    policy = _pid_bundle(tmp_path)
+    drain = Drain(device)
+    loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
+                      _SlowSensor(), DeployConfig(rate_hz=200.0, duration_s=0.5, log_path=None))  # fmt: skip
+    summary = loop.run()
+    drain.stop()
+    assert summary.exit_code == 1 and "missed" in summary.message and summary.missed_deadlines > 0.05 * summary.ticks
+
+
+class _Broken:
+    """A policy that never gives a usable action (NaN): every tick holds."""
+
+    obs_size, action_size = 12, 2
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.full(2, np.nan)
+
+
+class _StillSensor(Sensor):
+    def read(self) -> tuple[tuple[float, float], float] | None:
+        return (0.0, 0.0), 0.0
+
+
+def test_a_loop_where_every_tick_holds_fails(device: FakeDevice, tmp_path: Path) -> None:
+    drain = Drain(device)
+    loop = DeployLoop(_Broken(), ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
+                      _StillSensor(), DeployConfig(duration_s=0.2, log_path=None))  # fmt: skip
+    summary = loop.run()
+    drain.stop()
+    assert summary.exit_code == 1 and summary.held == summary.ticks > 0 and "no usable action" in summary.message
+
+
+def test_a_policy_that_does_not_fit_the_action_mode_is_refused(device: FakeDevice, tmp_path: Path) -> None:
+    from stewart_gym.errors import PolicyError
+
+    with pytest.raises(PolicyError, match="needs 16 and 6"):
+        DeployLoop(_Broken(), ActionMapper("servo-hexapod", CAL, "pose"), MaestroController(device.path),
+                   _StillSensor(), DeployConfig(duration_s=0.2, log_path=None))  # fmt: skip

@@ -102,3 +102,37 @@ def test_scalar_one_pose_path_equals_batched_ik(name: str, u: np.ndarray, scale:
         assert pulses is not None and np.allclose(pulses, reference, rtol=0, atol=1e-9)
         assert np.allclose(cal.angles_one(pulses), cal.angles(reference), rtol=0, atol=1e-12)
     assert cal.in_range_one(reference.tolist()) == bool(cal.in_range(reference).all())
+
+
+# ------------------------------------------------------- non-finite poses
+bad_value = st.sampled_from([math.nan, math.inf, -math.inf, 1e200, -1e300])
+
+
+@settings(max_examples=200, deadline=None)
+@given(name=st.sampled_from(sorted(GEOMETRIES)), u=poses_unit, axis=st.integers(0, 5), value=bad_value)
+def test_a_non_finite_or_absurd_pose_is_never_reachable(name: str, u: np.ndarray, axis: int, value: float) -> None:
+    """NaN, ±inf or an absurd translation in any component: unreachable in the batched and the scalar IK,
+    rotary and linear, and no pulses for it."""
+    geo = GEOMETRIES[name]
+    pose = _pose(name, u)
+    if axis >= 3 and abs(value) != math.inf and not math.isnan(value):
+        value = math.nan  # a huge finite angle is a valid angle; test NaN there instead
+    pose[axis] = value
+    batched = inverse_kinematics(geo, pose[None])
+    single = inverse_kinematics(geo, pose)
+    assert not batched.reachable[0] and not single.reachable
+    assert np.array_equal(batched.status[0] != 0, single.status != 0)
+    if geo.is_rotary:
+        assert servo_pulses_one(geo, ServoCalibration.default(geo), pose.tolist()) is None
+        assert np.isnan(batched.servo_angles[0]).any()
+
+
+def test_linear_legs_through_the_base_are_unreachable() -> None:
+    """The mirror image of a pose through the base plane has the same leg lengths but cannot be built."""
+    from stewart_gym.kinematics import LegStatus
+
+    geo = GEOMETRIES["senilov2018"]
+    below = np.array([0.0, 0.0, -2 * geo.home_height, 0, 0, 0])  # the platform at −h0: mirrored through z = 0
+    for ik in (inverse_kinematics(geo, below), inverse_kinematics(geo, below[None])):
+        assert not np.any(ik.reachable)
+        assert np.all(ik.status == LegStatus.BELOW_BASE)

@@ -11,6 +11,7 @@ import yaml
 
 from stewart_gym.cli import main
 from stewart_gym.controllers import CascadedPID, PIDGains
+from stewart_gym.errors import ConfigError
 from stewart_gym.evaluation import evaluate, format_table, load_policy, load_sb3
 from stewart_gym.training import TrainConfig, load_hyperparams, train
 
@@ -60,8 +61,19 @@ def test_hyperparameter_files_have_every_env() -> None:
         for env_id in stewart_gym.ENV_IDS:
             hp = load_hyperparams(algo, env_id)
             assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
-    with pytest.raises(KeyError, match="no section"):
+    with pytest.raises(ConfigError, match="no section"):
         load_hyperparams("ppo", "CartPole-v1")
+
+
+@pytest.mark.parametrize("field,value", [("n_timesteps", 0), ("n_envs", 0), ("eval_freq", -5), ("eval_episodes", 0),
+                                         ("algo", "a2c")])  # fmt: skip
+def test_train_refuses_bad_options_before_starting(field: str, value: object, tmp_path: Path) -> None:
+    """A zero is an error, not "use the YAML's value"; nothing is written."""
+    from stewart_gym.training import TrainConfig, train
+
+    with pytest.raises(ConfigError, match=field.split("_")[0]):
+        train(TrainConfig(run_dir=str(tmp_path / "run"), **{field: value}))
+    assert not (tmp_path / "run").exists()
 
 
 def test_pid_balances_the_ball() -> None:
