@@ -98,7 +98,7 @@ def test_pose_csv_units(tmp_path: Path) -> None:
     t, poses = load_pose_csv(str(path))
     assert t.tolist() == [0, 0.5] and poses[1, 0] == pytest.approx(0.002) and poses[1, 3] == pytest.approx(math.radians(10))
     path.write_text("x\n1\n")
-    with pytest.raises(ValueError, match="unit suffix"):
+    with pytest.raises(ValueError, match="unknown column"):
         load_pose_csv(str(path))
 
 

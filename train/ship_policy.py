@@ -12,8 +12,8 @@ import json
 import shutil
 from pathlib import Path
 
-from stewart_gym.registry import POLICY_DIR
 from stewart_gym.hardware.export import export_sb3
+from stewart_gym.registry import POLICY_DIR
 
 
 def main() -> None:
