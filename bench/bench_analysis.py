@@ -17,12 +17,11 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from stewart_gym.analysis.assembly import assembly_modes  # noqa: E402
-from stewart_gym.analysis.cli import PLANAR_PRESETS  # noqa: E402
+from stewart_gym.analysis.planar import PLANAR_PRESETS, sweep_strut  # noqa: E402
 from stewart_gym.analysis.sensitivity import sensitivity, xy_grid_poses  # noqa: E402
 from stewart_gym.analysis.workspace import height_map  # noqa: E402
-from stewart_gym.geometry import load_preset  # noqa: E402
 from stewart_gym.kinematics import inverse_kinematics  # noqa: E402
-from stewart_gym.planar import sweep_strut  # noqa: E402
+from stewart_gym.presets import load_preset  # noqa: E402
 
 
 def best(fn, repeats: int = 3) -> float:

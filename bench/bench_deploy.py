@@ -18,11 +18,11 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from stewart_gym.actions import ActionMapper  # noqa: E402
+from stewart_gym.calibration import ServoCalibration  # noqa: E402
 from stewart_gym.hardware.deploy import DeployLoop  # noqa: E402
-from stewart_gym.hardware.devices import MaestroController  # noqa: E402
 from stewart_gym.hardware.export import BundlePolicy  # noqa: E402
+from stewart_gym.hardware.serial_controllers import MaestroController  # noqa: E402
 from stewart_gym.registry import POLICY_DIR  # noqa: E402
-from stewart_gym.servo import ServoCalibration  # noqa: E402
 
 
 class _NullSerial:

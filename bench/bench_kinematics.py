@@ -20,9 +20,10 @@ from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from stewart_gym.geometry import PlatformGeometry, load_preset  # noqa: E402
-from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, servo_pulses_one  # noqa: E402
-from stewart_gym.servo import ServoCalibration  # noqa: E402
+from stewart_gym.calibration import ServoCalibration, servo_pulses_one  # noqa: E402
+from stewart_gym.geometry import PlatformGeometry  # noqa: E402
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
+from stewart_gym.presets import load_preset  # noqa: E402
 
 
 def median_latency_us(call: Callable[[], object], repeats: int = 7, number: int = 5000) -> float:

@@ -10,8 +10,9 @@ Quick start::
     pulses = ServoCalibration.default(geo).pulse_widths(ik.servo_angles)
 """
 
+from stewart_gym.calibration import CalibrationError, PulseRangeError, ServoCalibration
 from stewart_gym.envs import ENV_IDS, register_envs
-from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry, load_preset, preset_names
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import (
     FKResult,
     IKResult,
@@ -21,7 +22,7 @@ from stewart_gym.kinematics import (
     inverse_kinematics,
     rotation_matrix,
 )
-from stewart_gym.servo import CalibrationError, PulseRangeError, ServoCalibration
+from stewart_gym.presets import load_geometry, load_preset, preset_names
 
 __version__ = "0.1.0"
 

@@ -3,7 +3,7 @@
 An action is a vector in [-1, 1]. :class:`ActionMapper` turns it into a pose
 (``"tilt"``: roll and pitch; ``"pose"``: all six axes) and through
 :func:`~stewart_gym.kinematics.inverse_kinematics` and
-:meth:`~stewart_gym.servo.ServoCalibration.pulse_widths` into pulses (µs); or,
+:meth:`~stewart_gym.calibration.ServoCalibration.pulse_widths` into pulses (µs); or,
 in ``"pulse"`` mode, scales it straight to each channel's pulse range.
 
 An unreachable commanded pose is replaced by the **nearest reachable pose along
@@ -18,11 +18,11 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
-from stewart_gym.analysis.workspace import axis_ranges
+from stewart_gym.calibration import ServoCalibration, servo_pulses_one
 from stewart_gym.errors import ConfigError
-from stewart_gym.geometry import PlatformGeometry, load_geometry
-from stewart_gym.kinematics import inverse_kinematics, servo_pulses_one
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics
+from stewart_gym.presets import load_geometry
 
 __all__ = ["ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction"]
 

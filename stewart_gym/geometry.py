@@ -17,9 +17,9 @@ Frames: the base frame has z up and its origin in the base plane; the platform
 frame is fixed to the plate, and at home it is the base frame lifted by
 ``home_height`` (h0). Anchors are in metres.
 
-Geometries come from :func:`load_preset` or from a TOML file
-(:func:`load_geometry`, :meth:`PlatformGeometry.from_toml`); a malformed file
-raises :class:`GeometryError` naming the bad field.
+Geometries come from :func:`stewart_gym.presets.load_preset` or from a TOML file
+(:func:`stewart_gym.presets.load_geometry`, :meth:`PlatformGeometry.from_toml`);
+a malformed file raises :class:`GeometryError` naming the bad field.
 """
 
 from __future__ import annotations
@@ -39,9 +39,6 @@ __all__ = [
     "GeometryError",
     "PlatformGeometry",
     "home_height_eq10",
-    "load_geometry",
-    "load_preset",
-    "preset_names",
 ]
 
 #: Relative tolerance with which the six legs must agree on eq. 10's home height.
@@ -307,36 +304,3 @@ def _range(key: str, value: Any, *, positive: bool) -> tuple[float, float]:
     if positive and lo <= 0.0:
         raise GeometryError(f"{key}: lengths must be positive, got {[lo, hi]}")
     return (lo, hi)
-
-
-# ------------------------------------------------------------------ presets
-def preset_names() -> list[str]:
-    """Names accepted by :func:`load_preset`."""
-    from stewart_gym import presets
-
-    return sorted(presets.PRESETS)
-
-
-def load_preset(name: str) -> PlatformGeometry:
-    """Return the named preset geometry (see :func:`preset_names`)."""
-    from stewart_gym import presets
-
-    try:
-        builder = presets.PRESETS[name]
-    except KeyError:
-        raise GeometryError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
-    return builder()
-
-
-def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
-    """A geometry from a preset name, a TOML path, or a geometry (returned as is)."""
-    if isinstance(spec, PlatformGeometry):
-        return spec
-    from stewart_gym import presets
-
-    if isinstance(spec, str) and spec in presets.PRESETS:
-        return load_preset(spec)
-    path = Path(spec)
-    if path.suffix == ".toml" or path.exists():
-        return PlatformGeometry.from_toml(path)
-    raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")

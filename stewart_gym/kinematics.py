@@ -24,14 +24,11 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
 
 from stewart_gym.geometry import GeometryError, PlatformGeometry
-
-if TYPE_CHECKING:
-    from stewart_gym.servo import ServoCalibration
 
 __all__ = [
     "FKResult",
@@ -43,8 +40,9 @@ __all__ = [
     "horn_tips",
     "inverse_kinematics",
     "rotation_matrix",
+    "axis_ranges",
+    "pulses_one",
     "rotation_matrix_derivatives",
-    "servo_pulses_one",
 ]
 
 #: Poses are processed in blocks of this many, so temporaries stay in cache.
@@ -388,16 +386,17 @@ def _rotary_constants(geometry: PlatformGeometry) -> _IKConstants:
     return k
 
 
-def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,
-                     pose: Sequence[float]) -> list[float] | None:  # fmt: skip
-    """Pulse widths (6 Python floats, µs) of one pose, or None if it cannot be commanded.
+def pulses_one(geometry: PlatformGeometry, pose: Sequence[float],
+               pulse_map: Sequence[tuple[float, float, float, float, float]]) -> list[float] | None:  # fmt: skip
+    """The IK of one pose mapped straight to pulse widths (6 Python floats, µs), or None.
 
-    IK and the calibration's eqs 13/14 in one scalar pass (~6 µs), for control
-    loops: None if any leg is unreachable, outside the servo angle range or
-    would get a pulse outside its channel's limits. Agrees with
-    ``calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles)``.
+    ``pulse_map`` gives per servo (neutral µs, signed µs/rad, home angle rad,
+    min µs, max µs): ``w = neutral + gain · (α − home)`` (eqs 13/14). None as
+    soon as a leg has no solution, leaves the servo angle range or its pulse
+    leaves ``[min, max]``. One scalar pass, no arrays (~6 µs): the control-loop
+    path; :func:`stewart_gym.calibration.servo_pulses_one` is its user.
     """
-    return _ik_scalar(_rotary_constants(geometry), pose, calibration.pulse_map)
+    return _ik_scalar(_rotary_constants(geometry), pose, pulse_map)
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:
@@ -612,3 +611,35 @@ def forward_kinematics(
         iterations=iterations.reshape(batch),
         residual=residual.reshape(batch),
     )
+
+
+# ------------------------------------------------------------------- reach
+def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, samples: int = 4001,
+                tol: float = 1e-9) -> np.ndarray:  # fmt: skip
+    """Reach along each pose axis from home, the others held at 0: array (6, 2) of [low, high].
+
+    Rows are x, y, z (m) and roll, pitch, yaw (rad). Each of the 12 rays is
+    sampled on ``samples`` points up to ``home_height`` (translations) or π/2
+    (angles); the first unreachable sample is then bracketed and bisected to
+    ``tol`` (relative to the search bound), all rays at once.
+    """
+    bound = np.array([geometry.home_height] * 3 + [math.pi / 2] * 3)
+    signs = np.array([-1.0, 1.0])
+    # rays[k, d]: unit pose of axis k in direction d, scaled by its bound
+    rays = np.zeros((6, 2, 6))
+    for k in range(6):
+        rays[k, :, k] = signs * bound[k]
+    frac = np.linspace(0.0, 1.0, samples)
+    reach = inverse_kinematics(geometry, rays[:, :, None, :] * frac[:, None], pivot).reachable  # (6, 2, n)
+    if not reach[..., 0].all():
+        raise GeometryError(f"home is not reachable for geometry {geometry.name!r}")
+    first_bad = np.where(reach.all(axis=-1), samples, np.argmin(reach, axis=-1))  # (6, 2)
+    lo = frac[first_bad - 1]
+    hi = np.where(first_bad < samples, frac[np.minimum(first_bad, samples - 1)], 1.0)
+    open_ = first_bad < samples
+    while np.any(open_ & (hi - lo > tol)):
+        mid = (lo + hi) / 2
+        ok = inverse_kinematics(geometry, rays * mid[..., None], pivot).reachable
+        lo = np.where(open_ & ok, mid, lo)
+        hi = np.where(open_ & ~ok, mid, hi)
+    return lo * bound[:, None] * signs

@@ -1,7 +1,8 @@
-"""Preset platform geometries (REFERENCE.md §3 and the seed documents).
+"""Preset platform geometries, and loading a geometry by preset name or TOML file.
 
-Each preset is a function returning a fresh :class:`PlatformGeometry`; use
-:func:`stewart_gym.geometry.load_preset` rather than this module directly.
+Each preset is a function returning a fresh :class:`PlatformGeometry`;
+:func:`load_preset` and :func:`load_geometry` are the way in. The presets are
+documented in the docs' "Conventions and presets" page.
 """
 
 from __future__ import annotations
@@ -9,12 +10,13 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
-from stewart_gym.geometry import PlatformGeometry, home_height_eq10
+from stewart_gym.geometry import GeometryError, PlatformGeometry, home_height_eq10
 
-__all__ = ["PRESETS", "polar_anchors"]
+__all__ = ["PRESETS", "load_geometry", "load_preset", "polar_anchors", "preset_names"]
 
 MM = 1e-3
 DEG = math.pi / 180.0
@@ -135,3 +137,29 @@ PRESETS: dict[str, Callable[[], PlatformGeometry]] = {
     "senilov2018": senilov2018,
     "mathcad-micro": mathcad_micro,
 }
+
+
+def preset_names() -> list[str]:
+    """Names accepted by :func:`load_preset`."""
+    return sorted(PRESETS)
+
+
+def load_preset(name: str) -> PlatformGeometry:
+    """Return the named preset geometry (see :func:`preset_names`)."""
+    try:
+        builder = PRESETS[name]
+    except KeyError:
+        raise GeometryError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
+    return builder()
+
+
+def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
+    """A geometry from a preset name, a TOML path, or a geometry (returned as is)."""
+    if isinstance(spec, PlatformGeometry):
+        return spec
+    if isinstance(spec, str) and spec in PRESETS:
+        return load_preset(spec)
+    path = Path(spec)
+    if path.suffix == ".toml" or path.exists():
+        return PlatformGeometry.from_toml(path)
+    raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")

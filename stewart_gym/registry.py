@@ -165,7 +165,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.hardware.export import BundlePolicy
 
         return BundlePolicy(source.path)
-    from stewart_gym.evaluation import load_sb3
+    from stewart_gym.sb3_models import load_sb3
 
     policy = load_sb3(source.path)
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
@@ -183,7 +183,7 @@ def load_for_evaluation(spec: str, env_id: str | None = None) -> tuple[PolicySou
 
 def load_pid(path: Path) -> Any:
     """The cascaded PID with the gains in ``path``; malformed gains raise :class:`PolicyError`."""
-    from stewart_gym.controllers import CascadedPID, PIDGains
+    from stewart_gym.classical import CascadedPID, PIDGains
 
     return CascadedPID(pid_gains(path, PIDGains))
 
@@ -219,7 +219,7 @@ def deployable_policy(source: PolicySource) -> Any:
     from stewart_gym.hardware.export import BundlePolicy, pid_meta
 
     if source.kind == "pid":
-        from stewart_gym.controllers import PIDGains
+        from stewart_gym.classical import PIDGains
 
         return BundlePolicy.from_meta(pid_meta(vars(pid_gains(source.path, PIDGains)), source.env_id))
     if source.bundle is not None:
@@ -233,7 +233,7 @@ def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
     from stewart_gym.hardware.export import export_bundle_copy, export_pid, export_sb3
 
     if source.kind == "pid":
-        from stewart_gym.controllers import PIDGains
+        from stewart_gym.classical import PIDGains
 
         pid_gains(source.path, PIDGains)
         return export_pid(source.path, out_dir, source.env_id)

@@ -30,7 +30,6 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Check
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
-import stewart_gym  # noqa: F401  (registers the environments)
 from stewart_gym.errors import ConfigError
 
 __all__ = ["ALGOS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "train"]
@@ -83,7 +82,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
     the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
     another run's model unless ``overwrite`` or resuming) and the run to resume from."""
-    from stewart_gym.cliutil import output_dir
+    from stewart_gym.outputs import output_dir
 
     if config.algo not in ALGOS:
         raise ConfigError(f"algo must be one of {sorted(ALGOS)}, got {config.algo!r}")

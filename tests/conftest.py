@@ -11,7 +11,8 @@ import time
 import numpy as np
 import pytest
 
-from stewart_gym.geometry import PlatformGeometry, load_preset, preset_names
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.presets import load_preset, preset_names
 
 #: Half-widths of a box of poses around home that is mostly reachable, per preset:
 #: (translation m, angle rad). Used to sample workspaces in property tests.

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 
 from stewart_gym.analysis.assembly import assembly_modes
-from stewart_gym.analysis.cli import PLANAR_PRESETS
+from stewart_gym.analysis.planar import PLANAR_PRESETS, planar_f, planar_struts, solve_planar, sweep_strut
 from stewart_gym.analysis.sensitivity import conditioning, fd_check, sensitivity, xy_grid_poses
 from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
-from stewart_gym.analysis.workspace import axis_ranges, height_map, reachable_volume
+from stewart_gym.analysis.workspace import height_map, reachable_volume
 from stewart_gym.cli import main
-from stewart_gym.geometry import load_preset
-from stewart_gym.kinematics import inverse_kinematics
-from stewart_gym.planar import planar_f, planar_struts, solve_planar, sweep_strut
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics
+from stewart_gym.presets import load_preset
 
 MM = 1e-3
 

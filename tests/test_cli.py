@@ -436,7 +436,7 @@ def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path)
 
 # --------------------------------------------------------------- calibrate
 def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: Path) -> None:
-    from stewart_gym.servo import ServoCalibration, hardware_settings
+    from stewart_gym.calibration import ServoCalibration, hardware_settings
 
     drain = Drain(device)
     out = tmp_path / "cal.toml"

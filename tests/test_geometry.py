@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry, load_preset, preset_names
+from stewart_gym.geometry import GeometryError, PlatformGeometry
+from stewart_gym.presets import load_geometry, load_preset, preset_names
 
 MM = 1e-3
 

@@ -13,12 +13,12 @@ import pytest
 from conftest import Drain, FakeDevice
 
 from stewart_gym.actions import ActionMapper
+from stewart_gym.calibration import ServoCalibration
 from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, Sensor, SimulatedPlant
-from stewart_gym.hardware.devices import DeviceError, LineController, MaestroController, SSC32Controller
 from stewart_gym.hardware.export import BundlePolicy, export_pid, export_sb3
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 from stewart_gym.hardware.safety import SafetyLayer
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.hardware.serial_controllers import DeviceError, LineController, MaestroController, SSC32Controller
 
 CAL = ServoCalibration.default("servo-hexapod")
 PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
@@ -230,7 +230,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
-    from stewart_gym.evaluation import load_sb3
+    from stewart_gym.sb3_models import load_sb3
 
     obs = np.random.default_rng(0).normal(0, 1, (1000, 12)).astype(np.float32)
     for algo in (PPO, SAC, TD3):

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from conftest import random_poses, reference_rotation, reference_servo_angles
 
-from stewart_gym.geometry import PlatformGeometry, load_preset
+from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import (
     LegStatus,
     actuator_jacobian,
@@ -17,6 +17,7 @@ from stewart_gym.kinematics import (
     rotation_matrix,
     rotation_matrix_derivatives,
 )
+from stewart_gym.presets import load_preset
 
 MM = 1e-3
 

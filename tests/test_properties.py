@@ -9,14 +9,13 @@ from conftest import WORKSPACE_BOX, mirror_permutation
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from stewart_gym.geometry import load_preset, preset_names
+from stewart_gym.calibration import ServoCalibration, servo_pulses_one
 from stewart_gym.kinematics import (
     forward_kinematics,
     inverse_kinematics,
     rotation_matrix,
-    servo_pulses_one,
 )
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.presets import load_preset, preset_names
 
 unit = st.floats(-1.0, 1.0, allow_nan=False)
 poses_unit = st.tuples(*[unit] * 6).map(np.array)

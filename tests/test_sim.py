@@ -14,9 +14,9 @@ import pytest
 from urdf_parser_py.urdf import URDF
 
 from stewart_gym.analysis import aggressive_moves
-from stewart_gym.geometry import load_preset
+from stewart_gym.calibration import PulseRangeError
 from stewart_gym.kinematics import forward_kinematics, inverse_kinematics
-from stewart_gym.servo import PulseRangeError
+from stewart_gym.presets import load_preset
 from stewart_gym.sim import MechanismSpec, ServoSpec, StewartSim, mechanism_urdf, plate_urdf
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
+from stewart_gym.classical import CascadedPID, PIDGains
 from stewart_gym.cli import main
-from stewart_gym.controllers import CascadedPID, PIDGains
 from stewart_gym.errors import ConfigError
-from stewart_gym.evaluation import evaluate, format_table, load_policy, load_sb3
+from stewart_gym.evaluation import evaluate, format_table
+from stewart_gym.registry import load_policy
+from stewart_gym.sb3_models import load_sb3
 from stewart_gym.training import TrainConfig, load_hyperparams, train
 
 SMOKE = {

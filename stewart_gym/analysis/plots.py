@@ -106,7 +106,7 @@ def plot_conditioning(x: np.ndarray, y: np.ndarray, cond: np.ndarray, near: np.n
 
 def plot_planar(poses: np.ndarray, params: dict[str, float], path: str | Path) -> None:
     """Each pose of the 3-RPR platform as a triangle with its three struts."""
-    from stewart_gym.planar import planar_vertices
+    from stewart_gym.analysis.planar import planar_vertices
 
     plt = _plt()
     n = max(1, len(poses))

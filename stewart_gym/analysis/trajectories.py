@@ -7,11 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.analysis.workspace import axis_ranges
+from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.kinematics import inverse_kinematics
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 
 __all__ = ["aggressive_moves", "circle", "load_pose_csv", "trajectory_check"]
 

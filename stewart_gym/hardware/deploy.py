@@ -32,8 +32,8 @@ import numpy as np
 from stewart_gym.actions import ActionMapper
 from stewart_gym.envs.targets import Fixed, Target
 from stewart_gym.errors import ConfigError, PolicyError
-from stewart_gym.hardware.devices import DeviceError, LineController, ServoController
 from stewart_gym.hardware.safety import SafetyLayer
+from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
 from stewart_gym.sensing import BallObserver
 
 __all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Sensor", "SimulatedPlant"]
@@ -79,7 +79,6 @@ class SimulatedPlant(Sensor):
                  ball_position: tuple[float, float] | None = None) -> None:  # fmt: skip
         import gymnasium as gym
 
-        import stewart_gym  # noqa: F401  (registers the ids)
 
         self.env = gym.make(env_id, randomize=randomize).unwrapped
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}

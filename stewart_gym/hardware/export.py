@@ -38,7 +38,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     import torch
     from stable_baselines3 import PPO, SAC
 
-    from stewart_gym.evaluation import load_sb3
+    from stewart_gym.sb3_models import load_sb3
 
     sb3 = load_sb3(model_path)
     model = sb3.model
@@ -148,7 +148,7 @@ class BundlePolicy:
             raise PolicyError(f"{meta_path}: action_mode must be one of {sorted(ACTION_SIZES)}, got {self.action_mode!r}")
         self.action_size = ACTION_SIZES[self.action_mode]
         if self.kind == "pid":
-            from stewart_gym.controllers import CascadedPID, PIDGains
+            from stewart_gym.classical import CascadedPID, PIDGains
 
             if self.action_mode != "tilt":
                 raise PolicyError(f"{meta_path}: the PID commands tilt, not {self.action_mode!r}")

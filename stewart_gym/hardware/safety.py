@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.calibration import ServoCalibration
 
 __all__ = ["SafetyLayer", "SafetyResult"]
 

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.hardware.devices import ServoController
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.hardware.serial_controllers import ServoController
 
 __all__ = ["TrimResult", "calibration_toml", "find_trims"]
 

@@ -5,7 +5,7 @@ six fixed-base bodies, one per leg (the base is fixed, so this is the same
 mechanism and a cheaper solve); the plate is another body; six point-to-point
 constraints join each rod top to its plate anchor. Servos are position motors
 on the horn joints, commanded in pulse widths through
-:class:`~stewart_gym.sim.servos.HobbyServos`. An optional ball rolls on the plate.
+:class:`~stewart_gym.sim.servo_model.HobbyServos`. An optional ball rolls on the plate.
 
 Rates are explicit: ``physics_hz`` must be a multiple of ``control_hz``; one
 :meth:`StewartSim.step` advances one control period (one servo frame at the
@@ -31,10 +31,11 @@ import numpy as np
 import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
-from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
-from stewart_gym.servo import ServoCalibration
-from stewart_gym.sim.servos import HobbyServos, ServoSpec
+from stewart_gym.presets import load_geometry
+from stewart_gym.sim.servo_model import HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 
 __all__ = ["BallSpec", "PhysicsSpec", "StewartSim"]
@@ -263,7 +264,7 @@ class StewartSim:
     def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
         """Send pulse widths (6,) µs to the servos; they take effect after the servo lag.
 
-        Raises :class:`~stewart_gym.servo.PulseRangeError` if any pulse is outside
+        Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse is outside
         the calibration's channel limits (or not finite); nothing is sent then.
         Returns the pulses as the servos received them (quantised).
         """

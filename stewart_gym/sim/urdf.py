@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from stewart_gym.geometry import GeometryError, PlatformGeometry, load_geometry
+from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, horn_tips, inverse_kinematics
-from stewart_gym.sim.servos import ServoSpec
+from stewart_gym.presets import load_geometry
+from stewart_gym.sim.servo_model import ServoSpec
 
 __all__ = ["MechanismSpec", "mechanism_urdf", "plate_urdf", "rod_frames", "write_urdfs"]
 

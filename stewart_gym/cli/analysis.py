@@ -10,22 +10,24 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.cliutil import EXIT_FAILED, EXIT_OK, bounded_float, finite_float, int_at_least, output_file, positive_float
+from stewart_gym.analysis.planar import PLANAR_KEYS, PLANAR_PRESETS
+from stewart_gym.cli.common import (
+    EXIT_FAILED,
+    EXIT_OK,
+    bounded_float,
+    finite_float,
+    int_at_least,
+    json_safe,
+    output_file,
+    positive_float,
+)
 from stewart_gym.errors import ConfigError
-from stewart_gym.geometry import load_geometry
+from stewart_gym.presets import load_geometry
 from stewart_gym.tomlio import read_toml
 
 #: Seed 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
 SEED_003_RANGES_MM = (25.0, 28.0, 15.0)
 
-#: 3-RPR parameter sets from Sauer's Reality Check 1 (the seed's source).
-PLANAR_PRESETS: dict[str, dict[str, float]] = {
-    "sauer-test": {"L1": 2.0, "L2": math.sqrt(2), "L3": math.sqrt(2), "gamma": math.pi / 2, "x1": 4.0, "x2": 0.0,
-                   "y2": 4.0, "p1": math.sqrt(5), "p2": math.sqrt(5), "p3": math.sqrt(5)},
-    "sauer": {"L1": 3.0, "L2": 3 * math.sqrt(2), "L3": 3.0, "gamma": math.pi / 4, "x1": 5.0, "x2": 0.0, "y2": 6.0,
-              "p1": 5.0, "p2": 5.0, "p3": 3.0},
-}  # fmt: skip
-PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
 
 
 def _emit(args: argparse.Namespace, result: dict[str, Any], lines: list[str], ok: bool = True) -> int:
@@ -42,25 +44,8 @@ def _plot_path(args: argparse.Namespace, name: str = "plot") -> Any:
     return None if value is None else output_file(value, suffixes=(".png",))
 
 
-def json_safe(v: Any) -> Any:
-    """Numpy values to plain Python, NaN/inf to None: strict JSON."""
-    if isinstance(v, dict):
-        return {k: json_safe(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [json_safe(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return json_safe(v.tolist())
-    if isinstance(v, (np.floating, float)):
-        return float(v) if math.isfinite(v) else None
-    if isinstance(v, np.integer):
-        return int(v)
-    if isinstance(v, np.bool_):
-        return bool(v)
-    return v
-
-
 def _grid_extent(geo: Any) -> tuple[float, float]:
-    from stewart_gym.analysis.workspace import axis_ranges
+    from stewart_gym.kinematics import axis_ranges
 
     r = axis_ranges(geo)
     return float(max(-r[0, 0], r[0, 1], -r[1, 0], r[1, 1])) * 1.1, float(max(-r[2, 0], r[2, 1])) * 1.2
@@ -69,7 +54,8 @@ def _grid_extent(geo: Any) -> tuple[float, float]:
 def cmd_workspace(args: argparse.Namespace) -> int:
     """Reach along each axis, the reachable-z map over x–y (seed 002) and sampled workspace volumes."""
     from stewart_gym.analysis.plots import plot_height_map
-    from stewart_gym.analysis.workspace import axis_ranges, height_map, reachable_volume
+    from stewart_gym.analysis.workspace import height_map, reachable_volume
+    from stewart_gym.kinematics import axis_ranges
 
     geo = load_geometry(args.geometry)
     _plot_path(args)
@@ -236,8 +222,8 @@ def _sweep_spec(text: str) -> tuple[str, float, float, int]:
 
 def cmd_planar(args: argparse.Namespace) -> int:
     """All poses of the planar 3-RPR platform (seed 004), optionally sweeping one strut."""
+    from stewart_gym.analysis.planar import solve_planar, sweep_strut
     from stewart_gym.analysis.plots import plot_planar, plot_sweep
-    from stewart_gym.planar import solve_planar, sweep_strut
 
     params = _planar_params(args)
     _plot_path(args)

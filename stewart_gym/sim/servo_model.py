@@ -10,7 +10,7 @@ angle each servo aims for, as a hobby servo's electronics would:
    it is holding;
 4. **trim error**: a physical servo's neutral differs from the calibration's by
    ``trim_error_us`` (the error a user removes with trims);
-5. decoding through the same :class:`~stewart_gym.servo.ServoCalibration` as
+5. decoding through the same :class:`~stewart_gym.calibration.ServoCalibration` as
    the hardware.
 
 The motor then turns towards that angle no faster than ``max_speed`` and with at
@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from stewart_gym.servo import ServoCalibration
+from stewart_gym.calibration import ServoCalibration
 
 __all__ = ["HobbyServos", "ServoSpec"]
 
@@ -97,7 +97,7 @@ class HobbyServos:
     def command(self, pulses_us: np.ndarray, step: int) -> np.ndarray:
         """Accept pulses (6,) µs sent at physics step ``step``; return them as quantised.
 
-        Raises :class:`~stewart_gym.servo.PulseRangeError` if any pulse is outside
+        Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse is outside
         the calibration's channel limits or not finite: nothing is sent then.
         """
         pulses = np.asarray(pulses_us, dtype=np.float64).reshape(6).tolist()

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from stewart_gym.geometry import load_preset
+from stewart_gym.calibration import CalibrationError, PulseRangeError, ServoCalibration
 from stewart_gym.kinematics import inverse_kinematics
-from stewart_gym.servo import CalibrationError, PulseRangeError, ServoCalibration
+from stewart_gym.presets import load_preset
 
 
 @pytest.fixture

@@ -26,7 +26,9 @@ from typing import Any, Literal
 import numpy as np
 
 from stewart_gym.errors import ConfigError, StewartGymError
-from stewart_gym.geometry import PlatformGeometry, load_geometry
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import pulses_one
+from stewart_gym.presets import load_geometry
 from stewart_gym.tomlio import read_toml
 
 __all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
@@ -249,7 +251,7 @@ class ServoCalibration:
         """Per servo (neutral µs, direction · µs/rad, home angle rad, min µs, max µs) as Python floats.
 
         Eqs 13/14 for scalar control loops: pulse = neutral + gain · (α − home),
-        valid within [min, max] (:func:`~stewart_gym.kinematics.servo_pulses_one`).
+        valid within [min, max] (:func:`servo_pulses_one`).
         """
         gain = self.direction * self.us_per_rad
         return tuple(zip(*(map(float, arr) for arr in (self.neutral_us, gain, self.home_angle, self.min_us, self.max_us))))
@@ -330,3 +332,16 @@ def _home_angles(geometry: PlatformGeometry) -> np.ndarray:
     if not np.all(np.isfinite(alpha)):
         raise CalibrationError(f"geometry: home pose of {geometry.name!r} has no servo solution")
     return alpha
+
+
+def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,
+                     pose: Sequence[float]) -> list[float] | None:  # fmt: skip
+    """Pulse widths (6 Python floats, µs) of one pose, or None if it cannot be commanded.
+
+    IK and the calibration's eqs 13/14 in one scalar pass (~6 µs,
+    :func:`stewart_gym.kinematics.pulses_one`), for control loops: None if any
+    leg is unreachable, outside the servo angle range or would get a pulse
+    outside its channel's limits. Agrees with
+    ``calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles)``.
+    """
+    return pulses_one(geometry, pose, calibration.pulse_map)

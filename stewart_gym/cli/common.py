@@ -19,15 +19,20 @@ import os
 import sys
 import traceback
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, NoReturn
 
-from stewart_gym.errors import ConfigError, DeviceFailure, StewartGymError
+import numpy as np
+
+from stewart_gym.errors import DeviceFailure, StewartGymError
+from stewart_gym.outputs import output_dir, output_file
 
 __all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_OK", "Parser", "bounded_float", "finite_float", "int_at_least",
-           "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
+           "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
 
 EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_CODES_HELP = ("exit codes: 0 done; 1 a user error (bad option, missing or malformed file) or a failed result "
+                   "(unreachable pose, deploy that could not keep its rate); 2 a device failure (serial port missing, "
+                   "unplugged or not answering)")  # fmt: skip
 
 
 class Parser(argparse.ArgumentParser):
@@ -87,44 +92,6 @@ def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
     return parse
 
 
-# ------------------------------------------------------------- output paths
-def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
-    """Check that ``path`` can be written, before any long work: its folder exists or can be created, it is
-    not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`."""
-    p = Path(path)
-    if suffixes and p.suffix.lower() not in suffixes:
-        raise ConfigError(f"{p}: expected a file name ending in {' or '.join(suffixes)}")
-    if p.is_dir():
-        raise ConfigError(f"{p} is a folder; give a file name")
-    if p.exists() and not overwrite:
-        raise ConfigError(f"{p} exists; give another name or --overwrite")
-    _writable_dir(p.parent)
-    if p.exists() and not os.access(p, os.W_OK):
-        raise ConfigError(f"{p}: no permission to write")
-    return p
-
-
-def output_dir(path: str | Path) -> Path:
-    """Check that ``path`` is, or can be created as, a writable folder. Raises :class:`ConfigError`."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise ConfigError(f"{p} exists and is not a folder")
-    _writable_dir(p)
-    return p
-
-
-def _writable_dir(folder: Path) -> None:
-    existing = folder
-    while not existing.exists():
-        if existing.parent == existing:
-            break
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ConfigError(f"{folder}: {existing} is a file, not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ConfigError(f"{folder}: no permission to write in {existing}")
-
-
 # -------------------------------------------------------------------- run
 def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
     """Call a subcommand; a user's mistake or a device failure becomes one ``error:`` line and an exit code.
@@ -140,6 +107,9 @@ def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> 
             raise
         print("error: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the output was piped into a program that stopped reading (head): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
     except (StewartGymError, OSError, UnicodeDecodeError) as exc:
         if debug:
             traceback.print_exc()
@@ -170,5 +140,25 @@ def add_debug(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
 
 
-def namespace_get(args: Any, name: str, default: Any = None) -> Any:
-    return getattr(args, name, default)
+def json_safe(v: Any) -> Any:
+    """Numpy values to plain Python, NaN/inf to None: strict JSON."""
+    if isinstance(v, dict):
+        return {k: json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_safe(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return json_safe(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod") -> None:
+    """``--geometry NAME|FILE``."""
+    from stewart_gym.presets import preset_names
+
+    parser.add_argument("--geometry", default=default, help=f"preset ({', '.join(preset_names())}) or TOML file")

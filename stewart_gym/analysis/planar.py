@@ -28,7 +28,17 @@ from scipy.optimize import brentq, minimize_scalar
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
+__all__ = ["PLANAR_KEYS", "PLANAR_PRESETS", "planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
+
+#: 3-RPR parameter sets from Sauer's Reality Check 1 (the seed's source).
+PLANAR_PRESETS: dict[str, dict[str, float]] = {
+    "sauer-test": {"L1": 2.0, "L2": math.sqrt(2), "L3": math.sqrt(2), "gamma": math.pi / 2, "x1": 4.0, "x2": 0.0,
+                   "y2": 4.0, "p1": math.sqrt(5), "p2": math.sqrt(5), "p3": math.sqrt(5)},
+    "sauer": {"L1": 3.0, "L2": 3 * math.sqrt(2), "L3": 3.0, "gamma": math.pi / 4, "x1": 5.0, "x2": 0.0, "y2": 6.0,
+              "p1": 5.0, "p2": 5.0, "p3": 3.0},
+}  # fmt: skip
+PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
+
 
 
 def _terms(theta: np.ndarray, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
