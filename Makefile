@@ -30,7 +30,7 @@ bench: $(STAMP)
 
 # Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
 train: $(STAMP)
-	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --max-minutes 15
+	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --max-minutes 15 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
 
 lint: $(STAMP)

@@ -10,6 +10,8 @@ Quick start::
     pulses = ServoCalibration.default(geo).pulse_widths(ik.servo_angles)
 """
 
+import importlib.util
+
 from stewart_gym.calibration import CalibrationError, PulseRangeError, ServoCalibration
 from stewart_gym.envs import ENV_IDS, register_envs
 from stewart_gym.geometry import GeometryError, PlatformGeometry
@@ -26,7 +28,8 @@ from stewart_gym.presets import load_geometry, load_preset, preset_names
 
 __version__ = "0.1.0"
 
-register_envs()
+if importlib.util.find_spec("gymnasium") is not None:  # without the [sim] extra: kinematics, analyses, deploy
+    register_envs()
 
 __all__ = [
     "ENV_IDS",

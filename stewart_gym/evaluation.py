@@ -69,7 +69,7 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = 
         log.ball_xy.append(np.asarray(info["ball_xy_m"], dtype=float))
         log.target_xy.append(np.asarray(info["target_xy_m"], dtype=float))
         log.pulses.append(np.asarray(info["pulse_widths_us"], dtype=float))
-        roll, pitch = unwrapped._roll_pitch
+        roll, pitch = info["commanded_tilt_rad"]
         log.tilt_deg.append(math.degrees(math.hypot(roll, pitch)))
         if frames:
             log.frames.append(env.render())
@@ -124,7 +124,7 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
             "settling_time_s": None,
             "settled_fraction": None,
         }
-        if settling and env.unwrapped.task == "balance":
+        if settling and not env.unwrapped.task.moving_target:
             radius_mm = env.unwrapped.success_radius * 1e3
             times = []
             for k in range(episodes):

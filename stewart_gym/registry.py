@@ -35,7 +35,8 @@ __all__ = ["POLICY_DIR", "SHIPPED", "PolicySource", "deployable_policy", "export
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
-SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track"}
+SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track",
+           "StewartBallDisturbance-v0": "balance"}  # the balance policy, trained without pushes, handles it
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
 POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz")

@@ -1,5 +1,11 @@
 """Ball sensing and observations, shared by the environments and the hardware control loop.
 
+* :class:`BallSensor`: the sensor seam, a small Protocol. The env reads a
+  simulated sensor through it and ``deploy`` reads a real one (the touch panel
+  on the serial line today, a camera next); :class:`SimulatedSensor` adds what
+  a simulated one needs from the physics.
+* :func:`ball_contact`: whether the ball is on the plate and touching it (one
+  rule for the env and the deploy dry run).
 * :class:`SimulatedTouchPanel`: what a resistive touch panel reports of the
   simulated ball: plate-frame (x, y) sampled at ``rate_hz``, ``latency_s`` old,
   with Gaussian noise of ``noise_mm``; nothing while the ball is off the plate.
@@ -14,11 +20,50 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-from gymnasium import spaces
 
-__all__ = ["BallObserver", "ObservationBuilder", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator"]
+__all__ = ["BallObserver", "BallSensor", "ObservationBuilder", "Reading", "SimulatedSensor", "SimulatedTouchPanel",
+           "TouchPanelSpec", "VelocityEstimator", "ball_contact"]  # fmt: skip
+
+#: A sensor reading: ((x, y) m in the plate frame, the time the sample was taken, s, on the reader's clock).
+Reading = tuple[tuple[float, float], float]
+
+
+@runtime_checkable
+class BallSensor(Protocol):
+    """Where a sensor says the ball is.
+
+    ``read(t)`` gives the newest reading available at time ``t`` (s) or None
+    when there is none (no ball, nothing received yet). The sample time is on
+    the same clock as ``t`` and never later than it; its age ``t − sample
+    time`` is what the deploy watchdog checks.
+    """
+
+    def read(self, t: float) -> Reading | None: ...
+
+
+@runtime_checkable
+class SimulatedSensor(BallSensor, Protocol):
+    """A sensor model fed by the physics: the env calls :meth:`reset` at each episode start and
+    :meth:`record` with the true ball position every control step."""
+
+    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None: ...
+
+    def record(self, t: float, xy: Sequence[float], touching: bool) -> None: ...
+
+
+def ball_contact(x: float, y: float, z: float, half_extent: tuple[float, float], plate_top: float,
+                 radius: float) -> tuple[bool, bool]:  # fmt: skip
+    """(on the plate, touching the panel) for a ball centre at (x, y, z) in the platform frame.
+
+    On the plate: its centre is over the plate and above the surface. Touching:
+    on the plate and its centre lower than 1.5 radii above the surface (a ball
+    in the air presses nothing).
+    """
+    on = abs(x) <= half_extent[0] and abs(y) <= half_extent[1] and z > plate_top
+    return on, on and z < plate_top + 1.5 * radius
 
 
 @dataclass(frozen=True)
@@ -155,10 +200,16 @@ class ObservationBuilder:
         self.size = 10 + self.action_size
         high = np.array([2, 2, 5, 5, 2, 2, 5, 5, 2, 2] + [1] * self.action_size, dtype=np.float32)
         self.low, self.high = -high, high
-        self.space = spaces.Box(-high, high, dtype=np.float32)
         scale = [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.POSITION_SCALE] * 2 \
             + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size
         self._scales, self._highs = scale, [float(v) for v in high]
+
+    @property
+    def space(self) -> Any:
+        """The Gymnasium ``Box`` of the observation (needs gymnasium: the env side only)."""
+        from gymnasium import spaces
+
+        return spaces.Box(self.low, self.high, dtype=np.float32)
 
     def build(self, ball_xy: Sequence[float], ball_velocity: Sequence[float], target_xy: Sequence[float],
               target_velocity: Sequence[float], roll_pitch: Sequence[float],

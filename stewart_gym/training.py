@@ -1,7 +1,7 @@
 """Train Stable-Baselines3 agents (PPO, SAC, TD3) on the registered environments.
 
 Hyperparameters live in RL-Zoo-style YAML files, one section per env id
-(``train/hyperparams/<algo>.yml``): ``n_envs``, ``n_timesteps``, ``normalize``,
+(``stewart_gym/hyperparams/<algo>.yml``): ``n_envs``, ``n_timesteps``, ``normalize``,
 ``policy``, ``policy_kwargs``, ``env_kwargs`` and the algorithm's own keywords.
 
 A run folder holds ``config.yaml`` (the hyperparameters and options used),
@@ -35,7 +35,7 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ALGOS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
-HYPERPARAM_DIR = Path(__file__).resolve().parents[1] / "train" / "hyperparams"
+HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
 _ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
 
 
@@ -45,7 +45,7 @@ class TrainConfig:
 
     env_id: str = "StewartBallBalance-v0"
     algo: str = "ppo"
-    hyperparams: str | None = None  # YAML file; default train/hyperparams/<algo>.yml
+    hyperparams: str | None = None  # YAML file; default stewart_gym/hyperparams/<algo>.yml
     run_dir: str = "runs/latest"
     seed: int = 0
     n_timesteps: int | None = None  # overrides the YAML

@@ -14,7 +14,7 @@ from conftest import Drain, FakeDevice
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.calibration import ServoCalibration
-from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, Sensor, SimulatedPlant
+from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, SimulatedPlant
 from stewart_gym.hardware.export import BundlePolicy, export_pid, export_sb3
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 from stewart_gym.hardware.safety import SafetyLayer
@@ -138,17 +138,19 @@ class _Fuzz:
         return np.array([1e308, -1e308])
 
 
-class _StaticSensor(Sensor):
+class _StaticSensor:
+    """A BallSensor whose readings are 5 ms old, or half a second old once it stalls."""
+
     def __init__(self, stall_after: int | None = None, interrupt_at: int | None = None) -> None:
         self.n, self.stall_after, self.interrupt_at = 0, stall_after, interrupt_at
 
-    def read(self) -> tuple[tuple[float, float], float] | None:
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
         self.n += 1
         if self.interrupt_at is not None and self.n >= self.interrupt_at:
             raise KeyboardInterrupt
         if self.stall_after is not None and self.n > self.stall_after:
-            return (0.03, 0.0), 0.5  # the last reading, half a second old
-        return (0.03, 0.0), 0.005
+            return (0.03, 0.0), t - 0.5  # the last reading, half a second old
+        return (0.03, 0.0), t - 0.005
 
 
 @pytest.mark.slow
@@ -282,7 +284,7 @@ def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None
     threading.Thread(target=drain, daemon=True).start()
     plant = SimulatedPlant(seed=3, ball_position=(0.05, -0.03))
     loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, policy.action_mode), MaestroController(device.path),
-                      plant, DeployConfig(duration_s=10.0, log_path=str(tmp_path / "log.csv")))  # fmt: skip
+                      plant, DeployConfig(duration_s=10.0, log_path=str(tmp_path / "log.csv")), plant=plant)  # fmt: skip
     summary = loop.run()
     time.sleep(0.1)
     stop.set()
@@ -305,12 +307,12 @@ def test_deploy_config_refuses_nonsense(field: str, value: float) -> None:
         DeployConfig(**{field: value})
 
 
-class _SlowSensor(Sensor):
+class _SlowSensor:
     """A sensor whose every read takes longer than two control periods: the loop misses its deadlines."""
 
-    def read(self) -> tuple[tuple[float, float], float] | None:
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
         time.sleep(0.05)
-        return (0.0, 0.0), 0.0
+        return (0.0, 0.0), t
 
 
 def test_a_loop_that_misses_its_deadlines_fails(device: FakeDevice, tmp_path: Path) -> None:
@@ -332,9 +334,9 @@ class _Broken:
         return np.full(2, np.nan)
 
 
-class _StillSensor(Sensor):
-    def read(self) -> tuple[tuple[float, float], float] | None:
-        return (0.0, 0.0), 0.0
+class _StillSensor:
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        return (0.0, 0.0), t
 
 
 def test_a_loop_where_every_tick_holds_fails(device: FakeDevice, tmp_path: Path) -> None:

@@ -56,7 +56,8 @@ def _new_log_name() -> str:
 def cmd_deploy(args: argparse.Namespace) -> int:
     """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
     from stewart_gym.actions import ActionMapper
-    from stewart_gym.envs.targets import Fixed, make_trajectory
+    from stewart_gym.envs import ENV_IDS
+    from stewart_gym.envs.task import load_task
     from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
     from stewart_gym.hardware.serial_controllers import LineController, open_controller
     from stewart_gym.registry import deployable_policy, resolve_policy
@@ -71,8 +72,13 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     port, protocol, baudrate = _port_settings(args, hw)
     if args.sensor == "panel" and protocol != "line":
         raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
-    tracking = env_id == "StewartBallTrack-v0"
-    if args.trajectory and not tracking:
+    task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
+    if args.trajectory:
+        task_kwargs["trajectory"] = args.trajectory
+    if env_id not in ENV_IDS:
+        raise ConfigError(f"{args.policy} was exported for {env_id!r}, which is not an env of this version")
+    task = load_task(ENV_IDS[env_id][0], **task_kwargs)
+    if args.trajectory and not task.moving_target:
         raise ConfigError(f"--trajectory needs a track policy; {args.policy} balances ({env_id})")
     log = args.log or _new_log_name()
     output_file(log, suffixes=(".csv",), overwrite=args.overwrite)
@@ -81,8 +87,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                              if "max_tilt" in policy.meta.get("env_kwargs", {}) else {}))  # fmt: skip
     config = DeployConfig(rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
                           max_step_us=args.max_step_us or DEFAULT_SLEW_US_PER_S / args.rate, log_path=log)  # fmt: skip
-    trajectory = args.trajectory or policy.meta.get("env_kwargs", {}).get("trajectory", "circle")
-    target = make_trajectory(trajectory, np.random.default_rng(args.seed)) if tracking else Fixed()
+    task.reset(np.random.default_rng(args.seed), None)  # the target only: no disturbances on real hardware
 
     controller = open_controller(protocol, port, calibration.channels, baudrate)
     if args.sensor == "panel":
@@ -94,9 +99,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         except BaseException:
             controller.close()
             raise
-    if tracking:
-        print(f"tracking a {trajectory} target ({env_id})", flush=True)
-    summary = DeployLoop(policy, mapper, controller, sensor, config, target).run()
+    if task.moving_target:
+        print(f"tracking a {getattr(task, 'trajectory', 'moving')} target ({env_id})", flush=True)
+    plant = sensor if isinstance(sensor, SimulatedPlant) else None
+    summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
     if isinstance(sensor, SimulatedPlant) and sensor.final_error_mm is not None:
         summary.message += f"; simulated ball {sensor.final_error_mm:.1f} mm from the centre"
     print(summary.text())

@@ -14,16 +14,17 @@ from stewart_gym.cli.common import (
     output_file,
     positive_float,
 )
+from stewart_gym.envs import ENV_IDS
 from stewart_gym.errors import ConfigError
 
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
-ENV_CHOICES = ("StewartBallBalance-v0", "StewartBallTrack-v0")
+ENV_CHOICES = tuple(ENV_IDS)
 POLICY_HELP = "shipped, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """Train an agent with Stable-Baselines3 (PPO, SAC, TD3); hyperparameters from train/hyperparams/<algo>.yml."""
+    """Train an agent with Stable-Baselines3 (PPO, SAC, TD3); hyperparameters from stewart_gym/hyperparams/<algo>.yml."""
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
@@ -90,7 +91,7 @@ def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, r
     env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
     try:
         opts = {"ball_position": (SETTLING_OFFSET, 0.0), "ball_velocity": (0.0, 0.0)}
-        log = run_episode(env, policy, seed, opts if env.unwrapped.task == "balance" else None, frames=bool(gif))
+        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
     finally:
         env.close()
     if gif:
@@ -117,7 +118,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
     p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
-    p.add_argument("--hyperparams", help="YAML file (default train/hyperparams/<algo>.yml)")
+    p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
     p.add_argument("--seed", type=int_at_least(0), default=0)

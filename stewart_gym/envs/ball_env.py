@@ -1,4 +1,5 @@
-"""Gymnasium environments: a ball on the plate of the servo hexapod."""
+"""The ball environments: one class, :class:`StewartBallEnv`, made of a physics backend, a ball sensor,
+the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
 
 from __future__ import annotations
 
@@ -12,16 +13,22 @@ from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
-from stewart_gym.envs.targets import TRAJECTORIES, Fixed, Target, make_trajectory
+from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
-from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
-from stewart_gym.sim import BallSpec, ServoSpec, StewartSim
+from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
+from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
 
-__all__ = ["StewartBallBalanceEnv", "StewartBallEnv", "StewartBallTrackEnv"]
+__all__ = ["StewartBallEnv"]
 
 
 class StewartBallEnv(gym.Env, EzPickle):
-    """A ball rolling on the plate of a six-servo Stewart platform (base class of the ball tasks).
+    """A ball rolling on the plate of a six-servo Stewart platform, given a task.
+
+    Every registered id is this class with a task (:mod:`stewart_gym.envs.task`):
+    ``StewartBallBalance-v0`` (:class:`~stewart_gym.envs.tasks.balance.BalanceTask`),
+    ``StewartBallTrack-v0`` (:class:`~stewart_gym.envs.tasks.track.TrackTask`) and
+    ``StewartBallDisturbance-v0``
+    (:class:`~stewart_gym.envs.tasks.disturbance.DisturbanceTask`).
 
     ## Description
     A PyBullet model of a hobby servo hexapod (``servo-hexapod``: MG996R
@@ -67,7 +74,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     reading is held. Velocity is a low-passed finite difference of readings.
 
     ## Rewards
-    Per step, with d the true ball-to-target distance (m):
+    The task's (:meth:`~stewart_gym.envs.task.BallTask.reward`); for every
+    built-in task, per step, with d the true ball-to-target distance (m):
     ``1 − d / 0.15 + exp(−d / 0.015) − rate_penalty · mean((a_t − a_{t−1})²)``:
     a distance term over the whole plate, a sharper one near the target (0.51 at
     10 mm, 1 at 0), and an action-rate penalty for servo wear (``rate_penalty``,
@@ -87,11 +95,15 @@ class StewartBallEnv(gym.Env, EzPickle):
     or drops below its surface, or when the physics blows up (non-finite or
     absurd state: ``info["physics_error"]`` is True and the last finite
     observation is returned). Time limits come from ``max_episode_steps``
-    (500 steps = 10 s at 50 Hz). ``info["is_success"]`` (every step) is true
-    while the ball is on the plate and has stayed within ``success_radius`` of
-    the target for the last ``success_window_s``.
+    (500 steps = 10 s at 50 Hz; track 1000). ``info["is_success"]`` (every
+    step) is true while the ball is on the plate and has stayed within the
+    task's ``success_radius`` of the target for the last ``success_window_s``.
+    ``info`` also gives ``distance_mm``, ``ball_xy_m``, ``target_xy_m``,
+    ``pulse_widths_us``, ``commanded_tilt_rad`` (roll, pitch), ``action_scaled``,
+    ``unreachable_count``, ``physics_error`` and the task's own entries.
 
     ## Arguments
+    ``task`` (a short name, a ``"module:Class"`` path or a task object),
     ``action_mode``, ``randomize`` (domain randomisation, see
     :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
@@ -101,27 +113,26 @@ class StewartBallEnv(gym.Env, EzPickle):
     ≤ 0.042 mm under ±10° bang-bang tilts), ``control_hz``, ``rate_penalty``,
     ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
     (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
-    (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``.
+    (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``,
+    ``backend`` (a :class:`~stewart_gym.sim.PhysicsBackend` to use instead of
+    building the PyBullet one), and any keyword of the task (``trajectory`` for
+    track).
 
     ## Version History
-    * v0: initial release.
+    * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
-    PLATE_HALF = 0.15
-    FALL_PENALTY = 50.0
-    NEAR_SCALE = 0.015
 
     def __init__(
         self,
-        task: Literal["balance", "track"] = "balance",
-        trajectory: str = "circle",
+        task: str | Task = "balance",
         action_mode: Literal["tilt", "pose", "pulse"] = "tilt",
         randomize: bool = False,
         render_mode: str | None = None,
         *,
         max_tilt: float = DEFAULT_MAX_TILT,
-        success_radius: float = 0.010,
+        success_radius: float | None = None,
         success_window_s: float = 1.0,
         physics_hz: int = 150,
         control_hz: int = 50,
@@ -131,37 +142,38 @@ class StewartBallEnv(gym.Env, EzPickle):
         geometry: str = "servo-hexapod",
         randomization: RandomizationRanges | None = None,
         rate_penalty: float = 0.1,
+        backend: PhysicsBackend | None = None,
+        **task_kwargs: Any,
     ) -> None:
-        EzPickle.__init__(self, task, trajectory, action_mode, randomize, render_mode, max_tilt=max_tilt,
+        EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
                           success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
-                          randomization=randomization, rate_penalty=rate_penalty)  # fmt: skip
-        if task not in ("balance", "track"):
-            raise ValueError(f"task must be 'balance' or 'track', got {task!r}")
-        if task == "track" and trajectory not in TRAJECTORIES:
-            raise ValueError(f"trajectory must be one of {TRAJECTORIES}, got {trajectory!r}")
+                          randomization=randomization, rate_penalty=rate_penalty, backend=backend,
+                          **task_kwargs)  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
-        self.task, self.trajectory, self.randomize = task, trajectory, bool(randomize)
+            raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.randomize = bool(randomize)
         self.render_mode = render_mode
-        self.metadata = {**self.metadata, "render_fps": int(control_hz)}
-        self.success_radius = float(success_radius)
-        self.success_steps = max(1, int(round(success_window_s * control_hz)))
         self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
         self.nominal_sensor = sensor or TouchPanelSpec()
         self.ranges = randomization or RandomizationRanges()
-        self.rate_penalty = float(rate_penalty)
-        self.sim = StewartSim(geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True,
-                              ball_spec=self.nominal_ball, servo_spec=self.nominal_servo,
-                              render_mode=render_mode)  # fmt: skip
+        self.sim: PhysicsBackend = backend or StewartSim(
+            geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
+            servo_spec=self.nominal_servo, render_mode=render_mode)  # fmt: skip
+        self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz)}
+        self.plate_half_extent = tuple(self.sim.plate_half_extent)
+        self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,
+                                    rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),
+                                    **task_kwargs) if isinstance(task, str) else task  # fmt: skip
+        self.success_radius = float(self.task.success_radius)
+        self.success_steps = max(1, int(round(self.task.success_window_s * self.sim.control_hz)))
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
         self.observer = BallObserver(self.mapper.size)
         self.observation_space = self.observer.builder.space
         self.panel = SimulatedTouchPanel(self.nominal_sensor)
-        self._plate_top = self.sim.mechanism.plate_top
-        self._target: Target = Fixed()
+        self._plate_top = self.sim.plate_top
         self._reset_episode_state()
 
     # ------------------------------------------------------------------ API
@@ -174,7 +186,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         else:
             params = EpisodeParams(self.nominal_ball, self.nominal_servo, self.nominal_sensor, 0.6, None)
         self.params = params
-        self._touch_top = self._plate_top + 1.5 * params.ball.radius  # ball centre below this: touching the panel
+        self._radius = params.ball.radius
         self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
                        plate_load=params.plate_load)  # fmt: skip
         if "ball_position" in options:
@@ -187,14 +199,14 @@ class StewartBallEnv(gym.Env, EzPickle):
             ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
             vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
         self.sim.place_ball(xy, vel)
-        self._target = Fixed() if self.task == "balance" else make_trajectory(self.trajectory, rng)
+        self.task.reset(rng, self.sim)
         self.panel.spec = params.sensor
         self.panel.reset(0.0, xy, rng)
         self.observer.reset(0.0, xy)
         self._reset_episode_state()
         obs = self._observe(0.0)
         self._last_obs = obs
-        target_xy, _ = self._target(0.0)
+        target_xy, _ = self.task.target(0.0)
         return obs, self._info(xy.copy(), target_xy, math.hypot(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 
     #: The keys ``reset(options=…)`` accepts.
@@ -228,10 +240,10 @@ class StewartBallEnv(gym.Env, EzPickle):
                 raise ConfigError(f"reset option {key}: must be finite, got {value.tolist()}")
             out[key] = value
         # the ball starts with its whole contact patch on the plate: centre inside the plate's edge
-        limit = self.PLATE_HALF - self.nominal_ball.radius
+        limit = np.array(self.plate_half_extent) - self.nominal_ball.radius
         if "ball_position" in out and np.any(np.abs(out["ball_position"]) > limit):
             raise ConfigError(f"reset option ball_position {out['ball_position'].tolist()} m is off the plate "
-                              f"(|x|, |y| ≤ {limit:.3f} m)")  # fmt: skip
+                              f"(|x| ≤ {limit[0]:.3f} m, |y| ≤ {limit[1]:.3f} m)")  # fmt: skip
         if "ball_velocity" in out and float(np.hypot(*out["ball_velocity"])) > self.MAX_RESET_SPEED:
             raise ConfigError(f"reset option ball_velocity {out['ball_velocity'].tolist()} m/s is faster than "
                               f"{self.MAX_RESET_SPEED} m/s")  # fmt: skip
@@ -239,7 +251,8 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
         mapped = self.mapper(action)
-        sim = self.sim
+        sim, task = self.sim, self.task
+        task.before_step(sim.time, sim)
         sim.command(mapped.pulses)
         sim.step()
         self._pulses = mapped.pulses
@@ -252,24 +265,22 @@ class StewartBallEnv(gym.Env, EzPickle):
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
             info = self._info(np.full(2, np.nan), (math.nan, math.nan), math.nan)
             info["physics_error"] = True
-            return self._last_obs.copy(), -self.FALL_PENALTY, True, False, info
-        half = self.PLATE_HALF
-        on_plate = abs(x) <= half and abs(y) <= half and z > self._plate_top
-        self.panel.record(t, (x, y), on_plate and z < self._touch_top)
+            return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
+        on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
+        self.panel.record(t, (x, y), touching)
         a = mapped.action
         rate = 0.0
         for v, p in zip(a, self._prev_action):
             rate += (v - p) * (v - p)
         rate /= len(a)
         self._prev_action = a
-        target_xy, target_vel = self._target(t)
+        target_xy, target_vel = task.target(t)
         obs = self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, a)
         self._last_obs = obs
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
-        reward = (1.0 - min(dist, 2 * half) / half + math.exp(-dist / self.NEAR_SCALE) - self.rate_penalty * rate
-                  - (self.FALL_PENALTY if terminated else 0.0))  # fmt: skip
+        reward = task.reward(dist, rate, terminated)
         info = self._info(np.array([x, y]), target_xy, dist)
         info["is_success"] = on_plate and self._inside >= self.success_steps
         return obs, reward, terminated, False, info
@@ -292,7 +303,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._pulses = self.sim.calibration.neutral_us.copy()
 
     def _observe(self, t: float) -> np.ndarray:
-        target_xy, target_vel = self._target(t)
+        target_xy, target_vel = self.task.target(t)
         return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
 
     def _info(self, xy: np.ndarray, target_xy: tuple[float, float], dist: float) -> dict[str, Any]:
@@ -302,35 +313,9 @@ class StewartBallEnv(gym.Env, EzPickle):
             "ball_xy_m": xy,
             "target_xy_m": np.array(target_xy),
             "pulse_widths_us": self._pulses,
+            "commanded_tilt_rad": self._roll_pitch,
             "action_scaled": self._scaled,
             "unreachable_count": self._unreachable,
             "physics_error": False,
+            **self.task.info(),
         }
-
-
-class StewartBallBalanceEnv(StewartBallEnv):
-    __doc__ = (
-        "Hold the ball at the plate centre (``StewartBallBalance-v0``).\n\n"
-        "Success: the ball stays within 10 mm of the centre for the last second.\n\n" + (StewartBallEnv.__doc__ or "")
-    )
-
-    def __init__(self, action_mode: Literal["tilt", "pose", "pulse"] = "tilt", randomize: bool = False,
-                 render_mode: str | None = None, **kwargs: Any) -> None:  # fmt: skip
-        super().__init__("balance", "circle", action_mode, randomize, render_mode, **kwargs)
-        EzPickle.__init__(self, action_mode, randomize, render_mode, **kwargs)
-
-
-class StewartBallTrackEnv(StewartBallEnv):
-    __doc__ = (
-        "Make the ball follow a moving target (``StewartBallTrack-v0``).\n\n"
-        "``trajectory``: ``\"circle\"`` (radius 60 mm, 8 s a turn, like seed 001's circle),\n"
-        "``\"figure8\"`` (±70 mm, 10 s a loop) or ``\"waypoints\"`` (random points within 70 mm,\n"
-        "held 2 s, 1 s moves). Success: the ball has stayed within 20 mm of the moving target\n"
-        "for the last second (``success_radius`` 0.02).\n\n" + (StewartBallEnv.__doc__ or "")
-    )
-
-    def __init__(self, trajectory: str = "circle", action_mode: Literal["tilt", "pose", "pulse"] = "tilt",
-                 randomize: bool = False, render_mode: str | None = None, **kwargs: Any) -> None:  # fmt: skip
-        kwargs.setdefault("success_radius", 0.020)
-        super().__init__("track", trajectory, action_mode, randomize, render_mode, **kwargs)
-        EzPickle.__init__(self, trajectory, action_mode, randomize, render_mode, **kwargs)

@@ -2,7 +2,8 @@
 
 Every tick (default 50 Hz):
 
-1. read the ball sensor (touch panel on the serial line, or the simulated plant);
+1. read the ball sensor (a :class:`~stewart_gym.sensing.BallSensor`: the touch panel on the serial line, or
+   the simulated plant's sensor model);
 2. build the observation exactly as the environment does (:class:`~stewart_gym.sensing.BallObserver`);
 3. run the policy (an ONNX bundle or the PID baseline: numpy + onnxruntime only);
 4. map the action through the IK and the calibration (:class:`~stewart_gym.actions.ActionMapper`);
@@ -22,10 +23,9 @@ from __future__ import annotations
 import csv
 import math
 import time
-from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -34,87 +34,84 @@ from stewart_gym.envs.targets import Fixed, Target
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
-from stewart_gym.sensing import BallObserver
+from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact
 
-__all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Sensor", "SimulatedPlant"]
-
-
-class Sensor(ABC):
-    """A source of ball positions for the loop."""
-
-    @abstractmethod
-    def read(self) -> tuple[tuple[float, float], float] | None:
-        """((x, y) m in the plate frame, age of that sample s) or None if there is none."""
-
-    def apply(self, pulses_us: np.ndarray) -> None:  # noqa: B027  (optional hook)
-        """The pulses just sent (the simulated plant acts on them; a real panel ignores them)."""
-
-    def close(self) -> None:  # noqa: B027  (optional hook)
-        """Release resources."""
+__all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant"]
 
 
-class PanelSensor(Sensor):
-    """The touch panel reported by the Arduino line protocol (``B x,y`` in mm)."""
+class Plant(Protocol):
+    """What the pulses drive when no real platform does: the simulated plant of a dry run."""
+
+    def apply(self, pulses_us: np.ndarray) -> None:
+        """The pulses just sent; advance one control period."""
+
+    def close(self) -> None:
+        """Release it."""
+
+
+class PanelSensor:
+    """The touch panel as the Arduino sketch reports it (``B x,y`` in mm): a :class:`~stewart_gym.sensing.BallSensor`."""
 
     def __init__(self, controller: LineController) -> None:
         self.controller = controller
 
-    def read(self) -> tuple[tuple[float, float], float] | None:
+    def read(self, t: float) -> Reading | None:
         got = self.controller.poll_ball()
         if got is None:
             return None
         (x_mm, y_mm), arrived = got
-        return (x_mm * 1e-3, y_mm * 1e-3), time.monotonic() - arrived
+        return (x_mm * 1e-3, y_mm * 1e-3), t - (time.monotonic() - arrived)
 
 
-class SimulatedPlant(Sensor):
-    """The PyBullet environment as the plant of a hardware-in-the-loop dry run.
+class SimulatedPlant:
+    """The simulated platform, ball and touch panel as the plant of a hardware-in-the-loop dry run.
 
-    The pulses the loop sends to the serial device also drive the simulated
-    servos (one control period per tick); the ball is read through the env's
-    touch-panel model.
+    It is a :class:`Plant` (the pulses the loop sends to the serial device also
+    drive the simulated servos, one control period per tick) and a
+    :class:`~stewart_gym.sensing.BallSensor` (the ball as the env's sensor model
+    reports it). The env is used through its public parts only: its backend,
+    its sensor and the episode's parameters.
     """
 
     def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
                  ball_position: tuple[float, float] | None = None) -> None:  # fmt: skip
         import gymnasium as gym
 
-
         self.env = gym.make(env_id, randomize=randomize).unwrapped
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
-        self.sim = self.env.sim
+        self.backend = self.env.sim
+        self.sensor = self.env.panel
+        self._contact = (self.env.plate_half_extent, self.backend.plate_top, self.env.params.ball.radius)
         #: mm, the ball's distance from the plate centre when the plant was closed (None while it runs)
         self.final_error_mm: float | None = None
 
-    def read(self) -> tuple[tuple[float, float], float] | None:
-        t = self.sim.time
-        got = self.env.panel.read(t)
+    def read(self, t: float) -> Reading | None:
+        sim_t = self.backend.time
+        got = self.sensor.read(sim_t)
         if got is None:
             return None
-        return got[0], t - got[1]
+        return got[0], t - (sim_t - got[1])  # the sample's age carried over to the loop's clock
 
     def apply(self, pulses_us: np.ndarray) -> None:
-        self.sim.command(pulses_us)
-        self.sim.step()
-        pos, _ = self.sim.ball_state()
-        half, top = self.env.PLATE_HALF, self.env._plate_top
-        on = abs(pos[0]) <= half and abs(pos[1]) <= half and top < pos[2] < top + 1.5 * self.env.params.ball.radius
-        self.env.panel.record(self.sim.time, pos[:2], on)
+        self.backend.command(pulses_us)
+        self.backend.step()
+        x, y, z = self.backend.ball_position()
+        _, touching = ball_contact(x, y, z, *self._contact)
+        self.sensor.record(self.backend.time, (x, y), touching)
 
     def ball_error_mm(self) -> float:
         """True distance of the ball from the plate centre, mm (for reports); after :meth:`close`, the last one."""
         if self.final_error_mm is not None:
             return self.final_error_mm
-        pos, _ = self.sim.ball_state()
-        return float(math.hypot(pos[0], pos[1]) * 1e3)
+        x, y, _ = self.backend.ball_position()
+        return float(math.hypot(x, y) * 1e3)
 
     def close(self) -> None:
         """Record the ball's final distance from the centre (:attr:`final_error_mm`), then close the simulator."""
         if self.final_error_mm is None:
             self.final_error_mm = self.ball_error_mm()
             self.env.close()
-
 
 #: Default rate limit, µs of pulse width per second per channel: just under the no-load speed of the
 #: reference servos (0.17 s/60° at 1600 µs per π rad ≈ 3,137 µs/s), so it never slows a move the servo
@@ -180,9 +177,11 @@ class DeploySummary:
 class DeployLoop:
     """Runs a policy on servos at a fixed rate. See the module docstring for the tick."""
 
-    def __init__(self, policy: Any, mapper: ActionMapper, controller: ServoController, sensor: Sensor,
-                 config: DeployConfig | None = None, target: Target | None = None) -> None:  # fmt: skip
+    def __init__(self, policy: Any, mapper: ActionMapper, controller: ServoController, sensor: BallSensor,
+                 config: DeployConfig | None = None, target: Target | None = None,
+                 plant: Plant | None = None) -> None:  # fmt: skip
         self.policy, self.mapper, self.controller, self.sensor = policy, mapper, controller, sensor
+        self.plant = plant
         self.config = config or DeployConfig()
         self.target = target or Fixed()
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
@@ -244,7 +243,8 @@ class DeployLoop:
                 now = time.monotonic()
                 jitter = (now - next_tick) * 1e3
                 t = now - start
-                reading = self.sensor.read()
+                got = self.sensor.read(t)
+                reading = None if got is None else (got[0], t - got[1])  # (x, y), age
                 c0 = time.perf_counter()
                 obs, action, pulses, flags = self.compute(reading, t)
                 if missed:  # the last tick overran: go home this tick
@@ -252,7 +252,8 @@ class DeployLoop:
                     flags["homing"] = True
                 data = self.controller.send(pulses)
                 computes.append((time.perf_counter() - c0) * 1e3)
-                self.sensor.apply(pulses)
+                if self.plant is not None:
+                    self.plant.apply(pulses)
                 summary.ticks += 1
                 for key in ("held", "clamped", "rate_limited", "homing", "stale", "unreachable"):
                     setattr(summary, key, getattr(summary, key) + int(bool(flags[key])))
@@ -282,7 +283,10 @@ class DeployLoop:
             self.controller.close()
             if fh is not None:
                 fh.close()
-            self.sensor.close()
+            for part in (self.plant, self.sensor):
+                close = getattr(part, "close", None)
+                if close is not None:
+                    close()
         summary.duration_s = time.monotonic() - start
         summary.frames_sent = self.controller.frames_sent
         if jitters:

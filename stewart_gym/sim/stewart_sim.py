@@ -35,40 +35,13 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
+from stewart_gym.sim.backend import BallSpec, PlateLoad
 from stewart_gym.sim.servo_model import HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 
-__all__ = ["BallSpec", "PhysicsSpec", "StewartSim"]
+__all__ = ["PhysicsSpec", "StewartSim"]
 
 GRAVITY = 9.80665
-
-
-@dataclass(frozen=True)
-class BallSpec:
-    """The ball. Default: a 25.4 mm (1 in) solid steel ball, heavy enough for a resistive touch panel.
-
-    Attributes:
-        radius: m.
-        mass: kg.
-        hollow: True for a thin shell (I = 2/3 m r², e.g. a ping-pong ball:
-            radius 0.02, mass 0.0027); False for a solid ball (I = 2/5 m r²).
-        lateral_friction, rolling_friction, spinning_friction: PyBullet
-            friction coefficients of the ball (rolling friction in m).
-        restitution: bounciness, 0…1.
-    """
-
-    radius: float = 0.0127
-    mass: float = 0.0668
-    hollow: bool = False
-    lateral_friction: float = 0.6
-    rolling_friction: float = 1e-5
-    spinning_friction: float = 1e-5
-    restitution: float = 0.1
-
-    @property
-    def inertia(self) -> float:
-        """kg·m², about any diameter."""
-        return (2.0 / 3.0 if self.hollow else 2.0 / 5.0) * self.mass * self.radius**2
 
 
 @dataclass(frozen=True)
@@ -304,7 +277,7 @@ class StewartSim:
             pb.setJointMotorControl2(leg, joint, pb.POSITION_CONTROL, angle - home, 0.0, torque, kp, kd, speed, cid)
 
     def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
-              plate_friction: float | None = None, plate_load: tuple[float, np.ndarray] | None = None) -> None:  # fmt: skip
+              plate_friction: float | None = None, plate_load: PlateLoad | None = None) -> None:  # fmt: skip
         """Restore the home state saved at build time (no reloading); servos hold neutral pulses.
 
         Optional per-episode changes (domain randomisation): a new ``servo_spec``
@@ -323,14 +296,40 @@ class StewartSim:
             self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
         if plate_friction is not None:
             c.changeDynamics(self.plate, -1, lateralFriction=float(plate_friction))
-        self._plate_load = None if plate_load is None else (float(plate_load[0]), np.asarray(plate_load[1], float))
+        self.set_plate_load(plate_load)
         if self.has_ball:
             if ball_spec is not None:
                 self.ball_spec = ball_spec
             self.ball = self._make_ball()
         self._apply_targets(self._servos.reset())
 
+    # ------------------------------------------------------- disturbances
+    def push_ball(self, impulse_xy: tuple[float, float]) -> None:
+        """Give the ball an impulse (N·s) along the plate, in the plate frame: a sudden change of its velocity."""
+        ball, c = self._require_ball(), self._client
+        _, rot = self._plate_frame()
+        lin, ang = self._pb_base_velocity(ball)
+        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
+        # a push at the centre changes the velocity; the ball keeps rolling: ω follows v (n × Δv / r)
+        dw = np.cross(rot[:, 2], dv) / self.ball_spec.radius
+        c.resetBaseVelocity(ball, (np.array(lin) + dv).tolist(), (np.array(ang) + dw).tolist())
+
+    def set_plate_load(self, load: PlateLoad | None) -> None:
+        """Put an extra mass on the plate (or take it off) from the next :meth:`step` on."""
+        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
+
     # ------------------------------------------------------------ state
+    @property
+    def plate_half_extent(self) -> tuple[float, float]:
+        """m: half the plate's size along its x and y axes."""
+        half = self.mechanism.plate_half_size
+        return (half, half)
+
+    @property
+    def plate_top(self) -> float:
+        """m: height of the plate's top surface above the platform frame origin."""
+        return self.mechanism.plate_top
+
     @property
     def time(self) -> float:
         """s of simulated time since the last reset."""
