@@ -1,0 +1,87 @@
+"""The package's structure: one-way layers (import-linter), no import cycles, no private reads across modules."""
+
+from __future__ import annotations
+
+import ast
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "stewart_gym"
+
+
+def lint_imports(cwd: Path) -> subprocess.CompletedProcess:
+    exe = Path(sys.executable).with_name("lint-imports")
+    return subprocess.run([str(exe)], cwd=cwd, capture_output=True, text=True, timeout=300,
+                          env={"PYTHONPATH": str(cwd), "PATH": "/usr/bin:/bin"})  # fmt: skip
+
+
+def test_layers_are_kept() -> None:
+    out = lint_imports(ROOT)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "1 kept, 0 broken" in out.stdout
+
+
+def test_a_lower_layer_importing_a_higher_one_breaks_the_contract(tmp_path: Path) -> None:
+    """The check is real: a copy of the package whose geometry imports the envs fails it."""
+    shutil.copytree(PACKAGE, tmp_path / "stewart_gym", ignore=shutil.ignore_patterns("policies", "__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    geometry = tmp_path / "stewart_gym" / "geometry.py"
+    geometry.write_text(geometry.read_text() + "\n\ndef _late() -> None:\n    import stewart_gym.envs.ball_env  # noqa\n")
+    out = lint_imports(tmp_path)
+    assert out.returncode != 0 and "broken" in out.stdout
+
+
+def _module_imports() -> dict[str, set[str]]:
+    """Module → the package modules it imports (anywhere in the file, functions included)."""
+    graph: dict[str, set[str]] = {}
+    for path in PACKAGE.rglob("*.py"):
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                deps |= {a.name for a in node.names if a.name.startswith("stewart_gym")}
+            elif isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("stewart_gym"):
+                deps.add(node.module)
+                deps |= {f"{node.module}.{a.name}" for a in node.names}
+        graph[name] = deps
+    return {m: {d for d in deps if d in graph and d != m} for m, deps in graph.items()}
+
+
+def test_no_import_cycles() -> None:
+    graph = _module_imports()
+    graph = {m: {d for d in deps if d != "stewart_gym"} for m, deps in graph.items()}  # the package root re-exports
+    state: dict[str, int] = {}
+    cycles: list[list[str]] = []
+
+    def visit(m: str, stack: list[str]) -> None:
+        state[m] = 1
+        for d in sorted(graph[m]):
+            if state.get(d) == 1 and not m.startswith(d + "."):  # a package's __init__ importing its submodules is fine
+                cycles.append(stack[stack.index(d):] + [d] if d in stack else [m, d])
+            elif d not in state:
+                visit(d, stack + [d])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    real = [c for c in cycles if not all(a.startswith(b + ".") or b.startswith(a + ".") for a, b in zip(c, c[1:]))]
+    assert not real, real
+
+
+def test_no_private_attribute_is_read_across_modules() -> None:
+    """``x._name`` only on ``self``/``cls``/``super()`` (the pybullet_utils client id is the one exception)."""
+    allowed = {("stewart_gym/sim/stewart_sim.py", "_client")}  # BulletClient keeps its server id there
+    found = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = str(path.relative_to(ROOT))
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+                    and not (isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"))
+                    and not (isinstance(node.value, ast.Call) and getattr(node.value.func, "id", "") == "super")
+                    and (rel, node.attr) not in allowed):  # fmt: skip
+                found.append(f"{rel}:{node.lineno} .{node.attr}")
+    assert not found, found

@@ -1,0 +1,70 @@
+"""The ball-sensor seam: checks every sensor must pass, simulated (env) and real (deploy) alike."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+from conftest import FakeDevice
+
+from stewart_gym.sensing import BallSensor, SimulatedSensor, SimulatedTouchPanel, TouchPanelSpec, ball_contact
+
+
+def _panel() -> SimulatedTouchPanel:
+    return SimulatedTouchPanel(TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.01))
+
+
+SIMULATED = {"touch-panel": _panel}
+
+
+@pytest.mark.parametrize("name", sorted(SIMULATED))
+def test_simulated_sensor_contract(name: str) -> None:
+    """A simulated sensor reports recorded positions, never from the future, with its noise, nothing when off."""
+    sensor = SIMULATED[name]()
+    assert isinstance(sensor, SimulatedSensor) and isinstance(sensor, BallSensor)
+    rng = np.random.default_rng(0)
+    sensor.reset(0.0, (0.02, -0.01), rng)
+    errors = []
+    for k in range(1, 201):
+        t = k * 0.02
+        truth = (0.02 + 0.05 * math.sin(t), -0.01)
+        sensor.record(t, truth, True)
+        got = sensor.read(t)
+        assert got is not None
+        (x, y), t_sample = got
+        assert t_sample <= t and math.isfinite(x + y)
+        errors.append(math.hypot(x - (0.02 + 0.05 * math.sin(t_sample)), y + 0.01))
+    assert 0.0003 < float(np.sqrt(np.mean(np.square(errors)))) < 0.003  # about its 1 mm noise per axis
+    for k in range(201, 260):  # the ball leaves: the last touching sample ages, nothing newer arrives
+        sensor.record(k * 0.02, (0.3, 0.0), False)
+    got = sensor.read(259 * 0.02)
+    assert got is None or 259 * 0.02 - got[1] > 0.5
+
+
+def test_the_real_panel_is_a_ball_sensor(device: FakeDevice) -> None:
+    """deploy's PanelSensor reads the line protocol's B x,y (mm) as metres with the sample's time on its clock."""
+    import threading
+
+    from stewart_gym.hardware.deploy import PanelSensor
+    from stewart_gym.hardware.serial_controllers import LineController
+
+    threading.Timer(0.2, lambda: device.write(b"ready\n")).start()
+    controller = LineController(device.path, ready_timeout=3.0)
+    sensor = PanelSensor(controller)
+    assert isinstance(sensor, BallSensor)
+    assert sensor.read(10.0) is None  # nothing received yet
+    device.write(b"B 12.5,-7.0\n")
+    time.sleep(0.05)
+    (x, y), t_sample = sensor.read(10.0)
+    assert (x, y) == pytest.approx((0.0125, -0.007)) and 9.5 < t_sample <= 10.0
+    controller.close()
+
+
+def test_ball_contact_rule() -> None:
+    half, top, r = (0.15, 0.10), 0.012, 0.0127
+    assert ball_contact(0.0, 0.0, top + r, half, top, r) == (True, True)
+    assert ball_contact(0.0, 0.12, top + r, half, top, r) == (False, False)  # beyond the short side
+    assert ball_contact(0.0, 0.0, top + 2 * r, half, top, r) == (True, False)  # in the air
+    assert ball_contact(0.0, 0.0, top - 0.001, half, top, r) == (False, False)  # below the surface

@@ -1,0 +1,107 @@
+"""The task seam: checks every task must pass, and the disturbance task proving it (a task file + a registration line)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from stewart_gym.envs import ENV_IDS
+from stewart_gym.envs.task import BallTask, Task, load_task
+from stewart_gym.errors import ConfigError
+
+TASKS = sorted({task for task, _ in ENV_IDS.values()})
+
+
+class _RecordingBackend:
+    """Enough of a backend to watch what a task does to the physics."""
+
+    def __init__(self) -> None:
+        self.pushes: list[tuple[float, tuple[float, float]]] = []
+        self.loads: list[tuple[float, object]] = []
+        self.t = 0.0
+
+    def push_ball(self, impulse_xy: tuple[float, float]) -> None:
+        self.pushes.append((self.t, impulse_xy))
+
+    def set_plate_load(self, load: object) -> None:
+        self.loads.append((self.t, load))
+
+
+@pytest.mark.parametrize("path", TASKS)
+def test_task_contract(path: str) -> None:
+    task = load_task(path)
+    assert isinstance(task, Task)
+    assert task.success_radius > 0 and task.success_window_s > 0 and isinstance(task.name, str)
+    backend = _RecordingBackend()
+    task.reset(np.random.default_rng(0), backend)  # type: ignore[arg-type]
+    for k in range(500):
+        backend.t = k * 0.02
+        task.before_step(backend.t, backend)  # type: ignore[arg-type]
+        (x, y), (vx, vy) = task.target(backend.t)
+        assert all(isinstance(v, float) and math.isfinite(v) for v in (x, y, vx, vy))
+        assert abs(x) < 0.15 and abs(y) < 0.15
+    # the reward prefers the target, punishes servo wear and a fall
+    assert task.reward(0.0, 0.0, False) > task.reward(0.01, 0.0, False) > task.reward(0.1, 0.0, False)
+    assert task.reward(0.0, 1.0, False) <= task.reward(0.0, 0.0, False)
+    assert task.reward(0.0, 0.0, True) < -40
+    assert isinstance(task.info(), dict)
+    # the same seed draws the same episode
+    again = load_task(path)
+    again.reset(np.random.default_rng(0), _RecordingBackend())  # type: ignore[arg-type]
+    assert again.target(3.3) == task.target(3.3)
+
+
+def test_every_registered_id_builds_its_task() -> None:
+    for env_id, (path, _) in ENV_IDS.items():
+        env = gym.make(env_id)
+        try:
+            assert type(env.unwrapped.task).__module__ + ":" + type(env.unwrapped.task).__name__ == path
+        finally:
+            env.close()
+
+
+def test_unknown_task_is_a_clear_error() -> None:
+    with pytest.raises(ConfigError, match="unknown task"):
+        load_task("nope")
+    with pytest.raises(ConfigError, match="trajectory"):
+        load_task("track", trajectory="square")
+    with pytest.raises(ConfigError, match="success_radius"):
+        BallTask(success_radius=-1.0)
+
+
+def test_disturbance_task_pushes_and_loads_on_schedule() -> None:
+    task = load_task("disturbance")
+    backend = _RecordingBackend()
+    task.reset(np.random.default_rng(3), backend)  # type: ignore[arg-type]
+    for k in range(500):
+        backend.t = k * 0.02
+        task.before_step(backend.t, backend)  # type: ignore[arg-type]
+    times = [t for t, _ in backend.pushes]
+    assert 2 <= len(times) <= 5 and 1.0 <= times[0] <= 2.02 and times[-1] <= 7.5 + 0.02
+    assert all(1.5 - 0.02 <= b - a <= 3.0 + 0.02 for a, b in zip(times, times[1:]))
+    sizes = [math.hypot(*imp) for _, imp in backend.pushes]
+    assert all(0.003 <= s <= 0.010 for s in sizes)
+    (t_load, (mass, offset)), = backend.loads
+    assert 2.0 <= t_load <= 6.02 and 0.05 <= mass <= 0.20 and math.hypot(offset[0], offset[1]) <= 0.10
+    assert task.info() == {"pushes": len(times), "plate_load_kg": mass}
+
+
+def test_disturbance_env_pushes_the_ball() -> None:
+    """In the env, a push changes the ball's course: the same seed without pushes ends elsewhere."""
+    def final_xy(env_id: str) -> np.ndarray:
+        env = gym.make(env_id)
+        env.reset(seed=5, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
+        for _ in range(150):
+            _, _, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
+            if terminated:
+                break
+        env.close()
+        return np.asarray(info["ball_xy_m"]), info
+
+    quiet, _ = final_xy("StewartBallBalance-v0")
+    pushed, info = final_xy("StewartBallDisturbance-v0")
+    assert info["pushes"] >= 1
+    assert np.linalg.norm(pushed - quiet) > 0.01
