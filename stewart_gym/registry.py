@@ -88,8 +88,11 @@ def resolve_policy(spec: str, env_id: str | None = None) -> PolicySource:
         if env_id not in SHIPPED:
             raise PolicyError(f"no shipped policy for {env_id!r}; shipped policies exist for {sorted(SHIPPED)}")
         folder = POLICY_DIR / SHIPPED[env_id]
+        if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
+            env_kwargs = _bundle_source(spec, folder / "bundle").env_kwargs
+            return PolicySource(spec, "sb3", folder / "model.zip", env_id, env_kwargs, folder / "bundle")
         source = _sb3_source(spec, folder / "model.zip")
-        return PolicySource(spec, "sb3", source.path, env_id, source.env_kwargs, folder / "bundle")
+        return PolicySource(spec, "sb3", source.path, env_id, source.env_kwargs)
     path = Path(spec)
     if not path.exists():
         raise PolicyError(f"policy {spec!r}: no such file or folder; give {_KINDS_TEXT}")
@@ -123,7 +126,10 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def _run_config(model_zip: Path) -> dict[str, Any] | None:
     """The ``config.yaml`` of the run a model belongs to: beside it, or one folder up (``best/``, ``checkpoints/``)."""
-    import yaml
+    try:
+        import yaml
+    except ImportError:
+        raise PolicyError("reading a training run needs pyyaml: pip install 'stewart_gym[train]'") from None
 
     for folder in (model_zip.parent, model_zip.parent.parent):
         cfg = folder / "config.yaml"

@@ -30,6 +30,10 @@ __all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_OK", "Parser", "bounded_float", "
            "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
 
 EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: Optional dependencies and the install extra that brings each (pyproject.toml).
+EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
+                   "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
+                   "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy"}  # fmt: skip
 EXIT_CODES_HELP = ("exit codes: 0 done; 1 a user error (bad option, missing or malformed file) or a failed result "
                    "(unreachable pose, deploy that could not keep its rate); 2 a device failure (serial port missing, "
                    "unplugged or not answering)")  # fmt: skip
@@ -109,6 +113,13 @@ def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> 
         return EXIT_INTERRUPTED
     except BrokenPipeError:  # the output was piped into a program that stopped reading (head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
+    except ModuleNotFoundError as exc:
+        extra = EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
+        if extra is None or debug:
+            raise
+        print(f"error: this needs {exc.name}, which is not installed: pip install 'stewart_gym[{extra}]'",
+              file=sys.stderr)  # fmt: skip
         return EXIT_FAILED
     except (StewartGymError, OSError, UnicodeDecodeError) as exc:
         if debug:

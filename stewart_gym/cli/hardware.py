@@ -70,6 +70,11 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.policy} was exported for {env_id}, not {args.env}; leave out --env")
     calibration, hw = _load_calibration(args)
     port, protocol, baudrate = _port_settings(args, hw)
+    if args.sensor == "sim":
+        import importlib.util
+
+        if importlib.util.find_spec("pybullet") is None or importlib.util.find_spec("gymnasium") is None:
+            raise ConfigError("--sensor sim needs the simulator: pip install 'stewart_gym[sim]' (or use --sensor panel)")
     if args.sensor == "panel" and protocol != "line":
         raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
     task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}

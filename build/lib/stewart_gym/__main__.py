@@ -1,0 +1,3 @@
+from stewart_gym.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,154 @@
+"""Actions → platform pose → servo pulse widths: the one path for simulation and hardware.
+
+An action is a vector in [-1, 1]. :class:`ActionMapper` turns it into a pose
+(``"tilt"``: roll and pitch; ``"pose"``: all six axes) and through
+:func:`~stewart_gym.kinematics.inverse_kinematics` and
+:meth:`~stewart_gym.calibration.ServoCalibration.pulse_widths` into pulses (µs); or,
+in ``"pulse"`` mode, scales it straight to each channel's pulse range.
+
+An unreachable commanded pose is replaced by the **nearest reachable pose along
+the ray from home** (the largest fraction s ∈ [0, 1) of it that is reachable),
+and the result says so (``scaled``, ``scale``). Nothing is clipped silently.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal, NamedTuple
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration, servo_pulses_one
+from stewart_gym.errors import ConfigError
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics
+from stewart_gym.presets import load_geometry
+
+__all__ = ["ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction"]
+
+ActionMode = Literal["tilt", "pose", "pulse"]
+ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
+#: Number of action values of each mode.
+ACTION_SIZES: dict[str, int] = {"tilt": 2, "pose": 6, "pulse": 6}
+#: Default largest tilt (roll or pitch) of the "tilt" mode, rad.
+DEFAULT_MAX_TILT = math.radians(10.0)
+#: Fractions of the ray tried at once, then refined once more between the bracketing pair.
+_RAY = np.linspace(0.0, 1.0, 65)
+
+
+class MappedAction(NamedTuple):
+    """The result of mapping one action.
+
+    Attributes:
+        pose: (6,) m, rad: the pose sent (after ray scaling); NaN in "pulse" mode.
+        pulses: (6,) µs: what goes to the servos, always within the channel limits.
+        scaled: True if the commanded pose was unreachable and was scaled back.
+        scale: the fraction of the commanded pose that was sent (1.0 if reachable).
+        action: the action as applied, clipped to [-1, 1] (Python floats).
+    """
+
+    pose: np.ndarray
+    pulses: np.ndarray
+    scaled: bool
+    scale: float
+    action: tuple[float, ...]
+
+
+class ActionMapper:
+    """Maps actions in [-1, 1] to servo pulses.
+
+    Args:
+        geometry: The platform (rotary).
+        calibration: Pulse mapping; default :meth:`ServoCalibration.default`.
+        mode: ``"tilt"`` (2-D: roll, pitch), ``"pose"`` (6-D: x, y, z, roll,
+            pitch, yaw) or ``"pulse"`` (6-D: pulse widths).
+        max_tilt: rad, roll/pitch at action ±1 in "tilt" mode (default 10°).
+        pose_scale: (6,) m, rad, the pose at action +1 per axis in "pose" mode;
+            default 90 % of the smaller of each axis' reach from home.
+    """
+
+    def __init__(self, geometry: PlatformGeometry | str = "servo-hexapod", calibration: ServoCalibration | None = None,
+                 mode: ActionMode = "tilt", *, max_tilt: float = DEFAULT_MAX_TILT,
+                 pose_scale: np.ndarray | None = None) -> None:  # fmt: skip
+        if mode not in ACTION_MODES:
+            raise ConfigError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
+        self.geometry = load_geometry(geometry)
+        self.calibration = calibration or ServoCalibration.default(self.geometry)
+        self.mode = mode
+        self.max_tilt = float(max_tilt)
+        if pose_scale is None:
+            reach = axis_ranges(self.geometry)
+            pose_scale = 0.9 * np.minimum(-reach[:, 0], reach[:, 1])
+        self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
+        self._pose_scale = self.pose_scale.tolist()
+        self.size = ACTION_SIZES[mode]
+
+    def pose(self, action: np.ndarray) -> np.ndarray:
+        """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""
+        if self.mode == "pulse":
+            raise ValueError("'pulse' mode has no pose")
+        return np.array(self._pose_list(_clip_unit(np.asarray(action, dtype=np.float64).reshape(self.size).tolist())))
+
+    def _pose_list(self, clipped: list[float]) -> list[float]:
+        """:meth:`pose` of a clipped "tilt" or "pose" action, in and out as Python floats."""
+        if self.mode == "tilt":
+            return [0.0, 0.0, 0.0, clipped[0] * self.max_tilt, clipped[1] * self.max_tilt, 0.0]
+        return [v * k for v, k in zip(clipped, self._pose_scale)]
+
+    def _feasible(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ok, pulses) for poses (..., 6): reachable and every pulse within its channel's limits."""
+        ik = inverse_kinematics(self.geometry, poses)
+        pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+        if poses.ndim == 1:  # one pose: skip the array reductions
+            return ik.reachable and not np.isnan(pulses).any(), pulses
+        return ik.reachable & ~np.isnan(pulses).any(axis=-1), pulses
+
+    def reachable_pose(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(pose, pulses, scale): ``pose`` if feasible, else the farthest feasible point on the ray from home.
+
+        Feasible means reachable by the IK and within the calibration's pulse
+        limits. The ray is searched in two batched passes of 65 fractions
+        (resolution 1/4096 of the pose).
+        """
+        ok, pulses = self._feasible(pose)
+        if ok:
+            return pose, pulses, 1.0
+        lo, hi = 0.0, 1.0
+        for _ in range(2):
+            fracs = lo + (hi - lo) * _RAY
+            ok, _ = self._feasible(fracs[:, None] * pose)
+            bad = int(np.argmin(ok)) if not ok.all() else len(fracs)
+            lo, hi = fracs[bad - 1], fracs[min(bad, len(fracs) - 1)]
+        best = lo * pose
+        return best, self._feasible(best)[1], float(lo)
+
+    def __call__(self, action: np.ndarray) -> MappedAction:
+        """Map one action (size :attr:`size`) to pulses; non-finite actions raise ``ValueError``.
+
+        A feasible pose takes the scalar path (:func:`servo_pulses_one`, ~6 µs);
+        only an unreachable one pays for the batched ray search.
+        """
+        if type(action) is np.ndarray and action.shape == (self.size,) and action.dtype.kind == "f":
+            values = action.tolist()  # the common case, without an array conversion
+        else:
+            values = np.asarray(action, dtype=np.float64).reshape(self.size).tolist()
+        if not math.isfinite(sum(values)):  # NaN for NaN or ±inf
+            raise ValueError(f"action must be finite, got {values}")
+        clipped = _clip_unit(values)
+        if self.mode == "pulse":
+            pulses = []
+            for v, (_, _, _, low, high) in zip(clipped, self.calibration.pulse_map):
+                w = low + (v + 1.0) * 0.5 * (high - low)  # at +1 rounding can land a hair outside: keep it on the limit
+                pulses.append(low if w < low else high if w > high else w)
+            return MappedAction(np.full(6, np.nan), np.array(pulses), False, 1.0, tuple(clipped))
+        pose = self._pose_list(clipped)
+        fast = servo_pulses_one(self.geometry, self.calibration, pose)
+        if fast is not None:
+            return MappedAction(np.array(pose), np.array(fast), False, 1.0, tuple(clipped))
+        best, pulses, scale = self.reachable_pose(np.array(pose))
+        return MappedAction(best, pulses, scale < 1.0, scale, tuple(clipped))
+
+
+def _clip_unit(values: list[float]) -> list[float]:
+    """Python floats clipped to [-1, 1]."""
+    return [1.0 if v > 1.0 else -1.0 if v < -1.0 else v for v in values]

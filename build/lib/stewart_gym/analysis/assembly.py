@@ -1,0 +1,67 @@
+"""All real assembly modes of a 6-6 platform for given leg lengths (forward kinematics, every branch).
+
+The general Gough–Stewart platform has up to 40 complex solutions; the real
+ones are the assembly modes. Newton's method from one guess finds the nearest
+one; from many random guesses (a wide box of positions, any orientation,
+platform above and below the base) it finds many. Distinct converged poses are
+kept (within ``tol``), with each mode checked by inverse kinematics.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, rotation_matrix
+
+__all__ = ["assembly_modes"]
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def assembly_modes(geometry: PlatformGeometry, leg_lengths: np.ndarray, guesses: int = 4000, seed: int = 0,
+                   tol: float = 1e-6, progress: bool = False) -> np.ndarray:  # fmt: skip
+    """Distinct poses (k, 6) with these leg lengths (6,) m, sorted by z; Euler angles wrapped to (−π, π].
+
+    Equivalent Euler triples (roll, pitch, yaw) and (roll + π, π − pitch, yaw + π) describe
+    one rotation: the one with |pitch| ≤ π/2 is returned, and modes are compared by rotation
+    matrix and position, not by angles.
+    """
+    lengths = np.asarray(leg_lengths, dtype=np.float64).reshape(6)
+    rng = np.random.default_rng(seed)
+    span = float(np.max(lengths)) + float(np.max(np.linalg.norm(geometry.platform_anchors, axis=1)))
+    g = np.empty((guesses, 6))
+    g[:, :2] = rng.uniform(-span, span, (guesses, 2))
+    g[:, 2] = rng.uniform(-span - geometry.home_height, span - geometry.home_height, guesses)
+    g[:, 3:] = rng.uniform(-math.pi, math.pi, (guesses, 3))
+    chunks = np.array_split(np.arange(guesses), max(1, guesses // 500))
+    if progress:
+        from tqdm import tqdm
+
+        chunks = tqdm(chunks, desc="assembly modes", unit="batch")
+    found = []
+    for idx in chunks:
+        fk = forward_kinematics(geometry, leg_lengths=np.broadcast_to(lengths, (len(idx), 6)), guess=g[idx],
+                                max_iter=60)  # fmt: skip
+        found.append(fk.pose[fk.converged])
+    poses = np.concatenate(found) if found else np.zeros((0, 6))
+    # one Euler triple per rotation: (r, p, y) and (r + π, π − p, y + π) are the same; keep |pitch| ≤ π/2
+    flip = np.abs(_wrap(poses[:, 4])) > math.pi / 2
+    poses[flip, 3:] += np.array([math.pi, 0.0, math.pi])
+    poses[flip, 4] = math.pi - poses[flip, 4]
+    poses[:, 3:] = _wrap(poses[:, 3:])
+    modes: list[np.ndarray] = []
+    keys: list[np.ndarray] = []
+    for p in poses:
+        key = np.concatenate([p[:3], rotation_matrix(*p[3:]).ravel() * span])
+        if all(np.max(np.abs(key - k)) > tol * span * 10 for k in keys):
+            keys.append(key)
+            modes.append(p)
+    out = np.array(modes).reshape(-1, 6)
+    if len(out):
+        assert np.allclose(inverse_kinematics(geometry, out).leg_lengths, lengths, atol=1e-8)
+    return out[np.argsort(out[:, 2])]

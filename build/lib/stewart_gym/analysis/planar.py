@@ -1,0 +1,168 @@
+"""Forward kinematics of the planar 3-RPR platform (seed 004; Sauer, *Numerical Analysis*, Reality Check 1).
+
+Base anchors at (0, 0), (x1, 0), (x2, y2). The moving triangle has its first
+vertex at (x, y); side L3 leaves it at angle θ and side L2 at angle θ + γ; L1 is
+the side opposite. Struts p1, p2, p3 join the anchors to the three vertices.
+Every pose is a root of
+
+    f(θ) = N1² + N2² − p1² D²
+
+with A2 = L3 cos θ − x1, B2 = L3 sin θ, A3 = L2 cos(θ + γ) − x2,
+B3 = L2 sin(θ + γ) − y2, D = 2 (A2 B3 − B2 A3),
+N1 = B3 (p2² − p1² − A2² − B2²) − B2 (p3² − p1² − A3² − B3²),
+N2 = −A3 (p2² − p1² − A2² − B2²) + A2 (p3² − p1² − A3² − B3²),
+x = N1 / D, y = N2 / D. (The seed prints ``p_3^2-p_1^2A_3^2-B_3^2``: the
+intended term is p3² − p1² − A3² − B3², REFERENCE.md §1.)
+
+:func:`solve_planar` finds **all** roots on [−π, π]: it brackets every sign
+change of f on a fine grid and refines it, and it finds tangential (double)
+roots, where f touches zero without changing sign, as local minima of |f|.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.optimize import brentq, minimize_scalar
+
+from stewart_gym.errors import ConfigError
+
+__all__ = ["PLANAR_KEYS", "PLANAR_PRESETS", "planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
+
+#: 3-RPR parameter sets from Sauer's Reality Check 1 (the seed's source).
+PLANAR_PRESETS: dict[str, dict[str, float]] = {
+    "sauer-test": {"L1": 2.0, "L2": math.sqrt(2), "L3": math.sqrt(2), "gamma": math.pi / 2, "x1": 4.0, "x2": 0.0,
+                   "y2": 4.0, "p1": math.sqrt(5), "p2": math.sqrt(5), "p3": math.sqrt(5)},
+    "sauer": {"L1": 3.0, "L2": 3 * math.sqrt(2), "L3": 3.0, "gamma": math.pi / 4, "x1": 5.0, "x2": 0.0, "y2": 6.0,
+              "p1": 5.0, "p2": 5.0, "p3": 3.0},
+}  # fmt: skip
+PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
+
+
+
+def _terms(theta: np.ndarray, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
+           p2: float, p3: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    a2 = L3 * np.cos(theta) - x1
+    b2 = L3 * np.sin(theta)
+    a3 = L2 * np.cos(theta + gamma) - x2
+    b3 = L2 * np.sin(theta + gamma) - y2
+    u = p2**2 - p1**2 - a2**2 - b2**2
+    v = p3**2 - p1**2 - a3**2 - b3**2
+    n1 = b3 * u - b2 * v
+    n2 = -a3 * u + a2 * v
+    d = 2.0 * (a2 * b3 - b2 * a3)
+    return n1, n2, d
+
+
+def planar_f(theta: np.ndarray | float, L1: float, L2: float, L3: float, gamma: float, x1: float, x2: float,
+             y2: float, p1: float, p2: float, p3: float) -> np.ndarray:  # fmt: skip
+    """f(θ) = N1² + N2² − p1² D², vectorised over θ (rad)."""
+    n1, n2, d = _terms(np.asarray(theta, dtype=np.float64), L2, L3, gamma, x1, x2, y2, p1, p2, p3)
+    return n1**2 + n2**2 - p1**2 * d**2
+
+
+def planar_vertices(pose: np.ndarray, L2: float, L3: float, gamma: float) -> np.ndarray:
+    """The triangle's vertices (…, 3, 2) for poses (…, 3) = (x, y, θ)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    x, y, th = pose[..., 0], pose[..., 1], pose[..., 2]
+    v1 = np.stack([x, y], -1)
+    v2 = np.stack([x + L3 * np.cos(th), y + L3 * np.sin(th)], -1)
+    v3 = np.stack([x + L2 * np.cos(th + gamma), y + L2 * np.sin(th + gamma)], -1)
+    return np.stack([v1, v2, v3], -2)
+
+
+def planar_struts(pose: np.ndarray, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float) -> np.ndarray:
+    """Strut lengths (…, 3) of poses (…, 3): the inverse kinematics."""
+    verts = planar_vertices(pose, L2, L3, gamma)
+    anchors = np.array([[0.0, 0.0], [x1, 0.0], [x2, y2]])
+    return np.linalg.norm(verts - anchors, axis=-1)
+
+
+def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
+                 p2: float, p3: float, *, samples: int = 4000, tol: float = 1e-9) -> np.ndarray:  # fmt: skip
+    """All poses (x, y, θ) with the given strut lengths: array (k, 3) sorted by θ; k = 0 when there is none.
+
+    Each candidate θ is kept only if the pose it gives reproduces the three strut
+    lengths to ``tol`` (relative to the largest strut), which discards
+    spurious roots where D = 0.
+    """
+    for name, v in (("L1", L1), ("L2", L2), ("L3", L3), ("p1", p1), ("p2", p2), ("p3", p3)):
+        if not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"{name} must be a positive, finite length, got {v}")
+    for name, v in (("gamma", gamma), ("x1", x1), ("x2", x2), ("y2", y2)):
+        if not math.isfinite(v):
+            raise ConfigError(f"{name} must be finite, got {v}")
+    args = (L1, L2, L3, gamma, x1, x2, y2, p1, p2, p3)
+
+    def f(t: float) -> float:
+        return float(planar_f(t, *args))
+
+    grid = np.linspace(-math.pi, math.pi, samples + 1)
+    vals = planar_f(grid, *args)
+    scale = float(np.max(np.abs(vals))) or 1.0
+    roots: list[float] = []
+    exact = np.flatnonzero(vals == 0.0)
+    roots += grid[exact].tolist()
+    sign_change = np.flatnonzero(np.sign(vals[:-1]) * np.sign(vals[1:]) < 0)
+    roots += [brentq(f, grid[i], grid[i + 1], xtol=1e-15, rtol=1e-15, maxiter=200) for i in sign_change]
+    # tangential roots: local minima of |f| that do not change sign
+    mag = np.abs(vals)
+    minima = np.flatnonzero((mag[1:-1] <= mag[:-2]) & (mag[1:-1] <= mag[2:])) + 1
+    for i in minima:
+        if np.sign(vals[i - 1]) * np.sign(vals[i + 1]) < 0:
+            continue  # already bracketed
+        res = minimize_scalar(lambda t: abs(f(t)), bounds=(grid[i - 1], grid[i + 1]), method="bounded",
+                              options={"xatol": 1e-13})  # fmt: skip
+        if abs(f(res.x)) <= 1e-10 * scale:
+            roots.append(float(res.x))
+    poses = []
+    strut_scale = max(p1, p2, p3)
+    for th in sorted(roots):
+        n1, n2, d = _terms(np.array(th), L2, L3, gamma, x1, x2, y2, p1, p2, p3)
+        if abs(float(d)) < 1e-12 * (1 + strut_scale**2):
+            continue
+        pose = np.array([float(n1 / d), float(n2 / d), float(th)])
+        struts = planar_struts(pose, L2, L3, gamma, x1, x2, y2)
+        if np.max(np.abs(struts - [p1, p2, p3])) <= max(tol, 1e-6) * strut_scale:
+            if not poses or abs(((pose[2] - poses[-1][2] + math.pi) % (2 * math.pi)) - math.pi) > 1e-7:
+                poses.append(pose)
+    if len(poses) > 1 and abs(((poses[0][2] - poses[-1][2] + math.pi) % (2 * math.pi)) - math.pi) <= 1e-7:
+        poses.pop()  # θ = −π and θ = π are the same pose
+    return np.array(poses).reshape(-1, 3)
+
+
+def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,
+                progress: bool = False) -> tuple[np.ndarray, list[tuple[float, int, int]]]:  # fmt: skip
+    """Number of poses as strut ``strut`` ("p1", "p2" or "p3") takes each of ``values``.
+
+    Returns (counts, changes): ``changes`` lists (length, count before, count
+    after) at each length where the count changes, located by bisection between
+    grid values to 1e-6 of the sweep's span.
+    """
+    if strut not in ("p1", "p2", "p3"):
+        raise ConfigError(f"strut must be p1, p2 or p3, got {strut!r}")
+    values = np.asarray(values, dtype=np.float64)
+
+    def count(v: float) -> int:
+        return len(solve_planar(**{**params, strut: float(v)}))
+
+    iterator = values
+    if progress:
+        from tqdm import tqdm
+
+        iterator = tqdm(values, desc=f"sweeping {strut}", unit="length")
+    counts = np.array([count(v) for v in iterator])
+    changes = []
+    span = float(values[-1] - values[0]) if len(values) > 1 else 1.0
+    for i in np.flatnonzero(np.diff(counts) != 0):
+        lo, hi = values[i], values[i + 1]
+        c_lo = counts[i]
+        while hi - lo > 1e-6 * abs(span):
+            mid = (lo + hi) / 2
+            if count(mid) == c_lo:
+                lo = mid
+            else:
+                hi = mid
+        changes.append((float((lo + hi) / 2), int(counts[i]), int(counts[i + 1])))
+    return counts, changes

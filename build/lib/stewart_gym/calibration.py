@@ -1,0 +1,347 @@
+"""Servo calibration: servo angles ↔ pulse widths (seed 000, eqs 13/14).
+
+``W_i = W0_i + d_i · (α_i − α0_i) · r_i``
+
+* ``W0_i`` (µs): the pulse that holds servo i at home (nominally 1500 µs plus a
+  per-servo trim, since real builds differ),
+* ``d_i`` = ±1: mounting direction; by default (+1, −1, +1, −1, +1, −1) because
+  odd servos are mounted mirrored,
+* ``α0_i`` (rad): the servo angle at home (eq. 12),
+* ``r_i`` (µs/rad): 1600/π by default (400 µs per 45°).
+
+Each channel also has pulse limits ``[min_us, max_us]``. The same object serves
+the simulator and real hardware. A pulse outside the limits is an error unless
+the caller asks explicitly for clipping or NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from stewart_gym.errors import ConfigError, StewartGymError
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import pulses_one
+from stewart_gym.presets import load_geometry
+from stewart_gym.tomlio import read_toml
+
+__all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
+           "hardware_settings"]
+
+#: 400 µs per 45° (seed 000).
+DEFAULT_US_PER_RAD = 1600.0 / math.pi
+#: Odd servos mounted mirrored (seed 000, eqs 13/14).
+DEFAULT_DIRECTIONS = (1, -1, 1, -1, 1, -1)
+
+OutOfRange = Literal["raise", "clip", "nan"]
+
+
+class CalibrationError(ConfigError):
+    """A calibration description is malformed; the message names the field."""
+
+
+class PulseRangeError(StewartGymError, ValueError):
+    """A pulse width falls outside its channel's limits (or is not finite)."""
+
+
+def _vec6(key: str, value: Any) -> np.ndarray:
+    try:
+        arr = np.array(np.broadcast_to(np.asarray(value, dtype=np.float64), (6,)))
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(f"{key}: expected a number or 6 numbers ({exc})") from None
+    if not np.all(np.isfinite(arr)):
+        raise CalibrationError(f"{key}: contains non-finite values")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class ServoCalibration:
+    """Per-channel pulse-width mapping of six servos.
+
+    Attributes (each shape (6,), indexed by leg/servo 0…5):
+        neutral_us: W0_i, µs, the pulse at the home angle (trim included).
+        direction: d_i, +1 or −1.
+        home_angle: α0_i, rad.
+        us_per_rad: r_i, µs/rad, > 0.
+        min_us, max_us: channel limits, µs.
+        channels: controller channel of each servo (for hardware), ints.
+    """
+
+    neutral_us: np.ndarray
+    direction: np.ndarray
+    home_angle: np.ndarray
+    us_per_rad: np.ndarray
+    min_us: np.ndarray
+    max_us: np.ndarray
+    channels: tuple[int, ...] = (0, 1, 2, 3, 4, 5)
+
+    def __post_init__(self) -> None:
+        for key in ("neutral_us", "direction", "home_angle", "us_per_rad", "min_us", "max_us"):
+            object.__setattr__(self, key, _vec6(key, getattr(self, key)))
+        if not np.all(np.isin(self.direction, (-1.0, 1.0))):
+            raise CalibrationError(f"direction: each must be +1 or -1, got {self.direction.tolist()}")
+        if not np.all(self.us_per_rad > 0):
+            raise CalibrationError(f"us_per_rad: must be positive, got {self.us_per_rad.tolist()}")
+        if not np.all(self.min_us < self.max_us):
+            raise CalibrationError(f"min_us/max_us: need min_us < max_us per channel, got {self.min_us.tolist()} / "
+                                   f"{self.max_us.tolist()}")  # fmt: skip
+        if np.any(self.min_us <= 0):
+            raise CalibrationError(f"min_us: pulse widths must be positive, got {self.min_us.tolist()}")
+        bad = np.flatnonzero((self.neutral_us < self.min_us) | (self.neutral_us > self.max_us))
+        if bad.size:
+            raise CalibrationError(f"neutral_us: channels {bad.tolist()} have their neutral pulse outside [min_us, max_us]")
+        channels = tuple(int(c) for c in self.channels)
+        if len(channels) != 6 or len(set(channels)) != 6 or min(channels) < 0:
+            raise CalibrationError(f"channels: need 6 distinct non-negative channel numbers, got {list(self.channels)}")
+        object.__setattr__(self, "channels", channels)
+
+    # ------------------------------------------------------------ factories
+    @classmethod
+    def default(
+        cls,
+        geometry: PlatformGeometry | str = "servo-hexapod",
+        *,
+        neutral_us: float = 1500.0,
+        trims_us: np.ndarray | float = 0.0,
+        us_per_rad: float = DEFAULT_US_PER_RAD,
+        direction: tuple[int, ...] = DEFAULT_DIRECTIONS,
+    ) -> ServoCalibration:
+        """Seed 000's mapping for a rotary geometry.
+
+        α0 is the IK servo angle at home, and the channel limits are the pulses
+        at the ends of the geometry's ``servo_angle_range`` (so they bound the
+        same travel).
+        """
+        geo = load_geometry(geometry)
+        home = _home_angles(geo)
+        w0 = neutral_us + _vec6("trims_us", trims_us)
+        d = _vec6("direction", direction)
+        lo, hi = geo.servo_angle_range  # type: ignore[misc]
+        w_lo = w0 + d * (lo - home) * us_per_rad
+        w_hi = w0 + d * (hi - home) * us_per_rad
+        # Round outwards to 1e-6 µs so that the pulses at the travel's ends are inside.
+        lo_us = np.floor(np.minimum(w_lo, w_hi) * 1e6) / 1e6
+        hi_us = np.ceil(np.maximum(w_lo, w_hi) * 1e6) / 1e6
+        return cls(w0, d, home, np.full(6, us_per_rad), lo_us, hi_us)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], geometry: PlatformGeometry | str | None = None,
+                  *, source: str = "calibration") -> ServoCalibration:  # fmt: skip
+        """Build from a mapping (TOML layout below); errors name the bad field.
+
+        Top-level keys: ``geometry`` (preset name or TOML path; needed unless
+        every servo gives ``home_angle_deg``), ``neutral_us`` (default 1500),
+        ``us_per_rad`` (default 1600/π) or ``us_per_degree``, and six
+        ``[[servo]]`` tables with optional ``channel``, ``trim_us``,
+        ``direction``, ``min_us``, ``max_us``, ``home_angle_deg``. Missing
+        channel limits default to those of :meth:`default`. An optional
+        ``[hardware]`` table (``port``, ``protocol``, ``baudrate``) is for the
+        deploy tools (:func:`hardware_settings`) and ignored here.
+        """
+        known_top = {"geometry", "neutral_us", "us_per_rad", "us_per_degree", "servo", "hardware"}
+        known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
+        unknown = sorted(set(data) - known_top)
+        if unknown:
+            raise CalibrationError(f"{source}: unknown field(s) {unknown}; known: {sorted(known_top)}")
+        servos = data.get("servo")
+        if not isinstance(servos, list) or len(servos) != 6 or not all(isinstance(s, dict) for s in servos):
+            raise CalibrationError(f"servo: {source} needs exactly six [[servo]] tables")
+        for i, s in enumerate(servos):
+            extra = sorted(set(s) - known_servo)
+            if extra:
+                raise CalibrationError(f"servo[{i}]: unknown field(s) {extra}; known: {sorted(known_servo)}")
+        if "us_per_rad" in data and "us_per_degree" in data:
+            raise CalibrationError("us_per_rad: give us_per_rad or us_per_degree, not both")
+        rate = _scalar("us_per_rad", data.get("us_per_rad", DEFAULT_US_PER_RAD))
+        if "us_per_degree" in data:
+            rate = _scalar("us_per_degree", data["us_per_degree"]) * 180.0 / math.pi
+        neutral = _scalar("neutral_us", data.get("neutral_us", 1500.0))
+
+        def per_servo(key: str, default: Any) -> list[Any]:
+            out = []
+            for i, s in enumerate(servos):
+                v = s.get(key, default[i] if isinstance(default, (list, tuple, np.ndarray)) else default)
+                if v is None:
+                    raise CalibrationError(f"servo[{i}].{key}: missing")
+                out.append(_scalar(f"servo[{i}].{key}", v))
+            return out
+
+        geo_spec = geometry if geometry is not None else data.get("geometry")
+        geo = load_geometry(geo_spec) if geo_spec is not None else None
+        if all("home_angle_deg" in s for s in servos):
+            home = np.radians(per_servo("home_angle_deg", None))
+        elif geo is not None:
+            home = _home_angles(geo)
+        else:
+            raise CalibrationError("geometry: needed to compute home angles (or give servo[i].home_angle_deg)")
+        direction = per_servo("direction", list(DEFAULT_DIRECTIONS))
+        trims = np.array(per_servo("trim_us", 0.0))
+        base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate,
+                           direction=tuple(int(d) for d in direction)) if geo is not None else None  # fmt: skip
+        return cls(
+            neutral_us=neutral + trims,
+            direction=np.array(direction),
+            home_angle=home,
+            us_per_rad=np.full(6, rate),
+            min_us=np.array(per_servo("min_us", None if base is None else base.min_us)),
+            max_us=np.array(per_servo("max_us", None if base is None else base.max_us)),
+            channels=tuple(int(c) for c in per_servo("channel", list(range(6)))),
+        )
+
+    @classmethod
+    def from_toml(cls, path: str | Path, geometry: PlatformGeometry | str | None = None) -> ServoCalibration:
+        """Load a calibration TOML file (layout in :meth:`from_dict`)."""
+        return cls.from_dict(read_toml(path, CalibrationError), geometry, source=str(path))
+
+    def to_toml(self) -> str:
+        """TOML text that :meth:`from_toml` reads back to an equal calibration."""
+        lines = []
+        if np.ptp(self.us_per_rad) != 0:
+            raise CalibrationError("us_per_rad: per-channel rates cannot be written to TOML")
+        lines.append(f"us_per_rad = {float(self.us_per_rad[0])!r}")
+        lines.append("neutral_us = 1500.0")
+        for i in range(6):
+            lines += [
+                "",
+                "[[servo]]",
+                f"channel = {self.channels[i]}",
+                f"trim_us = {_us(self.neutral_us[i] - 1500.0)!r}",
+                f"direction = {int(self.direction[i])}",
+                f"min_us = {_us(self.min_us[i])!r}",
+                f"max_us = {_us(self.max_us[i])!r}",
+                f"home_angle_deg = {math.degrees(float(self.home_angle[i]))!r}",
+            ]
+        return "\n".join(lines) + "\n"
+
+    # -------------------------------------------------------------- mapping
+    def pulse_widths(self, angles: np.ndarray, out_of_range: OutOfRange = "raise") -> np.ndarray:
+        """Pulse widths (..., 6) µs for servo angles (..., 6) rad (eqs 13/14).
+
+        ``out_of_range`` says what happens to a pulse outside ``[min_us,
+        max_us]`` or a non-finite angle: ``"raise"`` (default) raises
+        :class:`PulseRangeError`, ``"nan"`` returns NaN there, ``"clip"`` clamps
+        finite pulses to the limits (NaN still raises).
+        """
+        al = np.asarray(angles, dtype=np.float64)
+        if al.shape[-1:] != (6,):
+            raise ValueError(f"angles must have shape (..., 6), got {al.shape}")
+        w = self.neutral_us + self.direction * self.us_per_rad * (al - self.home_angle)
+        return self._limit(w, out_of_range)
+
+    def in_range_one(self, pulse_widths: Sequence[float]) -> bool:
+        """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN)."""
+        for w, (_, _, _, low, high) in zip(pulse_widths, self.pulse_map):
+            if not low <= w <= high:  # also False for NaN
+                return False
+        return True
+
+    def angles_one(self, pulse_widths: Sequence[float]) -> list[float]:
+        """The scalar twin of :meth:`angles`: six angles (rad) for six pulses (µs), as Python floats."""
+        return [h + (w - n) / k for w, (n, k, h, _, _) in zip(pulse_widths, self.pulse_map)]
+
+    @cached_property
+    def pulse_map(self) -> tuple[tuple[float, float, float, float, float], ...]:
+        """Per servo (neutral µs, direction · µs/rad, home angle rad, min µs, max µs) as Python floats.
+
+        Eqs 13/14 for scalar control loops: pulse = neutral + gain · (α − home),
+        valid within [min, max] (:func:`servo_pulses_one`).
+        """
+        gain = self.direction * self.us_per_rad
+        return tuple(zip(*(map(float, arr) for arr in (self.neutral_us, gain, self.home_angle, self.min_us, self.max_us))))
+
+    def angles(self, pulse_widths: np.ndarray) -> np.ndarray:
+        """Servo angles (..., 6) rad for pulse widths (..., 6) µs; the inverse of :meth:`pulse_widths`."""
+        w = np.asarray(pulse_widths, dtype=np.float64)
+        if w.shape[-1:] != (6,):
+            raise ValueError(f"pulse_widths must have shape (..., 6), got {w.shape}")
+        return self.home_angle + (w - self.neutral_us) / (self.direction * self.us_per_rad)
+
+    def in_range(self, pulse_widths: np.ndarray) -> np.ndarray:
+        """(..., 6) bool: finite and within each channel's limits."""
+        w = np.asarray(pulse_widths, dtype=np.float64)
+        return (w >= self.min_us) & (w <= self.max_us)
+
+    def check(self, pulse_widths: np.ndarray) -> np.ndarray:
+        """Return the pulses as float64 if all are within limits, else raise :class:`PulseRangeError`."""
+        return self._limit(np.asarray(pulse_widths, dtype=np.float64), "raise")
+
+    def _limit(self, w: np.ndarray, out_of_range: OutOfRange) -> np.ndarray:
+        ok = self.in_range(w)
+        if ok.all():
+            return w
+        if out_of_range == "nan":
+            return np.where(ok, w, np.nan)
+        if out_of_range == "clip" and np.all(np.isfinite(w)):
+            return np.clip(w, self.min_us, self.max_us)
+        if out_of_range not in ("raise", "clip", "nan"):
+            raise ValueError(f"out_of_range must be 'raise', 'clip' or 'nan', got {out_of_range!r}")
+        flat_w = w.reshape(-1, 6)
+        idx, ch = np.argwhere(~ok.reshape(-1, 6))[0]
+        raise PulseRangeError(
+            f"servo {ch}: pulse {flat_w[idx, ch]:.1f} µs outside [{self.min_us[ch]:.1f}, {self.max_us[ch]:.1f}] µs"
+            f" (sample {idx}; {int((~ok).sum())} bad pulses in all)"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, ServoCalibration):
+            return NotImplemented
+        return self.channels == other.channels and all(
+            np.allclose(getattr(self, k), getattr(other, k), rtol=0, atol=1e-9)
+            for k in ("neutral_us", "direction", "home_angle", "us_per_rad", "min_us", "max_us")
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def _us(v: float) -> float:
+    """A pulse value for a file: rounded to 1e-6 µs, so float noise (1084.999999999) is not written."""
+    return round(float(v), 6) + 0.0  # + 0.0 turns -0.0 into 0.0
+
+
+def hardware_settings(path: str | Path) -> dict[str, Any]:
+    """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
+    table = read_toml(path, CalibrationError).get("hardware", {})
+    unknown = sorted(set(table) - {"port", "protocol", "baudrate"})
+    if unknown:
+        raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")
+    return dict(table)
+
+
+def _scalar(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CalibrationError(f"{key}: expected a number, got {value!r}")
+    if not math.isfinite(value):
+        raise CalibrationError(f"{key}: must be finite, got {value!r}")
+    return float(value)
+
+
+def _home_angles(geometry: PlatformGeometry) -> np.ndarray:
+    if not geometry.is_rotary:
+        raise CalibrationError(f"geometry: {geometry.name!r} is linear; servo calibration needs a rotary platform")
+    from stewart_gym.kinematics import inverse_kinematics
+
+    alpha = inverse_kinematics(geometry, np.zeros(6)).servo_angles
+    assert alpha is not None
+    if not np.all(np.isfinite(alpha)):
+        raise CalibrationError(f"geometry: home pose of {geometry.name!r} has no servo solution")
+    return alpha
+
+
+def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,
+                     pose: Sequence[float]) -> list[float] | None:  # fmt: skip
+    """Pulse widths (6 Python floats, µs) of one pose, or None if it cannot be commanded.
+
+    IK and the calibration's eqs 13/14 in one scalar pass (~6 µs,
+    :func:`stewart_gym.kinematics.pulses_one`), for control loops: None if any
+    leg is unreachable, outside the servo angle range or would get a pulse
+    outside its channel's limits. Agrees with
+    ``calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles)``.
+    """
+    return pulses_one(geometry, pose, calibration.pulse_map)

@@ -1,0 +1,105 @@
+"""Classical ball controller: a cascaded PID that commands plate tilt through the same IK → pulse path.
+
+It reads the same observation vector as a learned policy
+(:class:`~stewart_gym.sensing.ObservationBuilder`) and returns a "tilt" action,
+so the environments, ``evaluate`` and ``deploy`` treat it like any policy.
+
+Ball on a tilted plate (rolling, small angles): along x, a = c·g·sin(pitch);
+along y, a = −c·g·sin(roll), with c = 5/7 for a solid ball (3/5 hollow).
+Cascade: an outer P loop turns the position error into a velocity set-point,
+an inner PI loop turns the velocity error into a desired acceleration, which
+the ball model turns into roll and pitch.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stewart_gym.actions import DEFAULT_MAX_TILT
+from stewart_gym.sensing import ObservationBuilder
+
+__all__ = ["CascadedPID", "PIDGains"]
+
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class PIDGains:
+    """Gains of :class:`CascadedPID` (tuned by ``train/tune_pid.py``; see the README).
+
+    Attributes:
+        kp_pos: 1/s, outer loop: velocity set-point per metre of position error.
+        kp_vel: 1/s, inner loop: acceleration per m/s of velocity error.
+        ki_vel: 1/s², inner integral of the position error (removes steady offsets
+            from trim errors and plate loads).
+        rolling_factor: c in a = c·g·sin(tilt) (5/7 for a solid ball).
+        max_tilt: rad, the tilt at action ±1 (must match the env's).
+        integral_limit: m·s, anti-windup bound on the integral.
+    """
+
+    kp_pos: float = 2.0
+    kp_vel: float = 5.0
+    ki_vel: float = 1.0
+    rolling_factor: float = 5.0 / 7.0
+    max_tilt: float = DEFAULT_MAX_TILT
+    integral_limit: float = 0.05
+
+
+class CascadedPID:
+    """A policy: observation (…, 12) → tilt action (…, 2) in [-1, 1] (reads indices 0–7; keeps its own integral).
+
+    Args:
+        gains: The gains.
+        dt: s, control period (integration step).
+    """
+
+    def __init__(self, gains: PIDGains | None = None, dt: float = 0.02) -> None:
+        self.gains = gains or PIDGains()
+        self.dt = dt
+        self._integral = np.zeros(2)
+
+    def reset(self) -> None:
+        """Clear the integrator (call at the start of an episode)."""
+        self._integral = np.zeros(2)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Tilt action(s) for observation(s); keeps one integrator per row of a batch."""
+        g = self.gains
+        o = np.asarray(obs, dtype=np.float64)
+        pos = o[..., 0:2] * ObservationBuilder.POSITION_SCALE
+        vel = o[..., 2:4] * ObservationBuilder.VELOCITY_SCALE
+        target = o[..., 4:6] * ObservationBuilder.POSITION_SCALE
+        target_vel = o[..., 6:8] * ObservationBuilder.VELOCITY_SCALE
+        err = target - pos
+        if self._integral.shape != err.shape:
+            self._integral = np.zeros(err.shape)
+        self._integral = np.clip(self._integral + err * self.dt, -g.integral_limit, g.integral_limit)
+        vel_sp = target_vel + g.kp_pos * err
+        accel = g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
+        s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
+        pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
+        action = np.stack([roll, pitch], axis=-1) / g.max_tilt
+        return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        """Stable-Baselines3-style ``predict``: resets the integrator where an episode starts."""
+        if episode_start is not None and np.any(episode_start):
+            if self._integral.ndim == 2:
+                self._integral[np.asarray(episode_start, dtype=bool)] = 0.0
+            else:
+                self.reset()
+        return self(obs), None
+
+    def save(self, path: str | Path) -> None:
+        """Write the gains as JSON."""
+        Path(path).write_text(json.dumps(asdict(self.gains), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path, dt: float = 0.02) -> CascadedPID:
+        """Read gains written by :meth:`save`."""
+        return cls(PIDGains(**json.loads(Path(path).read_text())), dt)

@@ -1,0 +1,48 @@
+"""The ``stewart-gym`` command line.
+
+Every subcommand checks its arguments before it starts work, prints a user's
+mistake as one ``error: …`` line and exits with a code that means something
+(see :mod:`stewart_gym.cli.common`): 0 done, 1 user error or failed result, 2
+device failure. ``--debug`` shows tracebacks. Each group of commands lives in
+its own module and adds itself to the parser with ``register(sub)``:
+:mod:`~stewart_gym.cli.kinematics`, :mod:`~stewart_gym.cli.learning`,
+:mod:`~stewart_gym.cli.hardware` and :mod:`~stewart_gym.cli.analysis`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from stewart_gym.cli import analysis, hardware, kinematics, learning
+from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, run
+
+__all__ = ["build_parser", "main"]
+
+
+def _version() -> str:
+    from stewart_gym import __version__
+
+    return __version__
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="stewart-gym", description="Servo Stewart platform toolkit", epilog=EXIT_CODES_HELP)
+    parser.add_argument("--version", action="version", version=f"stewart-gym {_version()}")
+    parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for group in (kinematics, learning, hardware, analysis):
+        group.register(sub)
+    for sp in sub.choices.values():  # --debug is accepted after the subcommand too
+        sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of any error")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run(args.func, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,175 @@
+"""What every ``stewart-gym`` subcommand shares: argument types that check values at the edge, an argument
+parser whose mistakes are one ``error:`` line, output paths checked before long work, and the error handling
+of :func:`run`.
+
+Exit codes (documented in the README and ``stewart-gym --help``):
+
+* 0: the command did what was asked;
+* 1: a user mistake (bad option, missing or malformed file), or a result that failed: an unreachable pose,
+  a trajectory with unreachable samples, a deploy run that could not keep its rate;
+* 2: a device failure (serial port missing, unplugged, not answering);
+* 130: interrupted by Ctrl-C before the command could finish.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import traceback
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+import numpy as np
+
+from stewart_gym.errors import DeviceFailure, StewartGymError
+from stewart_gym.outputs import output_dir, output_file
+
+__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_OK", "Parser", "bounded_float", "finite_float", "int_at_least",
+           "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
+
+EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: Optional dependencies and the install extra that brings each (pyproject.toml).
+EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
+                   "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
+                   "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy"}  # fmt: skip
+EXIT_CODES_HELP = ("exit codes: 0 done; 1 a user error (bad option, missing or malformed file) or a failed result "
+                   "(unreachable pose, deploy that could not keep its rate); 2 a device failure (serial port missing, "
+                   "unplugged or not answering)")  # fmt: skip
+
+
+class Parser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose usage errors are one line, ``error: …``, and exit code 1."""
+
+    def error(self, message: str) -> NoReturn:
+        sys.stderr.write(f"error: {self.prog}: {message} (see {self.prog} --help)\n")
+        sys.exit(EXIT_FAILED)
+
+
+# ------------------------------------------------------------ argument types
+def finite_float(text: str) -> float:
+    """A float that is neither NaN nor infinite."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return v
+
+
+def positive_float(text: str) -> float:
+    """A finite float > 0."""
+    v = finite_float(text)
+    if v <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be greater than 0")
+    return v
+
+
+def bounded_float(lo: float, hi: float, *, lo_open: bool = False) -> Callable[[str], float]:
+    """A finite float in [lo, hi] (or (lo, hi] with ``lo_open``)."""
+
+    def parse(text: str) -> float:
+        v = finite_float(text)
+        if v > hi or v < lo or (lo_open and v == lo):
+            raise argparse.ArgumentTypeError(f"{text!r} must be in {'(' if lo_open else '['}{lo:g}, {hi:g}]")
+        return v
+
+    parse.__name__ = "number"
+    return parse
+
+
+def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
+    """An integer ≥ ``lo`` (and ≤ ``hi``)."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"{text!r} must be at least {lo}" + (f" and at most {hi}" if hi else ""))
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+# -------------------------------------------------------------------- run
+def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """Call a subcommand; a user's mistake or a device failure becomes one ``error:`` line and an exit code.
+
+    With ``--debug`` every error keeps its traceback. Errors that are not the
+    user's (bugs) always do.
+    """
+    debug = bool(getattr(args, "debug", False))
+    try:
+        return int(func(args))
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print("error: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the output was piped into a program that stopped reading (head): not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAILED
+    except ModuleNotFoundError as exc:
+        extra = EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
+        if extra is None or debug:
+            raise
+        print(f"error: this needs {exc.name}, which is not installed: pip install 'stewart_gym[{extra}]'",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_FAILED
+    except (StewartGymError, OSError, UnicodeDecodeError) as exc:
+        if debug:
+            traceback.print_exc()
+        print(f"error: {describe(exc)}", file=sys.stderr)
+        is_device = isinstance(exc, DeviceFailure) or _is_serial_error(exc)
+        return EXIT_DEVICE if is_device else EXIT_FAILED
+
+
+def describe(exc: BaseException) -> str:
+    """One line for an error: the package's own message, or what an OS error says about which file."""
+    if isinstance(exc, OSError) and not _is_serial_error(exc) and exc.strerror:
+        name = f"{exc.filename}: " if exc.filename else ""
+        hint = {FileNotFoundError: "check the path", PermissionError: "check the permissions",
+                IsADirectoryError: "give a file, not a folder",
+                NotADirectoryError: "a part of the path is a file"}.get(type(exc), "")  # fmt: skip
+        return f"{name}{exc.strerror.lower()}" + (f" ({hint})" if hint else "")
+    if isinstance(exc, UnicodeDecodeError):
+        return "a file that should be text is not (binary or not UTF-8)"
+    text = " ".join(str(exc).split())  # one line
+    return text or type(exc).__name__
+
+
+def _is_serial_error(exc: BaseException) -> bool:
+    return type(exc).__module__.startswith("serial")
+
+
+def add_debug(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
+
+
+def json_safe(v: Any) -> Any:
+    """Numpy values to plain Python, NaN/inf to None: strict JSON."""
+    if isinstance(v, dict):
+        return {k: json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [json_safe(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return json_safe(v.tolist())
+    if isinstance(v, (np.floating, float)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod") -> None:
+    """``--geometry NAME|FILE``."""
+    from stewart_gym.presets import preset_names
+
+    parser.add_argument("--geometry", default=default, help=f"preset ({', '.join(preset_names())}) or TOML file")

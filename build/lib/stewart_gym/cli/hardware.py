@@ -1,0 +1,169 @@
+"""``stewart-gym`` hardware commands: deploy (the control loop) and calibrate (servo trims)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.cli.common import (
+    EXIT_CODES_HELP,
+    EXIT_OK,
+    bounded_float,
+    int_at_least,
+    output_file,
+    positive_float,
+)
+from stewart_gym.cli.learning import ENV_CHOICES
+from stewart_gym.errors import ConfigError
+
+__all__ = ["register"]
+
+PROTOCOL_CHOICES = ("maestro", "ssc32", "line")
+
+
+def _load_calibration(args: argparse.Namespace) -> tuple[ServoCalibration, dict]:
+    from stewart_gym.calibration import hardware_settings
+
+    if args.calibration:
+        return ServoCalibration.from_toml(args.calibration, "servo-hexapod"), hardware_settings(args.calibration)
+    return ServoCalibration.default("servo-hexapod"), {}
+
+
+def _port_settings(args: argparse.Namespace, hw: dict) -> tuple[str, str, int | None]:
+    port = args.port or hw.get("port")
+    if not port:
+        raise ConfigError("no serial port: give --port, or a calibration file with [hardware] port")
+    return str(port), args.protocol or hw.get("protocol", "maestro"), args.baudrate or hw.get("baudrate")
+
+
+def _new_log_name() -> str:
+    """deploy_log_<date>-<time>.csv in the current folder, with -2, -3, … if that exists: never an old log."""
+    import time
+
+    stem = f"deploy_log_{time.strftime('%Y%m%d-%H%M%S')}"
+    name, k = f"{stem}.csv", 1
+    while Path(name).exists():
+        k += 1
+        name = f"{stem}-{k}.csv"
+    return name
+
+
+def cmd_deploy(args: argparse.Namespace) -> int:
+    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
+    from stewart_gym.actions import ActionMapper
+    from stewart_gym.envs import ENV_IDS
+    from stewart_gym.envs.task import load_task
+    from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
+    from stewart_gym.hardware.serial_controllers import LineController, open_controller
+    from stewart_gym.registry import deployable_policy, resolve_policy
+
+    # everything the user gave is checked before the port opens
+    source = resolve_policy(args.policy, args.env)
+    policy = deployable_policy(source)
+    env_id = policy.env_id
+    if args.env and env_id != args.env:
+        raise ConfigError(f"{args.policy} was exported for {env_id}, not {args.env}; leave out --env")
+    calibration, hw = _load_calibration(args)
+    port, protocol, baudrate = _port_settings(args, hw)
+    if args.sensor == "sim":
+        import importlib.util
+
+        if importlib.util.find_spec("pybullet") is None or importlib.util.find_spec("gymnasium") is None:
+            raise ConfigError("--sensor sim needs the simulator: pip install 'stewart_gym[sim]' (or use --sensor panel)")
+    if args.sensor == "panel" and protocol != "line":
+        raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
+    task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
+    if args.trajectory:
+        task_kwargs["trajectory"] = args.trajectory
+    if env_id not in ENV_IDS:
+        raise ConfigError(f"{args.policy} was exported for {env_id!r}, which is not an env of this version")
+    task = load_task(ENV_IDS[env_id][0], **task_kwargs)
+    if args.trajectory and not task.moving_target:
+        raise ConfigError(f"--trajectory needs a track policy; {args.policy} balances ({env_id})")
+    log = args.log or _new_log_name()
+    output_file(log, suffixes=(".csv",), overwrite=args.overwrite)
+    mapper = ActionMapper("servo-hexapod", calibration, policy.action_mode,
+                          **({"max_tilt": float(policy.meta["env_kwargs"]["max_tilt"])}
+                             if "max_tilt" in policy.meta.get("env_kwargs", {}) else {}))  # fmt: skip
+    config = DeployConfig(rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
+                          max_step_us=args.max_step_us or DEFAULT_SLEW_US_PER_S / args.rate, log_path=log)  # fmt: skip
+    task.reset(np.random.default_rng(args.seed), None)  # the target only: no disturbances on real hardware
+
+    controller = open_controller(protocol, port, calibration.channels, baudrate)
+    if args.sensor == "panel":
+        assert isinstance(controller, LineController)
+        sensor = PanelSensor(controller)
+    else:
+        try:
+            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize)
+        except BaseException:
+            controller.close()
+            raise
+    if task.moving_target:
+        print(f"tracking a {getattr(task, 'trajectory', 'moving')} target ({env_id})", flush=True)
+    plant = sensor if isinstance(sensor, SimulatedPlant) else None
+    summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
+    if isinstance(sensor, SimulatedPlant) and sensor.final_error_mm is not None:
+        summary.message += f"; simulated ball {sensor.final_error_mm:.1f} mm from the centre"
+    print(summary.text())
+    print(f"log: {log}")
+    return summary.exit_code
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    """Find servo trims: step one servo at a time; keys on stdin: + / - (trim), n (next servo), q (save and quit)."""
+    from stewart_gym.hardware.serial_controllers import open_controller
+    from stewart_gym.hardware.trim import calibration_toml, find_trims
+
+    out = output_file(args.out, suffixes=(".toml",))
+    calibration, hw = _load_calibration(args)
+    port, protocol, baudrate = _port_settings(args, hw)
+    controller = open_controller(protocol, port, calibration.channels, baudrate)
+    try:
+        result = find_trims(controller, calibration, sys.stdin, args.step, say=lambda s: print(s, flush=True))
+    finally:
+        controller.close()
+    out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate}))
+    print(f"calibration written to {out} (port {port}, protocol {protocol})")
+    return EXIT_OK
+
+
+def register(sub: Any) -> None:
+    """Add the hardware subcommands to the ``stewart-gym`` parser."""
+    p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
+    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped' or 'pid'")
+    p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
+    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
+    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
+    p.add_argument("--sensor", choices=["sim", "panel"], default="sim")
+    p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
+    p.add_argument("--duration", type=positive_float, help="seconds (default: until Ctrl-C)")
+    p.add_argument("--rate", type=bounded_float(0.0, 500.0, lo_open=True), default=50.0, help="control rate, Hz (≤ 500)")
+    p.add_argument("--watchdog-ms", type=bounded_float(1.0, 10_000.0), default=100.0,
+                   help="sensor data older than this sends the platform home")  # fmt: skip
+    p.add_argument("--max-step-us", type=bounded_float(0.0, 1000.0, lo_open=True),
+                   help="rate limit per channel per tick, µs (default 3000 µs/s ÷ rate: 60 at 50 Hz, just under "
+                        "the reference servos' own speed)")  # fmt: skip
+    p.add_argument("--trajectory", choices=["circle", "figure8", "waypoints"],
+                   help="moving target of a track policy (default: the one it was trained on)")  # fmt: skip
+    p.add_argument("--log", help="CSV log (default deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
+    p.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="simulated plant's seed (--sensor sim)")
+    p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")
+    p.set_defaults(func=cmd_deploy)
+
+    p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
+    p.add_argument("--port")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
+    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
+    p.add_argument("--calibration", help="start from this calibration TOML")
+    p.add_argument("--step", type=bounded_float(0.0, 100.0, lo_open=True), default=5.0, help="µs per key press")
+    p.add_argument("--out", default="calibration.toml")
+    p.set_defaults(func=cmd_calibrate)
+

@@ -1,0 +1,157 @@
+"""``stewart-gym`` learning commands: train, evaluate, export, demo."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from stewart_gym.cli.common import (
+    EXIT_OK,
+    int_at_least,
+    output_dir,
+    output_file,
+    positive_float,
+)
+from stewart_gym.envs import ENV_IDS
+from stewart_gym.errors import ConfigError
+
+__all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
+
+ENV_CHOICES = tuple(ENV_IDS)
+POLICY_HELP = "shipped, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train an agent with Stable-Baselines3 (PPO, SAC, TD3); hyperparameters from stewart_gym/hyperparams/<algo>.yml."""
+    from stewart_gym.training import TrainConfig, check_run_dir, train
+
+    cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
+                      seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
+                      eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
+                      tensorboard=not args.no_tensorboard)  # fmt: skip
+    check_run_dir(cfg, overwrite=args.overwrite)
+    metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60)
+    print(json.dumps(metrics, indent=2))
+    return EXIT_OK
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Evaluate a policy (shipped, pid, a run folder, a model .zip, a bundle) on N seeded episodes."""
+    from stewart_gym.cli.analysis import json_safe
+    from stewart_gym.evaluation import evaluate, format_table
+    from stewart_gym.registry import load_for_evaluation
+
+    gif = None if args.gif is None else output_file(args.gif, suffixes=(".gif",))
+    plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
+    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env)
+    env_id = args.env or source.env_id
+    metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
+                       env_kwargs=env_kwargs)  # fmt: skip
+    if gif or plot:
+        _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
+    if args.json:
+        print(json.dumps(json_safe(metrics)))
+    else:
+        print(format_table({source.label: metrics}))
+    return EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job: evaluate the shipped policy next to the PID baseline; write a GIF and a pulse-width plot."""
+    from stewart_gym.cli.analysis import json_safe
+    from stewart_gym.evaluation import evaluate, format_table
+    from stewart_gym.registry import load_for_evaluation
+
+    out = output_dir(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    env_id = "StewartBallBalance-v0"
+    results, loaded = {}, {}
+    for name in ("shipped", "pid"):
+        _, policy, env_kwargs = loaded[name] = load_for_evaluation(name, env_id)
+        print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation…", flush=True)
+        results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
+    print()
+    print(format_table(results))
+    (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
+    _, policy, env_kwargs = loaded["shipped"]
+    _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", "shipped")
+    print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} and {out / 'demo_metrics.json'}")
+    return EXIT_OK
+
+
+def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, randomize: bool, gif: Path | None,
+                     plot: Path | None, title: str) -> None:  # fmt: skip
+    """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
+    import gymnasium as gym
+
+    from stewart_gym.evaluation import SETTLING_OFFSET, plot_episode, run_episode, write_gif
+
+    env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
+    try:
+        opts = {"ball_position": (SETTLING_OFFSET, 0.0), "ball_velocity": (0.0, 0.0)}
+        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
+    finally:
+        env.close()
+    if gif:
+        write_gif(log.frames, gif)
+    if plot:
+        plot_episode(log, plot, f"{env_id}, policy {title}")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    """Export a policy (shipped, pid, a run folder, a model .zip) to a deployable ONNX/JSON bundle."""
+    from stewart_gym.registry import export_policy, resolve_policy
+
+    out = output_dir(args.out)
+    source = resolve_policy(args.policy, args.env)
+    if args.env and args.policy not in ("shipped", "pid") and source.env_id != args.env:
+        raise ConfigError(f"{args.policy} was trained on {source.env_id}, not {args.env}; leave out --env")
+    folder = export_policy(source, out)
+    print(f"bundle written to {folder} ({source.env_id}, action mode {source.action_mode})")
+    return EXIT_OK
+
+
+def register(sub: Any) -> None:
+    """Add the learning subcommands to the ``stewart-gym`` parser."""
+    p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
+    p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
+    p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
+    p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
+    p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
+    p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
+    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--timesteps", type=int_at_least(1), help="override n_timesteps")
+    p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
+    p.add_argument("--eval-freq", type=int_at_least(1), help="env steps between evaluations")
+    p.add_argument("--eval-episodes", type=int_at_least(1))
+    p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
+    p.add_argument("--max-minutes", type=positive_float, help="stop after this much wall time")
+    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-tensorboard", action="store_true")
+    p.set_defaults(func=cmd_train)
+
+    POLICY_HELP = "shipped, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
+    p = sub.add_parser("evaluate", help=cmd_evaluate.__doc__, description=cmd_evaluate.__doc__)
+    p.add_argument("--env", choices=ENV_CHOICES, help="default: the env the policy was trained for (balance for pid)")
+    p.add_argument("--policy", default="shipped", help=POLICY_HELP)
+    p.add_argument("--episodes", type=int_at_least(1), default=100)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
+    p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
+    p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("export", help=cmd_export.__doc__, description=cmd_export.__doc__)
+    p.add_argument("--policy", default="shipped", help=POLICY_HELP)
+    p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
+    p.add_argument("--out", required=True, help="bundle folder")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
+    p.add_argument("--episodes", type=int_at_least(1), default=20)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
+    p.set_defaults(func=cmd_demo)

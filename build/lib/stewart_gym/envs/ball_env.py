@@ -1,0 +1,321 @@
+"""The ball environments: one class, :class:`StewartBallEnv`, made of a physics backend, a ball sensor,
+the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
+from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.envs.task import Task, load_task
+from stewart_gym.errors import ConfigError
+from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
+from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
+
+__all__ = ["StewartBallEnv"]
+
+
+class StewartBallEnv(gym.Env, EzPickle):
+    """A ball rolling on the plate of a six-servo Stewart platform, given a task.
+
+    Every registered id is this class with a task (:mod:`stewart_gym.envs.task`):
+    ``StewartBallBalance-v0`` (:class:`~stewart_gym.envs.tasks.balance.BalanceTask`),
+    ``StewartBallTrack-v0`` (:class:`~stewart_gym.envs.tasks.track.TrackTask`) and
+    ``StewartBallDisturbance-v0``
+    (:class:`~stewart_gym.envs.tasks.disturbance.DisturbanceTask`).
+
+    ## Description
+    A PyBullet model of a hobby servo hexapod (``servo-hexapod``: MG996R
+    servos, 25 mm horns, 160 mm rods, 300 × 300 mm plate; all six loops closed)
+    carries a ball (default a 25.4 mm, 66.8 g solid steel ball, the kind a
+    resistive touch panel senses). The agent tilts the plate to bring the ball
+    to a target. Every action goes through the analytic inverse kinematics and
+    the servo calibration to pulse widths (µs), exactly as on hardware; the
+    simulated servos act on those pulses with hobby-servo speed, dead band and
+    lag. The ball is sensed as a resistive touch panel would report it.
+
+    ## Action Space
+    ``Box(-1, 1, (n,), float32)``; ``action_mode`` picks the mapping:
+
+    ============ === ==================================================== ======
+    action_mode  n   meaning of the action                                 unit
+    ============ === ==================================================== ======
+    ``"tilt"``   2   roll, pitch = action · ``max_tilt`` (default 10°)     rad
+    ``"pose"``   6   x, y, z, roll, pitch, yaw = action · reach·0.9        m, rad
+    ``"pulse"``  6   pulse widths, −1…1 across each channel's range        µs
+    ============ === ==================================================== ======
+
+    A commanded pose that is out of reach is replaced by the nearest reachable
+    pose on the ray from home; ``info["action_scaled"]`` flags it and
+    ``info["unreachable_count"]`` counts it over the episode.
+
+    ## Observation Space
+    ``Box(float32)`` of size 10 + n, each entry scaled to about ±1 and clipped:
+
+    ===== ================================================ ========== ======
+    index observation                                      scale      bounds
+    ===== ================================================ ========== ======
+    0, 1  ball x, y from the touch panel (plate frame)     m / 0.15   ±2
+    2, 3  ball velocity, estimated from panel positions    m/s / 0.5  ±5
+    4, 5  target x, y (plate frame)                        m / 0.15   ±2
+    6, 7  target velocity                                  m/s / 0.5  ±5
+    8, 9  commanded roll, pitch (0 in ``"pulse"`` mode)    rad / 0.25 ±2
+    10…   previous action                                  1          ±1
+    ===== ================================================ ========== ======
+
+    The panel (:class:`~stewart_gym.sensing.TouchPanelSpec`) samples at 100 Hz
+    with 10 ms latency and 1 mm noise; when the ball is not touching, the last
+    reading is held. Velocity is a low-passed finite difference of readings.
+
+    ## Rewards
+    The task's (:meth:`~stewart_gym.envs.task.BallTask.reward`); for every
+    built-in task, per step, with d the true ball-to-target distance (m):
+    ``1 − d / 0.15 + exp(−d / 0.015) − rate_penalty · mean((a_t − a_{t−1})²)``:
+    a distance term over the whole plate, a sharper one near the target (0.51 at
+    10 mm, 1 at 0), and an action-rate penalty for servo wear (``rate_penalty``,
+    default 0.1); ``−50`` on the step the ball leaves the plate.
+
+    ## Starting State
+    Platform at home. The ball rests on the plate at a uniform random position
+    in ±0.10 m (each axis) rolling at a uniform random speed up to 0.1 m/s in a
+    random direction. ``reset(options={"ball_position": (x, y), "ball_velocity":
+    (vx, vy)})`` sets them (m, m/s, plate frame); they are checked: two finite
+    numbers each, the ball's centre at most 0.15 m minus its radius from the
+    centre on each axis, at most 2 m/s, and no other keys
+    (:class:`~stewart_gym.errors.ConfigError` otherwise).
+
+    ## Episode End
+    ``terminated`` when the ball centre leaves the plate (|x| or |y| > 0.15 m)
+    or drops below its surface, or when the physics blows up (non-finite or
+    absurd state: ``info["physics_error"]`` is True and the last finite
+    observation is returned). Time limits come from ``max_episode_steps``
+    (500 steps = 10 s at 50 Hz; track 1000). ``info["is_success"]`` (every
+    step) is true while the ball is on the plate and has stayed within the
+    task's ``success_radius`` of the target for the last ``success_window_s``.
+    ``info`` also gives ``distance_mm``, ``ball_xy_m``, ``target_xy_m``,
+    ``pulse_widths_us``, ``commanded_tilt_rad`` (roll, pitch), ``action_scaled``,
+    ``unreachable_count``, ``physics_error`` and the task's own entries.
+
+    ## Arguments
+    ``task`` (a short name, a ``"module:Class"`` path or a task object),
+    ``action_mode``, ``randomize`` (domain randomisation, see
+    :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
+    ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
+    ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz`` (default
+    150: the envs trade the simulator's 200 Hz, loop gap ≤ 0.07 mm in full-range
+    moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves and
+    ≤ 0.042 mm under ±10° bang-bang tilts), ``control_hz``, ``rate_penalty``,
+    ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
+    (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
+    (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``,
+    ``backend`` (a :class:`~stewart_gym.sim.PhysicsBackend` to use instead of
+    building the PyBullet one), and any keyword of the task (``trajectory`` for
+    track).
+
+    ## Version History
+    * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 50}
+
+    def __init__(
+        self,
+        task: str | Task = "balance",
+        action_mode: Literal["tilt", "pose", "pulse"] = "tilt",
+        randomize: bool = False,
+        render_mode: str | None = None,
+        *,
+        max_tilt: float = DEFAULT_MAX_TILT,
+        success_radius: float | None = None,
+        success_window_s: float = 1.0,
+        physics_hz: int = 150,
+        control_hz: int = 50,
+        ball: BallSpec | None = None,
+        servo: ServoSpec | None = None,
+        sensor: TouchPanelSpec | None = None,
+        geometry: str = "servo-hexapod",
+        randomization: RandomizationRanges | None = None,
+        rate_penalty: float = 0.1,
+        backend: PhysicsBackend | None = None,
+        **task_kwargs: Any,
+    ) -> None:
+        EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
+                          success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
+                          control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
+                          randomization=randomization, rate_penalty=rate_penalty, backend=backend,
+                          **task_kwargs)  # fmt: skip
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        self.randomize = bool(randomize)
+        self.render_mode = render_mode
+        self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
+        self.nominal_sensor = sensor or TouchPanelSpec()
+        self.ranges = randomization or RandomizationRanges()
+        self.sim: PhysicsBackend = backend or StewartSim(
+            geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
+            servo_spec=self.nominal_servo, render_mode=render_mode)  # fmt: skip
+        self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz)}
+        self.plate_half_extent = tuple(self.sim.plate_half_extent)
+        self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,
+                                    rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),
+                                    **task_kwargs) if isinstance(task, str) else task  # fmt: skip
+        self.success_radius = float(self.task.success_radius)
+        self.success_steps = max(1, int(round(self.task.success_window_s * self.sim.control_hz)))
+        self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
+        self.action_mode = action_mode
+        self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
+        self.observer = BallObserver(self.mapper.size)
+        self.observation_space = self.observer.builder.space
+        self.panel = SimulatedTouchPanel(self.nominal_sensor)
+        self._plate_top = self.sim.plate_top
+        self._reset_episode_state()
+
+    # ------------------------------------------------------------------ API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        rng = self.np_random
+        options = self._check_options(options)
+        if self.randomize:
+            params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
+        else:
+            params = EpisodeParams(self.nominal_ball, self.nominal_servo, self.nominal_sensor, 0.6, None)
+        self.params = params
+        self._radius = params.ball.radius
+        self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
+                       plate_load=params.plate_load)  # fmt: skip
+        if "ball_position" in options:
+            xy = options["ball_position"]
+        else:
+            xy = rng.uniform(-0.10, 0.10, 2)
+        if "ball_velocity" in options:
+            vel = options["ball_velocity"]
+        else:
+            ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
+            vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
+        self.sim.place_ball(xy, vel)
+        self.task.reset(rng, self.sim)
+        self.panel.spec = params.sensor
+        self.panel.reset(0.0, xy, rng)
+        self.observer.reset(0.0, xy)
+        self._reset_episode_state()
+        obs = self._observe(0.0)
+        self._last_obs = obs
+        target_xy, _ = self.task.target(0.0)
+        return obs, self._info(xy.copy(), target_xy, math.hypot(xy[0] - target_xy[0], xy[1] - target_xy[1]))
+
+    #: The keys ``reset(options=…)`` accepts.
+    RESET_OPTIONS = ("ball_position", "ball_velocity")
+    #: m/s, the fastest ball speed a reset may ask for.
+    MAX_RESET_SPEED = 2.0
+
+    def _check_options(self, options: dict[str, Any] | None) -> dict[str, np.ndarray]:
+        """Reset options as arrays, checked: known keys, two finite numbers each, a start on the plate.
+
+        Raises :class:`~stewart_gym.errors.ConfigError` naming the option.
+        """
+        if options is None:
+            return {}
+        if not isinstance(options, dict):
+            raise ConfigError(f"reset options must be a dict, got {type(options).__name__}")
+        unknown = sorted(set(options) - set(self.RESET_OPTIONS))
+        if unknown:
+            raise ConfigError(f"unknown reset option(s) {unknown}; known: {list(self.RESET_OPTIONS)}")
+        out = {}
+        for key in self.RESET_OPTIONS:
+            if key not in options:
+                continue
+            try:
+                value = np.asarray(options[key], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise ConfigError(f"reset option {key}: expected two numbers (x, y), got {options[key]!r}") from None
+            if value.shape != (2,):
+                raise ConfigError(f"reset option {key}: expected two numbers (x, y), got shape {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ConfigError(f"reset option {key}: must be finite, got {value.tolist()}")
+            out[key] = value
+        # the ball starts with its whole contact patch on the plate: centre inside the plate's edge
+        limit = np.array(self.plate_half_extent) - self.nominal_ball.radius
+        if "ball_position" in out and np.any(np.abs(out["ball_position"]) > limit):
+            raise ConfigError(f"reset option ball_position {out['ball_position'].tolist()} m is off the plate "
+                              f"(|x| ≤ {limit[0]:.3f} m, |y| ≤ {limit[1]:.3f} m)")  # fmt: skip
+        if "ball_velocity" in out and float(np.hypot(*out["ball_velocity"])) > self.MAX_RESET_SPEED:
+            raise ConfigError(f"reset option ball_velocity {out['ball_velocity'].tolist()} m/s is faster than "
+                              f"{self.MAX_RESET_SPEED} m/s")  # fmt: skip
+        return out
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        mapped = self.mapper(action)
+        sim, task = self.sim, self.task
+        task.before_step(sim.time, sim)
+        sim.command(mapped.pulses)
+        sim.step()
+        self._pulses = mapped.pulses
+        self._scaled = mapped.scaled
+        self._unreachable += mapped.scaled
+        if self.action_mode != "pulse":
+            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
+        t = sim.time
+        x, y, z = sim.ball_position()
+        if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
+            info = self._info(np.full(2, np.nan), (math.nan, math.nan), math.nan)
+            info["physics_error"] = True
+            return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
+        on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
+        self.panel.record(t, (x, y), touching)
+        a = mapped.action
+        rate = 0.0
+        for v, p in zip(a, self._prev_action):
+            rate += (v - p) * (v - p)
+        rate /= len(a)
+        self._prev_action = a
+        target_xy, target_vel = task.target(t)
+        obs = self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, a)
+        self._last_obs = obs
+        dist = math.hypot(x - target_xy[0], y - target_xy[1])
+        self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
+        terminated = not on_plate
+        reward = task.reward(dist, rate, terminated)
+        info = self._info(np.array([x, y]), target_xy, dist)
+        info["is_success"] = on_plate and self._inside >= self.success_steps
+        return obs, reward, terminated, False, info
+
+    def render(self) -> np.ndarray | None:
+        return self.sim.render()
+
+    def close(self) -> None:
+        sim = getattr(self, "sim", None)
+        if sim is not None:
+            sim.close()
+
+    # ------------------------------------------------------------- helpers
+    def _reset_episode_state(self) -> None:
+        self._prev_action: tuple[float, ...] = (0.0,) * self.mapper.size
+        self._roll_pitch = (0.0, 0.0)
+        self._inside = 0
+        self._unreachable = 0
+        self._scaled = False
+        self._pulses = self.sim.calibration.neutral_us.copy()
+
+    def _observe(self, t: float) -> np.ndarray:
+        target_xy, target_vel = self.task.target(t)
+        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
+
+    def _info(self, xy: np.ndarray, target_xy: tuple[float, float], dist: float) -> dict[str, Any]:
+        return {
+            "is_success": False,
+            "distance_mm": dist * 1e3,
+            "ball_xy_m": xy,
+            "target_xy_m": np.array(target_xy),
+            "pulse_widths_us": self._pulses,
+            "commanded_tilt_rad": self._roll_pitch,
+            "action_scaled": self._scaled,
+            "unreachable_count": self._unreachable,
+            "physics_error": False,
+            **self.task.info(),
+        }

@@ -1,0 +1,67 @@
+"""Domain randomisation: per-episode physical parameters drawn from documented ranges."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from stewart_gym.sensing import TouchPanelSpec
+from stewart_gym.sim import BallSpec, ServoSpec
+
+__all__ = ["EpisodeParams", "RandomizationRanges"]
+
+
+@dataclass(frozen=True)
+class RandomizationRanges:
+    """Ranges drawn uniformly once per episode (``randomize=True``).
+
+    Multiplicative ranges scale the nominal value; the others are absolute.
+    """
+
+    ball_mass_scale: tuple[float, float] = (0.8, 1.2)
+    ball_radius_scale: tuple[float, float] = (0.9, 1.1)  # radius rounded to 0.1 mm
+    ball_rolling_friction: tuple[float, float] = (0.0, 5e-5)  # m
+    plate_friction: tuple[float, float] = (0.4, 0.8)
+    servo_speed_scale: tuple[float, float] = (0.8, 1.1)
+    servo_trim_us: float = 15.0  # ± per servo
+    servo_deadband_us: tuple[float, float] = (3.0, 8.0)
+    sensor_noise_mm: tuple[float, float] = (0.5, 2.0)
+    sensor_latency_s: tuple[float, float] = (0.005, 0.025)
+    control_latency_s: tuple[float, float] = (0.0, 0.015)  # added to the servo lag
+    plate_load_kg: tuple[float, float] = (0.0, 0.05)
+    plate_load_radius: float = 0.10  # m, offset of the load from the plate centre
+
+
+@dataclass(frozen=True)
+class EpisodeParams:
+    """Physical parameters of one episode."""
+
+    ball: BallSpec
+    servo: ServoSpec
+    sensor: TouchPanelSpec
+    plate_friction: float
+    plate_load: tuple[float, np.ndarray] | None
+
+    @classmethod
+    def sample(cls, rng: np.random.Generator, ranges: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
+               sensor: TouchPanelSpec) -> EpisodeParams:  # fmt: skip
+        """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor``."""
+        u = rng.uniform
+        r = ranges
+        radius = round(ball.radius * u(*r.ball_radius_scale), 4)
+        ball_ep = replace(ball, radius=radius, mass=ball.mass * u(*r.ball_mass_scale),
+                          rolling_friction=u(*r.ball_rolling_friction))  # fmt: skip
+        control_latency = u(*r.control_latency_s)
+        servo_ep = replace(
+            servo,
+            max_speed=servo.max_speed * u(*r.servo_speed_scale),
+            trim_error_us=tuple(u(-r.servo_trim_us, r.servo_trim_us, 6)),
+            deadband_us=u(*r.servo_deadband_us),
+            lag_s=servo.lag_s + control_latency,
+        )
+        sensor_ep = TouchPanelSpec(noise_mm=u(*r.sensor_noise_mm), rate_hz=sensor.rate_hz, latency_s=u(*r.sensor_latency_s))
+        angle, dist = u(0, 2 * math.pi), r.plate_load_radius * math.sqrt(u(0, 1))
+        load = (u(*r.plate_load_kg), np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
+        return cls(ball_ep, servo_ep, sensor_ep, u(*r.plate_friction), load)

@@ -1,0 +1,140 @@
+"""The task seam: what the ball should do, how it is rewarded, and what else happens to it.
+
+In the style of panda-gym's ``Task`` / ``RobotTaskEnv`` split, an environment
+(:class:`~stewart_gym.envs.ball_env.StewartBallEnv`) is a platform with a ball
+(the physics backend), a sensor, an action mapping and a **task**. The task
+gives the target, the reward and any disturbance; the env does everything
+else the same way for every task (sensing, observation, termination when the
+ball leaves the plate, success once the ball has stayed within
+``success_radius`` of the target for ``success_window_s``).
+
+A new task is one file with a class following :class:`Task` (usually a
+subclass of :class:`BallTask`) and one line in
+:data:`stewart_gym.envs.ENV_IDS`; ``docs/guides/add-a-task.md`` walks through
+it. ``tests/test_task_contract.py`` holds the checks every task must pass.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
+
+import numpy as np
+
+from stewart_gym.errors import ConfigError
+
+if TYPE_CHECKING:
+    from stewart_gym.sim.backend import PhysicsBackend
+
+__all__ = ["BallTask", "Task", "XY", "load_task", "TASK_NAMES"]
+
+XY = tuple[float, float]
+
+#: Short names for the built-in tasks (``StewartBallEnv(task="track")``); any "module:Class" path works too.
+TASK_NAMES = {
+    "balance": "stewart_gym.envs.tasks.balance:BalanceTask",
+    "track": "stewart_gym.envs.tasks.track:TrackTask",
+    "disturbance": "stewart_gym.envs.tasks.disturbance:DisturbanceTask",
+}
+
+
+@runtime_checkable
+class Task(Protocol):
+    """What the env asks of a task.
+
+    Attributes:
+        name: Short name (for reports).
+        success_radius: m, how close to the target counts as there.
+        success_window_s: s the ball must stay there for success.
+        moving_target: False if the target stays put (the settling-time test applies).
+    """
+
+    name: str
+    success_radius: float
+    success_window_s: float
+    moving_target: bool
+
+    def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
+        """Start an episode: draw the target (and any disturbances) from ``rng``."""
+
+    def target(self, t: float) -> tuple[XY, XY]:
+        """Target position (x, y) m and velocity m/s in the plate frame at time ``t`` (Python floats)."""
+
+    def before_step(self, t: float, backend: PhysicsBackend) -> None:
+        """Act on the physics before the control period that starts at ``t`` (disturbances; usually nothing)."""
+
+    def reward(self, distance: float, action_rate: float, fell: bool) -> float:
+        """Reward of one step: ``distance`` (m) ball to target, ``action_rate`` mean squared action change."""
+
+    def info(self) -> dict[str, Any]:
+        """Task-specific entries for the step's ``info`` (may be empty)."""
+
+
+class BallTask:
+    """The shared reward and defaults of the ball tasks.
+
+    Per step, with d the true ball-to-target distance (m) and h the plate's half
+    size: ``1 − min(d, 2h) / h + exp(−d / 0.015) − rate_penalty · rate`` and
+    ``−50`` on the step the ball leaves the plate: a distance term over the whole
+    plate, a sharper one near the target (0.51 at 10 mm, 1 at 0), and an
+    action-rate penalty for servo wear.
+
+    Args:
+        success_radius: m (default: the class's ``default_success_radius``).
+        success_window_s: s.
+        rate_penalty: weight of the action-rate term.
+        plate_half: m, h above.
+    """
+
+    name: ClassVar[str] = "ball"
+    moving_target: ClassVar[bool] = False
+    default_success_radius: ClassVar[float] = 0.010
+    FALL_PENALTY: ClassVar[float] = 50.0
+    NEAR_SCALE: ClassVar[float] = 0.015
+
+    def __init__(self, success_radius: float | None = None, success_window_s: float = 1.0, rate_penalty: float = 0.1,
+                 plate_half: float = 0.15) -> None:  # fmt: skip
+        self.success_radius = float(self.default_success_radius if success_radius is None else success_radius)
+        self.success_window_s = float(success_window_s)
+        self.rate_penalty = float(rate_penalty)
+        self.plate_half = float(plate_half)
+        for key, v in (("success_radius", self.success_radius), ("success_window_s", self.success_window_s),
+                       ("plate_half", self.plate_half)):  # fmt: skip
+            if not (math.isfinite(v) and v > 0):
+                raise ConfigError(f"{key} must be a positive number, got {v!r}")
+        if not (math.isfinite(self.rate_penalty) and self.rate_penalty >= 0):
+            raise ConfigError(f"rate_penalty must be ≥ 0, got {self.rate_penalty!r}")
+
+    def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
+        """Nothing to draw for a fixed target at the centre."""
+
+    def target(self, t: float) -> tuple[XY, XY]:
+        return (0.0, 0.0), (0.0, 0.0)
+
+    def before_step(self, t: float, backend: PhysicsBackend) -> None:
+        """No disturbance."""
+
+    def reward(self, distance: float, action_rate: float, fell: bool) -> float:
+        half = self.plate_half
+        return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.NEAR_SCALE)
+                - self.rate_penalty * action_rate - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
+
+    def info(self) -> dict[str, Any]:
+        return {}
+
+
+def load_task(spec: str | Task, **kwargs: Any) -> Task:
+    """A task from a short name (:data:`TASK_NAMES`), a ``"module:Class"`` path, or a task (returned as is)."""
+    if not isinstance(spec, str):
+        return spec
+    path = TASK_NAMES.get(spec, spec)
+    module_name, _, class_name = path.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError, ValueError):
+        raise ConfigError(f"unknown task {spec!r}; use one of {sorted(TASK_NAMES)} or 'module:Class'") from None
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"task {spec!r}: {exc}") from None

@@ -1,0 +1,33 @@
+"""The package's error classes: the bottom of the layering (imports nothing of the package).
+
+Everything a *user* can get wrong (a malformed file, a bad option, a pose out
+of reach, a device that does not answer) raises a subclass of
+:class:`StewartGymError`. The command line prints such an error as one line,
+``error: …``, and exits non-zero; anything else is a bug and keeps its
+traceback. Each class also derives from the built-in exception it refines, so
+``except ValueError`` keeps working.
+"""
+
+from __future__ import annotations
+
+__all__ = ["ConfigError", "DeviceFailure", "PolicyError", "StewartGymError", "UnreachableError"]
+
+
+class StewartGymError(Exception):
+    """Base class of the errors a user can cause and fix; the message says what was wrong and what to do."""
+
+
+class ConfigError(StewartGymError, ValueError):
+    """An option, a configuration file or an argument is invalid; the message names it."""
+
+
+class PolicyError(StewartGymError, ValueError):
+    """A policy cannot be found or does not fit the environment or the hardware it is used with."""
+
+
+class UnreachableError(StewartGymError, ValueError):
+    """A pose the user asked for is outside the platform's workspace."""
+
+
+class DeviceFailure(StewartGymError, RuntimeError):
+    """A serial device failed: unplugged, not answering, or answering wrongly (exit code 2)."""

@@ -1,0 +1,195 @@
+"""Evaluate a policy on seeded episodes: success, ball error, settling time, tilt, servo wear.
+
+A *policy* is anything with ``predict(obs, state, episode_start, deterministic)``
+(Stable-Baselines3 models, :class:`~stewart_gym.classical.CascadedPID`, the
+ONNX bundle); :func:`stewart_gym.registry.load_policy` builds one from what a
+user names. The same code runs the RL policy and the classical baseline on the same
+seeds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from stewart_gym.errors import PolicyError
+
+__all__ = ["EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "plot_episode", "run_episode",
+           "write_gif"]  # fmt: skip
+
+#: The standard offset for the settling-time test, m.
+SETTLING_OFFSET = 0.100
+
+
+class Policy(Protocol):
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]: ...  # fmt: skip
+
+
+@dataclass
+class EpisodeLog:
+    """One episode, sampled every control step (``dt`` s)."""
+
+    dt: float
+    distance_mm: list[float] = field(default_factory=list)
+    ball_xy: list[np.ndarray] = field(default_factory=list)
+    target_xy: list[np.ndarray] = field(default_factory=list)
+    pulses: list[np.ndarray] = field(default_factory=list)
+    tilt_deg: list[float] = field(default_factory=list)
+    frames: list[np.ndarray] = field(default_factory=list)
+    success: bool = False
+    fell: bool = False
+
+    def settling_time(self, radius_mm: float) -> float:
+        """s until the ball stays within ``radius_mm`` to the end; NaN if it never does (or fell)."""
+        d = np.asarray(self.distance_mm)
+        if self.fell or d.size == 0 or d[-1] > radius_mm:
+            return math.nan
+        outside = np.flatnonzero(d > radius_mm)
+        return 0.0 if outside.size == 0 else float((outside[-1] + 1) * self.dt)
+
+
+def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = None,
+                frames: bool = False) -> EpisodeLog:  # fmt: skip
+    """Run one episode to its end; record what the metrics need."""
+    obs, info = env.reset(seed=seed, options=options)
+    unwrapped = env.unwrapped
+    log = EpisodeLog(dt=unwrapped.sim.dt)
+    start = np.array([True])
+    while True:
+        action, _ = policy.predict(obs[None], None, start, True)
+        start = np.array([False])
+        obs, _, terminated, truncated, info = env.step(np.asarray(action, dtype=np.float32).reshape(-1))
+        log.distance_mm.append(float(info["distance_mm"]))
+        log.ball_xy.append(np.asarray(info["ball_xy_m"], dtype=float))
+        log.target_xy.append(np.asarray(info["target_xy_m"], dtype=float))
+        log.pulses.append(np.asarray(info["pulse_widths_us"], dtype=float))
+        roll, pitch = info["commanded_tilt_rad"]
+        log.tilt_deg.append(math.degrees(math.hypot(roll, pitch)))
+        if frames:
+            log.frames.append(env.render())
+        if terminated or truncated:
+            log.success = bool(info["is_success"])
+            log.fell = bool(terminated)
+            return log
+
+
+def check_fits(policy: Policy, env: gym.Env) -> None:
+    """Raise :class:`PolicyError` if the policy's observation or action size differs from the env's."""
+    name = env.spec.id if env.spec else "the env"
+    obs, act = getattr(policy, "obs_size", None), getattr(policy, "action_size", None)
+    if obs is not None and (obs,) != env.observation_space.shape:
+        raise PolicyError(f"the policy reads {obs} observation values but {name} gives {env.observation_space.shape[0]}")
+    if act is not None and (act,) != env.action_space.shape:
+        raise PolicyError(f"the policy gives {act} action values but {name} takes {env.action_space.shape[0]}")
+
+
+def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, randomize: bool = True,
+             settling: bool = True, env_kwargs: dict | None = None) -> dict[str, Any]:  # fmt: skip
+    """Metrics over ``episodes`` seeded episodes (seeds ``seed … seed+episodes−1``).
+
+    * ``success_rate``: episodes whose last step reports ``is_success``.
+    * ``rms_error_mm``: RMS ball-to-target distance over the last 5 s of every episode, pooled.
+    * ``final_error_mm``: mean distance at the last step.
+    * ``settling_time_s`` (balance task): from rest at a standard 100 mm offset
+      (direction varies with the seed), mean time until the ball stays within the
+      success radius; ``settled_fraction`` says how many did.
+    * ``max_tilt_deg``: largest commanded tilt; ``pulse_rate_us_per_s``: mean
+      |ΔW| per servo per second (servo wear).
+    """
+    env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
+    check_fits(policy, env)
+    try:
+        logs = [run_episode(env, policy, seed + k) for k in range(episodes)]
+        dt = env.unwrapped.sim.dt
+        tail = int(round(5.0 / dt))
+        pooled = np.concatenate([np.asarray(lg.distance_mm[-tail:]) for lg in logs])
+        pulses = [np.abs(np.diff(np.asarray(lg.pulses), axis=0)).mean() / dt for lg in logs if len(lg.pulses) > 1]
+        out: dict[str, Any] = {
+            "env_id": env_id,
+            "episodes": episodes,
+            "seed": seed,
+            "randomize": randomize,
+            "success_rate": float(np.mean([lg.success for lg in logs])),
+            "fell_rate": float(np.mean([lg.fell for lg in logs])),
+            "rms_error_mm": float(np.sqrt(np.mean(pooled**2))),
+            "final_error_mm": float(np.mean([lg.distance_mm[-1] for lg in logs])),
+            "max_tilt_deg": float(max(max(lg.tilt_deg) for lg in logs)),
+            "pulse_rate_us_per_s": float(np.mean(pulses)),
+            "settling_time_s": None,
+            "settled_fraction": None,
+        }
+        if settling and not env.unwrapped.task.moving_target:
+            radius_mm = env.unwrapped.success_radius * 1e3
+            times = []
+            for k in range(episodes):
+                ang = 2 * math.pi * k / episodes
+                opts = {"ball_position": (SETTLING_OFFSET * math.cos(ang), SETTLING_OFFSET * math.sin(ang)),
+                        "ball_velocity": (0.0, 0.0)}  # fmt: skip
+                times.append(run_episode(env, policy, seed + k, opts).settling_time(radius_mm))
+            t = np.asarray(times)
+            out["settled_fraction"] = float(np.mean(np.isfinite(t)))
+            out["settling_time_s"] = float(np.nanmean(t)) if np.isfinite(t).any() else None
+        return out
+    finally:
+        env.close()
+
+
+def format_table(results: dict[str, dict[str, Any]]) -> str:
+    """A text table with one column per policy."""
+    rows = [("success rate", "success_rate", "{:.0%}"), ("fell off", "fell_rate", "{:.0%}"),
+            ("RMS error (last 5 s)", "rms_error_mm", "{:.2f} mm"), ("final error", "final_error_mm", "{:.2f} mm"),
+            ("settling time from 100 mm", "settling_time_s", "{:.2f} s"), ("settled", "settled_fraction", "{:.0%}"),
+            ("largest tilt", "max_tilt_deg", "{:.1f}°"),
+            ("pulse rate (servo wear)", "pulse_rate_us_per_s", "{:.0f} µs/s")]  # fmt: skip
+    names = list(results)
+    width = max(12, *(len(n) for n in names))
+    lines = [f"{'':28s}" + "".join(f"{n:>{width + 2}s}" for n in names)]
+    for label, key, fmt in rows:
+        cells = []
+        for n in names:
+            v = results[n].get(key)
+            cells.append(f"{'—' if v is None else fmt.format(v):>{width + 2}s}")
+        lines.append(f"{label:28s}" + "".join(cells))
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------- figures
+def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
+    """Ball path on the plate and the six pulse widths over time, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    xy, tgt, w = np.asarray(log.ball_xy) * 1e3, np.asarray(log.target_xy) * 1e3, np.asarray(log.pulses)
+    t = np.arange(len(w)) * log.dt
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [1, 1.5]})
+    ax1.plot(xy[:, 0], xy[:, 1], lw=1.2, label="ball")
+    ax1.plot(tgt[:, 0], tgt[:, 1], "k--", lw=0.8, label="target")
+    ax1.plot(xy[0, 0], xy[0, 1], "go", label="start")
+    ax1.add_patch(plt.Rectangle((-150, -150), 300, 300, fill=False, color="0.6"))
+    ax1.set(xlim=(-160, 160), ylim=(-160, 160), xlabel="x on plate [mm]", ylabel="y on plate [mm]", aspect="equal")
+    ax1.legend(loc="upper right", fontsize=8)
+    for i in range(6):
+        ax2.plot(t, w[:, i], lw=1, label=f"servo {i}")
+    ax2.set(xlabel="time [s]", ylabel="pulse width [µs]", title="commanded pulse widths")
+    ax2.legend(ncol=3, fontsize=8)
+    ax2.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, every: int = 2) -> None:
+    """Write every ``every``-th frame as an animated GIF at ``fps``."""
+    import imageio.v3 as iio
+
+    iio.imwrite(path, np.stack(frames[::every]), duration=1000 / fps, loop=0)

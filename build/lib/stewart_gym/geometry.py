@@ -1,0 +1,306 @@
+"""Platform geometry: where the joints of a Stewart platform are, in SI units.
+
+A :class:`PlatformGeometry` is an immutable description of one build. Two kinds
+exist:
+
+* **rotary** (6-RSS): six servo shafts at ``base_anchors`` (b_i), each turning a
+  horn of length ``horn_length`` (a) in a vertical plane at angle ``servo_beta``
+  (β_i) to the x-axis; a rod of length ``rod_length`` (s) joins the horn tip to
+  the platform anchor p_i. Actuator limits are ``servo_angle_range`` (α, rad,
+  measured from the horizontal, eq. 9 of seed 000).
+* **linear** (6-UPS): six extensible legs from b_i to p_i. ``rod_length`` is the
+  fixed (fully retracted) part of a leg, so the actuator stroke is
+  ``|l_i| - rod_length``. Actuator limits are ``leg_length_range`` (m, the whole
+  anchor-to-anchor length).
+
+Frames: the base frame has z up and its origin in the base plane; the platform
+frame is fixed to the plate, and at home it is the base frame lifted by
+``home_height`` (h0). Anchors are in metres.
+
+Geometries come from :func:`stewart_gym.presets.load_preset` or from a TOML file
+(:func:`stewart_gym.presets.load_geometry`, :meth:`PlatformGeometry.from_toml`);
+a malformed file raises :class:`GeometryError` naming the bad field.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from stewart_gym.errors import ConfigError
+from stewart_gym.tomlio import read_toml
+
+__all__ = [
+    "GeometryError",
+    "PlatformGeometry",
+    "home_height_eq10",
+]
+
+#: Relative tolerance with which the six legs must agree on eq. 10's home height.
+HOME_HEIGHT_RTOL = 1e-6
+
+
+class GeometryError(ConfigError):
+    """A geometry description is malformed; the message names the field."""
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=np.float64)  # copy, so callers cannot mutate our data
+    a.setflags(write=False)
+    return a
+
+
+def home_height_eq10(
+    base_anchors: np.ndarray, platform_anchors: np.ndarray, horn_length: float, rod_length: float
+) -> np.ndarray:
+    """Home height of each leg by eq. 10 of seed 000, shape (6,), metres.
+
+    h0 = sqrt(s² + a² − (x_p − x_b)² − (y_p − y_b)²) − z_p + z_b, the height at
+    which horn and rod are at right angles (|l|² = s² + a²). Seed 000 takes
+    z_b = 0; the + z_b term keeps the definition for servos mounted above the
+    base plane. NaN where no such height exists.
+    """
+    b = np.asarray(base_anchors, dtype=float)
+    p = np.asarray(platform_anchors, dtype=float)
+    d2 = rod_length**2 + horn_length**2 - (p[:, 0] - b[:, 0]) ** 2 - (p[:, 1] - b[:, 1]) ** 2
+    with np.errstate(invalid="ignore"):
+        return np.sqrt(d2) - p[:, 2] + b[:, 2]
+
+
+@dataclass(frozen=True, eq=False)
+class PlatformGeometry:
+    """Immutable description of a Stewart platform, SI units.
+
+    Attributes:
+        name: A short identifier.
+        base_anchors: (6, 3) m. b_i: servo shaft centres (rotary) or lower leg
+            joints (linear), base frame.
+        platform_anchors: (6, 3) m. p_i: upper joints, platform frame.
+        rod_length: m. s: rod length (rotary) or fixed leg part (linear).
+        home_height: m. h0: height of the platform origin at home.
+        horn_length: m. a: servo horn length; ``None`` for a linear platform.
+        servo_beta: (6,) rad. β_i: angle of each horn's plane of rotation to the
+            x-axis (the direction the horn points at α = 0). ``None`` if linear.
+        servo_angle_range: (lo, hi) rad. Allowed servo angle α (rotary only).
+        leg_length_range: (lo, hi) m. Allowed anchor-to-anchor leg length
+            (linear only).
+        description: Free text: where the numbers come from.
+    """
+
+    name: str
+    base_anchors: np.ndarray
+    platform_anchors: np.ndarray
+    rod_length: float
+    home_height: float
+    horn_length: float | None = None
+    servo_beta: np.ndarray | None = None
+    servo_angle_range: tuple[float, float] | None = None
+    leg_length_range: tuple[float, float] | None = None
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "base_anchors", _readonly(_shape("base_anchors", self.base_anchors, (6, 3))))
+        set_(self, "platform_anchors", _readonly(_shape("platform_anchors", self.platform_anchors, (6, 3))))
+        _positive("rod_length", self.rod_length)
+        _positive("home_height", self.home_height)
+        set_(self, "rod_length", float(self.rod_length))
+        set_(self, "home_height", float(self.home_height))
+        if self.horn_length is not None:
+            _positive("horn_length", self.horn_length)
+            set_(self, "horn_length", float(self.horn_length))
+            if self.servo_beta is None:
+                raise GeometryError("servo_beta: required for a rotary platform (horn_length is set)")
+            set_(self, "servo_beta", _readonly(_shape("servo_beta", self.servo_beta, (6,))))
+            if self.servo_angle_range is None:
+                raise GeometryError("servo_angle_range: required for a rotary platform")
+            set_(self, "servo_angle_range", _range("servo_angle_range", self.servo_angle_range, positive=False))
+            if self.leg_length_range is not None:
+                raise GeometryError("leg_length_range: only for a linear platform (horn_length is set)")
+        else:
+            if self.servo_beta is not None:
+                raise GeometryError("servo_beta: only for a rotary platform (horn_length is not set)")
+            if self.servo_angle_range is not None:
+                raise GeometryError("servo_angle_range: only for a rotary platform (horn_length is not set)")
+            if self.leg_length_range is None:
+                raise GeometryError("leg_length_range: required for a linear platform")
+            set_(self, "leg_length_range", _range("leg_length_range", self.leg_length_range, positive=True))
+
+    # ------------------------------------------------------------------ kind
+    @property
+    def kind(self) -> Literal["rotary", "linear"]:
+        """``"rotary"`` (servo horns) or ``"linear"`` (extensible legs)."""
+        return "rotary" if self.horn_length is not None else "linear"
+
+    @property
+    def is_rotary(self) -> bool:
+        """True for a servo (6-RSS) platform."""
+        return self.horn_length is not None
+
+    @property
+    def home_position(self) -> np.ndarray:
+        """(3,) m: the platform origin at home, (0, 0, h0)."""
+        return np.array([0.0, 0.0, self.home_height])
+
+    def home_heights_eq10(self) -> np.ndarray:
+        """(6,) m: eq. 10's home height per leg (rotary only); see :func:`home_height_eq10`."""
+        if not self.is_rotary:
+            raise GeometryError("home_height: eq. 10 applies to rotary platforms only")
+        assert self.horn_length is not None
+        return home_height_eq10(self.base_anchors, self.platform_anchors, self.horn_length, self.rod_length)
+
+    # ------------------------------------------------------------------- I/O
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, source: str = "geometry") -> PlatformGeometry:
+        """Build a geometry from a mapping as read from TOML.
+
+        Lengths are metres and angles radians unless ``length_unit = "mm"`` or
+        ``angle_unit = "deg"`` say otherwise. ``home_height`` may be left out for a
+        rotary platform: it is then computed by eq. 10, and every leg must agree.
+        Raises :class:`GeometryError` naming the bad field.
+        """
+        known = {
+            "name", "description", "length_unit", "angle_unit", "base_anchors", "platform_anchors",
+            "rod_length", "home_height", "horn_length", "servo_beta", "servo_angle_range", "leg_length_range",
+        }  # fmt: skip
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise GeometryError(f"{source}: unknown field(s) {unknown}; known fields are {sorted(known)}")
+        length_unit = data.get("length_unit", "m")
+        angle_unit = data.get("angle_unit", "rad")
+        if length_unit not in ("m", "mm"):
+            raise GeometryError(f"length_unit: must be 'm' or 'mm', got {length_unit!r}")
+        if angle_unit not in ("rad", "deg"):
+            raise GeometryError(f"angle_unit: must be 'rad' or 'deg', got {angle_unit!r}")
+        ls = 1e-3 if length_unit == "mm" else 1.0
+        ang = math.pi / 180.0 if angle_unit == "deg" else 1.0
+
+        def need(key: str) -> Any:
+            if key not in data:
+                raise GeometryError(f"{key}: missing field in {source}")
+            return data[key]
+
+        rotary = "horn_length" in data
+        kw: dict[str, Any] = {
+            "name": str(data.get("name", Path(source).stem)),
+            "description": str(data.get("description", "")),
+            "base_anchors": _shape("base_anchors", need("base_anchors"), (6, 3)) * ls,
+            "platform_anchors": _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls,
+            "rod_length": _scalar("rod_length", need("rod_length")) * ls,
+        }
+        if rotary:
+            kw["horn_length"] = _scalar("horn_length", data["horn_length"]) * ls
+            _positive("horn_length", kw["horn_length"])
+            _positive("rod_length", kw["rod_length"])
+            kw["servo_beta"] = _shape("servo_beta", need("servo_beta"), (6,)) * ang
+            kw["servo_angle_range"] = _range("servo_angle_range", need("servo_angle_range"), positive=False)
+            kw["servo_angle_range"] = (kw["servo_angle_range"][0] * ang, kw["servo_angle_range"][1] * ang)
+            for key in ("leg_length_range",):
+                if key in data:
+                    raise GeometryError(f"{key}: only for a linear platform (horn_length is set)")
+        else:
+            lo, hi = _range("leg_length_range", need("leg_length_range"), positive=True)
+            kw["leg_length_range"] = (lo * ls, hi * ls)
+            for key in ("servo_beta", "servo_angle_range"):
+                if key in data:
+                    raise GeometryError(f"{key}: only for a rotary platform (horn_length is not set)")
+        if "home_height" in data:
+            kw["home_height"] = _scalar("home_height", data["home_height"]) * ls
+        elif rotary:
+            h = home_height_eq10(kw["base_anchors"], kw["platform_anchors"], kw["horn_length"], kw["rod_length"])
+            if not np.all(np.isfinite(h)):
+                bad = [int(i) for i in np.flatnonzero(~np.isfinite(h))]
+                raise GeometryError(f"home_height: eq. 10 has no solution for legs {bad} (rods too short)")
+            if np.ptp(h) > HOME_HEIGHT_RTOL * abs(float(np.mean(h))):
+                raise GeometryError(
+                    "home_height: eq. 10 gives different heights per leg "
+                    f"{np.round(h, 6).tolist()} m; the geometry is not symmetric, give home_height explicitly"
+                )
+            kw["home_height"] = float(np.mean(h))
+        else:
+            raise GeometryError(f"home_height: missing field in {source} (required for a linear platform)")
+        return cls(**kw)
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> PlatformGeometry:
+        """Load a geometry from a TOML file (see :meth:`from_dict` for the fields)."""
+        return cls.from_dict(read_toml(path, GeometryError), source=str(path))
+
+    def to_toml(self) -> str:
+        """This geometry as TOML text in SI units, loadable by :meth:`from_toml`."""
+
+        def fmt(v: float) -> str:
+            return repr(float(v))
+
+        def rows(a: np.ndarray) -> str:
+            return "[\n" + "".join(f"  [{', '.join(fmt(x) for x in r)}],\n" for r in a) + "]"
+
+        lines = [
+            f"name = {json.dumps(self.name)}",
+            f"description = {json.dumps(self.description)}",
+            'length_unit = "m"',
+            'angle_unit = "rad"',
+            f"base_anchors = {rows(self.base_anchors)}",
+            f"platform_anchors = {rows(self.platform_anchors)}",
+            f"rod_length = {fmt(self.rod_length)}",
+            f"home_height = {fmt(self.home_height)}",
+        ]
+        if self.is_rotary:
+            assert self.servo_beta is not None and self.servo_angle_range is not None
+            lines += [
+                f"horn_length = {fmt(self.horn_length)}",  # type: ignore[arg-type]
+                f"servo_beta = [{', '.join(fmt(x) for x in self.servo_beta)}]",
+                f"servo_angle_range = [{fmt(self.servo_angle_range[0])}, {fmt(self.servo_angle_range[1])}]",
+            ]
+        else:
+            assert self.leg_length_range is not None
+            lines.append(f"leg_length_range = [{fmt(self.leg_length_range[0])}, {fmt(self.leg_length_range[1])}]")
+        return "\n".join(lines) + "\n"
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PlatformGeometry):
+            return NotImplemented
+        return self.to_toml() == other.to_toml()
+
+    def __hash__(self) -> int:
+        return hash(self.to_toml())
+
+
+# ---------------------------------------------------------------- validation
+def _shape(key: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise GeometryError(f"{key}: not numeric ({exc})") from None
+    if arr.shape != shape:
+        raise GeometryError(f"{key}: expected shape {shape}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise GeometryError(f"{key}: contains non-finite values")
+    return arr
+
+
+def _scalar(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
+        raise GeometryError(f"{key}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _positive(key: str, value: Any) -> None:
+    v = _scalar(key, value)
+    if not math.isfinite(v) or v <= 0.0:
+        raise GeometryError(f"{key}: must be a finite positive length, got {v!r}")
+
+
+def _range(key: str, value: Any, *, positive: bool) -> tuple[float, float]:
+    arr = _shape(key, value, (2,))
+    lo, hi = float(arr[0]), float(arr[1])
+    if not lo < hi:
+        raise GeometryError(f"{key}: expected [low, high] with low < high, got {[lo, hi]}")
+    if positive and lo <= 0.0:
+        raise GeometryError(f"{key}: lengths must be positive, got {[lo, hi]}")
+    return (lo, hi)

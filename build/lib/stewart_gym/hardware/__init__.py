@@ -1,0 +1,1 @@
+"""Hardware deployment: serial servo-controller protocols, safety layer, policy bundles, the control loop."""

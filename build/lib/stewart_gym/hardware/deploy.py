@@ -1,0 +1,333 @@
+"""The fixed-rate control loop that drives real servos: sensor → observation → policy → IK → pulses → safety → bytes.
+
+Every tick (default 50 Hz):
+
+1. read the ball sensor (a :class:`~stewart_gym.sensing.BallSensor`: the touch panel on the serial line, or
+   the simulated plant's sensor model);
+2. build the observation exactly as the environment does (:class:`~stewart_gym.sensing.BallObserver`);
+3. run the policy (an ONNX bundle or the PID baseline: numpy + onnxruntime only);
+4. map the action through the IK and the calibration (:class:`~stewart_gym.actions.ActionMapper`);
+5. pass the pulses through the :class:`~stewart_gym.hardware.safety.SafetyLayer`:
+   channel limits always, a per-channel rate limit, and *hold the last safe
+   command* when the action is NaN/inf or the pose is unreachable;
+6. write the protocol's bytes.
+
+Watchdog: sensor data older than ``watchdog_s`` or a missed deadline moves the
+platform home (rate-limited) until fresh data returns. On Ctrl-C, on any
+exception and at the end, the servos are driven home before the port closes.
+Every tick is written to a CSV log flushed line by line, so a crash keeps it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from stewart_gym.actions import ActionMapper
+from stewart_gym.envs.targets import Fixed, Target
+from stewart_gym.errors import ConfigError, PolicyError
+from stewart_gym.hardware.safety import SafetyLayer
+from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
+from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact
+
+__all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant"]
+
+
+class Plant(Protocol):
+    """What the pulses drive when no real platform does: the simulated plant of a dry run."""
+
+    def apply(self, pulses_us: np.ndarray) -> None:
+        """The pulses just sent; advance one control period."""
+
+    def close(self) -> None:
+        """Release it."""
+
+
+class PanelSensor:
+    """The touch panel as the Arduino sketch reports it (``B x,y`` in mm): a :class:`~stewart_gym.sensing.BallSensor`."""
+
+    def __init__(self, controller: LineController) -> None:
+        self.controller = controller
+
+    def read(self, t: float) -> Reading | None:
+        got = self.controller.poll_ball()
+        if got is None:
+            return None
+        (x_mm, y_mm), arrived = got
+        return (x_mm * 1e-3, y_mm * 1e-3), t - (time.monotonic() - arrived)
+
+
+class SimulatedPlant:
+    """The simulated platform, ball and touch panel as the plant of a hardware-in-the-loop dry run.
+
+    It is a :class:`Plant` (the pulses the loop sends to the serial device also
+    drive the simulated servos, one control period per tick) and a
+    :class:`~stewart_gym.sensing.BallSensor` (the ball as the env's sensor model
+    reports it). The env is used through its public parts only: its backend,
+    its sensor and the episode's parameters.
+    """
+
+    def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
+                 ball_position: tuple[float, float] | None = None) -> None:  # fmt: skip
+        import gymnasium as gym
+
+        self.env = gym.make(env_id, randomize=randomize).unwrapped
+        options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
+        self.env.reset(seed=seed, options=options)
+        self.backend = self.env.sim
+        self.sensor = self.env.panel
+        self._contact = (self.env.plate_half_extent, self.backend.plate_top, self.env.params.ball.radius)
+        #: mm, the ball's distance from the plate centre when the plant was closed (None while it runs)
+        self.final_error_mm: float | None = None
+
+    def read(self, t: float) -> Reading | None:
+        sim_t = self.backend.time
+        got = self.sensor.read(sim_t)
+        if got is None:
+            return None
+        return got[0], t - (sim_t - got[1])  # the sample's age carried over to the loop's clock
+
+    def apply(self, pulses_us: np.ndarray) -> None:
+        self.backend.command(pulses_us)
+        self.backend.step()
+        x, y, z = self.backend.ball_position()
+        _, touching = ball_contact(x, y, z, *self._contact)
+        self.sensor.record(self.backend.time, (x, y), touching)
+
+    def ball_error_mm(self) -> float:
+        """True distance of the ball from the plate centre, mm (for reports); after :meth:`close`, the last one."""
+        if self.final_error_mm is not None:
+            return self.final_error_mm
+        x, y, _ = self.backend.ball_position()
+        return float(math.hypot(x, y) * 1e3)
+
+    def close(self) -> None:
+        """Record the ball's final distance from the centre (:attr:`final_error_mm`), then close the simulator."""
+        if self.final_error_mm is None:
+            self.final_error_mm = self.ball_error_mm()
+            self.env.close()
+
+#: Default rate limit, µs of pulse width per second per channel: just under the no-load speed of the
+#: reference servos (0.17 s/60° at 1600 µs per π rad ≈ 3,137 µs/s), so it never slows a move the servo
+#: could make, but stops a jump. At 50 Hz that is 60 µs per tick.
+DEFAULT_SLEW_US_PER_S = 3000.0
+#: Highest control rate the loop accepts, Hz (hobby servos take a new pulse every 3–20 ms).
+MAX_RATE_HZ = 500.0
+#: A run that misses more than this fraction of its deadlines has failed: the machine cannot keep the rate.
+MAX_MISSED_FRACTION = 0.05
+
+
+@dataclass
+class DeployConfig:
+    """Loop settings; checked on creation (:class:`~stewart_gym.errors.ConfigError` names the bad one)."""
+
+    rate_hz: float = 50.0
+    duration_s: float | None = None  # None: until Ctrl-C
+    watchdog_s: float = 0.100  # sensor data older than this → home
+    max_step_us: float = 60.0  # rate limit per channel per tick (DEFAULT_SLEW_US_PER_S at 50 Hz)
+    log_path: str | None = "deploy_log.csv"
+    home_timeout_s: float = 2.0  # longest drive home at shutdown
+
+    def __post_init__(self) -> None:
+        checks = [("rate_hz", self.rate_hz, 0.0, MAX_RATE_HZ), ("watchdog_s", self.watchdog_s, 0.0, 60.0),
+                  ("max_step_us", self.max_step_us, 0.0, 1000.0), ("home_timeout_s", self.home_timeout_s, 0.0, 60.0)]
+        if self.duration_s is not None:
+            checks.append(("duration_s", self.duration_s, 0.0, math.inf))
+        for name, value, lo, hi in checks:
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and lo < value <= hi):
+                raise ConfigError(f"deploy: {name} must be a finite number in ({lo:g}, {hi:g}], got {value!r}")
+
+
+@dataclass
+class DeploySummary:
+    """What happened; ``exit_code`` 0 = clean stop, 1 = error, 2 = device failure."""
+
+    ticks: int = 0
+    frames_sent: int = 0
+    duration_s: float = 0.0
+    held: int = 0
+    clamped: int = 0
+    rate_limited: int = 0
+    homing: int = 0
+    stale: int = 0
+    missed_deadlines: int = 0
+    unreachable: int = 0
+    jitter_ms_mean: float = 0.0
+    jitter_ms_max: float = 0.0
+    compute_ms_p99: float = 0.0
+    homed: bool = False
+    exit_code: int = 0
+    message: str = "completed"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def text(self) -> str:
+        return (f"{self.message}: {self.ticks} ticks in {self.duration_s:.2f} s, {self.frames_sent} frames sent; "
+                f"held {self.held}, clamped {self.clamped}, rate-limited {self.rate_limited}, homing {self.homing}, "
+                f"stale sensor {self.stale}, missed deadlines {self.missed_deadlines}, unreachable {self.unreachable}; "
+                f"jitter mean {self.jitter_ms_mean:.2f} ms, max {self.jitter_ms_max:.2f} ms; "
+                f"compute p99 {self.compute_ms_p99:.3f} ms; servos homed: {self.homed}")  # fmt: skip
+
+
+class DeployLoop:
+    """Runs a policy on servos at a fixed rate. See the module docstring for the tick."""
+
+    def __init__(self, policy: Any, mapper: ActionMapper, controller: ServoController, sensor: BallSensor,
+                 config: DeployConfig | None = None, target: Target | None = None,
+                 plant: Plant | None = None) -> None:  # fmt: skip
+        self.policy, self.mapper, self.controller, self.sensor = policy, mapper, controller, sensor
+        self.plant = plant
+        self.config = config or DeployConfig()
+        self.target = target or Fixed()
+        self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
+        self.observer = BallObserver(mapper.size)
+        sizes = (getattr(policy, "obs_size", self.observer.builder.size), getattr(policy, "action_size", mapper.size))
+        if sizes != (self.observer.builder.size, mapper.size):
+            raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "
+                              f"{mapper.mode!r} mode needs {self.observer.builder.size} and {mapper.size}")  # fmt: skip
+        self.prev_action: tuple[float, ...] = (0.0,) * mapper.size
+        self.roll_pitch = (0.0, 0.0)
+        self._observing = False  # the observer starts from the first reading, as the env's does at reset
+
+    # --------------------------------------------------------------- one tick
+    def compute(self, reading: tuple[tuple[float, float], float] | None, t: float) -> tuple[np.ndarray, np.ndarray,
+                                                                                           np.ndarray, dict]:  # fmt: skip
+        """Observation → policy → IK → safety for one tick; returns (obs, action, pulses, flags). No I/O."""
+        target_xy, target_vel = self.target(t)
+        sample = None if reading is None else (reading[0], t - reading[1])
+        if sample is not None and not self._observing:
+            self.observer.reset(sample[1], sample[0])
+            self._observing = True
+        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action)
+        flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
+        action = np.full(self.mapper.size, np.nan)
+        usable = False
+        mapped = None
+        try:
+            action = np.asarray(self.policy(obs), dtype=np.float64).reshape(self.mapper.size)
+            if np.all(np.isfinite(action)):
+                mapped = self.mapper(action)
+                flags["unreachable"] = mapped.scaled
+                usable = not mapped.scaled
+        except (ValueError, FloatingPointError):
+            mapped = None
+        requested = mapped.pulses if mapped is not None else None
+        pose = mapped.pose if mapped is not None else np.full(6, np.nan)  # NaN in "pulse" mode too
+        res = self.safety.toward_home() if flags["stale"] else self.safety.filter(requested if usable else None,
+                                                                                  usable)  # fmt: skip
+        if usable and not flags["stale"] and not res.held:
+            assert mapped is not None
+            self.prev_action = mapped.action  # the action as applied, clipped to [-1, 1]
+            if self.mapper.mode != "pulse":
+                self.roll_pitch = (float(pose[3]), float(pose[4]))
+        flags.update(held=res.held, clamped=res.clamped, rate_limited=res.rate_limited, homing=res.homing)
+        return obs, action, res.pulses, {**flags, "pose": pose}
+
+    # ------------------------------------------------------------------ loop
+    def run(self) -> DeploySummary:
+        cfg = self.config
+        period = 1.0 / cfg.rate_hz
+        summary = DeploySummary()
+        writer, fh = self._open_log()
+        jitters, computes = [], []
+        start = time.monotonic()
+        next_tick = start
+        missed = False
+        try:
+            while cfg.duration_s is None or summary.ticks < round(cfg.duration_s * cfg.rate_hz):
+                now = time.monotonic()
+                jitter = (now - next_tick) * 1e3
+                t = now - start
+                got = self.sensor.read(t)
+                reading = None if got is None else (got[0], t - got[1])  # (x, y), age
+                c0 = time.perf_counter()
+                obs, action, pulses, flags = self.compute(reading, t)
+                if missed:  # the last tick overran: go home this tick
+                    pulses = self.safety.toward_home().pulses
+                    flags["homing"] = True
+                data = self.controller.send(pulses)
+                computes.append((time.perf_counter() - c0) * 1e3)
+                if self.plant is not None:
+                    self.plant.apply(pulses)
+                summary.ticks += 1
+                for key in ("held", "clamped", "rate_limited", "homing", "stale", "unreachable"):
+                    setattr(summary, key, getattr(summary, key) + int(bool(flags[key])))
+                jitters.append(jitter)
+                if writer is not None:
+                    bits = [int(bool(flags[k])) for k in ("held", "clamped", "rate_limited", "homing", "stale",
+                                                          "unreachable")]  # fmt: skip
+                    writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
+                                     *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data)])
+                    fh.flush()
+                next_tick += period
+                sleep = next_tick - time.monotonic()
+                missed = sleep < -period  # more than a whole period late
+                if missed:
+                    summary.missed_deadlines += 1
+                    next_tick = time.monotonic()
+                elif sleep > 0:
+                    time.sleep(sleep)
+        except KeyboardInterrupt:
+            summary.message = "stopped by Ctrl-C"
+        except DeviceError as exc:
+            summary.message, summary.exit_code = f"device failure: {exc}", 2
+        except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)
+            summary.message, summary.exit_code = f"error: {type(exc).__name__}: {exc}", 1
+        finally:
+            summary.homed = self._go_home(period) if summary.exit_code != 2 else False
+            self.controller.close()
+            if fh is not None:
+                fh.close()
+            for part in (self.plant, self.sensor):
+                close = getattr(part, "close", None)
+                if close is not None:
+                    close()
+        summary.duration_s = time.monotonic() - start
+        summary.frames_sent = self.controller.frames_sent
+        if jitters:
+            summary.jitter_ms_mean = float(np.mean(np.abs(jitters)))
+            summary.jitter_ms_max = float(np.max(np.abs(jitters)))
+            summary.compute_ms_p99 = float(np.percentile(computes, 99))
+        if summary.message == "completed" and summary.ticks:  # a run that ended by itself is judged
+            if summary.missed_deadlines > MAX_MISSED_FRACTION * summary.ticks:
+                summary.message = (f"failed: missed {summary.missed_deadlines} of {summary.ticks} deadlines; this "
+                                   f"machine cannot keep {cfg.rate_hz:g} Hz (lower --rate)")  # fmt: skip
+                summary.exit_code = 1
+            elif summary.held == summary.ticks:
+                summary.message = "failed: the policy gave no usable action on any tick (every tick held the pose)"
+                summary.exit_code = 1
+        return summary
+
+    def _go_home(self, period: float) -> bool:
+        """Drive home at the rate limit (at most ``home_timeout_s``); True once the home frame was sent."""
+        deadline = time.monotonic() + self.config.home_timeout_s
+        try:
+            while time.monotonic() < deadline:
+                res = self.safety.toward_home()
+                self.controller.send(res.pulses)
+                if self.safety.at_home():
+                    return True
+                time.sleep(period)
+        except (DeviceError, KeyboardInterrupt):
+            return False
+        return False
+
+    def _open_log(self) -> tuple[Any, Any]:
+        if not self.config.log_path:
+            return None, None
+        path = Path(self.config.log_path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = path.open("w", newline="", buffering=1)
+        writer = csv.writer(fh)
+        n = self.mapper.size
+        writer.writerow(["t_s", "jitter_ms", *(f"obs{i}" for i in range(self.observer.builder.size)),
+                         *(f"action{i}" for i in range(n)), "x_m", "y_m", "z_m", "roll", "pitch", "yaw",
+                         *(f"pulse{i}_us" for i in range(6)), "held", "clamped", "rate_limited", "homing", "stale",
+                         "unreachable", "missed_deadline", "bytes"])  # fmt: skip
+        fh.flush()
+        return writer, fh

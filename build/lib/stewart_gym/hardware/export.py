@@ -1,0 +1,214 @@
+"""Policy bundles for deployment: ONNX + JSON, run with onnxruntime and numpy (no torch, no pickle).
+
+A bundle is a folder with ``bundle.json`` and, for a learned policy,
+``policy.onnx``. ``bundle.json`` holds the kind (``"onnx"`` or ``"pid"``), the
+env id and action mode, the observation normalisation (VecNormalize mean, var,
+clip, epsilon) and the action bounds. The ONNX graph maps a *normalised*
+observation to the deterministic action (PPO: the Gaussian mean; SAC/TD3: the
+actor's output) *before* clipping, as Stable-Baselines3's export guide
+describes; :class:`BundlePolicy` normalises and clips around it exactly as
+``model.predict(deterministic=True)`` does.
+
+Exporting needs torch (training side); loading needs onnxruntime only.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.errors import PolicyError
+
+__all__ = ["BundlePolicy", "export_bundle_copy", "export_pid", "export_sb3", "pid_meta"]
+
+
+
+def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0",
+               env_kwargs: dict[str, Any] | None = None) -> Path:  # fmt: skip
+    """Export an SB3 model folder/zip (with its ``vecnormalize.pkl``) to a bundle in ``out_dir``.
+
+    ``env_kwargs`` are the env keywords the model was trained with that define
+    its observation and action (``action_mode``, ``max_tilt``, ``control_hz``,
+    and the track's ``trajectory``); they go into ``bundle.json``.
+    """
+    import torch
+    from stable_baselines3 import PPO, SAC
+
+    from stewart_gym.sb3_models import load_sb3
+
+    sb3 = load_sb3(model_path)
+    model = sb3.model
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+
+    class _Deterministic(torch.nn.Module):
+        """Normalised observation → deterministic action, before clipping (SB3's predict, minus the clip)."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.policy = model.policy if isinstance(model, PPO) else model.policy.actor
+
+        def forward(self, obs: torch.Tensor) -> torch.Tensor:
+            p = self.policy
+            if isinstance(model, PPO):  # the Gaussian's mean
+                return p.action_net(p.mlp_extractor.forward_actor(p.extract_features(obs, p.pi_features_extractor)))
+            if isinstance(model, SAC):  # tanh-squashed mean
+                return p(obs, deterministic=True)
+            return p(obs)  # TD3: tanh output
+
+    net = _Deterministic().eval()
+    n_obs = int(model.observation_space.shape[0])
+    with torch.no_grad():
+        torch.onnx.export(net, torch.zeros(1, n_obs), str(out / "policy.onnx"), input_names=["obs"],
+                          output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
+                          dynamo=False)  # fmt: skip
+    env_kwargs = dict(env_kwargs or {})
+    action_mode = str(env_kwargs.get("action_mode", "tilt"))
+    if int(model.action_space.shape[0]) != ACTION_SIZES.get(action_mode, -1):
+        raise PolicyError(f"{model_path}: {model.action_space.shape[0]} actions do not fit action_mode {action_mode!r}")
+    meta: dict[str, Any] = {
+        "kind": "onnx",
+        "env_id": env_id,
+        "action_mode": action_mode,
+        "env_kwargs": env_kwargs,
+        "algo": type(model).__name__.lower(),
+        "obs_size": n_obs,
+        "action_low": model.action_space.low.tolist(),
+        "action_high": model.action_space.high.tolist(),
+        "obs_mean": None if sb3.obs_rms is None else sb3.obs_rms.mean.tolist(),
+        "obs_var": None if sb3.obs_rms is None else sb3.obs_rms.var.tolist(),
+        "clip_obs": sb3.clip_obs,
+        "epsilon": sb3.epsilon,
+    }
+    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return out
+
+
+def pid_meta(gains: dict[str, Any], env_id: str = "StewartBallBalance-v0") -> dict[str, Any]:
+    """The ``bundle.json`` content of the PID baseline with these gains."""
+    return {"kind": "pid", "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains}
+
+
+def export_pid(gains_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0") -> Path:
+    """Export the PID baseline's gains to a bundle (``kind: "pid"``)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    gains = json.loads(Path(gains_path).read_text())
+    (out / "bundle.json").write_text(json.dumps(pid_meta(gains, env_id), indent=2) + "\n")
+    return out
+
+
+def export_bundle_copy(bundle_dir: str | Path, out_dir: str | Path) -> Path:
+    """Copy a bundle folder (``bundle.json`` and ``policy.onnx``) to ``out_dir``; checked by loading it."""
+    import shutil
+
+    src, out = Path(bundle_dir), Path(out_dir)
+    BundlePolicy(src)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("bundle.json", "policy.onnx"):
+        if (src / name).exists() and (src / name).resolve() != (out / name).resolve():
+            shutil.copyfile(src / name, out / name)
+    return out
+
+
+class BundlePolicy:
+    """A policy from a bundle folder, for deployment: onnxruntime + numpy only."""
+
+    def __init__(self, bundle_dir: str | Path) -> None:
+        folder = Path(bundle_dir)
+        meta_path = folder / "bundle.json"
+        if not meta_path.is_file():
+            raise PolicyError(f"{folder} is not a policy bundle (no bundle.json); write one with stewart-gym export")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise PolicyError(f"{meta_path}: not valid JSON ({exc})") from None
+        self._setup(meta, folder, meta_path)
+
+    @classmethod
+    def from_meta(cls, meta: dict[str, Any]) -> BundlePolicy:
+        """A bundle held in memory (the PID's: no file is written)."""
+        self = cls.__new__(cls)
+        self._setup(meta, None, Path("<memory>"))
+        return self
+
+    def _setup(self, meta: Any, folder: Path | None, meta_path: Path) -> None:
+        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", "pid"):
+            kind = meta.get("kind") if isinstance(meta, dict) else None
+            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx' or 'pid')")
+        self.meta = meta
+        self.kind = meta["kind"]
+        self.env_id = str(meta.get("env_id", "StewartBallBalance-v0"))
+        self.action_mode = meta.get("action_mode", "tilt")
+        if self.action_mode not in ACTION_SIZES:
+            raise PolicyError(f"{meta_path}: action_mode must be one of {sorted(ACTION_SIZES)}, got {self.action_mode!r}")
+        self.action_size = ACTION_SIZES[self.action_mode]
+        if self.kind == "pid":
+            from stewart_gym.classical import CascadedPID, PIDGains
+
+            if self.action_mode != "tilt":
+                raise PolicyError(f"{meta_path}: the PID commands tilt, not {self.action_mode!r}")
+            try:
+                self._pid = CascadedPID(PIDGains(**meta["gains"]))
+            except (KeyError, TypeError) as exc:
+                raise PolicyError(f"{meta_path}: malformed PID gains ({exc})") from None
+            self.obs_size = 10 + self.action_size
+            return
+        missing = [k for k in ("obs_size", "action_low", "action_high", "obs_mean", "obs_var", "clip_obs", "epsilon")
+                   if k not in meta]  # fmt: skip
+        if missing:
+            raise PolicyError(f"{meta_path}: missing field(s) {missing}; re-export the policy")
+        if len(meta["action_low"]) != self.action_size or len(meta["action_high"]) != self.action_size:
+            raise PolicyError(f"{meta_path}: {len(meta['action_low'])} action bounds, but action_mode "
+                              f"{self.action_mode!r} has {self.action_size}; re-export the policy")  # fmt: skip
+        self.obs_size = int(meta["obs_size"])
+        assert folder is not None
+        onnx_path = folder / "policy.onnx"
+        if not onnx_path.is_file():
+            raise PolicyError(f"{folder}: the bundle has no policy.onnx")
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = 1
+        opts.inter_op_num_threads = 1
+        try:
+            self._session = ort.InferenceSession(str(onnx_path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # noqa: BLE001  (onnxruntime raises its own classes for a bad file)
+            raise PolicyError(f"{onnx_path}: not a loadable ONNX model ({type(exc).__name__})") from None
+        outputs = self._session.get_outputs()[0].shape
+        if isinstance(outputs[-1], int) and outputs[-1] != self.action_size:
+            raise PolicyError(f"{onnx_path}: the network has {outputs[-1]} outputs but the bundle says action_mode "
+                              f"{self.action_mode!r} ({self.action_size}); re-export the policy")  # fmt: skip
+        self._mean = None if meta["obs_mean"] is None else np.asarray(meta["obs_mean"], np.float64)
+        var = meta["obs_var"]
+        self._std = None if var is None else np.sqrt(np.asarray(var, np.float64) + meta["epsilon"])
+        self._clip = float(meta["clip_obs"])
+        self._low = np.asarray(meta["action_low"], np.float32)
+        self._high = np.asarray(meta["action_high"], np.float32)
+
+    def reset(self) -> None:
+        """Start of an episode (clears the PID integrator)."""
+        if self.kind == "pid":
+            self._pid.reset()
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Action(s) for observation(s) (…, obs_size), clipped to the action bounds."""
+        if self.kind == "pid":
+            return self._pid(obs)
+        o = np.asarray(obs, dtype=np.float64)
+        if self._mean is not None:
+            o = np.clip((o - self._mean) / self._std, -self._clip, self._clip)
+        x = o.astype(np.float32).reshape(-1, o.shape[-1])
+        action = self._session.run(None, {"obs": x})[0]
+        return np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        """Stable-Baselines3-style ``predict`` (so :func:`~stewart_gym.evaluation.evaluate` runs bundles too)."""
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        return self(obs), None

@@ -1,0 +1,85 @@
+"""Finding servo trims by hand: the procedure behind ``stewart-gym calibrate``.
+
+One servo at a time is nudged until its horn is level (the neutral pose),
+with keys read line by line: ``+`` / ``-`` move the selected servo by the step,
+``n`` selects the next servo, ``q`` saves and quits (so does the end of the
+input). The pulses sent always stay within the channel limits. At the end the
+servos are left at the *new* neutral, and the calibration is written as TOML
+with its ``[hardware]`` table (port, protocol, baud rate) so that ``deploy
+--calibration FILE`` needs no more options.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.hardware.serial_controllers import ServoController
+
+__all__ = ["TrimResult", "calibration_toml", "find_trims"]
+
+#: Pulse values in the written file are rounded to this many decimals (µs): no float noise such as 1084.999999.
+DECIMALS = 3
+KEYS_HELP = "+ / - move the servo, n = next servo, q = save and quit"
+
+
+@dataclass
+class TrimResult:
+    calibration: ServoCalibration
+    presses: int
+    unknown_keys: int
+
+
+def find_trims(controller: ServoController, start: ServoCalibration, keys: Iterable[str], step_us: float,
+               say: Callable[[str], None] = print) -> TrimResult:  # fmt: skip
+    """Run the procedure on ``controller``; returns the new calibration (the channel limits move with the trim)."""
+    trims = np.round(start.neutral_us - 1500.0, DECIMALS)
+    servo, presses, unknown = 0, 0, 0
+
+    def pulses() -> np.ndarray:
+        return np.clip(1500.0 + trims, start.min_us, start.max_us)
+
+    finished = False
+    try:
+        say(f"servo 0: {KEYS_HELP} ({step_us:g} µs per press)")
+        controller.send(pulses())
+        for line in keys:
+            key = line.strip()
+            if key in ("+", "-"):
+                # the trim may not take the neutral pulse past the channel limits
+                trims[servo] = float(np.clip(round(trims[servo] + (step_us if key == "+" else -step_us), DECIMALS),
+                                             start.min_us[servo] - 1500.0, start.max_us[servo] - 1500.0))  # fmt: skip
+                presses += 1
+            elif key == "n":
+                servo = (servo + 1) % 6
+            elif key == "q":
+                break
+            elif key:
+                unknown += 1
+                say(f"unknown key {key!r}: {KEYS_HELP}")
+                continue
+            controller.send(pulses())
+            say(f"servo {servo}: trims {np.round(trims, 1).tolist()} µs")
+        finished = True
+    finally:
+        shift = trims - (start.neutral_us - 1500.0)  # the channel limits move with the neutral pulse
+        cal = ServoCalibration(1500.0 + trims, start.direction, start.home_angle, start.us_per_rad,
+                               np.round(start.min_us + shift, DECIMALS), np.round(start.max_us + shift, DECIMALS),
+                               start.channels)  # fmt: skip
+        if finished:
+            controller.send(np.clip(cal.neutral_us, cal.min_us, cal.max_us))  # rest at the new neutral
+    return TrimResult(cal, presses, unknown)
+
+
+def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any]) -> str:
+    """The calibration file: the calibration and a ``[hardware]`` table with the entries that are set."""
+    text = cal.to_toml()
+    table = {k: v for k, v in hardware.items() if v is not None}
+    if table:
+        text += "\n[hardware]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in sorted(table.items()))
+    return text

@@ -1,0 +1,51 @@
+"""Output paths checked before long work starts: a run that would fail to save its result fails at once.
+
+Used by the command line and by :func:`stewart_gym.training.train`; raises
+:class:`~stewart_gym.errors.ConfigError` with what to do.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from stewart_gym.errors import ConfigError
+
+__all__ = ["output_dir", "output_file"]
+
+
+def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
+    """Check that ``path`` can be written, before any long work: its folder exists or can be created, it is
+    not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`."""
+    p = Path(path)
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise ConfigError(f"{p}: expected a file name ending in {' or '.join(suffixes)}")
+    if p.is_dir():
+        raise ConfigError(f"{p} is a folder; give a file name")
+    if p.exists() and not overwrite:
+        raise ConfigError(f"{p} exists; give another name or --overwrite")
+    _writable_dir(p.parent)
+    if p.exists() and not os.access(p, os.W_OK):
+        raise ConfigError(f"{p}: no permission to write")
+    return p
+
+
+def output_dir(path: str | Path) -> Path:
+    """Check that ``path`` is, or can be created as, a writable folder. Raises :class:`ConfigError`."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise ConfigError(f"{p} exists and is not a folder")
+    _writable_dir(p)
+    return p
+
+
+def _writable_dir(folder: Path) -> None:
+    existing = folder
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"{folder}: {existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError(f"{folder}: no permission to write in {existing}")

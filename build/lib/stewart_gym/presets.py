@@ -1,0 +1,165 @@
+"""Preset platform geometries, and loading a geometry by preset name or TOML file.
+
+Each preset is a function returning a fresh :class:`PlatformGeometry`;
+:func:`load_preset` and :func:`load_geometry` are the way in. The presets are
+documented in the docs' "Conventions and presets" page.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from stewart_gym.geometry import GeometryError, PlatformGeometry, home_height_eq10
+
+__all__ = ["PRESETS", "load_geometry", "load_preset", "polar_anchors", "preset_names"]
+
+MM = 1e-3
+DEG = math.pi / 180.0
+
+
+def polar_anchors(radius: float, angles_deg: list[float], z: float = 0.0) -> np.ndarray:
+    """(6, 3) anchors at ``radius`` (m) and polar angles (degrees), height ``z`` (m)."""
+    ang = np.radians(angles_deg)
+    return np.stack([radius * np.cos(ang), radius * np.sin(ang), np.full(6, z)], axis=1)
+
+
+def servo_hexapod() -> PlatformGeometry:
+    """The reference hobby ball balancer that the simulator models.
+
+    MG996R-class servos with 25 mm horns and 160 mm rods under a 300 mm plate
+    (REFERENCE.md §3-§4). Servo shafts sit in three pairs on a 100 mm radius,
+    at ±20° about 90°, 210° and 330°; each horn turns in the plane tangent to
+    that circle and points away from its partner. Rod ends sit in three pairs on
+    an 80 mm radius at ±8° about the same angles. The home height follows from
+    eq. 10 (h0 = 159.61 mm) and the home servo angle from eq. 12
+    (α0 = 17.14°, horn slightly raised). Servo travel is ±45° about α0
+    (±400 µs at 1600/π µs/rad), as in seed 000. Reachable from home along one
+    axis: x ±45.7 mm, y −53.3/+44.2 mm, z −18.5/+18.0 mm, roll −13.7/+13.0°,
+    pitch ±13.7°, yaw ±32.5°; cond(J) = 42.8 at home.
+    """
+    centres = [330.0, 90.0, 210.0]
+    base_deg = [c + s for c in centres for s in (-20.0, 20.0)]
+    top_deg = [c + s for c in centres for s in (-8.0, 8.0)]
+    # Horns point tangentially, away from the partner servo: the first of a pair
+    # points clockwise (β = θ − 90°), the second anticlockwise (β = θ + 90°).
+    beta = [math.radians(c + s) for c in centres for s in (-90.0, 90.0)]
+    base = polar_anchors(100 * MM, base_deg)
+    top = polar_anchors(80 * MM, top_deg)
+    a, s = 25 * MM, 160 * MM
+    h0 = float(np.mean(home_height_eq10(base, top, a, s)))
+    geo = PlatformGeometry(
+        name="servo-hexapod",
+        base_anchors=base,
+        platform_anchors=top,
+        horn_length=a,
+        rod_length=s,
+        servo_beta=np.array(beta),
+        home_height=h0,
+        servo_angle_range=(-math.pi, math.pi),  # replaced below by ±45° about α0
+        description="Reference hobby ball balancer: MG996R servos, 25 mm horns, 160 mm rods, 300 mm plate.",
+    )
+    from stewart_gym.kinematics import inverse_kinematics
+
+    alpha0 = float(inverse_kinematics(geo, np.zeros(6)).servo_angles[0])  # eq. 12: the same for every leg
+    return replace(geo, servo_angle_range=(alpha0 - 45 * DEG, alpha0 + 45 * DEG))
+
+
+def memememe_liverpool() -> PlatformGeometry:
+    """memememe's small platform (Liverpool 2016), from its ``stewartPlatformMath.py``.
+
+    Base anchors on a 65.43 mm radius, rod ends on 76.35 mm, 36 mm horns, 125 mm
+    rods, initial height 120 mm as given (not computed by eq. 10). Its AX-12A
+    servos turn 300°; the travel here is ±90° from the horizontal.
+    """
+    beta = np.array([-8 * math.pi / 3, math.pi / 3, 0.0, -math.pi, -4 * math.pi / 3, -7 * math.pi / 3])
+    return PlatformGeometry(
+        name="memememe-liverpool",
+        base_anchors=polar_anchors(65.43 * MM, [314.9, 345.1, 74.9, 105.1, 194.9, 225.1]),
+        platform_anchors=polar_anchors(76.35 * MM, [322.9, 337.1, 82.9, 97.1, 202.9, 217.1]),
+        horn_length=36 * MM,
+        rod_length=125 * MM,
+        servo_beta=beta,
+        home_height=120 * MM,
+        servo_angle_range=(-90 * DEG, 90 * DEG),
+        description="memememe small platform (Liverpool 2016), AX-12A servos; REFERENCE.md §3.",
+    )
+
+
+def senilov2018() -> PlatformGeometry:
+    """Seed 001: a 6-UPS platform with linear actuators (Senilov, 2018).
+
+    Base anchors on Rb = 0.5 m, platform anchors on Rt = 0.2 m, half-angle 10°,
+    the base anchors lifted 0.02 m by the static link. Home height 0.25 m. The
+    leg's fixed part is 0.2 m and its stroke 0…0.3 m, so a leg spans 0.2…0.5 m.
+    """
+    dt = 10.0
+    return PlatformGeometry(
+        name="senilov2018",
+        base_anchors=polar_anchors(0.5, [330 + dt, 90 - dt, 90 + dt, 210 - dt, 210 + dt, 330 - dt], z=0.02),
+        platform_anchors=polar_anchors(0.2, [30 - dt, 30 + dt, 150 - dt, 150 + dt, 270 - dt, 270 + dt]),
+        rod_length=0.2,
+        home_height=0.25,
+        leg_length_range=(0.2, 0.5),
+        description="Seed 001 (Senilov 2018): 6-UPS, Rb=0.5 m, Rt=0.2 m, stroke 0..0.3 m.",
+    )
+
+
+def mathcad_micro() -> PlatformGeometry:
+    """Seed 002: the Mathcad sheet's 22 mm micro platform.
+
+    Anchor tables in mm converted to m; home height z_mid = 22.19 mm; legs
+    31.44 mm ± 1.24 mm, so a leg spans 30.20…32.68 mm and the fixed part is
+    30.20 mm.
+    """
+    base = np.array(
+        [[4, 26, 22, -22, -26, -4], [27.7, -10.39, -17.32, -17.32, -10.39, 27.7], [0, 0, 0, 0, 0, 0]]
+    ).T
+    top = np.array([[5.5, 7.5, 2, -2, -7.5, -5.5], [5.48, 2.02, -7.5, -7.5, 2.02, 5.48], [0, 0, 0, 0, 0, 0]]).T
+    return PlatformGeometry(
+        name="mathcad-micro",
+        base_anchors=base * MM,
+        platform_anchors=top * MM,
+        rod_length=(31.44 - 1.24) * MM,
+        home_height=22.19 * MM,
+        leg_length_range=((31.44 - 1.24) * MM, (31.44 + 1.24) * MM),
+        description="Seed 002 (Mathcad micro platform): legs 31.44 ± 1.24 mm, z_mid 22.19 mm.",
+    )
+
+
+PRESETS: dict[str, Callable[[], PlatformGeometry]] = {
+    "servo-hexapod": servo_hexapod,
+    "memememe-liverpool": memememe_liverpool,
+    "senilov2018": senilov2018,
+    "mathcad-micro": mathcad_micro,
+}
+
+
+def preset_names() -> list[str]:
+    """Names accepted by :func:`load_preset`."""
+    return sorted(PRESETS)
+
+
+def load_preset(name: str) -> PlatformGeometry:
+    """Return the named preset geometry (see :func:`preset_names`)."""
+    try:
+        builder = PRESETS[name]
+    except KeyError:
+        raise GeometryError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
+    return builder()
+
+
+def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
+    """A geometry from a preset name, a TOML path, or a geometry (returned as is)."""
+    if isinstance(spec, PlatformGeometry):
+        return spec
+    if isinstance(spec, str) and spec in PRESETS:
+        return load_preset(spec)
+    path = Path(spec)
+    if path.suffix == ".toml" or path.exists():
+        return PlatformGeometry.from_toml(path)
+    raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")

@@ -1,0 +1,251 @@
+"""One place that turns what a user names as a policy into something that runs.
+
+``--policy`` accepts, everywhere (``evaluate``, ``demo``, ``export``, ``deploy``):
+
+* ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
+* ``pid``: the tuned cascaded PID baseline (``policies/pid_gains.json``);
+* a **run folder** written by ``stewart-gym train`` (``model.zip`` or
+  ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
+* a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
+  checkpoint; its run's ``config.yaml`` is found beside it or one folder up);
+* a **bundle** folder written by ``stewart-gym export`` (``bundle.json``);
+* a **PID gains** ``.json`` file.
+
+:func:`resolve_policy` works out which, and what the policy was trained for:
+the env id and the env keywords that define its observation and action
+(``action_mode``, ``max_tilt``, ``control_hz``). Evaluation builds the env with
+those keywords, export writes them into the bundle, and deploy maps actions
+with them, so a policy trained in ``"pose"`` or ``"pulse"`` mode stays in that
+mode. Nothing here imports torch or Stable-Baselines3 until an SB3 model is
+actually loaded, so deploying a bundle needs numpy and onnxruntime only.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.errors import PolicyError
+
+__all__ = ["POLICY_DIR", "SHIPPED", "PolicySource", "deployable_policy", "export_policy", "load_for_evaluation",
+           "load_policy", "resolve_policy"]  # fmt: skip
+
+POLICY_DIR = Path(__file__).resolve().parent / "policies"
+#: Folder under ``policies/`` of the shipped policy of each env id.
+SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track",
+           "StewartBallDisturbance-v0": "balance"}  # the balance policy, trained without pushes, handles it
+DEFAULT_ENV = "StewartBallBalance-v0"
+#: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
+POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz")
+#: Env keywords of the track task that deploy uses for its moving target.
+TASK_ENV_KEYS = ("trajectory",)
+_KINDS_TEXT = "'shipped', 'pid', a run folder, a model .zip, a bundle folder or a PID gains .json"
+
+
+@dataclass(frozen=True)
+class PolicySource:
+    """A resolved ``--policy`` value.
+
+    Attributes:
+        spec: What the user gave.
+        kind: ``"pid"`` (gains file), ``"sb3"`` (a Stable-Baselines3 model) or ``"bundle"`` (ONNX/PID bundle).
+        path: The gains file, the model ``.zip`` or the bundle folder.
+        env_id: The env id the policy was trained (or exported) for.
+        env_kwargs: The env keywords that define its observation and action (and the track's trajectory).
+        bundle: A ready-made bundle of this policy, if there is one (the shipped policies have one).
+    """
+
+    spec: str
+    kind: str
+    path: Path
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    bundle: Path | None = None
+
+    @property
+    def action_mode(self) -> str:
+        return str(self.env_kwargs.get("action_mode", "tilt"))
+
+    @property
+    def label(self) -> str:
+        return self.spec if self.spec in ("shipped", "pid") else self.path.name
+
+
+def resolve_policy(spec: str, env_id: str | None = None) -> PolicySource:
+    """What ``spec`` names (see the module docstring); raises :class:`PolicyError` with what to do instead.
+
+    ``env_id`` picks the shipped policy (default ``StewartBallBalance-v0``) and
+    is recorded for the PID; a trained model or bundle keeps the env id it was
+    trained for.
+    """
+    if spec == "pid":
+        return PolicySource(spec, "pid", POLICY_DIR / "pid_gains.json", env_id or DEFAULT_ENV, {"action_mode": "tilt"})
+    if spec == "shipped":
+        env_id = env_id or DEFAULT_ENV
+        if env_id not in SHIPPED:
+            raise PolicyError(f"no shipped policy for {env_id!r}; shipped policies exist for {sorted(SHIPPED)}")
+        folder = POLICY_DIR / SHIPPED[env_id]
+        if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
+            env_kwargs = _bundle_source(spec, folder / "bundle").env_kwargs
+            return PolicySource(spec, "sb3", folder / "model.zip", env_id, env_kwargs, folder / "bundle")
+        source = _sb3_source(spec, folder / "model.zip")
+        return PolicySource(spec, "sb3", source.path, env_id, source.env_kwargs)
+    path = Path(spec)
+    if not path.exists():
+        raise PolicyError(f"policy {spec!r}: no such file or folder; give {_KINDS_TEXT}")
+    if path.is_dir():
+        if (path / "bundle.json").exists():
+            return _bundle_source(spec, path)
+        for name in ("model.zip", "best/best_model.zip", "best_model.zip"):
+            if (path / name).is_file():
+                return _sb3_source(spec, path / name)
+        raise PolicyError(f"policy {spec!r}: the folder has no bundle.json, model.zip or best/best_model.zip; "
+                          f"give {_KINDS_TEXT}")  # fmt: skip
+    if path.suffix == ".zip":
+        return _sb3_source(spec, path)
+    if path.suffix == ".json":
+        _read_json(path)  # a readable JSON file, checked here; the gains themselves when loaded
+        return PolicySource(spec, "pid", path, env_id or DEFAULT_ENV, {"action_mode": "tilt"})
+    raise PolicyError(f"policy {spec!r}: not a .zip model or a .json PID gains file; give {_KINDS_TEXT}")
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        data = json.loads(path.read_text())
+    except UnicodeDecodeError:
+        raise PolicyError(f"{path}: not a text file (expected JSON)") from None
+    except json.JSONDecodeError as exc:
+        raise PolicyError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise PolicyError(f"{path}: expected a JSON object, got {type(data).__name__}")
+    return data
+
+
+def _run_config(model_zip: Path) -> dict[str, Any] | None:
+    """The ``config.yaml`` of the run a model belongs to: beside it, or one folder up (``best/``, ``checkpoints/``)."""
+    try:
+        import yaml
+    except ImportError:
+        raise PolicyError("reading a training run needs pyyaml: pip install 'stewart_gym[train]'") from None
+
+    for folder in (model_zip.parent, model_zip.parent.parent):
+        cfg = folder / "config.yaml"
+        if cfg.is_file():
+            try:
+                data = yaml.safe_load(cfg.read_text())
+            except (yaml.YAMLError, UnicodeDecodeError) as exc:
+                raise PolicyError(f"{cfg}: not a readable run configuration ({exc})") from None
+            return data if isinstance(data, dict) else None
+    return None
+
+
+def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
+    if not model_zip.is_file():
+        raise PolicyError(f"policy {spec!r}: no model at {model_zip}")
+    cfg = _run_config(model_zip)
+    if cfg is None:
+        return PolicySource(spec, "sb3", model_zip, DEFAULT_ENV, {})  # action mode inferred when loaded
+    options, hp = cfg.get("options") or {}, cfg.get("hyperparams") or {}
+    env_kwargs = hp.get("env_kwargs") or {}
+    kept = {k: env_kwargs[k] for k in POLICY_ENV_KEYS + TASK_ENV_KEYS if k in env_kwargs}
+    kept.setdefault("action_mode", "tilt")
+    return PolicySource(spec, "sb3", model_zip, str(options.get("env_id", DEFAULT_ENV)), kept)
+
+
+def _bundle_source(spec: str, folder: Path) -> PolicySource:
+    meta = _read_json(folder / "bundle.json")
+    env_kwargs = dict(meta.get("env_kwargs") or {})
+    env_kwargs["action_mode"] = meta.get("action_mode", "tilt")
+    return PolicySource(spec, "bundle", folder, str(meta.get("env_id", DEFAULT_ENV)), env_kwargs, folder)
+
+
+# ---------------------------------------------------------------- loading
+def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
+    """A policy object with SB3's ``predict`` for evaluation: an SB3 model, the PID or a bundle."""
+    source = spec if isinstance(spec, PolicySource) else resolve_policy(spec, env_id)
+    if source.kind == "pid":
+        return load_pid(source.path)
+    if source.kind == "bundle":
+        from stewart_gym.hardware.export import BundlePolicy
+
+        return BundlePolicy(source.path)
+    from stewart_gym.sb3_models import load_sb3
+
+    policy = load_sb3(source.path)
+    if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
+        raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
+                          f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip
+    return policy
+
+
+def load_for_evaluation(spec: str, env_id: str | None = None) -> tuple[PolicySource, Any, dict[str, Any]]:
+    """(source, policy, env keywords): what ``evaluate`` and ``demo`` need to run ``spec`` as it was trained."""
+    source = resolve_policy(spec, env_id)
+    policy = load_policy(source)
+    return source, policy, resolved_env_kwargs(source, getattr(policy, "action_size", None))
+
+
+def load_pid(path: Path) -> Any:
+    """The cascaded PID with the gains in ``path``; malformed gains raise :class:`PolicyError`."""
+    from stewart_gym.classical import CascadedPID, PIDGains
+
+    return CascadedPID(pid_gains(path, PIDGains))
+
+
+def pid_gains(path: Path, cls: Any) -> Any:
+    data = _read_json(path)
+    try:
+        gains = cls(**data)
+    except TypeError as exc:
+        raise PolicyError(f"{path}: not PID gains ({exc})") from None
+    bad = [k for k, v in vars(gains).items() if isinstance(v, bool) or not isinstance(v, (int, float))
+           or not v == v or abs(v) == float("inf")]  # fmt: skip
+    if bad:
+        raise PolicyError(f"{path}: gains must be finite numbers: {bad}")
+    return gains
+
+
+def resolved_env_kwargs(source: PolicySource, model_action_size: int | None = None) -> dict[str, Any]:
+    """The env keywords to evaluate ``source`` with (only those that define its observation and action)."""
+    kwargs = {k: v for k, v in source.env_kwargs.items() if k in POLICY_ENV_KEYS}
+    if "action_mode" not in source.env_kwargs and model_action_size is not None:
+        if model_action_size == 2:
+            kwargs["action_mode"] = "tilt"
+        else:
+            raise PolicyError(f"{source.path}: a model with {model_action_size} actions but no config.yaml beside it "
+                              "(or one folder up): cannot tell 'pose' from 'pulse' mode; keep the run folder together")
+    return kwargs
+
+
+# ------------------------------------------------------------- deployment
+def deployable_policy(source: PolicySource) -> Any:
+    """A :class:`~stewart_gym.hardware.export.BundlePolicy` (numpy + onnxruntime only) for ``deploy``."""
+    from stewart_gym.hardware.export import BundlePolicy, pid_meta
+
+    if source.kind == "pid":
+        from stewart_gym.classical import PIDGains
+
+        return BundlePolicy.from_meta(pid_meta(vars(pid_gains(source.path, PIDGains)), source.env_id))
+    if source.bundle is not None:
+        return BundlePolicy(source.bundle)
+    raise PolicyError(f"policy {source.spec!r} is a Stable-Baselines3 model; deploy runs bundles: export it first "
+                      f"(stewart-gym export --policy {source.spec} --out BUNDLE_DIR) and deploy BUNDLE_DIR")  # fmt: skip
+
+
+def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
+    """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder."""
+    from stewart_gym.hardware.export import export_bundle_copy, export_pid, export_sb3
+
+    if source.kind == "pid":
+        from stewart_gym.classical import PIDGains
+
+        pid_gains(source.path, PIDGains)
+        return export_pid(source.path, out_dir, source.env_id)
+    if source.kind == "bundle":
+        return export_bundle_copy(source.path, out_dir)
+    policy = load_policy(source)  # the model loads and its action size matches its configuration
+    env_kwargs = {**source.env_kwargs, **resolved_env_kwargs(source, policy.action_size)}
+    return export_sb3(source.path, out_dir, source.env_id, env_kwargs)

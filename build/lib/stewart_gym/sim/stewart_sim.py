@@ -1,0 +1,462 @@
+"""PyBullet simulation of a servo-driven Stewart platform with closed kinematic loops.
+
+Structure: the URDF tree base → horns → (universal joint) → rods is loaded as
+six fixed-base bodies, one per leg (the base is fixed, so this is the same
+mechanism and a cheaper solve); the plate is another body; six point-to-point
+constraints join each rod top to its plate anchor. Servos are position motors
+on the horn joints, commanded in pulse widths through
+:class:`~stewart_gym.sim.servo_model.HobbyServos`. An optional ball rolls on the plate.
+
+Rates are explicit: ``physics_hz`` must be a multiple of ``control_hz``; one
+:meth:`StewartSim.step` advances one control period (one servo frame at the
+default 50 Hz). Every PyBullet call goes through this instance's own client, so
+several simulators can live in one process or in worker processes. The world is
+built once; :meth:`StewartSim.reset` restores a saved state.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import tempfile
+from collections.abc import Iterator
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pybullet as pb
+from pybullet_utils.bullet_client import BulletClient
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.geometry import GeometryError, PlatformGeometry
+from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
+from stewart_gym.presets import load_geometry
+from stewart_gym.sim.backend import BallSpec, PlateLoad
+from stewart_gym.sim.servo_model import HobbyServos, ServoSpec
+from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
+
+__all__ = ["PhysicsSpec", "StewartSim"]
+
+GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class PhysicsSpec:
+    """Constraint-solver settings, chosen by measurement (``bench/bench_sim.py --solvers``).
+
+    With the exact Dantzig LCP solver the loop gap comes only from integrating
+    each step, so it shrinks with dt² and with a firmer ``erp``; the iterative
+    solver leaves loops open by ~1 mm and is slower.
+
+    Attributes:
+        solver: ``"dantzig"`` (exact LCP) or ``"si"`` (PyBullet's default
+            sequential impulse, iterative).
+        solver_iterations: iterations of the iterative solver.
+        erp: error reduction of joints and constraints per step (PyBullet's
+            global ``erp``; a multibody constraint ignores its own). Contacts
+            keep PyBullet's default.
+        constraint_max_force: N, the most a loop constraint may pull.
+        plate_friction: lateral friction of the plate surface.
+    """
+
+    solver: Literal["dantzig", "si"] = "dantzig"
+    solver_iterations: int = 50
+    erp: float = 0.9
+    constraint_max_force: float = 1000.0
+    plate_friction: float = 0.6
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Send file descriptor 1 to /dev/null for the block (C-level prints included)."""
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no usable stdout: nothing to protect
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+class StewartSim:
+    """A servo Stewart platform in PyBullet, commanded in pulse widths.
+
+    Args:
+        geometry: Preset name, TOML path or :class:`PlatformGeometry` (rotary).
+        calibration: Pulse ↔ angle mapping shared with hardware; default
+            :meth:`ServoCalibration.default` of the geometry.
+        physics_hz: Physics rate, a multiple of ``control_hz``. The default 200 Hz
+            (4 steps per servo frame) keeps loops closed within 0.07 mm during
+            full-speed moves; see ``bench/bench_sim.py --solvers``.
+        control_hz: Rate of :meth:`step` (servo frames).
+        ball: Add a ball on the plate.
+        ball_spec, servo_spec, mechanism, physics: Physical parameters.
+        render_mode: ``None``, ``"rgb_array"`` (headless TinyRenderer) or ``"human"`` (GUI).
+        render_size: (width, height) of ``rgb_array`` frames.
+    """
+
+    def __init__(
+        self,
+        geometry: PlatformGeometry | str = "servo-hexapod",
+        calibration: ServoCalibration | None = None,
+        physics_hz: int = 200,
+        control_hz: int = 50,
+        ball: bool = False,
+        *,
+        ball_spec: BallSpec | None = None,
+        servo_spec: ServoSpec | None = None,
+        mechanism: MechanismSpec | None = None,
+        physics: PhysicsSpec | None = None,
+        render_mode: Literal["rgb_array", "human"] | None = None,
+        render_size: tuple[int, int] = (480, 360),
+    ) -> None:
+        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
+            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        if render_mode not in (None, "rgb_array", "human"):
+            raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
+        self.geometry = load_geometry(geometry)
+        if not self.geometry.is_rotary:
+            raise GeometryError(f"geometry {self.geometry.name!r} is linear: StewartSim models servo platforms")
+        self.calibration = calibration or ServoCalibration.default(self.geometry)
+        self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
+        self.substeps = self.physics_hz // self.control_hz
+        self.dt = 1.0 / self.control_hz
+        self.has_ball = bool(ball)
+        self.ball_spec = ball_spec or BallSpec()
+        self.servo_spec = servo_spec or ServoSpec()
+        self.mechanism = mechanism or MechanismSpec()
+        self.physics = physics or PhysicsSpec()
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
+        self._home_list: list[float] = self._home_alpha.tolist()
+        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
+        self._step_count = 0
+        self._closed = False
+        self._tmp = Path(tempfile.mkdtemp(prefix="stewart_gym_"))
+        try:
+            self._build()
+        except Exception:
+            self.close()
+            raise
+
+    # ------------------------------------------------------------- building
+    def _build(self) -> None:
+        if self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            # PyBullet's GUI ends the whole process when it cannot open a window.
+            raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array' headless")
+        with _quiet_stdout():  # PyBullet's C code prints banners on stdout; keep it clean (e.g. for --json)
+            c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
+        self._client = c
+        # Hot-path calls bound once: BulletClient builds a new partial on every attribute access.
+        cid = c._client
+        self._pb_step = partial(pb.stepSimulation, physicsClientId=cid)
+        self._cid = cid
+        self._pb_base_pose = partial(pb.getBasePositionAndOrientation, physicsClientId=cid)
+        self._pb_base_velocity = partial(pb.getBaseVelocity, physicsClientId=cid)
+        self._pb_force = partial(pb.applyExternalForce, physicsClientId=cid)
+        self._frame: tuple[np.ndarray, np.ndarray] | None = None
+        c.setGravity(0, 0, -GRAVITY)
+        c.setTimeStep(1.0 / self.physics_hz)
+        solver = pb.CONSTRAINT_SOLVER_LCP_DANTZIG if self.physics.solver == "dantzig" else pb.CONSTRAINT_SOLVER_LCP_SI
+        with _quiet_stdout():
+            c.setPhysicsEngineParameter(
+                constraintSolverType=solver, numSolverIterations=self.physics.solver_iterations,
+                erp=self.physics.erp, deterministicOverlappingPairs=1,
+            )  # fmt: skip
+        geo = self.geometry
+        flags = pb.URDF_USE_INERTIA_FROM_FILE
+        # One fixed-base body per leg (base → horn → universal joint → rod), from the same generator as the
+        # whole-tree URDF: with the base fixed the legs interact only through the plate, so the motion is
+        # the same, and each solver row costs O(3 links) instead of O(18): measured with the ball at 200 Hz,
+        # 3,580 control steps/s as one tree, 5,300 as six legs, the same worst loop gap (0.0695 mm).
+        self.legs: list[int] = []
+        for i in range(6):
+            path = self._tmp / f"leg_{i}.urdf"
+            path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec, legs=[i], base_plate=i == 0))
+            self.legs.append(c.loadURDF(str(path), useFixedBase=True, flags=flags))
+        plate_path = self._tmp / "plate.urdf"
+        plate_path.write_text(plate_urdf(geo, self.mechanism))
+        self.plate = c.loadURDF(str(plate_path), basePosition=geo.home_position.tolist(), flags=flags)
+        # joint indices within each leg body (a joint's index is its child link's)
+        names = {c.getJointInfo(self.legs[0], j)[1].decode(): j for j in range(c.getNumJoints(self.legs[0]))}
+        self._servo_joint, self._rod_link = names["servo_0"], names["rod_0_u2"]
+        passive = [names["rod_0_u1"], names["rod_0_u2"]]
+        for leg in self.legs:
+            c.setJointMotorControlArray(leg, passive, pb.VELOCITY_CONTROL, forces=[0.0] * len(passive))
+            # Nothing in the mechanism collides (with itself, the plate or the ball).
+            for link in range(-1, c.getNumJoints(leg)):
+                c.setCollisionFilterGroupMask(leg, link, 0, 0)
+                c.changeDynamics(leg, link, linearDamping=0.0, angularDamping=0.0)
+        c.changeDynamics(self.plate, -1, lateralFriction=self.physics.plate_friction, linearDamping=0.0,
+                         angularDamping=0.0)  # fmt: skip
+        self._plate_com = np.array(c.getDynamicsInfo(self.plate, -1)[3])  # inertial origin in the plate frame
+        self._plate_com_list: list[float] = self._plate_com.tolist()
+        self._constraints = []
+        s = geo.rod_length
+        for i, leg in enumerate(self.legs):
+            rod_com = np.array(c.getDynamicsInfo(leg, self._rod_link)[3])
+            cid = c.createConstraint(
+                leg, self._rod_link, self.plate, -1, pb.JOINT_POINT2POINT, [0, 0, 0],
+                parentFramePosition=(np.array([0, 0, s]) - rod_com).tolist(),
+                childFramePosition=(geo.platform_anchors[i] - self._plate_com).tolist(),
+            )  # fmt: skip
+            c.changeConstraint(cid, maxForce=self.physics.constraint_max_force)
+            self._constraints.append(cid)
+        self._apply_targets(self._servos.reset())
+        self._state = c.saveState()  # without the ball: it is rebuilt on reset, so its size can change
+        self._ball_shapes: dict[float, tuple[int, int]] = {}
+        self._plate_load: tuple[float, np.ndarray] | None = None
+        self.ball = self._make_ball() if self.has_ball else None
+
+    def _make_ball(self) -> int:
+        """Create the ball resting at the plate centre (collision shapes are cached per radius)."""
+        c, spec = self._client, self.ball_spec
+        shapes = self._ball_shapes.get(spec.radius)
+        if shapes is None:
+            shapes = (c.createCollisionShape(pb.GEOM_SPHERE, radius=spec.radius),
+                      c.createVisualShape(pb.GEOM_SPHERE, radius=spec.radius, rgbaColor=[0.85, 0.85, 0.9, 1]))  # fmt: skip
+            self._ball_shapes[spec.radius] = shapes
+        ball = c.createMultiBody(spec.mass, shapes[0], shapes[1], basePosition=self._plate_point([0, 0]).tolist())
+        c.changeDynamics(ball, -1, localInertiaDiagonal=[spec.inertia] * 3, lateralFriction=spec.lateral_friction,
+                         rollingFriction=spec.rolling_friction, spinningFriction=spec.spinning_friction,
+                         restitution=spec.restitution, linearDamping=0.0, angularDamping=0.0)  # fmt: skip
+        return ball
+
+    # ------------------------------------------------------------ commanding
+    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
+        """Send pulse widths (6,) µs to the servos; they take effect after the servo lag.
+
+        Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse is outside
+        the calibration's channel limits (or not finite); nothing is sent then.
+        Returns the pulses as the servos received them (quantised).
+        """
+        return self._servos.command(pulse_widths_us, self._step_count)
+
+    def step(self) -> None:
+        """Advance one control period (``substeps`` physics steps)."""
+        step, update = self._pb_step, self._servos.update
+        load = self._plate_load_force() if self._plate_load is not None else None
+        for _ in range(self.substeps):
+            targets = update(self._step_count)
+            if targets is not None:
+                self._apply_targets(targets)
+            if load is not None:  # PyBullet clears external forces after every physics step
+                self._pb_force(self.plate, -1, load[0], load[1], pb.WORLD_FRAME)
+            step()
+            self._step_count += 1
+        self._frame = None
+
+    def _plate_load_force(self) -> tuple[list[float], list[float]]:
+        """The extra plate mass's weight (N) and the world point (m) it acts at, for this control period.
+
+        The point follows the plate once per control period (the plate turns by
+        a few hundredths of a radian in that time at most).
+        """
+        mass, offset = self._plate_load  # type: ignore[misc]
+        origin, rot = self._plate_frame()
+        return [0.0, 0.0, -mass * GRAVITY], (origin + rot @ offset).tolist()
+
+    def _apply_targets(self, angles: list[float]) -> None:
+        """Servo motors aim at ``angles`` (6,) rad, at most the stall torque and the servo speed."""
+        spec, joint, cid = self.servo_spec, self._servo_joint, self._cid
+        torque, kp, kd, speed = spec.stall_torque, spec.position_gain, spec.velocity_gain, spec.max_speed
+        for leg, angle, home in zip(self.legs, angles, self._home_list):
+            # positional arguments (bodyUniqueId, jointIndex, controlMode, targetPosition, targetVelocity, force,
+            # positionGain, velocityGain, maxVelocity, physicsClientId): keywords cost twice as much to parse
+            pb.setJointMotorControl2(leg, joint, pb.POSITION_CONTROL, angle - home, 0.0, torque, kp, kd, speed, cid)
+
+    def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
+              plate_friction: float | None = None, plate_load: PlateLoad | None = None) -> None:  # fmt: skip
+        """Restore the home state saved at build time (no reloading); servos hold neutral pulses.
+
+        Optional per-episode changes (domain randomisation): a new ``servo_spec``
+        or ``ball_spec`` (the ball is rebuilt, at rest at the plate centre), the
+        plate's ``plate_friction``, and ``plate_load`` = (mass kg, (3,) offset m
+        in the platform frame), an extra mass on the plate applied as its weight.
+        """
+        c = self._client
+        if self.ball is not None:
+            c.removeBody(self.ball)
+        c.restoreState(self._state)
+        self._frame = None
+        self._step_count = 0
+        if servo_spec is not None:
+            self.servo_spec = servo_spec
+            self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
+        if plate_friction is not None:
+            c.changeDynamics(self.plate, -1, lateralFriction=float(plate_friction))
+        self.set_plate_load(plate_load)
+        if self.has_ball:
+            if ball_spec is not None:
+                self.ball_spec = ball_spec
+            self.ball = self._make_ball()
+        self._apply_targets(self._servos.reset())
+
+    # ------------------------------------------------------- disturbances
+    def push_ball(self, impulse_xy: tuple[float, float]) -> None:
+        """Give the ball an impulse (N·s) along the plate, in the plate frame: a sudden change of its velocity."""
+        ball, c = self._require_ball(), self._client
+        _, rot = self._plate_frame()
+        lin, ang = self._pb_base_velocity(ball)
+        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
+        # a push at the centre changes the velocity; the ball keeps rolling: ω follows v (n × Δv / r)
+        dw = np.cross(rot[:, 2], dv) / self.ball_spec.radius
+        c.resetBaseVelocity(ball, (np.array(lin) + dv).tolist(), (np.array(ang) + dw).tolist())
+
+    def set_plate_load(self, load: PlateLoad | None) -> None:
+        """Put an extra mass on the plate (or take it off) from the next :meth:`step` on."""
+        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
+
+    # ------------------------------------------------------------ state
+    @property
+    def plate_half_extent(self) -> tuple[float, float]:
+        """m: half the plate's size along its x and y axes."""
+        half = self.mechanism.plate_half_size
+        return (half, half)
+
+    @property
+    def plate_top(self) -> float:
+        """m: height of the plate's top surface above the platform frame origin."""
+        return self.mechanism.plate_top
+
+    @property
+    def time(self) -> float:
+        """s of simulated time since the last reset."""
+        return self._step_count / self.physics_hz
+
+    def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """Platform frame in the world: origin (3,) m and rotation (3, 3); cached until the next step."""
+        if self._frame is None:
+            pos, orn = self._pb_base_pose(self.plate)
+            rot = np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
+            self._frame = (np.array(pos) - rot @ self._plate_com, rot)
+        return self._frame
+
+    def platform_pose(self) -> np.ndarray:
+        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
+        origin, rot = self._plate_frame()
+        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
+
+    def servo_angles(self) -> np.ndarray:
+        """(6,) rad: the horn angles α (from the horizontal, as in eq. 9)."""
+        return np.array([s[0] for s in self._servo_states()]) + self._home_alpha
+
+    def servo_velocities(self) -> np.ndarray:
+        """(6,) rad/s."""
+        return np.array([s[1] for s in self._servo_states()])
+
+    def _servo_states(self) -> list[tuple]:
+        get, joint = self._client.getJointState, self._servo_joint
+        return [get(leg, joint) for leg in self.legs]
+
+    def held_pulses(self) -> np.ndarray:
+        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
+        return self._servos.held_us
+
+    def constraint_error(self) -> float:
+        """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
+        c, s = self._client, self.geometry.rod_length
+        states = [c.getLinkState(leg, self._rod_link, computeForwardKinematics=True) for leg in self.legs]
+        tops = np.array([
+            np.array(st[4]) + np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3)[:, 2] * s for st in states
+        ])  # fmt: skip
+        origin, rot = self._plate_frame()
+        anchors = origin + self.geometry.platform_anchors @ rot.T
+        return float(np.max(np.linalg.norm(tops - anchors, axis=1)))
+
+    # --------------------------------------------------------------- ball
+    def _require_ball(self) -> int:
+        if self.ball is None:
+            raise RuntimeError("this StewartSim was built without a ball (ball=False)")
+        return self.ball
+
+    def _plate_point(self, xy: np.ndarray, lift: float = 0.0) -> np.ndarray:
+        """World position of a ball resting at plate coordinates ``xy`` (m) on the top surface."""
+        origin, rot = self._plate_frame()
+        local = np.array([xy[0], xy[1], self.mechanism.plate_top + self.ball_spec.radius + lift])
+        return origin + rot @ local
+
+    def place_ball(self, xy: np.ndarray, velocity_xy: np.ndarray = (0.0, 0.0)) -> None:
+        """Put the ball on the plate at ``xy`` (m, plate frame) rolling with ``velocity_xy`` (m/s, plate frame)."""
+        ball, c = self._require_ball(), self._client
+        _, rot = self._plate_frame()
+        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
+        # rolling without slipping: ω = n × v / r
+        omega = np.cross(rot[:, 2], vel) / self.ball_spec.radius
+        c.resetBasePositionAndOrientation(ball, self._plate_point(np.asarray(xy)).tolist(), [0, 0, 0, 1])
+        c.resetBaseVelocity(ball, vel.tolist(), omega.tolist())
+
+    def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position and velocity in the platform frame: ((3,) m, (3,) m/s).
+
+        x, y lie in the plate; z is the height of the ball centre above the
+        platform frame origin (``plate_top + radius`` while it rests on the plate).
+        """
+        vel, _ = self._pb_base_velocity(self._require_ball())
+        _, rot = self._plate_frame()
+        return np.array(self.ball_position()), np.array(vel) @ rot
+
+    def ball_position(self) -> tuple[float, float, float]:
+        """Ball centre (x, y, z) in the platform frame, m, as Python floats (the cheap part of :meth:`ball_state`)."""
+        (bx, by, bz), _ = self._pb_base_pose(self._require_ball())
+        (px, py, pz), orn = self._pb_base_pose(self.plate)
+        m = pb.getMatrixFromQuaternion(orn)  # R row by row
+        dx, dy, dz = bx - px, by - py, bz - pz
+        cx, cy, cz = self._plate_com_list
+        # Rᵀ (ball − plate centre of mass) + centre of mass in the plate frame, in scalar arithmetic (hot path)
+        return (m[0] * dx + m[3] * dy + m[6] * dz + cx, m[1] * dx + m[4] * dy + m[7] * dz + cy,
+                m[2] * dx + m[5] * dy + m[8] * dz + cz)  # fmt: skip
+
+    def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
+        ball = self._require_ball()
+        return np.array(self._pb_base_pose(ball)[0]), np.array(self._pb_base_velocity(ball)[0])
+
+    # -------------------------------------------------------------- render
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (height, width, 3) uint8 for ``rgb_array``; None for ``human`` (the GUI shows it)."""
+        if self.render_mode != "rgb_array":
+            return None
+        width, height = self.render_size
+        c = self._client
+        target = [0.0, 0.0, self.geometry.home_height * 0.55]
+        view = c.computeViewMatrixFromYawPitchRoll(target, 0.58, 35.0, -20.0, 0.0, 2)
+        proj = c.computeProjectionMatrixFOV(45.0, width / height, 0.01, 5.0)
+        _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                            lightDirection=[0.4, -0.6, 1.0], shadow=0)  # fmt: skip
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    # ------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        """Disconnect and remove temporary files; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        client = getattr(self, "_client", None)
+        if client is not None:
+            try:
+                client.disconnect()
+            except pb.error:
+                pass
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def __enter__(self) -> StewartSim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            self.close()

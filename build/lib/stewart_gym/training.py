@@ -1,0 +1,252 @@
+"""Train Stable-Baselines3 agents (PPO, SAC, TD3) on the registered environments.
+
+Hyperparameters live in RL-Zoo-style YAML files, one section per env id
+(``stewart_gym/hyperparams/<algo>.yml``): ``n_envs``, ``n_timesteps``, ``normalize``,
+``policy``, ``policy_kwargs``, ``env_kwargs`` and the algorithm's own keywords.
+
+A run folder holds ``config.yaml`` (the hyperparameters and options used),
+``git.txt`` (revision), ``model.zip`` + ``vecnormalize.pkl`` (final),
+``best/`` (best by evaluation, with its statistics), ``checkpoints/``,
+``tb/`` (TensorBoard), ``eval.csv`` (learning curve: timesteps, wall time,
+mean reward, success rate) and ``metrics.json``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+from stable_baselines3 import PPO, SAC, TD3
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
+
+from stewart_gym.errors import ConfigError
+
+__all__ = ["ALGOS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "train"]
+
+ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
+HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
+_ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
+
+
+@dataclass
+class TrainConfig:
+    """Options of one training run (besides the YAML hyperparameters)."""
+
+    env_id: str = "StewartBallBalance-v0"
+    algo: str = "ppo"
+    hyperparams: str | None = None  # YAML file; default stewart_gym/hyperparams/<algo>.yml
+    run_dir: str = "runs/latest"
+    seed: int = 0
+    n_timesteps: int | None = None  # overrides the YAML
+    n_envs: int | None = None  # overrides the YAML
+    eval_freq: int | None = None  # env steps between evaluations (total over all envs)
+    eval_episodes: int | None = None
+    checkpoint_freq: int = 100_000
+    resume: str | None = None  # a run folder or checkpoint .zip to continue from
+    progress_bar: bool = True
+    tensorboard: bool = True
+    verbose: int = 0
+
+
+def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
+    """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong."""
+    path = Path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file (expected YAML hyperparameters)") from None
+    if not isinstance(data, dict) or env_id not in data or not isinstance(data[env_id], dict):
+        sections = sorted(data) if isinstance(data, dict) else []
+        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sections})")
+    hp = dict(data[env_id])
+    for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
+        if key in hp and (isinstance(hp[key], bool) or not isinstance(hp[key], (int, float)) or not hp[key] >= 1):
+            raise ConfigError(f"{path}: {env_id}.{key} must be a number ≥ 1, got {hp[key]!r}")
+    return hp
+
+
+def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
+    """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
+    the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
+    another run's model unless ``overwrite`` or resuming) and the run to resume from."""
+    from stewart_gym.outputs import output_dir
+
+    if config.algo not in ALGOS:
+        raise ConfigError(f"algo must be one of {sorted(ALGOS)}, got {config.algo!r}")
+    load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
+        value = getattr(config, key)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
+    run = output_dir(config.run_dir)
+    if config.resume:
+        resume = Path(config.resume)
+        model = resume / "model.zip" if resume.is_dir() else resume
+        if not model.is_file():
+            raise ConfigError(f"--resume {config.resume}: no model at {model}")
+    elif not overwrite and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
+        raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
+
+
+def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None) -> VecEnv:
+    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``."""
+    vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
+    return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls)
+
+
+class _EvalLog(EvalCallback):
+    """EvalCallback that also writes the learning curve with wall time, and saves VecNormalize with the best model."""
+
+    def __init__(self, *args: Any, csv_path: Path, started: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.csv_path, self.started = csv_path, started
+        with csv_path.open("w", newline="") as fh:
+            csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate"])
+
+    def _on_step(self) -> bool:
+        n_before = len(self.evaluations_timesteps)
+        best_before = self.best_mean_reward
+        ok = super()._on_step()
+        if len(self.evaluations_timesteps) > n_before:
+            success = float(np.mean(self._is_success_buffer)) if self._is_success_buffer else float("nan")
+            with self.csv_path.open("a", newline="") as fh:
+                csv.writer(fh).writerow([self.num_timesteps, round(time.time() - self.started, 1),
+                                         round(float(self.last_mean_reward), 3), success])  # fmt: skip
+            train_env = self.model.get_env()
+            if self.best_mean_reward > best_before and isinstance(train_env, VecNormalize) and self.best_model_save_path:
+                train_env.save(str(Path(self.best_model_save_path) / "vecnormalize.pkl"))
+        return ok
+
+
+class _Deadline(BaseCallback):
+    """Stop training after ``seconds`` of wall time (keeps results for the time budget)."""
+
+    def __init__(self, seconds: float | None) -> None:
+        super().__init__()
+        self.seconds, self.started = seconds, time.time()
+
+    def _on_step(self) -> bool:
+        return self.seconds is None or time.time() - self.started < self.seconds
+
+
+def _git_revision() -> str:
+    """The git revision of the stewart_gym source that runs (not of the current directory), or the version."""
+    from stewart_gym import __version__
+
+    here = Path(__file__).resolve().parent
+    installed = f"stewart_gym {__version__} (not a git checkout)"
+    try:
+        top = subprocess.run(["git", "rev-parse", "--show-toplevel"], cwd=here, capture_output=True, text=True,
+                             check=True).stdout.strip()  # fmt: skip
+        if not top or Path(top).resolve() != here.parent:
+            return installed
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True,
+                             check=True).stdout.strip()  # fmt: skip
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", str(here)], cwd=here, capture_output=True,
+                               text=True).stdout.strip()  # fmt: skip
+        return f"stewart_gym {__version__} at {rev}" + (" (with uncommitted changes)" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return installed
+
+
+def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any]:
+    """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``)."""
+    check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
+    algo_cls = ALGOS[config.algo]
+    torch.set_num_threads(1)  # small MLPs: extra threads only fight the env workers for the cores
+    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    def option(value: int | None, key: str, default: int) -> int:  # an explicit option wins, even a small one
+        return int(value if value is not None else hp.get(key, default))
+
+    n_envs = option(config.n_envs, "n_envs", 1)
+    n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
+    normalize = hp.get("normalize", False)
+    env_kwargs = hp.get("env_kwargs", {})
+    eval_freq = option(config.eval_freq, "eval_freq", 20_000)
+    eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
+    algo_kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
+    policy = hp.get("policy", "MlpPolicy")
+    run = Path(config.run_dir)
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
+    (run / "git.txt").write_text(_git_revision() + "\n")
+
+    env = make_env(config.env_id, n_envs, config.seed, env_kwargs)
+    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs)])
+    resume = Path(config.resume) if config.resume else None
+    stats = None
+    if resume is not None:
+        stats = (resume / "vecnormalize.pkl") if resume.is_dir() else resume.with_name(
+            resume.name.replace("model_", "model_vecnormalize_").replace(".zip", ".pkl"))  # fmt: skip
+    if normalize:
+        norm_kwargs = normalize if isinstance(normalize, dict) else {}
+        if stats is not None and stats.exists():
+            env = VecNormalize.load(str(stats), env)
+        else:
+            env = VecNormalize(env, **{"norm_obs": True, "norm_reward": True, **norm_kwargs})
+        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
+                                                                                if k not in ("norm_reward",)})  # fmt: skip
+    tb = str(run / "tb") if config.tensorboard else None
+    if resume is not None:
+        zip_path = resume / "model.zip" if resume.is_dir() else resume
+        # the YAML's learning rate (and PPO's clip range) apply to the continued run, e.g. to fine-tune
+        custom = {k: algo_kwargs[k] for k in ("learning_rate", "clip_range") if k in algo_kwargs}
+        model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb, custom_objects=custom)
+    else:
+        model = algo_cls(policy, env, seed=config.seed, device="cpu", tensorboard_log=tb, verbose=config.verbose,
+                         **algo_kwargs)  # fmt: skip
+    started = time.time()
+    callbacks = CallbackList([
+        _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
+                 best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
+                 csv_path=run / "eval.csv", started=started, verbose=0),
+        CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
+                           save_vecnormalize=bool(normalize)),
+        _Deadline(max_wall_s),
+    ])  # fmt: skip
+    model.learn(n_timesteps, callback=callbacks, progress_bar=config.progress_bar,
+                reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
+    wall = time.time() - started
+    model.save(run / "model.zip")
+    if isinstance(env, VecNormalize):
+        env.save(str(run / "vecnormalize.pkl"))
+    metrics = {"env_id": config.env_id, "algo": config.algo, "timesteps": int(model.num_timesteps),
+               "wall_time_s": round(wall, 1), "n_envs": n_envs, "seed": config.seed}  # fmt: skip
+    with (run / "eval.csv").open() as fh:
+        rows = [{k: _number(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    if rows:
+        metrics["last_eval"] = rows[-1]
+        metrics["best_eval_success_rate"] = max((r["success_rate"] for r in rows if r["success_rate"] is not None),
+                                                default=None)  # fmt: skip
+    (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    env.close()
+    eval_env.close()
+    return metrics
+
+
+def _number(text: str) -> int | float | None:
+    """A CSV cell as a JSON number (None for NaN: strict JSON has no NaN)."""
+    value = float(text)
+    if value != value:
+        return None
+    return int(value) if value.is_integer() and "." not in text else value
+
+
+def _monitored(env_id: str, env_kwargs: dict) -> Any:
+    import gymnasium as gym
+    from stable_baselines3.common.monitor import Monitor
+
+    return Monitor(gym.make(env_id, **env_kwargs))

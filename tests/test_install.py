@@ -1,0 +1,61 @@
+"""Install extras: a fresh virtual environment with only ``.[deploy]`` runs an exported bundle on a fake device.
+
+This is what a Raspberry Pi next to the platform gets: numpy, scipy, matplotlib, onnxruntime and pyserial;
+no torch, no Stable-Baselines3, no PyBullet, no Gymnasium. Slow (it builds a venv and installs into it).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+from conftest import Drain, FakeDevice
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice) -> None:
+    bundle = tmp_path / "bundle"
+    made = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "shipped", "--out", str(bundle)],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert made.returncode == 0, made.stderr
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    py = venv / "bin" / "python"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    install = subprocess.run([str(py), "-m", "pip", "install", "-q", f"{ROOT}[deploy]"], capture_output=True,
+                             text=True, timeout=1200, env=env)  # fmt: skip
+    assert install.returncode == 0, install.stdout[-2000:] + install.stderr[-2000:]
+    heavy = "('torch', 'stable_baselines3', 'pybullet', 'gymnasium', 'yaml')"
+    probe = f"import importlib.util as u; print([m for m in {heavy} if u.find_spec(m)])"
+    absent = subprocess.run([str(py), "-c", probe], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert absent.returncode == 0 and absent.stdout.strip() == "[]", absent.stdout + absent.stderr
+
+    drain = Drain(device)
+    done = threading.Event()
+
+    def sketch() -> None:  # the Arduino: "ready" after its reset, then the panel at 100 Hz
+        while not done.wait(0.01):
+            device.write(b"ready\nB 20.0,-10.0\n")
+
+    threading.Thread(target=sketch, daemon=True).start()
+    for policy in (str(bundle), "shipped", "pid"):
+        run = subprocess.run([str(venv / "bin" / "stewart-gym"), "deploy", "--policy", policy, "--port", device.path,
+                              "--protocol", "line", "--sensor", "panel", "--duration", "1", "--log",
+                              str(tmp_path / f"log_{len(policy)}.csv")],
+                             capture_output=True, text=True, cwd=tmp_path, env=env, timeout=120)  # fmt: skip
+        assert run.returncode == 0, run.stdout + run.stderr
+        assert "completed" in run.stdout
+    done.set()
+    data = drain.stop()
+    assert data.count(b"W ") >= 150
+    # the simulated sensor needs the [sim] extra, and says so in one line
+    sim = subprocess.run([str(venv / "bin" / "stewart-gym"), "deploy", "--port", device.path, "--protocol", "line",
+                          "--sensor", "sim", "--duration", "1"], capture_output=True, text=True, cwd=tmp_path, env=env,
+                         timeout=120)  # fmt: skip
+    assert sim.returncode == 1 and "stewart_gym[sim]" in sim.stderr and "Traceback" not in sim.stderr
