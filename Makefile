@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench train lint clean
+.PHONY: demo test bench train lint docs clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -34,7 +34,12 @@ train: $(STAMP)
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
 
 lint: $(STAMP)
-	$(PY) -m ruff check stewart_gym tests bench
+	$(PY) -m ruff check stewart_gym tests bench train
+	$(VENV)/bin/lint-imports
+
+# The manual (MkDocs Material) into site/; `$(VENV)/bin/mkdocs serve -f docs/mkdocs.yml` to browse it live.
+docs: $(STAMP)
+	$(VENV)/bin/mkdocs build --strict -f docs/mkdocs.yml
 
 clean:
-	rm -rf $(VENV) .pytest_cache .hypothesis
+	rm -rf $(VENV) .pytest_cache .hypothesis site

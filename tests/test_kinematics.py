@@ -105,7 +105,7 @@ def test_seed_000_home_relations(name: str) -> None:
     rod = q - (g.base_anchors + a * tip_dir)
     assert np.einsum("ij,ij->i", rod, tip_dir) == pytest.approx(np.zeros(6), abs=1e-12)  # right angle
     assert np.linalg.norm(rod, axis=1) == pytest.approx(np.full(6, s), rel=1e-12)
-    # eq. 12 with L0 = 2a², in the consistent letters of REFERENCE.md §1
+    # eq. 12 with L0 = 2a², in the consistent letters of docs/src/sources.md
     for i in range(6):
         b, beta = g.base_anchors[i], g.servo_beta[i]
         m0 = 2 * a * (h0 + g.platform_anchors[i, 2] - b[2])
