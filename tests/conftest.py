@@ -138,3 +138,18 @@ class Drain:
         self._stop.set()
         self._thread.join(1.0)
         return bytes(self.data)
+
+
+class StaticSensor:
+    """A BallSensor whose readings are 5 ms old, or half a second old once it stalls."""
+
+    def __init__(self, stall_after: int | None = None, interrupt_at: int | None = None) -> None:
+        self.n, self.stall_after, self.interrupt_at = 0, stall_after, interrupt_at
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        self.n += 1
+        if self.interrupt_at is not None and self.n >= self.interrupt_at:
+            raise KeyboardInterrupt
+        if self.stall_after is not None and self.n > self.stall_after:
+            return (0.03, 0.0), t - 0.5  # the last reading, half a second old
+        return (0.03, 0.0), t - 0.005

@@ -1,0 +1,45 @@
+"""Actions → pose → pulses: every mode within the limits, unreachable poses scaled back on the ray."""
+
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from stewart_gym.actions import ActionMapper
+from stewart_gym.kinematics import inverse_kinematics
+
+
+@pytest.mark.parametrize("mode", ["tilt", "pose", "pulse"])
+def test_extreme_actions_are_commanded_within_limits(mode: str) -> None:
+    """Actions at and beyond ±1 (where float rounding can land a pulse a hair outside a limit) never raise."""
+    env = gym.make("StewartBallBalance-v0", action_mode=mode)
+    env.reset(seed=0)
+    cal = env.unwrapped.sim.calibration
+    n = env.action_space.shape[0]
+    for a in (np.ones(n), -np.ones(n), np.full(n, 7.0), np.full(n, -7.0), np.r_[1.0, -1.0, np.ones(n - 2)]):
+        _, _, _, _, info = env.step(a.astype(np.float32))
+        assert cal.in_range(info["pulse_widths_us"]).all()
+    env.close()
+
+
+def test_unreachable_pose_goes_to_the_nearest_reachable_on_the_ray() -> None:
+    mapper = ActionMapper(mode="pose")
+    action = np.ones(6)
+    mapped = mapper(action)
+    commanded = mapper.pose(action)
+    assert mapped.scaled and 0.0 < mapped.scale < 1.0
+    assert mapped.pose == pytest.approx(mapped.scale * commanded)
+    geo = mapper.geometry
+    assert inverse_kinematics(geo, mapped.pose).reachable
+    assert not inverse_kinematics(geo, (mapped.scale + 1 / 2048) * commanded).reachable  # nearest, to 1/4096
+    assert np.all(mapper.calibration.in_range(mapped.pulses))
+    tilt = ActionMapper(mode="tilt")(np.array([0.5, -0.5]))
+    assert not tilt.scaled and tilt.pose[3] == pytest.approx(math.radians(5))
+    pulse = ActionMapper(mode="pulse")
+    assert pulse(np.full(6, 1.0)).pulses == pytest.approx(pulse.calibration.max_us)
+    with pytest.raises(ValueError, match="finite"):
+        pulse(np.array([0, 0, np.nan, 0, 0, 0]))

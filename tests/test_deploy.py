@@ -1,0 +1,165 @@
+"""The deploy loop: watchdog, unplug, Ctrl-C, a 10 s dry run on a fake Maestro, and how a run is judged."""
+
+
+from __future__ import annotations
+
+import csv
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import Drain, FakeDevice, StaticSensor
+
+from stewart_gym.actions import ActionMapper
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.hardware.deploy import DeployConfig, DeployLoop, SimulatedPlant
+from stewart_gym.hardware.export import BundlePolicy, export_pid
+from stewart_gym.hardware.protocols import Maestro
+from stewart_gym.hardware.serial_controllers import MaestroController
+
+CAL = ServoCalibration.default("servo-hexapod")
+
+
+PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
+
+
+def _pid_bundle(tmp_path: Path) -> BundlePolicy:
+    from stewart_gym.registry import POLICY_DIR
+
+    return BundlePolicy(export_pid(POLICY_DIR / "pid_gains.json", tmp_path / "pid"))
+
+
+def test_unplug_stops_within_a_tick_and_keeps_the_log(device: FakeDevice, tmp_path: Path) -> None:
+    log = tmp_path / "log.csv"
+    ctl = MaestroController(device.path)
+    loop = DeployLoop(_pid_bundle(tmp_path), ActionMapper("servo-hexapod", CAL), ctl, StaticSensor(),
+                      DeployConfig(duration_s=5.0, log_path=str(log)))  # fmt: skip
+    unplugged_at = []
+
+    def unplug() -> None:
+        unplugged_at.append(time.monotonic())
+        device.unplug()
+
+    timer = threading.Timer(0.3, unplug)
+    timer.start()
+    t0 = time.monotonic()
+    summary = loop.run()
+    assert summary.exit_code == 2 and "device failure" in summary.message and "unplugged" in summary.message
+    rows = list(csv.DictReader(log.open()))
+    assert len(rows) > 5  # the log survived the failure
+    after = [r for r in rows if float(r["t_s"]) > unplugged_at[0] - t0]
+    assert len(after) <= 1  # the loop stopped at the first tick that could not write
+
+
+def test_stalled_sensor_triggers_the_watchdog(device: FakeDevice, tmp_path: Path) -> None:
+    log = tmp_path / "log.csv"
+    loop = DeployLoop(lambda obs: np.array([1.0, 1.0]), ActionMapper("servo-hexapod", CAL),
+                      MaestroController(device.path), StaticSensor(stall_after=10),
+                      DeployConfig(duration_s=1.0, log_path=str(log)))  # fmt: skip
+    summary = loop.run()
+    rows = list(csv.DictReader(log.open()))
+    assert summary.stale >= 30 and summary.homing >= 30 and summary.exit_code == 0
+    assert all(r["stale"] == "0" for r in rows[:10]) and all(r["homing"] == "1" for r in rows[15:])
+    final = np.array([float(rows[-1][f"pulse{i}_us"]) for i in range(6)])
+    assert final == pytest.approx(CAL.neutral_us)  # moved home and stayed there
+
+
+def test_ctrl_c_sends_home_before_closing(device: FakeDevice, tmp_path: Path) -> None:
+    ctl = MaestroController(device.path)
+    loop = DeployLoop(lambda obs: np.array([1.0, -1.0]), ActionMapper("servo-hexapod", CAL), ctl,
+                      StaticSensor(interrupt_at=20), DeployConfig(log_path=str(tmp_path / "log.csv")))  # fmt: skip
+    summary = loop.run()
+    assert summary.message == "stopped by Ctrl-C" and summary.homed and summary.exit_code == 0
+    data = device.read_all()
+    home_frame = b"".join(Maestro.set_target(i, w) for i, w in enumerate(CAL.neutral_us))
+    assert data.endswith(home_frame) and not ctl.serial.is_open
+
+
+def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None:
+    """deploy --sensor sim: 10 s at 50 Hz, pulses to a fake Maestro on a pty, the simulated ball stays balanced."""
+    from stewart_gym.registry import POLICY_DIR
+
+    bundle_dir = POLICY_DIR / "balance" / "bundle"
+    policy = BundlePolicy(bundle_dir) if (bundle_dir / "bundle.json").exists() else _pid_bundle(tmp_path)
+    received = bytearray()
+    stop = threading.Event()
+
+    def drain() -> None:
+        while not stop.is_set():
+            received.extend(device.read_all(0.02))
+
+    threading.Thread(target=drain, daemon=True).start()
+    plant = SimulatedPlant(seed=3, ball_position=(0.05, -0.03))
+    loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, policy.action_mode), MaestroController(device.path),
+                      plant, DeployConfig(duration_s=10.0, log_path=str(tmp_path / "log.csv")), plant=plant)  # fmt: skip
+    summary = loop.run()
+    time.sleep(0.1)
+    stop.set()
+    frames = [bytes(received[i:i + 24]) for i in range(0, len(received) - len(received) % 24, 24)]
+    well_formed = [f for f in frames if all(f[k] == 0x84 and f[k + 1] == k // 4 for k in range(0, 24, 4))]
+    print(summary.text(), f"final ball error {plant.final_error_mm:.1f} mm")
+    assert summary.exit_code == 0 and 490 <= summary.ticks <= 510
+    assert len(received) % 24 == 0 and len(well_formed) == len(frames) and len(frames) >= 490
+    assert plant.final_error_mm is not None and plant.final_error_mm < 15.0  # still balanced near the centre after 10 s
+
+
+@pytest.mark.parametrize("field,value", [("rate_hz", -5.0), ("rate_hz", 0.0), ("rate_hz", 1e5), ("rate_hz", math.nan),
+                                         ("duration_s", -1.0), ("duration_s", math.inf), ("watchdog_s", 0.0),
+                                         ("max_step_us", -1.0)])  # fmt: skip
+def test_deploy_config_refuses_nonsense(field: str, value: float) -> None:
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=field):
+        DeployConfig(**{field: value})
+
+
+class _SlowSensor:
+    """A sensor whose every read takes longer than two control periods: the loop misses its deadlines."""
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        time.sleep(0.05)
+        return (0.0, 0.0), t
+
+
+def test_a_loop_that_misses_its_deadlines_fails(device: FakeDevice, tmp_path: Path) -> None:
+    policy = _pid_bundle(tmp_path)
+    drain = Drain(device)
+    loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
+                      _SlowSensor(), DeployConfig(rate_hz=200.0, duration_s=0.5, log_path=None))  # fmt: skip
+    summary = loop.run()
+    drain.stop()
+    assert summary.exit_code == 1 and "missed" in summary.message and summary.missed_deadlines > 0.05 * summary.ticks
+
+
+class _Broken:
+    """A policy that never gives a usable action (NaN): every tick holds."""
+
+    obs_size, action_size = 12, 2
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.full(2, np.nan)
+
+
+class _StillSensor:
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        return (0.0, 0.0), t
+
+
+def test_a_loop_where_every_tick_holds_fails(device: FakeDevice, tmp_path: Path) -> None:
+    drain = Drain(device)
+    loop = DeployLoop(_Broken(), ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
+                      _StillSensor(), DeployConfig(duration_s=0.2, log_path=None))  # fmt: skip
+    summary = loop.run()
+    drain.stop()
+    assert summary.exit_code == 1 and summary.held == summary.ticks > 0 and "no usable action" in summary.message
+
+
+def test_a_policy_that_does_not_fit_the_action_mode_is_refused(device: FakeDevice, tmp_path: Path) -> None:
+    from stewart_gym.errors import PolicyError
+
+    with pytest.raises(PolicyError, match="needs 16 and 6"):
+        DeployLoop(_Broken(), ActionMapper("servo-hexapod", CAL, "pose"), MaestroController(device.path),
+                   _StillSensor(), DeployConfig(duration_s=0.2, log_path=None))  # fmt: skip

@@ -1,0 +1,74 @@
+"""Serial controllers on fake devices (pseudo-terminals): bytes on the wire, framing, the line protocol's ready wait."""
+
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import FakeDevice
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.hardware.protocols import Maestro
+from stewart_gym.hardware.serial_controllers import DeviceError, LineController, MaestroController, SSC32Controller
+
+CAL = ServoCalibration.default("servo-hexapod")
+
+
+PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
+
+
+def test_fake_maestro_receives_exact_bytes(device: FakeDevice) -> None:
+    ctl = MaestroController(device.path, channels=[0, 1, 2, 3, 4, 5])
+    ctl.send(PULSES)
+    got = device.read_all()
+    assert got == b"".join(Maestro.set_target(i, w) for i, w in enumerate(PULSES))
+    assert got[8:12] == bytes([0x84, 0x02, 0x02, 0x32])  # 1600.5 µs = 6402 quarter-µs = 50·128 + 2, channel 2
+    multi = MaestroController(device.path, channels=range(6), multiple_targets=True)
+    multi.send(PULSES)
+    assert device.read_all() == Maestro.set_multiple_targets(0, PULSES)
+
+    def answer() -> None:  # the device answers Get Errors with overrun + RX-buffer-full
+        for _ in range(50):
+            data = device.read_all(0.02)
+            if Maestro.GET_ERRORS in data:
+                device.write(bytes([0x06, 0x00]))
+                return
+
+    threading.Thread(target=answer, daemon=True).start()
+    assert ctl.errors() == ["serial overrun error", "serial RX buffer full"]
+    ctl.close()
+    multi.close()
+
+
+def test_fake_ssc32_group_framing(device: FakeDevice) -> None:
+    ctl = SSC32Controller(device.path, channels=[10, 11, 12, 13, 14, 15], move_ms=20)
+    ctl.send(PULSES)
+    assert device.read_all() == b"#10P1500#11P1400#12P1600#13P1100#14P1900#15P1235T20\r"
+    ctl.close()
+
+
+def test_line_controller_waits_for_ready_and_reads_the_panel(device: FakeDevice) -> None:
+    def boot() -> None:  # the Uno resets when the port opens and boots for 0.3 s
+        time.sleep(0.3)
+        device.write(b"garbage\nready\n")
+
+    threading.Thread(target=boot, daemon=True).start()
+    t0 = time.monotonic()
+    ctl = LineController(device.path, ready_timeout=3.0)
+    assert time.monotonic() - t0 >= 0.29
+    assert device.read_all(0.05) == b""  # nothing was sent before "ready"
+    ctl.send(PULSES)
+    assert device.read_all() == b"W 1500,1400,1600,1100,1900,1235\n"
+    device.write(b"B 10.0,-5.5\nB 12.0,-6.0\n")
+    time.sleep(0.05)
+    (xy, _t) = ctl.poll_ball()
+    assert xy == (12.0, -6.0)
+    ctl.close()
+
+
+def test_line_controller_without_ready_fails_clearly(device: FakeDevice) -> None:
+    with pytest.raises(DeviceError, match="no 'ready' line"):
+        LineController(device.path, ready_timeout=0.2)
