@@ -128,7 +128,7 @@ def test_a_loop_that_misses_its_deadlines_fails(device: FakeDevice, tmp_path: Pa
     policy = _pid_bundle(tmp_path)
     drain = Drain(device)
     loop = DeployLoop(policy, ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
-                      _SlowSensor(), DeployConfig(rate_hz=200.0, duration_s=0.5, log_path=None))  # fmt: skip
+                      _SlowSensor(), DeployConfig(rate_hz=200.0, duration_s=0.1, log_path=None))  # fmt: skip
     summary = loop.run()
     drain.stop()
     assert summary.exit_code == 1 and "missed" in summary.message and summary.missed_deadlines > 0.05 * summary.ticks

@@ -24,12 +24,25 @@ from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 from stewart_gym.presets import load_geometry
 
-__all__ = ["ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction"]
+__all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "action_table"]
 
 ActionMode = Literal["tilt", "pose", "pulse"]
 ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
 #: Number of action values of each mode.
 ACTION_SIZES: dict[str, int] = {"tilt": 2, "pose": 6, "pulse": 6}
+#: What an action in [-1, 1] means in each mode, and in what unit (the docs' table is generated from it).
+ACTION_MEANINGS: dict[str, tuple[str, str]] = {
+    "tilt": ("roll, pitch = action · `max_tilt` (default 10°)", "rad"),
+    "pose": ("x, y, z, roll, pitch, yaw = action · 0.9 · the reach from home along each axis", "m, rad"),
+    "pulse": ("pulse widths, −1…1 across each channel's calibrated range", "µs"),
+}
+
+
+def action_table() -> str:
+    """The action modes as a Markdown table (generated from :data:`ACTION_SIZES` and :data:`ACTION_MEANINGS`)."""
+    rows = ["| `action_mode` | n | meaning of the action | unit |", "|---|---|---|---|"]
+    rows += [f"| `{m}` | {ACTION_SIZES[m]} | {ACTION_MEANINGS[m][0]} | {ACTION_MEANINGS[m][1]} |" for m in ACTION_MODES]
+    return "\n".join(rows)
 #: Default largest tilt (roll or pitch) of the "tilt" mode, rad.
 DEFAULT_MAX_TILT = math.radians(10.0)
 #: Fractions of the ray tried at once, then refined once more between the bracketing pair.

@@ -29,7 +29,7 @@ GRAVITY = 9.80665
 
 @dataclass(frozen=True)
 class PIDGains:
-    """Gains of :class:`CascadedPID` (tuned by ``train/tune_pid.py``; see the README).
+    """Gains of :class:`CascadedPID` (tuned by ``train/tune_pid.py``; see the docs: Training and results).
 
     Attributes:
         kp_pos: 1/s, outer loop: velocity set-point per metre of position error.

@@ -1,6 +1,6 @@
 """Batched inverse and forward kinematics of a Stewart platform (seed 000).
 
-Conventions (REFERENCE.md §2):
+Conventions (the docs: Conventions and presets):
 
 * A pose is ``(x, y, z, roll, pitch, yaw)`` in metres and radians, shape (..., 6).
   The translation is measured from home ``(0, 0, h0)``.
@@ -9,7 +9,7 @@ Conventions (REFERENCE.md §2):
   platform turns (seed 002's point of interest), platform anchor i sits at
   ``q_i = (0, 0, h0) + (x, y, z) + c + R · (p_i − c)`` in the base frame, and the
   leg vector is ``l_i = q_i − b_i`` (eq. 3). ``pivot=None`` means c = 0.
-* Servo angle α_i (eq. 9, in the one consistent form of REFERENCE.md §1):
+* Servo angle α_i (eq. 9, in its one consistent form, see the docs: Sources):
   ``α = asin(L / sqrt(M² + N²)) − atan2(N, M)`` with ``L = |l|² − (s² − a²)``,
   ``M = 2a (z_q − z_b)``, ``N = 2a [cos β (x_q − x_b) + sin β (y_q − y_b)]``.
   α is the horn's elevation above the horizontal; its tip is

@@ -32,7 +32,7 @@ def servo_hexapod() -> PlatformGeometry:
     """The reference hobby ball balancer that the simulator models.
 
     MG996R-class servos with 25 mm horns and 160 mm rods under a 300 mm plate
-    (REFERENCE.md §3-§4). Servo shafts sit in three pairs on a 100 mm radius,
+    (the docs: Sources, Conventions and presets). Servo shafts sit in three pairs on a 100 mm radius,
     at ±20° about 90°, 210° and 330°; each horn turns in the plane tangent to
     that circle and points away from its partner. Rod ends sit in three pairs on
     an 80 mm radius at ±8° about the same angles. The home height follows from
@@ -86,7 +86,7 @@ def memememe_liverpool() -> PlatformGeometry:
         servo_beta=beta,
         home_height=120 * MM,
         servo_angle_range=(-90 * DEG, 90 * DEG),
-        description="memememe small platform (Liverpool 2016), AX-12A servos; REFERENCE.md §3.",
+        description="memememe small platform (Liverpool 2016), AX-12A servos (the docs: Sources).",
     )
 
 

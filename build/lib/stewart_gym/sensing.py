@@ -25,7 +25,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 __all__ = ["BallObserver", "BallSensor", "ObservationBuilder", "Reading", "SimulatedSensor", "SimulatedTouchPanel",
-           "TouchPanelSpec", "VelocityEstimator", "ball_contact"]  # fmt: skip
+           "TouchPanelSpec", "VelocityEstimator", "ball_contact", "observation_table"]  # fmt: skip
 
 #: A sensor reading: ((x, y) m in the plate frame, the time the sample was taken, s, on the reader's clock).
 Reading = tuple[tuple[float, float], float]
@@ -177,32 +177,35 @@ class VelocityEstimator:
 class ObservationBuilder:
     """The observation vector (float32) of the ball environments and the deployed controller.
 
-    Layout, each entry scaled to about [-1, 1] and clipped to the bounds below:
-
-    ===== ============================== ========== ======
-    index what                           unit/scale bounds
-    ===== ============================== ========== ======
-    0, 1  ball x, y (sensed, plate frame) m / 0.15   ±2
-    2, 3  ball velocity (estimated)       m/s / 0.5  ±5
-    4, 5  target x, y                     m / 0.15   ±2
-    6, 7  target velocity                 m/s / 0.5  ±5
-    8, 9  commanded roll, pitch           rad / 0.25 ±2
-    10…   previous action                 as sent    ±1
-    ===== ============================== ========== ======
+    Its layout is :attr:`FIELDS` (one copy: the docs' table and the env's
+    docstring are generated from it by :func:`observation_table`). Each entry is
+    divided by its scale and clipped to its bound, so it lies in about [-1, 1].
     """
 
     POSITION_SCALE = 0.15
     VELOCITY_SCALE = 0.5
     TILT_SCALE = 0.25
+    #: (what, count, unit, scale, bound) per group of entries, in order; count None is the action size.
+    FIELDS: tuple[tuple[str, int | None, str, float, float], ...] = (
+        ("ball x, y from the sensor (plate frame)", 2, "m", POSITION_SCALE, 2.0),
+        ("ball velocity, estimated from the readings", 2, "m/s", VELOCITY_SCALE, 5.0),
+        ("target x, y (plate frame)", 2, "m", POSITION_SCALE, 2.0),
+        ("target velocity", 2, "m/s", VELOCITY_SCALE, 5.0),
+        ("commanded roll, pitch (0 in `pulse` mode)", 2, "rad", TILT_SCALE, 2.0),
+        ("previous action, as applied", None, "1", 1.0, 1.0),
+    )
 
     def __init__(self, action_size: int) -> None:
         self.action_size = int(action_size)
-        self.size = 10 + self.action_size
-        high = np.array([2, 2, 5, 5, 2, 2, 5, 5, 2, 2] + [1] * self.action_size, dtype=np.float32)
-        self.low, self.high = -high, high
-        scale = [1 / self.POSITION_SCALE] * 2 + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.POSITION_SCALE] * 2 \
-            + [1 / self.VELOCITY_SCALE] * 2 + [1 / self.TILT_SCALE] * 2 + [1.0] * self.action_size
-        self._scales, self._highs = scale, [float(v) for v in high]
+        scale, high = [], []
+        for _, count, _, k, bound in self.FIELDS:
+            n = self.action_size if count is None else count
+            scale += [1.0 / k] * n
+            high += [bound] * n
+        self.size = len(high)
+        high_arr = np.array(high, dtype=np.float32)
+        self.low, self.high = -high_arr, high_arr
+        self._scales, self._highs = scale, [float(v) for v in high_arr]
 
     @property
     def space(self) -> Any:
@@ -251,3 +254,14 @@ class BallObserver:
         else:
             vel = (self.velocity.vx, self.velocity.vy)
         return self.builder.build(self.reading, vel, target_xy, target_velocity, roll_pitch, previous_action)
+
+
+def observation_table() -> str:
+    """The observation layout as a Markdown table (for the docs; generated from :attr:`ObservationBuilder.FIELDS`)."""
+    rows = ["| index | observation | divided by | clipped to |", "|---|---|---|---|"]
+    first = 0
+    for what, count, unit, scale, bound in ObservationBuilder.FIELDS:
+        index = f"{first}, {first + 1}" if count == 2 else f"{first} … {first} + n − 1"
+        rows.append(f"| {index} | {what} | {'1' if unit == '1' else f'{scale:g} {unit}'} | ±{bound:g} |")
+        first += count or 0
+    return "\n".join(rows)

@@ -12,7 +12,7 @@ B3 = L2 sin(θ + γ) − y2, D = 2 (A2 B3 − B2 A3),
 N1 = B3 (p2² − p1² − A2² − B2²) − B2 (p3² − p1² − A3² − B3²),
 N2 = −A3 (p2² − p1² − A2² − B2²) + A2 (p3² − p1² − A3² − B3²),
 x = N1 / D, y = N2 / D. (The seed prints ``p_3^2-p_1^2A_3^2-B_3^2``: the
-intended term is p3² − p1² − A3² − B3², REFERENCE.md §1.)
+intended term is p3² − p1² − A3² − B3²; the docs: Sources, errata.)
 
 :func:`solve_planar` finds **all** roots on [−π, π]: it brackets every sign
 change of f on a fine grid and refines it, and it finds tangential (double)

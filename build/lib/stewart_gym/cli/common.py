@@ -2,7 +2,7 @@
 parser whose mistakes are one ``error:`` line, output paths checked before long work, and the error handling
 of :func:`run`.
 
-Exit codes (documented in the README and ``stewart-gym --help``):
+Exit codes (:data:`EXIT_CODES`; the docs and ``stewart-gym --help`` show them):
 
 * 0: the command did what was asked;
 * 1: a user mistake (bad option, missing or malformed file), or a result that failed: an unreachable pose,
@@ -34,9 +34,21 @@ EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
                    "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
                    "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy"}  # fmt: skip
-EXIT_CODES_HELP = ("exit codes: 0 done; 1 a user error (bad option, missing or malformed file) or a failed result "
-                   "(unreachable pose, deploy that could not keep its rate); 2 a device failure (serial port missing, "
-                   "unplugged or not answering)")  # fmt: skip
+#: What each exit code means (the --help epilog and the docs' table are made from it).
+EXIT_CODES = {
+    EXIT_OK: "the command did what was asked",
+    EXIT_FAILED: "a user error (bad option, missing or malformed file, missing optional dependency) or a failed "
+                 "result: an unreachable pose (`ik`, `render`), a trajectory with an unreachable sample, a deploy run "
+                 "that missed more than 5 % of its deadlines or never got a usable action from its policy",
+    EXIT_DEVICE: "a device failure: the serial port is missing, unplugged or not answering",
+    EXIT_INTERRUPTED: "interrupted (Ctrl-C) before the command finished",
+}  # fmt: skip
+EXIT_CODES_HELP = "exit codes: " + "; ".join(f"{code} {text.replace('`', '')}" for code, text in EXIT_CODES.items())
+
+
+def exit_code_table() -> str:
+    """The exit codes as a Markdown table."""
+    return "\n".join(["| exit code | meaning |", "|---|---|"] + [f"| {c} | {t} |" for c, t in EXIT_CODES.items()])
 
 
 class Parser(argparse.ArgumentParser):

@@ -7,7 +7,7 @@ a task is a task file (see :mod:`stewart_gym.envs.task`) and one line in
 
 from __future__ import annotations
 
-__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "register_envs"]
+__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "env_table", "register_envs"]
 
 ENV_ENTRY_POINT = "stewart_gym.envs.ball_env:StewartBallEnv"
 
@@ -26,3 +26,16 @@ def register_envs() -> None:
     for env_id, (task, steps) in ENV_IDS.items():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=ENV_ENTRY_POINT, max_episode_steps=steps, kwargs={"task": task})
+
+
+def env_table() -> str:
+    """The registered ids as a Markdown table (the README's and the docs' env table are this text)."""
+    from stewart_gym.envs.task import load_task
+
+    rows = ["| id | the task | episode | success |", "|---|---|---|---|"]
+    for env_id, (path, steps) in ENV_IDS.items():
+        task = load_task(path)
+        what = (type(task).__doc__ or "").strip().split("\n")[0].split(". Success")[0].rstrip(".")
+        rows.append(f"| `{env_id}` | {what} | {steps} steps ({steps / 50:g} s at 50 Hz) | within "
+                    f"{task.success_radius * 1e3:g} mm for the last {task.success_window_s:g} s |")  # fmt: skip
+    return "\n".join(rows)

@@ -43,31 +43,17 @@ class StewartBallEnv(gym.Env, EzPickle):
     ## Action Space
     ``Box(-1, 1, (n,), float32)``; ``action_mode`` picks the mapping:
 
-    ============ === ==================================================== ======
-    action_mode  n   meaning of the action                                 unit
-    ============ === ==================================================== ======
-    ``"tilt"``   2   roll, pitch = action · ``max_tilt`` (default 10°)     rad
-    ``"pose"``   6   x, y, z, roll, pitch, yaw = action · reach·0.9        m, rad
-    ``"pulse"``  6   pulse widths, −1…1 across each channel's range        µs
-    ============ === ==================================================== ======
+    ACTION_TABLE
 
     A commanded pose that is out of reach is replaced by the nearest reachable
     pose on the ray from home; ``info["action_scaled"]`` flags it and
     ``info["unreachable_count"]`` counts it over the episode.
 
     ## Observation Space
-    ``Box(float32)`` of size 10 + n, each entry scaled to about ±1 and clipped:
+    ``Box(float32)`` of size 10 + n (:class:`~stewart_gym.sensing.ObservationBuilder`), each entry divided by
+    its scale and clipped, so about ±1:
 
-    ===== ================================================ ========== ======
-    index observation                                      scale      bounds
-    ===== ================================================ ========== ======
-    0, 1  ball x, y from the touch panel (plate frame)     m / 0.15   ±2
-    2, 3  ball velocity, estimated from panel positions    m/s / 0.5  ±5
-    4, 5  target x, y (plate frame)                        m / 0.15   ±2
-    6, 7  target velocity                                  m/s / 0.5  ±5
-    8, 9  commanded roll, pitch (0 in ``"pulse"`` mode)    rad / 0.25 ±2
-    10…   previous action                                  1          ±1
-    ===== ================================================ ========== ======
+    OBSERVATION_TABLE
 
     The panel (:class:`~stewart_gym.sensing.TouchPanelSpec`) samples at 100 Hz
     with 10 ms latency and 1 mm noise; when the ball is not touching, the last
@@ -319,3 +305,19 @@ class StewartBallEnv(gym.Env, EzPickle):
             "physics_error": False,
             **self.task.info(),
         }
+
+
+def _tables_into_docstring() -> None:
+    """The action and observation tables of the docstring, generated from the code that defines them."""
+    from stewart_gym.actions import action_table
+    from stewart_gym.sensing import observation_table
+
+    def indent(table: str) -> str:
+        return "\n".join("    " + line for line in table.splitlines()).lstrip()
+
+    doc = StewartBallEnv.__doc__ or ""
+    StewartBallEnv.__doc__ = doc.replace("ACTION_TABLE", indent(action_table())).replace(
+        "OBSERVATION_TABLE", indent(observation_table()))  # fmt: skip
+
+
+_tables_into_docstring()

@@ -1,9 +1,9 @@
-"""Byte-level servo-controller protocols (REFERENCE.md §5). Pure functions: no I/O here.
+"""Byte-level servo-controller protocols (described in the docs: Hardware). Pure functions: no I/O here.
 
 * :class:`Maestro`: Pololu Maestro compact protocol, targets in quarter-µs.
 * :class:`SSC32`: Lynxmotion SSC-32/SSC-32U ASCII group moves.
 * :class:`LineProtocol`: a plain text protocol for an Arduino with a PCA9685
-  board (the sketch is ``hardware/arduino/stewart_pca9685/``): the host sends
+  board (the sketch is ``arduino/stewart_pca9685/stewart_pca9685.ino`` in the repository): the host sends
   ``W w0,w1,w2,w3,w4,w5\\n`` (µs); the board answers ``ready`` after its reset
   and reports the ball as ``B x,y\\n`` (mm, plate frame).
 """

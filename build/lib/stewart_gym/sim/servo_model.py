@@ -32,7 +32,7 @@ __all__ = ["HobbyServos", "ServoSpec"]
 
 @dataclass(frozen=True)
 class ServoSpec:
-    """A hobby servo's behaviour; defaults are an MG996R at 4.8 V (REFERENCE.md §4).
+    """A hobby servo's behaviour; defaults are an MG996R at 4.8 V (the docs: Sources).
 
     Attributes:
         max_speed: rad/s, no-load speed (0.17 s/60° ≈ 6.16 rad/s).

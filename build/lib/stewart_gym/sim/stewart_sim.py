@@ -100,7 +100,10 @@ class StewartSim:
             full-speed moves; see ``bench/bench_sim.py --solvers``.
         control_hz: Rate of :meth:`step` (servo frames).
         ball: Add a ball on the plate.
-        ball_spec, servo_spec, mechanism, physics: Physical parameters.
+        ball_spec: The ball (engine-neutral :class:`~stewart_gym.sim.BallSpec`).
+        servo_spec: The hobby servos' behaviour.
+        mechanism: Masses and sizes of the parts.
+        physics: Solver settings.
         render_mode: ``None``, ``"rgb_array"`` (headless TinyRenderer) or ``"human"`` (GUI).
         render_size: (width, height) of ``rgb_array`` frames.
     """
