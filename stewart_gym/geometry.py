@@ -90,6 +90,9 @@ class PlatformGeometry:
         leg_length_range: (lo, hi) m. Allowed anchor-to-anchor leg length
             (linear only).
         description: Free text: where the numbers come from.
+        plate_size: (width along x, depth along y) m of the top plate (the ball's
+            surface, the touch panel's extent); ``None`` means the default
+            :attr:`plate_extent` derives from the anchors.
     """
 
     name: str
@@ -102,6 +105,7 @@ class PlatformGeometry:
     servo_angle_range: tuple[float, float] | None = None
     leg_length_range: tuple[float, float] | None = None
     description: str = ""
+    plate_size: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -111,6 +115,9 @@ class PlatformGeometry:
         _positive("home_height", self.home_height)
         set_(self, "rod_length", float(self.rod_length))
         set_(self, "home_height", float(self.home_height))
+        if self.plate_size is not None:
+            size = _range("plate_size", self.plate_size, positive=True, ordered=False)
+            set_(self, "plate_size", size)
         if self.horn_length is not None:
             _positive("horn_length", self.horn_length)
             set_(self, "horn_length", float(self.horn_length))
@@ -143,6 +150,14 @@ class PlatformGeometry:
         return self.horn_length is not None
 
     @property
+    def plate_extent(self) -> tuple[float, float]:
+        """(width, depth) m of the top plate: ``plate_size``, or else a square 30 % wider than the anchor circle."""
+        if self.plate_size is not None:
+            return self.plate_size
+        side = round(2.6 * float(np.max(np.hypot(self.platform_anchors[:, 0], self.platform_anchors[:, 1]))), 4)
+        return (side, side)
+
+    @property
     def home_position(self) -> np.ndarray:
         """(3,) m: the platform origin at home, (0, 0, h0)."""
         return np.array([0.0, 0.0, self.home_height])
@@ -167,6 +182,7 @@ class PlatformGeometry:
         known = {
             "name", "description", "length_unit", "angle_unit", "base_anchors", "platform_anchors",
             "rod_length", "home_height", "horn_length", "servo_beta", "servo_angle_range", "leg_length_range",
+            "plate_size",
         }  # fmt: skip
         unknown = sorted(set(data) - known)
         if unknown:
@@ -193,6 +209,9 @@ class PlatformGeometry:
             "platform_anchors": _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls,
             "rod_length": _scalar("rod_length", need("rod_length")) * ls,
         }
+        if "plate_size" in data:
+            w, d = _range("plate_size", data["plate_size"], positive=True, ordered=False)
+            kw["plate_size"] = (w * ls, d * ls)
         if rotary:
             kw["horn_length"] = _scalar("horn_length", data["horn_length"]) * ls
             _positive("horn_length", kw["horn_length"])
@@ -250,6 +269,8 @@ class PlatformGeometry:
             f"rod_length = {fmt(self.rod_length)}",
             f"home_height = {fmt(self.home_height)}",
         ]
+        if self.plate_size is not None:
+            lines.append(f"plate_size = [{fmt(self.plate_size[0])}, {fmt(self.plate_size[1])}]")
         if self.is_rotary:
             assert self.servo_beta is not None and self.servo_angle_range is not None
             lines += [
@@ -296,11 +317,11 @@ def _positive(key: str, value: Any) -> None:
         raise GeometryError(f"{key}: must be a finite positive length, got {v!r}")
 
 
-def _range(key: str, value: Any, *, positive: bool) -> tuple[float, float]:
+def _range(key: str, value: Any, *, positive: bool, ordered: bool = True) -> tuple[float, float]:
     arr = _shape(key, value, (2,))
     lo, hi = float(arr[0]), float(arr[1])
-    if not lo < hi:
+    if ordered and not lo < hi:
         raise GeometryError(f"{key}: expected [low, high] with low < high, got {[lo, hi]}")
-    if positive and lo <= 0.0:
+    if positive and min(lo, hi) <= 0.0:
         raise GeometryError(f"{key}: lengths must be positive, got {[lo, hi]}")
     return (lo, hi)

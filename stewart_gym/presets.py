@@ -62,6 +62,7 @@ def servo_hexapod() -> PlatformGeometry:
         home_height=h0,
         servo_angle_range=(-math.pi, math.pi),  # replaced below by ±45° about α0
         description="Reference hobby ball balancer: MG996R servos, 25 mm horns, 160 mm rods, 300 mm plate.",
+        plate_size=(0.300, 0.300),
     )
     from stewart_gym.kinematics import inverse_kinematics
 
@@ -86,7 +87,8 @@ def memememe_liverpool() -> PlatformGeometry:
         servo_beta=beta,
         home_height=120 * MM,
         servo_angle_range=(-90 * DEG, 90 * DEG),
-        description="memememe small platform (Liverpool 2016), AX-12A servos (the docs: Sources).",
+        description="memememe small platform (Liverpool 2016), AX-12A servos (the docs: Sources); 200 mm plate.",
+        plate_size=(0.200, 0.200),
     )
 
 
@@ -105,7 +107,8 @@ def senilov2018() -> PlatformGeometry:
         rod_length=0.2,
         home_height=0.25,
         leg_length_range=(0.2, 0.5),
-        description="Seed 001 (Senilov 2018): 6-UPS, Rb=0.5 m, Rt=0.2 m, stroke 0..0.3 m.",
+        description="Seed 001 (Senilov 2018): 6-UPS, Rb=0.5 m, Rt=0.2 m, stroke 0..0.3 m; 500 mm plate.",
+        plate_size=(0.500, 0.500),
     )
 
 
@@ -127,7 +130,8 @@ def mathcad_micro() -> PlatformGeometry:
         rod_length=(31.44 - 1.24) * MM,
         home_height=22.19 * MM,
         leg_length_range=((31.44 - 1.24) * MM, (31.44 + 1.24) * MM),
-        description="Seed 002 (Mathcad micro platform): legs 31.44 ± 1.24 mm, z_mid 22.19 mm.",
+        description="Seed 002 (Mathcad micro platform): legs 31.44 ± 1.24 mm, z_mid 22.19 mm; 30 mm plate.",
+        plate_size=(0.030, 0.030),
     )
 
 

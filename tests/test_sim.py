@@ -144,7 +144,7 @@ def test_urdf_loads_in_pybullet() -> None:
         body = pb.loadURDF(str(ROOT / "urdf/servo_hexapod.urdf"), useFixedBase=True, physicsClientId=cid)
         assert pb.getNumJoints(body, physicsClientId=cid) == 18
         plate = pb.loadURDF(str(ROOT / "urdf/servo_hexapod_plate.urdf"), physicsClientId=cid)
-        assert pb.getDynamicsInfo(plate, -1, physicsClientId=cid)[0] == pytest.approx(MechanismSpec().plate_mass)
+        assert pb.getDynamicsInfo(plate, -1, physicsClientId=cid)[0] == pytest.approx(0.43)
     finally:
         pb.disconnect(cid)
 

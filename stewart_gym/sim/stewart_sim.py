@@ -325,8 +325,8 @@ class StewartSim:
     @property
     def plate_half_extent(self) -> tuple[float, float]:
         """m: half the plate's size along its x and y axes."""
-        half = self.mechanism.plate_half_size
-        return (half, half)
+        width, depth = self.geometry.plate_extent
+        return (width / 2, depth / 2)
 
     @property
     def plate_top(self) -> float:
