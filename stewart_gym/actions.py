@@ -24,7 +24,8 @@ from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 from stewart_gym.presets import load_geometry
 
-__all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "action_table"]
+__all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "action_table",
+           "default_max_tilt"]  # fmt: skip
 
 ActionMode = Literal["tilt", "pose", "pulse"]
 ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
@@ -32,7 +33,7 @@ ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
 ACTION_SIZES: dict[str, int] = {"tilt": 2, "pose": 6, "pulse": 6}
 #: What an action in [-1, 1] means in each mode, and in what unit (the docs' table is generated from it).
 ACTION_MEANINGS: dict[str, tuple[str, str]] = {
-    "tilt": ("roll, pitch = action · `max_tilt` (default 10°)", "rad"),
+    "tilt": ("roll, pitch = action · `max_tilt` (default 10°, less where the geometry reaches less)", "rad"),
     "pose": ("x, y, z, roll, pitch, yaw = action · 0.9 · the reach from home along each axis", "m, rad"),
     "pulse": ("pulse widths, −1…1 across each channel's calibrated range", "µs"),
 }
@@ -43,8 +44,16 @@ def action_table() -> str:
     rows = ["| `action_mode` | n | meaning of the action | unit |", "|---|---|---|---|"]
     rows += [f"| `{m}` | {ACTION_SIZES[m]} | {ACTION_MEANINGS[m][0]} | {ACTION_MEANINGS[m][1]} |" for m in ACTION_MODES]
     return "\n".join(rows)
-#: Default largest tilt (roll or pitch) of the "tilt" mode, rad.
+#: Default largest tilt (roll or pitch) of the "tilt" mode, rad, where the geometry reaches it (see default_max_tilt).
 DEFAULT_MAX_TILT = math.radians(10.0)
+#: The "tilt" mode keeps this margin inside the geometry's own roll and pitch reach.
+TILT_REACH_MARGIN = 0.9
+
+
+def default_max_tilt(geometry: PlatformGeometry | str) -> float:
+    """rad: 10°, or 90 % of the smallest roll or pitch the geometry reaches from home, whichever is smaller."""
+    reach = axis_ranges(load_geometry(geometry))
+    return float(min(DEFAULT_MAX_TILT, TILT_REACH_MARGIN * float(np.min(np.abs(reach[3:5])))))
 #: Fractions of the ray tried at once, then refined once more between the bracketing pair.
 _RAY = np.linspace(0.0, 1.0, 65)
 
@@ -75,20 +84,23 @@ class ActionMapper:
         calibration: Pulse mapping; default :meth:`ServoCalibration.default`.
         mode: ``"tilt"`` (2-D: roll, pitch), ``"pose"`` (6-D: x, y, z, roll,
             pitch, yaw) or ``"pulse"`` (6-D: pulse widths).
-        max_tilt: rad, roll/pitch at action ±1 in "tilt" mode (default 10°).
+        max_tilt: rad, roll/pitch at action ±1 in "tilt" mode (default
+            :func:`default_max_tilt` of the geometry: 10° where it reaches that).
         pose_scale: (6,) m, rad, the pose at action +1 per axis in "pose" mode;
             default 90 % of the smaller of each axis' reach from home.
     """
 
     def __init__(self, geometry: PlatformGeometry | str = "servo-hexapod", calibration: ServoCalibration | None = None,
-                 mode: ActionMode = "tilt", *, max_tilt: float = DEFAULT_MAX_TILT,
+                 mode: ActionMode = "tilt", *, max_tilt: float | None = None,
                  pose_scale: np.ndarray | None = None) -> None:  # fmt: skip
         if mode not in ACTION_MODES:
             raise ConfigError(f"action mode must be one of {ACTION_MODES}, got {mode!r}")
         self.geometry = load_geometry(geometry)
         self.calibration = calibration or ServoCalibration.default(self.geometry)
         self.mode = mode
-        self.max_tilt = float(max_tilt)
+        self.max_tilt = default_max_tilt(self.geometry) if max_tilt is None else float(max_tilt)
+        if not (math.isfinite(self.max_tilt) and 0 < self.max_tilt < math.pi / 2):
+            raise ConfigError(f"max_tilt must be in (0, π/2) rad, got {max_tilt!r}")
         if pose_scale is None:
             reach = axis_ranges(self.geometry)
             pose_scale = 0.9 * np.minimum(-reach[:, 0], reach[:, 1])

@@ -55,11 +55,17 @@ class CascadedPID:
     Args:
         gains: The gains.
         dt: s, control period (integration step).
+        plate_half: (h_x, h_y) m of the plate the observations are scaled by (see
+            :class:`~stewart_gym.sensing.ObservationBuilder`).
     """
 
-    def __init__(self, gains: PIDGains | None = None, dt: float = 0.02) -> None:
+    def __init__(self, gains: PIDGains | None = None, dt: float = 0.02,
+                 plate_half: tuple[float, float] = (0.15, 0.15)) -> None:  # fmt: skip
         self.gains = gains or PIDGains()
         self.dt = dt
+        scales = ObservationBuilder(2, plate_half)
+        self._position_scale = np.array(scales.position_scale)
+        self._velocity_scale = np.array(scales.velocity_scale)
         self._integral = np.zeros(2)
 
     def reset(self) -> None:
@@ -70,10 +76,10 @@ class CascadedPID:
         """Tilt action(s) for observation(s); keeps one integrator per row of a batch."""
         g = self.gains
         o = np.asarray(obs, dtype=np.float64)
-        pos = o[..., 0:2] * ObservationBuilder.POSITION_SCALE
-        vel = o[..., 2:4] * ObservationBuilder.VELOCITY_SCALE
-        target = o[..., 4:6] * ObservationBuilder.POSITION_SCALE
-        target_vel = o[..., 6:8] * ObservationBuilder.VELOCITY_SCALE
+        pos = o[..., 0:2] * self._position_scale
+        vel = o[..., 2:4] * self._velocity_scale
+        target = o[..., 4:6] * self._position_scale
+        target_vel = o[..., 6:8] * self._velocity_scale
         err = target - pos
         if self._integral.shape != err.shape:
             self._integral = np.zeros(err.shape)

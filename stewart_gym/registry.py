@@ -35,11 +35,13 @@ __all__ = ["POLICY_DIR", "SHIPPED", "PolicySource", "deployable_policy", "export
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
-SHIPPED = {"StewartBallBalance-v0": "balance", "StewartBallTrack-v0": "track",
-           "StewartBallDisturbance-v0": "balance"}  # the balance policy, trained without pushes, handles it
+SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallTrack-v0", "servo-hexapod"): "track",
+           # the balance policy, trained without pushes, handles them: see the docs' Environments page
+           ("StewartBallDisturbance-v0", "servo-hexapod"): "balance"}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
-POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz")
+POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry")
+DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
 _KINDS_TEXT = "'shipped', 'pid', a run folder, a model .zip, a bundle folder or a PID gains .json"
@@ -70,29 +72,36 @@ class PolicySource:
         return str(self.env_kwargs.get("action_mode", "tilt"))
 
     @property
+    def geometry(self) -> str:
+        """The geometry (preset name or TOML path) the policy was trained for."""
+        return str(self.env_kwargs.get("geometry", DEFAULT_GEOMETRY))
+
+    @property
     def label(self) -> str:
         return self.spec if self.spec in ("shipped", "pid") else self.path.name
 
 
-def resolve_policy(spec: str, env_id: str | None = None) -> PolicySource:
+def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = None) -> PolicySource:
     """What ``spec`` names (see the module docstring); raises :class:`PolicyError` with what to do instead.
 
-    ``env_id`` picks the shipped policy (default ``StewartBallBalance-v0``) and
-    is recorded for the PID; a trained model or bundle keeps the env id it was
-    trained for.
+    ``env_id`` and ``geometry`` pick the shipped policy (default
+    ``StewartBallBalance-v0`` on ``servo-hexapod``) and are recorded for the
+    PID; a trained model or bundle keeps the env id and geometry it was trained for.
     """
     if spec == "pid":
-        return PolicySource(spec, "pid", POLICY_DIR / "pid_gains.json", env_id or DEFAULT_ENV, {"action_mode": "tilt"})
+        kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY}
+        return PolicySource(spec, "pid", POLICY_DIR / "pid_gains.json", env_id or DEFAULT_ENV, kwargs)
     if spec == "shipped":
-        env_id = env_id or DEFAULT_ENV
-        if env_id not in SHIPPED:
-            raise PolicyError(f"no shipped policy for {env_id!r}; shipped policies exist for {sorted(SHIPPED)}")
-        folder = POLICY_DIR / SHIPPED[env_id]
+        env_id, geo = env_id or DEFAULT_ENV, geometry or DEFAULT_GEOMETRY
+        if (env_id, geo) not in SHIPPED:
+            have = ", ".join(f"{e} on {g}" for e, g in SHIPPED)
+            raise PolicyError(f"no shipped policy for {env_id} on {geo}; shipped policies: {have}")
+        folder = POLICY_DIR / SHIPPED[(env_id, geo)]
         if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
-            env_kwargs = _bundle_source(spec, folder / "bundle").env_kwargs
+            env_kwargs = {**_bundle_source(spec, folder / "bundle").env_kwargs, "geometry": geo}
             return PolicySource(spec, "sb3", folder / "model.zip", env_id, env_kwargs, folder / "bundle")
         source = _sb3_source(spec, folder / "model.zip")
-        return PolicySource(spec, "sb3", source.path, env_id, source.env_kwargs)
+        return PolicySource(spec, "sb3", source.path, env_id, {**source.env_kwargs, "geometry": geo})
     path = Path(spec)
     if not path.exists():
         raise PolicyError(f"policy {spec!r}: no such file or folder; give {_KINDS_TEXT}")
@@ -159,6 +168,8 @@ def _bundle_source(spec: str, folder: Path) -> PolicySource:
     meta = _read_json(folder / "bundle.json")
     env_kwargs = dict(meta.get("env_kwargs") or {})
     env_kwargs["action_mode"] = meta.get("action_mode", "tilt")
+    if isinstance(meta.get("geometry"), dict):
+        env_kwargs["geometry"] = str(meta["geometry"].get("name", DEFAULT_GEOMETRY))
     return PolicySource(spec, "bundle", folder, str(meta.get("env_id", DEFAULT_ENV)), env_kwargs, folder)
 
 
@@ -167,7 +178,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     """A policy object with SB3's ``predict`` for evaluation: an SB3 model, the PID or a bundle."""
     source = spec if isinstance(spec, PolicySource) else resolve_policy(spec, env_id)
     if source.kind == "pid":
-        return load_pid(source.path)
+        return load_pid(source.path, source.geometry)
     if source.kind == "bundle":
         from stewart_gym.hardware.export import BundlePolicy
 
@@ -181,18 +192,41 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     return policy
 
 
-def load_for_evaluation(spec: str, env_id: str | None = None) -> tuple[PolicySource, Any, dict[str, Any]]:
-    """(source, policy, env keywords): what ``evaluate`` and ``demo`` need to run ``spec`` as it was trained."""
-    source = resolve_policy(spec, env_id)
+def load_for_evaluation(spec: str, env_id: str | None = None,
+                        geometry: str | None = None) -> tuple[PolicySource, Any, dict[str, Any]]:  # fmt: skip
+    """(source, policy, env keywords): what ``evaluate`` and ``demo`` need to run ``spec`` as it was trained.
+
+    A trained policy runs on the geometry it was trained for; asking for another
+    one raises :class:`PolicyError` naming both (the PID runs on any).
+    """
+    source = resolve_policy(spec, env_id, geometry)
+    if geometry is not None and source.kind != "pid" and not same_geometry(geometry, source.geometry):
+        raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry!r}, not {geometry!r}: train one "
+                          f"for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the pid")  # fmt: skip
     policy = load_policy(source)
     return source, policy, resolved_env_kwargs(source, getattr(policy, "action_size", None))
 
 
-def load_pid(path: Path) -> Any:
-    """The cascaded PID with the gains in ``path``; malformed gains raise :class:`PolicyError`."""
-    from stewart_gym.classical import CascadedPID, PIDGains
+def same_geometry(a: str | Any, b: str | Any) -> bool:
+    """Whether two geometry specs (preset names, TOML paths or geometries) describe the same platform."""
+    from stewart_gym.presets import load_geometry
 
-    return CascadedPID(pid_gains(path, PIDGains))
+    return a == b or load_geometry(a) == load_geometry(b)
+
+
+def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
+    """The cascaded PID with the gains in ``path``, for ``geometry``: its tilt scale is the geometry's default
+    ``max_tilt`` (what the env uses) and its observation scales follow the plate."""
+    from dataclasses import replace
+
+    from stewart_gym.actions import default_max_tilt
+    from stewart_gym.classical import CascadedPID, PIDGains
+    from stewart_gym.presets import load_geometry
+
+    geo = load_geometry(geometry)
+    width, depth = geo.plate_extent
+    gains = replace(pid_gains(path, PIDGains), max_tilt=default_max_tilt(geo))
+    return CascadedPID(gains, plate_half=(width / 2, depth / 2))
 
 
 def pid_gains(path: Path, cls: Any) -> Any:
@@ -226,9 +260,8 @@ def deployable_policy(source: PolicySource) -> Any:
     from stewart_gym.hardware.export import BundlePolicy, pid_meta
 
     if source.kind == "pid":
-        from stewart_gym.classical import PIDGains
-
-        return BundlePolicy.from_meta(pid_meta(vars(pid_gains(source.path, PIDGains)), source.env_id))
+        pid = load_pid(source.path, source.geometry)
+        return BundlePolicy.from_meta(pid_meta(vars(pid.gains), source.env_id, source.geometry))
     if source.bundle is not None:
         return BundlePolicy(source.bundle)
     raise PolicyError(f"policy {source.spec!r} is a Stable-Baselines3 model; deploy runs bundles: export it first "
@@ -240,10 +273,7 @@ def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
     from stewart_gym.hardware.export import export_bundle_copy, export_pid, export_sb3
 
     if source.kind == "pid":
-        from stewart_gym.classical import PIDGains
-
-        pid_gains(source.path, PIDGains)
-        return export_pid(source.path, out_dir, source.env_id)
+        return export_pid(vars(load_pid(source.path, source.geometry).gains), out_dir, source.env_id, source.geometry)
     if source.kind == "bundle":
         return export_bundle_copy(source.path, out_dir)
     policy = load_policy(source)  # the model loads and its action size matches its configuration

@@ -178,34 +178,48 @@ class ObservationBuilder:
     """The observation vector (float32) of the ball environments and the deployed controller.
 
     Its layout is :attr:`FIELDS` (one copy: the docs' table and the env's
-    docstring are generated from it by :func:`observation_table`). Each entry is
-    divided by its scale and clipped to its bound, so it lies in about [-1, 1].
+    docstring are generated from it by :func:`observation_table`). Positions
+    are divided by the plate's half size h along each axis and velocities by
+    h / (0.3 s), so the same policy sees the same numbers on any plate (on the
+    reference 300 mm plate: 0.15 m and 0.5 m/s); tilts are divided by 0.25 rad.
+    Each entry is then clipped to its bound, so it lies in about [-1, 1].
+
+    Args:
+        action_size: 2 ("tilt") or 6.
+        plate_half: (h_x, h_y) m, half the plate's width and depth.
     """
 
-    POSITION_SCALE = 0.15
-    VELOCITY_SCALE = 0.5
+    #: s: velocities are divided by h / VELOCITY_TIME (0.5 m/s on the reference 0.15 m half plate).
+    VELOCITY_TIME = 0.3
     TILT_SCALE = 0.25
-    #: (what, count, unit, scale, bound) per group of entries, in order; count None is the action size.
-    FIELDS: tuple[tuple[str, int | None, str, float, float], ...] = (
-        ("ball x, y from the sensor (plate frame)", 2, "m", POSITION_SCALE, 2.0),
-        ("ball velocity, estimated from the readings", 2, "m/s", VELOCITY_SCALE, 5.0),
-        ("target x, y (plate frame)", 2, "m", POSITION_SCALE, 2.0),
-        ("target velocity", 2, "m/s", VELOCITY_SCALE, 5.0),
-        ("commanded roll, pitch (0 in `pulse` mode)", 2, "rad", TILT_SCALE, 2.0),
-        ("previous action, as applied", None, "1", 1.0, 1.0),
+    #: Version of the layout below: a bundle records it, and deploy refuses a bundle made for another.
+    LAYOUT_VERSION = 2
+    #: (what, count, divided by, bound) per group of entries, in order; count None is the action size.
+    FIELDS: tuple[tuple[str, int | None, str, float], ...] = (
+        ("ball x, y from the sensor (plate frame)", 2, "h_x, h_y (m)", 2.0),
+        ("ball velocity, estimated from the readings", 2, "h_x, h_y / 0.3 s (m/s)", 5.0),
+        ("target x, y (plate frame)", 2, "h_x, h_y (m)", 2.0),
+        ("target velocity", 2, "h_x, h_y / 0.3 s (m/s)", 5.0),
+        ("commanded roll, pitch (0 in `pulse` mode)", 2, "0.25 rad", 2.0),
+        ("previous action, as applied", None, "1", 1.0),
     )
 
-    def __init__(self, action_size: int) -> None:
+    def __init__(self, action_size: int, plate_half: tuple[float, float] = (0.15, 0.15)) -> None:
         self.action_size = int(action_size)
-        scale, high = [], []
-        for _, count, _, k, bound in self.FIELDS:
-            n = self.action_size if count is None else count
-            scale += [1.0 / k] * n
-            high += [bound] * n
+        hx, hy = (float(v) for v in plate_half)
+        if not (math.isfinite(hx) and math.isfinite(hy) and hx > 0 and hy > 0):
+            raise ValueError(f"plate_half must be two positive lengths, got {plate_half!r}")
+        self.position_scale = (hx, hy)
+        self.velocity_scale = (hx / self.VELOCITY_TIME, hy / self.VELOCITY_TIME)
+        scales = [*self.position_scale, *self.velocity_scale, *self.position_scale, *self.velocity_scale,
+                  self.TILT_SCALE, self.TILT_SCALE] + [1.0] * self.action_size  # fmt: skip
+        high: list[float] = []
+        for _, count, _, bound in self.FIELDS:
+            high += [bound] * (self.action_size if count is None else count)
         self.size = len(high)
         high_arr = np.array(high, dtype=np.float32)
         self.low, self.high = -high_arr, high_arr
-        self._scales, self._highs = scale, [float(v) for v in high_arr]
+        self._scales, self._highs = [1.0 / k for k in scales], [float(v) for v in high_arr]
 
     @property
     def space(self) -> Any:
@@ -234,8 +248,9 @@ class BallObserver:
     :class:`ObservationBuilder`.
     """
 
-    def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0) -> None:
-        self.builder = ObservationBuilder(action_size)
+    def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0,
+                 plate_half: tuple[float, float] = (0.15, 0.15)) -> None:  # fmt: skip
+        self.builder = ObservationBuilder(action_size, plate_half)
         self.velocity = VelocityEstimator(velocity_cutoff_hz)
         self.reset(0.0, (0.0, 0.0))
 
@@ -260,8 +275,8 @@ def observation_table() -> str:
     """The observation layout as a Markdown table (for the docs; generated from :attr:`ObservationBuilder.FIELDS`)."""
     rows = ["| index | observation | divided by | clipped to |", "|---|---|---|---|"]
     first = 0
-    for what, count, unit, scale, bound in ObservationBuilder.FIELDS:
+    for what, count, scale, bound in ObservationBuilder.FIELDS:
         index = f"{first}, {first + 1}" if count == 2 else f"{first} … {first} + n − 1"
-        rows.append(f"| {index} | {what} | {'1' if unit == '1' else f'{scale:g} {unit}'} | ±{bound:g} |")
+        rows.append(f"| {index} | {what} | {scale} | ±{bound:g} |")
         first += count or 0
     return "\n".join(rows)

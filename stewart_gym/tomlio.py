@@ -12,7 +12,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib  # type: ignore[no-redef]
 
-__all__ = ["read_toml"]
+__all__ = ["read_toml", "tomllib"]
 
 
 def read_toml(path: str | Path, error: type[Exception] = ConfigError) -> dict[str, Any]:

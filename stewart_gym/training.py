@@ -47,6 +47,7 @@ class TrainConfig:
     algo: str = "ppo"
     hyperparams: str | None = None  # YAML file; default stewart_gym/hyperparams/<algo>.yml
     run_dir: str = "runs/latest"
+    geometry: str | None = None  # preset or TOML path: overrides the YAML's env_kwargs geometry
     seed: int = 0
     n_timesteps: int | None = None  # overrides the YAML
     n_envs: int | None = None  # overrides the YAML
@@ -86,11 +87,16 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
 
     if config.algo not in ALGOS:
         raise ConfigError(f"algo must be one of {sorted(ALGOS)}, got {config.algo!r}")
-    load_hyperparams(config.algo, config.env_id, config.hyperparams)
     for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
         value = getattr(config, key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
+    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
+    if geometry is not None:
+        from stewart_gym.envs.ball_env import check_ball_geometry
+
+        check_ball_geometry(geometry)
     run = output_dir(config.run_dir)
     if config.resume:
         resume = Path(config.resume)
@@ -174,7 +180,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     n_envs = option(config.n_envs, "n_envs", 1)
     n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
     normalize = hp.get("normalize", False)
-    env_kwargs = hp.get("env_kwargs", {})
+    env_kwargs = dict(hp.get("env_kwargs") or {})
+    if config.geometry is not None:
+        env_kwargs["geometry"] = config.geometry
+    hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
     algo_kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}

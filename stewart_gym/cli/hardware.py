@@ -13,6 +13,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.cli.common import (
     EXIT_CODES_HELP,
     EXIT_OK,
+    add_geometry,
     bounded_float,
     int_at_least,
     output_file,
@@ -26,12 +27,24 @@ __all__ = ["register"]
 PROTOCOL_CHOICES = ("maestro", "ssc32", "line")
 
 
-def _load_calibration(args: argparse.Namespace) -> tuple[ServoCalibration, dict]:
-    from stewart_gym.calibration import hardware_settings
+def _load_calibration(path: str | None, geometry: Any) -> tuple[ServoCalibration, dict]:
+    """The calibration for ``geometry`` (trims, directions, limits from ``path`` if given) and its [hardware].
 
-    if args.calibration:
-        return ServoCalibration.from_toml(args.calibration, "servo-hexapod"), hardware_settings(args.calibration)
-    return ServoCalibration.default("servo-hexapod"), {}
+    A calibration file that names another geometry is refused, naming both.
+    """
+    from stewart_gym.calibration import CalibrationError, hardware_settings
+    from stewart_gym.presets import load_geometry
+    from stewart_gym.registry import same_geometry
+    from stewart_gym.tomlio import read_toml
+
+    geo = load_geometry(geometry)
+    if not path:
+        return ServoCalibration.default(geo), {}
+    declared = read_toml(path, CalibrationError).get("geometry")
+    if declared is not None and not same_geometry(declared, geo):
+        raise ConfigError(f"{path} is a calibration for geometry {declared!r}, but the policy was made for "
+                          f"{geo.name!r}: calibrate this build with --geometry, or deploy a policy made for it")  # fmt: skip
+    return ServoCalibration.from_toml(path, geo), hardware_settings(path)
 
 
 def _port_settings(args: argparse.Namespace, hw: dict) -> tuple[str, str, int | None]:
@@ -60,15 +73,24 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     from stewart_gym.envs.task import load_task
     from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
     from stewart_gym.hardware.serial_controllers import LineController, open_controller
-    from stewart_gym.registry import deployable_policy, resolve_policy
 
     # everything the user gave is checked before the port opens
-    source = resolve_policy(args.policy, args.env)
+    from stewart_gym.registry import deployable_policy, resolve_policy, same_geometry
+    from stewart_gym.sensing import ObservationBuilder
+
+    source = resolve_policy(args.policy, args.env, args.geometry)
     policy = deployable_policy(source)
-    env_id = policy.env_id
+    env_id, geometry = policy.env_id, policy.geometry
     if args.env and env_id != args.env:
         raise ConfigError(f"{args.policy} was exported for {env_id}, not {args.env}; leave out --env")
-    calibration, hw = _load_calibration(args)
+    if args.geometry and not same_geometry(args.geometry, geometry):
+        raise ConfigError(f"{args.policy} was made for geometry {geometry.name!r}, not {args.geometry!r}")
+    if policy.observation_layout != ObservationBuilder.LAYOUT_VERSION:
+        raise ConfigError(f"{args.policy} was exported for observation layout {policy.observation_layout}; this "
+                          f"version builds layout {ObservationBuilder.LAYOUT_VERSION}: re-export it")  # fmt: skip
+    if policy.control_hz != round(args.rate):
+        print(f"note: the policy was trained at {policy.control_hz} Hz and runs at {args.rate:g} Hz", flush=True)
+    calibration, hw = _load_calibration(args.calibration, geometry)
     port, protocol, baudrate = _port_settings(args, hw)
     if args.sensor == "sim":
         import importlib.util
@@ -87,9 +109,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         raise ConfigError(f"--trajectory needs a track policy; {args.policy} balances ({env_id})")
     log = args.log or _new_log_name()
     output_file(log, suffixes=(".csv",), overwrite=args.overwrite)
-    mapper = ActionMapper("servo-hexapod", calibration, policy.action_mode,
-                          **({"max_tilt": float(policy.meta["env_kwargs"]["max_tilt"])}
-                             if "max_tilt" in policy.meta.get("env_kwargs", {}) else {}))  # fmt: skip
+    mapper = ActionMapper(geometry, calibration, policy.action_mode, max_tilt=policy.max_tilt)
     config = DeployConfig(rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
                           max_step_us=args.max_step_us or DEFAULT_SLEW_US_PER_S / args.rate, log_path=log)  # fmt: skip
     task.reset(np.random.default_rng(args.seed), None)  # the target only: no disturbances on real hardware
@@ -100,7 +120,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         sensor = PanelSensor(controller)
     else:
         try:
-            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize)
+            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize, geometry=geometry)
         except BaseException:
             controller.close()
             raise
@@ -119,17 +139,22 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     """Find servo trims: step one servo at a time; keys on stdin: + / - (trim), n (next servo), q (save and quit)."""
     from stewart_gym.hardware.serial_controllers import open_controller
     from stewart_gym.hardware.trim import calibration_toml, find_trims
+    from stewart_gym.presets import load_geometry
 
     out = output_file(args.out, suffixes=(".toml",))
-    calibration, hw = _load_calibration(args)
+    geometry = load_geometry(args.geometry)
+    if not geometry.is_rotary:
+        raise ConfigError(f"geometry {geometry.name!r} is linear: calibrate trims servo horns")
+    calibration, hw = _load_calibration(args.calibration, geometry)
     port, protocol, baudrate = _port_settings(args, hw)
     controller = open_controller(protocol, port, calibration.channels, baudrate)
     try:
         result = find_trims(controller, calibration, sys.stdin, args.step, say=lambda s: print(s, flush=True))
     finally:
         controller.close()
-    out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate}))
-    print(f"calibration written to {out} (port {port}, protocol {protocol})")
+    out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate},
+                                    geometry=args.geometry))  # fmt: skip
+    print(f"calibration written to {out} (geometry {geometry.name}, port {port}, protocol {protocol})")
     return EXIT_OK
 
 
@@ -138,6 +163,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
     p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped' or 'pid'")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
+    p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
     p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
@@ -159,6 +185,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_deploy)
 
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
+    add_geometry(p)
     p.add_argument("--port")
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))

@@ -28,6 +28,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
+                      geometry=args.geometry,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
                       eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
@@ -45,7 +46,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     gif = None if args.gif is None else output_file(args.gif, suffixes=(".gif",))
     plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
-    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env)
+    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry)
     env_id = args.env or source.env_id
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
@@ -69,7 +70,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     env_id = "StewartBallBalance-v0"
     results, loaded = {}, {}
     for name in ("shipped", "pid"):
-        _, policy, env_kwargs = loaded[name] = load_for_evaluation(name, env_id)
+        _, policy, env_kwargs = loaded[name] = load_for_evaluation(name, env_id, args.geometry)
         print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation…", flush=True)
         results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
     print()
@@ -102,10 +103,12 @@ def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, r
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a policy (shipped, pid, a run folder, a model .zip) to a deployable ONNX/JSON bundle."""
-    from stewart_gym.registry import export_policy, resolve_policy
+    from stewart_gym.registry import export_policy, resolve_policy, same_geometry
 
     out = output_dir(args.out)
-    source = resolve_policy(args.policy, args.env)
+    source = resolve_policy(args.policy, args.env, args.geometry)
+    if args.geometry and args.policy not in ("shipped", "pid") and not same_geometry(args.geometry, source.geometry):
+        raise ConfigError(f"{args.policy} was trained for geometry {source.geometry!r}, not {args.geometry!r}")
     if args.env and args.policy not in ("shipped", "pid") and source.env_id != args.env:
         raise ConfigError(f"{args.policy} was trained on {source.env_id}, not {args.env}; leave out --env")
     folder = export_policy(source, out)
@@ -118,6 +121,8 @@ def register(sub: Any) -> None:
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
     p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
+    p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
+                                      "servo-hexapod)")
     p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
@@ -136,6 +141,8 @@ def register(sub: Any) -> None:
     p = sub.add_parser("evaluate", help=cmd_evaluate.__doc__, description=cmd_evaluate.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, help="default: the env the policy was trained for (balance for pid)")
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
+    p.add_argument("--geometry", help="the platform: picks the shipped policy or sets the PID's; a trained policy "
+                                      "runs on its own (default servo-hexapod)")
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
@@ -147,11 +154,14 @@ def register(sub: Any) -> None:
     p = sub.add_parser("export", help=cmd_export.__doc__, description=cmd_export.__doc__)
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
+    p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); the bundle records it")
     p.add_argument("--out", required=True, help="bundle folder")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int_at_least(1), default=20)
+    p.add_argument("--geometry", help="the platform (default servo-hexapod; the shipped policy exists for the presets "
+                                      "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
     p.set_defaults(func=cmd_demo)

@@ -11,14 +11,41 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from stewart_gym.actions import DEFAULT_MAX_TILT, ActionMapper
+from stewart_gym.actions import ActionMapper
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
 
-__all__ = ["StewartBallEnv"]
+__all__ = ["StewartBallEnv", "check_ball_geometry"]
+
+#: A plate must be at least this many ball diameters a side to carry the ball task.
+MIN_PLATE_BALLS = 4
+#: The platform must tilt its plate at least this much (rad) to move the ball.
+MIN_TILT = math.radians(2.0)
+
+
+def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
+    """The geometry, if it can carry the ball task; otherwise a :class:`~stewart_gym.geometry.GeometryError` saying
+    why in one line (linear legs, a plate too small for the ball, too little tilt)."""
+    from stewart_gym.actions import default_max_tilt
+    from stewart_gym.geometry import GeometryError
+    from stewart_gym.presets import load_geometry
+
+    geo = load_geometry(geometry)
+    if not geo.is_rotary:
+        raise GeometryError(f"geometry {geo.name!r} is linear: the ball envs simulate servo (rotary) platforms")
+    width, depth = geo.plate_extent
+    diameter = 2 * (ball or BallSpec()).radius
+    if min(width, depth) < MIN_PLATE_BALLS * diameter:
+        raise GeometryError(f"the {width * 1e3:.0f} × {depth * 1e3:.0f} mm plate of {geo.name!r} is too small for a "
+                            f"{diameter * 1e3:.1f} mm ball (at least {MIN_PLATE_BALLS * diameter * 1e3:.0f} mm a side)")
+    tilt = default_max_tilt(geo)
+    if tilt < MIN_TILT:
+        raise GeometryError(f"{geo.name!r} tilts its plate by only {math.degrees(tilt):.1f}° from home: too little "
+                            "to move a ball")  # fmt: skip
+    return geo
 
 
 class StewartBallEnv(gym.Env, EzPickle):
@@ -69,15 +96,16 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     ## Starting State
     Platform at home. The ball rests on the plate at a uniform random position
-    in ±0.10 m (each axis) rolling at a uniform random speed up to 0.1 m/s in a
+    within 2/3 of the plate's half size of the centre on each axis (±0.10 m on
+    the 300 mm plate) rolling at a uniform random speed up to 0.1 m/s in a
     random direction. ``reset(options={"ball_position": (x, y), "ball_velocity":
     (vx, vy)})`` sets them (m, m/s, plate frame); they are checked: two finite
-    numbers each, the ball's centre at most 0.15 m minus its radius from the
-    centre on each axis, at most 2 m/s, and no other keys
+    numbers each, the ball's centre at most half the plate minus its radius from
+    the centre on each axis, at most 2 m/s, and no other keys
     (:class:`~stewart_gym.errors.ConfigError` otherwise).
 
     ## Episode End
-    ``terminated`` when the ball centre leaves the plate (|x| or |y| > 0.15 m)
+    ``terminated`` when the ball centre leaves the plate (|x| or |y| beyond half its size)
     or drops below its surface, or when the physics blows up (non-finite or
     absurd state: ``info["physics_error"]`` is True and the last finite
     observation is returned). Time limits come from ``max_episode_steps``
@@ -117,7 +145,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         randomize: bool = False,
         render_mode: str | None = None,
         *,
-        max_tilt: float = DEFAULT_MAX_TILT,
+        max_tilt: float | None = None,
         success_radius: float | None = None,
         success_window_s: float = 1.0,
         physics_hz: int = 150,
@@ -125,7 +153,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         ball: BallSpec | None = None,
         servo: ServoSpec | None = None,
         sensor: TouchPanelSpec | None = None,
-        geometry: str = "servo-hexapod",
+        geometry: Any = "servo-hexapod",
         randomization: RandomizationRanges | None = None,
         rate_penalty: float = 0.1,
         backend: PhysicsBackend | None = None,
@@ -143,6 +171,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
         self.nominal_sensor = sensor or TouchPanelSpec()
         self.ranges = randomization or RandomizationRanges()
+        if backend is None:
+            geometry = check_ball_geometry(geometry, self.nominal_ball)
         self.sim: PhysicsBackend = backend or StewartSim(
             geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode)  # fmt: skip
@@ -156,7 +186,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
-        self.observer = BallObserver(self.mapper.size)
+        self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent)
         self.observation_space = self.observer.builder.space
         self.panel = SimulatedTouchPanel(self.nominal_sensor)
         self._plate_top = self.sim.plate_top
@@ -178,7 +208,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if "ball_position" in options:
             xy = options["ball_position"]
         else:
-            xy = rng.uniform(-0.10, 0.10, 2)
+            xy = rng.uniform(-1.0, 1.0, 2) * self.START_FRACTION * np.array(self.plate_half_extent)
         if "ball_velocity" in options:
             vel = options["ball_velocity"]
         else:
@@ -195,6 +225,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         target_xy, _ = self.task.target(0.0)
         return obs, self._info(xy.copy(), target_xy, math.hypot(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 
+    #: The ball starts within this fraction of the plate's half size of the centre (0.10 m on the 300 mm plate).
+    START_FRACTION = 2.0 / 3.0
     #: The keys ``reset(options=…)`` accepts.
     RESET_OPTIONS = ("ball_position", "ball_velocity")
     #: m/s, the fastest ball speed a reset may ask for.

@@ -74,10 +74,10 @@ class SimulatedPlant:
     """
 
     def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
-                 ball_position: tuple[float, float] | None = None) -> None:  # fmt: skip
+                 ball_position: tuple[float, float] | None = None, geometry: Any = "servo-hexapod") -> None:  # fmt: skip
         import gymnasium as gym
 
-        self.env = gym.make(env_id, randomize=randomize).unwrapped
+        self.env = gym.make(env_id, randomize=randomize, geometry=geometry).unwrapped
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.backend = self.env.sim
@@ -185,7 +185,8 @@ class DeployLoop:
         self.config = config or DeployConfig()
         self.target = target or Fixed()
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
-        self.observer = BallObserver(mapper.size)
+        width, depth = mapper.geometry.plate_extent
+        self.observer = BallObserver(mapper.size, plate_half=(width / 2, depth / 2))
         sizes = (getattr(policy, "obs_size", self.observer.builder.size), getattr(policy, "action_size", mapper.size))
         if sizes != (self.observer.builder.size, mapper.size):
             raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
 from stewart_gym.errors import PolicyError
 
 __all__ = ["BundlePolicy", "export_bundle_copy", "export_pid", "export_sb3", "pid_meta"]
@@ -83,22 +83,48 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         "obs_var": None if sb3.obs_rms is None else sb3.obs_rms.var.tolist(),
         "clip_obs": sb3.clip_obs,
         "epsilon": sb3.epsilon,
+        **build_meta(env_kwargs.get("geometry", "servo-hexapod"), env_kwargs),
     }
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
 
 
-def pid_meta(gains: dict[str, Any], env_id: str = "StewartBallBalance-v0") -> dict[str, Any]:
-    """The ``bundle.json`` content of the PID baseline with these gains."""
-    return {"kind": "pid", "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains}
+def build_meta(geometry: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """What a bundle records about the build and the env it was made for.
+
+    The geometry (its name and its full TOML, so the robot's computer needs no
+    preset or file), the control rate, the tilt scale and the observation
+    layout version: deploy checks them before it opens the port.
+    """
+    from stewart_gym.actions import default_max_tilt
+    from stewart_gym.presets import load_geometry
+    from stewart_gym.sensing import ObservationBuilder
+
+    geo = load_geometry(geometry)
+    return {
+        "geometry": {"name": geo.name, "toml": geo.to_toml()},
+        "control_hz": int(env_kwargs.get("control_hz", 50)),
+        "max_tilt": float(env_kwargs.get("max_tilt") or default_max_tilt(geo)),
+        "observation_layout": ObservationBuilder.LAYOUT_VERSION,
+    }
 
 
-def export_pid(gains_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0") -> Path:
-    """Export the PID baseline's gains to a bundle (``kind: "pid"``)."""
+def pid_meta(gains: dict[str, Any], env_id: str = "StewartBallBalance-v0",
+             geometry: Any = "servo-hexapod") -> dict[str, Any]:  # fmt: skip
+    """The ``bundle.json`` content of the PID baseline with these gains, for ``geometry``."""
+    meta = {"kind": "pid", "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains,
+            **build_meta(geometry, {"max_tilt": gains.get("max_tilt")})}  # fmt: skip
+    meta["gains"] = {**gains, "max_tilt": meta["max_tilt"]}
+    return meta
+
+
+def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: str = "StewartBallBalance-v0",
+               geometry: Any = "servo-hexapod") -> Path:  # fmt: skip
+    """Export the PID baseline's gains (a dict or a gains ``.json``) to a bundle (``kind: "pid"``)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    gains = json.loads(Path(gains_path).read_text())
-    (out / "bundle.json").write_text(json.dumps(pid_meta(gains, env_id), indent=2) + "\n")
+    values = gains if isinstance(gains, dict) else json.loads(Path(gains).read_text())
+    (out / "bundle.json").write_text(json.dumps(pid_meta(values, env_id, geometry), indent=2) + "\n")
     return out
 
 
@@ -147,13 +173,19 @@ class BundlePolicy:
         if self.action_mode not in ACTION_SIZES:
             raise PolicyError(f"{meta_path}: action_mode must be one of {sorted(ACTION_SIZES)}, got {self.action_mode!r}")
         self.action_size = ACTION_SIZES[self.action_mode]
+        self.control_hz = int(meta.get("control_hz", 50))
+        self.max_tilt = float(meta.get("max_tilt", meta.get("gains", {}).get("max_tilt", DEFAULT_MAX_TILT)))
+        #: the observation layout version it was made for (bundles older than the field: version 1)
+        self.observation_layout = int(meta.get("observation_layout", 1))
+        self.geometry = self._geometry(meta, meta_path)
         if self.kind == "pid":
             from stewart_gym.classical import CascadedPID, PIDGains
 
             if self.action_mode != "tilt":
                 raise PolicyError(f"{meta_path}: the PID commands tilt, not {self.action_mode!r}")
+            width, depth = self.geometry.plate_extent
             try:
-                self._pid = CascadedPID(PIDGains(**meta["gains"]))
+                self._pid = CascadedPID(PIDGains(**meta["gains"]), plate_half=(width / 2, depth / 2))
             except (KeyError, TypeError) as exc:
                 raise PolicyError(f"{meta_path}: malformed PID gains ({exc})") from None
             self.obs_size = 10 + self.action_size
@@ -189,6 +221,21 @@ class BundlePolicy:
         self._clip = float(meta["clip_obs"])
         self._low = np.asarray(meta["action_low"], np.float32)
         self._high = np.asarray(meta["action_high"], np.float32)
+
+    @staticmethod
+    def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
+        """The geometry the bundle was made for: its embedded TOML (bundles without one: the reference build)."""
+        from stewart_gym.geometry import PlatformGeometry
+        from stewart_gym.presets import load_preset
+        from stewart_gym.tomlio import tomllib
+
+        entry = meta.get("geometry")
+        if entry is None:
+            return load_preset("servo-hexapod")
+        try:
+            return PlatformGeometry.from_dict(tomllib.loads(entry["toml"]), source=f"{meta_path} geometry")
+        except (KeyError, TypeError, tomllib.TOMLDecodeError) as exc:
+            raise PolicyError(f"{meta_path}: malformed geometry ({exc}); re-export the policy") from None
 
     def reset(self) -> None:
         """Start of an episode (clears the PID integrator)."""

@@ -76,9 +76,10 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
     return TrimResult(cal, presses, unknown)
 
 
-def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any]) -> str:
-    """The calibration file: the calibration and a ``[hardware]`` table with the entries that are set."""
-    text = cal.to_toml()
+def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any], geometry: str | None = None) -> str:
+    """The calibration file: the geometry it is for, the calibration and a ``[hardware]`` table with the entries
+    that are set."""
+    text = (f"geometry = {json.dumps(str(geometry))}\n" if geometry else "") + cal.to_toml()
     table = {k: v for k, v in hardware.items() if v is not None}
     if table:
         text += "\n[hardware]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in sorted(table.items()))
