@@ -70,6 +70,32 @@ def servo_hexapod() -> PlatformGeometry:
     return replace(geo, servo_angle_range=(alpha0 - 45 * DEG, alpha0 + 45 * DEG))
 
 
+def desk_rect() -> PlatformGeometry:
+    """A larger desk build with a rectangular plate, of this project's design (a second trained build).
+
+    Servo shafts in three pairs on a 120 mm radius at ±18° about 90°, 210° and
+    330°, horns 30 mm, rods 190 mm, rod ends in pairs on a 95 mm radius at ±9°;
+    a 400 × 260 mm plate (a 17-inch resistive panel's active area is about
+    this). h0 = 189.98 mm by eq. 10, α0 = 15.69° by eq. 12, travel ±45° about
+    α0. Reach from home along one axis: x ±57.2 mm, y −67.4/+54.1 mm, z
+    −22.1/+21.4 mm, roll −13.8/+13.0°, pitch ±13.7°, yaw ±34.1°.
+    """
+    from stewart_gym.kinematics import inverse_kinematics
+
+    centres = [330.0, 90.0, 210.0]
+    base = polar_anchors(120 * MM, [c + s for c in centres for s in (-18.0, 18.0)])
+    top = polar_anchors(95 * MM, [c + s for c in centres for s in (-9.0, 9.0)])
+    beta = np.radians([c + s for c in centres for s in (-90.0, 90.0)])
+    a, s = 30 * MM, 190 * MM
+    geo = PlatformGeometry(name="desk-rect", base_anchors=base, platform_anchors=top, horn_length=a, rod_length=s,
+                           servo_beta=beta, home_height=float(np.mean(home_height_eq10(base, top, a, s))),
+                           servo_angle_range=(-math.pi, math.pi), plate_size=(0.400, 0.260),
+                           description="Larger desk build of this project: 30 mm horns, 190 mm rods, 400 × 260 mm "
+                                       "plate.")  # fmt: skip
+    alpha0 = float(inverse_kinematics(geo, np.zeros(6)).servo_angles[0])
+    return replace(geo, servo_angle_range=(alpha0 - 45 * DEG, alpha0 + 45 * DEG))
+
+
 def memememe_liverpool() -> PlatformGeometry:
     """memememe's small platform (Liverpool 2016), from its ``stewartPlatformMath.py``.
 
@@ -138,6 +164,7 @@ def mathcad_micro() -> PlatformGeometry:
 PRESETS: dict[str, Callable[[], PlatformGeometry]] = {
     "servo-hexapod": servo_hexapod,
     "memememe-liverpool": memememe_liverpool,
+    "desk-rect": desk_rect,
     "senilov2018": senilov2018,
     "mathcad-micro": mathcad_micro,
 }

@@ -19,6 +19,7 @@ from stewart_gym.presets import load_preset, preset_names
 WORKSPACE_BOX = {
     "servo-hexapod": (0.010, math.radians(6)),
     "memememe-liverpool": (0.02, math.radians(10)),
+    "desk-rect": (0.012, math.radians(6)),
     "senilov2018": (0.05, math.radians(10)),
     "mathcad-micro": (0.0006, math.radians(3)),
 }

@@ -15,7 +15,7 @@ MM = 1e-3
 
 
 def test_preset_names() -> None:
-    assert set(preset_names()) == {"servo-hexapod", "memememe-liverpool", "senilov2018", "mathcad-micro"}
+    assert set(preset_names()) == {"servo-hexapod", "memememe-liverpool", "desk-rect", "senilov2018", "mathcad-micro"}
     with pytest.raises(GeometryError, match="known presets"):
         load_preset("nope")
 
@@ -154,3 +154,16 @@ def test_linear_needs_home_height_and_range() -> None:
             {"base_anchors": base.base_anchors.tolist(), "platform_anchors": base.platform_anchors.tolist(),
              "rod_length": 0.2, "leg_length_range": [0.2, 0.5]}
         )  # fmt: skip
+
+
+def test_plate_size_round_trips_and_is_checked(tmp_path: Path) -> None:
+    geo = load_preset("desk-rect")
+    assert geo.plate_extent == (0.400, 0.260)
+    path = tmp_path / "g.toml"
+    path.write_text(geo.to_toml())
+    assert PlatformGeometry.from_toml(path) == geo
+    text = geo.to_toml().replace("plate_size = [0.4, 0.26]", "plate_size = [400, -1]")
+    path.write_text(text)
+    with pytest.raises(GeometryError, match="plate_size"):
+        PlatformGeometry.from_toml(path)
+    assert load_preset("senilov2018").plate_extent == (0.5, 0.5)
