@@ -108,9 +108,14 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
 
 
 def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None) -> VecEnv:
-    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``."""
+    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``.
+
+    The id is passed as ``stewart_gym:<id>`` so that a worker process, which has
+    not imported the package, imports it (and so registers the ids) first.
+    """
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
-    return make_vec_env(env_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls)
+    full_id = env_id if ":" in env_id else f"stewart_gym:{env_id}"
+    return make_vec_env(full_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls)
 
 
 class _EvalLog(EvalCallback):

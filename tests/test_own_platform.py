@@ -1,0 +1,161 @@
+"""Any platform, end to end: a user's own geometry TOML through train, export, calibrate and deploy (the real CLI),
+its plate in the env, bundles that know their build, refusals, and the PID on every rotary preset."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import Drain, FakeDevice
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.presets import load_preset
+
+
+def sg(*args: str, cwd: Path, stdin: str | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=600, input=stdin, env=dict(os.environ))  # fmt: skip
+
+
+def my_build(tmp_path: Path) -> Path:
+    """A user's TOML: the desk-rect build under another name, with a 350 × 250 mm plate."""
+    text = load_preset("desk-rect").to_toml().replace('name = "desk-rect"', 'name = "my-build"')
+    text = text.replace("plate_size = [0.4, 0.26]", "plate_size = [0.35, 0.25]")
+    path = tmp_path / "my_build.toml"
+    path.write_text(text)
+    return path
+
+
+def maestro_frames(data: bytes) -> np.ndarray:
+    raw = np.frombuffer(data[: len(data) - len(data) % 24], dtype=np.uint8).reshape(-1, 6, 4)
+    assert np.all(raw[:, :, 0] == 0x84)
+    return (raw[:, :, 2].astype(int) + (raw[:, :, 3].astype(int) << 7)) / 4.0
+
+
+def test_the_env_follows_the_plate_of_the_geometry(tmp_path: Path) -> None:
+    env = gym.make("StewartBallBalance-v0", geometry=str(my_build(tmp_path)))
+    try:
+        u = env.unwrapped
+        assert u.plate_half_extent == (0.175, 0.125)
+        obs, _ = env.reset(seed=0, options={"ball_position": (0.07, -0.05), "ball_velocity": (0.0, 0.0)})
+        assert obs[0] == pytest.approx(0.07 / 0.175, abs=0.05) and obs[1] == pytest.approx(-0.05 / 0.125, abs=0.05)
+        from stewart_gym.errors import ConfigError
+
+        with pytest.raises(ConfigError, match="off the plate"):  # within the 350 mm width, beyond the 250 mm depth
+            env.reset(options={"ball_position": (0.0, 0.14)})
+        env.reset(seed=1, options={"ball_position": (0.0, 0.10), "ball_velocity": (0.0, 0.6)})
+        for _ in range(50):
+            _, _, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
+            if terminated:
+                break
+        assert terminated and 0.125 < abs(info["ball_xy_m"][1]) < 0.175  # off the short side, inside the long one
+    finally:
+        env.close()
+
+
+def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: FakeDevice) -> None:
+    """Through the real CLI: the frames sent are the IK pulses of the user's geometry, not the reference's."""
+    geo_path = my_build(tmp_path)
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 2\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
+                  "  n_steps: 64\n  batch_size: 32\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
+    run = sg("train", "--geometry", str(geo_path), "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
+             "--eval-freq", "64", "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert sg("export", "--policy", str(tmp_path / "run"), "--out", str(tmp_path / "b"), cwd=tmp_path).returncode == 0
+    meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
+    assert meta["geometry"]["name"] == "my-build" and "plate_size = [0.35, 0.25]" in meta["geometry"]["toml"]
+    assert meta["observation_layout"] >= 2 and meta["control_hz"] == 50
+
+    drain = Drain(device)
+    cal = sg("calibrate", "--geometry", str(geo_path), "--port", device.path, "--protocol", "maestro", "--out",
+             str(tmp_path / "cal.toml"), stdin="+\nq\n", cwd=tmp_path)  # fmt: skip
+    assert cal.returncode == 0, cal.stderr
+    drain.stop()
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", str(tmp_path / "b"), "--calibration", str(tmp_path / "cal.toml"), "--sensor", "sim",
+             "--duration", "1", "--log", str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
+    data = drain.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    calibration = ServoCalibration.from_toml(tmp_path / "cal.toml", str(geo_path))
+    mine, reference = ServoCalibration.default(load_preset("servo-hexapod")), load_preset("servo-hexapod")
+    checked = 0
+    for r in rows:
+        if any(int(r[k]) for k in ("held", "rate_limited", "homing", "stale", "unreachable")):
+            continue
+        pose = np.array([float(r[k]) for k in ("x_m", "y_m", "z_m", "roll", "pitch", "yaw")])
+        sent = np.array([float(r[f"pulse{i}_us"]) for i in range(6)])
+        expected = calibration.pulse_widths(inverse_kinematics(load_preset("desk-rect"), pose).servo_angles)
+        assert np.allclose(sent, expected, atol=0.01)
+        other = mine.pulse_widths(inverse_kinematics(reference, pose).servo_angles, out_of_range="nan")
+        assert not np.allclose(sent, other, atol=1.0)  # the reference build would get other pulses
+        checked += 1
+    assert checked >= 5
+    wire = maestro_frames(data)
+    logged = np.array([[float(r[f"pulse{i}_us"]) for i in range(6)] for r in rows])
+    assert np.allclose(wire[: len(logged)], np.round(logged * 4) / 4, atol=0.01)  # what was logged went on the wire
+
+
+def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: Path, device: FakeDevice) -> None:
+    geo_path = my_build(tmp_path)
+    assert sg("export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
+              cwd=tmp_path).returncode == 0  # fmt: skip
+    (tmp_path / "cal.toml").write_text('geometry = "servo-hexapod"\n' + ServoCalibration.default("servo-hexapod").to_toml())
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", str(tmp_path / "pid"), "--calibration", str(tmp_path / "cal.toml"), "--port",
+             device.path, "--duration", "1", cwd=tmp_path)  # fmt: skip
+    assert dep.returncode == 1 and drain.stop() == b""  # refused before the port opened
+    line = [ln for ln in dep.stderr.splitlines() if ln.startswith("error:")]
+    assert len(line) == 1 and "servo-hexapod" in line[0] and "my-build" in line[0], dep.stderr
+    layout = json.loads((tmp_path / "pid" / "bundle.json").read_text())
+    layout["observation_layout"] = 1
+    (tmp_path / "pid" / "bundle.json").write_text(json.dumps(layout))
+    old = sg("deploy", "--policy", str(tmp_path / "pid"), "--port", device.path, "--duration", "1", cwd=tmp_path)
+    assert old.returncode == 1 and "observation layout" in old.stderr and "re-export" in old.stderr
+
+
+@pytest.mark.parametrize("geometry,message", [("senilov2018", "linear"), ("mathcad-micro", "linear")])
+def test_a_geometry_that_cannot_carry_the_task_says_why(geometry: str, message: str, tmp_path: Path) -> None:
+    proc = sg("evaluate", "--policy", "pid", "--geometry", geometry, "--episodes", "1", cwd=tmp_path)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
+    assert proc.returncode == 1 and len(lines) == 1 and message in lines[0] and "Traceback" not in proc.stderr
+    small = load_preset("servo-hexapod").to_toml().replace("plate_size = [0.3, 0.3]", "plate_size = [0.08, 0.08]")
+    (tmp_path / "small.toml").write_text(small)
+    proc = sg("train", "--geometry", str(tmp_path / "small.toml"), "--run-dir", str(tmp_path / "r"), cwd=tmp_path)
+    assert proc.returncode == 1 and "too small" in proc.stderr and not (tmp_path / "r").exists()
+
+
+def test_a_trained_policy_stays_on_its_build(tmp_path: Path) -> None:
+    proc = sg("evaluate", "--policy", str(Path(__file__).resolve().parents[1] / "stewart_gym/policies/track"),
+              "--geometry", "memememe-liverpool", "--episodes", "1", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 1 and "trained for geometry 'servo-hexapod'" in proc.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("geometry", ["servo-hexapod", "memememe-liverpool", "desk-rect"])
+def test_the_pid_balances_on_every_rotary_preset(geometry: str) -> None:
+    """No retuning by hand: the gains are the reference's; the tilt scale and observation scales follow the build."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    _, pid, env_kwargs = load_for_evaluation("pid", "StewartBallBalance-v0", geometry)
+    m = evaluate("StewartBallBalance-v0", pid, episodes=20, seed=1000, env_kwargs=env_kwargs, settling=False)
+    assert m["success_rate"] >= 0.9 and m["fell_rate"] == 0.0, m
+
+
+def test_deploy_the_pid_on_another_preset(tmp_path: Path, device: FakeDevice) -> None:
+    drain = Drain(device)
+    proc = sg("deploy", "--policy", "pid", "--geometry", "memememe-liverpool", "--port", device.path, "--duration",
+              "1", "--log", str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert proc.returncode == 0, proc.stderr
+    assert "completed; simulated ball" in proc.stdout
