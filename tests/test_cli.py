@@ -206,6 +206,8 @@ BAD = [
     ["train", "--run-dir", "{files}/notes.txt"],
     ["train", "--run-dir", "{files}/run_done"],
     ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],
+    ["train", "--geometry", "senilov2018", "--run-dir", "{tmp}/r"],
+    ["train", "--geometry", "nope", "--run-dir", "{tmp}/r"],
     # evaluate
     ["evaluate", "--policy", "nope"],
     ["evaluate", "--episodes", "0"],
@@ -220,6 +222,7 @@ BAD = [
     ["evaluate", "--policy", "{files}/emptydir"],
     ["evaluate", "--policy", "{files}/notes.txt"],
     ["evaluate", "--policy", "{files}/bad_bundle"],
+    ["evaluate", "--policy", "pid", "--geometry", "mathcad-micro"],
     # export
     ["export"],
     ["export", "--policy", "nope", "--out", "{tmp}/b"],
@@ -246,11 +249,14 @@ BAD = [
     ["deploy", "--port", DEV, "--log", "{files}/existing.csv"],
     ["deploy", "--port", DEV, "--log", "{files}/emptydir"],
     ["deploy", "--port", DEV, "--trajectory", "circle"],
+    ["deploy", "--port", DEV, "--geometry", "desk-rect"],  # no shipped policy for that build
+    ["deploy", "--port", DEV, "--policy", "pid", "--geometry", "{files}/bad.toml"],
     # calibrate
     ["calibrate"],
     ["calibrate", "--step", "0", "--port", DEV],
     ["calibrate", "--port", DEV, "--out", "{files}/emptydir"],
     ["calibrate", "--port", DEV, "--calibration", "{files}/bad.toml"],
+    ["calibrate", "--port", DEV, "--geometry", "senilov2018"],
     # analyses
     ["workspace", "--n", "0"],
     ["workspace", "--samples", "0"],

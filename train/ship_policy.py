@@ -1,6 +1,7 @@
 """Copy a trained run into the package as the shipped policy, with its ONNX bundle and metrics.
 
-Run: ``python train/ship_policy.py runs/ppo_balance_ft [--model best] [--name balance] [--eval out/eval.json]``
+Run: ``python train/ship_policy.py runs/ppo_balance_ft [--model best] [--name balance] [--eval out/eval.json]``,
+then add the folder to ``SHIPPED`` in ``stewart_gym/registry.py`` under its env id and geometry.
 Writes ``stewart_gym/policies/<name>/``: model.zip, vecnormalize.pkl, config.yaml, eval.csv, metrics.json
 (training metrics plus the 100-episode evaluation given by --eval) and bundle/ (policy.onnx, bundle.json).
 """
@@ -12,8 +13,7 @@ import json
 import shutil
 from pathlib import Path
 
-from stewart_gym.hardware.export import export_sb3
-from stewart_gym.registry import POLICY_DIR
+from stewart_gym.registry import POLICY_DIR, export_policy, resolve_policy
 
 
 def main() -> None:
@@ -21,7 +21,6 @@ def main() -> None:
     parser.add_argument("run", help="run folder")
     parser.add_argument("--model", choices=["final", "best"], default="final")
     parser.add_argument("--name", default="balance")
-    parser.add_argument("--env", default="StewartBallBalance-v0")
     parser.add_argument("--eval", help="JSON from `stewart-gym evaluate --json` to store with the policy")
     parser.add_argument("--note", default="", help="free text stored in metrics.json (e.g. how it was trained)")
     args = parser.parse_args()
@@ -41,7 +40,7 @@ def main() -> None:
     if args.eval:
         metrics["evaluation_100_seeds"] = json.loads(Path(args.eval).read_text().strip().splitlines()[-1])
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    export_sb3(out, out / "bundle", args.env)
+    export_policy(resolve_policy(str(out)), out / "bundle")  # env id, action mode and geometry from config.yaml
     print(f"shipped {src} as {out}")
 
 

@@ -87,11 +87,11 @@ def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, r
     """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
     import gymnasium as gym
 
-    from stewart_gym.evaluation import SETTLING_OFFSET, plot_episode, run_episode, write_gif
+    from stewart_gym.evaluation import plot_episode, run_episode, settling_offset, write_gif
 
     env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
     try:
-        opts = {"ball_position": (SETTLING_OFFSET, 0.0), "ball_velocity": (0.0, 0.0)}
+        opts = {"ball_position": (settling_offset(env), 0.0), "ball_velocity": (0.0, 0.0)}
         log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
     finally:
         env.close()
