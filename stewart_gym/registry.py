@@ -36,6 +36,8 @@ __all__ = ["POLICY_DIR", "SHIPPED", "PolicySource", "deployable_policy", "export
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
 SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallTrack-v0", "servo-hexapod"): "track",
+           ("StewartBallBalance-v0", "memememe-liverpool"): "balance_memememe",
+           ("StewartBallBalance-v0", "desk-rect"): "balance_desk_rect",
            # the balance policy, trained without pushes, handles them: see the docs' Environments page
            ("StewartBallDisturbance-v0", "servo-hexapod"): "balance"}
 DEFAULT_ENV = "StewartBallBalance-v0"
