@@ -159,10 +159,6 @@ def _is_serial_error(exc: BaseException) -> bool:
     return type(exc).__module__.startswith("serial")
 
 
-def add_debug(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
-
-
 def json_safe(v: Any) -> Any:
     """Numpy values to plain Python, NaN/inf to None: strict JSON."""
     if isinstance(v, dict):

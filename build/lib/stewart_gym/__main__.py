@@ -1,3 +1,0 @@
-from stewart_gym.cli import main
-
-raise SystemExit(main())

@@ -1,1 +1,0 @@
-"""Hardware deployment: serial servo-controller protocols, safety layer, policy bundles, the control loop."""
