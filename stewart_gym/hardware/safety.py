@@ -36,11 +36,12 @@ class SafetyLayer:
     Args:
         calibration: Channel limits and home (neutral) pulses.
         max_step_us: largest change of any channel in one tick, µs (default
-            40 µs at 50 Hz = 2000 µs/s, about 225°/s of horn: faster than an
-            MG996R turns, so it only stops jumps).
+            60 µs: at 50 Hz that is 3,000 µs/s, about 338°/s of horn at the
+            default 1600/π µs/rad, just under an MG996R's 353°/s (0.17 s/60°),
+            so it stops jumps without slowing a move the servo could make).
     """
 
-    def __init__(self, calibration: ServoCalibration, max_step_us: float = 40.0) -> None:
+    def __init__(self, calibration: ServoCalibration, max_step_us: float = 60.0) -> None:
         if not max_step_us > 0:
             raise ValueError(f"max_step_us must be positive, got {max_step_us}")
         self.calibration = calibration
