@@ -123,7 +123,7 @@ class ActionMapper:
     def _feasible(self, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(ok, pulses) for poses (..., 6): reachable and every pulse within its channel's limits."""
         ik = inverse_kinematics(self.geometry, poses)
-        pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+        pulses = self.calibration.pulse_widths(ik.actuators, out_of_range="nan")
         if poses.ndim == 1:  # one pose: skip the array reductions
             return ik.reachable and not np.isnan(pulses).any(), pulses
         return ik.reachable & ~np.isnan(pulses).any(axis=-1), pulses

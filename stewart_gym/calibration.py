@@ -63,13 +63,18 @@ def _vec6(key: str, value: Any) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ServoCalibration:
-    """Per-channel pulse-width mapping of six servos.
+    """Per-channel pulse-width mapping of six servos: W = W0 + d·r·(q − q0), q the actuator's position.
+
+    For rotary servos q is the horn angle α (rad); for RC linear actuators
+    (``actuator="linear"``, Actuonix-style: the pulse maps linearly onto the
+    stroke) q is the anchor-to-anchor leg length (m), and ``home_angle`` and
+    ``us_per_rad`` hold the home length (m) and µs per metre.
 
     Attributes (each shape (6,), indexed by leg/servo 0…5):
         neutral_us: W0_i, µs, the pulse at the home angle (trim included).
         direction: d_i, +1 or −1.
-        home_angle: α0_i, rad.
-        us_per_rad: r_i, µs/rad, > 0.
+        home_angle: α0_i, rad (home leg length, m, for a linear actuator).
+        us_per_rad: r_i, µs/rad (µs/m for a linear actuator), > 0.
         min_us, max_us: channel limits, µs.
         channels: controller channel of each servo (for hardware), ints.
     """
@@ -81,8 +86,11 @@ class ServoCalibration:
     min_us: np.ndarray
     max_us: np.ndarray
     channels: tuple[int, ...] = (0, 1, 2, 3, 4, 5)
+    actuator: str = "rotary"
 
     def __post_init__(self) -> None:
+        if self.actuator not in ("rotary", "linear"):
+            raise CalibrationError(f"actuator: 'rotary' or 'linear', got {self.actuator!r}")
         for key in ("neutral_us", "direction", "home_angle", "us_per_rad", "min_us", "max_us"):
             object.__setattr__(self, key, _vec6(key, getattr(self, key)))
         if not np.all(np.isin(self.direction, (-1.0, 1.0))):
@@ -120,6 +128,8 @@ class ServoCalibration:
         same travel).
         """
         geo = load_geometry(geometry)
+        if not geo.is_rotary:
+            return cls.linear(geo, trims_us=trims_us)
         home = _home_angles(geo)
         w0 = neutral_us + _vec6("trims_us", trims_us)
         d = _vec6("direction", direction)
@@ -130,6 +140,28 @@ class ServoCalibration:
         lo_us = np.floor(np.minimum(w_lo, w_hi) * 1e6) / 1e6
         hi_us = np.ceil(np.maximum(w_lo, w_hi) * 1e6) / 1e6
         return cls(w0, d, home, np.full(6, us_per_rad), lo_us, hi_us)
+
+    @classmethod
+    def linear(cls, geometry: PlatformGeometry | str, *, min_us: float = 1000.0, max_us: float = 2000.0,
+               trims_us: np.ndarray | float = 0.0) -> ServoCalibration:  # fmt: skip
+        """RC linear actuators: ``min_us`` fully retracted, ``max_us`` fully extended, linear in between.
+
+        The geometry's ``leg_length_range`` is the stroke; the neutral pulse is
+        the one of the home leg length.
+        """
+        from stewart_gym.kinematics import inverse_kinematics
+
+        geo = load_geometry(geometry)
+        if geo.is_rotary:
+            raise CalibrationError(f"geometry: {geo.name!r} is rotary; use ServoCalibration.default")
+        lo, hi = geo.leg_length_range  # type: ignore[misc]
+        home = inverse_kinematics(geo, np.zeros(6)).leg_lengths
+        rate = (max_us - min_us) / (hi - lo)
+        w0 = min_us + rate * (home - lo) + _vec6("trims_us", trims_us)
+        # the pulses of the stroke's ends, rounded outwards to 1e-6 µs so that both ends are inside the limits
+        lo_us = np.floor((w0 + rate * (lo - home)) * 1e6) / 1e6
+        hi_us = np.ceil((w0 + rate * (hi - home)) * 1e6) / 1e6
+        return cls(w0, np.ones(6), home, np.full(6, rate), lo_us, hi_us, actuator="linear")
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], geometry: PlatformGeometry | str | None = None,
@@ -202,6 +234,8 @@ class ServoCalibration:
 
     def to_toml(self) -> str:
         """TOML text that :meth:`from_toml` reads back to an equal calibration."""
+        if self.actuator != "rotary":
+            raise CalibrationError("actuator: linear-actuator calibrations are not written to TOML yet")
         lines = []
         if np.ptp(self.us_per_rad) != 0:
             raise CalibrationError("us_per_rad: per-channel rates cannot be written to TOML")
@@ -344,4 +378,4 @@ def servo_pulses_one(geometry: PlatformGeometry, calibration: ServoCalibration,
     outside its channel's limits. Agrees with
     ``calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles)``.
     """
-    return pulses_one(geometry, pose, calibration.pulse_map)
+    return pulses_one(geometry, pose, calibration.pulse_map)  # rotary: servo angles; linear: leg lengths

@@ -213,7 +213,7 @@ _HUGE = 1e200
 
 
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
-    key = (id(geo), c.tobytes())  # _rotary_constants looks up (id, _NO_PIVOT_KEY) directly
+    key = (id(geo), c.tobytes())  # pulses_one looks up (id, _NO_PIVOT_KEY) directly
     hit = _CONSTANTS.get(key)
     if hit is not None and hit[0] is geo:
         return hit[1]
@@ -377,15 +377,6 @@ def _ik_one(k: _IKConstants, pose: np.ndarray) -> IKResult:
     )
 
 
-def _rotary_constants(geometry: PlatformGeometry) -> _IKConstants:
-    """The IK constants of a rotary geometry without a pivot (a dictionary hit on the hot path)."""
-    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
-    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
-    if not k.rotary:
-        raise GeometryError(f"geometry {geometry.name!r} is linear: it has no servos")
-    return k
-
-
 def pulses_one(geometry: PlatformGeometry, pose: Sequence[float],
                pulse_map: Sequence[tuple[float, float, float, float, float]]) -> list[float] | None:  # fmt: skip
     """The IK of one pose mapped straight to pulse widths (6 Python floats, µs), or None.
@@ -394,9 +385,12 @@ def pulses_one(geometry: PlatformGeometry, pose: Sequence[float],
     min µs, max µs): ``w = neutral + gain · (α − home)`` (eqs 13/14). None as
     soon as a leg has no solution, leaves the servo angle range or its pulse
     leaves ``[min, max]``. One scalar pass, no arrays (~6 µs): the control-loop
-    path; :func:`stewart_gym.calibration.servo_pulses_one` is its user.
+    path; :func:`stewart_gym.calibration.servo_pulses_one` is its user. For a
+    linear platform the actuator value is the leg length (m) instead of α.
     """
-    return _ik_scalar(_rotary_constants(geometry), pose, pulse_map)
+    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
+    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
+    return _ik_scalar(k, pose, pulse_map)
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:

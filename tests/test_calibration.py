@@ -120,6 +120,18 @@ def test_bad_calibration_names_the_field(tmp_path: Path, edit: tuple[str, str], 
         ServoCalibration.from_toml(path)
 
 
-def test_linear_geometry_has_no_servo_calibration() -> None:
+def test_linear_actuators_map_the_stroke_onto_1000_to_2000_us() -> None:
+    """RC linear actuators: fully retracted at 1000 µs, extended at 2000 µs, linear in leg length between."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    geo = load_preset("senilov2018")
+    cal = ServoCalibration.default(geo)
+    assert cal.actuator == "linear"
+    lo, hi = geo.leg_length_range
+    assert np.allclose(cal.pulse_widths(np.full(6, lo)), 1000.0) and np.allclose(cal.pulse_widths(np.full(6, hi)), 2000.0)
+    home = inverse_kinematics(geo, np.zeros(6)).leg_lengths
+    assert np.allclose(cal.neutral_us, 1000.0 + 1000.0 * (home - lo) / (hi - lo))
+    mid = np.full(6, (lo + hi) / 2)
+    assert np.allclose(cal.angles(cal.pulse_widths(mid)), mid)
     with pytest.raises(CalibrationError, match="linear"):
-        ServoCalibration.default("senilov2018")
+        cal.to_toml()  # not written to TOML yet: said, not silently wrong

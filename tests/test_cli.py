@@ -181,7 +181,7 @@ BAD = [
     ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/partial.toml"],
     ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/emptydir"],
     # urdf
-    ["urdf", "--geometry", "senilov2018", "--out", "{tmp}/u"],
+    ["urdf", "--geometry", "nope", "--out", "{tmp}/u"],
     ["urdf", "--out", "{files}/notes.txt"],
     ["urdf", "--out", "{files}/notes.txt/sub"],
     # render
@@ -191,7 +191,7 @@ BAD = [
     ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.jpg"],
     ["render", "0", "0", "0", "0", "0", "0", "--out", "{files}/emptydir"],
     ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png", "--width", "0"],
-    ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png", "--geometry", "senilov2018"],
+    ["render", "0", "0", "999", "0", "0", "0", "--out", "{tmp}/x.png", "--geometry", "senilov2018"],
     # train
     ["train", "--timesteps", "0"],
     ["train", "--n-envs", "0"],
@@ -206,7 +206,7 @@ BAD = [
     ["train", "--run-dir", "{files}/notes.txt"],
     ["train", "--run-dir", "{files}/run_done"],
     ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],
-    ["train", "--geometry", "senilov2018", "--run-dir", "{tmp}/r"],
+    ["train", "--geometry", "mathcad-micro", "--run-dir", "{tmp}/r"],  # a 30 mm plate cannot carry the ball
     ["train", "--geometry", "nope", "--run-dir", "{tmp}/r"],
     # evaluate
     ["evaluate", "--policy", "nope"],

@@ -123,11 +123,10 @@ def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: P
     assert old.returncode == 1 and "observation layout" in old.stderr and "re-export" in old.stderr
 
 
-@pytest.mark.parametrize("geometry,message", [("senilov2018", "linear"), ("mathcad-micro", "linear")])
-def test_a_geometry_that_cannot_carry_the_task_says_why(geometry: str, message: str, tmp_path: Path) -> None:
-    proc = sg("evaluate", "--policy", "pid", "--geometry", geometry, "--episodes", "1", cwd=tmp_path)
+def test_a_geometry_that_cannot_carry_the_task_says_why(tmp_path: Path) -> None:
+    proc = sg("evaluate", "--policy", "pid", "--geometry", "mathcad-micro", "--episodes", "1", cwd=tmp_path)
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
-    assert proc.returncode == 1 and len(lines) == 1 and message in lines[0] and "Traceback" not in proc.stderr
+    assert proc.returncode == 1 and len(lines) == 1 and "too small" in lines[0] and "Traceback" not in proc.stderr
     small = load_preset("servo-hexapod").to_toml().replace("plate_size = [0.3, 0.3]", "plate_size = [0.08, 0.08]")
     (tmp_path / "small.toml").write_text(small)
     proc = sg("train", "--geometry", str(tmp_path / "small.toml"), "--run-dir", str(tmp_path / "r"), cwd=tmp_path)

@@ -73,7 +73,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
 
 
 def cmd_urdf(args: argparse.Namespace) -> int:
-    """Write the mechanism and plate URDFs of a rotary geometry."""
+    """Write the mechanism and plate URDFs of a geometry (rotary or linear)."""
     from stewart_gym.sim.urdf import write_urdfs
 
     geo = load_geometry(args.geometry)
@@ -88,7 +88,7 @@ def settle_at(sim: StewartSim, pose: np.ndarray, seconds: float = 1.0) -> np.nda
     ik = inverse_kinematics(sim.geometry, pose)
     if not ik.reachable:
         raise UnreachableError(ik.explain())
-    pulses = sim.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+    pulses = sim.calibration.pulse_widths(ik.actuators, out_of_range="nan")
     if np.isnan(pulses).any():
         raise UnreachableError(f"{ik.explain()}, but a pulse width would leave its channel's limits")
     sim.command(pulses)
@@ -106,8 +106,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     geo = load_geometry(args.geometry)
     pose = _pose(args)
     out = output_file(args.out, suffixes=(".png",))
-    ik = inverse_kinematics(geo, pose) if geo.is_rotary else None
-    if ik is not None and not ik.reachable:
+    ik = inverse_kinematics(geo, pose)
+    if not ik.reachable:
         raise UnreachableError(ik.explain())
     with StewartSim(geo, ball=args.ball, render_mode="rgb_array", render_size=(args.width, args.height)) as sim:
         settle_at(sim, pose)

@@ -17,6 +17,7 @@ from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
+from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 
 __all__ = ["StewartBallEnv", "check_ball_geometry"]
 
@@ -28,14 +29,12 @@ MIN_TILT = math.radians(2.0)
 
 def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
     """The geometry, if it can carry the ball task; otherwise a :class:`~stewart_gym.geometry.GeometryError` saying
-    why in one line (linear legs, a plate too small for the ball, too little tilt)."""
+    why in one line (a plate too small for the ball, too little tilt)."""
     from stewart_gym.actions import default_max_tilt
     from stewart_gym.geometry import GeometryError
     from stewart_gym.presets import load_geometry
 
     geo = load_geometry(geometry)
-    if not geo.is_rotary:
-        raise GeometryError(f"geometry {geo.name!r} is linear: the ball envs simulate servo (rotary) platforms")
     width, depth = geo.plate_extent
     diameter = 2 * (ball or BallSpec()).radius
     if min(width, depth) < MIN_PLATE_BALLS * diameter:
@@ -168,11 +167,13 @@ class StewartBallEnv(gym.Env, EzPickle):
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.randomize = bool(randomize)
         self.render_mode = render_mode
-        self.nominal_ball, self.nominal_servo = ball or BallSpec(), servo or ServoSpec()
+        self.nominal_ball = ball or BallSpec()
         self.nominal_sensor = sensor or TouchPanelSpec()
         self.ranges = randomization or RandomizationRanges()
         if backend is None:
             geometry = check_ball_geometry(geometry, self.nominal_ball)
+        rotary = (backend.geometry if backend is not None else geometry).is_rotary
+        self.nominal_servo = servo or (ServoSpec() if rotary else LINEAR_ACTUATOR)
         self.sim: PhysicsBackend = backend or StewartSim(
             geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode)  # fmt: skip

@@ -27,7 +27,7 @@ import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
 
-__all__ = ["HobbyServos", "ServoSpec"]
+__all__ = ["LINEAR_ACTUATOR", "HobbyServos", "ServoSpec"]
 
 
 @dataclass(frozen=True)
@@ -35,8 +35,8 @@ class ServoSpec:
     """A hobby servo's behaviour; defaults are an MG996R at 4.8 V (the docs: Sources).
 
     Attributes:
-        max_speed: rad/s, no-load speed (0.17 s/60° ≈ 6.16 rad/s).
-        stall_torque: N·m, the most the motor applies (9.4 kgf·cm ≈ 0.92 N·m).
+        max_speed: rad/s, no-load speed (0.17 s/60° ≈ 6.16 rad/s); m/s for a linear actuator.
+        stall_torque: N·m, the most the motor applies (9.4 kgf·cm ≈ 0.92 N·m); N for a linear actuator.
         deadband_us: µs, pulse changes this small are ignored.
         resolution_us: µs, command quantisation (0.25 µs: a Pololu Maestro's quarter-µs
             units; a PCA9685 at 50 Hz has 4.88 µs).
@@ -63,6 +63,10 @@ class ServoSpec:
                 raise ValueError(f"{key}: must be non-negative, got {getattr(self, key)!r}")
         trim = tuple(float(v) for v in np.broadcast_to(np.asarray(self.trim_error_us, dtype=float), (6,)))
         object.__setattr__(self, "trim_error_us", trim)
+
+
+#: An RC linear actuator (Actuonix-style: 1000 µs retracted, 2000 µs extended): speed in m/s, force in N.
+LINEAR_ACTUATOR = ServoSpec(max_speed=0.10, stall_torque=400.0, deadband_us=5.0, position_gain=0.3)
 
 
 class HobbyServos:

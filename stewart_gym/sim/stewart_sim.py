@@ -32,11 +32,11 @@ import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
 from stewart_gym.calibration import ServoCalibration
-from stewart_gym.geometry import GeometryError, PlatformGeometry
+from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim.backend import BallSpec, PlateLoad
-from stewart_gym.sim.servo_model import HobbyServos, ServoSpec
+from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 
 __all__ = ["PhysicsSpec", "StewartSim"]
@@ -128,20 +128,18 @@ class StewartSim:
         if render_mode not in (None, "rgb_array", "human"):
             raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
         self.geometry = load_geometry(geometry)
-        if not self.geometry.is_rotary:
-            raise GeometryError(f"geometry {self.geometry.name!r} is linear: StewartSim models servo platforms")
         self.calibration = calibration or ServoCalibration.default(self.geometry)
         self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
         self.substeps = self.physics_hz // self.control_hz
         self.dt = 1.0 / self.control_hz
         self.has_ball = bool(ball)
         self.ball_spec = ball_spec or BallSpec()
-        self.servo_spec = servo_spec or ServoSpec()
+        self.servo_spec = servo_spec or (ServoSpec() if self.geometry.is_rotary else LINEAR_ACTUATOR)
         self.mechanism = mechanism or MechanismSpec()
         self.physics = physics or PhysicsSpec()
         self.render_mode = render_mode
         self.render_size = render_size
-        self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
+        self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).actuators
         self._home_list: list[float] = self._home_alpha.tolist()
         self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
         self._step_count = 0
@@ -193,7 +191,9 @@ class StewartSim:
         self.plate = c.loadURDF(str(plate_path), basePosition=geo.home_position.tolist(), flags=flags)
         # joint indices within each leg body (a joint's index is its child link's)
         names = {c.getJointInfo(self.legs[0], j)[1].decode(): j for j in range(c.getNumJoints(self.legs[0]))}
-        self._servo_joint, self._rod_link = names["servo_0"], names["rod_0_u2"]
+        rotary = geo.is_rotary  # a rod's top: at (0, 0, s) of the rod link (rotary) or the top link's origin (linear)
+        self._servo_joint, self._rod_link = names["servo_0"], names["rod_0_u2" if rotary else "servo_0"]
+        self._rod_top = geo.rod_length if rotary else 0.0
         passive = [names["rod_0_u1"], names["rod_0_u2"]]
         for leg in self.legs:
             c.setJointMotorControlArray(leg, passive, pb.VELOCITY_CONTROL, forces=[0.0] * len(passive))
@@ -206,7 +206,7 @@ class StewartSim:
         self._plate_com = np.array(c.getDynamicsInfo(self.plate, -1)[3])  # inertial origin in the plate frame
         self._plate_com_list: list[float] = self._plate_com.tolist()
         self._constraints = []
-        s = geo.rod_length
+        s = self._rod_top
         for i, leg in enumerate(self.legs):
             rod_com = np.array(c.getDynamicsInfo(leg, self._rod_link)[3])
             cid = c.createConstraint(
@@ -352,7 +352,7 @@ class StewartSim:
         return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
 
     def servo_angles(self) -> np.ndarray:
-        """(6,) rad: the horn angles α (from the horizontal, as in eq. 9)."""
+        """(6,) rad: the horn angles α (from the horizontal, as in eq. 9); leg lengths (m) on a linear platform."""
         return np.array([s[0] for s in self._servo_states()]) + self._home_alpha
 
     def servo_velocities(self) -> np.ndarray:
@@ -369,7 +369,7 @@ class StewartSim:
 
     def constraint_error(self) -> float:
         """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
-        c, s = self._client, self.geometry.rod_length
+        c, s = self._client, self._rod_top
         states = [c.getLinkState(leg, self._rod_link, computeForwardKinematics=True) for leg in self.legs]
         tops = np.array([
             np.array(st[4]) + np.array(c.getMatrixFromQuaternion(st[5])).reshape(3, 3)[:, 2] * s for st in states
@@ -434,7 +434,8 @@ class StewartSim:
         width, height = self.render_size
         c = self._client
         target = [0.0, 0.0, self.geometry.home_height * 0.55]
-        view = c.computeViewMatrixFromYawPitchRoll(target, 0.58, 35.0, -20.0, 0.0, 2)
+        distance = max(0.58, 1.95 * max(self.geometry.plate_extent))  # the reference view, widened for a big plate
+        view = c.computeViewMatrixFromYawPitchRoll(target, distance, 35.0, -20.0, 0.0, 2)
         proj = c.computeProjectionMatrixFOV(45.0, width / height, 0.01, 5.0)
         _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
                                             lightDirection=[0.4, -0.6, 1.0], shadow=0)  # fmt: skip
