@@ -73,11 +73,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     from stewart_gym.envs.task import load_task
     from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
     from stewart_gym.hardware.serial_controllers import LineController, open_controller
-
-    # everything the user gave is checked before the port opens
     from stewart_gym.registry import deployable_policy, resolve_policy, same_geometry
     from stewart_gym.sensing import ObservationBuilder
 
+    # everything the user gave is checked before the port opens
     source = resolve_policy(args.policy, args.env, args.geometry)
     policy = deployable_policy(source)
     env_id, geometry = policy.env_id, policy.geometry
