@@ -54,6 +54,8 @@ def default_max_tilt(geometry: PlatformGeometry | str) -> float:
     """rad: 10°, or 90 % of the smallest roll or pitch the geometry reaches from home, whichever is smaller."""
     reach = axis_ranges(load_geometry(geometry))
     return float(min(DEFAULT_MAX_TILT, TILT_REACH_MARGIN * float(np.min(np.abs(reach[3:5])))))
+
+
 #: Fractions of the ray tried at once, then refined once more between the bracketing pair.
 _RAY = np.linspace(0.0, 1.0, 65)
 

@@ -615,8 +615,25 @@ def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, 
     Rows are x, y, z (m) and roll, pitch, yaw (rad). Each of the 12 rays is
     sampled on ``samples`` points up to ``home_height`` (translations) or π/2
     (angles); the first unreachable sample is then bracketed and bisected to
-    ``tol`` (relative to the search bound), all rays at once.
+    ``tol`` (relative to the search bound), all rays at once. The result is
+    remembered per geometry object (building an env, its action mapper and its
+    tilt default all ask for it; ~30 ms each time otherwise).
     """
+    key = (id(geometry), _pivot(pivot).tobytes(), samples, tol)
+    hit = _REACH.get(key)
+    if hit is not None and hit[0] is geometry:
+        return hit[1].copy()
+    reach = _axis_ranges(geometry, pivot, samples, tol)
+    if len(_REACH) > 64:
+        _REACH.clear()
+    _REACH[key] = (geometry, reach)
+    return reach.copy()
+
+
+_REACH: dict[tuple, tuple[PlatformGeometry, np.ndarray]] = {}
+
+
+def _axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None, samples: int, tol: float) -> np.ndarray:
     bound = np.array([geometry.home_height] * 3 + [math.pi / 2] * 3)
     signs = np.array([-1.0, 1.0])
     # rays[k, d]: unit pose of axis k in direction d, scaled by its bound
