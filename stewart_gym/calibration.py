@@ -176,45 +176,42 @@ class ServoCalibration:
         channel limits default to those of :meth:`default`. An optional
         ``[hardware]`` table (``port``, ``protocol``, ``baudrate``) is for the
         deploy tools (:func:`hardware_settings`) and ignored here.
+
+        A linear-actuator geometry (or ``actuator = "linear"``) reads the
+        layout of :meth:`_linear_from_dict` instead.
         """
-        known_top = {"geometry", "neutral_us", "us_per_rad", "us_per_degree", "servo", "hardware"}
-        known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
-        unknown = sorted(set(data) - known_top)
-        if unknown:
-            raise CalibrationError(f"{source}: unknown field(s) {unknown}; known: {sorted(known_top)}")
-        servos = data.get("servo")
-        if not isinstance(servos, list) or len(servos) != 6 or not all(isinstance(s, dict) for s in servos):
+        if not isinstance(data.get("servo"), list) or len(data["servo"]) != 6 or not all(
+                isinstance(s, dict) for s in data["servo"]):  # fmt: skip
             raise CalibrationError(f"servo: {source} needs exactly six [[servo]] tables")
-        for i, s in enumerate(servos):
-            extra = sorted(set(s) - known_servo)
-            if extra:
-                raise CalibrationError(f"servo[{i}]: unknown field(s) {extra}; known: {sorted(known_servo)}")
+        actuator = data.get("actuator")
+        if actuator is not None and actuator not in ("rotary", "linear"):
+            raise CalibrationError(f"actuator: 'rotary' or 'linear', got {actuator!r}")
+        geo_spec = geometry if geometry is not None else data.get("geometry")
+        geo = load_geometry(geo_spec) if geo_spec is not None else None
+        if geo is not None and actuator is not None and (actuator == "linear") == geo.is_rotary:
+            raise CalibrationError(f"actuator: {source} is for {actuator} actuators, but geometry {geo.name!r} is "
+                                   f"{'rotary' if geo.is_rotary else 'linear'}")  # fmt: skip
+        if actuator == "linear" or (geo is not None and not geo.is_rotary):
+            if geo is None:
+                raise CalibrationError("geometry: a linear-actuator calibration needs the geometry (its stroke)")
+            return cls._linear_from_dict(data, geo, source)
+        known_top = {"geometry", "actuator", "neutral_us", "us_per_rad", "us_per_degree", "servo", "hardware"}
+        known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
+        servos = _check_keys(data, known_top, known_servo, source)
         if "us_per_rad" in data and "us_per_degree" in data:
             raise CalibrationError("us_per_rad: give us_per_rad or us_per_degree, not both")
         rate = _scalar("us_per_rad", data.get("us_per_rad", DEFAULT_US_PER_RAD))
         if "us_per_degree" in data:
             rate = _scalar("us_per_degree", data["us_per_degree"]) * 180.0 / math.pi
         neutral = _scalar("neutral_us", data.get("neutral_us", 1500.0))
-
-        def per_servo(key: str, default: Any) -> list[Any]:
-            out = []
-            for i, s in enumerate(servos):
-                v = s.get(key, default[i] if isinstance(default, (list, tuple, np.ndarray)) else default)
-                if v is None:
-                    raise CalibrationError(f"servo[{i}].{key}: missing")
-                out.append(_scalar(f"servo[{i}].{key}", v))
-            return out
-
-        geo_spec = geometry if geometry is not None else data.get("geometry")
-        geo = load_geometry(geo_spec) if geo_spec is not None else None
         if all("home_angle_deg" in s for s in servos):
-            home = np.radians(per_servo("home_angle_deg", None))
+            home = np.radians(_per_servo(servos, "home_angle_deg", None))
         elif geo is not None:
             home = _home_angles(geo)
         else:
             raise CalibrationError("geometry: needed to compute home angles (or give servo[i].home_angle_deg)")
-        direction = per_servo("direction", list(DEFAULT_DIRECTIONS))
-        trims = np.array(per_servo("trim_us", 0.0))
+        direction = _per_servo(servos, "direction", list(DEFAULT_DIRECTIONS))
+        trims = np.array(_per_servo(servos, "trim_us", 0.0))
         base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate,
                            direction=tuple(int(d) for d in direction)) if geo is not None else None  # fmt: skip
         return cls(
@@ -222,9 +219,44 @@ class ServoCalibration:
             direction=np.array(direction),
             home_angle=home,
             us_per_rad=np.full(6, rate),
-            min_us=np.array(per_servo("min_us", None if base is None else base.min_us)),
-            max_us=np.array(per_servo("max_us", None if base is None else base.max_us)),
-            channels=tuple(int(c) for c in per_servo("channel", list(range(6)))),
+            min_us=np.array(_per_servo(servos, "min_us", None if base is None else base.min_us)),
+            max_us=np.array(_per_servo(servos, "max_us", None if base is None else base.max_us)),
+            channels=tuple(int(c) for c in _per_servo(servos, "channel", list(range(6)))),
+        )
+
+    @classmethod
+    def _linear_from_dict(cls, data: dict[str, Any], geo: PlatformGeometry, source: str) -> ServoCalibration:
+        """RC linear actuators (``actuator = "linear"``).
+
+        Top-level keys: ``geometry``, ``actuator``, ``retracted_us`` and
+        ``extended_us`` (the pulses at the ends of the geometry's stroke,
+        default 1000 and 2000; they set the µs per mm), and six ``[[servo]]``
+        tables with optional ``channel``, ``trim_us`` (added to the pulse of the
+        home leg length), ``min_us``, ``max_us`` (default: the stroke's ends,
+        moved with the trim) and ``home_length_mm`` (default: the geometry's
+        home leg length). ``[hardware]`` as for rotary servos.
+        """
+        known_top = {"geometry", "actuator", "retracted_us", "extended_us", "servo", "hardware"}
+        known_servo = {"channel", "trim_us", "min_us", "max_us", "home_length_mm"}
+        servos = _check_keys(data, known_top, known_servo, source)
+        retracted = _scalar("retracted_us", data.get("retracted_us", 1000.0))
+        extended = _scalar("extended_us", data.get("extended_us", 2000.0))
+        if not 0 < retracted < extended:
+            raise CalibrationError(f"retracted_us/extended_us: need 0 < retracted_us < extended_us, got {retracted!r}"
+                                   f" / {extended!r}")  # fmt: skip
+        trims = np.array(_per_servo(servos, "trim_us", 0.0))
+        base = cls.linear(geo, min_us=retracted, max_us=extended, trims_us=trims)
+        home = np.array(_per_servo(servos, "home_length_mm", base.home_angle * 1e3)) / 1e3
+        lo = geo.leg_length_range[0]  # type: ignore[index]
+        return cls(
+            neutral_us=retracted + base.us_per_rad * (home - lo) + trims,
+            direction=np.ones(6),
+            home_angle=home,
+            us_per_rad=base.us_per_rad,
+            min_us=np.array(_per_servo(servos, "min_us", base.min_us)),
+            max_us=np.array(_per_servo(servos, "max_us", base.max_us)),
+            channels=tuple(int(c) for c in _per_servo(servos, "channel", list(range(6)))),
+            actuator="linear",
         )
 
     @classmethod
@@ -232,15 +264,18 @@ class ServoCalibration:
         """Load a calibration TOML file (layout in :meth:`from_dict`)."""
         return cls.from_dict(read_toml(path, CalibrationError), geometry, source=str(path))
 
-    def to_toml(self) -> str:
-        """TOML text that :meth:`from_toml` reads back to an equal calibration."""
-        if self.actuator != "rotary":
-            raise CalibrationError("actuator: linear-actuator calibrations are not written to TOML yet")
-        lines = []
+    def to_toml(self, geometry: PlatformGeometry | str | None = None) -> str:
+        """TOML text that :meth:`from_toml` reads back to an equal calibration.
+
+        A linear-actuator calibration needs its ``geometry`` (the stroke that
+        ``retracted_us``/``extended_us`` refer to); it writes each servo's trim
+        against the default linear mapping.
+        """
         if np.ptp(self.us_per_rad) != 0:
             raise CalibrationError("us_per_rad: per-channel rates cannot be written to TOML")
-        lines.append(f"us_per_rad = {float(self.us_per_rad[0])!r}")
-        lines.append("neutral_us = 1500.0")
+        if self.actuator == "linear":
+            return self._linear_toml(geometry)
+        lines = [f"us_per_rad = {float(self.us_per_rad[0])!r}", "neutral_us = 1500.0"]
         for i in range(6):
             lines += [
                 "",
@@ -251,6 +286,32 @@ class ServoCalibration:
                 f"min_us = {_us(self.min_us[i])!r}",
                 f"max_us = {_us(self.max_us[i])!r}",
                 f"home_angle_deg = {math.degrees(float(self.home_angle[i]))!r}",
+            ]
+        return "\n".join(lines) + "\n"
+
+    def _linear_toml(self, geometry: PlatformGeometry | str | None) -> str:
+        if geometry is None:
+            raise CalibrationError("geometry: writing a linear-actuator calibration needs its geometry (the stroke)")
+        geo = load_geometry(geometry)
+        if geo.is_rotary:
+            raise CalibrationError(f"geometry: {geo.name!r} is rotary, but this calibration is for linear actuators")
+        if not np.all(self.direction == 1):
+            raise CalibrationError("direction: linear actuators extend with the pulse (direction +1)")
+        lo, hi = geo.leg_length_range  # type: ignore[misc]
+        # A common offset is a trim on every channel or a shifted retracted_us: both read back the same.
+        retracted = 1000.0
+        extended = retracted + float(self.us_per_rad[0]) * (hi - lo)
+        untrimmed = retracted + self.us_per_rad * (self.home_angle - lo)
+        lines = ['actuator = "linear"', f"retracted_us = {retracted!r}", f"extended_us = {extended!r}"]
+        for i in range(6):
+            lines += [
+                "",
+                "[[servo]]",
+                f"channel = {self.channels[i]}",
+                f"trim_us = {_us(self.neutral_us[i] - untrimmed[i])!r}",
+                f"min_us = {_us(self.min_us[i])!r}",
+                f"max_us = {_us(self.max_us[i])!r}",
+                f"home_length_mm = {float(self.home_angle[i]) * 1e3!r}",
             ]
         return "\n".join(lines) + "\n"
 
@@ -346,6 +407,30 @@ def hardware_settings(path: str | Path) -> dict[str, Any]:
     if unknown:
         raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")
     return dict(table)
+
+
+def _check_keys(data: dict[str, Any], known_top: set[str], known_servo: set[str], source: str) -> list[dict]:
+    """The six ``[[servo]]`` tables, after refusing unknown keys at either level."""
+    unknown = sorted(set(data) - known_top)
+    if unknown:
+        raise CalibrationError(f"{source}: unknown field(s) {unknown}; known: {sorted(known_top)}")
+    servos = data["servo"]
+    for i, s in enumerate(servos):
+        extra = sorted(set(s) - known_servo)
+        if extra:
+            raise CalibrationError(f"servo[{i}]: unknown field(s) {extra}; known: {sorted(known_servo)}")
+    return servos
+
+
+def _per_servo(servos: list[dict], key: str, default: Any) -> list[float]:
+    """``key`` of each servo table as a number; ``default`` (a value or six) where absent; None default: required."""
+    out = []
+    for i, s in enumerate(servos):
+        v = s.get(key, default[i] if isinstance(default, (list, tuple, np.ndarray)) else default)
+        if v is None:
+            raise CalibrationError(f"servo[{i}].{key}: missing")
+        out.append(_scalar(f"servo[{i}].{key}", v))
+    return out
 
 
 def _scalar(key: str, value: Any) -> float:

@@ -13,18 +13,30 @@ the ball model turns into roll and pitch.
 
 from __future__ import annotations
 
+import itertools
 import json
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from stewart_gym.actions import DEFAULT_MAX_TILT
+from stewart_gym.actions import DEFAULT_MAX_TILT, default_max_tilt
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.kinematics import actuator_jacobian
+from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["CascadedPID", "PIDGains"]
+__all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "PIDGains", "gains_for_geometry", "trim_tilt"]
 
 GRAVITY = 9.80665
+
+#: µs: how far a hand-trimmed neutral may be off the true one (the simulator draws trim errors within ±15 µs).
+TRIM_TOLERANCE_US = 15.0
+
+#: The integral can cancel this multiple of the worst trim tilt (:func:`gains_for_geometry`).
+INTEGRAL_MARGIN = 1.5
 
 
 @dataclass(frozen=True)
@@ -109,3 +121,36 @@ class CascadedPID:
     def load(cls, path: str | Path, dt: float = 0.02) -> CascadedPID:
         """Read gains written by :meth:`save`."""
         return cls(PIDGains(**json.loads(Path(path).read_text())), dt)
+
+
+def trim_tilt(geometry: Any, tolerance_us: float = TRIM_TOLERANCE_US) -> float:
+    """rad: the largest plate tilt at home that neutral errors within ±``tolerance_us`` on every channel can cause.
+
+    Small-signal: the forward Jacobian at home maps each channel's error (µs →
+    servo angle or leg length through the geometry's default calibration) to
+    roll and pitch; the worst of the 64 sign patterns is returned. A hobby
+    servo's 15 µs moves a 0.3 m reference plate by 0.8°, an RC linear actuator
+    with a 300 mm stroke (``senilov2018``) by 3.7°.
+    """
+    geo = load_geometry(geometry)
+    cal = ServoCalibration.default(geo)
+    forward = np.linalg.inv(actuator_jacobian(geo, np.zeros(6)))
+    tilt_per_us = forward[3:5, :] / (cal.direction * cal.us_per_rad)  # (roll, pitch) rad per µs of each channel
+    signs = np.array(list(itertools.product((-1.0, 1.0), repeat=6)))
+    return float(np.linalg.norm(signs @ tilt_per_us.T, axis=1).max() * tolerance_us)
+
+
+def gains_for_geometry(gains: PIDGains, geometry: Any) -> PIDGains:
+    """``gains`` adapted to a build, without hand tuning.
+
+    * ``max_tilt`` becomes the geometry's default (what its envs use: 10° or
+      90 % of its reach, whichever is smaller).
+    * ``integral_limit`` grows, if needed, until the integral term can command
+      :data:`INTEGRAL_MARGIN` × the tilt that trim errors of ±15 µs cause
+      (:func:`trim_tilt`): otherwise the anti-windup bound stops the integral
+      short of a build's steady offset and the ball rests off target.
+    """
+    geo = load_geometry(geometry)
+    tilt = min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2)
+    needed = gains.rolling_factor * GRAVITY * math.sin(tilt) / gains.ki_vel if gains.ki_vel > 0 else 0.0
+    return replace(gains, max_tilt=default_max_tilt(geo), integral_limit=max(gains.integral_limit, needed))

@@ -217,18 +217,14 @@ def same_geometry(a: str | Any, b: str | Any) -> bool:
 
 
 def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
-    """The cascaded PID with the gains in ``path``, for ``geometry``: its tilt scale is the geometry's default
-    ``max_tilt`` (what the env uses) and its observation scales follow the plate."""
-    from dataclasses import replace
-
-    from stewart_gym.actions import default_max_tilt
-    from stewart_gym.classical import CascadedPID, PIDGains
+    """The cascaded PID with the gains in ``path``, adapted to ``geometry``
+    (:func:`~stewart_gym.classical.gains_for_geometry`); its observation scales follow the plate."""
+    from stewart_gym.classical import CascadedPID, PIDGains, gains_for_geometry
     from stewart_gym.presets import load_geometry
 
     geo = load_geometry(geometry)
     width, depth = geo.plate_extent
-    gains = replace(pid_gains(path, PIDGains), max_tilt=default_max_tilt(geo))
-    return CascadedPID(gains, plate_half=(width / 2, depth / 2))
+    return CascadedPID(gains_for_geometry(pid_gains(path, PIDGains), geo), plate_half=(width / 2, depth / 2))
 
 
 def pid_gains(path: Path, cls: Any) -> Any:

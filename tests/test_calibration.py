@@ -133,5 +133,3 @@ def test_linear_actuators_map_the_stroke_onto_1000_to_2000_us() -> None:
     assert np.allclose(cal.neutral_us, 1000.0 + 1000.0 * (home - lo) / (hi - lo))
     mid = np.full(6, (lo + hi) / 2)
     assert np.allclose(cal.angles(cal.pulse_widths(mid)), mid)
-    with pytest.raises(CalibrationError, match="linear"):
-        cal.to_toml()  # not written to TOML yet: said, not silently wrong

@@ -1,5 +1,5 @@
 """Any platform, end to end: a user's own geometry TOML through train, export, calibrate and deploy (the real CLI),
-its plate in the env, bundles that know their build, refusals, and the PID on every rotary preset."""
+its plate in the env, bundles that know their build, refusals, and the PID on every ball preset."""
 
 from __future__ import annotations
 
@@ -105,6 +105,64 @@ def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: F
     assert np.allclose(wire[: len(logged)], np.round(logged * 4) / 4, atol=0.01)  # what was logged went on the wire
 
 
+def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevice) -> None:
+    """senilov2018 (RC linear actuators) through the real CLI: calibrate with scripted keys, export the PID, deploy
+    with the calibration; the frames are the trimmed pulses of the IK leg lengths."""
+    drain = Drain(device)
+    cal = sg("calibrate", "--geometry", "senilov2018", "--port", device.path, "--protocol", "maestro", "--out",
+             str(tmp_path / "cal.toml"), "--step", "2", stdin="+\n+\nn\n-\nq\n", cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert cal.returncode == 0, cal.stderr
+    text = (tmp_path / "cal.toml").read_text()
+    assert 'actuator = "linear"' in text and 'geometry = "senilov2018"' in text
+    calibration = ServoCalibration.from_toml(tmp_path / "cal.toml")
+    nominal = ServoCalibration.linear("senilov2018")
+    assert calibration.actuator == "linear"
+    assert np.allclose(calibration.neutral_us - nominal.neutral_us, [4, -2, 0, 0, 0, 0], atol=1e-6)
+    assert sg("export", "--policy", "pid", "--geometry", "senilov2018", "--out", str(tmp_path / "pid"),
+              cwd=tmp_path).returncode == 0  # fmt: skip
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", str(tmp_path / "pid"), "--calibration", str(tmp_path / "cal.toml"), "--sensor",
+             "sim", "--duration", "1", "--log", str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
+    data = drain.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    geo = load_preset("senilov2018")
+    checked = 0
+    rows = list(csv.DictReader((tmp_path / "log.csv").open()))
+    for r in rows:
+        if any(int(r[k]) for k in ("held", "rate_limited", "homing", "stale", "unreachable")):
+            continue
+        pose = np.array([float(r[k]) for k in ("x_m", "y_m", "z_m", "roll", "pitch", "yaw")])
+        sent = np.array([float(r[f"pulse{i}_us"]) for i in range(6)])
+        assert np.allclose(sent, calibration.pulse_widths(inverse_kinematics(geo, pose).leg_lengths), atol=0.01)
+        checked += 1
+    assert checked >= 5
+    wire = maestro_frames(data)
+    logged = np.array([[float(r[f"pulse{i}_us"]) for i in range(6)] for r in rows])
+    assert np.allclose(wire[: len(logged)], np.round(logged * 4) / 4, atol=0.01)
+
+
+def test_linear_calibration_files_round_trip_and_name_their_mistakes(tmp_path: Path) -> None:
+    from stewart_gym.calibration import CalibrationError
+
+    cal = ServoCalibration.linear("senilov2018", trims_us=np.array([3.0, -2.0, 0.0, 0.0, 1.5, 0.25]))
+    path = tmp_path / "lin.toml"
+    path.write_text('geometry = "senilov2018"\n' + cal.to_toml("senilov2018"))
+    assert ServoCalibration.from_toml(path) == cal
+    for old, new, field in [
+        ("retracted_us = 1000.0", "retracted_us = 2500.0", "retracted_us"),
+        ("home_length_mm", "home_angle_deg", r"servo\[0\]"),
+        ('actuator = "linear"', 'actuator = "rotary"', "actuator"),
+    ]:
+        path.write_text('geometry = "senilov2018"\n' + cal.to_toml("senilov2018").replace(old, new, 1))
+        with pytest.raises(CalibrationError, match=field):
+            ServoCalibration.from_toml(path)
+    with pytest.raises(CalibrationError, match="geometry"):
+        cal.to_toml()  # a linear file needs the stroke it refers to
+    with pytest.raises(CalibrationError, match="rotary"):
+        cal.to_toml("servo-hexapod")
+
+
 def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: Path, device: FakeDevice) -> None:
     geo_path = my_build(tmp_path)
     assert sg("export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
@@ -140,15 +198,57 @@ def test_a_trained_policy_stays_on_its_build(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("geometry", ["servo-hexapod", "memememe-liverpool", "desk-rect"])
-def test_the_pid_balances_on_every_rotary_preset(geometry: str) -> None:
-    """No retuning by hand: the gains are the reference's; the tilt scale and observation scales follow the build."""
+@pytest.mark.parametrize("geometry", ["servo-hexapod", "memememe-liverpool", "desk-rect", "senilov2018"])
+def test_the_pid_balances_on_every_ball_preset(geometry: str) -> None:
+    """No retuning by hand: the gains are the reference's; tilt scale, integral bound and observation scales follow
+    the build (``senilov2018``: 6-UPS with RC linear actuators, 500 mm plate)."""
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
 
     _, pid, env_kwargs = load_for_evaluation("pid", "StewartBallBalance-v0", geometry)
     m = evaluate("StewartBallBalance-v0", pid, episodes=20, seed=1000, env_kwargs=env_kwargs, settling=False)
     assert m["success_rate"] >= 0.9 and m["fell_rate"] == 0.0, m
+
+
+@pytest.mark.parametrize("geometry", ["servo-hexapod", "memememe-liverpool", "senilov2018", "mathcad-micro"])
+def test_trim_tilt_agrees_with_forward_kinematics(geometry: str) -> None:
+    """The small-signal worst trim tilt against the exact one: forward kinematics of every ±15 µs sign pattern."""
+    import itertools
+
+    from stewart_gym.classical import trim_tilt
+    from stewart_gym.kinematics import forward_kinematics, rotation_matrix
+
+    geo = load_preset(geometry)
+    cal = ServoCalibration.default(geo)
+    home = inverse_kinematics(geo, np.zeros(6))
+    signs = np.array(list(itertools.product((-1.0, 1.0), repeat=6)))
+    delta = signs * 15.0 / (cal.direction * cal.us_per_rad)
+    if geo.is_rotary:
+        fk = forward_kinematics(geo, servo_angles=home.servo_angles + delta)
+    else:
+        fk = forward_kinematics(geo, leg_lengths=home.leg_lengths + delta)
+    assert np.all(fk.converged)
+    tilts = []
+    for roll, pitch, yaw in fk.pose[:, 3:]:
+        normal = rotation_matrix(roll, pitch, yaw) @ np.array([0.0, 0.0, 1.0])
+        tilts.append(np.arccos(np.clip(normal[2], -1.0, 1.0)))
+    exact = max(tilts)
+    assert trim_tilt(geo) == pytest.approx(exact, rel=0.03)
+
+
+def test_pid_integral_bound_follows_the_build() -> None:
+    """The linear build's trim tilt (3.7°) needs a larger integral than the reference's 0.05 m·s; the rotary
+    reference keeps its tuned bound."""
+    import dataclasses
+
+    from stewart_gym.classical import GRAVITY, PIDGains, gains_for_geometry, trim_tilt
+
+    base = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=3.0)
+    assert gains_for_geometry(base, "servo-hexapod").integral_limit == base.integral_limit
+    lin = gains_for_geometry(base, "senilov2018")
+    can = lin.ki_vel * lin.integral_limit / (lin.rolling_factor * GRAVITY)
+    assert can == pytest.approx(np.sin(1.5 * trim_tilt("senilov2018")), rel=1e-9) and lin.integral_limit > 0.2
+    assert dataclasses.replace(lin, integral_limit=base.integral_limit, max_tilt=base.max_tilt) == base
 
 
 def test_deploy_the_pid_on_another_preset(tmp_path: Path, device: FakeDevice) -> None:

@@ -142,13 +142,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     out = output_file(args.out, suffixes=(".toml",))
     geometry = load_geometry(args.geometry)
-    if not geometry.is_rotary:
-        raise ConfigError(f"geometry {geometry.name!r} is linear: calibrate trims servo horns")
     calibration, hw = _load_calibration(args.calibration, geometry)
     port, protocol, baudrate = _port_settings(args, hw)
+    nominal = ServoCalibration.default(geometry).neutral_us  # untrimmed: 1500 µs, or the home leg length's pulse
     controller = open_controller(protocol, port, calibration.channels, baudrate)
     try:
-        result = find_trims(controller, calibration, sys.stdin, args.step, say=lambda s: print(s, flush=True))
+        result = find_trims(controller, calibration, sys.stdin, args.step, say=lambda s: print(s, flush=True),
+                            nominal_us=nominal)  # fmt: skip
     finally:
         controller.close()
     out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate},

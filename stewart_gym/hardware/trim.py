@@ -1,6 +1,6 @@
 """Finding servo trims by hand: the procedure behind ``stewart-gym calibrate``.
 
-One servo at a time is nudged until its horn is level (the neutral pose),
+One servo at a time is nudged until its horn is level, or its leg at the home length (the neutral pose),
 with keys read line by line: ``+`` / ``-`` move the selected servo by the step,
 ``n`` selects the next servo, ``q`` saves and quits (so does the end of the
 input). The pulses sent always stay within the channel limits. At the end the
@@ -36,13 +36,18 @@ class TrimResult:
 
 
 def find_trims(controller: ServoController, start: ServoCalibration, keys: Iterable[str], step_us: float,
-               say: Callable[[str], None] = print) -> TrimResult:  # fmt: skip
-    """Run the procedure on ``controller``; returns the new calibration (the channel limits move with the trim)."""
-    trims = np.round(start.neutral_us - 1500.0, DECIMALS)
+               say: Callable[[str], None] = print, nominal_us: np.ndarray | float = 1500.0) -> TrimResult:  # fmt: skip
+    """Run the procedure on ``controller``; returns the new calibration (the channel limits move with the trim).
+
+    Trims are shown against ``nominal_us``, the untrimmed neutral pulses (1500 µs for hobby servos; the pulse of
+    the home leg length for RC linear actuators).
+    """
+    nominal = np.broadcast_to(np.asarray(nominal_us, dtype=float), (6,))
+    trims = np.round(start.neutral_us - nominal, DECIMALS)
     servo, presses, unknown = 0, 0, 0
 
     def pulses() -> np.ndarray:
-        return np.clip(1500.0 + trims, start.min_us, start.max_us)
+        return np.clip(nominal + trims, start.min_us, start.max_us)
 
     finished = False
     try:
@@ -53,7 +58,8 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
             if key in ("+", "-"):
                 # the trim may not take the neutral pulse past the channel limits
                 trims[servo] = float(np.clip(round(trims[servo] + (step_us if key == "+" else -step_us), DECIMALS),
-                                             start.min_us[servo] - 1500.0, start.max_us[servo] - 1500.0))  # fmt: skip
+                                             start.min_us[servo] - nominal[servo],
+                                             start.max_us[servo] - nominal[servo]))  # fmt: skip
                 presses += 1
             elif key == "n":
                 servo = (servo + 1) % 6
@@ -67,10 +73,10 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
             say(f"servo {servo}: trims {np.round(trims, 1).tolist()} µs")
         finished = True
     finally:
-        shift = trims - (start.neutral_us - 1500.0)  # the channel limits move with the neutral pulse
-        cal = ServoCalibration(1500.0 + trims, start.direction, start.home_angle, start.us_per_rad,
+        shift = nominal + trims - start.neutral_us  # the channel limits move with the neutral pulse
+        cal = ServoCalibration(nominal + trims, start.direction, start.home_angle, start.us_per_rad,
                                np.round(start.min_us + shift, DECIMALS), np.round(start.max_us + shift, DECIMALS),
-                               start.channels)  # fmt: skip
+                               start.channels, start.actuator)  # fmt: skip
         if finished:
             controller.send(np.clip(cal.neutral_us, cal.min_us, cal.max_us))  # rest at the new neutral
     return TrimResult(cal, presses, unknown)
@@ -79,7 +85,7 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
 def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any], geometry: str | None = None) -> str:
     """The calibration file: the geometry it is for, the calibration and a ``[hardware]`` table with the entries
     that are set."""
-    text = (f"geometry = {json.dumps(str(geometry))}\n" if geometry else "") + cal.to_toml()
+    text = (f"geometry = {json.dumps(str(geometry))}\n" if geometry else "") + cal.to_toml(geometry)
     table = {k: v for k, v in hardware.items() if v is not None}
     if table:
         text += "\n[hardware]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in sorted(table.items()))
