@@ -16,7 +16,8 @@ from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
-from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
+from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
+from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 
 __all__ = ["StewartBallEnv", "check_ball_geometry"]
@@ -121,15 +122,15 @@ class StewartBallEnv(gym.Env, EzPickle):
     :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
     ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz`` (default
-    150: the envs trade the simulator's 200 Hz, loop gap ≤ 0.07 mm in full-range
-    moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves and
-    ≤ 0.042 mm under ±10° bang-bang tilts), ``control_hz``, ``rate_penalty``,
+    the engine's: PyBullet 150 Hz, trading the simulator's 200 Hz, loop gap ≤ 0.07 mm
+    in full-range moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves
+    and ≤ 0.042 mm under ±10° bang-bang tilts; MuJoCo 250 Hz), ``control_hz``, ``rate_penalty``,
     ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
     (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
     (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``,
-    ``backend`` (a :class:`~stewart_gym.sim.PhysicsBackend` to use instead of
-    building the PyBullet one), and any keyword of the task (``trajectory`` for
-    track).
+    ``backend`` (``"pybullet"``, the default, or ``"mujoco"``: the same env in
+    either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), and any
+    keyword of the task (``trajectory`` for track).
 
     ## Version History
     * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
@@ -147,7 +148,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         max_tilt: float | None = None,
         success_radius: float | None = None,
         success_window_s: float = 1.0,
-        physics_hz: int = 150,
+        physics_hz: int | None = None,
         control_hz: int = 50,
         ball: BallSpec | None = None,
         servo: ServoSpec | None = None,
@@ -155,7 +156,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         geometry: Any = "servo-hexapod",
         randomization: RandomizationRanges | None = None,
         rate_penalty: float = 0.1,
-        backend: PhysicsBackend | None = None,
+        backend: PhysicsBackend | str = "pybullet",
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
@@ -170,13 +171,14 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.nominal_ball = ball or BallSpec()
         self.nominal_sensor = sensor or TouchPanelSpec()
         self.ranges = randomization or RandomizationRanges()
-        if backend is None:
+        if isinstance(backend, str):
             geometry = check_ball_geometry(geometry, self.nominal_ball)
-        rotary = (backend.geometry if backend is not None else geometry).is_rotary
+        rotary = (geometry if isinstance(backend, str) else backend.geometry).is_rotary
         self.nominal_servo = servo or (ServoSpec() if rotary else LINEAR_ACTUATOR)
-        self.sim: PhysicsBackend = backend or StewartSim(
-            geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
-            servo_spec=self.nominal_servo, render_mode=render_mode)  # fmt: skip
+        self.backend_name = backend if isinstance(backend, str) else type(backend).__name__
+        self.sim: PhysicsBackend = make_backend(
+            backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
+            servo_spec=self.nominal_servo, render_mode=render_mode) if isinstance(backend, str) else backend  # fmt: skip
         self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz)}
         self.plate_half_extent = tuple(self.sim.plate_half_extent)
         self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,

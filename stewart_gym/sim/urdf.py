@@ -32,7 +32,8 @@ from stewart_gym.kinematics import euler_from_matrix, horn_tips, inverse_kinemat
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, ServoSpec
 
-__all__ = ["MechanismSpec", "mechanism_urdf", "plate_urdf", "rod_frames", "write_urdfs"]
+__all__ = ["MechanismSpec", "frame_along", "mechanism_urdf", "plate_urdf", "rod_frames", "rod_inertia", "servo_axis",
+           "write_urdfs"]
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,7 @@ def _rpy(rot: np.ndarray) -> str:
     return " ".join(_f(v) for v in euler_from_matrix(rot))
 
 
-def _frame_along(direction: np.ndarray, hint: np.ndarray) -> np.ndarray:
+def frame_along(direction: np.ndarray, hint: np.ndarray) -> np.ndarray:
     """Rotation whose z column is ``direction`` and whose x column is ``hint`` made orthogonal to it."""
     z = direction / np.linalg.norm(direction)
     x = hint - (hint @ z) * z
@@ -95,7 +96,7 @@ def _frame_along(direction: np.ndarray, hint: np.ndarray) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def _rod_inertia(mass: float, length: float, radius: float) -> tuple[float, float, float]:
+def rod_inertia(mass: float, length: float, radius: float) -> tuple[float, float, float]:
     """Principal inertia (kg·m²) of a solid cylinder along z: (Ixx, Iyy, Izz)."""
     ixx = mass * (3 * radius**2 + length**2) / 12.0
     return ixx, ixx, 0.5 * mass * radius**2
@@ -129,11 +130,11 @@ def rod_frames(geometry: PlatformGeometry) -> tuple[np.ndarray, np.ndarray, np.n
     tips = horn_tips(geometry, alpha0)
     tops = geometry.platform_anchors + geometry.home_position
     dirs = (tops - tips) / np.linalg.norm(tops - tips, axis=1, keepdims=True)
-    frames = np.stack([_frame_along(dirs[i], _servo_axis(geometry.servo_beta[i])) for i in range(6)])  # type: ignore[index]
+    frames = np.stack([frame_along(dirs[i], servo_axis(geometry.servo_beta[i])) for i in range(6)])  # type: ignore[index]
     return tips, dirs, frames
 
 
-def _servo_axis(beta: float) -> np.ndarray:
+def servo_axis(beta: float) -> np.ndarray:
     """Unit axis of a servo shaft such that a positive turn raises the horn (increases α)."""
     return np.array([math.sin(beta), -math.cos(beta), 0.0])
 
@@ -168,9 +169,9 @@ def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
     legs, out = _robot_head(geo, spec, legs, base_plate, base_r, base_z,
                             {"servo_black": "0.1 0.1 0.1 1", "horn_white": "0.92 0.92 0.9 1"})  # fmt: skip
     for i in legs:
-        axis = _servo_axis(float(geo.servo_beta[i]))
+        axis = servo_axis(float(geo.servo_beta[i]))
         # servo body: a box below the shaft, long side along the shaft axis
-        body_rot = _frame_along(np.array([0, 0, 1.0]), axis)
+        body_rot = frame_along(np.array([0, 0, 1.0]), axis)
         out.append(_shape("visual", '<box size="0.040 0.020 0.036"/>',
                           geo.base_anchors[i] - np.array([0, 0, 0.012]) - 0.008 * axis, _rpy(body_rot),
                           "servo_black"))  # fmt: skip
@@ -180,12 +181,12 @@ def mechanism_urdf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
         u = np.array([math.cos(beta), math.sin(beta), 0.0])
         horn_dir = math.cos(alpha0[i]) * u + math.sin(alpha0[i]) * np.array([0, 0, 1.0])
         tip = tips[i] - geo.base_anchors[i]  # horn tip relative to the shaft
-        horn_rot = _rpy(_frame_along(horn_dir, _servo_axis(beta)))
-        horn_i = tuple(v + spec.rotor_inertia for v in _rod_inertia(spec.horn_mass, a, 0.004))  # any axis: the shaft's
-        rod_i = _rod_inertia(spec.rod_mass, s, spec.rod_radius)
+        horn_rot = _rpy(frame_along(horn_dir, servo_axis(beta)))
+        horn_i = tuple(v + spec.rotor_inertia for v in rod_inertia(spec.horn_mass, a, 0.004))  # any axis: the shaft's
+        rod_i = rod_inertia(spec.rod_mass, s, spec.rod_radius)
         out += [
             f'  <joint name="servo_{i}" type="revolute">\n    <parent link="base"/>\n    <child link="horn_{i}"/>\n'
-            f'    <origin xyz="{_xyz(geo.base_anchors[i])}" rpy="0 0 0"/>\n    <axis xyz="{_xyz(_servo_axis(beta))}"/>\n'
+            f'    <origin xyz="{_xyz(geo.base_anchors[i])}" rpy="0 0 0"/>\n    <axis xyz="{_xyz(servo_axis(beta))}"/>\n'
             f'    <limit lower="{_f(lo - alpha0[i])}" upper="{_f(hi - alpha0[i])}" effort="{_f(stall_torque)}" '
             f'velocity="{_f(max_speed)}"/>\n  </joint>\n',
             f'  <link name="horn_{i}">\n',
@@ -233,7 +234,7 @@ def _robot_head(geo: PlatformGeometry, spec: MechanismSpec, legs: Sequence[int],
         f'<robot name="{name}">\n',
         *(f'  <material name="{m}"><color rgba="{rgba}"/></material>\n' for m, rgba in colours.items()),
         '  <link name="base">\n',
-        _inertial(spec.base_mass, np.array([0, 0, base_z]), _rod_inertia(spec.base_mass, 0.006, base_r)),
+        _inertial(spec.base_mass, np.array([0, 0, base_z]), rod_inertia(spec.base_mass, 0.006, base_r)),
     ]
     if base_plate:
         disc = f'<cylinder radius="{_f(base_r)}" length="0.006"/>'
@@ -258,7 +259,7 @@ def _linear_mechanism_urdf(geo: PlatformGeometry, spec: MechanismSpec, servo: Se
     legs, out = _robot_head(geo, spec, legs, base_plate, base_r, base_z, {"tube_black": "0.1 0.1 0.1 1"})
     out.append("  </link>\n")
     for i in legs:
-        frame = _frame_along(dirs[i], np.cross(np.array([0, 0, 1.0]), dirs[i]) + np.array([1e-9, 0, 0]))
+        frame = frame_along(dirs[i], np.cross(np.array([0, 0, 1.0]), dirs[i]) + np.array([1e-9, 0, 0]))
         rod = float(home[i]) - tube + 0.03  # the moving rod, long enough to reach into the tube at home
         out += [
             f'  <joint name="rod_{i}_u1" type="continuous">\n    <parent link="base"/>\n'
@@ -271,7 +272,7 @@ def _linear_mechanism_urdf(geo: PlatformGeometry, spec: MechanismSpec, servo: Se
             f'  <joint name="rod_{i}_u2" type="continuous">\n    <parent link="rod_{i}_cross"/>\n'
             f'    <child link="tube_{i}"/>\n    <origin xyz="0 0 0" rpy="0 0 0"/>\n    <axis xyz="0 1 0"/>\n  </joint>\n',
             f'  <link name="tube_{i}">\n',
-            _inertial(spec.rod_mass, np.array([0, 0, tube / 2]), _rod_inertia(spec.rod_mass, tube, 2 * r)),
+            _inertial(spec.rod_mass, np.array([0, 0, tube / 2]), rod_inertia(spec.rod_mass, tube, 2 * r)),
             _shape("visual", f'<cylinder radius="{_f(2 * r)}" length="{_f(tube)}"/>', np.array([0, 0, tube / 2]),
                    "0 0 0", "tube_black"),  # fmt: skip
             "  </link>\n",
@@ -280,7 +281,7 @@ def _linear_mechanism_urdf(geo: PlatformGeometry, spec: MechanismSpec, servo: Se
             f'    <limit lower="{_f(lo - home[i])}" upper="{_f(hi - home[i])}" effort="{_f(servo.stall_torque)}" '
             f'velocity="{_f(servo.max_speed)}"/>\n  </joint>\n',
             f'  <link name="rod_{i}">\n',
-            _inertial(spec.rod_mass, np.array([0, 0, -rod / 2]), _rod_inertia(spec.rod_mass, rod, r)),
+            _inertial(spec.rod_mass, np.array([0, 0, -rod / 2]), rod_inertia(spec.rod_mass, rod, r)),
             _shape("visual", f'<cylinder radius="{_f(r)}" length="{_f(rod)}"/>', np.array([0, 0, -rod / 2]), "0 0 0",
                    "rod_steel"),  # fmt: skip
             _shape("visual", '<sphere radius="0.006"/>', np.zeros(3), "0 0 0", "rod_steel"),

@@ -1,0 +1,337 @@
+"""MuJoCo simulation of a Stewart platform, rotary or linear: the second, independent physics backend.
+
+The model comes from :func:`~stewart_gym.sim.mjcf.mechanism_mjcf` (closed loops as
+``connect`` equality constraints). The servos are driven exactly as in PyBullet:
+pulses go through the same :class:`~stewart_gym.sim.HobbyServos` front end (lag,
+dead band, quantisation, trim error) to target angles; each physics step a
+velocity actuator is commanded ``clip(k·(target − q), ±max_speed)`` with at most the
+stall torque, which is what PyBullet's position motor does (``k`` = the servo's
+``position_gain`` × 150 /s, the gain of PyBullet's motor at the envs' 150 Hz).
+
+Implements :class:`~stewart_gym.sim.PhysicsBackend`; ``tests/test_backend_contract.py``
+runs the same checks on both engines.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
+from stewart_gym.presets import load_geometry
+from stewart_gym.sim.backend import BallSpec, PlateLoad
+from stewart_gym.sim.mjcf import GRAVITY, MujocoPhysics, ball_friction, mechanism_mjcf
+from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
+from stewart_gym.sim.urdf import MechanismSpec
+
+__all__ = ["MOTOR_REFERENCE_HZ", "MujocoSim"]
+
+#: Hz: the servo loop gain is ``position_gain`` × this (PyBullet's position motor at the envs' 150 Hz physics).
+MOTOR_REFERENCE_HZ = 150.0
+
+
+def _mujoco():  # noqa: ANN202 - the module
+    try:
+        import mujoco
+    except ImportError:  # pragma: no cover - depends on the install
+        from stewart_gym.errors import ConfigError
+
+        raise ConfigError("the MuJoCo backend needs the mujoco package: pip install 'stewart_gym[mujoco]'") from None
+    return mujoco
+
+
+def _quat_matrix(q: Sequence[float]) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])  # fmt: skip
+
+
+class MujocoSim:
+    """A servo (or RC linear actuator) Stewart platform in MuJoCo, commanded in pulse widths.
+
+    Args mirror :class:`~stewart_gym.sim.StewartSim`: ``geometry`` (rotary or
+    linear), ``calibration`` (default for the geometry), ``physics_hz`` (default
+    ``physics.physics_hz``; a multiple of ``control_hz``), ``control_hz``,
+    ``ball``, ``ball_spec``, ``servo_spec``, ``mechanism``, ``physics``
+    (:class:`~stewart_gym.sim.mjcf.MujocoPhysics`), ``render_mode``
+    (``"rgb_array"``: offscreen OpenGL, see :meth:`render`) and ``render_size``.
+    """
+
+    def __init__(
+        self,
+        geometry: PlatformGeometry | str = "servo-hexapod",
+        calibration: ServoCalibration | None = None,
+        physics_hz: int | None = None,
+        control_hz: int = 50,
+        ball: bool = False,
+        *,
+        ball_spec: BallSpec | None = None,
+        servo_spec: ServoSpec | None = None,
+        mechanism: MechanismSpec | None = None,
+        physics: MujocoPhysics | None = None,
+        render_mode: Literal["rgb_array"] | None = None,
+        render_size: tuple[int, int] = (480, 360),
+    ) -> None:
+        mj = _mujoco()
+        physics = physics or MujocoPhysics()
+        physics_hz = int(physics_hz or physics.physics_hz)
+        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
+            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array' for MuJoCo, got {render_mode!r}")
+        self.geometry = load_geometry(geometry)
+        self.calibration = calibration or ServoCalibration.default(self.geometry)
+        self.physics_hz, self.control_hz = physics_hz, int(control_hz)
+        self.substeps = physics_hz // self.control_hz
+        self.dt = 1.0 / self.control_hz
+        self.has_ball = bool(ball)
+        self.ball_spec = ball_spec or BallSpec()
+        self.servo_spec = servo_spec or (ServoSpec() if self.geometry.is_rotary else LINEAR_ACTUATOR)
+        self.mechanism = mechanism or MechanismSpec()
+        self.physics = MujocoPhysics(**{**vars(physics), "physics_hz": physics_hz})
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self._mj = mj
+        self._plate_friction = 0.6
+        self.xml = mechanism_mjcf(self.geometry, self.mechanism, self.servo_spec, self.physics,
+                                  ball=self.ball_spec if self.has_ball else None,
+                                  plate_friction=self._plate_friction)  # fmt: skip
+        self.model = mj.MjModel.from_xml_string(self.xml)
+        self.data = mj.MjData(self.model)
+        m = self.model
+        joint = lambda name: mj.mj_name2id(m, mj.mjtObj.mjOBJ_JOINT, name)  # noqa: E731
+        servo_joints = [joint(f"servo_{i}") for i in range(6)]
+        self._servo_q = np.array([m.jnt_qposadr[j] for j in servo_joints])
+        self._servo_v = np.array([m.jnt_dofadr[j] for j in servo_joints])
+        self._plate_body = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, "plate")
+        self._plate_q = int(m.jnt_qposadr[joint("plate")])
+        self._rod_top_sites = [mj.mj_name2id(m, mj.mjtObj.mjOBJ_SITE, f"rod_{i}_top") for i in range(6)]
+        self._anchor_sites = [mj.mj_name2id(m, mj.mjtObj.mjOBJ_SITE, f"anchor_{i}") for i in range(6)]
+        if self.has_ball:
+            self._ball_body = mj.mj_name2id(m, mj.mjtObj.mjOBJ_BODY, "ball")
+            self._ball_geom = mj.mj_name2id(m, mj.mjtObj.mjOBJ_GEOM, "ball")
+            self._ball_q = int(m.jnt_qposadr[joint("ball")])
+            self._ball_v = int(m.jnt_dofadr[joint("ball")])
+        self._home = inverse_kinematics(self.geometry, np.zeros(6)).actuators
+        self._gain = self.servo_spec.position_gain * MOTOR_REFERENCE_HZ
+        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / physics_hz)
+        self._target = np.zeros(6)
+        self._plate_load: tuple[float, np.ndarray] | None = None
+        self._step_count = 0
+        self._renderer = None
+        self._closed = False
+        self.reset()
+
+    # ------------------------------------------------------------ commanding
+    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
+        """Send pulse widths (6,) µs; they take effect after the servo lag (see :class:`HobbyServos`)."""
+        return self._servos.command(pulse_widths_us, self._step_count)
+
+    def _apply_targets(self, targets: list[float]) -> None:
+        self._target = np.asarray(targets) - self._home
+
+    def step(self) -> None:
+        """Advance one control period (``substeps`` physics steps)."""
+        mj, m, d = self._mj, self.model, self.data
+        update, q_adr, gain = self._servos.update, self._servo_q, self._gain
+        speed = self.servo_spec.max_speed
+        if self._plate_load is not None:
+            d.xfrc_applied[self._plate_body] = self._plate_load_wrench()
+        for _ in range(self.substeps):
+            targets = update(self._step_count)
+            if targets is not None:
+                self._apply_targets(targets)
+            np.clip(gain * (self._target - d.qpos[q_adr]), -speed, speed, out=d.ctrl)
+            mj.mj_step(m, d)
+            self._step_count += 1
+
+    def _plate_load_wrench(self) -> np.ndarray:
+        """The extra mass's weight as a force and torque at the plate's centre of mass (world frame)."""
+        mass, offset = self._plate_load  # type: ignore[misc]
+        origin, rot = self._plate_frame()
+        force = np.array([0.0, 0.0, -mass * GRAVITY])
+        arm = origin + rot @ offset - self.data.xipos[self._plate_body]
+        return np.concatenate([force, np.cross(arm, force)])
+
+    def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
+              plate_friction: float | None = None, plate_load: PlateLoad | None = None) -> None:  # fmt: skip
+        """Home pose (every joint at its home value), servos holding neutral, ball at rest at the plate centre."""
+        mj, m, d = self._mj, self.model, self.data
+        if servo_spec is not None:
+            self.servo_spec = servo_spec
+            self._gain = servo_spec.position_gain * MOTOR_REFERENCE_HZ
+            self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
+            m.actuator_forcerange[:] = (-servo_spec.stall_torque, servo_spec.stall_torque)
+        if plate_friction is not None:
+            self._plate_friction = float(plate_friction)
+        if self.has_ball:
+            if ball_spec is not None:
+                self.ball_spec = ball_spec
+            b = self.ball_spec
+            m.geom_size[self._ball_geom, 0] = b.radius
+            m.geom_rbound[self._ball_geom] = b.radius
+            m.body_mass[self._ball_body] = b.mass
+            m.body_inertia[self._ball_body] = b.inertia
+            m.geom_friction[self._ball_geom] = ball_friction(b, self._plate_friction)
+            if ball_spec is not None:
+                mj.mj_setConst(m, d)
+        mj.mj_resetData(m, d)
+        d.xfrc_applied[:] = 0.0
+        self._step_count = 0
+        self.set_plate_load(plate_load)
+        self._apply_targets(self._servos.reset())
+        if self.has_ball:
+            d.qpos[self._ball_q + 2] = self.geometry.home_height + self.plate_top + self.ball_spec.radius
+        mj.mj_forward(m, d)
+
+    # ------------------------------------------------------- disturbances
+    def push_ball(self, impulse_xy: tuple[float, float]) -> None:
+        """Give the ball an impulse (N·s) along the plate (plate frame); it keeps rolling."""
+        self._require_ball()
+        _, rot = self._plate_frame()
+        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
+        dw = np.cross(rot[:, 2], dv) / self.ball_spec.radius
+        self._set_ball_velocity(self.data.qvel[self._ball_v:self._ball_v + 3] + dv, self._ball_omega() + dw)
+
+    def set_plate_load(self, load: PlateLoad | None) -> None:
+        """Put an extra mass on the plate (or take it off) from the next :meth:`step` on."""
+        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
+        if load is None:
+            self.data.xfrc_applied[self._plate_body] = 0.0
+
+    # ------------------------------------------------------------ state
+    @property
+    def plate_half_extent(self) -> tuple[float, float]:
+        """m: half the plate's size along its x and y axes."""
+        width, depth = self.geometry.plate_extent
+        return (width / 2, depth / 2)
+
+    @property
+    def plate_top(self) -> float:
+        """m: height of the plate's top surface above the platform frame origin."""
+        return self.mechanism.plate_top
+
+    @property
+    def time(self) -> float:
+        """s of simulated time since the last reset."""
+        return self._step_count / self.physics_hz
+
+    def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """Platform frame in the world, from the current state: origin (3,) m and rotation (3, 3)."""
+        q = self.data.qpos[self._plate_q:self._plate_q + 7]
+        return q[:3].copy(), _quat_matrix(q[3:7])
+
+    def platform_pose(self) -> np.ndarray:
+        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
+        origin, rot = self._plate_frame()
+        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
+
+    def servo_angles(self) -> np.ndarray:
+        """(6,) rad: the horn angles α; leg lengths (m) on a linear platform."""
+        return self.data.qpos[self._servo_q] + self._home
+
+    def servo_velocities(self) -> np.ndarray:
+        """(6,) rad/s (m/s linear)."""
+        return self.data.qvel[self._servo_v].copy()
+
+    def held_pulses(self) -> np.ndarray:
+        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
+        return self._servos.held_us
+
+    def constraint_error(self) -> float:
+        """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
+        self._mj.mj_kinematics(self.model, self.data)
+        x = self.data.site_xpos
+        return float(np.max(np.linalg.norm(x[self._rod_top_sites] - x[self._anchor_sites], axis=1)))
+
+    # --------------------------------------------------------------- ball
+    def _require_ball(self) -> None:
+        if not self.has_ball:
+            raise RuntimeError("this MujocoSim was built without a ball (ball=False)")
+
+    def _ball_omega(self) -> np.ndarray:
+        """Ball angular velocity, world frame (a free joint's is in the body frame)."""
+        q = self.data.qpos[self._ball_q + 3:self._ball_q + 7]
+        return _quat_matrix(q) @ self.data.qvel[self._ball_v + 3:self._ball_v + 6]
+
+    def _set_ball_velocity(self, linear: np.ndarray, omega_world: np.ndarray) -> None:
+        q = self.data.qpos[self._ball_q + 3:self._ball_q + 7]
+        self.data.qvel[self._ball_v:self._ball_v + 3] = linear
+        self.data.qvel[self._ball_v + 3:self._ball_v + 6] = _quat_matrix(q).T @ omega_world
+
+    def place_ball(self, xy: np.ndarray, velocity_xy: Sequence[float] = (0.0, 0.0)) -> None:
+        """Put the ball on the plate at ``xy`` (m, plate frame) rolling with ``velocity_xy`` (m/s, plate frame)."""
+        self._require_ball()
+        origin, rot = self._plate_frame()
+        local = np.array([xy[0], xy[1], self.plate_top + self.ball_spec.radius])
+        self.data.qpos[self._ball_q:self._ball_q + 3] = origin + rot @ local
+        self.data.qpos[self._ball_q + 3:self._ball_q + 7] = (1.0, 0.0, 0.0, 0.0)
+        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
+        self._set_ball_velocity(vel, np.cross(rot[:, 2], vel) / self.ball_spec.radius)
+
+    def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position and velocity in the platform frame: ((3,) m, (3,) m/s)."""
+        self._require_ball()
+        _, rot = self._plate_frame()
+        return np.array(self.ball_position()), self.data.qvel[self._ball_v:self._ball_v + 3] @ rot
+
+    def ball_position(self) -> tuple[float, float, float]:
+        """Ball centre (x, y, z) in the platform frame, m."""
+        self._require_ball()
+        origin, rot = self._plate_frame()
+        p = (self.data.qpos[self._ball_q:self._ball_q + 3] - origin) @ rot
+        return (float(p[0]), float(p[1]), float(p[2]))
+
+    def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
+        self._require_ball()
+        return (self.data.qpos[self._ball_q:self._ball_q + 3].copy(),
+                self.data.qvel[self._ball_v:self._ball_v + 3].copy())  # fmt: skip
+
+    # -------------------------------------------------------------- render
+    def render(self) -> np.ndarray | None:
+        """An RGB frame (height, width, 3) uint8 for ``rgb_array``, from the model's ``view`` camera.
+
+        MuJoCo renders with OpenGL: headless machines need ``MUJOCO_GL=egl`` (a
+        GPU driver) or ``MUJOCO_GL=osmesa`` (software); without one, this raises
+        a one-line error naming them.
+        """
+        if self.render_mode != "rgb_array":
+            return None
+        if self._renderer is None:
+            width, height = self.render_size
+            try:
+                self._renderer = self._mj.Renderer(self.model, height, width)
+            except Exception as exc:  # no OpenGL context on this machine
+                from stewart_gym.errors import ConfigError
+
+                raise ConfigError(f"MuJoCo cannot render here ({exc}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa, or "
+                                  "render with the pybullet backend") from None  # fmt: skip
+        self._mj.mj_forward(self.model, self.data)
+        self._renderer.update_scene(self.data, camera="view")
+        return self._renderer.render()
+
+    # ------------------------------------------------------------ lifecycle
+    def close(self) -> None:
+        """Release the renderer; safe to call twice."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> MujocoSim:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
