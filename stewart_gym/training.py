@@ -48,6 +48,7 @@ class TrainConfig:
     hyperparams: str | None = None  # YAML file; default stewart_gym/hyperparams/<algo>.yml
     run_dir: str = "runs/latest"
     geometry: str | None = None  # preset or TOML path: overrides the YAML's env_kwargs geometry
+    backend: str | None = None  # physics engine ("pybullet" or "mujoco"): overrides the YAML's env_kwargs backend
     seed: int = 0
     n_timesteps: int | None = None  # overrides the YAML
     n_envs: int | None = None  # overrides the YAML
@@ -188,6 +189,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     env_kwargs = dict(hp.get("env_kwargs") or {})
     if config.geometry is not None:
         env_kwargs["geometry"] = config.geometry
+    if config.backend is not None:
+        env_kwargs["backend"] = config.backend
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)

@@ -154,3 +154,32 @@ class StaticSensor:
         if self.stall_after is not None and self.n > self.stall_after:
             return (0.03, 0.0), t - 0.5  # the last reading, half a second old
         return (0.03, 0.0), t - 0.005
+
+
+def xml_differences(a: str, b: str, tol: float = 1e-8) -> list[str]:
+    """Where two URDF or MJCF texts differ beyond ``tol`` (absolute, m/rad/kg): same elements, same attributes, every
+    number within the tolerance. Comparing text would fail on rounding noise that depends on the CPU (a
+    coordinate of 6e-18 where another machine computes -0)."""
+    import xml.etree.ElementTree as ET
+
+    out: list[str] = []
+
+    def walk(x: ET.Element, y: ET.Element, where: str) -> None:
+        if x.tag != y.tag or set(x.attrib) != set(y.attrib) or len(x) != len(y):
+            out.append(f"{where}: <{x.tag} {sorted(x.attrib)}> vs <{y.tag} {sorted(y.attrib)}>")
+            return
+        for key, vx in x.attrib.items():
+            tx, ty = vx.split(), y.attrib[key].split()
+            try:
+                nx, ny = np.array(tx, dtype=float), np.array(ty, dtype=float)
+            except ValueError:
+                if tx != ty:
+                    out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
+                continue
+            if nx.shape != ny.shape or not np.allclose(nx, ny, rtol=0, atol=tol):
+                out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
+        for k, (cx, cy) in enumerate(zip(x, y)):
+            walk(cx, cy, f"{where}/{cx.tag}[{k}]")
+
+    walk(ET.fromstring(a), ET.fromstring(b), ET.fromstring(a).tag)
+    return out

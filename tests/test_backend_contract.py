@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec, StewartSim
+from stewart_gym.sim.mujoco_sim import MujocoSim
 
 BACKENDS: dict[str, Callable[[], PhysicsBackend]] = {
     "pybullet": lambda: StewartSim(physics_hz=150, ball=True),
+    "mujoco": lambda: MujocoSim(ball=True),
 }
 
 

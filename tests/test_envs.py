@@ -17,17 +17,21 @@ import stewart_gym
 from stewart_gym.actions import ACTION_MODES
 from stewart_gym.envs.ball_env import StewartBallEnv
 from stewart_gym.kinematics import inverse_kinematics
-from stewart_gym.sim import BallSpec, StewartSim
+from stewart_gym.sim import BallSpec
+from stewart_gym.sim.engines import BACKEND_NAMES, make_backend
 
 ENV_IDS = sorted(stewart_gym.ENV_IDS)
 
 
 CASES = [(env_id, mode) for env_id in ENV_IDS for mode in ACTION_MODES]
+#: Every env test that touches physics runs on every engine.
+on_every_backend = pytest.mark.parametrize("backend", BACKEND_NAMES)
 
 
+@on_every_backend
 @pytest.mark.parametrize(("env_id", "mode"), CASES)
-def test_env_checkers(env_id: str, mode: str) -> None:
-    env = gym.make(env_id, action_mode=mode, randomize=True)
+def test_env_checkers(env_id: str, mode: str, backend: str) -> None:
+    env = gym.make(env_id, action_mode=mode, randomize=True, backend=backend)
     try:
         check_env(env.unwrapped, skip_render_check=True)
         sb3_check_env(env.unwrapped)
@@ -38,10 +42,11 @@ def test_env_checkers(env_id: str, mode: str) -> None:
         env.close()
 
 
+@on_every_backend
 @pytest.mark.parametrize(("env_id", "mode"), CASES)
-def test_reset_is_deterministic_under_randomization(env_id: str, mode: str) -> None:
+def test_reset_is_deterministic_under_randomization(env_id: str, mode: str, backend: str) -> None:
     def rollout() -> tuple[np.ndarray, list[float]]:
-        env = gym.make(env_id, action_mode=mode, randomize=True)
+        env = gym.make(env_id, action_mode=mode, randomize=True, backend=backend)
         obs, _ = env.reset(seed=123)
         rng = np.random.default_rng(0)
         out, rewards = [obs], []
@@ -56,7 +61,7 @@ def test_reset_is_deterministic_under_randomization(env_id: str, mode: str) -> N
 
     a, b = rollout(), rollout()
     assert np.array_equal(a[0], b[0]) and a[1] == b[1]
-    env = gym.make(env_id, action_mode=mode, randomize=True)
+    env = gym.make(env_id, action_mode=mode, randomize=True, backend=backend)
     other, _ = env.reset(seed=124)
     env.close()
     assert not np.array_equal(other, a[0][0])
@@ -76,13 +81,15 @@ def test_registration_without_import_prefix_and_metadata() -> None:
         gym.make("StewartBallBalance-v0", action_mode="joystick")
 
 
+@on_every_backend
 @pytest.mark.parametrize("env_id", ENV_IDS)
-def test_pickle_and_double_close(env_id: str) -> None:
-    env = gym.make(env_id, action_mode="pose", randomize=True)
+def test_pickle_and_double_close(env_id: str, backend: str) -> None:
+    env = gym.make(env_id, action_mode="pose", randomize=True, backend=backend)
     env.reset(seed=1)
     clone = pickle.loads(pickle.dumps(env))
     clone.reset(seed=1)
     assert clone.unwrapped.action_mode == "pose" and clone.unwrapped.randomize
+    assert type(clone.unwrapped.sim) is type(env.unwrapped.sim)
     for e in (env, clone):
         e.close()
         e.close()
@@ -107,16 +114,18 @@ def test_make_vec_and_subproc_vec_env() -> None:
         venv.close()
 
 
-def test_success_needs_a_full_second_inside_the_radius() -> None:
-    env = gym.make("StewartBallBalance-v0")
+@on_every_backend
+def test_success_needs_a_full_second_inside_the_radius(backend: str) -> None:
+    env = gym.make("StewartBallBalance-v0", backend=backend)
     env.reset(seed=0, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
     flags = [env.step(np.zeros(2, dtype=np.float32))[4]["is_success"] for _ in range(60)]
     env.close()
     assert not any(flags[:49]) and all(flags[50:])
 
 
-def test_ball_leaving_the_plate_terminates_with_penalty() -> None:
-    env = gym.make("StewartBallBalance-v0")
+@on_every_backend
+def test_ball_leaving_the_plate_terminates_with_penalty(backend: str) -> None:
+    env = gym.make("StewartBallBalance-v0", backend=backend)
     env.reset(seed=0, options={"ball_position": (0.13, 0.0), "ball_velocity": (0.4, 0.0)})
     for _ in range(100):
         _, reward, terminated, truncated, info = env.step(np.array([0.0, 0.5], dtype=np.float32))
@@ -136,8 +145,9 @@ def test_physics_blow_up_ends_the_episode_without_nan(monkeypatch: pytest.Monkey
     assert terminated and info["physics_error"] and np.all(np.isfinite(obs)) and math.isfinite(reward)
 
 
-def test_info_reports_the_pulses_sent_and_the_sim_obeys() -> None:
-    env = gym.make("StewartBallBalance-v0")
+@on_every_backend
+def test_info_reports_the_pulses_sent_and_the_sim_obeys(backend: str) -> None:
+    env = gym.make("StewartBallBalance-v0", backend=backend)
     env.reset(seed=0)
     for _ in range(5):
         _, _, _, _, info = env.step(np.array([0.5, -0.3], dtype=np.float32))
@@ -150,11 +160,12 @@ def test_info_reports_the_pulses_sent_and_the_sim_obeys() -> None:
 
 
 @pytest.mark.slow
-def test_100k_random_steps_all_modes_no_nan() -> None:
+@on_every_backend
+def test_100k_random_steps_all_modes_no_nan(backend: str) -> None:
     rng = np.random.default_rng(7)
     total = 0
     for env_id, mode in CASES:
-        env = gym.make(env_id, action_mode=mode, randomize=True)
+        env = gym.make(env_id, action_mode=mode, randomize=True, backend=backend)
         obs, _ = env.reset(seed=int(rng.integers(1000)))
         for _ in range(100_000 // len(CASES) + 1):
             obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
@@ -167,12 +178,13 @@ def test_100k_random_steps_all_modes_no_nan() -> None:
     assert total >= 100_000
 
 
+@on_every_backend
 @pytest.mark.parametrize(("hollow", "factor"), [(False, 5 / 7), (True, 3 / 5)])
 @pytest.mark.parametrize("tilt_deg", [3.0, 6.0])
-def test_ball_acceleration_matches_rolling_theory(hollow: bool, factor: float, tilt_deg: float) -> None:
+def test_ball_acceleration_matches_rolling_theory(hollow: bool, factor: float, tilt_deg: float, backend: str) -> None:
     """On a plate held at pitch θ, a rolling ball accelerates at (5/7) g sin θ (solid) or (3/5) g sin θ (hollow)."""
     spec = BallSpec(radius=0.02, mass=0.0027, hollow=True) if hollow else BallSpec()
-    with StewartSim(ball=True, ball_spec=spec, physics_hz=150) as sim:
+    with make_backend(backend, "servo-hexapod", ball=True, ball_spec=spec) as sim:
         pose = np.array([0, 0, 0, 0, math.radians(tilt_deg), 0])
         sim.command(sim.calibration.pulse_widths(inverse_kinematics(sim.geometry, pose).servo_angles))
         for _ in range(50):
@@ -185,7 +197,8 @@ def test_ball_acceleration_matches_rolling_theory(hollow: bool, factor: float, t
             xs.append(sim.ball_state()[0][0])
     accel = 2 * np.polyfit(ts, xs, 2)[0]  # along the plate's x axis, downhill for positive pitch
     theory = factor * 9.80665 * math.sin(math.radians(tilt_deg))
-    print(f"{'hollow' if hollow else 'solid'} {tilt_deg}°: {accel:.4f} m/s² vs {theory:.4f} ({accel / theory:.4f})")
+    print(f"{backend} {'hollow' if hollow else 'solid'} {tilt_deg}°: {accel:.4f} m/s² vs {theory:.4f} "
+          f"({accel / theory:.4f})")  # fmt: skip
     assert accel == pytest.approx(theory, rel=0.03)
 
 

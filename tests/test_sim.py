@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 import pytest
+from conftest import xml_differences
 from urdf_parser_py.urdf import URDF
 
 from stewart_gym.analysis import aggressive_moves
@@ -38,40 +39,11 @@ def sim() -> StewartSim:
 
 
 # ---------------------------------------------------------------------- URDF
-def urdf_differences(a: str, b: str, tol: float = 1e-8) -> list[str]:
-    """Where two URDF texts differ beyond ``tol`` (absolute, m/rad/kg): same elements, same attributes, every
-    number within the tolerance. Comparing text would fail on rounding noise that depends on the CPU (a
-    coordinate of 6e-18 where another machine computes -0)."""
-    import xml.etree.ElementTree as ET
-
-    out: list[str] = []
-
-    def walk(x: ET.Element, y: ET.Element, where: str) -> None:
-        if x.tag != y.tag or set(x.attrib) != set(y.attrib) or len(x) != len(y):
-            out.append(f"{where}: <{x.tag} {sorted(x.attrib)}> vs <{y.tag} {sorted(y.attrib)}>")
-            return
-        for key, vx in x.attrib.items():
-            tx, ty = vx.split(), y.attrib[key].split()
-            try:
-                nx, ny = np.array(tx, dtype=float), np.array(ty, dtype=float)
-            except ValueError:
-                if tx != ty:
-                    out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
-                continue
-            if nx.shape != ny.shape or not np.allclose(nx, ny, rtol=0, atol=tol):
-                out.append(f"{where}/@{key}: {vx!r} vs {y.attrib[key]!r}")
-        for k, (cx, cy) in enumerate(zip(x, y)):
-            walk(cx, cy, f"{where}/{cx.tag}[{k}]")
-
-    walk(ET.fromstring(a), ET.fromstring(b), "robot")
-    return out
-
-
 def test_committed_urdf_matches_generator() -> None:
     """The committed files equal what the generator writes, compared as numbers (tolerance 1e-8)."""
-    assert not urdf_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), mechanism_urdf("servo-hexapod")), \
+    assert not xml_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), mechanism_urdf("servo-hexapod")), \
         "urdf/servo_hexapod.urdf is stale: run `stewart-gym urdf`"  # fmt: skip
-    assert not urdf_differences((ROOT / "urdf/servo_hexapod_plate.urdf").read_text(), plate_urdf("servo-hexapod"))
+    assert not xml_differences((ROOT / "urdf/servo_hexapod_plate.urdf").read_text(), plate_urdf("servo-hexapod"))
 
 
 def test_urdf_generation_does_not_depend_on_numpy_simd() -> None:
@@ -87,7 +59,7 @@ def test_urdf_generation_does_not_depend_on_numpy_simd() -> None:
     code = "import sys; from stewart_gym.sim import mechanism_urdf; sys.stdout.write(mechanism_urdf('servo-hexapod'))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert not urdf_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), out.stdout)
+    assert not xml_differences((ROOT / "urdf/servo_hexapod.urdf").read_text(), out.stdout)
     import re
 
     tiny = re.findall(r"[-+]?\d\.?\d*e-(?:1[2-9]|[2-9]\d)", (ROOT / "urdf/servo_hexapod.urdf").read_text())
@@ -96,8 +68,8 @@ def test_urdf_generation_does_not_depend_on_numpy_simd() -> None:
 
 def test_urdf_comparison_catches_a_real_change() -> None:
     text = mechanism_urdf("servo-hexapod")
-    assert urdf_differences(text, text.replace('effort="', 'effort="1', 1))
-    assert not urdf_differences(text, text.replace('rpy="0 0 0"', 'rpy="0 -0 6e-18"', 1))
+    assert xml_differences(text, text.replace('effort="', 'effort="1', 1))
+    assert not xml_differences(text, text.replace('rpy="0 0 0"', 'rpy="0 -0 6e-18"', 1))
 
 
 def test_urdf_parses_with_standard_parser() -> None:

@@ -176,6 +176,13 @@ def json_safe(v: Any) -> Any:
     return v
 
 
+def add_backend(parser: argparse.ArgumentParser, text: str) -> None:
+    """``--backend pybullet|mujoco``."""
+    from stewart_gym.sim.engines import BACKEND_NAMES
+
+    parser.add_argument("--backend", choices=BACKEND_NAMES, help=text)
+
+
 def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod") -> None:
     """``--geometry NAME|FILE``."""
     from stewart_gym.presets import preset_names

@@ -13,6 +13,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.cli.common import (
     EXIT_CODES_HELP,
     EXIT_OK,
+    add_backend,
     add_geometry,
     bounded_float,
     int_at_least,
@@ -96,6 +97,10 @@ def cmd_deploy(args: argparse.Namespace) -> int:
 
         if importlib.util.find_spec("pybullet") is None or importlib.util.find_spec("gymnasium") is None:
             raise ConfigError("--sensor sim needs the simulator: pip install 'stewart_gym[sim]' (or use --sensor panel)")
+        if args.backend == "mujoco" and importlib.util.find_spec("mujoco") is None:
+            raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
+    elif args.backend:
+        raise ConfigError("--backend chooses the simulated plant's engine: it needs --sensor sim")
     if args.sensor == "panel" and protocol != "line":
         raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
     task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
@@ -119,7 +124,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         sensor = PanelSensor(controller)
     else:
         try:
-            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize, geometry=geometry)
+            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize, geometry=geometry,
+                                    backend=args.backend or "pybullet")  # fmt: skip
         except BaseException:
             controller.close()
             raise
@@ -167,6 +173,7 @@ def register(sub: Any) -> None:
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
     p.add_argument("--sensor", choices=["sim", "panel"], default="sim")
+    add_backend(p, "physics engine of the simulated plant (--sensor sim; default pybullet)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
     p.add_argument("--duration", type=positive_float, help="seconds (default: until Ctrl-C)")
     p.add_argument("--rate", type=bounded_float(0.0, 500.0, lo_open=True), default=50.0, help="control rate, Hz (≤ 500)")

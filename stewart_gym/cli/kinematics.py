@@ -1,4 +1,4 @@
-"""``stewart-gym`` kinematics commands: ik, urdf, render."""
+"""``stewart-gym`` kinematics commands: ik, urdf, mjcf, render."""
 
 from __future__ import annotations
 
@@ -83,6 +83,17 @@ def cmd_urdf(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_mjcf(args: argparse.Namespace) -> int:
+    """Write a geometry's MuJoCo model (MJCF: closed loops, servos, plate, ball); python -m mujoco.viewer opens it."""
+    from stewart_gym.sim.mjcf import write_mjcf
+
+    geo = load_geometry(args.geometry)
+    out = output_file(args.out, suffixes=(".xml",))
+    write_mjcf(out, geo, ball=not args.no_ball)
+    print(f"{out} (open it: python -m mujoco.viewer --mjcf {out})")
+    return EXIT_OK
+
+
 def settle_at(sim: StewartSim, pose: np.ndarray, seconds: float = 1.0) -> np.ndarray:
     """Command ``pose`` through IK → pulses, step ``seconds``, and return the pulses sent."""
     ik = inverse_kinematics(sim.geometry, pose)
@@ -132,6 +143,12 @@ def register(sub: Any) -> None:
     add_geometry(p)
     p.add_argument("--out", default="urdf", help="folder (default urdf/)")
     p.set_defaults(func=cmd_urdf)
+
+    p = sub.add_parser("mjcf", help=cmd_mjcf.__doc__, description=cmd_mjcf.__doc__)
+    add_geometry(p)
+    p.add_argument("--out", required=True, help="MJCF file (.xml)")
+    p.add_argument("--no-ball", action="store_true", help="the platform alone")
+    p.set_defaults(func=cmd_mjcf)
 
     p = sub.add_parser("render", help=cmd_render.__doc__, description=cmd_render.__doc__)
     add_geometry(p)

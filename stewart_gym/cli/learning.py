@@ -9,6 +9,7 @@ from typing import Any
 
 from stewart_gym.cli.common import (
     EXIT_OK,
+    add_backend,
     int_at_least,
     output_dir,
     output_file,
@@ -28,7 +29,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
-                      geometry=args.geometry,
+                      geometry=args.geometry, backend=args.backend,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
                       eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
@@ -46,7 +47,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     gif = None if args.gif is None else output_file(args.gif, suffixes=(".gif",))
     plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
+    if gif:
+        check_can_render(args.backend)
     source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry)
+    env_kwargs = with_backend(env_kwargs, args.backend)
     env_id = args.env or source.env_id
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
@@ -66,12 +70,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from stewart_gym.registry import load_for_evaluation
 
     out = output_dir(args.out)
+    check_can_render(args.backend)
     out.mkdir(parents=True, exist_ok=True)
     env_id = "StewartBallBalance-v0"
     results, loaded = {}, {}
     for name in ("shipped", "pid"):
-        _, policy, env_kwargs = loaded[name] = load_for_evaluation(name, env_id, args.geometry)
-        print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation…", flush=True)
+        source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
+        env_kwargs = with_backend(env_kwargs, args.backend)
+        loaded[name] = (source, policy, env_kwargs)
+        engine = env_kwargs.get("backend", "pybullet")
+        print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation ({engine})…", flush=True)
         results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
     print()
     print(format_table(results))
@@ -80,6 +88,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
     _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", "shipped")
     print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} and {out / 'demo_metrics.json'}")
     return EXIT_OK
+
+
+def with_backend(env_kwargs: dict, backend: str | None) -> dict:
+    """``env_kwargs`` with the physics engine asked for (else the one the policy was trained in, else PyBullet)."""
+    return env_kwargs if backend is None else {**env_kwargs, "backend": backend}
+
+
+def check_can_render(backend: str | None) -> None:
+    """Before long work: MuJoCo renders GIF frames with OpenGL, which a headless machine may lack."""
+    if backend == "mujoco":
+        from stewart_gym.sim.mujoco_sim import check_rendering
+
+        check_rendering()
 
 
 def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, randomize: bool, gif: Path | None,
@@ -123,6 +144,7 @@ def register(sub: Any) -> None:
     p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
+    add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
     p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
@@ -143,6 +165,7 @@ def register(sub: Any) -> None:
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
     p.add_argument("--geometry", help="the platform: picks the shipped policy or sets the PID's; a trained policy "
                                       "runs on its own (default servo-hexapod)")
+    add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
@@ -160,6 +183,7 @@ def register(sub: Any) -> None:
 
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int_at_least(1), default=20)
+    add_backend(p, "physics engine (default pybullet; the GIF needs OpenGL with mujoco)")
     p.add_argument("--geometry", help="the platform (default servo-hexapod; the shipped policy exists for the presets "
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
     p.add_argument("--seed", type=int_at_least(0), default=0)

@@ -74,10 +74,11 @@ class SimulatedPlant:
     """
 
     def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
-                 ball_position: tuple[float, float] | None = None, geometry: Any = "servo-hexapod") -> None:  # fmt: skip
+                 ball_position: tuple[float, float] | None = None, geometry: Any = "servo-hexapod",
+                 backend: str = "pybullet") -> None:  # fmt: skip
         import gymnasium as gym
 
-        self.env = gym.make(env_id, randomize=randomize, geometry=geometry).unwrapped
+        self.env = gym.make(env_id, randomize=randomize, geometry=geometry, backend=backend).unwrapped
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.backend = self.env.sim

@@ -15,7 +15,7 @@ runs the same checks on both engines.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from stewart_gym.sim.mjcf import GRAVITY, MujocoPhysics, ball_friction, mechanis
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec
 
-__all__ = ["MOTOR_REFERENCE_HZ", "MujocoSim"]
+__all__ = ["MOTOR_REFERENCE_HZ", "MujocoSim", "check_rendering"]
 
 #: Hz: the servo loop gain is ``position_gain`` × this (PyBullet's position motor at the envs' 150 Hz physics).
 MOTOR_REFERENCE_HZ = 150.0
@@ -42,6 +42,25 @@ def _mujoco():  # noqa: ANN202 - the module
 
         raise ConfigError("the MuJoCo backend needs the mujoco package: pip install 'stewart_gym[mujoco]'") from None
     return mujoco
+
+
+def _renderer(mj: Any, model: Any, height: int, width: int) -> Any:
+    """A MuJoCo offscreen renderer, or :class:`ConfigError` in one line where OpenGL cannot start."""
+    try:
+        return mj.Renderer(model, height, width)
+    except Exception as exc:  # no OpenGL context on this machine (the error's own text may fail to print)
+        from stewart_gym.errors import ConfigError
+
+        raise ConfigError(f"MuJoCo cannot render on this machine ({type(exc).__name__} from OpenGL): set "
+                          "MUJOCO_GL=egl (a GPU) or MUJOCO_GL=osmesa (software, libOSMesa), or use the pybullet "
+                          "backend for images") from None  # fmt: skip
+
+
+def check_rendering() -> None:
+    """Raise :class:`~stewart_gym.errors.ConfigError` now if MuJoCo cannot render here (before long work)."""
+    mj = _mujoco()
+    model = mj.MjModel.from_xml_string("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
+    _renderer(mj, model, 8, 8).close()
 
 
 def _quat_matrix(q: Sequence[float]) -> np.ndarray:
@@ -170,6 +189,8 @@ class MujocoSim:
             self._gain = servo_spec.position_gain * MOTOR_REFERENCE_HZ
             self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
             m.actuator_forcerange[:] = (-servo_spec.stall_torque, servo_spec.stall_torque)
+            m.actuator_gainprm[:, 0] = servo_spec.stall_torque / (self.physics.servo_slip * servo_spec.max_speed)
+            m.actuator_biasprm[:, 2] = -m.actuator_gainprm[:, 0]
         if plate_friction is not None:
             self._plate_friction = float(plate_friction)
         if self.has_ball:
@@ -308,13 +329,7 @@ class MujocoSim:
             return None
         if self._renderer is None:
             width, height = self.render_size
-            try:
-                self._renderer = self._mj.Renderer(self.model, height, width)
-            except Exception as exc:  # no OpenGL context on this machine
-                from stewart_gym.errors import ConfigError
-
-                raise ConfigError(f"MuJoCo cannot render here ({exc}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa, or "
-                                  "render with the pybullet backend") from None  # fmt: skip
+            self._renderer = _renderer(self._mj, self.model, height, width)
         self._mj.mj_forward(self.model, self.data)
         self._renderer.update_scene(self.data, camera="view")
         return self._renderer.render()

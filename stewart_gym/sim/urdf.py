@@ -47,6 +47,11 @@ class MechanismSpec:
             gearbox (J_motor · N², about 5e-8 · 200² for an MG996R), added to the
             horn about its shaft: it limits how fast a servo reaches full speed
             (stall torque / rotor inertia ≈ 460 rad/s², ~13 ms to 6 rad/s).
+        actuator_reflected_mass: kg, an RC linear actuator's motor and gearbox seen
+            through its lead screw, J_m·(N·2π/p)²: about 1e-8 kg·m² · (50 · 2π / 2 mm)²
+            ≈ 250 kg for an Actuonix-style actuator (why it cannot be back-driven);
+            100 kg is used. MuJoCo's slide joints carry it as armature; PyBullet's
+            prismatic motor is a hard velocity constraint and needs none.
         rod_mass: kg, one rod with two rod ends.
         cross_mass: kg, the universal joint's cross-piece (small but non-zero).
         rod_radius: m, visual and inertia radius of a rod.
@@ -61,6 +66,7 @@ class MechanismSpec:
     base_mass: float = 1.2
     horn_mass: float = 0.010
     rotor_inertia: float = 2e-3
+    actuator_reflected_mass: float = 100.0
     rod_mass: float = 0.015
     cross_mass: float = 0.002
     rod_radius: float = 0.003

@@ -1,0 +1,269 @@
+"""The MuJoCo twin: its MJCF, its fidelity against the analytic model (as for PyBullet), and its agreement with
+PyBullet on the same pulses and the same tilts."""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from conftest import xml_differences
+
+from stewart_gym.analysis import aggressive_moves
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.kinematics import forward_kinematics, inverse_kinematics
+from stewart_gym.presets import load_preset, preset_names
+from stewart_gym.sim import ServoSpec, StewartSim
+from stewart_gym.sim.mjcf import mechanism_mjcf
+from stewart_gym.sim.mujoco_sim import MujocoSim
+from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
+
+ROOT = Path(__file__).resolve().parents[1]
+GEO = load_preset("servo-hexapod")
+
+
+def random_reachable_poses(n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    box = np.array([0.015, 0.015, 0.010, math.radians(9), math.radians(9), math.radians(12)])
+    poses = rng.uniform(-1, 1, (20 * n, 6)) * box
+    return poses[inverse_kinematics(GEO, poses).reachable][:n]
+
+
+# ---------------------------------------------------------------------- MJCF
+@pytest.mark.parametrize("name", preset_names())
+def test_mjcf_of_every_preset_compiles_with_its_loops_closed_at_home(name: str) -> None:
+    from stewart_gym.sim import BallSpec
+
+    model = mujoco.MjModel.from_xml_string(mechanism_mjcf(name, ball=BallSpec()))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert model.neq == 6 and model.nu == 6
+    tops = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"rod_{i}_top") for i in range(6)]
+    anchors = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"anchor_{i}") for i in range(6)]
+    assert np.abs(data.site_xpos[tops] - data.site_xpos[anchors]).max() < 1e-9
+    kinds = {int(model.jnt_type[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, f"servo_{i}")]) for i in range(6)}
+    assert kinds == {int(mujoco.mjtJoint.mjJNT_HINGE if load_preset(name).is_rotary else mujoco.mjtJoint.mjJNT_SLIDE)}
+
+
+def test_committed_mjcf_matches_generator_and_loads_from_file() -> None:
+    """``urdf/servo_hexapod.xml`` is what ``stewart-gym mjcf`` writes (numbers within 1e-8), and MuJoCo (and so its
+    viewer, ``python -m mujoco.viewer --mjcf``) loads it from the file."""
+    path = ROOT / "urdf/servo_hexapod.xml"
+    from stewart_gym.sim import BallSpec
+
+    assert not xml_differences(path.read_text(), mechanism_mjcf("servo-hexapod", ball=BallSpec())), \
+        "urdf/servo_hexapod.xml is stale: run `stewart-gym mjcf --out urdf/servo_hexapod.xml`"  # fmt: skip
+    model = mujoco.MjModel.from_xml_path(str(path))
+    assert model.nbody == 1 + 12 + 2  # world, horns and rods, plate, ball
+
+
+def test_mjcf_command_writes_a_model_for_any_geometry(tmp_path: Path) -> None:
+    out = tmp_path / "lin.xml"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "mjcf", "--geometry", "senilov2018", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120, env=dict(os.environ))  # fmt: skip
+    assert proc.returncode == 0 and "mujoco.viewer" in proc.stdout, proc.stderr
+    model = mujoco.MjModel.from_xml_path(str(out))
+    assert model.nu == 6 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "ball") >= 0
+    bad = subprocess.run([sys.executable, "-m", "stewart_gym", "mjcf", "--out", str(tmp_path / "m.txt")],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]
+    assert bad.returncode != 0 and len(errors) == 1 and ".xml" in errors[0], bad.stderr
+
+
+# ------------------------------------------------------------------ fidelity
+def test_home_state_satisfies_ik_and_holds() -> None:
+    with MujocoSim(ball=True) as sim:
+        assert sim.constraint_error() < 1e-8 and np.abs(sim.platform_pose()).max() < 1e-8
+        assert sim.servo_angles() == pytest.approx(inverse_kinematics(GEO, np.zeros(6)).servo_angles, abs=1e-12)
+        for _ in range(50):  # holds the loaded plate against gravity
+            sim.step()
+        assert np.abs(sim.platform_pose()[:3]).max() < 5e-5 and np.abs(sim.platform_pose()[3:]).max() < 1e-4
+
+
+def _fidelity(sim: MujocoSim, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Worst (mm, deg) of the settled pose against the commanded pose and against FK of the held pulses."""
+    sim.reset()
+    worst, worst_fk = np.zeros(2), np.zeros(2)
+    for pose in poses:
+        sim.command(sim.calibration.pulse_widths(inverse_kinematics(GEO, pose).servo_angles))
+        for _ in range(40):
+            sim.step()
+        got = sim.platform_pose()
+        fk = forward_kinematics(GEO, servo_angles=sim.calibration.angles(sim.held_pulses()), guess=pose)
+        for acc, ref in ((worst, pose), (worst_fk, fk.pose)):
+            err = np.abs(got - ref)
+            acc[:] = np.maximum(acc, [err[:3].max() * 1e3, math.degrees(err[3:].max())])
+    return worst, worst_fk
+
+
+def test_commanded_poses_are_reached() -> None:
+    """100 random reachable poses through IK → pulses settle within 0.5 mm and 0.1° with the dead band off; with
+    the 5 µs dead band, the pose is FK of the pulses the servos hold (within 0.1 mm and 0.05°)."""
+    poses = random_reachable_poses(100, seed=11)
+    assert len(poses) == 100
+    with MujocoSim(ball=True, servo_spec=ServoSpec(deadband_us=0.0)) as sim:
+        worst, _ = _fidelity(sim, poses)
+    print(f"MuJoCo fidelity, no dead band: worst {worst[0]:.4f} mm, {worst[1]:.4f}°")
+    assert worst[0] <= 0.5 and worst[1] <= 0.1
+    with MujocoSim(ball=True) as sim:
+        _, worst_fk = _fidelity(sim, poses)
+    print(f"MuJoCo fidelity, 5 µs dead band: {worst_fk[0]:.4f} mm, {worst_fk[1]:.4f}° against FK of the held pulses")
+    # PyBullet's motor is a hard constraint (0.01 mm here); MuJoCo's velocity servo slips by ~0.03° under the plate
+    assert worst_fk[0] <= 0.1 and worst_fk[1] <= 0.05
+
+
+def test_loops_stay_closed_during_aggressive_moves() -> None:
+    """Full-range steps and 2 Hz sinusoids along every pose axis: the worst loop gap is under 0.1 mm."""
+    with MujocoSim(ball=True) as sim:
+        gaps = []
+        for pose in aggressive_moves(GEO, sim.control_hz):
+            sim.command(sim.calibration.pulse_widths(inverse_kinematics(GEO, pose).servo_angles))
+            sim.step()
+            gaps.append(sim.constraint_error())
+    print(f"MuJoCo worst loop gap at {sim.physics_hz} Hz: {max(gaps) * 1e3:.4f} mm")
+    assert max(gaps) < 0.1e-3
+
+
+@pytest.mark.parametrize("name", ["senilov2018", "mathcad-micro"])
+def test_linear_platforms_reach_their_commanded_poses(name: str) -> None:
+    """6-UPS in MuJoCo: 100 random reachable poses within 0.5 % of the stroke and 0.1°; loops within 0.1 mm."""
+    geo = load_preset(name)
+    lo, hi = geo.leg_length_range
+    t, a = (0.05, math.radians(8)) if name == "senilov2018" else (0.0006, math.radians(3))
+    rng = np.random.default_rng(7)
+    poses = rng.uniform(-1, 1, (600, 6)) * np.array([t, t, t / 2, a, a, a])
+    poses = poses[inverse_kinematics(geo, poses).reachable][:100]
+    cal = ServoCalibration.default(geo)
+    worst_pos = worst_ang = worst_gap = 0.0
+    with MujocoSim(geo, servo_spec=replace(LINEAR_ACTUATOR, deadband_us=0.0, resolution_us=0.0)) as sim:
+        for pose in poses:
+            sim.command(cal.pulse_widths(inverse_kinematics(geo, pose).leg_lengths))
+            for _ in range(int(1.5 * sim.control_hz)):
+                sim.step()
+                worst_gap = max(worst_gap, sim.constraint_error())
+            err = sim.platform_pose() - pose
+            worst_pos = max(worst_pos, float(np.linalg.norm(err[:3])))
+            worst_ang = max(worst_ang, float(np.max(np.abs(np.degrees(err[3:])))))
+    print(f"MuJoCo {name}: worst {worst_pos * 1e3:.4f} mm ({worst_pos / (hi - lo):.3%} of the stroke), "
+          f"{worst_ang:.4f}°, gap {worst_gap * 1e3:.4f} mm")  # fmt: skip
+    assert worst_pos <= 0.005 * (hi - lo) and worst_ang <= 0.1 and worst_gap < 1e-4
+
+
+def test_servo_speed_lag_and_deadband_come_from_the_shared_front_end() -> None:
+    """A +300 µs step on every servo: the 20 ms lag, the no-load speed within 8 %, and a 4 µs change ignored."""
+    spec = ServoSpec(lag_s=0.020, deadband_us=5.0)
+
+    def response(delta_us: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+        with MujocoSim(physics_hz=1000, control_hz=1000, servo_spec=spec) as sim:
+            for _ in range(100):
+                sim.step()
+            start = sim.servo_angles()
+            sim.command(sim.calibration.neutral_us + sim.calibration.direction * delta_us)
+            t, ang = [], []
+            for _ in range(int(seconds * 1000)):
+                sim.step()
+                t.append(sim.time - 0.1)
+                ang.append(sim.servo_angles() - start)
+        return np.array(t), np.array(ang)
+
+    t, ang = response(300.0, 0.3)
+    lag = t[np.argmax(np.abs(ang).max(axis=1) > 1e-3)]
+    assert 0.019 <= lag <= 0.023, lag
+    a = ang.mean(axis=1) / ang[-1].mean()
+    i20, i80 = np.argmax(a > 0.2), np.argmax(a > 0.8)
+    speed = (a[i80] - a[i20]) * ang[-1].mean() / (t[i80] - t[i20])
+    print(f"MuJoCo servo: lag {lag * 1e3:.1f} ms, speed {speed:.2f} rad/s (spec {spec.max_speed:.2f})")
+    assert speed == pytest.approx(spec.max_speed, rel=0.08)
+    assert ang[-1] == pytest.approx(np.full(6, 300 / (1600 / math.pi)), abs=0.01)
+    _, small = response(4.0, 0.1)
+    assert np.abs(small).max() < 2e-4
+
+
+def test_random_full_range_pulses_never_blow_up() -> None:
+    rng = np.random.default_rng(13)
+    with MujocoSim(ball=True) as sim:
+        cal = sim.calibration
+        for _ in range(300):
+            sim.command(rng.uniform(cal.min_us, cal.max_us))
+            sim.step()
+            assert np.all(np.isfinite(sim.platform_pose())) and np.all(np.isfinite(sim.servo_angles()))
+
+
+def test_domain_randomisation_reaches_the_model() -> None:
+    """Per-episode ball, friction and servo changes land in MuJoCo's model (where MuJoCo can express them)."""
+    from stewart_gym.sim import BallSpec
+
+    with MujocoSim(ball=True) as sim:
+        sim.reset(ball_spec=BallSpec(radius=0.015, mass=0.05, rolling_friction=3e-5), plate_friction=0.5,
+                  servo_spec=ServoSpec(stall_torque=0.5))  # fmt: skip
+        ball = mujoco.mj_name2id(sim.model, mujoco.mjtObj.mjOBJ_GEOM, "ball")
+        assert sim.model.geom_size[ball, 0] == 0.015 and sim.model.body_mass[sim.model.geom_bodyid[ball]] == 0.05
+        assert sim.model.geom_friction[ball] == pytest.approx([0.6 * 0.5, 1e-5 * 0.5, 3e-5 * 0.5])
+        assert np.all(sim.model.actuator_forcerange == [-0.5, 0.5])
+        for _ in range(25):
+            sim.step()
+        assert sim.ball_position()[2] == pytest.approx(sim.plate_top + 0.015, abs=2e-4)
+
+
+# ------------------------------------------------------------ cross-engine
+def _pulse_sequence(seconds: float, control_hz: int, seed: int) -> np.ndarray:
+    """Random reachable poses held 0.2…0.5 s each, as pulses (one row per control step)."""
+    rng = np.random.default_rng(seed)
+    poses = random_reachable_poses(200, seed)
+    rows: list[np.ndarray] = []
+    k = 0
+    while len(rows) < seconds * control_hz:
+        rows += [poses[k]] * int(rng.integers(10, 26))
+        k += 1
+    poses = np.array(rows[: int(seconds * control_hz)])
+    return ServoCalibration.default(GEO).pulse_widths(inverse_kinematics(GEO, poses).servo_angles)
+
+
+def test_engines_agree_on_plate_poses() -> None:
+    """The same 10 s random pulse sequence in both engines: plate poses within 1 mm and 0.3° RMS."""
+    pulses = _pulse_sequence(10.0, 50, seed=5)
+    poses = {}
+    for name, sim in (("pybullet", StewartSim(ball=True, physics_hz=150)), ("mujoco", MujocoSim(ball=True))):
+        with sim:
+            out = []
+            for p in pulses:
+                sim.command(p)
+                sim.step()
+                out.append(sim.platform_pose())
+            poses[name] = np.array(out)
+    d = poses["pybullet"] - poses["mujoco"]
+    rms_mm = float(np.sqrt((d[:, :3] ** 2).sum(axis=1).mean()) * 1e3)
+    rms_deg = float(np.degrees(np.sqrt((d[:, 3:] ** 2).sum(axis=1).mean())))
+    print(f"PyBullet vs MuJoCo plate pose, 10 s of random pulses: RMS {rms_mm:.3f} mm, {rms_deg:.3f}°")
+    assert rms_mm <= 1.0 and rms_deg <= 0.3
+
+
+def test_engines_roll_the_ball_alike_under_the_same_tilts() -> None:
+    """The same ±2° tilt sequence (2 s) in both engines, ball starting at rest at the centre: the paths differ
+    by a few per cent of the distance travelled (the difference is printed; the docs explain it)."""
+    rng = np.random.default_rng(3)
+    tilts = np.repeat(rng.uniform(-1, 1, (5, 2)) * math.radians(2.0), 20, axis=0)
+    paths = {}
+    for name, sim in (("pybullet", StewartSim(ball=True, physics_hz=150)), ("mujoco", MujocoSim(ball=True))):
+        with sim:
+            for _ in range(10):
+                sim.step()
+            sim.place_ball(np.zeros(2))
+            path = []
+            for roll, pitch in tilts:
+                pose = np.array([0, 0, 0, roll, pitch, 0])
+                sim.command(sim.calibration.pulse_widths(inverse_kinematics(GEO, pose).servo_angles))
+                sim.step()
+                path.append(sim.ball_position()[:2])
+            paths[name] = np.array(path)
+    diff = np.linalg.norm(paths["pybullet"] - paths["mujoco"], axis=1)
+    travel = float(np.linalg.norm(paths["pybullet"], axis=1).max())
+    print(f"ball paths, PyBullet vs MuJoCo: travel {travel * 1e3:.1f} mm, difference RMS "
+          f"{np.sqrt(np.mean(diff**2)) * 1e3:.2f} mm, worst {diff.max() * 1e3:.2f} mm, at the end {diff[-1] * 1e3:.2f} mm")  # fmt: skip
+    assert travel > 0.03 and diff.max() < 0.05 * travel
