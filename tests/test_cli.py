@@ -26,7 +26,7 @@ import pytest
 from conftest import Drain, FakeDevice
 
 ROOT = Path(__file__).resolve().parents[1]
-SUBCOMMANDS = ("ik", "urdf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
+SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo")  # fmt: skip
 
 
@@ -184,6 +184,10 @@ BAD = [
     ["urdf", "--geometry", "nope", "--out", "{tmp}/u"],
     ["urdf", "--out", "{files}/notes.txt"],
     ["urdf", "--out", "{files}/notes.txt/sub"],
+    # mjcf
+    ["mjcf"],
+    ["mjcf", "--out", "{files}/notes.txt"],
+    ["mjcf", "--geometry", "nope", "--out", "{tmp}/m.xml"],
     # render
     ["render", "0", "0", "0", "0", "0", "0"],
     ["render", "nan", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png"],
@@ -193,6 +197,7 @@ BAD = [
     ["render", "0", "0", "0", "0", "0", "0", "--out", "{tmp}/x.png", "--width", "0"],
     ["render", "0", "0", "999", "0", "0", "0", "--out", "{tmp}/x.png", "--geometry", "senilov2018"],
     # train
+    ["train", "--backend", "ode"],
     ["train", "--timesteps", "0"],
     ["train", "--n-envs", "0"],
     ["train", "--max-minutes", "0"],
@@ -223,12 +228,14 @@ BAD = [
     ["evaluate", "--policy", "{files}/notes.txt"],
     ["evaluate", "--policy", "{files}/bad_bundle"],
     ["evaluate", "--policy", "pid", "--geometry", "mathcad-micro"],
+    ["evaluate", "--backend", "bullet"],
     # export
     ["export"],
     ["export", "--policy", "nope", "--out", "{tmp}/b"],
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
     # deploy: the arguments are checked before the port is opened
+    ["deploy", "--backend", "mujoco", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
     ["deploy", "--rate", "-5"],
     ["deploy", "--rate", "0"],
     ["deploy", "--rate", "100000"],
@@ -285,6 +292,7 @@ BAD = [
     ["assembly", "--legs", "-1", "-1", "-1", "-1", "-1", "-1"],
     ["assembly", "--guesses", "0"],
     # demo
+    ["demo", "--backend", "x"],
     ["demo", "--episodes", "0"],
     ["demo", "--out", "{files}/notes.txt"],
 ]

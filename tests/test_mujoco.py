@@ -13,7 +13,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from conftest import xml_differences
+from conftest import Drain, FakeDevice, xml_differences
 
 from stewart_gym.analysis import aggressive_moves
 from stewart_gym.calibration import ServoCalibration
@@ -265,5 +265,55 @@ def test_engines_roll_the_ball_alike_under_the_same_tilts() -> None:
     diff = np.linalg.norm(paths["pybullet"] - paths["mujoco"], axis=1)
     travel = float(np.linalg.norm(paths["pybullet"], axis=1).max())
     print(f"ball paths, PyBullet vs MuJoCo: travel {travel * 1e3:.1f} mm, difference RMS "
-          f"{np.sqrt(np.mean(diff**2)) * 1e3:.2f} mm, worst {diff.max() * 1e3:.2f} mm, at the end {diff[-1] * 1e3:.2f} mm")  # fmt: skip
+          f"{np.sqrt(np.mean(diff**2)) * 1e3:.2f} mm, worst {diff.max() * 1e3:.2f} mm, "
+          f"at the end {diff[-1] * 1e3:.2f} mm")  # fmt: skip
     assert travel > 0.03 and diff.max() < 0.05 * travel
+
+
+def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -> None:
+    """MuJoCo draws with OpenGL. Where it can start (a GPU with MUJOCO_GL=egl, or OSMesa), ``evaluate --gif`` writes
+    the GIF; where it cannot (a headless CPU machine), the command says so in one line before running anything."""
+    from stewart_gym.errors import ConfigError
+    from stewart_gym.sim.mujoco_sim import check_rendering
+
+    try:
+        check_rendering()
+        can_render = True
+    except ConfigError:
+        can_render = False
+    gif = tmp_path / "m.gif"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--backend", "mujoco", "--episodes", "1",
+                           "--gif", str(gif)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    if can_render:
+        assert proc.returncode == 0 and gif.stat().st_size > 1000, proc.stderr
+    else:
+        errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
+        assert proc.returncode == 1 and len(errors) == 1 and "MUJOCO_GL" in errors[0] and "Traceback" not in proc.stderr
+        assert "success rate" not in proc.stdout and not gif.exists()
+
+
+def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, device: FakeDevice) -> None:
+    """Through the CLI: a shipped policy evaluated in MuJoCo, a short run trained in MuJoCo (its config records the
+    engine), and ``deploy --sensor sim --backend mujoco`` on a fake Maestro."""
+    import json
+
+    def sg(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
+                              timeout=600, cwd=tmp_path)  # fmt: skip
+
+    ev = sg("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
+    assert ev.returncode == 0, ev.stderr
+    assert json.loads(ev.stdout.strip().splitlines()[-1])["success_rate"] == 1.0
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n  policy: MlpPolicy\n"
+                  "  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
+    run = sg("train", "--backend", "mujoco", "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
+             "--eval-freq", "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert "backend: mujoco" in (tmp_path / "run" / "config.yaml").read_text()
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
+             "--log", str(tmp_path / "d.csv"))  # fmt: skip
+    data = drain.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    assert "simulated ball" in dep.stdout and len(data) >= 24 * 40  # ~50 Maestro frames of 6 × 4 bytes in 1 s
