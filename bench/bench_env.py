@@ -1,14 +1,19 @@
-"""Environment speed on one core, next to the bare simulator doing the same physical work in the same run.
+"""Environment speed on one core, for both physics engines, next to the bare simulator doing the same physical
+work in the same run.
 
-Run: ``.venv/bin/python bench/bench_env.py [--steps N] [--json]``.
+Run: ``.venv/bin/python bench/bench_env.py [--steps N] [--rounds R] [--backends pybullet mujoco] [--json]``.
 
-For each registered env id, with randomisation off and on: env steps/s with
-random tilt actions (episodes reset when the ball falls). The baseline replays
-that run on the env's own ``StewartSim`` without the env: the same pulses
-(``command`` + ``step``), and at the same points the same ``reset`` (episode
-parameters) and ball placement, so the ball rolls on the plate in both. The
-env's cost is reported as a multiple of the replay's: what IK, sensing,
-observation, reward and bookkeeping add to the physics.
+For each engine and each registered env id, with randomisation off and on: env
+steps/s with random tilt actions (±0.3; episodes reset when the ball falls).
+Then, for the balance env with randomisation, every action mode with random
+actions over the whole action space (in "pose" mode most of them are out of
+reach and take the ray search). The baseline replays each run on the env's own
+backend without the env: the same pulses (``command`` + ``step``), and at the
+same points the same ``reset`` (episode parameters) and ball placement, so the
+ball rolls on the plate in both. The env's cost is reported as a multiple of
+the replay's: what IK, sensing, observation, reward and bookkeeping add to the
+physics. Last, each engine's worst loop gap in the env under random ±10°
+bang-bang tilts: the speed is only worth quoting at that fidelity.
 """
 
 from __future__ import annotations
@@ -75,17 +80,18 @@ def sim_replay(env: StewartBallEnv, log: list[Episode]) -> float:
     return time.perf_counter() - t0
 
 
-def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20) -> dict:
+def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20, backend: str = "pybullet",
+            mode: str = "tilt", scale: float = 0.3) -> dict:  # fmt: skip
     """Medians over ``rounds`` rounds of ``steps`` env steps, each followed at once by its replay.
 
-    Interleaving keeps the env and its replay under the same machine load; the
-    cost ratio is taken per round.
+    Actions are uniform in ±``scale``. Interleaving keeps the env and its
+    replay under the same machine load; the cost ratio is taken per round.
     """
-    env = gym.make(env_id, randomize=randomize).unwrapped  # no wrappers: the env's own cost
+    env = gym.make(env_id, randomize=randomize, backend=backend, action_mode=mode).unwrapped  # the env's own cost
     rng = np.random.default_rng(0)
     env_times, sim_times, episodes = [], [], 0
     for r in range(rounds):
-        actions = rng.uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32) * 0.3
+        actions = rng.uniform(-1, 1, (steps, env.action_space.shape[0])).astype(np.float32) * scale
         elapsed, log = env_run(env, actions, seed=r)
         p = log[0].params
         env.sim.reset(servo_spec=p.servo, ball_spec=p.ball, plate_friction=p.plate_friction, plate_load=p.plate_load)
@@ -96,16 +102,17 @@ def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20) -> dict:
     physics_hz = env.sim.physics_hz
     env.close()
     env_t, sim_t = np.array(env_times), np.array(sim_times)
-    return {"id": env_id, "randomize": randomize, "physics_hz": physics_hz, "episodes": episodes,
+    return {"backend": backend, "id": env_id, "mode": mode, "actions": f"±{scale:g}", "randomize": randomize,
+            "physics_hz": physics_hz, "episodes": episodes,
             "steps": steps * rounds, "steps_per_s": round(steps / float(np.median(env_t))),
             "sim_steps_per_s": round(steps / float(np.median(sim_t))),
             "cost_vs_sim": round(float(np.median(env_t / sim_t)), 3),
             "cost_vs_sim_range": [round(float(v), 3) for v in (np.min(env_t / sim_t), np.max(env_t / sim_t))]}
 
 
-def env_loop_gap(steps: int = 2000) -> float:
+def env_loop_gap(backend: str = "pybullet", steps: int = 2000) -> float:
     """Worst loop-closure gap (m) over random full-range tilt actions (±1: ±10° bang-bang) in the balance env."""
-    env = gym.make("StewartBallBalance-v0").unwrapped
+    env = gym.make("StewartBallBalance-v0", backend=backend).unwrapped
     rng = np.random.default_rng(1)
     env.reset(seed=1)
     worst = 0.0
@@ -119,26 +126,41 @@ def env_loop_gap(steps: int = 2000) -> float:
 
 
 def main() -> None:
+    from stewart_gym.sim.engines import BACKEND_NAMES
+
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=1000, help="env steps per round")
     parser.add_argument("--rounds", type=int, default=20)
+    parser.add_argument("--backends", nargs="+", choices=BACKEND_NAMES, default=list(BACKEND_NAMES))
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    res = {"envs": [measure(env_id, randomize, args.steps, args.rounds)
-                    for env_id in stewart_gym.ENV_IDS for randomize in (False, True)],
-           "loop_gap_full_tilt_mm": round(env_loop_gap() * 1e3, 4)}  # fmt: skip
+    rows, gaps = [], {}
+    for backend in args.backends:
+        rows += [measure(env_id, randomize, args.steps, args.rounds, backend)
+                 for env_id in stewart_gym.ENV_IDS for randomize in (False, True)]  # fmt: skip
+        rows += [measure("StewartBallBalance-v0", True, args.steps, args.rounds, backend, mode, 1.0)
+                 for mode in ("tilt", "pose", "pulse")]  # fmt: skip
+        gaps[backend] = round(env_loop_gap(backend) * 1e3, 4)
+    res = {"envs": rows, "loop_gap_full_tilt_mm": gaps}
+    speed = {(r["backend"], r["id"], r["mode"], r["actions"], r["randomize"]): r["steps_per_s"] for r in rows}
+    if len(args.backends) == 2:
+        res["mujoco_vs_pybullet"] = {f"{k[1]} {k[2]} {k[3]} randomize={k[4]}": round(v / speed[("pybullet", *k[1:])], 2)
+                                     for k, v in speed.items() if k[0] == "mujoco"}  # fmt: skip
     if args.json:
         print(json.dumps(res))
         return
-    print(f"env steps/s (one process, random tilt actions, resets included; medians of {args.rounds} rounds of "
-          f"{args.steps} steps), next to the bare StewartSim replaying each round")  # fmt: skip
-    for r in res["envs"]:
+    print(f"env steps/s (one process, resets included; medians of {args.rounds} rounds of {args.steps} steps), next "
+          "to the bare backend replaying each round")  # fmt: skip
+    for r in rows:
         lo, hi = r["cost_vs_sim_range"]
-        print(f"  {r['id']:24s} randomize={r['randomize']!s:5s} {r['steps_per_s']:>6,} steps/s   "
-              f"sim replay {r['sim_steps_per_s']:>6,}/s   env cost {r['cost_vs_sim']:.2f}× the sim's "
-              f"({lo:.2f}–{hi:.2f})   ({r['physics_hz']} Hz physics, {r['episodes']} episodes)")  # fmt: skip
-    print("targets: ≥ 3,000 env steps/s and ≤ 1.3× the sim's cost")
-    print(f"worst loop gap in the env under random ±10° bang-bang tilt actions: {res['loop_gap_full_tilt_mm']:.4f} mm")
+        print(f"  {r['backend']:8s} {r['id']:24s} {r['mode']:5s} {r['actions']:4s} randomize={r['randomize']!s:5s} "
+              f"{r['steps_per_s']:>6,} steps/s   sim replay {r['sim_steps_per_s']:>6,}/s   env cost "
+              f"{r['cost_vs_sim']:.2f}× ({lo:.2f}–{hi:.2f})   ({r['physics_hz']} Hz physics, {r['episodes']} episodes)")
+    print("targets: ≥ 3,000 env steps/s in every action mode; env cost ≤ 1.3× the sim's; MuJoCo ≥ 2× PyBullet")
+    for name, ratio in res.get("mujoco_vs_pybullet", {}).items():
+        print(f"  MuJoCo / PyBullet, {name}: {ratio:.2f}×")
+    for backend, gap in gaps.items():
+        print(f"worst loop gap in the env under random ±10° bang-bang tilt actions, {backend}: {gap:.4f} mm")
 
 
 if __name__ == "__main__":

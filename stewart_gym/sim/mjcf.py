@@ -10,8 +10,8 @@ MuJoCo models closed chains directly, so one file holds the whole mechanism:
   the **ball**, a free sphere resting on it;
 * six ``connect`` equality constraints join each rod top (site ``rod_i_top``) to
   its plate anchor (site ``anchor_i``): the ball joints at the top;
-* six **velocity actuators** ``servo_i`` with the servo's torque (N·m) or force (N)
-  as their force range. :class:`~stewart_gym.sim.MujocoSim` drives them from the
+* six **velocity actuators** ``servo_i`` with the servo's speed as their control
+  range and its torque (N·m) or force (N) as their force range. :class:`~stewart_gym.sim.MujocoSim` drives them from the
   same :class:`~stewart_gym.sim.HobbyServos` front end as PyBullet's motors.
 
 The model is written in the home configuration (every joint at 0). Masses and
@@ -143,6 +143,7 @@ def mechanism_mjcf(geometry: PlatformGeometry | str = "servo-hexapod", spec: Mec
     out += [f'    <connect name="loop_{i}" site1="rod_{i}_top" site2="anchor_{i}"/>\n' for i in range(6)]
     out.append("  </equality>\n  <actuator>\n")
     out += [f'    <velocity name="servo_{i}" joint="servo_{i}" kv="{_f(kv)}" '
+            f'ctrlrange="{_f(-servo.max_speed)} {_f(servo.max_speed)}" '
             f'forcerange="{_f(-servo.stall_torque)} {_f(servo.stall_torque)}"/>\n' for i in range(6)]  # fmt: skip
     out.append("  </actuator>\n</mujoco>\n")
     return "".join(out)

@@ -160,15 +160,15 @@ class MujocoSim:
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
         mj, m, d = self._mj, self.model, self.data
-        update, q_adr, gain = self._servos.update, self._servo_q, self._gain
-        speed = self.servo_spec.max_speed
+        update, q_adr, gain, ctrl, qpos = self._servos.update, self._servo_q, self._gain, d.ctrl, d.qpos
         if self._plate_load is not None:
             d.xfrc_applied[self._plate_body] = self._plate_load_wrench()
         for _ in range(self.substeps):
             targets = update(self._step_count)
             if targets is not None:
                 self._apply_targets(targets)
-            np.clip(gain * (self._target - d.qpos[q_adr]), -speed, speed, out=d.ctrl)
+            # velocity command k·(target − q); the actuators' ctrlrange clips it to ±max_speed
+            np.multiply(np.subtract(self._target, qpos[q_adr], out=ctrl), gain, out=ctrl)
             mj.mj_step(m, d)
             self._step_count += 1
 
@@ -176,9 +176,9 @@ class MujocoSim:
         """The extra mass's weight as a force and torque at the plate's centre of mass (world frame)."""
         mass, offset = self._plate_load  # type: ignore[misc]
         origin, rot = self._plate_frame()
-        force = np.array([0.0, 0.0, -mass * GRAVITY])
-        arm = origin + rot @ offset - self.data.xipos[self._plate_body]
-        return np.concatenate([force, np.cross(arm, force)])
+        fz = -mass * GRAVITY
+        ax, ay, _ = (origin + rot @ offset - self.data.xipos[self._plate_body]).tolist()
+        return np.array([0.0, 0.0, fz, ay * fz, -ax * fz, 0.0])  # torque = arm × (0, 0, fz)
 
     def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
               plate_friction: float | None = None, plate_load: PlateLoad | None = None) -> None:  # fmt: skip
@@ -189,6 +189,7 @@ class MujocoSim:
             self._gain = servo_spec.position_gain * MOTOR_REFERENCE_HZ
             self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
             m.actuator_forcerange[:] = (-servo_spec.stall_torque, servo_spec.stall_torque)
+            m.actuator_ctrlrange[:] = (-servo_spec.max_speed, servo_spec.max_speed)
             m.actuator_gainprm[:, 0] = servo_spec.stall_torque / (self.physics.servo_slip * servo_spec.max_speed)
             m.actuator_biasprm[:, 2] = -m.actuator_gainprm[:, 0]
         if plate_friction is not None:
