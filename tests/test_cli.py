@@ -27,7 +27,7 @@ from conftest import Drain, FakeDevice
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
-               "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo")  # fmt: skip
+               "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device")  # fmt: skip
 
 
 def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,
@@ -293,6 +293,12 @@ BAD = [
     ["assembly", "--guesses", "0"],
     # demo
     ["demo", "--backend", "x"],
+    # virtual-device
+    ["virtual-device", "--protocol", "i2c"],
+    ["virtual-device", "--drop-rate", "1.5"],
+    ["virtual-device", "--latency-ms", "nan"],
+    ["virtual-device", "--link", "{files}/notes.txt"],
+    ["virtual-device", "--geometry", "nope"],
     ["demo", "--episodes", "0"],
     ["demo", "--out", "{files}/notes.txt"],
 ]

@@ -163,6 +163,41 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_virtual_device(args: argparse.Namespace) -> int:
+    """A virtual servo board with the simulated platform attached, on a pseudo-terminal: deploy and calibrate talk
+    to it as to the real board. Runs until Ctrl-C (SIGINT) or SIGTERM, then prints what it saw."""
+    import signal
+
+    from stewart_gym.hardware.virtual_device import Faults, VirtualDevice
+    from stewart_gym.presets import load_geometry
+
+    faults = Faults(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate,
+                    stall_sensor_after_s=args.stall_sensor_after, latency_ms=args.latency_ms,
+                    unplug_after_s=args.unplug_after)  # fmt: skip
+    geometry = load_geometry(args.geometry)
+    calibration, _ = _load_calibration(args.calibration, geometry)
+    if args.backend == "mujoco":
+        import importlib.util
+
+        if importlib.util.find_spec("mujoco") is None:
+            raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
+    stop = {"now": False}
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop["now"] = True
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
+                           randomize=not args.no_randomize, link=args.link, env_id=args.env)  # fmt: skip
+    where = device.path + (f" (link {device.link})" if device.link else "")
+    print(f"virtual {args.protocol} board with {geometry.name} in {args.backend} on {where}; Ctrl-C to stop",
+          flush=True)  # fmt: skip
+    summary = device.run(lambda: stop["now"])
+    print(summary.text(), flush=True)
+    return EXIT_OK
+
+
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
@@ -189,6 +224,25 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int_at_least(0), default=0, help="simulated plant's seed (--sensor sim)")
     p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")
     p.set_defaults(func=cmd_deploy)
+
+    p = sub.add_parser("virtual-device", help=cmd_virtual_device.__doc__, description=cmd_virtual_device.__doc__)
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, default="maestro")
+    add_backend(p, "physics engine of the twin (default pybullet)")
+    add_geometry(p)
+    p.add_argument("--calibration", help="calibration TOML: the board's channels and limits")
+    p.add_argument("--link", help="make this path a symlink to the pty (e.g. /tmp/stewart0)")
+    p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0", help="whose task places the ball")
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="the twin's episode: ball start, physics, noise")
+    p.add_argument("--no-randomize", action="store_true", help="nominal physics")
+    p.add_argument("--drop-rate", type=bounded_float(0.0, 1.0), default=0.0, help="fraction of received bytes lost")
+    p.add_argument("--corrupt-rate", type=bounded_float(0.0, 1.0), default=0.0,
+                   help="fraction of received bytes with a bit flipped")  # fmt: skip
+    p.add_argument("--stall-sensor-after", type=bounded_float(0.0, 1e6), metavar="S",
+                   help="stop the ball reports S seconds after the first frame (line protocol)")  # fmt: skip
+    p.add_argument("--latency-ms", type=bounded_float(0.0, 1000.0), default=0.0, help="added latency, both ways")
+    p.add_argument("--unplug-after", type=bounded_float(0.0, 1e6), metavar="S",
+                   help="disappear S seconds after the first frame")  # fmt: skip
+    p.set_defaults(func=cmd_virtual_device, backend="pybullet")
 
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
     add_geometry(p)

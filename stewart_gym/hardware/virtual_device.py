@@ -1,0 +1,431 @@
+"""A virtual servo board with the platform attached: a pseudo-terminal that behaves like the real hardware.
+
+``stewart-gym virtual-device`` opens a pty, parses exactly the bytes a Pololu
+Maestro, a Lynxmotion SSC-32 or the PCA9685 Arduino sketch would receive, and
+drives a simulated twin (PyBullet or MuJoCo, through
+:class:`~stewart_gym.hardware.deploy.SimulatedPlant`) in real time from the pulse
+widths it receives. It answers queries (Maestro Get Position and Get Errors,
+SSC-32 ``Q`` and ``QP``), sends the sketch's ``ready`` line, and with the line
+protocol reports the ball as the sketch does: ``B x,y`` (mm) at 100 Hz, with the
+touch panel's noise and latency. Faults are injected on request
+(:class:`Faults`). Like the Maestro, the board clamps every target to its
+channel limits: whatever arrives, corrupted or not, no servo leaves them.
+
+The twin waits, powered down, until the first valid target arrives (a servo
+gets no pulse before that), then runs in real time.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pty
+import re
+import time
+import tty
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.errors import ConfigError
+from stewart_gym.hardware.protocols import LineProtocol
+
+__all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary"]
+
+#: Hz: how often the board reads its input and the sketch reports the ball.
+TICK_HZ = 100
+
+
+@dataclass(frozen=True)
+class Faults:
+    """Faults to inject.
+
+    Attributes:
+        drop_rate: fraction of received bytes lost (0…1).
+        corrupt_rate: fraction of received bytes with one random bit flipped (0…1).
+        stall_sensor_after_s: s after the first frame when ``B`` reports stop (line protocol); None: never.
+        latency_ms: ms added before a received frame acts and before a report leaves.
+        unplug_after_s: s after the first frame when the board disappears (the pty closes); None: never.
+    """
+
+    drop_rate: float = 0.0
+    corrupt_rate: float = 0.0
+    stall_sensor_after_s: float | None = None
+    latency_ms: float = 0.0
+    unplug_after_s: float | None = None
+
+    def __post_init__(self) -> None:
+        for key in ("drop_rate", "corrupt_rate"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+                raise ConfigError(f"{key.replace('_', '-')} must be a fraction in [0, 1], got {v!r}")
+        if not (math.isfinite(self.latency_ms) and 0.0 <= self.latency_ms <= 1000.0):
+            raise ConfigError(f"latency-ms must be in [0, 1000], got {self.latency_ms!r}")
+        for key in ("stall_sensor_after_s", "unplug_after_s"):
+            v = getattr(self, key)
+            if v is not None and not (math.isfinite(v) and v >= 0.0):
+                raise ConfigError(f"{key.replace('_', '-').replace('-s', '')} must be ≥ 0 s, got {v!r}")
+
+
+# ----------------------------------------------------------------- parsers
+@dataclass
+class Parsed:
+    """What a parser made of the bytes fed so far."""
+
+    targets: list[tuple[int, float]] = field(default_factory=list)  # (channel, µs)
+    replies: list[bytes] = field(default_factory=list)
+    messages: int = 0
+    malformed: int = 0
+
+
+class MaestroParser:
+    """Pololu Maestro compact and Pololu protocols: command bytes ≥ 0x80, 7-bit data bytes.
+
+    ``position(channel)`` gives the current target (µs) for Get Position. A data
+    byte outside a command, an unknown command, or a command cut short by the
+    next command byte is malformed and sets the protocol-error bit, as the
+    board does.
+    """
+
+    #: command byte → number of data bytes (Set Multiple Targets: from its count byte)
+    LENGTHS = {0x84: 3, 0x87: 3, 0x89: 3, 0x90: 1, 0x93: 0, 0xA1: 0, 0xA2: 0, 0x9F: None}
+    PROTOCOL_ERROR = 1 << 4
+
+    def __init__(self, position: Callable[[int], float], home: Callable[[], None]) -> None:
+        self._position, self._home = position, home
+        self._msg: list[int] = []
+        self.errors = 0
+
+    def feed(self, data: bytes, out: Parsed) -> None:
+        for b in data:
+            if b >= 0x80:
+                if self._msg:
+                    self._bad(out)
+                self._msg = [b]
+                if b == 0xAA:
+                    continue
+                if b not in self.LENGTHS:
+                    self._bad(out)
+                    continue
+            elif not self._msg:
+                self._bad(out)
+                continue
+            else:
+                self._msg.append(b)
+            self._complete(out)
+
+    def _bad(self, out: Parsed) -> None:
+        out.malformed += 1
+        self.errors |= self.PROTOCOL_ERROR
+        self._msg = []
+
+    def _complete(self, out: Parsed) -> None:
+        msg = self._msg
+        if msg[0] == 0xAA:  # Pololu protocol: AA device command&0x7F data…
+            if len(msg) < 3:
+                return
+            cmd, data = msg[2] | 0x80, msg[3:]
+            if cmd not in self.LENGTHS:
+                self._bad(out)
+                return
+        else:
+            cmd, data = msg[0], msg[1:]
+        need = self.LENGTHS[cmd]
+        if need is None:  # 9F n first (lo hi)×n
+            need = 2 + 2 * data[0] if data else 1
+        if len(data) < need:
+            return
+        self._msg = []
+        out.messages += 1
+        if cmd == 0x84:
+            out.targets.append((data[0], (data[1] | data[2] << 7) / 4.0))
+        elif cmd == 0x9F:
+            n, first = data[0], data[1]
+            out.targets += [(first + k, (data[2 + 2 * k] | data[3 + 2 * k] << 7) / 4.0) for k in range(n)]
+        elif cmd == 0x90:
+            q = int(round(self._position(data[0]) * 4))
+            out.replies.append(bytes([q & 0xFF, q >> 8 & 0xFF]))
+        elif cmd == 0xA1:
+            out.replies.append(bytes([self.errors & 0xFF, self.errors >> 8 & 0xFF]))
+            self.errors = 0
+        elif cmd == 0x93:
+            out.replies.append(b"\x00")  # not moving: targets act at once
+        elif cmd == 0xA2:
+            self._home()
+
+
+class SSC32Parser:
+    """Lynxmotion SSC-32: CR-terminated ASCII. ``#<ch>P<µs>…[T<ms>]`` moves, ``Q`` → ``.``, ``QP<ch>`` → µs/10."""
+
+    MOVE = re.compile(r"^(?:#\d{1,2}P\d{3,4}(?:S\d+)?)+(?:T\d+)?$")
+    PART = re.compile(r"#(\d{1,2})P(\d{3,4})")
+
+    def __init__(self, position: Callable[[int], float]) -> None:
+        self._position = position
+        self._buffer = b""
+
+    def feed(self, data: bytes, out: Parsed) -> None:
+        self._buffer += data
+        *lines, self._buffer = self._buffer.split(b"\r")
+        if len(self._buffer) > 512:  # no CR for far too long: garbage
+            self._buffer, out.malformed = b"", out.malformed + 1
+        for raw in lines:
+            line = raw.decode("ascii", "replace").strip()
+            if not line:
+                continue
+            if self.MOVE.match(line):
+                out.messages += 1
+                out.targets += [(int(c), float(w)) for c, w in self.PART.findall(line)]
+            elif line == "Q":
+                out.messages += 1
+                out.replies.append(b".")
+            elif re.fullmatch(r"QP\d{1,2}", line):
+                out.messages += 1
+                out.replies.append(bytes([min(255, int(round(self._position(int(line[2:])) / 10)))]))
+            else:
+                out.malformed += 1
+
+
+class LineParser:
+    """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs, channels in order)."""
+
+    def __init__(self, channels: Sequence[int]) -> None:
+        self._channels = list(channels)
+        self._buffer = b""
+
+    def feed(self, data: bytes, out: Parsed) -> None:
+        self._buffer += data
+        *lines, self._buffer = self._buffer.split(b"\n")
+        if len(self._buffer) > 512:
+            self._buffer, out.malformed = b"", out.malformed + 1
+        for raw in lines:
+            line = raw.decode("ascii", "replace").strip()
+            if not line:
+                continue
+            m = re.fullmatch(r"W (\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4})", line)
+            if m is None:
+                out.malformed += 1
+                continue
+            out.messages += 1
+            out.targets += [(c, float(w)) for c, w in zip(self._channels, m.groups())]
+
+
+# ------------------------------------------------------------------ device
+@dataclass
+class VirtualSummary:
+    """What the board saw, printed at exit."""
+
+    protocol: str
+    messages: int = 0
+    malformed: int = 0
+    queries: int = 0
+    dropped_bytes: int = 0
+    corrupted_bytes: int = 0
+    clamped: int = 0
+    reports: int = 0
+    sim_time_s: float = 0.0
+    ball_mm: tuple[float, float] | None = None
+    fell_off: bool = False
+    unplugged: bool = False
+
+    def text(self) -> str:
+        ball = "never placed" if self.ball_mm is None else (
+            f"ended at ({self.ball_mm[0]:.1f}, {self.ball_mm[1]:.1f}) mm, "
+            f"{math.hypot(*self.ball_mm):.1f} mm from the centre, " + ("fell off" if self.fell_off else "on the plate"))
+        extra = f", {self.reports} ball reports sent" if self.protocol == "line" else ""
+        return (f"virtual {self.protocol}: {self.messages} messages received, {self.malformed} malformed, "
+                f"{self.queries} queries answered, {self.clamped} targets clamped to the channel limits{extra}; "
+                f"faults injected: {self.dropped_bytes} bytes dropped, {self.corrupted_bytes} corrupted"
+                f"{', unplugged' if self.unplugged else ''}; {self.sim_time_s:.1f} s simulated; ball {ball}")
+
+
+class VirtualDevice:
+    """The board and the twin. Call :meth:`run` (blocks until ``stop()`` returns True), then read :attr:`summary`.
+
+    Args:
+        protocol: ``"maestro"``, ``"ssc32"`` or ``"line"``.
+        backend: ``"pybullet"`` or ``"mujoco"``.
+        geometry: the platform (preset name, TOML path or geometry).
+        calibration: the board's channels and limits (default: the geometry's).
+        faults: :class:`Faults` to inject.
+        seed, randomize: the twin's episode (ball start, physics, panel noise).
+        link: a path to make a symlink to the pty (replaced if it is a link).
+        env_id: the env whose task places the ball.
+    """
+
+    def __init__(self, protocol: str, backend: str = "pybullet", geometry: Any = "servo-hexapod",
+                 calibration: ServoCalibration | None = None, faults: Faults | None = None, seed: int = 0,
+                 randomize: bool = True, link: str | None = None,
+                 env_id: str = "StewartBallBalance-v0") -> None:  # fmt: skip
+        from stewart_gym.hardware.deploy import SimulatedPlant
+        from stewart_gym.presets import load_geometry
+
+        if protocol not in ("maestro", "ssc32", "line"):
+            raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
+        self.protocol = protocol
+        self.faults = faults or Faults()
+        geo = load_geometry(geometry)
+        self.calibration = calibration or ServoCalibration.default(geo)
+        self._channel_index = {c: i for i, c in enumerate(self.calibration.channels)}
+        self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize, geometry=geo, backend=backend)
+        self._rng = np.random.default_rng(seed + 7919)
+        self.held = self.calibration.neutral_us.copy()
+        self.summary = VirtualSummary(protocol)
+        if protocol == "maestro":
+            self.parser: Any = MaestroParser(self._position, self._go_home)
+        elif protocol == "ssc32":
+            self.parser = SSC32Parser(self._position)
+        else:
+            self.parser = LineParser(self.calibration.channels)
+        self._master, slave = pty.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        self._slave = slave  # kept open so that the pty lives while no host has it open
+        os.set_blocking(self._master, False)
+        self.link = None
+        if link:
+            p = Path(link)
+            if p.is_symlink():
+                p.unlink()
+            elif p.exists():
+                raise ConfigError(f"{link} exists and is not a link: give another --link path")
+            p.symlink_to(self.path)
+            self.link = p
+        self._incoming: deque[tuple[float, list[tuple[int, float]]]] = deque()
+        self._outgoing: deque[tuple[float, bytes]] = deque()
+        self._started: float | None = None
+
+    # ----------------------------------------------------------- board
+    def _position(self, channel: int) -> float:
+        i = self._channel_index.get(channel)
+        return 0.0 if i is None else float(self.held[i])
+
+    def _go_home(self) -> None:
+        self.held = self.calibration.neutral_us.copy()
+
+    def _apply_targets(self, targets: list[tuple[int, float]]) -> None:
+        cal = self.calibration
+        for channel, us in targets:
+            i = self._channel_index.get(channel)
+            if i is None:
+                continue  # a channel with no servo on it
+            clamped = min(max(us, float(cal.min_us[i])), float(cal.max_us[i]))
+            if clamped != us:
+                self.summary.clamped += 1
+            self.held[i] = clamped
+        if self._started is None and targets:
+            self._started = time.monotonic()
+
+    def _receive(self, now: float) -> None:
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):  # nothing waiting, or no host has the port open
+            return
+        f = self.faults
+        if f.drop_rate or f.corrupt_rate:
+            out = bytearray()
+            for b in data:
+                if f.drop_rate and self._rng.random() < f.drop_rate:
+                    self.summary.dropped_bytes += 1
+                    continue
+                if f.corrupt_rate and self._rng.random() < f.corrupt_rate:
+                    b ^= 1 << int(self._rng.integers(8))
+                    self.summary.corrupted_bytes += 1
+                out.append(b)
+            data = bytes(out)
+        parsed = Parsed()
+        self.parser.feed(data, parsed)
+        self.summary.messages += parsed.messages
+        self.summary.malformed += parsed.malformed
+        self.summary.queries += len(parsed.replies)
+        for reply in parsed.replies:
+            self._send(reply, now)
+        if parsed.targets:
+            self._incoming.append((now + f.latency_ms / 1e3, parsed.targets))
+
+    def _send(self, data: bytes, now: float) -> None:
+        self._outgoing.append((now + self.faults.latency_ms / 1e3, data))
+
+    def _flush(self, now: float) -> None:
+        while self._outgoing and self._outgoing[0][0] <= now:
+            _, data = self._outgoing.popleft()
+            try:
+                os.write(self._master, data)
+            except (BlockingIOError, OSError):  # no host reading, or its buffer is full: the bytes are lost
+                pass
+
+    # ------------------------------------------------------------ loop
+    def run(self, stop: Callable[[], bool]) -> VirtualSummary:
+        """Serve until ``stop()`` is True; returns (and keeps) the summary."""
+        f = self.faults
+        period = 1.0 / TICK_HZ
+        next_tick = time.monotonic()
+        last_ready = -1.0
+        backend = self.plant.backend
+        try:
+            while not stop():
+                now = time.monotonic()
+                if not self.summary.unplugged:
+                    self._receive(now)
+                    while self._incoming and self._incoming[0][0] <= now:
+                        self._apply_targets(self._incoming.popleft()[1])
+                    since = None if self._started is None else now - self._started
+                    if since is not None and f.unplug_after_s is not None and since >= f.unplug_after_s:
+                        self._unplug()
+                        continue
+                    if since is not None:
+                        while backend.time < since:  # real time: one control period per step
+                            self.plant.apply(self.held)
+                    if self.protocol == "line":
+                        if since is None and now - last_ready >= 0.25:
+                            self._send(f"{LineProtocol.READY}\n".encode(), now)
+                            last_ready = now
+                        stalled = f.stall_sensor_after_s is not None and since is not None and since >= \
+                            f.stall_sensor_after_s  # fmt: skip
+                        if not stalled:  # the sketch reports from power-up, the ball resting where it was put
+                            self._report(now, backend.time)
+                    self._flush(now)
+                next_tick += period
+                time.sleep(max(0.0, next_tick - time.monotonic()))
+                if next_tick < time.monotonic() - 1.0:  # far behind (machine stalled): do not try to catch up
+                    next_tick = time.monotonic()
+        finally:
+            self._finish()
+        return self.summary
+
+    def _report(self, now: float, sim_t: float) -> None:
+        got = self.plant.sensor.read(sim_t)
+        line = "B -\n" if got is None else f"B {got[0][0] * 1e3:.1f},{got[0][1] * 1e3:.1f}\n"
+        self._send(line.encode(), now)
+        self.summary.reports += 1
+
+    def _unplug(self) -> None:
+        self.summary.unplugged = True
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def _finish(self) -> None:
+        s = self.summary
+        backend = self.plant.backend
+        s.sim_time_s = backend.time
+        if self._started is not None:
+            x, y, z = backend.ball_position()
+            from stewart_gym.sensing import ball_contact
+
+            half, top, radius = self.plant.env.plate_half_extent, backend.plate_top, self.plant.env.params.ball.radius
+            on, _ = ball_contact(x, y, z, half, top, radius)
+            s.ball_mm, s.fell_off = (x * 1e3, y * 1e3), not on
+        self.plant.close()
+        if not s.unplugged:
+            self._unplug()
+            s.unplugged = False
+        if self.link is not None and self.link.is_symlink():
+            self.link.unlink()

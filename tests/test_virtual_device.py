@@ -1,0 +1,184 @@
+"""The virtual board: its parsers byte for byte, its limits under garbage, and the CLI end to end (deploy against
+``stewart-gym virtual-device`` in another process, faults included)."""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
+from stewart_gym.hardware.virtual_device import Faults, LineParser, MaestroParser, Parsed, SSC32Parser, VirtualDevice
+
+
+def held_maestro(channels: int = 6) -> tuple[MaestroParser, dict[int, float]]:
+    pos = {c: 1500.0 for c in range(channels)}
+    return MaestroParser(lambda c: pos.get(c, 0.0), lambda: None), pos
+
+
+# ------------------------------------------------------------------ parsers
+def test_maestro_parser_reads_what_the_controller_writes() -> None:
+    parser, pos = held_maestro()
+    out = Parsed()
+    frame = b"".join(Maestro.set_target(c, 1400.25 + 10 * c) for c in range(6))
+    parser.feed(frame[:5], out)  # split anywhere: the parser keeps state
+    parser.feed(frame[5:] + Maestro.set_multiple_targets(0, [1500.0, 1600.0]), out)
+    assert out.targets == [(c, 1400.25 + 10 * c) for c in range(6)] + [(0, 1500.0), (1, 1600.0)]
+    assert out.messages == 7 and out.malformed == 0
+    pos[2] = 1512.5
+    parser.feed(Maestro.get_position(2) + Maestro.GET_ERRORS + bytes([0xAA, 12, 0x10, 2]), out)
+    assert Maestro.decode_position(out.replies[0]) == 1512.5 and Maestro.decode_errors(out.replies[1]) == []
+    assert Maestro.decode_position(out.replies[2]) == 1512.5  # the Pololu protocol form of Get Position
+
+
+def test_maestro_parser_counts_garbage_and_reports_a_protocol_error() -> None:
+    parser, _ = held_maestro()
+    out = Parsed()
+    parser.feed(b"\x05\x84\x01\x70" + Maestro.set_target(1, 1500) + b"\xff" + Maestro.GET_ERRORS, out)
+    assert out.malformed == 3 and out.targets == [(1, 1500.0)]  # stray data byte, cut-short command, unknown command
+    assert "serial protocol error" in Maestro.decode_errors(out.replies[0])
+    parser.feed(Maestro.GET_ERRORS, out)
+    assert Maestro.decode_errors(out.replies[1]) == []  # reading the errors clears them, as on the board
+
+
+def test_ssc32_and_line_parsers() -> None:
+    pos = {c: 1500.0 for c in range(6)}
+    ssc, out = SSC32Parser(lambda c: pos[c]), Parsed()
+    ssc.feed(SSC32.group_move(range(6), [1500, 1510, 1520, 1530, 1540, 1550], 20) + b"Q\r" + SSC32.query_pulse(3)
+             + b"#9X\r", out)  # fmt: skip
+    assert out.targets == [(c, 1500.0 + 10 * c) for c in range(6)] and out.replies == [b".", bytes([150])]
+    assert out.messages == 3 and out.malformed == 1
+    line, out = LineParser([4, 5, 6, 7, 8, 9]), Parsed()
+    line.feed(LineProtocol.frame([1500, 1501, 1502, 1503, 1504, 1505]) + b"W 1500,1500\nhello\n", out)
+    assert out.targets == [(4 + k, 1500.0 + k) for k in range(6)] and out.malformed == 2
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.binary(min_size=1, max_size=400), st.sampled_from(["maestro", "ssc32", "line"]))
+def test_no_bytes_move_a_servo_outside_its_limits(data: bytes, protocol: str) -> None:
+    """Whatever arrives (here: arbitrary bytes, and valid frames asking for 500…2500 µs), every held pulse stays
+    within the channel's limits."""
+    cal = ServoCalibration.default("servo-hexapod")
+    device = VirtualDevice.__new__(VirtualDevice)  # the board alone, without a twin or a pty
+    device.calibration, device.held = cal, cal.neutral_us.copy()
+    device._channel_index = {c: i for i, c in enumerate(cal.channels)}
+    device._started = None
+    from stewart_gym.hardware.virtual_device import VirtualSummary
+
+    device.summary = VirtualSummary(protocol)
+    parser = {"maestro": MaestroParser(lambda c: 0.0, lambda: None), "ssc32": SSC32Parser(lambda c: 1500.0),
+              "line": LineParser(cal.channels)}[protocol]  # fmt: skip
+    extreme = {"maestro": b"".join(Maestro.set_target(c, 500 if c % 2 else 2500) for c in range(6)),
+               "ssc32": SSC32.group_move(range(6), [500, 2500] * 3), "line": b"W 500,2500,500,2500,500,2500\n"}
+    end = {"maestro": b"", "ssc32": b"\r", "line": b"\n"}[protocol]  # garbage before a terminator is one bad line
+    out = Parsed()
+    parser.feed(data + end + extreme[protocol] + data, out)
+    device._apply_targets(out.targets)
+    assert np.all(device.held >= cal.min_us) and np.all(device.held <= cal.max_us)
+    assert device.summary.clamped >= 6
+
+
+def test_faults_are_checked() -> None:
+    from stewart_gym.errors import ConfigError
+
+    for bad in ({"drop_rate": 1.5}, {"corrupt_rate": -0.1}, {"latency_ms": math.nan}, {"unplug_after_s": -1.0}):
+        with pytest.raises(ConfigError):
+            Faults(**bad)
+
+
+# --------------------------------------------------------------- end to end
+class Board:
+    """``stewart-gym virtual-device`` in its own process, reachable at ``link``."""
+
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.link = tmp_path / "board"
+        self.proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "virtual-device", "--link", str(self.link),
+                                      *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        deadline = time.monotonic() + 60
+        while not self.link.is_symlink():
+            assert self.proc.poll() is None and time.monotonic() < deadline, self.proc.communicate()
+            time.sleep(0.05)
+
+    def stop(self) -> tuple[int, str, str]:
+        self.proc.send_signal(signal.SIGINT)
+        out, err = self.proc.communicate(timeout=60)
+        return self.proc.returncode, out, err
+
+
+def deploy(tmp_path: Path, port: Path, *args: str) -> tuple[subprocess.CompletedProcess, list[dict]]:
+    log = tmp_path / "deploy.csv"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "deploy", "--port", str(port), "--log", str(log),
+                           "--overwrite", *args], capture_output=True, text=True, timeout=300,
+                          env=dict(os.environ))  # fmt: skip
+    rows = list(csv.DictReader(log.open())) if log.exists() else []
+    return proc, rows
+
+
+@pytest.mark.parametrize("backend", ["pybullet", "mujoco"])
+def test_deploy_balances_the_ball_on_the_virtual_board_through_the_line_protocol(tmp_path: Path, backend: str) -> None:
+    """The shipped policy, the touch panel read over the wire, the twin in real time: the ball stays on the plate
+    and ends near the centre."""
+    board = Board(tmp_path, "--protocol", "line", "--backend", backend, "--seed", "4")
+    dep, rows = deploy(tmp_path, board.link, "--policy", "shipped", "--protocol", "line", "--sensor", "panel",
+                       "--duration", "6")  # fmt: skip
+    code, out, err = board.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    assert code == 0 and "0 malformed" in out and "on the plate" in out, out + err
+    distance = float(out.split(" mm from the centre")[0].rsplit(", ", 1)[1])
+    assert distance < 15.0, out
+    assert len(rows) >= 280 and sum(int(r["stale"]) for r in rows) <= 3
+
+
+def test_maestro_board_with_the_simulated_sensor(tmp_path: Path) -> None:
+    board = Board(tmp_path, "--protocol", "maestro", "--backend", "mujoco")
+    dep, rows = deploy(tmp_path, board.link, "--policy", "shipped", "--protocol", "maestro", "--sensor", "sim",
+                       "--duration", "2")  # fmt: skip
+    code, out, _ = board.stop()
+    assert dep.returncode == 0, dep.stderr
+    messages = int(out.split("virtual maestro: ")[1].split(" messages")[0])
+    assert code == 0 and messages >= 6 * 90 and "0 malformed" in out  # 6 Set Target commands per tick
+
+
+def test_corrupted_bytes_are_counted_and_clamped(tmp_path: Path) -> None:
+    board = Board(tmp_path, "--protocol", "maestro", "--corrupt-rate", "0.02", "--drop-rate", "0.01")
+    dep, _ = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "sim",
+                    "--duration", "2")  # fmt: skip
+    code, out, _ = board.stop()
+    assert dep.returncode == 0, dep.stderr
+    corrupted = int(out.split(" bytes dropped, ")[1].split(" corrupted")[0])
+    malformed = int(out.split(" messages received, ")[1].split(" malformed")[0])
+    assert code == 0 and corrupted > 10 and malformed > 0, out
+
+
+def test_a_stalled_panel_sends_the_platform_home(tmp_path: Path) -> None:
+    board = Board(tmp_path, "--protocol", "line", "--stall-sensor-after", "1.5")
+    dep, rows = deploy(tmp_path, board.link, "--policy", "shipped", "--protocol", "line", "--sensor", "panel",
+                       "--duration", "3")  # fmt: skip
+    board.stop()
+    late = [r for r in rows if float(r["t_s"]) > 2.0]
+    early = [r for r in rows if 0.2 < float(r["t_s"]) < 1.3]
+    assert late and all(int(r["stale"]) and int(r["homing"]) for r in late), dep.stdout
+    assert early and not any(int(r["stale"]) for r in early)
+    last = np.array([float(late[-1][f"pulse{i}_us"]) for i in range(6)])
+    assert last == pytest.approx(ServoCalibration.default("servo-hexapod").neutral_us, abs=1.0)  # home reached
+
+
+def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> None:
+    board = Board(tmp_path, "--protocol", "maestro", "--unplug-after", "1.0")
+    dep, rows = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "sim",
+                       "--duration", "5")  # fmt: skip
+    _, out, _ = board.stop()
+    assert dep.returncode == 2 and "unplugged" in out, dep.stdout + dep.stderr
+    assert "device failure" in dep.stdout and "unplugged?" in dep.stdout and "Traceback" not in dep.stderr
+    assert 0.9 <= float(rows[-1]["t_s"]) <= 1.0 + 2 * 0.02 + 0.05  # the tick that hit the closed port was the last
