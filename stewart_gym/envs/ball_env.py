@@ -12,6 +12,7 @@ from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
+from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
@@ -26,6 +27,37 @@ __all__ = ["StewartBallEnv", "check_ball_geometry"]
 MIN_PLATE_BALLS = 4
 #: The platform must tilt its plate at least this much (rad) to move the ball.
 MIN_TILT = math.radians(2.0)
+
+
+#: ``sensor=`` names: the touch panel, a camera preset, or "camera" (one of the presets per randomised episode).
+SENSOR_NAMES = ("panel", "camera", *CAMERA_PRESETS)
+
+
+def sensor_spec(sensor: TouchPanelSpec | CameraSpec | str | None) -> TouchPanelSpec | CameraSpec | tuple:
+    """The sensor an env is built with: a spec, or for ``"camera"`` the tuple of camera presets (the first,
+    the webcam, when not randomised)."""
+    if sensor is None or sensor == "panel":
+        return TouchPanelSpec()
+    if sensor == "camera":
+        return (CAMERA_PRESETS["webcam30"], CAMERA_PRESETS["pixy2"], CAMERA_PRESETS["global90"])
+    if isinstance(sensor, str):
+        if sensor not in CAMERA_PRESETS:
+            raise ConfigError(f"sensor must be one of {list(SENSOR_NAMES)}, a TouchPanelSpec or a CameraSpec, "
+                              f"got {sensor!r}")  # fmt: skip
+        return CAMERA_PRESETS[sensor]
+    if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
+        raise ConfigError(f"sensor must be one of {list(SENSOR_NAMES)}, a TouchPanelSpec or a CameraSpec, "
+                          f"got {sensor!r}")  # fmt: skip
+    return sensor
+
+
+def sensor_model(spec: TouchPanelSpec | CameraSpec | tuple,
+                 ball_radius: float) -> SimulatedTouchPanel | SimulatedCamera:  # fmt: skip
+    """The simulated sensor for a spec (a tuple of cameras: its first)."""
+    spec = spec[0] if isinstance(spec, tuple) else spec
+    if isinstance(spec, CameraSpec):
+        return SimulatedCamera(spec, ball_radius)
+    return SimulatedTouchPanel(spec)
 
 
 def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
@@ -152,7 +184,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         control_hz: int = 50,
         ball: BallSpec | None = None,
         servo: ServoSpec | None = None,
-        sensor: TouchPanelSpec | None = None,
+        sensor: TouchPanelSpec | CameraSpec | str | None = None,
         geometry: Any = "servo-hexapod",
         randomization: RandomizationRanges | None = None,
         rate_penalty: float = 0.1,
@@ -169,7 +201,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.randomize = bool(randomize)
         self.render_mode = render_mode
         self.nominal_ball = ball or BallSpec()
-        self.nominal_sensor = sensor or TouchPanelSpec()
+        self.nominal_sensor = sensor_spec(sensor)
         self.ranges = randomization or RandomizationRanges()
         if isinstance(backend, str):
             geometry = check_ball_geometry(geometry, self.nominal_ball)
@@ -191,7 +223,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
         self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent)
         self.observation_space = self.observer.builder.space
-        self.panel = SimulatedTouchPanel(self.nominal_sensor)
+        self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
         self._reset_episode_state()
 
@@ -203,7 +235,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         if self.randomize:
             params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
         else:
-            params = EpisodeParams(self.nominal_ball, self.nominal_servo, self.nominal_sensor, 0.6, None)
+            nominal = self.nominal_sensor[0] if isinstance(self.nominal_sensor, tuple) else self.nominal_sensor
+            params = EpisodeParams(self.nominal_ball, self.nominal_servo, nominal, 0.6, None)
         self.params = params
         self._radius = params.ball.radius
         self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
@@ -219,8 +252,12 @@ class StewartBallEnv(gym.Env, EzPickle):
             vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
         self.sim.place_ball(xy, vel)
         self.task.reset(rng, self.sim)
-        self.panel.spec = params.sensor
-        self.panel.reset(0.0, xy, rng)
+        if type(params.sensor) is not type(self.sensor_model.spec):
+            self.sensor_model = sensor_model(params.sensor, params.ball.radius)
+        self.sensor_model.spec = params.sensor
+        if isinstance(self.sensor_model, SimulatedCamera):
+            self.sensor_model.ball_radius = params.ball.radius
+        self.sensor_model.reset(0.0, xy, rng)
         self.observer.reset(0.0, xy)
         self._reset_episode_state()
         obs = self._observe(0.0)
@@ -288,7 +325,7 @@ class StewartBallEnv(gym.Env, EzPickle):
             info["physics_error"] = True
             return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
         on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
-        self.panel.record(t, (x, y), touching)
+        self.sensor_model.record(t, (x, y), touching)
         a = mapped.action
         rate = 0.0
         for v, p in zip(a, self._prev_action):
@@ -296,7 +333,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         rate /= len(a)
         self._prev_action = a
         target_xy, target_vel = task.target(t)
-        obs = self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, a)
+        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, a)
         self._last_obs = obs
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
@@ -325,7 +362,7 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def _observe(self, t: float) -> np.ndarray:
         target_xy, target_vel = self.task.target(t)
-        return self.observer.observe(self.panel.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
+        return self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
 
     def _info(self, xy: np.ndarray, target_xy: tuple[float, float], dist: float) -> dict[str, Any]:
         return {

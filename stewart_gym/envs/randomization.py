@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from stewart_gym.camera import CameraSpec
 from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 
@@ -27,8 +28,11 @@ class RandomizationRanges:
     servo_speed_scale: tuple[float, float] = (0.8, 1.1)
     servo_trim_us: float = 15.0  # ± per servo
     servo_deadband_us: tuple[float, float] = (3.0, 8.0)
-    sensor_noise_mm: tuple[float, float] = (0.5, 2.0)
-    sensor_latency_s: tuple[float, float] = (0.005, 0.025)
+    sensor_noise_mm: tuple[float, float] = (0.5, 2.0)  # touch panel
+    sensor_latency_s: tuple[float, float] = (0.005, 0.025)  # touch panel
+    camera_latency_scale: tuple[float, float] = (0.5, 1.5)  # × the camera's exposure-to-output latency
+    camera_noise_scale: tuple[float, float] = (0.5, 2.0)  # × its centroid noise (px)
+    camera_miss_scale: tuple[float, float] = (0.0, 2.0)  # × its missed-detection rate
     control_latency_s: tuple[float, float] = (0.0, 0.015)  # added to the servo lag
     plate_load_kg: tuple[float, float] = (0.0, 0.05)
     plate_load_radius: float = 0.10  # m, offset of the load from the plate centre
@@ -40,14 +44,15 @@ class EpisodeParams:
 
     ball: BallSpec
     servo: ServoSpec
-    sensor: TouchPanelSpec
+    sensor: TouchPanelSpec | CameraSpec
     plate_friction: float
     plate_load: tuple[float, np.ndarray] | None
 
     @classmethod
     def sample(cls, rng: np.random.Generator, ranges: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
-               sensor: TouchPanelSpec) -> EpisodeParams:  # fmt: skip
-        """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor``."""
+               sensor: TouchPanelSpec | CameraSpec | tuple[CameraSpec, ...]) -> EpisodeParams:  # fmt: skip
+        """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor`` (a tuple of
+        cameras: one of them, drawn uniformly, then varied)."""
         u = rng.uniform
         r = ranges
         radius = round(ball.radius * u(*r.ball_radius_scale), 4)
@@ -61,7 +66,16 @@ class EpisodeParams:
             deadband_us=u(*r.servo_deadband_us),
             lag_s=servo.lag_s + control_latency,
         )
-        sensor_ep = TouchPanelSpec(noise_mm=u(*r.sensor_noise_mm), rate_hz=sensor.rate_hz, latency_s=u(*r.sensor_latency_s))
+        if isinstance(sensor, tuple):
+            sensor = sensor[int(rng.integers(len(sensor)))]
+        if isinstance(sensor, TouchPanelSpec):
+            sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=u(*r.sensor_noise_mm),
+                                                                    rate_hz=sensor.rate_hz,
+                                                                    latency_s=u(*r.sensor_latency_s))  # fmt: skip
+        else:
+            sensor_ep = replace(sensor, latency_s=sensor.latency_s * u(*r.camera_latency_scale),
+                                centroid_noise_px=sensor.centroid_noise_px * u(*r.camera_noise_scale),
+                                miss_rate=min(0.5, sensor.miss_rate * u(*r.camera_miss_scale)))  # fmt: skip
         angle, dist = u(0, 2 * math.pi), r.plate_load_radius * math.sqrt(u(0, 1))
         load = (u(*r.plate_load_kg), np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
         return cls(ball_ep, servo_ep, sensor_ep, u(*r.plate_friction), load)

@@ -82,7 +82,7 @@ class SimulatedPlant:
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.backend = self.env.sim
-        self.sensor = self.env.panel
+        self.sensor = self.env.sensor_model
         self._contact = (self.env.plate_half_extent, self.backend.plate_top, self.env.params.ball.radius)
         #: mm, the ball's distance from the plate centre when the plant was closed (None while it runs)
         self.final_error_mm: float | None = None

@@ -253,7 +253,8 @@ class VirtualDevice:
         geometry: the platform (preset name, TOML path or geometry).
         calibration: the board's channels and limits (default: the geometry's).
         faults: :class:`Faults` to inject.
-        seed, randomize: the twin's episode (ball start, physics, panel noise).
+        seed: the twin's episode (ball start, physics, panel noise).
+        randomize: domain randomisation of that episode.
         link: a path to make a symlink to the pty (replaced if it is a link).
         env_id: the env whose task places the ball.
     """

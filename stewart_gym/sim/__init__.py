@@ -1,9 +1,16 @@
-"""PyBullet simulation of servo Stewart platforms: URDF generation, hobby-servo model, simulator."""
+"""Physics of servo Stewart platforms: the backend seam, the PyBullet and MuJoCo backends, URDF and MJCF
+generation, the hobby-servo model.
+
+Submodules load on first use, so that ``stewart_gym.sim.engines`` (engine names for the command line) and
+``stewart_gym.sim.backend`` import without PyBullet or MuJoCo installed (the ``[deploy]`` extra has neither).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from stewart_gym.sim.backend import BallSpec, PhysicsBackend, PlateLoad
-from stewart_gym.sim.servo_model import HobbyServos, ServoSpec
-from stewart_gym.sim.stewart_sim import PhysicsSpec, StewartSim
-from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf, write_urdfs
 
 __all__ = [
     "BallSpec",
@@ -18,3 +25,21 @@ __all__ = [
     "plate_urdf",
     "write_urdfs",
 ]
+
+_LAZY = {
+    "HobbyServos": "servo_model",
+    "ServoSpec": "servo_model",
+    "PhysicsSpec": "stewart_sim",
+    "StewartSim": "stewart_sim",
+    "MechanismSpec": "urdf",
+    "mechanism_urdf": "urdf",
+    "plate_urdf": "urdf",
+    "write_urdfs": "urdf",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'stewart_gym.sim' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"stewart_gym.sim.{module}"), name)
