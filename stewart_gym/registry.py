@@ -3,6 +3,7 @@
 ``--policy`` accepts, everywhere (``evaluate``, ``demo``, ``export``, ``deploy``):
 
 * ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
+* ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
 * ``pid``: the tuned cascaded PID baseline (``policies/pid_gains.json``);
 * a **run folder** written by ``stewart-gym train`` (``model.zip`` or
   ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
@@ -30,8 +31,8 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.errors import PolicyError
 
-__all__ = ["POLICY_DIR", "SHIPPED", "PolicySource", "deployable_policy", "export_policy", "load_for_evaluation",
-           "load_policy", "resolve_policy"]  # fmt: skip
+__all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "PolicySource", "deployable_policy", "export_policy",
+           "load_for_evaluation", "load_policy", "resolve_policy"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
@@ -40,13 +41,15 @@ SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallT
            ("StewartBallBalance-v0", "desk-rect"): "balance_desk_rect",
            # the balance policy, trained without pushes, handles them: see the docs' Environments page
            ("StewartBallDisturbance-v0", "servo-hexapod"): "balance"}
+#: The shipped policies trained with the camera sensor model (``--policy shipped-camera``): folder under ``policies/``.
+SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
 POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry")
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
-_KINDS_TEXT = "'shipped', 'pid', a run folder, a model .zip, a bundle folder or a PID gains .json"
+_KINDS_TEXT = "'shipped', 'shipped-camera', 'pid', a run folder, a model .zip, a bundle folder or a PID gains .json"
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ class PolicySource:
 
     @property
     def label(self) -> str:
-        return self.spec if self.spec in ("shipped", "pid") else self.path.name
+        return self.spec if self.spec in ("shipped", "shipped-camera", "pid") else self.path.name
 
 
 def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = None) -> PolicySource:
@@ -93,17 +96,19 @@ def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = 
     if spec == "pid":
         kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY}
         return PolicySource(spec, "pid", POLICY_DIR / "pid_gains.json", env_id or DEFAULT_ENV, kwargs)
-    if spec == "shipped":
+    if spec in ("shipped", "shipped-camera"):
         env_id, geo = env_id or DEFAULT_ENV, geometry or DEFAULT_GEOMETRY
-        if (env_id, geo) not in SHIPPED:
-            have = ", ".join(f"{e} on {g}" for e, g in SHIPPED)
-            raise PolicyError(f"no shipped policy for {env_id} on {geo}; shipped policies: {have}")
-        folder = POLICY_DIR / SHIPPED[(env_id, geo)]
+        table = SHIPPED if spec == "shipped" else SHIPPED_CAMERA
+        if (env_id, geo) not in table:
+            have = ", ".join(f"{e} on {g}" for e, g in table)
+            raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}")
+        folder = POLICY_DIR / table[(env_id, geo)]
+        extra = {"geometry": geo, **({"sensor": "camera"} if spec == "shipped-camera" else {})}
         if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
-            env_kwargs = {**_bundle_source(spec, folder / "bundle").env_kwargs, "geometry": geo}
+            env_kwargs = {**_bundle_source(spec, folder / "bundle").env_kwargs, **extra}
             return PolicySource(spec, "sb3", folder / "model.zip", env_id, env_kwargs, folder / "bundle")
         source = _sb3_source(spec, folder / "model.zip")
-        return PolicySource(spec, "sb3", source.path, env_id, {**source.env_kwargs, "geometry": geo})
+        return PolicySource(spec, "sb3", source.path, env_id, {**source.env_kwargs, **extra})
     path = Path(spec)
     if not path.exists():
         raise PolicyError(f"policy {spec!r}: no such file or folder; give {_KINDS_TEXT}")

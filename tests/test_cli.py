@@ -27,7 +27,8 @@ from conftest import Drain, FakeDevice
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
-               "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device")  # fmt: skip
+               "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
+               "camera-check")  # fmt: skip
 
 
 def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,
@@ -293,6 +294,14 @@ BAD = [
     ["assembly", "--guesses", "0"],
     # demo
     ["demo", "--backend", "x"],
+    # camera-check
+    ["camera-check"],
+    ["camera-check", "--camera-config", "{files}/missing.toml"],
+    ["camera-check", "--camera-config", "{files}/notes.txt"],
+    ["train", "--sensor", "lidar"],
+    ["evaluate", "--sensor", "lidar"],
+    ["deploy", "--sensor", "camera", "--port", "{files}/notes.txt"],
+    ["deploy", "--camera-config", "{files}/notes.txt", "--port", "{files}/notes.txt"],
     # virtual-device
     ["virtual-device", "--protocol", "i2c"],
     ["virtual-device", "--drop-rate", "1.5"],

@@ -16,7 +16,15 @@ def _panel() -> SimulatedTouchPanel:
     return SimulatedTouchPanel(TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.01))
 
 
-SIMULATED = {"touch-panel": _panel}
+def _camera() -> SimulatedSensor:
+    from dataclasses import replace
+
+    from stewart_gym.camera import CAMERA_PRESETS, SimulatedCamera
+
+    return SimulatedCamera(replace(CAMERA_PRESETS["webcam30"], miss_rate=0.0, centroid_noise_px=1.0))
+
+
+SIMULATED = {"touch-panel": _panel, "camera": _camera}
 
 
 @pytest.mark.parametrize("name", sorted(SIMULATED))

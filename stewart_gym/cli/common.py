@@ -183,6 +183,13 @@ def add_backend(parser: argparse.ArgumentParser, text: str) -> None:
     parser.add_argument("--backend", choices=BACKEND_NAMES, help=text)
 
 
+def add_sensor(parser: argparse.ArgumentParser, text: str) -> None:
+    """``--sensor panel|camera|pixy2|webcam30|global90`` (the env's ball sensor model)."""
+    from stewart_gym.camera import CAMERA_PRESETS
+
+    parser.add_argument("--sensor", choices=("panel", "camera", *CAMERA_PRESETS), help=text)
+
+
 def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod") -> None:
     """``--geometry NAME|FILE``."""
     from stewart_gym.presets import preset_names

@@ -12,6 +12,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.cli.common import (
     EXIT_CODES_HELP,
+    EXIT_FAILED,
     EXIT_OK,
     add_backend,
     add_geometry,
@@ -101,6 +102,15 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
     elif args.backend:
         raise ConfigError("--backend chooses the simulated plant's engine: it needs --sensor sim")
+    camera_config = None
+    if args.sensor == "camera":
+        if not args.camera_config:
+            raise ConfigError("--sensor camera needs --camera-config FILE (see stewart-gym camera-check)")
+        from stewart_gym.vision import CameraConfig
+
+        camera_config = CameraConfig.from_toml(args.camera_config)
+    elif args.camera_config:
+        raise ConfigError("--camera-config goes with --sensor camera")
     if args.sensor == "panel" and protocol != "line":
         raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
     task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
@@ -122,6 +132,14 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     if args.sensor == "panel":
         assert isinstance(controller, LineController)
         sensor = PanelSensor(controller)
+    elif args.sensor == "camera":
+        from stewart_gym.hardware.camera_sensor import CameraSensor
+
+        try:
+            sensor = CameraSensor(camera_config)  # type: ignore[arg-type]
+        except BaseException:
+            controller.close()
+            raise
     else:
         try:
             sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize, geometry=geometry,
@@ -132,7 +150,13 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     if task.moving_target:
         print(f"tracking a {getattr(task, 'trajectory', 'moving')} target ({env_id})", flush=True)
     plant = sensor if isinstance(sensor, SimulatedPlant) else None
-    summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
+    try:
+        summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
+    finally:
+        if args.sensor == "camera":
+            sensor.close()  # type: ignore[union-attr]
+    if args.sensor == "camera":
+        summary.message += f"; camera: ball found in {sensor.found} of {sensor.frames} frames"  # type: ignore[union-attr]
     if isinstance(sensor, SimulatedPlant) and sensor.final_error_mm is not None:
         summary.message += f"; simulated ball {sensor.final_error_mm:.1f} mm from the centre"
     print(summary.text())
@@ -198,6 +222,60 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_camera_check(args: argparse.Namespace) -> int:
+    """Find the plate and the ball: in one image (--image; prints the ball in plate mm, exit 1 if none), or in live
+    frames from the config's camera or video, writing an annotated image to tune the colour range."""
+    import json
+
+    from stewart_gym.vision import CameraConfig, annotate, locate_ball
+
+    config = CameraConfig.from_toml(args.camera_config)
+    out = output_file(args.out, suffixes=(".png", ".jpg")) if args.out else None
+    import cv2
+
+    if args.image:
+        if not Path(args.image).is_file():
+            raise ConfigError(f"--image {args.image}: no such file")
+        frame = cv2.imread(args.image)
+        if frame is None:
+            raise ConfigError(f"--image {args.image}: not an image OpenCV can read")
+        frames = [frame]
+    else:
+        cap = cv2.VideoCapture(config.source)
+        if not cap.isOpened():
+            from stewart_gym.errors import DeviceFailure
+
+            raise DeviceFailure(f"camera {config.source!r} cannot be opened (wrong index or path, or in use?)")
+        frames = []
+        for _ in range(args.frames):
+            ok, frame = cap.read()
+            if not ok:
+                break
+            frames.append(frame)
+        cap.release()
+        if not frames:
+            raise ConfigError(f"camera {config.source!r} gave no frames")
+    detections = [locate_ball(f, config) for f in frames]
+    last = detections[-1]
+    if out is None and not args.image:
+        out = output_file("camera_check.png", suffixes=(".png",))
+    if out is not None:
+        cv2.imwrite(str(out), annotate(frames[-1], config, last))
+    if args.json:
+        result = last.as_dict()
+        if not args.image:
+            result["frames"], result["found"] = len(detections), sum(d.xy_mm is not None for d in detections)
+        print(json.dumps(result))
+    else:
+        if len(detections) > 1:
+            print(f"ball found in {sum(d.xy_mm is not None for d in detections)} of {len(detections)} frames")
+        print(f"ball at ({last.xy_mm[0]:.1f}, {last.xy_mm[1]:.1f}) mm, {last.markers} markers"
+              if last.xy_mm is not None else f"no ball: {last.reason}")  # fmt: skip
+        if out is not None:
+            print(f"annotated image: {out}")
+    return EXIT_OK if last.xy_mm is not None else EXIT_FAILED
+
+
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
@@ -207,7 +285,8 @@ def register(sub: Any) -> None:
     p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
-    p.add_argument("--sensor", choices=["sim", "panel"], default="sim")
+    p.add_argument("--sensor", choices=["sim", "panel", "camera"], default="sim")
+    p.add_argument("--camera-config", help="camera config TOML (--sensor camera; see stewart-gym camera-check)")
     add_backend(p, "physics engine of the simulated plant (--sensor sim; default pybullet)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
     p.add_argument("--duration", type=positive_float, help="seconds (default: until Ctrl-C)")
@@ -243,6 +322,14 @@ def register(sub: Any) -> None:
     p.add_argument("--unplug-after", type=bounded_float(0.0, 1e6), metavar="S",
                    help="disappear S seconds after the first frame")  # fmt: skip
     p.set_defaults(func=cmd_virtual_device, backend="pybullet")
+
+    p = sub.add_parser("camera-check", help=cmd_camera_check.__doc__, description=cmd_camera_check.__doc__)
+    p.add_argument("--camera-config", required=True, help="camera config TOML ([camera], [markers], [ball])")
+    p.add_argument("--image", help="one image file to read instead of the camera")
+    p.add_argument("--frames", type=int_at_least(1, 10_000), default=30, help="live frames to grab (default 30)")
+    p.add_argument("--out", help="annotated image (.png/.jpg; default camera_check.png for live frames)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_camera_check)
 
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
     add_geometry(p)

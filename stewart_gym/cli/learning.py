@@ -10,6 +10,7 @@ from typing import Any
 from stewart_gym.cli.common import (
     EXIT_OK,
     add_backend,
+    add_sensor,
     int_at_least,
     output_dir,
     output_file,
@@ -21,7 +22,7 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
-POLICY_HELP = "shipped, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
+POLICY_HELP = "shipped, shipped-camera, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -29,7 +30,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
-                      geometry=args.geometry, backend=args.backend,
+                      geometry=args.geometry, backend=args.backend, sensor=args.sensor,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
                       eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
@@ -51,6 +52,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         check_can_render(args.backend)
     source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry)
     env_kwargs = with_backend(env_kwargs, args.backend)
+    sensor = args.sensor or source.env_kwargs.get("sensor")  # by default the sensor the policy was trained with
+    if sensor is not None:
+        env_kwargs["sensor"] = sensor
     env_id = args.env or source.env_id
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
@@ -128,9 +132,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     out = output_dir(args.out)
     source = resolve_policy(args.policy, args.env, args.geometry)
-    if args.geometry and args.policy not in ("shipped", "pid") and not same_geometry(args.geometry, source.geometry):
+    named = args.policy in ("shipped", "shipped-camera", "pid")
+    if args.geometry and not named and not same_geometry(args.geometry, source.geometry):
         raise ConfigError(f"{args.policy} was trained for geometry {source.geometry!r}, not {args.geometry!r}")
-    if args.env and args.policy not in ("shipped", "pid") and source.env_id != args.env:
+    if args.env and not named and source.env_id != args.env:
         raise ConfigError(f"{args.policy} was trained on {source.env_id}, not {args.env}; leave out --env")
     folder = export_policy(source, out)
     print(f"bundle written to {folder} ({source.env_id}, action mode {source.action_mode})")
@@ -145,6 +150,7 @@ def register(sub: Any) -> None:
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
+    add_sensor(p, "ball sensor model to train with (default: the YAML's, else panel)")
     p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
@@ -159,13 +165,13 @@ def register(sub: Any) -> None:
     p.add_argument("--no-tensorboard", action="store_true")
     p.set_defaults(func=cmd_train)
 
-    POLICY_HELP = "shipped, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
     p = sub.add_parser("evaluate", help=cmd_evaluate.__doc__, description=cmd_evaluate.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, help="default: the env the policy was trained for (balance for pid)")
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
     p.add_argument("--geometry", help="the platform: picks the shipped policy or sets the PID's; a trained policy "
                                       "runs on its own (default servo-hexapod)")
     add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
+    add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")

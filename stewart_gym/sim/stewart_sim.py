@@ -17,6 +17,7 @@ built once; :meth:`StewartSim.reset` restores a saved state.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import shutil
 import sys
@@ -32,12 +33,14 @@ import pybullet as pb
 from pybullet_utils.bullet_client import BulletClient
 
 from stewart_gym.calibration import ServoCalibration
+from stewart_gym.camera import CameraSpec
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim.backend import BallSpec, PlateLoad
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
+from stewart_gym.vision import MarkerLayout
 
 __all__ = ["PhysicsSpec", "StewartSim"]
 
@@ -221,6 +224,8 @@ class StewartSim:
         self._ball_shapes: dict[float, tuple[int, int]] = {}
         self._plate_load: tuple[float, np.ndarray] | None = None
         self.ball = self._make_ball() if self.has_ball else None
+        self._marker_body: int | None = None
+        self._marker_layout: MarkerLayout | None = None
 
     def _make_ball(self) -> int:
         """Create the ball resting at the plate centre (collision shapes are cached per radius)."""
@@ -291,6 +296,9 @@ class StewartSim:
         c = self._client
         if self.ball is not None:
             c.removeBody(self.ball)
+        if self._marker_body is not None:  # restoreState needs the bodies of the saved state only
+            c.removeBody(self._marker_body)
+            self._marker_body = None
         c.restoreState(self._state)
         self._frame = None
         self._step_count = 0
@@ -440,6 +448,88 @@ class StewartSim:
         _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
                                             lightDirection=[0.4, -0.6, 1.0], shadow=0)  # fmt: skip
         return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+    def camera_image(self, camera: CameraSpec, markers: MarkerLayout | None = None,
+                     ball_rgb: tuple[float, float, float] = (1.0, 0.45, 0.0)) -> np.ndarray:  # fmt: skip
+        """What ``camera`` sees now: a BGR image (height, width, 3) uint8 for the vision pipeline.
+
+        The camera sits on the plate's axis at home, ``camera.distance_m`` above
+        the plate surface (``mount="above"``), looking down with +y up in the
+        image. The plate carries ``markers`` (ArUco, black on a white quiet zone,
+        drawn as thin boxes on its surface; default :class:`MarkerLayout`) and the
+        ball is drawn in ``ball_rgb``. TinyRenderer, headless, lit from the
+        camera so that the ball's shading is symmetric.
+        """
+        if camera.mount != "above":
+            raise ValueError("camera_image renders a camera above the plate (markers seen from below are mirrored)")
+        markers = markers or MarkerLayout()
+        c = self._client
+        if self._marker_body is None or self._marker_layout != markers:
+            if self._marker_body is not None:
+                c.removeBody(self._marker_body)
+            self._marker_body, self._marker_layout = self._make_markers(markers), markers
+        origin, rot = self._plate_frame()
+        quat = pb.getQuaternionFromEuler(euler_from_matrix(rot)[:3])
+        c.resetBasePositionAndOrientation(self._marker_body, origin.tolist(), quat)
+        if self.ball is not None:
+            c.changeVisualShape(self.ball, -1, rgbaColor=[*ball_rgb, 1.0])
+        width, height = camera.resolution
+        top = self.geometry.home_position + np.array([0.0, 0.0, self.mechanism.plate_top])
+        view = c.computeViewMatrix((top + [0.0, 0.0, camera.distance_m]).tolist(), top.tolist(), [0.0, 1.0, 0.0])
+        fov_v = 2 * math.degrees(math.atan(math.tan(math.radians(camera.fov_deg) / 2) * height / width))
+        proj = c.computeProjectionMatrixFOV(fov_v, width / height, 0.01, camera.distance_m + 1.0)
+        _, _, rgba, _, _ = c.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                            lightDirection=[0.0, 0.0, 1.0], shadow=0)  # fmt: skip
+        if self.ball is not None:
+            c.changeVisualShape(self.ball, -1, rgbaColor=[0.85, 0.85, 0.9, 1])
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+        return np.ascontiguousarray(rgb[:, :, ::-1])
+
+    def _make_markers(self, layout: MarkerLayout) -> int:
+        """A visual-only body in the platform frame: per marker a white quiet zone and its black cells."""
+        import cv2
+
+        c = self._client
+        dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, layout.dictionary))
+        cells = dictionary.markerSize + 2
+        z0 = self.mechanism.plate_top
+        halves, positions, colours = [], [], []
+        for index, marker_id in enumerate(layout.ids):
+            img = cv2.aruco.generateImageMarker(dictionary, int(marker_id), cells)  # one pixel per cell
+            cx, cy = (v / 1e3 for v in layout.centres_mm[index])
+            side = layout.size_mm / 1e3
+            cell = side / cells
+            halves.append([0.75 * side, 0.75 * side, 0.0002])
+            positions.append([cx, cy, z0 + 0.0002])
+            colours.append([1.0, 1.0, 1.0, 1.0])
+            for row in range(cells):  # row 0 is the marker's top, toward +y
+                col = 0
+                while col < cells:
+                    if img[row, col] == 0:
+                        end = col
+                        while end + 1 < cells and img[row, end + 1] == 0:
+                            end += 1
+                        halves.append([(end - col + 1) * cell / 2, cell / 2, 0.0002])
+                        positions.append([cx - side / 2 + (col + end + 1) * cell / 2,
+                                          cy + side / 2 - (row + 0.5) * cell, z0 + 0.0006])  # fmt: skip
+                        colours.append([0.0, 0.0, 0.0, 1.0])
+                        col = end + 1
+                    else:
+                        col += 1
+        body_visuals = []
+        for h, p, rgba in zip(halves, positions, colours):  # one body per colour keeps the API simple
+            body_visuals.append(c.createVisualShape(pb.GEOM_BOX, halfExtents=h, visualFramePosition=p, rgbaColor=rgba))
+        base = body_visuals[0]
+        return c.createMultiBody(0.0, -1, base, [0, 0, 0], linkMasses=[0.0] * (len(body_visuals) - 1),
+                                 linkCollisionShapeIndices=[-1] * (len(body_visuals) - 1),
+                                 linkVisualShapeIndices=body_visuals[1:],
+                                 linkPositions=[[0, 0, 0]] * (len(body_visuals) - 1),
+                                 linkOrientations=[[0, 0, 0, 1]] * (len(body_visuals) - 1),
+                                 linkInertialFramePositions=[[0, 0, 0]] * (len(body_visuals) - 1),
+                                 linkInertialFrameOrientations=[[0, 0, 0, 1]] * (len(body_visuals) - 1),
+                                 linkParentIndices=[0] * (len(body_visuals) - 1),
+                                 linkJointTypes=[pb.JOINT_FIXED] * (len(body_visuals) - 1),
+                                 linkJointAxis=[[0, 0, 1]] * (len(body_visuals) - 1))  # fmt: skip
 
     # ------------------------------------------------------------ lifecycle
     def close(self) -> None:

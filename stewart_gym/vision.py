@@ -1,0 +1,299 @@
+"""Finding the ball in a camera image (OpenCV): the plate from four ArUco markers, the ball by colour.
+
+The pipeline, per frame (:func:`locate_ball`):
+
+1. **The plate.** ArUco markers lie flat at the plate's corners, axis-aligned with
+   their top edge toward +y; their ids, centres and size (mm) are in the camera
+   config. Every marker found gives four corners with known plate coordinates:
+   at least two markers fix the plate (a homography, and the camera's pose by
+   ``solvePnP``), so a tilted plate is handled frame by frame.
+2. **The ball.** Pixels inside an HSV range, cleaned by a morphological opening;
+   the largest blob, if big enough, gives a sub-pixel centroid (image moments).
+3. **Plate millimetres.** The centroid's ray from the camera meets the plane one
+   ball radius above the plate (the ball's centre): that corrects the parallax of
+   a ball seen off the camera's axis. ``radius_mm = 0`` (a flat target) maps the
+   centroid straight onto the plate with the homography.
+
+It says why when there is no plate (too few markers) or no ball. Lens distortion
+is not modelled: calibrate it out first if your lens has much.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.errors import ConfigError
+from stewart_gym.tomlio import read_toml
+
+__all__ = ["BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "locate_ball", "marker_corners_mm"]
+
+
+def _cv2() -> Any:
+    try:
+        import cv2
+    except ImportError:  # pragma: no cover - depends on the install
+        raise ConfigError("camera sensing needs OpenCV: pip install 'stewart_gym[camera]'") from None
+    return cv2
+
+
+@dataclass(frozen=True)
+class MarkerLayout:
+    """Four ArUco markers on the plate.
+
+    Attributes:
+        dictionary: an OpenCV ArUco dictionary name, e.g. ``"DICT_4X4_50"``.
+        ids: the four marker ids.
+        centres_mm: each marker's centre in plate coordinates (x, y), mm.
+        size_mm: the side of a marker's black square, mm.
+    """
+
+    dictionary: str = "DICT_4X4_50"
+    ids: tuple[int, ...] = (0, 1, 2, 3)
+    centres_mm: tuple[tuple[float, float], ...] = ((-125.0, 125.0), (125.0, 125.0), (125.0, -125.0), (-125.0, -125.0))
+    size_mm: float = 36.0
+
+    def __post_init__(self) -> None:
+        cv2 = _cv2()
+        if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
+            raise ConfigError(f"markers.dictionary: not an OpenCV ArUco dictionary: {self.dictionary!r} "
+                              "(for example DICT_4X4_50)")  # fmt: skip
+        if len(self.ids) != 4 or len(set(self.ids)) != 4 or any(int(i) < 0 for i in self.ids):
+            raise ConfigError(f"markers.ids: four distinct marker ids, got {list(self.ids)}")
+        if len(self.centres_mm) != 4 or any(len(c) != 2 or not all(math.isfinite(v) for v in c)
+                                            for c in self.centres_mm):  # fmt: skip
+            raise ConfigError(f"markers.centres_mm: four [x, y] pairs in mm, got {self.centres_mm}")
+        if not (math.isfinite(self.size_mm) and self.size_mm > 0):
+            raise ConfigError(f"markers.size_mm: a positive size in mm, got {self.size_mm!r}")
+
+
+def marker_corners_mm(layout: MarkerLayout, index: int) -> np.ndarray:
+    """(4, 2) plate coordinates (mm) of marker ``index``'s corners in OpenCV's order: top-left, top-right,
+    bottom-right, bottom-left of the marker's own image (its top edge toward +y)."""
+    cx, cy = layout.centres_mm[index]
+    h = layout.size_mm / 2
+    return np.array([[cx - h, cy + h], [cx + h, cy + h], [cx + h, cy - h], [cx - h, cy - h]], dtype=np.float64)
+
+
+@dataclass(frozen=True)
+class BallColour:
+    """The ball: an OpenCV HSV range (H 0–179, S and V 0–255) and its radius (0: a flat target, no parallax)."""
+
+    hsv_low: tuple[int, int, int] = (5, 120, 120)
+    hsv_high: tuple[int, int, int] = (25, 255, 255)
+    radius_mm: float = 12.7
+
+    def __post_init__(self) -> None:
+        for key in ("hsv_low", "hsv_high"):
+            v = getattr(self, key)
+            if len(v) != 3 or not all(0 <= int(c) <= (179 if i == 0 else 255) for i, c in enumerate(v)):
+                raise ConfigError(f"ball.{key}: three ints, H 0–179, S and V 0–255; got {list(v)}")
+        if not (math.isfinite(self.radius_mm) and self.radius_mm >= 0):
+            raise ConfigError(f"ball.radius_mm: ≥ 0 mm, got {self.radius_mm!r}")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """Where frames come from and how to read them (TOML: :meth:`from_toml`).
+
+    Attributes:
+        source: a camera index (int), a device path or a video file.
+        resolution: (width, height) px requested from a camera (a video file keeps its own).
+        fps: frame rate requested from a camera.
+        fov_deg: the horizontal field of view, for the camera's intrinsics (parallax correction).
+        markers: the plate's markers.
+        ball: the ball's colour and radius.
+        min_ball_px: the smallest blob (pixels) counted as the ball.
+    """
+
+    source: int | str = 0
+    resolution: tuple[int, int] = (640, 480)
+    fps: float = 30.0
+    fov_deg: float = 60.0
+    markers: MarkerLayout = field(default_factory=MarkerLayout)
+    ball: BallColour = field(default_factory=BallColour)
+    min_ball_px: int = 12
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> CameraConfig:
+        """Read a camera config; a mistake names its field. Layout::
+
+            [camera]
+            source = 0                    # index, "/dev/video0" or "clip.mp4"
+            resolution = [640, 480]
+            fps = 30
+            fov_deg = 60
+            [markers]
+            dictionary = "DICT_4X4_50"
+            ids = [0, 1, 2, 3]
+            centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]
+            size_mm = 36
+            [ball]
+            hsv_low = [5, 120, 120]
+            hsv_high = [25, 255, 255]
+            radius_mm = 12.7
+        """
+        data = read_toml(path, ConfigError)
+        unknown = sorted(set(data) - {"camera", "markers", "ball"})
+        if unknown:
+            raise ConfigError(f"{path}: unknown table(s) {unknown}; known: camera, markers, ball")
+        cam, mk, ball = (dict(data.get(k, {})) for k in ("camera", "markers", "ball"))
+        for name, table, known in (("camera", cam, {"source", "resolution", "fps", "fov_deg", "min_ball_px"}),
+                                   ("markers", mk, {"dictionary", "ids", "centres_mm", "size_mm"}),
+                                   ("ball", ball, {"hsv_low", "hsv_high", "radius_mm"})):  # fmt: skip
+            extra = sorted(set(table) - known)
+            if extra:
+                raise ConfigError(f"{path}: unknown field(s) {extra} in [{name}]; known: {sorted(known)}")
+        if "markers" not in data:
+            raise ConfigError(f"{path}: needs a [markers] table (dictionary, ids, centres_mm, size_mm)")
+        try:
+            markers = MarkerLayout(str(mk.get("dictionary", "DICT_4X4_50")), tuple(int(i) for i in mk["ids"]),
+                                   tuple((float(c[0]), float(c[1])) for c in mk["centres_mm"]),
+                                   float(mk["size_mm"]))  # fmt: skip
+            colour = BallColour(tuple(int(v) for v in ball.get("hsv_low", BallColour.hsv_low)),
+                                tuple(int(v) for v in ball.get("hsv_high", BallColour.hsv_high)),
+                                float(ball.get("radius_mm", BallColour.radius_mm)))  # fmt: skip
+            source = cam.get("source", 0)
+            if isinstance(source, bool) or not isinstance(source, (int, str)):
+                raise ConfigError(f"camera.source: a camera index, a device path or a video file, got {source!r}")
+            width, height = (int(v) for v in cam.get("resolution", (640, 480)))
+            fps, fov = float(cam.get("fps", 30.0)), float(cam.get("fov_deg", 60.0))
+        except KeyError as exc:
+            raise ConfigError(f"{path}: markers.{exc.args[0]} is missing") from None
+        except (TypeError, ValueError, IndexError) as exc:
+            raise ConfigError(f"{path}: a field has the wrong type ({exc})") from None
+        if not (32 <= width <= 10000 and 32 <= height <= 10000 and 0 < fps <= 1000 and 10 <= fov <= 150):
+            raise ConfigError(f"{path}: camera resolution, fps or fov_deg out of range")
+        if isinstance(source, str) and not source.startswith("/dev/") and not Path(source).exists():
+            raise ConfigError(f"camera.source: {source} does not exist (give a camera index, a device or a video file)")
+        return cls(source, (width, height), fps, fov, markers, colour, int(cam.get("min_ball_px", 12)))
+
+
+@dataclass(frozen=True)
+class Detection:
+    """The ball in one frame, or why not.
+
+    Attributes:
+        xy_mm: (x, y) on the plate, mm (None if not found).
+        reason: why there is no ball ("" when found).
+        pixel: the ball's centroid (u, v), px.
+        markers: how many of the plate's markers were found.
+    """
+
+    xy_mm: tuple[float, float] | None
+    reason: str = ""
+    pixel: tuple[float, float] | None = None
+    markers: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        """``{"x_mm": …, "y_mm": …}`` or ``{"ball": None, "reason": …}`` (what ``camera-check --json`` prints)."""
+        if self.xy_mm is None:
+            return {"ball": None, "reason": self.reason}
+        return {"x_mm": round(self.xy_mm[0], 2), "y_mm": round(self.xy_mm[1], 2)}
+
+
+class _Detectors:
+    """OpenCV objects built once per config."""
+
+    cache: dict[int, Any] = {}
+
+    @classmethod
+    def aruco(cls, layout: MarkerLayout) -> Any:
+        key = hash((layout.dictionary,))
+        if key not in cls.cache:
+            cv2 = _cv2()
+            params = cv2.aruco.DetectorParameters()
+            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+            dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, layout.dictionary))
+            cls.cache[key] = cv2.aruco.ArucoDetector(dictionary, params)
+        return cls.cache[key]
+
+
+def _intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
+    f = width / 2 / math.tan(math.radians(fov_deg) / 2)
+    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+def locate_ball(image_bgr: np.ndarray, config: CameraConfig) -> Detection:
+    """Find the plate and the ball in a BGR image; see the module's description."""
+    cv2 = _cv2()
+    layout = config.markers
+    corners, ids, _ = _Detectors.aruco(layout).detectMarkers(image_bgr)
+    img_pts, plate_pts = [], []
+    if ids is not None:
+        for c, marker_id in zip(corners, ids.ravel().tolist()):
+            if marker_id in layout.ids:
+                img_pts.append(c.reshape(4, 2))
+                plate_pts.append(marker_corners_mm(layout, layout.ids.index(marker_id)))
+    found = len(img_pts)
+    if found < 2:
+        return Detection(None, f"no plate: {found} of its 4 markers found (need 2)", markers=found)
+    img = np.concatenate(img_pts).astype(np.float64)
+    plate = np.concatenate(plate_pts)
+    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+    mask = cv2.inRange(hsv, np.array(config.ball.hsv_low, np.uint8), np.array(config.ball.hsv_high, np.uint8))
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return Detection(None, "no ball: no pixels in the HSV range", markers=found)
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    area = int(stats[best, cv2.CC_STAT_AREA])
+    if area < config.min_ball_px:
+        return Detection(None, f"no ball: the largest blob in the HSV range has {area} px (< {config.min_ball_px})",
+                         markers=found)  # fmt: skip
+    x0, y0, w, h = (int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH,
+                                                 cv2.CC_STAT_HEIGHT))  # fmt: skip
+    m = cv2.moments((labels[y0:y0 + h, x0:x0 + w] == best).astype(np.uint8), binaryImage=True)
+    u, v = x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]
+    r = config.ball.radius_mm
+    if r == 0:
+        hom, _ = cv2.findHomography(img, plate)
+        p = hom @ np.array([u, v, 1.0])
+        return Detection((float(p[0] / p[2]), float(p[1] / p[2])), pixel=(u, v), markers=found)
+    height, width = image_bgr.shape[:2]
+    k = _intrinsics(width, height, config.fov_deg)
+    obj = np.column_stack([plate, np.zeros(len(plate))])
+    ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_IPPE if found == 1 else cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        return Detection(None, "no plate: its pose could not be solved from the markers", markers=found)
+    rot, _ = cv2.Rodrigues(rvec)
+    centre = -rot.T @ tvec.ravel()  # the camera in plate mm
+    ray = rot.T @ np.linalg.solve(k, np.array([u, v, 1.0]))
+    if abs(ray[2]) < 1e-9:
+        return Detection(None, "no ball: its ray runs parallel to the plate", pixel=(u, v), markers=found)
+    s = (r - centre[2]) / ray[2]
+    p = centre + s * ray
+    return Detection((float(p[0]), float(p[1])), pixel=(u, v), markers=found)
+
+
+def annotate(image_bgr: np.ndarray, config: CameraConfig, detection: Detection) -> np.ndarray:
+    """A copy of the image with the markers found, the plate's outline, the ball and its coordinates drawn on it
+    (what ``camera-check`` writes, to tune the colour range)."""
+    cv2 = _cv2()
+    out = image_bgr.copy()
+    layout = config.markers
+    corners, ids, _ = _Detectors.aruco(layout).detectMarkers(image_bgr)
+    if ids is not None:
+        cv2.aruco.drawDetectedMarkers(out, corners, ids)
+        img_pts = [c.reshape(4, 2) for c, i in zip(corners, ids.ravel().tolist()) if i in layout.ids]
+        plate_pts = [marker_corners_mm(layout, layout.ids.index(i)) for i in ids.ravel().tolist() if i in layout.ids]
+        if len(img_pts) >= 2:
+            hom, _ = cv2.findHomography(np.concatenate(plate_pts), np.concatenate(img_pts))
+            xs = [c[0] for c in layout.centres_mm]
+            ys = [c[1] for c in layout.centres_mm]
+            h = layout.size_mm / 2
+            box = np.array([[min(xs) - h, max(ys) + h], [max(xs) + h, max(ys) + h], [max(xs) + h, min(ys) - h],
+                            [min(xs) - h, min(ys) - h]], dtype=np.float64)  # fmt: skip
+            outline = cv2.perspectiveTransform(box[None], hom)[0]
+            cv2.polylines(out, [outline.astype(np.int32)], True, (255, 160, 0), 2)
+    if detection.pixel is not None:
+        u, v = detection.pixel
+        cv2.circle(out, (int(round(u)), int(round(v))), 6, (0, 255, 0), 2)
+    text = (f"ball ({detection.xy_mm[0]:.1f}, {detection.xy_mm[1]:.1f}) mm" if detection.xy_mm is not None
+            else detection.reason)  # fmt: skip
+    cv2.putText(out, text, (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 255), 2)
+    return out

@@ -1,0 +1,232 @@
+"""Camera sensing: the analytic model, the env with a camera, the OpenCV pipeline on rendered frames, the camera
+config, ``camera-check`` and ``deploy --sensor camera`` through the CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import gymnasium as gym
+import numpy as np
+import pytest
+from conftest import Drain, FakeDevice
+
+from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
+from stewart_gym.errors import ConfigError
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.sim import StewartSim
+from stewart_gym.vision import CameraConfig, locate_ball
+
+WEBCAM = CAMERA_PRESETS["webcam30"]
+CONFIG_TOML = """
+[camera]
+source = "{source}"
+resolution = [640, 480]
+fps = 30
+fov_deg = 60
+
+[markers]
+dictionary = "DICT_4X4_50"
+ids = [0, 1, 2, 3]
+centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]
+size_mm = 36
+
+[ball]
+hsv_low = [5, 120, 120]
+hsv_high = [25, 255, 255]
+radius_mm = 12.7
+"""
+
+
+def sg(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=300, env=dict(os.environ))  # fmt: skip
+
+
+# ------------------------------------------------------------------ model
+def test_parallax_is_corrected_or_modelled() -> None:
+    """A ball 100 mm off the axis: read exactly when the pipeline knows the radius; 100·d/(d − r) mm when it
+    maps onto the plate (a flat target), and 100·d/(d + r) seen from below."""
+    r, d = 0.0127, WEBCAM.distance_m
+    exact = SimulatedCamera(replace(WEBCAM, centroid_noise_px=0.0), r)
+    assert exact.detect(0.1, 0.0)[0] == pytest.approx(0.1, abs=2e-4)  # quantisation only
+    flat = SimulatedCamera(replace(WEBCAM, parallax_corrected=False), r)
+    assert flat.detect(0.1, 0.0)[0] == pytest.approx(0.1 * d / (d - r), abs=2e-4)
+    below = SimulatedCamera(replace(WEBCAM, mount="below", parallax_corrected=False), r)
+    assert below.detect(0.1, 0.0)[0] == pytest.approx(0.1 * d / (d + r), abs=2e-4)
+
+
+def test_frames_latency_noise_and_misses() -> None:
+    spec = replace(WEBCAM, fps=30.0, latency_s=0.05, miss_rate=0.2, centroid_noise_px=0.5)
+    cam = SimulatedCamera(spec)
+    cam.reset(0.0, (0.05, -0.02), np.random.default_rng(1))
+    times, errors, misses = [], [], 0
+    for k in range(1, 3001):
+        t = k * 0.01
+        cam.record(t, (0.05, -0.02), True)
+        got = cam.read(t)
+        if k % 4:
+            continue
+        if got is None:
+            misses += 1
+            continue
+        (x, y), ts = got
+        times.append((t, ts))
+        errors += [x - 0.05, y + 0.02]
+    assert all(ts == pytest.approx(math.floor((t - 0.05) * 30 + 1e-9) / 30) for t, ts in times)
+    assert 0.15 < misses / 750 < 0.25
+    sigma = float(np.std(errors))
+    assert sigma == pytest.approx(0.5 * spec.mm_per_px() * 1e-3, rel=0.25)
+
+
+def test_presets_see_the_reference_plate_and_bad_specs_are_refused() -> None:
+    for spec in CAMERA_PRESETS.values():
+        assert spec.sees((0.15, 0.15)), spec.name
+    for bad in ({"fps": 0.0}, {"fov_deg": math.nan}, {"miss_rate": 1.0}, {"mount": "side"}, {"resolution": (8, 8)}):
+        with pytest.raises(ConfigError):
+            CameraSpec(**bad)
+
+
+def test_the_env_takes_a_camera_and_randomises_over_the_presets() -> None:
+    env = gym.make("StewartBallBalance-v0", sensor="pixy2")
+    env.reset(seed=0)
+    assert isinstance(env.unwrapped.sensor_model, SimulatedCamera)
+    assert env.unwrapped.sensor_model.spec.name == "pixy2"
+    env.close()
+    env = gym.make("StewartBallBalance-v0", sensor="camera", randomize=True)
+    names = set()
+    for seed in range(12):
+        env.reset(seed=seed)
+        names.add(env.unwrapped.params.sensor.name)
+        obs, *_ = env.step(np.zeros(2, dtype=np.float32))
+        assert np.all(np.isfinite(obs))
+    env.close()
+    assert names == set(CAMERA_PRESETS)
+    with pytest.raises(ConfigError, match="sensor"):
+        gym.make("StewartBallBalance-v0", sensor="kinect")
+
+
+# --------------------------------------------------------- rendered frames
+def _render_set(n: int, seed: int, ball: bool) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(image, true ball xy mm) pairs: random positions over the plate (within the markers' square) and plate
+    tilts of up to 10° in any direction, at 640×480."""
+    rng = np.random.default_rng(seed)
+    out = []
+    with StewartSim(ball=True) as sim:
+        for _ in range(n):
+            sim.reset()
+            angle, size = rng.uniform(0, 2 * math.pi), math.radians(10) * math.sqrt(rng.uniform())
+            ik = inverse_kinematics(sim.geometry, np.array([0, 0, 0, size * math.cos(angle), size * math.sin(angle), 0]))
+            sim.command(sim.calibration.pulse_widths(ik.servo_angles))
+            for _ in range(20):
+                sim.step()
+            if ball:
+                sim.place_ball(rng.uniform(-0.125, 0.125, 2))
+            else:
+                sim.place_ball(np.array([5.0, 5.0]))  # far off the plate and out of view
+            out.append((sim.camera_image(WEBCAM), np.array(sim.ball_position()[:2]) * 1e3))
+    return out
+
+
+def test_detection_on_rendered_frames_is_within_a_millimetre() -> None:
+    """200 random ball positions with the plate tilted by up to 10°: RMS ≤ 1 mm, worst ≤ 3 mm; 50 frames without
+    a ball: no detection."""
+    config = CameraConfig(fov_deg=WEBCAM.fov_deg)
+    errors = []
+    for image, truth in _render_set(200, seed=3, ball=True):
+        d = locate_ball(image, config)
+        assert d.xy_mm is not None, d.reason
+        errors.append(float(np.hypot(*(np.array(d.xy_mm) - truth))))
+    rms, worst = float(np.sqrt(np.mean(np.square(errors)))), max(errors)
+    print(f"camera pipeline on 200 rendered frames: RMS {rms:.3f} mm, worst {worst:.3f} mm")
+    assert rms <= 1.0 and worst <= 3.0
+    for image, _ in _render_set(50, seed=4, ball=False):
+        d = locate_ball(image, config)
+        assert d.xy_mm is None and d.reason.startswith("no ball") and d.markers == 4
+
+
+def test_no_plate_is_said() -> None:
+    blank = np.full((480, 640, 3), 255, np.uint8)
+    cv2.circle(blank, (320, 240), 14, (0, 110, 255), -1)  # an orange ball and no markers
+    d = locate_ball(blank, CameraConfig())
+    assert d.xy_mm is None and d.reason.startswith("no plate") and d.markers == 0
+
+
+# ------------------------------------------------------------- config and CLI
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3 s MJPG clip rendered from the simulator (the ball rolling on a gently rocking plate) and its config."""
+    folder = tmp_path_factory.mktemp("camera")
+    video = folder / "clip.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, WEBCAM.resolution)
+    with StewartSim(ball=True) as sim:
+        sim.place_ball(np.array([0.03, -0.02]))
+        for k in range(90):
+            pose = np.array([0, 0, 0, math.radians(3) * math.sin(k / 10), 0, 0])
+            sim.command(sim.calibration.pulse_widths(inverse_kinematics(sim.geometry, pose).servo_angles))
+            sim.step()
+            image = sim.camera_image(WEBCAM)
+            if k == 0:
+                cv2.imwrite(str(folder / "frame.png"), image)
+            writer.write(image)
+    writer.release()
+    (folder / "cam.toml").write_text(CONFIG_TOML.format(source=video))
+    return folder
+
+
+def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
+    good = CONFIG_TOML.format(source=tmp_path)
+    for old, new, field in [
+        ('dictionary = "DICT_4X4_50"', 'dictionary = "DICT_9X9_1"', "dictionary"),
+        ("ids = [0, 1, 2, 3]", "ids = [0, 1, 2]", "ids"),
+        ("size_mm = 36", "size_mm = -3", "size_mm"),
+        ("hsv_low = [5, 120, 120]", "hsv_low = [5, 120, 300]", "hsv_low"),
+        ("fps = 30", "fps = 30\nzoom = 2", "zoom"),
+        (f'source = "{tmp_path}"', 'source = "missing.mp4"', "source"),
+    ]:
+        path = tmp_path / "c.toml"
+        path.write_text(good.replace(old, new))
+        with pytest.raises(ConfigError, match=field):
+            CameraConfig.from_toml(path)
+
+
+def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> None:
+    one = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(clip / "frame.png"),
+             "--json", cwd=tmp_path)  # fmt: skip
+    assert one.returncode == 0, one.stderr
+    got = json.loads(one.stdout.strip().splitlines()[-1])
+    assert got["x_mm"] == pytest.approx(30.0, abs=1.0) and got["y_mm"] == pytest.approx(-20.0, abs=1.0)
+    empty = tmp_path / "empty.png"
+    cv2.imwrite(str(empty), cv2.imread(str(clip / "frame.png"))[:, :, ::-1] * 0 + 255)
+    none = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(empty), "--json", cwd=tmp_path)
+    assert none.returncode == 1 and json.loads(none.stdout.strip().splitlines()[-1])["ball"] is None
+    live = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--frames", "10", "--out",
+              str(tmp_path / "a.png"), cwd=tmp_path)  # fmt: skip
+    assert live.returncode == 0 and "ball found in 10 of 10 frames" in live.stdout, live.stderr
+    assert cv2.imread(str(tmp_path / "a.png")).shape == (480, 640, 3)
+    bad = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(tmp_path / "nope.png"),
+             cwd=tmp_path)  # fmt: skip
+    errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]
+    assert bad.returncode == 1 and len(errors) == 1 and "nope.png" in errors[0]
+
+
+def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: Path, device: FakeDevice) -> None:
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(clip / "cam.toml"), "--port",
+             device.path, "--protocol", "maestro", "--duration", "2", "--log", str(tmp_path / "d.csv"),
+             cwd=tmp_path)  # fmt: skip
+    data = drain.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    assert "camera: ball found in" in dep.stdout
+    found, frames = (int(v) for v in dep.stdout.split("camera: ball found in ")[1].split(" frames")[0].split(" of "))
+    assert frames >= 45 and found == frames  # 30 fps for 2 s, every frame read
+    raw = np.frombuffer(data[: len(data) - len(data) % 24], dtype=np.uint8).reshape(-1, 6, 4)
+    assert len(raw) >= 90 and np.all(raw[:, :, 0] == 0x84) and np.all(raw[:, :, 1] == np.arange(6))
+    no_config = sg("deploy", "--policy", "pid", "--sensor", "camera", "--port", device.path, cwd=tmp_path)
+    assert no_config.returncode == 1 and "--camera-config" in no_config.stderr
