@@ -182,3 +182,25 @@ def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> Non
     assert dep.returncode == 2 and "unplugged" in out, dep.stdout + dep.stderr
     assert "device failure" in dep.stdout and "unplugged?" in dep.stdout and "Traceback" not in dep.stderr
     assert 0.9 <= float(rows[-1]["t_s"]) <= 1.0 + 2 * 0.02 + 0.05  # the tick that hit the closed port was the last
+
+
+def test_the_rendered_camera_closes_the_loop_through_the_virtual_board(tmp_path: Path) -> None:
+    """The board streams the twin's camera view (MJPEG in a named pipe); deploy reads it as a camera, finds the
+    plate's markers and the ball in every frame, and balances the ball it sees."""
+    pipe = tmp_path / "camera.mjpg"
+    board = Board(tmp_path, "--protocol", "maestro", "--camera-stream", str(pipe), "--camera", "pixy2", "--seed", "2")
+    config = tmp_path / "camera.toml"
+    config.write_text(f'[camera]\nsource = "{pipe}"\nresolution = [316, 208]\nfps = 60\nfov_deg = 60\n'
+                      '[markers]\ndictionary = "DICT_4X4_50"\nids = [0, 1, 2, 3]\n'
+                      'centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]\nsize_mm = 36\n'
+                      '[ball]\nhsv_low = [5, 120, 120]\nhsv_high = [25, 255, 255]\nradius_mm = 12.7\n')  # fmt: skip
+    dep, rows = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "camera",
+                       "--camera-config", str(config), "--duration", "6")  # fmt: skip
+    code, out, err = board.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    found, frames = (int(v) for v in dep.stdout.split("camera: ball found in ")[1].split(" frames")[0].split(" of "))
+    assert frames >= 150 and found >= 0.95 * frames
+    assert code == 0 and "on the plate" in out and "camera frames streamed" in out, out + err
+    distance = float(out.split(" mm from the centre")[0].rsplit(", ", 1)[1])
+    assert distance < 15.0, out
+    assert not pipe.exists()  # the board removes its pipe

@@ -212,8 +212,14 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    camera = None
+    if args.camera_stream:
+        from stewart_gym.camera import camera_preset
+
+        camera = camera_preset(args.camera)
     device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
-                           randomize=not args.no_randomize, link=args.link, env_id=args.env)  # fmt: skip
+                           randomize=not args.no_randomize, link=args.link, env_id=args.env, camera=camera,
+                           camera_stream=args.camera_stream)  # fmt: skip
     where = device.path + (f" (link {device.link})" if device.link else "")
     print(f"virtual {args.protocol} board with {geometry.name} in {args.backend} on {where}; Ctrl-C to stop",
           flush=True)  # fmt: skip
@@ -321,6 +327,10 @@ def register(sub: Any) -> None:
     p.add_argument("--latency-ms", type=bounded_float(0.0, 1000.0), default=0.0, help="added latency, both ways")
     p.add_argument("--unplug-after", type=bounded_float(0.0, 1e6), metavar="S",
                    help="disappear S seconds after the first frame")  # fmt: skip
+    p.add_argument("--camera-stream", metavar="PIPE",
+                   help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
+    p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",
+                   help="the streamed camera's preset: resolution, field of view, frame rate (default pixy2)")
     p.set_defaults(func=cmd_virtual_device, backend="pybullet")
 
     p = sub.add_parser("camera-check", help=cmd_camera_check.__doc__, description=cmd_camera_check.__doc__)

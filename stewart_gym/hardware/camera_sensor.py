@@ -1,8 +1,9 @@
 """The camera as ``deploy``'s ball sensor: frames read in a background thread, the newest detection taken.
 
 :class:`CameraSensor` is a :class:`~stewart_gym.sensing.BallSensor`. A thread
-grabs frames from a camera (index or device) or a video file (played at its own
-frame rate, as a camera would deliver it), runs
+grabs frames from a camera (index or device), a named pipe carrying an MJPEG stream
+(``virtual-device --camera-stream``), or a video file (played at its own frame
+rate, as a camera would deliver it), runs
 :func:`~stewart_gym.vision.locate_ball` on each and keeps the newest detection
 with its capture time. ``read(t)`` returns the newest *found* ball: a frame with
 no ball (or no plate) leaves the last one in place, so its age grows and the
@@ -11,6 +12,8 @@ deploy watchdog sends the platform home exactly as for a stale panel reading.
 
 from __future__ import annotations
 
+import os
+import stat
 import threading
 import time
 
@@ -29,8 +32,13 @@ class CameraSensor:
 
         self.config = config
         source = config.source
-        self._is_file = isinstance(source, str) and not source.startswith("/dev/")
-        self._cap = cv2.VideoCapture(source)
+        live_pipe = isinstance(source, str) and stat.S_ISFIFO(os.stat(source).st_mode)
+        self._is_file = isinstance(source, str) and not source.startswith("/dev/") and not live_pipe
+        if live_pipe:  # an MJPEG stream in a named pipe (the virtual device's camera): decode as it comes
+            os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg")
+            self._cap = cv2.VideoCapture(source, cv2.CAP_FFMPEG)
+        else:
+            self._cap = cv2.VideoCapture(source)
         if not self._cap.isOpened():
             raise DeviceFailure(f"camera {source!r} cannot be opened (wrong index or path, or in use?)")
         if not self._is_file:

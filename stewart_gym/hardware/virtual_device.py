@@ -21,6 +21,7 @@ import math
 import os
 import pty
 import re
+import stat
 import time
 import tty
 from collections import deque
@@ -215,6 +216,77 @@ class LineParser:
             out.targets += [(c, float(w)) for c, w in zip(self._channels, m.groups())]
 
 
+# ------------------------------------------------------------------ camera
+class CameraStream:
+    """Rendered frames as an MJPEG stream in a named pipe (what ``deploy --sensor camera`` reads as a camera).
+
+    The pipe is made at ``path``; a thread waits for a reader, then writes the newest frame as it comes (an
+    old frame is dropped rather than queued: a camera delivers the present). A reader that goes away is
+    waited for again.
+    """
+
+    def __init__(self, path: str) -> None:
+        import queue
+        import threading
+
+        p = Path(path)
+        if p.exists() or p.is_symlink():
+            if not stat.S_ISFIFO(p.stat().st_mode):
+                raise ConfigError(f"--camera-stream {path} exists and is not a pipe: give another path")
+            p.unlink()
+        os.mkfifo(p)
+        self.path = p
+        self.connected = False
+        self._frames: queue.Queue[bytes] = queue.Queue(maxsize=1)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="camera-stream", daemon=True)
+        self._thread.start()
+
+    def put(self, image_bgr: np.ndarray) -> None:
+        import queue
+
+        import cv2
+
+        ok, jpeg = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, 92])
+        if not ok:
+            return
+        try:
+            self._frames.get_nowait()  # drop a frame the reader has not taken yet
+        except queue.Empty:
+            pass
+        self._frames.put_nowait(jpeg.tobytes())
+
+    def _run(self) -> None:
+        import queue
+
+        while not self._stop.is_set():
+            try:
+                fd = os.open(self.path, os.O_WRONLY | os.O_NONBLOCK)
+            except OSError:  # no reader yet
+                self._stop.wait(0.05)
+                continue
+            os.set_blocking(fd, True)
+            self.connected = True
+            try:
+                while not self._stop.is_set():
+                    try:
+                        data = self._frames.get(timeout=0.1)
+                    except queue.Empty:
+                        continue
+                    os.write(fd, data)
+            except OSError:  # the reader went away
+                pass
+            finally:
+                self.connected = False
+                os.close(fd)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        if self.path.exists():
+            self.path.unlink()
+
+
 # ------------------------------------------------------------------ device
 @dataclass
 class VirtualSummary:
@@ -232,12 +304,14 @@ class VirtualSummary:
     ball_mm: tuple[float, float] | None = None
     fell_off: bool = False
     unplugged: bool = False
+    camera_frames: int = 0
 
     def text(self) -> str:
         ball = "never placed" if self.ball_mm is None else (
             f"ended at ({self.ball_mm[0]:.1f}, {self.ball_mm[1]:.1f}) mm, "
             f"{math.hypot(*self.ball_mm):.1f} mm from the centre, " + ("fell off" if self.fell_off else "on the plate"))
         extra = f", {self.reports} ball reports sent" if self.protocol == "line" else ""
+        extra += f", {self.camera_frames} camera frames streamed" if self.camera_frames else ""
         return (f"virtual {self.protocol}: {self.messages} messages received, {self.malformed} malformed, "
                 f"{self.queries} queries answered, {self.clamped} targets clamped to the channel limits{extra}; "
                 f"faults injected: {self.dropped_bytes} bytes dropped, {self.corrupted_bytes} corrupted"
@@ -261,8 +335,8 @@ class VirtualDevice:
 
     def __init__(self, protocol: str, backend: str = "pybullet", geometry: Any = "servo-hexapod",
                  calibration: ServoCalibration | None = None, faults: Faults | None = None, seed: int = 0,
-                 randomize: bool = True, link: str | None = None,
-                 env_id: str = "StewartBallBalance-v0") -> None:  # fmt: skip
+                 randomize: bool = True, link: str | None = None, env_id: str = "StewartBallBalance-v0",
+                 camera: Any = None, camera_stream: str | None = None) -> None:  # fmt: skip
         from stewart_gym.hardware.deploy import SimulatedPlant
         from stewart_gym.presets import load_geometry
 
@@ -297,6 +371,12 @@ class VirtualDevice:
                 raise ConfigError(f"{link} exists and is not a link: give another --link path")
             p.symlink_to(self.path)
             self.link = p
+        self.camera, self.stream = camera, None
+        if camera_stream:
+            if backend != "pybullet":
+                raise ConfigError("--camera-stream renders the twin's camera with PyBullet: use --backend pybullet")
+            self.stream = CameraStream(camera_stream)
+        self._next_frame = 0.0
         self._incoming: deque[tuple[float, list[tuple[int, float]]]] = deque()
         self._outgoing: deque[tuple[float, bytes]] = deque()
         self._started: float | None = None
@@ -382,6 +462,10 @@ class VirtualDevice:
                     if since is not None:
                         while backend.time < since:  # real time: one control period per step
                             self.plant.apply(self.held)
+                    if self.stream is not None and self.stream.connected and now >= self._next_frame:
+                        self.stream.put(backend.camera_image(self.camera))  # what the camera sees now
+                        self._next_frame = max(self._next_frame + 1.0 / self.camera.fps, now - 0.5)
+                        self.summary.camera_frames += 1
                     if self.protocol == "line":
                         if since is None and now - last_ready >= 0.25:
                             self._send(f"{LineProtocol.READY}\n".encode(), now)
@@ -425,6 +509,8 @@ class VirtualDevice:
             on, _ = ball_contact(x, y, z, half, top, radius)
             s.ball_mm, s.fell_off = (x * 1e3, y * 1e3), not on
         self.plant.close()
+        if self.stream is not None:
+            self.stream.close()
         if not s.unplugged:
             self._unplug()
             s.unplugged = False
