@@ -62,6 +62,17 @@ class TrainConfig:
     verbose: int = 0
 
 
+def resume_statistics(resume: Path) -> Path | None:
+    """The VecNormalize statistics of a model to resume: ``vecnormalize.pkl`` in a run folder or beside a model
+    (``best/best_model.zip``), ``model_vecnormalize_<n>_steps.pkl`` beside a checkpoint; None if there are none."""
+    if resume.is_dir():
+        candidates = [resume / "vecnormalize.pkl"]
+    else:
+        candidates = [resume.with_name(resume.name.replace("model_", "model_vecnormalize_").replace(".zip", ".pkl")),
+                      resume.with_name("vecnormalize.pkl")]  # fmt: skip
+    return next((c for c in candidates if c.is_file()), None)
+
+
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
     """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong."""
     path = Path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
@@ -105,6 +116,10 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         model = resume / "model.zip" if resume.is_dir() else resume
         if not model.is_file():
             raise ConfigError(f"--resume {config.resume}: no model at {model}")
+        if hp.get("normalize", False) and resume_statistics(resume) is None:
+            raise ConfigError(f"--resume {config.resume}: no normalisation statistics beside the model "
+                              "(vecnormalize.pkl); resume from a run folder, its best/best_model.zip or a "
+                              "checkpoint")  # fmt: skip
     elif not overwrite and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
         raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
 
@@ -209,11 +224,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     resume = Path(config.resume) if config.resume else None
     stats = None
     if resume is not None:
-        stats = (resume / "vecnormalize.pkl") if resume.is_dir() else resume.with_name(
-            resume.name.replace("model_", "model_vecnormalize_").replace(".zip", ".pkl"))  # fmt: skip
+        stats = resume_statistics(resume)
     if normalize:
         norm_kwargs = normalize if isinstance(normalize, dict) else {}
-        if stats is not None and stats.exists():
+        if stats is not None:
             env = VecNormalize.load(str(stats), env)
         else:
             env = VecNormalize(env, **{"norm_obs": True, "norm_reward": True, **norm_kwargs})

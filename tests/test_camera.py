@@ -230,3 +230,29 @@ def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: P
     assert len(raw) >= 90 and np.all(raw[:, :, 0] == 0x84) and np.all(raw[:, :, 1] == np.arange(6))
     no_config = sg("deploy", "--policy", "pid", "--sensor", "camera", "--port", device.path, cwd=tmp_path)
     assert no_config.returncode == 1 and "--camera-config" in no_config.stderr
+
+
+def test_a_camera_that_never_finds_the_ball_sends_the_platform_home(clip: Path, tmp_path: Path,
+                                                                    device: FakeDevice) -> None:  # fmt: skip
+    """Frames with the plate but no ball: no detection ever arrives, so the watchdog holds the platform at home,
+    as for a silent touch panel."""
+    video = tmp_path / "empty.avi"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, WEBCAM.resolution)
+    with StewartSim(ball=True) as sim:
+        sim.place_ball(np.array([5.0, 5.0]))  # out of view
+        image = sim.camera_image(WEBCAM)
+    for _ in range(60):
+        writer.write(image)
+    writer.release()
+    config = tmp_path / "cam.toml"
+    config.write_text((clip / "cam.toml").read_text().replace(str(clip / "clip.avi"), str(video)))
+    drain = Drain(device)
+    dep = sg("deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(config), "--port", device.path,
+             "--protocol", "maestro", "--duration", "1", "--log", str(tmp_path / "d.csv"), cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert dep.returncode == 0, dep.stderr
+    assert "camera: ball found in 0 of" in dep.stdout
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "d.csv").open()))
+    assert rows and all(int(r["stale"]) and int(r["homing"]) for r in rows)

@@ -54,6 +54,18 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
                              n_timesteps=200, eval_freq=1000, eval_episodes=1, progress_bar=False,
                              tensorboard=False))  # fmt: skip
     assert more["timesteps"] >= metrics["timesteps"] + 200
+    # resume from the best model takes the statistics saved beside it (once, it silently started fresh ones)
+    from stewart_gym.training import check_run_dir, resume_statistics
+
+    assert resume_statistics(run / "best" / "best_model.zip") == run / "best" / "vecnormalize.pkl"
+    checkpoint = sorted((run / "checkpoints").glob("rl_model_*_steps.zip"))[0]
+    assert resume_statistics(checkpoint).name.startswith("rl_model_vecnormalize_")
+    lone = tmp_path / "lone"
+    lone.mkdir()
+    (lone / "model.zip").write_bytes((run / "model.zip").read_bytes())
+    with pytest.raises(ConfigError, match="normalisation statistics"):
+        check_run_dir(TrainConfig(algo=algo, hyperparams=str(hp_file), run_dir=str(tmp_path / "run3"),
+                                  resume=str(lone / "model.zip")))  # fmt: skip
 
 
 def test_hyperparameter_files_have_every_env() -> None:
