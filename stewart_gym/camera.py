@@ -25,7 +25,6 @@ interpolation of the true path) is as for the touch panel.
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
@@ -33,6 +32,7 @@ from typing import Literal
 import numpy as np
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.sensing import BallHistory
 
 __all__ = ["CAMERA_PRESETS", "CameraSpec", "SimulatedCamera", "camera_preset"]
 
@@ -128,7 +128,7 @@ class SimulatedCamera:
         self.spec = spec
         self.ball_radius = float(ball_radius)
         self.assumed_radius = assumed_radius
-        self._history: deque[tuple[float, float, float, bool]] = deque(maxlen=max(8, int(history_s * 1000)))
+        self._history = BallHistory(history_s)
         self._frames: dict[int, tuple[float, float] | None] = {}
         self._rng = np.random.default_rng()
 
@@ -137,24 +137,12 @@ class SimulatedCamera:
         self._history.clear()
         self._frames.clear()
         self._rng = rng
-        self._history.append((t - self.spec.latency_s - 2.0 / self.spec.fps - 1.0, float(xy[0]), float(xy[1]), True))
+        self._history.append(t - self.spec.latency_s - 2.0 / self.spec.fps - 1.0, xy[0], xy[1], True)
         self.record(t, xy, True)
 
     def record(self, t: float, xy: Sequence[float], touching: bool) -> None:
         """Record the true plate-frame ball position ``xy`` (m) at time ``t`` (s)."""
-        self._history.append((t, float(xy[0]), float(xy[1]), bool(touching)))
-
-    def _true_at(self, ts: float) -> tuple[float, float, bool]:
-        hist = self._history
-        i = len(hist) - 1
-        while i > 0 and hist[i][0] > ts:
-            i -= 1
-        t0, x0, y0, on0 = hist[i]
-        if i + 1 < len(hist):
-            t1, x1, y1, on1 = hist[i + 1]
-            w = (ts - t0) / (t1 - t0) if t1 > t0 else 0.0
-            return x0 + w * (x1 - x0), y0 + w * (y1 - y0), on0 and on1
-        return x0, y0, on0
+        self._history.append(t, xy[0], xy[1], touching)
 
     def detect(self, x: float, y: float, noise: tuple[float, float] = (0.0, 0.0)) -> tuple[float, float]:
         """The pipeline's plate coordinates (m) of a ball whose centre is at plate ``(x, y)``, with centroid
@@ -178,7 +166,7 @@ class SimulatedCamera:
         k = math.floor((t - s.latency_s) * s.fps + 1e-9)
         ts = k / s.fps
         if k not in self._frames:
-            x, y, on = self._true_at(ts)
+            x, y, on = self._history.at(ts)
             miss = self._rng.random() < s.miss_rate
             if not on or miss:
                 self._frames[k] = None

@@ -85,6 +85,37 @@ class TouchPanelSpec:
             raise ValueError(f"invalid touch panel spec {self}")
 
 
+class BallHistory:
+    """The true ball positions a sensor model was fed: (t, x, y, touching), interpolated in between.
+
+    Args:
+        history_s: roughly how much to keep (1,000 entries per second of it, at least 8).
+    """
+
+    def __init__(self, history_s: float = 1.0) -> None:
+        self._entries: deque[tuple[float, float, float, bool]] = deque(maxlen=max(8, int(history_s * 1000)))
+
+    def clear(self) -> None:
+        self._entries.clear()
+
+    def append(self, t: float, x: float, y: float, touching: bool) -> None:
+        self._entries.append((float(t), float(x), float(y), bool(touching)))
+
+    def at(self, ts: float) -> tuple[float, float, bool]:
+        """(x, y, touching) at time ``ts``: linear between the entries around it, the last one after it, and
+        touching only if both neighbours were."""
+        hist = self._entries
+        i = len(hist) - 1
+        while i > 0 and hist[i][0] > ts:
+            i -= 1
+        t0, x0, y0, on0 = hist[i]
+        if i + 1 < len(hist):
+            t1, x1, y1, on1 = hist[i + 1]
+            w = (ts - t0) / (t1 - t0) if t1 > t0 else 0.0
+            return x0 + w * (x1 - x0), y0 + w * (y1 - y0), on0 and on1
+        return x0, y0, on0
+
+
 class SimulatedTouchPanel:
     """Touch-panel readings of a simulated ball.
 
@@ -96,7 +127,7 @@ class SimulatedTouchPanel:
 
     def __init__(self, spec: TouchPanelSpec, history_s: float = 1.0) -> None:
         self.spec = spec
-        self._history: deque[tuple[float, float, float, bool]] = deque(maxlen=max(8, int(history_s * 1000)))
+        self._history = BallHistory(history_s)
         self._noise: dict[int, tuple[float, float]] = {}
         self._draws: list[float] = []
         self._rng = np.random.default_rng()
@@ -108,29 +139,19 @@ class SimulatedTouchPanel:
         self._draws.clear()
         self._rng = rng
         # The ball was at rest there before t, so readings older than t are defined.
-        self._history.append((t - self.spec.latency_s - 1.0 / self.spec.rate_hz - 1.0, float(xy[0]), float(xy[1]), True))
+        self._history.append(t - self.spec.latency_s - 1.0 / self.spec.rate_hz - 1.0, xy[0], xy[1], True)
         self.record(t, xy, True)
 
     def record(self, t: float, xy: np.ndarray, on_plate: bool) -> None:
         """Record the true plate-frame ball position ``xy`` (m) at time ``t`` (s)."""
-        self._history.append((t, float(xy[0]), float(xy[1]), bool(on_plate)))
+        self._history.append(t, xy[0], xy[1], on_plate)
 
     def read(self, t: float) -> tuple[tuple[float, float], float] | None:
         """((x, y) m, sample time s) reported at time ``t``, or None if the ball was not touching the panel."""
         spec = self.spec
         k = math.floor((t - spec.latency_s) * spec.rate_hz + 1e-9)
         ts = k / spec.rate_hz
-        hist = self._history
-        i = len(hist) - 1
-        while i > 0 and hist[i][0] > ts:
-            i -= 1
-        t0, x0, y0, on0 = hist[i]
-        if i + 1 < len(hist):
-            t1, x1, y1, on1 = hist[i + 1]
-            w = (ts - t0) / (t1 - t0) if t1 > t0 else 0.0
-            x, y, on = x0 + w * (x1 - x0), y0 + w * (y1 - y0), on0 and on1
-        else:
-            x, y, on = x0, y0, on0
+        x, y, on = self._history.at(ts)
         if not on:
             return None
         noise = self._noise.get(k)

@@ -183,3 +183,34 @@ def xml_differences(a: str, b: str, tol: float = 1e-8) -> list[str]:
 
     walk(ET.fromstring(a), ET.fromstring(b), ET.fromstring(a).tag)
     return out
+
+
+def random_reachable_poses(n: int, seed: int, scale: float = 1.0, geometry: str = "servo-hexapod") -> np.ndarray:
+    """``n`` random reachable poses of a rotary build (±15 mm, ±10 mm heave, ±9° tilts, ±12° yaw, × ``scale``)."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    geo = load_preset(geometry)
+    rng = np.random.default_rng(seed)
+    box = np.array([0.015, 0.015, 0.010, math.radians(9), math.radians(9), math.radians(12)]) * scale
+    poses = rng.uniform(-1, 1, (20 * n, 6)) * box
+    return poses[inverse_kinematics(geo, poses).reachable][:n]
+
+
+def settled_pose_errors(sim: object, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Worst (mm, deg) error of a backend's settled pose against each commanded pose (IK → pulses, 40 control
+    steps) and against FK of the pulses its servos hold."""
+    from stewart_gym.kinematics import forward_kinematics, inverse_kinematics
+
+    geo = sim.geometry
+    sim.reset()
+    worst, worst_fk = np.zeros(2), np.zeros(2)
+    for pose in poses:
+        sim.command(sim.calibration.pulse_widths(inverse_kinematics(geo, pose).servo_angles))
+        for _ in range(40):
+            sim.step()
+        got = sim.platform_pose()
+        fk = forward_kinematics(geo, servo_angles=sim.calibration.angles(sim.held_pulses()), guess=pose)
+        for acc, ref in ((worst, pose), (worst_fk, fk.pose)):
+            err = np.abs(got - ref)
+            acc[:] = np.maximum(acc, [err[:3].max() * 1e3, math.degrees(err[3:].max())])
+    return worst, worst_fk

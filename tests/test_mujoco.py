@@ -13,11 +13,11 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice, xml_differences
+from conftest import Drain, FakeDevice, random_reachable_poses, settled_pose_errors, xml_differences
 
 from stewart_gym.analysis import aggressive_moves
 from stewart_gym.calibration import ServoCalibration
-from stewart_gym.kinematics import forward_kinematics, inverse_kinematics
+from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.presets import load_preset, preset_names
 from stewart_gym.sim import ServoSpec, StewartSim
 from stewart_gym.sim.mjcf import mechanism_mjcf
@@ -26,13 +26,6 @@ from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = load_preset("servo-hexapod")
-
-
-def random_reachable_poses(n: int, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    box = np.array([0.015, 0.015, 0.010, math.radians(9), math.radians(9), math.radians(12)])
-    poses = rng.uniform(-1, 1, (20 * n, 6)) * box
-    return poses[inverse_kinematics(GEO, poses).reachable][:n]
 
 
 # ---------------------------------------------------------------------- MJCF
@@ -86,33 +79,17 @@ def test_home_state_satisfies_ik_and_holds() -> None:
         assert np.abs(sim.platform_pose()[:3]).max() < 5e-5 and np.abs(sim.platform_pose()[3:]).max() < 1e-4
 
 
-def _fidelity(sim: MujocoSim, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Worst (mm, deg) of the settled pose against the commanded pose and against FK of the held pulses."""
-    sim.reset()
-    worst, worst_fk = np.zeros(2), np.zeros(2)
-    for pose in poses:
-        sim.command(sim.calibration.pulse_widths(inverse_kinematics(GEO, pose).servo_angles))
-        for _ in range(40):
-            sim.step()
-        got = sim.platform_pose()
-        fk = forward_kinematics(GEO, servo_angles=sim.calibration.angles(sim.held_pulses()), guess=pose)
-        for acc, ref in ((worst, pose), (worst_fk, fk.pose)):
-            err = np.abs(got - ref)
-            acc[:] = np.maximum(acc, [err[:3].max() * 1e3, math.degrees(err[3:].max())])
-    return worst, worst_fk
-
-
 def test_commanded_poses_are_reached() -> None:
     """100 random reachable poses through IK → pulses settle within 0.5 mm and 0.1° with the dead band off; with
     the 5 µs dead band, the pose is FK of the pulses the servos hold (within 0.1 mm and 0.05°)."""
     poses = random_reachable_poses(100, seed=11)
     assert len(poses) == 100
     with MujocoSim(ball=True, servo_spec=ServoSpec(deadband_us=0.0)) as sim:
-        worst, _ = _fidelity(sim, poses)
+        worst, _ = settled_pose_errors(sim, poses)
     print(f"MuJoCo fidelity, no dead band: worst {worst[0]:.4f} mm, {worst[1]:.4f}°")
     assert worst[0] <= 0.5 and worst[1] <= 0.1
     with MujocoSim(ball=True) as sim:
-        _, worst_fk = _fidelity(sim, poses)
+        _, worst_fk = settled_pose_errors(sim, poses)
     print(f"MuJoCo fidelity, 5 µs dead band: {worst_fk[0]:.4f} mm, {worst_fk[1]:.4f}° against FK of the held pulses")
     # PyBullet's motor is a hard constraint (0.01 mm here); MuJoCo's velocity servo slips by ~0.03° under the plate
     assert worst_fk[0] <= 0.1 and worst_fk[1] <= 0.05

@@ -11,24 +11,17 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 import pytest
-from conftest import xml_differences
+from conftest import random_reachable_poses, settled_pose_errors, xml_differences
 from urdf_parser_py.urdf import URDF
 
 from stewart_gym.analysis import aggressive_moves
 from stewart_gym.calibration import PulseRangeError
-from stewart_gym.kinematics import forward_kinematics, inverse_kinematics
+from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.presets import load_preset
 from stewart_gym.sim import MechanismSpec, ServoSpec, StewartSim, mechanism_urdf, plate_urdf
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = load_preset("servo-hexapod")
-
-
-def random_reachable_poses(n: int, seed: int, scale: float = 1.0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    box = np.array([0.015, 0.015, 0.010, math.radians(9), math.radians(9), math.radians(12)]) * scale
-    poses = rng.uniform(-1, 1, (20 * n, 6)) * box
-    return poses[inverse_kinematics(GEO, poses).reachable][:n]
 
 
 @pytest.fixture(scope="module")
@@ -144,22 +137,6 @@ def test_home_state_satisfies_ik(sim: StewartSim) -> None:
     assert np.abs(sim.platform_pose()[:3]).max() < 2e-5 and np.abs(sim.platform_pose()[3:]).max() < 1e-4
 
 
-def _fidelity(s: StewartSim, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Worst (mm, deg) error of the settled pose against the commanded pose and against FK of the held pulses."""
-    s.reset()
-    worst, worst_fk = np.zeros(2), np.zeros(2)
-    for pose in poses:
-        s.command(s.calibration.pulse_widths(inverse_kinematics(GEO, pose).servo_angles))
-        for _ in range(40):
-            s.step()
-        got = s.platform_pose()
-        fk = forward_kinematics(GEO, servo_angles=s.calibration.angles(s.held_pulses()), guess=pose)
-        for acc, ref in ((worst, pose), (worst_fk, fk.pose)):
-            err = np.abs(got - ref)
-            acc[:] = np.maximum(acc, [err[:3].max() * 1e3, math.degrees(err[3:].max())])
-    return worst, worst_fk
-
-
 def test_commanded_poses_are_reached() -> None:
     """100 random reachable poses through IK → pulse widths → command settle within 0.5 mm and 0.1°.
 
@@ -171,11 +148,11 @@ def test_commanded_poses_are_reached() -> None:
     poses = random_reachable_poses(100, seed=11)
     assert len(poses) == 100
     with StewartSim(ball=True, servo_spec=ServoSpec(deadband_us=0.0)) as s:
-        worst, worst_fk = _fidelity(s, poses)
+        worst, worst_fk = settled_pose_errors(s, poses)
     print(f"fidelity, no dead band: worst {worst[0]:.4f} mm, {worst[1]:.4f}° against the commanded pose")
     assert worst[0] <= 0.5 and worst[1] <= 0.1
     with StewartSim(ball=True) as s:
-        worst, worst_fk = _fidelity(s, poses)
+        worst, worst_fk = settled_pose_errors(s, poses)
     print(f"fidelity, 5 µs dead band: worst {worst[0]:.4f} mm, {worst[1]:.4f}° against the commanded pose, "
           f"{worst_fk[0]:.5f} mm, {worst_fk[1]:.5f}° against FK of the held pulses")  # fmt: skip
     assert worst_fk[0] <= 0.01 and worst_fk[1] <= 0.002
