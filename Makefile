@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench train lint docs clean
+.PHONY: demo test bench train train-camera lint docs clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,16 @@ bench: $(STAMP)
 	$(PY) bench/bench_env.py
 	$(PY) bench/bench_deploy.py
 	$(PY) bench/bench_analysis.py
+	$(PY) bench/bench_mujoco.py
+	$(PY) bench/bench_camera.py
+
+# Reproduce the camera-trained policy (policies/balance_camera): fine-tune the shipped balance policy with the
+# camera model (a preset per episode), then twice on the hardest preset, the 30 fps webcam (about 30 minutes).
+train-camera: $(STAMP)
+	$(PY) -m stewart_gym train --sensor camera --resume stewart_gym/policies/balance --hyperparams stewart_gym/hyperparams/ppo_finetune.yml --run-dir runs/camera --overwrite --no-progress
+	$(PY) -m stewart_gym train --sensor webcam30 --resume runs/camera --hyperparams stewart_gym/hyperparams/ppo_finetune.yml --run-dir runs/camera_webcam --timesteps 400000 --overwrite --no-progress
+	$(PY) -m stewart_gym train --sensor webcam30 --resume runs/camera_webcam/best/best_model.zip --hyperparams stewart_gym/hyperparams/ppo_finetune.yml --run-dir runs/camera_webcam2 --timesteps 500000 --overwrite --no-progress
+	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
 # Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
 train: $(STAMP)
