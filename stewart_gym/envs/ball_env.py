@@ -97,7 +97,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     to a target. Every action goes through the analytic inverse kinematics and
     the servo calibration to pulse widths (µs), exactly as on hardware; the
     simulated servos act on those pulses with hobby-servo speed, dead band and
-    lag. The ball is sensed as a resistive touch panel would report it.
+    lag. The ball is sensed as a resistive touch panel would report it, or a camera (``sensor=``).
 
     ## Action Space
     ``Box(-1, 1, (n,), float32)``; ``action_mode`` picks the mapping:
@@ -158,8 +158,10 @@ class StewartBallEnv(gym.Env, EzPickle):
     in full-range moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves
     and ≤ 0.042 mm under ±10° bang-bang tilts; MuJoCo 250 Hz), ``control_hz``, ``rate_penalty``,
     ``ball`` (:class:`~stewart_gym.sim.BallSpec`), ``servo``
-    (:class:`~stewart_gym.sim.ServoSpec`), ``sensor``
-    (:class:`~stewart_gym.sensing.TouchPanelSpec`), ``geometry``,
+    (:class:`~stewart_gym.sim.ServoSpec`), ``sensor`` (a
+    :class:`~stewart_gym.sensing.TouchPanelSpec`, a :class:`~stewart_gym.camera.CameraSpec`,
+    ``"panel"``, a camera preset ``"pixy2"``, ``"webcam30"``, ``"global90"``, or
+    ``"camera"``: a preset per randomised episode), ``geometry``,
     ``backend`` (``"pybullet"``, the default, or ``"mujoco"``: the same env in
     either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), and any
     keyword of the task (``trajectory`` for track).
@@ -207,7 +209,6 @@ class StewartBallEnv(gym.Env, EzPickle):
             geometry = check_ball_geometry(geometry, self.nominal_ball)
         rotary = (geometry if isinstance(backend, str) else backend.geometry).is_rotary
         self.nominal_servo = servo or (ServoSpec() if rotary else LINEAR_ACTUATOR)
-        self.backend_name = backend if isinstance(backend, str) else type(backend).__name__
         self.sim: PhysicsBackend = make_backend(
             backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode) if isinstance(backend, str) else backend  # fmt: skip
