@@ -124,7 +124,7 @@ class CameraConfig:
         """Read a camera config; a mistake names its field. Layout::
 
             [camera]
-            source = 0                    # index, "/dev/video0" or "clip.mp4"
+            source = 0                    # index, "/dev/video0" or "clip.mp4" (relative to this file)
             resolution = [640, 480]
             fps = 30
             fov_deg = 60
@@ -169,8 +169,12 @@ class CameraConfig:
             raise ConfigError(f"{path}: a field has the wrong type ({exc})") from None
         if not (32 <= width <= 10000 and 32 <= height <= 10000 and 0 < fps <= 1000 and 10 <= fov <= 150):
             raise ConfigError(f"{path}: camera resolution, fps or fov_deg out of range")
-        if isinstance(source, str) and not source.startswith("/dev/") and not Path(source).exists():
-            raise ConfigError(f"camera.source: {source} does not exist (give a camera index, a device or a video file)")
+        if isinstance(source, str) and not source.startswith("/dev/"):
+            found = Path(path).parent / source  # a relative video path is read from the config's folder
+            if not found.exists():
+                raise ConfigError(f"camera.source: {found} does not exist (give a camera index, a device or a video "
+                                  "file; a relative path is taken from the config's folder)")  # fmt: skip
+            source = str(found)
         return cls(source, (width, height), fps, fov, markers, colour, int(cam.get("min_ball_px", 12)))
 
 

@@ -194,6 +194,9 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
         path.write_text(good.replace(old, new))
         with pytest.raises(ConfigError, match=field):
             CameraConfig.from_toml(path)
+    (tmp_path / "v.avi").write_bytes(b"")  # a relative video path is read from the config's folder
+    (tmp_path / "rel.toml").write_text(good.replace(f'source = "{tmp_path}"', 'source = "v.avi"'))
+    assert CameraConfig.from_toml(tmp_path / "rel.toml").source == str(tmp_path / "v.avi")
 
 
 def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> None:

@@ -92,8 +92,10 @@ def test_no_bytes_move_a_servo_outside_its_limits(data: bytes, protocol: str) ->
 def test_faults_are_checked() -> None:
     from stewart_gym.errors import ConfigError
 
-    for bad in ({"drop_rate": 1.5}, {"corrupt_rate": -0.1}, {"latency_ms": math.nan}, {"unplug_after_s": -1.0}):
-        with pytest.raises(ConfigError):
+    for bad, name in (({"drop_rate": 1.5}, "drop-rate"), ({"corrupt_rate": -0.1}, "corrupt-rate"),
+                      ({"latency_ms": math.nan}, "latency-ms"), ({"unplug_after_s": -1.0}, "unplug-after "),
+                      ({"stall_sensor_after_s": math.inf}, "stall-sensor-after ")):  # fmt: skip
+        with pytest.raises(ConfigError, match=name):
             Faults(**bad)
 
 

@@ -70,7 +70,7 @@ class Faults:
         for key in ("stall_sensor_after_s", "unplug_after_s"):
             v = getattr(self, key)
             if v is not None and not (math.isfinite(v) and v >= 0.0):
-                raise ConfigError(f"{key.replace('_', '-').replace('-s', '')} must be ≥ 0 s, got {v!r}")
+                raise ConfigError(f"{key.removesuffix('_s').replace('_', '-')} must be ≥ 0 s, got {v!r}")
 
 
 # ----------------------------------------------------------------- parsers
