@@ -8,6 +8,8 @@ import math
 import gymnasium as gym
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.kinematics import inverse_kinematics
@@ -43,3 +45,22 @@ def test_unreachable_pose_goes_to_the_nearest_reachable_on_the_ray() -> None:
     assert pulse(np.full(6, 1.0)).pulses == pytest.approx(pulse.calibration.max_us)
     with pytest.raises(ValueError, match="finite"):
         pulse(np.array([0, 0, np.nan, 0, 0, 0]))
+
+
+POSE_MAPPER = ActionMapper(mode="pose")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=6, max_size=6))
+def test_the_ray_search_ends_on_the_edge_of_the_feasible(action: list[float]) -> None:
+    """Any pose action: the pose sent can be commanded (IK and pulse limits); if it was scaled, 1/4096 of the
+    pose farther out along the ray cannot."""
+    from stewart_gym.calibration import servo_pulses_one
+
+    mapper = POSE_MAPPER
+    mapped = mapper(np.array(action))
+    assert servo_pulses_one(mapper.geometry, mapper.calibration, mapped.pose.tolist()) is not None
+    assert np.all(mapper.calibration.in_range(mapped.pulses))
+    if mapped.scaled:
+        farther = (mapped.scale + 1 / 4096) * mapper.pose(np.array(action))
+        assert servo_pulses_one(mapper.geometry, mapper.calibration, farther.tolist()) is None
