@@ -109,6 +109,11 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
       success radius; ``settled_fraction`` says how many did.
     * ``max_tilt_deg``: largest commanded tilt; ``pulse_rate_us_per_s``: mean
       |ΔW| per servo per second (servo wear).
+    * Settled servo activity, over the last 5 s of every episode that did not end
+      with the ball off the plate: ``settled_pulse_rate_us_per_s`` (mean |ΔW| per
+      servo per second) and ``settled_pulse_p2p_us`` (the largest channel's
+      peak-to-peak, averaged over those episodes): how much the servos buzz once
+      the ball is held.
     """
     env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
     check_fits(policy, env)
@@ -118,6 +123,7 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
         tail = int(round(5.0 / dt))
         pooled = np.concatenate([np.asarray(lg.distance_mm[-tail:]) for lg in logs])
         pulses = [np.abs(np.diff(np.asarray(lg.pulses), axis=0)).mean() / dt for lg in logs if len(lg.pulses) > 1]
+        settled = [np.asarray(lg.pulses[-tail:]) for lg in logs if not lg.fell and len(lg.pulses) > 1]
         out: dict[str, Any] = {
             "env_id": env_id,
             "episodes": episodes,
@@ -129,6 +135,9 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
             "final_error_mm": float(np.mean([lg.distance_mm[-1] for lg in logs])),
             "max_tilt_deg": float(max(max(lg.tilt_deg) for lg in logs)),
             "pulse_rate_us_per_s": float(np.mean(pulses)),
+            "settled_pulse_rate_us_per_s": (float(np.mean([np.abs(np.diff(w, axis=0)).mean() / dt for w in settled]))
+                                            if settled else None),
+            "settled_pulse_p2p_us": float(np.mean([np.ptp(w, axis=0).max() for w in settled])) if settled else None,
             "settling_time_s": None,
             "settled_fraction": None,
         }
@@ -156,16 +165,18 @@ def format_table(results: dict[str, dict[str, Any]]) -> str:
             ("RMS error (last 5 s)", "rms_error_mm", "{:.2f} mm"), ("final error", "final_error_mm", "{:.2f} mm"),
             ("settling time (100 mm start)", "settling_time_s", "{:.2f} s"), ("settled", "settled_fraction", "{:.0%}"),
             ("largest tilt", "max_tilt_deg", "{:.1f}°"),
-            ("pulse rate (servo wear)", "pulse_rate_us_per_s", "{:.0f} µs/s")]  # fmt: skip
+            ("pulse rate (servo wear)", "pulse_rate_us_per_s", "{:.0f} µs/s"),
+            ("settled pulse rate (last 5 s)", "settled_pulse_rate_us_per_s", "{:.0f} µs/s"),
+            ("settled peak-to-peak", "settled_pulse_p2p_us", "{:.0f} µs")]  # fmt: skip
     names = list(results)
     width = max(12, *(len(n) for n in names))
-    lines = [f"{'':28s}" + "".join(f"{n:>{width + 2}s}" for n in names)]
+    lines = [f"{'':30s}" + "".join(f"{n:>{width + 2}s}" for n in names)]
     for label, key, fmt in rows:
         cells = []
         for n in names:
             v = results[n].get(key)
             cells.append(f"{'—' if v is None else fmt.format(v):>{width + 2}s}")
-        lines.append(f"{label:28s}" + "".join(cells))
+        lines.append(f"{label:30s}" + "".join(cells))
     return "\n".join(lines)
 
 

@@ -136,3 +136,24 @@ def test_shipped_policy_files_are_small_and_complete() -> None:
     policy = load_policy("shipped")
     obs = np.zeros((1, 12), dtype=np.float32)
     assert policy.predict(obs)[0].shape == (1, 2)
+
+
+def test_settled_servo_activity_is_reported() -> None:
+    """``evaluate`` reports the last 5 s of servo motion: mean |ΔW| per servo per second and the largest channel's
+    peak-to-peak, as recomputed here from the episode's own pulse log."""
+    import gymnasium as gym
+
+    from stewart_gym.evaluation import run_episode
+    from stewart_gym.registry import load_for_evaluation
+
+    _, pid, kwargs = load_for_evaluation("pid", "StewartBallBalance-v0", None)
+    m = evaluate("StewartBallBalance-v0", pid, episodes=1, seed=7, settling=False, env_kwargs=kwargs)
+    env = gym.make("StewartBallBalance-v0", randomize=True, **kwargs)
+    pid.reset()
+    log = run_episode(env, pid, 7)
+    env.close()
+    tail = np.asarray(log.pulses[-250:])
+    assert not log.fell
+    assert m["settled_pulse_p2p_us"] == pytest.approx(np.ptp(tail, axis=0).max())
+    assert m["settled_pulse_rate_us_per_s"] == pytest.approx(np.abs(np.diff(tail, axis=0)).mean() / 0.02)
+    assert 0 < m["settled_pulse_rate_us_per_s"] < 5000 and 0 < m["settled_pulse_p2p_us"] < 400
