@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from stewart_gym.geometry import PlatformGeometry
     from stewart_gym.sim.servo_model import ServoSpec
 
-__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad"]
+__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase"]
 
 #: An extra mass on the plate: (kg, (3,) offset of its centre in the platform frame, m).
 PlateLoad = tuple[float, np.ndarray]
@@ -116,3 +116,41 @@ class PhysicsBackend(Protocol):
 
     def close(self) -> None:
         """Release the engine; safe to call twice."""
+
+
+class SimulatorBase:
+    """What every engine's simulator derives the same way from its geometry, mechanism and step counter.
+
+    A subclass sets ``geometry``, ``mechanism`` (a :class:`~stewart_gym.sim.MechanismSpec`),
+    ``physics_hz`` and ``_step_count`` (physics steps since the last reset), and defines ``close()``.
+    """
+
+    geometry: PlatformGeometry
+    mechanism: Any
+    physics_hz: int
+    _step_count: int
+
+    @property
+    def plate_half_extent(self) -> tuple[float, float]:
+        """m: half the plate's size along its x and y axes."""
+        width, depth = self.geometry.plate_extent
+        return (width / 2, depth / 2)
+
+    @property
+    def plate_top(self) -> float:
+        """m: height of the plate's top surface above the platform frame origin."""
+        return self.mechanism.plate_top
+
+    @property
+    def time(self) -> float:
+        """s of simulated time since the last reset."""
+        return self._step_count / self.physics_hz
+
+    def close(self) -> None:  # pragma: no cover - every subclass defines it
+        raise NotImplementedError
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -23,7 +23,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
-from stewart_gym.sim.backend import BallSpec, PlateLoad
+from stewart_gym.sim.backend import BallSpec, PlateLoad, SimulatorBase
 from stewart_gym.sim.mjcf import GRAVITY, MujocoPhysics, ball_friction, mechanism_mjcf
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec
@@ -73,7 +73,7 @@ def _quat_matrix(q: Sequence[float]) -> np.ndarray:
     ])  # fmt: skip
 
 
-class MujocoSim:
+class MujocoSim(SimulatorBase):
     """A servo (or RC linear actuator) Stewart platform in MuJoCo, commanded in pulse widths.
 
     Args mirror :class:`~stewart_gym.sim.StewartSim`: ``geometry`` (rotary or
@@ -230,22 +230,6 @@ class MujocoSim:
             self.data.xfrc_applied[self._plate_body] = 0.0
 
     # ------------------------------------------------------------ state
-    @property
-    def plate_half_extent(self) -> tuple[float, float]:
-        """m: half the plate's size along its x and y axes."""
-        width, depth = self.geometry.plate_extent
-        return (width / 2, depth / 2)
-
-    @property
-    def plate_top(self) -> float:
-        """m: height of the plate's top surface above the platform frame origin."""
-        return self.mechanism.plate_top
-
-    @property
-    def time(self) -> float:
-        """s of simulated time since the last reset."""
-        return self._step_count / self.physics_hz
-
     def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """Platform frame in the world, from the current state: origin (3,) m and rotation (3, 3)."""
         q = self.data.qpos[self._plate_q:self._plate_q + 7]
@@ -345,9 +329,4 @@ class MujocoSim:
             self._renderer.close()
             self._renderer = None
 
-    def __enter__(self) -> MujocoSim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 

@@ -37,7 +37,7 @@ from stewart_gym.camera import CameraSpec
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
-from stewart_gym.sim.backend import BallSpec, PlateLoad
+from stewart_gym.sim.backend import BallSpec, PlateLoad, SimulatorBase
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 from stewart_gym.vision import MarkerLayout
@@ -91,7 +91,7 @@ def _quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
-class StewartSim:
+class StewartSim(SimulatorBase):
     """A servo Stewart platform in PyBullet, commanded in pulse widths.
 
     Args:
@@ -330,22 +330,6 @@ class StewartSim:
         self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
 
     # ------------------------------------------------------------ state
-    @property
-    def plate_half_extent(self) -> tuple[float, float]:
-        """m: half the plate's size along its x and y axes."""
-        width, depth = self.geometry.plate_extent
-        return (width / 2, depth / 2)
-
-    @property
-    def plate_top(self) -> float:
-        """m: height of the plate's top surface above the platform frame origin."""
-        return self.mechanism.plate_top
-
-    @property
-    def time(self) -> float:
-        """s of simulated time since the last reset."""
-        return self._step_count / self.physics_hz
-
     def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """Platform frame in the world: origin (3,) m and rotation (3, 3); cached until the next step."""
         if self._frame is None:
@@ -468,9 +452,8 @@ class StewartSim:
             if self._marker_body is not None:
                 c.removeBody(self._marker_body)
             self._marker_body, self._marker_layout = self._make_markers(markers), markers
-        origin, rot = self._plate_frame()
-        quat = pb.getQuaternionFromEuler(euler_from_matrix(rot)[:3])
-        c.resetBasePositionAndOrientation(self._marker_body, origin.tolist(), quat)
+        origin, _ = self._plate_frame()
+        c.resetBasePositionAndOrientation(self._marker_body, origin.tolist(), self._pb_base_pose(self.plate)[1])
         if self.ball is not None:
             c.changeVisualShape(self.ball, -1, rgbaColor=[*ball_rgb, 1.0])
         width, height = camera.resolution
@@ -517,7 +500,7 @@ class StewartSim:
                     else:
                         col += 1
         body_visuals = []
-        for h, p, rgba in zip(halves, positions, colours):  # one body per colour keeps the API simple
+        for h, p, rgba in zip(halves, positions, colours):  # one fixed link per box, on a massless base
             body_visuals.append(c.createVisualShape(pb.GEOM_BOX, halfExtents=h, visualFramePosition=p, rgbaColor=rgba))
         base = body_visuals[0]
         return c.createMultiBody(0.0, -1, base, [0, 0, 0], linkMasses=[0.0] * (len(body_visuals) - 1),
@@ -545,11 +528,6 @@ class StewartSim:
                 pass
         shutil.rmtree(self._tmp, ignore_errors=True)
 
-    def __enter__(self) -> StewartSim:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __del__(self) -> None:
         if not getattr(self, "_closed", True):
