@@ -214,3 +214,51 @@ def settled_pose_errors(sim: object, poses: np.ndarray) -> tuple[np.ndarray, np.
             err = np.abs(got - ref)
             acc[:] = np.maximum(acc, [err[:3].max() * 1e3, math.degrees(err[3:].max())])
     return worst, worst_fk
+
+
+def servo_step_response(sim_class: type, spec: object, delta_us: float,
+                        seconds: float = 0.3) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """A backend's servos from rest: +delta_us (even) / −delta_us (odd, mirrored) on every servo at 1 kHz;
+    (time since the command s, servo angles from the start rad) at every physics step."""
+    with sim_class(physics_hz=1000, control_hz=1000, servo_spec=spec) as sim:
+        for _ in range(100):
+            sim.step()
+        start = sim.servo_angles()
+        sim.command(sim.calibration.neutral_us + sim.calibration.direction * delta_us)
+        t, angles = [], []
+        for _ in range(int(seconds * 1000)):
+            sim.step()
+            t.append(sim.time - 0.1)
+            angles.append(sim.servo_angles() - start)
+    return np.array(t), np.array(angles)
+
+
+def linear_pose_errors(sim_class: type, name: str) -> tuple[float, float, float]:
+    """A 6-UPS preset in a backend: 100 random reachable poses through IK → leg lengths → pulses (dead band and
+    quantisation off), 1.5 s each; the worst position error (m), angle error (deg) and loop gap (m)."""
+    from dataclasses import replace
+
+    from stewart_gym.calibration import ServoCalibration
+    from stewart_gym.kinematics import inverse_kinematics
+    from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
+
+    geo = load_preset(name)
+    t, a = (0.05, math.radians(8)) if name == "senilov2018" else (0.0006, math.radians(3))
+    rng = np.random.default_rng(7)
+    poses = rng.uniform(-1, 1, (600, 6)) * np.array([t, t, t / 2, a, a, a])
+    poses = poses[inverse_kinematics(geo, poses).reachable][:100]
+    assert len(poses) == 100
+    cal = ServoCalibration.default(geo)
+    assert cal.actuator == "linear"
+    worst_pos = worst_ang = worst_gap = 0.0
+    with sim_class(geo, servo_spec=replace(LINEAR_ACTUATOR, deadband_us=0.0, resolution_us=0.0)) as sim:
+        assert sim.calibration == cal
+        for pose in poses:
+            sim.command(cal.pulse_widths(inverse_kinematics(geo, pose).leg_lengths))
+            for _ in range(int(1.5 * sim.control_hz)):
+                sim.step()
+                worst_gap = max(worst_gap, sim.constraint_error())
+            err = sim.platform_pose() - pose
+            worst_pos = max(worst_pos, float(np.linalg.norm(err[:3])))
+            worst_ang = max(worst_ang, float(np.max(np.abs(np.degrees(err[3:])))))
+    return worst_pos, worst_ang, worst_gap

@@ -7,13 +7,20 @@ import math
 import os
 import subprocess
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice, random_reachable_poses, settled_pose_errors, xml_differences
+from conftest import (
+    Drain,
+    FakeDevice,
+    linear_pose_errors,
+    random_reachable_poses,
+    servo_step_response,
+    settled_pose_errors,
+    xml_differences,
+)
 
 from stewart_gym.analysis import aggressive_moves
 from stewart_gym.calibration import ServoCalibration
@@ -22,7 +29,6 @@ from stewart_gym.presets import load_preset, preset_names
 from stewart_gym.sim import ServoSpec, StewartSim
 from stewart_gym.sim.mjcf import mechanism_mjcf
 from stewart_gym.sim.mujoco_sim import MujocoSim
-from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 
 ROOT = Path(__file__).resolve().parents[1]
 GEO = load_preset("servo-hexapod")
@@ -110,23 +116,8 @@ def test_loops_stay_closed_during_aggressive_moves() -> None:
 @pytest.mark.parametrize("name", ["senilov2018", "mathcad-micro"])
 def test_linear_platforms_reach_their_commanded_poses(name: str) -> None:
     """6-UPS in MuJoCo: 100 random reachable poses within 0.5 % of the stroke and 0.1°; loops within 0.1 mm."""
-    geo = load_preset(name)
-    lo, hi = geo.leg_length_range
-    t, a = (0.05, math.radians(8)) if name == "senilov2018" else (0.0006, math.radians(3))
-    rng = np.random.default_rng(7)
-    poses = rng.uniform(-1, 1, (600, 6)) * np.array([t, t, t / 2, a, a, a])
-    poses = poses[inverse_kinematics(geo, poses).reachable][:100]
-    cal = ServoCalibration.default(geo)
-    worst_pos = worst_ang = worst_gap = 0.0
-    with MujocoSim(geo, servo_spec=replace(LINEAR_ACTUATOR, deadband_us=0.0, resolution_us=0.0)) as sim:
-        for pose in poses:
-            sim.command(cal.pulse_widths(inverse_kinematics(geo, pose).leg_lengths))
-            for _ in range(int(1.5 * sim.control_hz)):
-                sim.step()
-                worst_gap = max(worst_gap, sim.constraint_error())
-            err = sim.platform_pose() - pose
-            worst_pos = max(worst_pos, float(np.linalg.norm(err[:3])))
-            worst_ang = max(worst_ang, float(np.max(np.abs(np.degrees(err[3:])))))
+    lo, hi = load_preset(name).leg_length_range
+    worst_pos, worst_ang, worst_gap = linear_pose_errors(MujocoSim, name)
     print(f"MuJoCo {name}: worst {worst_pos * 1e3:.4f} mm ({worst_pos / (hi - lo):.3%} of the stroke), "
           f"{worst_ang:.4f}°, gap {worst_gap * 1e3:.4f} mm")  # fmt: skip
     assert worst_pos <= 0.005 * (hi - lo) and worst_ang <= 0.1 and worst_gap < 1e-4
@@ -136,20 +127,7 @@ def test_servo_speed_lag_and_deadband_come_from_the_shared_front_end() -> None:
     """A +300 µs step on every servo: the 20 ms lag, the no-load speed within 8 %, and a 4 µs change ignored."""
     spec = ServoSpec(lag_s=0.020, deadband_us=5.0)
 
-    def response(delta_us: float, seconds: float) -> tuple[np.ndarray, np.ndarray]:
-        with MujocoSim(physics_hz=1000, control_hz=1000, servo_spec=spec) as sim:
-            for _ in range(100):
-                sim.step()
-            start = sim.servo_angles()
-            sim.command(sim.calibration.neutral_us + sim.calibration.direction * delta_us)
-            t, ang = [], []
-            for _ in range(int(seconds * 1000)):
-                sim.step()
-                t.append(sim.time - 0.1)
-                ang.append(sim.servo_angles() - start)
-        return np.array(t), np.array(ang)
-
-    t, ang = response(300.0, 0.3)
+    t, ang = servo_step_response(MujocoSim, spec, 300.0, 0.3)
     lag = t[np.argmax(np.abs(ang).max(axis=1) > 1e-3)]
     assert 0.019 <= lag <= 0.023, lag
     a = ang.mean(axis=1) / ang[-1].mean()
@@ -158,7 +136,7 @@ def test_servo_speed_lag_and_deadband_come_from_the_shared_front_end() -> None:
     print(f"MuJoCo servo: lag {lag * 1e3:.1f} ms, speed {speed:.2f} rad/s (spec {spec.max_speed:.2f})")
     assert speed == pytest.approx(spec.max_speed, rel=0.08)
     assert ang[-1] == pytest.approx(np.full(6, 300 / (1600 / math.pi)), abs=0.01)
-    _, small = response(4.0, 0.1)
+    _, small = servo_step_response(MujocoSim, spec, 4.0, 0.1)
     assert np.abs(small).max() < 2e-4
 
 

@@ -11,7 +11,13 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 import pytest
-from conftest import random_reachable_poses, settled_pose_errors, xml_differences
+from conftest import (
+    linear_pose_errors,
+    random_reachable_poses,
+    servo_step_response,
+    settled_pose_errors,
+    xml_differences,
+)
 from urdf_parser_py.urdf import URDF
 
 from stewart_gym.analysis import aggressive_moves
@@ -187,24 +193,9 @@ def test_loops_stay_closed_during_aggressive_moves(sim: StewartSim) -> None:
 
 
 # ----------------------------------------------------------------- servos
-def _step_response(spec: ServoSpec, delta_us: float, seconds: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
-    """Command +delta_us (even) / −delta_us (odd, mirrored) to all servos from rest; sample every physics step."""
-    with StewartSim(physics_hz=1000, control_hz=1000, servo_spec=spec) as s:
-        for _ in range(100):
-            s.step()
-        start = s.servo_angles()
-        s.command(s.calibration.neutral_us + s.calibration.direction * delta_us)
-        t, angles = [], []
-        for _ in range(int(seconds * 1000)):
-            s.step()
-            t.append(s.time - 0.1)
-            angles.append(s.servo_angles() - start)
-    return np.array(t), np.array(angles)
-
-
 def test_servo_step_response_shows_speed_lag_and_deadband() -> None:
     spec = ServoSpec(lag_s=0.020, deadband_us=5.0)
-    t, ang = _step_response(spec, 300.0)  # +300 µs ≈ 33.75° on every servo (the plate rises)
+    t, ang = servo_step_response(StewartSim, spec, 300.0)  # +300 µs ≈ 33.75° on every servo (the plate rises)
     moving = np.abs(ang).max(axis=1) > 1e-3
     lag = t[np.argmax(moving)]
     assert 0.019 <= lag <= 0.023, lag
@@ -217,9 +208,9 @@ def test_servo_step_response_shows_speed_lag_and_deadband() -> None:
     print(f"measured lag {lag * 1e3:.1f} ms, speed {speed:.2f} rad/s (spec {spec.max_speed:.2f})")
     assert speed == pytest.approx(spec.max_speed, rel=0.08)
     # dead band: a 4 µs change is ignored, a 7 µs change moves the horn by 7 µs worth
-    _, small = _step_response(spec, 4.0, seconds=0.1)
+    _, small = servo_step_response(StewartSim, spec, 4.0, seconds=0.1)
     assert np.abs(small).max() < 2e-4
-    _, above = _step_response(spec, 7.0, seconds=0.1)
+    _, above = servo_step_response(StewartSim, spec, 7.0, seconds=0.1)
     assert above[-1] == pytest.approx(np.full(6, 7 / (1600 / math.pi)), abs=2e-4)
 
 
@@ -344,31 +335,9 @@ def test_linear_platforms_reach_their_commanded_poses(name: str) -> None:
     """6-UPS platforms (RC linear actuators on prismatic legs): 100 random reachable poses, commanded through IK
     → leg lengths → pulses with the dead band off, settle within 0.5 % of the stroke and 0.1°; loops stay closed
     within 0.1 mm on the way."""
-    from dataclasses import replace
-
-    from stewart_gym.calibration import ServoCalibration
-    from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
-
-    geo = load_preset(name)
-    lo, hi = geo.leg_length_range
+    lo, hi = load_preset(name).leg_length_range
     stroke = hi - lo
-    t, a = (0.05, math.radians(8)) if name == "senilov2018" else (0.0006, math.radians(3))
-    rng = np.random.default_rng(7)
-    poses = rng.uniform(-1, 1, (600, 6)) * np.array([t, t, t / 2, a, a, a])
-    poses = poses[inverse_kinematics(geo, poses).reachable][:100]
-    assert len(poses) == 100
-    with StewartSim(geo, servo_spec=replace(LINEAR_ACTUATOR, deadband_us=0.0, resolution_us=0.0)) as sim:
-        cal = ServoCalibration.default(geo)
-        assert cal.actuator == "linear" and sim.calibration == cal
-        worst_pos = worst_ang = worst_gap = 0.0
-        for pose in poses:
-            sim.command(cal.pulse_widths(inverse_kinematics(geo, pose).leg_lengths))
-            for _ in range(int(1.5 * sim.control_hz)):
-                sim.step()
-                worst_gap = max(worst_gap, sim.constraint_error())
-            err = sim.platform_pose() - pose
-            worst_pos = max(worst_pos, float(np.linalg.norm(err[:3])))
-            worst_ang = max(worst_ang, float(np.max(np.abs(np.degrees(err[3:])))))
+    worst_pos, worst_ang, worst_gap = linear_pose_errors(StewartSim, name)
     print(f"{name}: worst {worst_pos * 1e3:.4f} mm ({worst_pos / stroke:.3%} of the stroke), {worst_ang:.4f}°, "
           f"gap {worst_gap * 1e3:.4f} mm")  # fmt: skip
     assert worst_pos <= 0.005 * stroke and worst_ang <= 0.1 and worst_gap < 1e-4
