@@ -307,6 +307,8 @@ BAD = [
     ["virtual-device", "--drop-rate", "1.5"],
     ["virtual-device", "--latency-ms", "nan"],
     ["virtual-device", "--link", "{files}/notes.txt"],
+    ["virtual-device", "--camera-stream", "{files}/notes.txt"],
+    ["virtual-device", "--camera-stream", "{tmp}/p", "--backend", "mujoco"],
     ["virtual-device", "--geometry", "nope"],
     ["demo", "--episodes", "0"],
     ["demo", "--out", "{files}/notes.txt"],

@@ -230,9 +230,7 @@ class CameraStream:
         import threading
 
         p = Path(path)
-        if p.exists() or p.is_symlink():
-            if not stat.S_ISFIFO(p.stat().st_mode):
-                raise ConfigError(f"--camera-stream {path} exists and is not a pipe: give another path")
+        if p.exists():  # an old pipe (the device checked that it is one)
             p.unlink()
         os.mkfifo(p)
         self.path = p
@@ -342,6 +340,12 @@ class VirtualDevice:
 
         if protocol not in ("maestro", "ssc32", "line"):
             raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
+        if camera_stream and backend != "pybullet":  # the checks first, before anything is built
+            raise ConfigError("--camera-stream renders the twin's camera with PyBullet: use --backend pybullet")
+        if link and Path(link).exists() and not Path(link).is_symlink():
+            raise ConfigError(f"{link} exists and is not a link: give another --link path")
+        if camera_stream and Path(camera_stream).exists() and not stat.S_ISFIFO(Path(camera_stream).stat().st_mode):
+            raise ConfigError(f"--camera-stream {camera_stream} exists and is not a pipe: give another path")
         self.protocol = protocol
         self.faults = faults or Faults()
         geo = load_geometry(geometry)
@@ -365,16 +369,12 @@ class VirtualDevice:
         self.link = None
         if link:
             p = Path(link)
-            if p.is_symlink():
+            if p.is_symlink():  # a board's old link
                 p.unlink()
-            elif p.exists():
-                raise ConfigError(f"{link} exists and is not a link: give another --link path")
             p.symlink_to(self.path)
             self.link = p
         self.camera, self.stream = camera, None
         if camera_stream:
-            if backend != "pybullet":
-                raise ConfigError("--camera-stream renders the twin's camera with PyBullet: use --backend pybullet")
             self.stream = CameraStream(camera_stream)
         self._next_frame = 0.0
         self._incoming: deque[tuple[float, list[tuple[int, float]]]] = deque()

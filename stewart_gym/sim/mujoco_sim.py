@@ -58,9 +58,13 @@ def _renderer(mj: Any, model: Any, height: int, width: int) -> Any:
 
 def check_rendering() -> None:
     """Raise :class:`~stewart_gym.errors.ConfigError` now if MuJoCo cannot render here (before long work)."""
+    import warnings
+
     mj = _mujoco()
     model = mj.MjModel.from_xml_string("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
-    _renderer(mj, model, 8, 8).close()
+    with warnings.catch_warnings():  # GLFW warns before it fails; the failure is reported in one line
+        warnings.simplefilter("ignore")
+        _renderer(mj, model, 8, 8).close()
 
 
 def _quat_matrix(q: Sequence[float]) -> np.ndarray:
