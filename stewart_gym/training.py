@@ -17,6 +17,7 @@ import csv
 import json
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,11 +33,12 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["ALGOS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "train"]
+__all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "run_hyperparams",
+           "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
-_ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
+ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
 
 
 @dataclass
@@ -57,6 +59,7 @@ class TrainConfig:
     eval_episodes: int | None = None
     checkpoint_freq: int = 100_000
     resume: str | None = None  # a run folder or checkpoint .zip to continue from
+    overrides: dict[str, Any] | None = None  # replace the YAML's hyperparameters (env_kwargs: key by key)
     progress_bar: bool = True
     tensorboard: bool = True
     verbose: int = 0
@@ -92,6 +95,17 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     return hp
 
 
+def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
+    """The YAML section of ``config`` with its ``overrides`` applied (``env_kwargs`` merged key by key)."""
+    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    for key, value in (config.overrides or {}).items():
+        if key == "env_kwargs":
+            hp["env_kwargs"] = {**(hp.get("env_kwargs") or {}), **value}
+        else:
+            hp[key] = value
+    return hp
+
+
 def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
     the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
@@ -104,7 +118,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         value = getattr(config, key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
-    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    hp = run_hyperparams(config)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -138,9 +152,10 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
 class _EvalLog(EvalCallback):
     """EvalCallback that also writes the learning curve with wall time, and saves VecNormalize with the best model."""
 
-    def __init__(self, *args: Any, csv_path: Path, started: float, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, csv_path: Path, started: float,
+                 on_eval: Callable[[dict[str, float]], None] | None = None, **kwargs: Any) -> None:  # fmt: skip
         super().__init__(*args, **kwargs)
-        self.csv_path, self.started = csv_path, started
+        self.csv_path, self.started, self.on_eval = csv_path, started, on_eval
         with csv_path.open("w", newline="") as fh:
             csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate"])
 
@@ -150,12 +165,15 @@ class _EvalLog(EvalCallback):
         ok = super()._on_step()
         if len(self.evaluations_timesteps) > n_before:
             success = float(np.mean(self._is_success_buffer)) if self._is_success_buffer else float("nan")
+            row = {"timesteps": self.num_timesteps, "wall_s": round(time.time() - self.started, 1),
+                   "mean_reward": round(float(self.last_mean_reward), 3), "success_rate": success}  # fmt: skip
             with self.csv_path.open("a", newline="") as fh:
-                csv.writer(fh).writerow([self.num_timesteps, round(time.time() - self.started, 1),
-                                         round(float(self.last_mean_reward), 3), success])  # fmt: skip
+                csv.writer(fh).writerow(row.values())
             train_env = self.model.get_env()
             if self.best_mean_reward > best_before and isinstance(train_env, VecNormalize) and self.best_model_save_path:
                 train_env.save(str(Path(self.best_model_save_path) / "vecnormalize.pkl"))
+            if self.on_eval is not None:
+                self.on_eval(row)
         return ok
 
 
@@ -190,12 +208,18 @@ def _git_revision() -> str:
         return installed
 
 
-def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any]:
-    """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``)."""
+def train(config: TrainConfig, max_wall_s: float | None = None,
+          on_eval: Callable[[dict[str, float]], None] | None = None) -> dict[str, Any]:
+    """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``).
+
+    ``on_eval`` is called after each evaluation with that row of the learning curve (``timesteps``,
+    ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler.
+    """
     check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]
     torch.set_num_threads(1)  # small MLPs: extra threads only fight the env workers for the cores
-    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    hp = run_hyperparams(config)
+
     def option(value: int | None, key: str, default: int) -> int:  # an explicit option wins, even a small one
         return int(value if value is not None else hp.get(key, default))
 
@@ -212,7 +236,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
-    algo_kwargs = {k: v for k, v in hp.items() if k not in _ZOO_KEYS}
+    algo_kwargs = {k: v for k, v in hp.items() if k not in ZOO_KEYS}
     policy = hp.get("policy", "MlpPolicy")
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
@@ -246,7 +270,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None) -> dict[str, Any
     callbacks = CallbackList([
         _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
                  best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
-                 csv_path=run / "eval.csv", started=started, verbose=0),
+                 csv_path=run / "eval.csv", started=started, on_eval=on_eval, verbose=0),
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
                            save_vecnormalize=bool(normalize)),
         _Deadline(max_wall_s),

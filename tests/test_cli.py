@@ -28,7 +28,7 @@ from conftest import Drain, FakeDevice
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
-               "camera-check")  # fmt: skip
+               "camera-check", "sweep")  # fmt: skip
 
 
 def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,

@@ -26,14 +26,15 @@ import numpy as np
 from stewart_gym.errors import DeviceFailure, StewartGymError
 from stewart_gym.outputs import output_dir, output_file
 
-__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_OK", "Parser", "bounded_float", "finite_float", "int_at_least",
-           "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
+__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "Parser", "bounded_float", "finite_float",
+           "int_at_least", "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
 
 EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
 #: Optional dependencies and the install extra that brings each (pyproject.toml).
 EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
                    "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
-                   "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy"}  # fmt: skip
+                   "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy",
+                   "mujoco": "mujoco", "cv2": "camera", "ray": "cluster", "optuna": "cluster"}  # fmt: skip
 #: What each exit code means (the --help epilog and the docs' table are made from it).
 EXIT_CODES = {
     EXIT_OK: "the command did what was asked",

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
 from stewart_gym.cli.common import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
     EXIT_OK,
     add_backend,
     add_sensor,
@@ -142,6 +145,33 @@ def cmd_export(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run a sweep of trainings on Ray Tune (this machine, or a cluster with --address); see `stewart_gym.sweep`."""
+    from stewart_gym.sweep import load_sweep, run_sweep
+
+    spec = load_sweep(args.config, num_samples=args.num_samples, max_concurrent=args.max_concurrent)
+    out = output_dir(args.out or f"sweeps/{spec.name}")
+    rows = run_sweep(spec, out, address=args.address, resume=args.resume)
+    counts = {s: sum(r["status"] == s for r in rows) for s in ("finished", "stopped early", "error", "unfinished")}
+    print(f"{len(rows)} trial(s): {counts['finished']} finished, {counts['stopped early']} stopped early by the "
+          f"scheduler, {counts['error']} failed"
+          + (f", {counts['unfinished']} unfinished" if counts["unfinished"] else ""))  # fmt: skip
+    for r in rows:
+        if r["status"] == "error":
+            print(f"  trial {r['trial']} failed: {r.get('error')}")
+    for r in rows[:5]:
+        values = ", ".join(f"{n}={r[n]}" for n in spec.search)
+        print(f"  {r['status']:13s} {spec.metric} {r.get(spec.metric)}  seed {r['seed']}  {values}")
+    best = out / "best_bundle"
+    print(f"results: {out / 'results.csv'}, {out / 'configs.csv'}, {out / 'sweep.png'}"
+          + (f"; best bundle: {best}" if best.is_dir() else "; no trial finished, so no bundle"))  # fmt: skip
+    if counts["unfinished"]:
+        print(f"error: interrupted with {counts['unfinished']} trial(s) unfinished; finish them with: stewart-gym sweep "
+              f"{args.config} --out {out} --resume", file=sys.stderr)  # fmt: skip
+        return EXIT_INTERRUPTED
+    return EXIT_OK if counts["finished"] else EXIT_FAILED
+
+
 def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
@@ -186,6 +216,18 @@ def register(sub: Any) -> None:
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); the bundle records it")
     p.add_argument("--out", required=True, help="bundle folder")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("sweep", help=cmd_sweep.__doc__, description=cmd_sweep.__doc__)
+    p.add_argument("config", help="sweep file (YAML): env, algo, n_timesteps, n_envs, seeds, fixed hyperparameters "
+                                  "and search")
+    p.add_argument("--address", help="join a running Ray cluster: auto or HOST:PORT (default: start Ray on this "
+                                     "machine with all its cores)")
+    p.add_argument("--num-samples", type=int_at_least(1), help="override the file's num_samples")
+    p.add_argument("--max-concurrent", type=int_at_least(1), help="at most this many trials at once")
+    p.add_argument("--out", help="folder for the trials, tables, plot and best bundle (default sweeps/<name>); on a "
+                                 "cluster, storage every node mounts at the same path")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int_at_least(1), default=20)

@@ -4,6 +4,7 @@ the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -151,7 +152,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     ## Arguments
     ``task`` (a short name, a ``"module:Class"`` path or a task object),
     ``action_mode``, ``randomize`` (domain randomisation, see
-    :class:`~stewart_gym.envs.randomization.RandomizationRanges`),
+    :class:`~stewart_gym.envs.randomization.RandomizationRanges`; ``randomization`` takes the ranges or a
+    mapping of the fields to change),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
     ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz`` (default
     the engine's: PyBullet 150 Hz, trading the simulator's 200 Hz, loop gap ≤ 0.07 mm
@@ -188,7 +190,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         servo: ServoSpec | None = None,
         sensor: TouchPanelSpec | CameraSpec | str | None = None,
         geometry: Any = "servo-hexapod",
-        randomization: RandomizationRanges | None = None,
+        randomization: RandomizationRanges | Mapping[str, Any] | None = None,
         rate_penalty: float = 0.1,
         backend: PhysicsBackend | str = "pybullet",
         **task_kwargs: Any,
@@ -204,6 +206,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.render_mode = render_mode
         self.nominal_ball = ball or BallSpec()
         self.nominal_sensor = sensor_spec(sensor)
+        if isinstance(randomization, Mapping):  # from YAML: the fields to change
+            randomization = RandomizationRanges.from_mapping(randomization)
         self.ranges = randomization or RandomizationRanges()
         if isinstance(backend, str):
             geometry = check_ball_geometry(geometry, self.nominal_ball)

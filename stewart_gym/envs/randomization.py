@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, fields, replace
+from typing import Any
 
 import numpy as np
 
 from stewart_gym.camera import CameraSpec
+from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 
@@ -36,6 +39,27 @@ class RandomizationRanges:
     control_latency_s: tuple[float, float] = (0.0, 0.015)  # added to the servo lag
     plate_load_kg: tuple[float, float] = (0.0, 0.05)
     plate_load_radius: float = 0.10  # m, offset of the load from the plate centre
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> RandomizationRanges:
+        """The defaults with some fields replaced, e.g. from a YAML ``env_kwargs: {randomization: {...}}``; a
+        range is ``[lo, hi]`` (finite, lo ≤ hi), a single value a finite number. Raises :class:`ConfigError`
+        naming the field."""
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise ConfigError(f"randomization: unknown field(s) {unknown}; fields: {sorted(known)}")
+        out: dict[str, Any] = {}
+        for name, value in values.items():
+            pair = isinstance(getattr(cls, name), tuple)
+            items = list(value) if pair and isinstance(value, (list, tuple)) else [value]
+            ok = len(items) == (2 if pair else 1) and all(
+                not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in items)
+            if not ok or (pair and items[0] > items[1]):
+                want = "[lo, hi] with finite lo ≤ hi" if pair else "a finite number"
+                raise ConfigError(f"randomization.{name} must be {want}, got {value!r}")
+            out[name] = (float(items[0]), float(items[1])) if pair else float(items[0])
+        return cls(**out)
 
 
 @dataclass(frozen=True)
