@@ -1,8 +1,8 @@
-"""Classical ball controller: a cascaded PID that commands plate tilt through the same IK → pulse path.
+"""Classical ball controllers: a cascaded PID and an LQR, commanding plate tilt through the same IK → pulse path.
 
-It reads the same observation vector as a learned policy
-(:class:`~stewart_gym.sensing.ObservationBuilder`) and returns a "tilt" action,
-so the environments, ``evaluate`` and ``deploy`` treat it like any policy.
+Both read the same observation vector as a learned policy
+(:class:`~stewart_gym.sensing.ObservationBuilder`) and return a "tilt" action,
+so the environments, ``evaluate`` and ``deploy`` treat them like any policy.
 
 Ball on a tilted plate (rolling, small angles): along x, a = c·g·sin(pitch);
 along y, a = −c·g·sin(roll), with c = 5/7 for a solid ball (3/5 hollow).
@@ -28,7 +28,8 @@ from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "PIDGains", "gains_for_geometry", "trim_tilt"]
+__all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "design_lqr",
+           "gains_for_geometry", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -154,3 +155,154 @@ def gains_for_geometry(gains: PIDGains, geometry: Any) -> PIDGains:
     tilt = min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2)
     needed = gains.rolling_factor * GRAVITY * math.sin(tilt) / gains.ki_vel if gains.ki_vel > 0 else 0.0
     return replace(gains, max_tilt=default_max_tilt(geo), integral_limit=max(gains.integral_limit, needed))
+
+
+# ------------------------------------------------------------------------------------------------------- LQR
+@dataclass(frozen=True)
+class LQRDesign:
+    """What :func:`design_lqr` designs from: the model and the weights (Bryson's rule: the acceptable size of
+    each term). Stored as ``policies/lqr.json``.
+
+    Model per plate axis, sampled at the control period ``dt``: the ball rolls with ``c·g·a`` where ``a``
+    follows the commanded ``sin(tilt)`` as a first-order lag of ``tilt_lag_s`` after one control period of
+    dead time (the servos: 17 ms dead time and a 19 ms lag, measured; see
+    :class:`~stewart_gym.sensing.KalmanSpec`). The sensing delay is the Kalman filter's: it hands the
+    controller its estimate for now. The state is (position error, velocity error, plate acceleration, the
+    command in flight, integral of the position error).
+
+    Attributes:
+        position_mm: acceptable position error.
+        velocity_mm_s: acceptable velocity error.
+        integral_mm_s: acceptable integral of the position error (sets how fast offsets are removed).
+        tilt: acceptable commanded ``sin(tilt)``.
+        tilt_step: acceptable change of ``sin(tilt)`` per control period (servo rate and wear).
+        rolling_factor: c (5/7 solid ball).
+        tilt_lag_s: s.
+        max_tilt: rad, the tilt at action ±1 (set to the geometry's by :func:`design_lqr`).
+    """
+
+    position_mm: float = 4.0
+    velocity_mm_s: float = 40.0
+    integral_mm_s: float = 6.0
+    tilt: float = 0.1
+    tilt_step: float = 0.002
+    rolling_factor: float = 5.0 / 7.0
+    tilt_lag_s: float = 0.019
+    max_tilt: float = DEFAULT_MAX_TILT
+
+
+@dataclass(frozen=True)
+class LQRGains:
+    """A designed LQR (what a bundle stores: deploying it needs numpy only).
+
+    Attributes:
+        k: the feedback gains on (position error m, velocity error m/s, plate acceleration in g·c units,
+            command in flight, integral m·s): command = −k · state, a ``sin(tilt)``.
+        rolling_factor, tilt_lag_s, dt: the model it was designed with.
+        max_tilt: rad, the tilt at action ±1.
+        integral_limit: m·s, anti-windup bound on the integral.
+    """
+
+    k: tuple[float, float, float, float, float]
+    rolling_factor: float
+    tilt_lag_s: float
+    dt: float
+    max_tilt: float
+    integral_limit: float
+
+
+def lqr_model(design: LQRDesign, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The discrete model (A, B) per axis of :class:`LQRDesign`'s state; the input is the new ``sin(tilt)``."""
+    from scipy.linalg import expm
+
+    tau = design.tilt_lag_s
+    cont = np.zeros((4, 4))  # (p, v, a, u in flight): a' = (u − a)/τ, v' = c·g·a
+    cont[0, 1], cont[1, 2] = 1.0, design.rolling_factor * GRAVITY
+    cont[2, 2], cont[2, 3] = -1.0 / tau, 1.0 / tau
+    step = expm(cont * dt)
+    a = np.zeros((5, 5))
+    a[:3, :4] = step[:3, :4]  # the command in flight acts through this period…
+    a[4, 0], a[4, 4] = dt, 1.0  # …the integral sums the position error
+    b = np.zeros((5, 1))
+    b[3, 0] = 1.0  # …and the new command is in flight next
+    return a, b
+
+
+def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any = "servo-hexapod") -> LQRGains:
+    """Discrete LQR gains for ``design`` at control period ``dt`` on ``geometry`` (its max tilt and trim tilt).
+
+    Cost per period: Σ (state/acceptable)² + (u/tilt)² + ((u − u_in_flight)/tilt_step)², the last a cross
+    term (DARE with ``s``). The anti-windup bound lets the integral command 1.5× the worst trim tilt.
+    """
+    from scipy.linalg import solve_discrete_are
+
+    d = design or LQRDesign()
+    a, b = lqr_model(d, dt)
+    rd = 1.0 / d.tilt_step**2
+    q = np.diag([1 / (d.position_mm * 1e-3) ** 2, 1 / (d.velocity_mm_s * 1e-3) ** 2, 0.0, rd,
+                 1 / (d.integral_mm_s * 1e-3) ** 2])  # fmt: skip
+    r = np.array([[1 / d.tilt**2 + rd]])
+    n = np.zeros((5, 1))
+    n[3, 0] = -rd
+    p = solve_discrete_are(a, b, q, r, s=n)
+    k = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a + n.T).ravel()
+    geo = load_geometry(geometry)
+    needed = math.sin(min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2))
+    return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
+                    max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])))  # fmt: skip
+
+
+class LQRController:
+    """A policy: observation (…, 12) → tilt action (…, 2), the LQR of :class:`LQRGains`.
+
+    It reads the ball's position and velocity (indices 0–3: best from the Kalman observer, which predicts them
+    for now), the target's (4–7) and the tilt in force (8–9). It keeps the model's plate acceleration (driven
+    by the commands it sees in force), the integral of the position error and the last target velocity (the
+    target's acceleration is fed forward).
+    """
+
+    def __init__(self, gains: LQRGains, plate_half: tuple[float, float] = (0.15, 0.15)) -> None:
+        self.gains = gains
+        scales = ObservationBuilder(2, plate_half)
+        self._position_scale = np.array(scales.position_scale)
+        self._velocity_scale = np.array(scales.velocity_scale)
+        self._k = np.asarray(gains.k, dtype=float)
+        self._phi = math.exp(-gains.dt / gains.tilt_lag_s)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start of an episode."""
+        self._state: dict[str, np.ndarray] | None = None
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        g = self.gains
+        o = np.asarray(obs, dtype=np.float64)
+        pos = o[..., 0:2] * self._position_scale
+        vel = o[..., 2:4] * self._velocity_scale
+        target = o[..., 4:6] * self._position_scale
+        target_vel = o[..., 6:8] * self._velocity_scale
+        roll, pitch = o[..., 8] * ObservationBuilder.TILT_SCALE, o[..., 9] * ObservationBuilder.TILT_SCALE
+        in_force = np.stack([np.sin(pitch), -np.sin(roll)], axis=-1)  # sin(tilt) along x and y
+        err = pos - target
+        st = self._state
+        if st is None or st["integral"].shape != err.shape:
+            st = self._state = {"accel": in_force.copy(), "integral": np.zeros_like(err),
+                                "target_vel": target_vel.copy(), "in_force": in_force.copy()}  # fmt: skip
+        st["accel"] = self._phi * st["accel"] + (1 - self._phi) * st["in_force"]  # driven by last period's command
+        st["in_force"] = in_force
+        st["integral"] = np.clip(st["integral"] + err * g.dt, -g.integral_limit, g.integral_limit)
+        feed = (target_vel - st["target_vel"]) / (g.dt * g.rolling_factor * GRAVITY)  # the target's acceleration
+        st["target_vel"] = target_vel
+        k = self._k
+        u = feed - (k[0] * err + k[1] * (vel - target_vel) + k[2] * (st["accel"] - feed) + k[3] * (in_force - feed)
+                    + k[4] * st["integral"])  # fmt: skip
+        s = np.clip(u, -1.0, 1.0)
+        action = np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt
+        return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        """Stable-Baselines3-style ``predict``: resets its state where an episode starts."""
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        return self(obs), None

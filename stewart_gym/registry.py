@@ -5,6 +5,8 @@
 * ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
 * ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
 * ``pid``: the tuned cascaded PID baseline (``policies/pid_gains.json``);
+* ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
+  :func:`~stewart_gym.classical.design_lqr`);
 * a **run folder** written by ``stewart-gym train`` (``model.zip`` or
   ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
 * a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
@@ -45,11 +47,13 @@ SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallT
 SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
-POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry")
+POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator")
+#: The classical controllers by name: the kind of their PolicySource, their file and the observer they run behind.
+CLASSICAL = {"pid": ("pid_gains.json", "lowpass"), "lqr": ("lqr.json", "kalman")}
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
-_KINDS_TEXT = "'shipped', 'shipped-camera', 'pid', a run folder, a model .zip, a bundle folder or a PID gains .json"
+_KINDS_TEXT = "'shipped', 'shipped-camera', 'pid', 'lqr', a run folder, a model .zip, a bundle folder or a PID gains .json"
 
 
 @dataclass(frozen=True)
@@ -58,7 +62,8 @@ class PolicySource:
 
     Attributes:
         spec: What the user gave.
-        kind: ``"pid"`` (gains file), ``"sb3"`` (a Stable-Baselines3 model) or ``"bundle"`` (ONNX/PID bundle).
+        kind: ``"pid"`` (gains file), ``"lqr"`` (LQR design file), ``"sb3"`` (a Stable-Baselines3 model) or
+            ``"bundle"`` (ONNX/PID/LQR bundle).
         path: The gains file, the model ``.zip`` or the bundle folder.
         env_id: The env id the policy was trained (or exported) for.
         env_kwargs: The env keywords that define its observation and action (and the track's trajectory).
@@ -83,19 +88,36 @@ class PolicySource:
 
     @property
     def label(self) -> str:
-        return self.spec if self.spec in ("shipped", "shipped-camera", "pid") else self.path.name
+        return self.spec if self.spec in ("shipped", "shipped-camera", *CLASSICAL) else self.path.name
+
+    @property
+    def estimator(self) -> str:
+        """How the observer estimates the ball's state for this policy (``lowpass`` or ``kalman``)."""
+        return str(self.env_kwargs.get("estimator", "lowpass"))
 
 
-def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = None) -> PolicySource:
+def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = None,
+                   estimator: str | None = None) -> PolicySource:  # fmt: skip
     """What ``spec`` names (see the module docstring); raises :class:`PolicyError` with what to do instead.
 
     ``env_id`` and ``geometry`` pick the shipped policy (default
     ``StewartBallBalance-v0`` on ``servo-hexapod``) and are recorded for the
-    PID; a trained model or bundle keeps the env id and geometry it was trained for.
+    PID and LQR; a trained model or bundle keeps the env id and geometry it was trained for.
+    ``estimator`` replaces the observer the policy runs behind (by default its own: what it was trained or
+    exported with; ``kalman`` for the LQR, ``lowpass`` for the PID).
     """
-    if spec == "pid":
-        kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY}
-        return PolicySource(spec, "pid", POLICY_DIR / "pid_gains.json", env_id or DEFAULT_ENV, kwargs)
+    source = _resolve(spec, env_id, geometry)
+    if estimator is None:
+        return source
+    return PolicySource(source.spec, source.kind, source.path, source.env_id,
+                        {**source.env_kwargs, "estimator": estimator}, source.bundle)  # fmt: skip
+
+
+def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySource:
+    if spec in CLASSICAL:
+        name, estimator = CLASSICAL[spec]
+        kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY, "estimator": estimator}
+        return PolicySource(spec, spec, POLICY_DIR / name, env_id or DEFAULT_ENV, kwargs)
     if spec in ("shipped", "shipped-camera"):
         env_id, geo = env_id or DEFAULT_ENV, geometry or DEFAULT_GEOMETRY
         table = SHIPPED if spec == "shipped" else SHIPPED_CAMERA
@@ -177,6 +199,8 @@ def _bundle_source(spec: str, folder: Path) -> PolicySource:
     env_kwargs["action_mode"] = meta.get("action_mode", "tilt")
     if isinstance(meta.get("geometry"), dict):
         env_kwargs["geometry"] = str(meta["geometry"].get("name", DEFAULT_GEOMETRY))
+    if "estimator" in meta:
+        env_kwargs["estimator"] = str(meta["estimator"])
     return PolicySource(spec, "bundle", folder, str(meta.get("env_id", DEFAULT_ENV)), env_kwargs, folder)
 
 
@@ -186,6 +210,8 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     source = spec if isinstance(spec, PolicySource) else resolve_policy(spec, env_id)
     if source.kind == "pid":
         return load_pid(source.path, source.geometry)
+    if source.kind == "lqr":
+        return load_lqr(source.path, source.geometry)
     if source.kind == "bundle":
         from stewart_gym.hardware.export import BundlePolicy
 
@@ -199,15 +225,15 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     return policy
 
 
-def load_for_evaluation(spec: str, env_id: str | None = None,
-                        geometry: str | None = None) -> tuple[PolicySource, Any, dict[str, Any]]:  # fmt: skip
+def load_for_evaluation(spec: str, env_id: str | None = None, geometry: str | None = None,
+                        estimator: str | None = None) -> tuple[PolicySource, Any, dict[str, Any]]:  # fmt: skip
     """(source, policy, env keywords): what ``evaluate`` and ``demo`` need to run ``spec`` as it was trained.
 
     A trained policy runs on the geometry it was trained for; asking for another
     one raises :class:`PolicyError` naming both (the PID runs on any).
     """
-    source = resolve_policy(spec, env_id, geometry)
-    if geometry is not None and source.kind != "pid" and not same_geometry(geometry, source.geometry):
+    source = resolve_policy(spec, env_id, geometry, estimator)
+    if geometry is not None and source.kind not in CLASSICAL and not same_geometry(geometry, source.geometry):
         raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry!r}, not {geometry!r}: train one "
                           f"for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the pid")  # fmt: skip
     policy = load_policy(source)
@@ -230,6 +256,16 @@ def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     geo = load_geometry(geometry)
     width, depth = geo.plate_extent
     return CascadedPID(gains_for_geometry(pid_gains(path, PIDGains), geo), plate_half=(width / 2, depth / 2))
+
+
+def load_lqr(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
+    """The LQR designed from ``path`` (an :class:`~stewart_gym.classical.LQRDesign` as JSON) for ``geometry``."""
+    from stewart_gym.classical import LQRController, LQRDesign, design_lqr
+    from stewart_gym.presets import load_geometry
+
+    geo = load_geometry(geometry)
+    width, depth = geo.plate_extent
+    return LQRController(design_lqr(pid_gains(path, LQRDesign), geometry=geo), plate_half=(width / 2, depth / 2))
 
 
 def pid_gains(path: Path, cls: Any) -> Any:
@@ -260,23 +296,35 @@ def resolved_env_kwargs(source: PolicySource, model_action_size: int | None = No
 # ------------------------------------------------------------- deployment
 def deployable_policy(source: PolicySource) -> Any:
     """A :class:`~stewart_gym.hardware.export.BundlePolicy` (numpy + onnxruntime only) for ``deploy``."""
-    from stewart_gym.hardware.export import BundlePolicy, pid_meta
+    from stewart_gym.hardware.export import BundlePolicy
 
-    if source.kind == "pid":
-        pid = load_pid(source.path, source.geometry)
-        return BundlePolicy.from_meta(pid_meta(vars(pid.gains), source.env_id, source.geometry))
+    if source.kind in CLASSICAL:
+        return BundlePolicy.from_meta(_classical_meta(source))
     if source.bundle is not None:
-        return BundlePolicy(source.bundle)
+        policy = BundlePolicy(source.bundle)
+        policy.estimator = source.estimator  # the bundle's own, unless --estimator replaced it
+        return policy
     raise PolicyError(f"policy {source.spec!r} is a Stable-Baselines3 model; deploy runs bundles: export it first "
                       f"(stewart-gym export --policy {source.spec} --out BUNDLE_DIR) and deploy BUNDLE_DIR")  # fmt: skip
 
 
+def _classical_meta(source: PolicySource) -> dict[str, Any]:
+    """The ``bundle.json`` content of the PID or LQR named by ``source``, for its geometry and observer."""
+    from stewart_gym.hardware.export import classical_meta
+
+    controller = load_policy(source)
+    return classical_meta(source.kind, vars(controller.gains), source.env_id, source.geometry, source.estimator)
+
+
 def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
     """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder."""
-    from stewart_gym.hardware.export import export_bundle_copy, export_pid, export_sb3
+    from stewart_gym.hardware.export import export_bundle_copy, export_sb3
 
-    if source.kind == "pid":
-        return export_pid(vars(load_pid(source.path, source.geometry).gains), out_dir, source.env_id, source.geometry)
+    if source.kind in CLASSICAL:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")
+        return out
     if source.kind == "bundle":
         return export_bundle_copy(source.path, out_dir)
     policy = load_policy(source)  # the model loads and its action size matches its configuration

@@ -11,6 +11,9 @@
   with Gaussian noise of ``noise_mm``; nothing while the ball is off the plate.
 * :class:`VelocityEstimator`: velocity from successive position samples (finite
   difference, first-order low-pass), as a real controller must estimate it.
+* :class:`BallKalmanFilter`: position and velocity *now* from delayed, noisy
+  samples, with the plate's commanded tilt as the model's input (the
+  observer's ``estimator="kalman"``).
 * :class:`ObservationBuilder`: the observation vector and its bounds.
 """
 
@@ -24,8 +27,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["BallObserver", "BallSensor", "ObservationBuilder", "Reading", "SimulatedSensor", "SimulatedTouchPanel",
-           "TouchPanelSpec", "VelocityEstimator", "ball_contact", "observation_table"]  # fmt: skip
+__all__ = ["ESTIMATORS", "BallKalmanFilter", "BallObserver", "BallSensor", "KalmanSpec", "ObservationBuilder", "Reading",
+           "SimulatedSensor", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator", "ball_contact",
+           "observation_table"]  # fmt: skip
+
+GRAVITY = 9.80665
+#: How the observer estimates the ball's state from the readings (:class:`BallObserver`).
+ESTIMATORS = ("lowpass", "kalman")
 
 #: A sensor reading: ((x, y) m in the plate frame, the time the sample was taken, s, on the reader's clock).
 Reading = tuple[tuple[float, float], float]
@@ -195,6 +203,130 @@ class VelocityEstimator:
         return self.vx, self.vy
 
 
+@dataclass(frozen=True)
+class KalmanSpec:
+    """The model of :class:`BallKalmanFilter`, per plate axis.
+
+    The ball rolls with acceleration ``a + b``: ``a`` follows the commanded tilt's ``c·g·sin(tilt)`` as a
+    first-order lag of ``tilt_lag_s`` after a dead time of ``dead_time_s`` (the servos': measured on the
+    reference build, 17 ms and 19 ms for a 2.5° step), and ``b`` is a slowly drifting bias (trim errors, a load
+    on the plate, a plate that is not level). Defaults: a solid ball on the reference servos, a resistive panel.
+
+    Attributes:
+        rolling_factor: c (5/7 solid ball, 3/5 hollow).
+        tilt_lag_s: s, time constant of the plate's tilt after the dead time.
+        dead_time_s: s, from a command to the start of the plate's motion.
+        accel_noise: m/s², white acceleration noise (rolling friction, tilt errors, contact).
+        bias_noise: m/s² per √s, random walk of the bias.
+        measurement_noise_mm: mm, standard deviation of a reading.
+    """
+
+    rolling_factor: float = 5.0 / 7.0
+    tilt_lag_s: float = 0.019
+    dead_time_s: float = 0.017
+    accel_noise: float = 0.05
+    bias_noise: float = 0.05
+    measurement_noise_mm: float = 1.5
+
+    def __post_init__(self) -> None:
+        for key in ("rolling_factor", "tilt_lag_s", "accel_noise", "measurement_noise_mm"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{key} must be a positive number, got {v!r}")
+        for key in ("dead_time_s", "bias_noise"):
+            v = getattr(self, key)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{key} must be ≥ 0, got {v!r}")
+
+
+class BallKalmanFilter:
+    """Ball position and velocity *now*, from delayed and noisy readings, both plate axes at once.
+
+    State per axis: position, velocity, plate acceleration ``a`` and bias ``b`` (:class:`KalmanSpec`). The
+    input is the commanded tilt, known to the controller. A reading taken at ``ts`` updates the estimate at
+    ``ts`` (the filter runs at the readings' own times, so sensing latency is in the model, not an error), and
+    :meth:`estimate` predicts from there to now through the commands sent since, which also bridges missed
+    readings. Exact discretisation (matrix exponential) for any interval.
+    """
+
+    def __init__(self, spec: KalmanSpec | None = None) -> None:
+        self.spec = spec or KalmanSpec()
+        c, tau = self.spec, self.spec.tilt_lag_s
+        self._a = np.array([[0, 1, 0, 0], [0, 0, 1, 1], [0, 0, -1 / tau, 0], [0, 0, 0, 0]], dtype=float)
+        self._b = np.array([0, 0, c.rolling_factor * GRAVITY / tau, 0], dtype=float)
+        self._qc = np.diag([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])
+        self._r = (c.measurement_noise_mm * 1e-3) ** 2
+        self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.reset(0.0, (0.0, 0.0))
+
+    def reset(self, t: float, xy: Sequence[float]) -> None:
+        """The ball at rest at ``xy`` (m) at ``t`` (s), no commands yet; the bias and velocity uncertain."""
+        self.x = np.zeros((4, 2))
+        self.x[0] = (float(xy[0]), float(xy[1]))
+        self.P = np.diag([self._r, 0.1**2, 0.5**2, 0.5**2])
+        self.t = float(t)  # the time of the estimate self.x
+        self._commands: list[tuple[float, np.ndarray]] = []  # (when issued, sin of the tilt along x and y)
+
+    def command(self, t: float, roll_pitch: Sequence[float]) -> None:
+        """The plate was commanded to (roll, pitch) rad at ``t`` (s)."""
+        u = np.array([math.sin(roll_pitch[1]), -math.sin(roll_pitch[0])])  # x rolls with pitch, y against roll
+        if self._commands and t <= self._commands[-1][0]:
+            self._commands[-1] = (self._commands[-1][0], u)
+        else:
+            self._commands.append((float(t), u))
+        horizon = self.t - self.spec.dead_time_s  # commands that act before the estimate's time are spent
+        while len(self._commands) > 1 and self._commands[1][0] <= horizon:
+            self._commands.pop(0)
+
+    def update(self, ts: float, xy: Sequence[float]) -> None:
+        """A reading of the ball at ``xy`` (m) taken at ``ts`` (s); older than the estimate: ignored."""
+        if ts <= self.t:
+            return
+        self.x, self.P = self._propagate(self.x, self.P, self.t, ts)
+        self.t = float(ts)
+        gain = self.P[:, 0] / (self.P[0, 0] + self._r)
+        self.x = self.x + np.outer(gain, np.asarray(xy, dtype=float) - self.x[0])
+        self.P = self.P - np.outer(gain, self.P[0])
+
+    def estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted (x, y) position (m) and velocity (m/s) at ``t`` (s)."""
+        x, _ = self._propagate(self.x, None, self.t, max(t, self.t))
+        return x[0], x[1]
+
+    def _input(self, s: float) -> np.ndarray:
+        """The command acting on the plate at time ``s``: the last one issued a dead time before."""
+        u = np.zeros(2)
+        for issued, value in self._commands:
+            if issued + self.spec.dead_time_s > s + 1e-9:
+                break
+            u = value
+        return u
+
+    def _propagate(self, x: np.ndarray, P: np.ndarray | None, t0: float, t1: float) -> tuple[np.ndarray, Any]:
+        d = self.spec.dead_time_s
+        edges = sorted({t0, t1, *(issued + d for issued, _ in self._commands if t0 < issued + d < t1)})
+        for a, b in zip(edges[:-1], edges[1:]):
+            phi, gamma, q = self._discrete(b - a)
+            x = phi @ x + np.outer(gamma, self._input(a))
+            if P is not None:
+                P = phi @ P @ phi.T + q
+        return x, P
+
+    def _discrete(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        key = round(h, 6)
+        if key not in self._cache:
+            from scipy.linalg import expm
+
+            if len(self._cache) > 512:
+                self._cache.clear()
+            m = np.zeros((5, 5))
+            m[:4, :4], m[:4, 4] = self._a * key, self._b * key
+            e = expm(m)
+            phi = e[:4, :4]
+            self._cache[key] = (phi, e[:4, 4], phi @ self._qc @ phi.T * key)
+        return self._cache[key]
+
+
 class ObservationBuilder:
     """The observation vector (float32) of the ball environments and the deployed controller.
 
@@ -262,34 +394,57 @@ class ObservationBuilder:
 
 
 class BallObserver:
-    """Panel readings → observation, the same way in the environments and on hardware.
+    """Sensor readings → observation, the same way in the environments and on hardware.
 
-    Holds the last reading while the panel reports none, estimates velocity from
-    the readings' sample times, and builds the observation with
-    :class:`ObservationBuilder`.
+    ``estimator="lowpass"`` (the default, what the shipped policies were trained with): the position is the
+    last reading, held while the sensor reports none, and the velocity a low-passed finite difference of the
+    readings (:class:`VelocityEstimator`). ``estimator="kalman"``: both are :class:`BallKalmanFilter`'s
+    prediction for *now*, through the sensing delay and any missed readings, with the commanded tilt as input.
+    The observation is built by :class:`ObservationBuilder`.
     """
 
     def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0,
-                 plate_half: tuple[float, float] = (0.15, 0.15)) -> None:  # fmt: skip
+                 plate_half: tuple[float, float] = (0.15, 0.15), estimator: str = "lowpass",
+                 kalman: KalmanSpec | None = None) -> None:  # fmt: skip
+        if estimator not in ESTIMATORS:
+            raise ValueError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
+        self.estimator = estimator
         self.builder = ObservationBuilder(action_size, plate_half)
         self.velocity = VelocityEstimator(velocity_cutoff_hz)
+        self.kalman = BallKalmanFilter(kalman) if estimator == "kalman" else None
         self.reset(0.0, (0.0, 0.0))
 
     def reset(self, t: float, xy: tuple[float, float] | np.ndarray) -> None:
         """Start at time ``t`` (s) with the ball believed at rest at ``xy`` (m)."""
         self.velocity.reset(t, xy)
         self.reading = (float(xy[0]), float(xy[1]))
+        self.t = float(t)
+        if self.kalman is not None:
+            self.kalman.reset(t, xy)
 
     def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: Sequence[float],
-                target_velocity: Sequence[float], roll_pitch: Sequence[float],
-                previous_action: Sequence[float]) -> np.ndarray:  # fmt: skip
-        """One observation from a panel ``reading`` ((x, y) m, sample time s) or None (no touch)."""
+                target_velocity: Sequence[float], roll_pitch: Sequence[float], previous_action: Sequence[float],
+                now: float | None = None) -> np.ndarray:  # fmt: skip
+        """One observation from a ``reading`` ((x, y) m, sample time s) or None (no reading).
+
+        ``roll_pitch`` is the tilt commanded at the previous observation (in force since), ``now`` the time of
+        this one (s; default the reading's time): the Kalman filter uses both.
+        """
         if reading is not None:
             self.reading = reading[0]
             vel = self.velocity.update(reading[1], reading[0])
         else:
             vel = (self.velocity.vx, self.velocity.vy)
-        return self.builder.build(self.reading, vel, target_xy, target_velocity, roll_pitch, previous_action)
+        pos: Sequence[float] = self.reading
+        if self.kalman is not None:
+            if now is None:
+                now = reading[1] if reading is not None else self.t
+            self.kalman.command(self.t, roll_pitch)
+            if reading is not None:
+                self.kalman.update(min(reading[1], now), reading[0])
+            pos, vel = self.kalman.estimate(now)
+            self.t = float(now)
+        return self.builder.build(pos, vel, target_xy, target_velocity, roll_pitch, previous_action)
 
 
 def observation_table() -> str:

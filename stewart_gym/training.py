@@ -51,6 +51,7 @@ class TrainConfig:
     run_dir: str = "runs/latest"
     geometry: str | None = None  # preset or TOML path: overrides the YAML's env_kwargs geometry
     backend: str | None = None  # physics engine ("pybullet" or "mujoco"): overrides the YAML's env_kwargs backend
+    estimator: str | None = None  # "lowpass" or "kalman": overrides the YAML's env_kwargs estimator
     sensor: str | None = None  # "panel", "camera" (any preset per episode) or a camera preset: overrides the YAML's
     seed: int = 0
     n_timesteps: int | None = None  # overrides the YAML
@@ -233,6 +234,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         env_kwargs["backend"] = config.backend
     if config.sensor is not None:
         env_kwargs["sensor"] = config.sensor
+    if config.estimator is not None:
+        env_kwargs["estimator"] = config.estimator
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)

@@ -191,6 +191,13 @@ def add_sensor(parser: argparse.ArgumentParser, text: str) -> None:
     parser.add_argument("--sensor", choices=("panel", "camera", *CAMERA_PRESETS), help=text)
 
 
+def add_estimator(parser: argparse.ArgumentParser, text: str) -> None:
+    """``--estimator lowpass|kalman`` (how the observer estimates the ball's state)."""
+    from stewart_gym.sensing import ESTIMATORS
+
+    parser.add_argument("--estimator", choices=ESTIMATORS, help=text)
+
+
 def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod") -> None:
     """``--geometry NAME|FILE``."""
     from stewart_gym.presets import preset_names

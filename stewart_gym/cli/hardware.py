@@ -15,6 +15,7 @@ from stewart_gym.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     add_backend,
+    add_estimator,
     add_geometry,
     bounded_float,
     int_at_least,
@@ -79,7 +80,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     from stewart_gym.sensing import ObservationBuilder
 
     # everything the user gave is checked before the port opens
-    source = resolve_policy(args.policy, args.env, args.geometry)
+    source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
     policy = deployable_policy(source)
     env_id, geometry = policy.env_id, policy.geometry
     if args.env and env_id != args.env:
@@ -285,7 +286,8 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
-    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped' or 'pid'")
+    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped', 'pid' or 'lqr'")
+    add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for lqr)")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
     p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")

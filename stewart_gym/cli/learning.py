@@ -13,6 +13,7 @@ from stewart_gym.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     add_backend,
+    add_estimator,
     add_sensor,
     int_at_least,
     output_dir,
@@ -25,7 +26,9 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
-POLICY_HELP = "shipped, shipped-camera, pid, a run folder, a model .zip, a bundle folder or PID gains .json"
+POLICY_HELP = ("shipped, shipped-camera, pid, lqr, a run folder, a model .zip, a bundle folder or PID gains .json")
+ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
+                  "through the sensing delay); default the policy's own (kalman for lqr, else lowpass)")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -33,7 +36,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
-                      geometry=args.geometry, backend=args.backend, sensor=args.sensor,
+                      geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
                       eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
@@ -53,7 +56,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
     if gif:
         check_can_render(args.backend)
-    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry)
+    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry, args.estimator)
     env_kwargs = with_backend(env_kwargs, args.backend)
     sensor = args.sensor or source.env_kwargs.get("sensor")  # by default the sensor the policy was trained with
     if sensor is not None:
@@ -134,8 +137,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from stewart_gym.registry import export_policy, resolve_policy, same_geometry
 
     out = output_dir(args.out)
-    source = resolve_policy(args.policy, args.env, args.geometry)
-    named = args.policy in ("shipped", "shipped-camera", "pid")
+    source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
+    named = args.policy in ("shipped", "shipped-camera", "pid", "lqr")
     if args.geometry and not named and not same_geometry(args.geometry, source.geometry):
         raise ConfigError(f"{args.policy} was trained for geometry {source.geometry!r}, not {args.geometry!r}")
     if args.env and not named and source.env_id != args.env:
@@ -181,6 +184,7 @@ def register(sub: Any) -> None:
                                       "servo-hexapod)")
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
     add_sensor(p, "ball sensor model to train with (default: the YAML's, else panel)")
+    add_estimator(p, "the observer to train behind (default: the YAML's, else lowpass)")
     p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
@@ -202,6 +206,7 @@ def register(sub: Any) -> None:
                                       "runs on its own (default servo-hexapod)")
     add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
+    add_estimator(p, ESTIMATOR_HELP)
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
@@ -215,6 +220,7 @@ def register(sub: Any) -> None:
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); the bundle records it")
     p.add_argument("--out", required=True, help="bundle folder")
+    add_estimator(p, ESTIMATOR_HELP + "; the bundle records it and deploy uses it")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("sweep", help=cmd_sweep.__doc__, description=cmd_sweep.__doc__)

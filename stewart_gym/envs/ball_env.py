@@ -17,7 +17,7 @@ from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task
 from stewart_gym.errors import ConfigError
-from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
+from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
@@ -165,8 +165,10 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``"panel"``, a camera preset ``"pixy2"``, ``"webcam30"``, ``"global90"``, or
     ``"camera"``: a preset per randomised episode), ``geometry``,
     ``backend`` (``"pybullet"``, the default, or ``"mujoco"``: the same env in
-    either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), and any
-    keyword of the task (``trajectory`` for track).
+    either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), ``estimator``
+    (``"lowpass"``, the default: the last reading and a filtered finite-difference velocity; or
+    ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
+    delay), and any keyword of the task (``trajectory`` for track).
 
     ## Version History
     * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
@@ -193,13 +195,14 @@ class StewartBallEnv(gym.Env, EzPickle):
         randomization: RandomizationRanges | Mapping[str, Any] | None = None,
         rate_penalty: float = 0.1,
         backend: PhysicsBackend | str = "pybullet",
+        estimator: str = "lowpass",
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
                           success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
                           randomization=randomization, rate_penalty=rate_penalty, backend=backend,
-                          **task_kwargs)  # fmt: skip
+                          estimator=estimator, **task_kwargs)  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.randomize = bool(randomize)
@@ -226,7 +229,9 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
-        self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent)
+        if estimator not in ESTIMATORS:
+            raise ConfigError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
+        self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent, estimator=estimator)
         self.observation_space = self.observer.builder.space
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
@@ -338,7 +343,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         rate /= len(a)
         self._prev_action = a
         target_xy, target_vel = task.target(t)
-        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, a)
+        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, a, now=t)
         self._last_obs = obs
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
@@ -367,7 +372,8 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def _observe(self, t: float) -> np.ndarray:
         target_xy, target_vel = self.task.target(t)
-        return self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, self._prev_action)
+        return self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch,
+                                     self._prev_action, now=t)  # fmt: skip
 
     def _info(self, xy: np.ndarray, target_xy: tuple[float, float], dist: float) -> dict[str, Any]:
         return {

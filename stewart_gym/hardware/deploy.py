@@ -187,7 +187,8 @@ class DeployLoop:
         self.target = target or Fixed()
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
         width, depth = mapper.geometry.plate_extent
-        self.observer = BallObserver(mapper.size, plate_half=(width / 2, depth / 2))
+        self.observer = BallObserver(mapper.size, plate_half=(width / 2, depth / 2),
+                                     estimator=getattr(policy, "estimator", "lowpass"))  # the policy's own
         sizes = (getattr(policy, "obs_size", self.observer.builder.size), getattr(policy, "action_size", mapper.size))
         if sizes != (self.observer.builder.size, mapper.size):
             raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "
@@ -205,7 +206,7 @@ class DeployLoop:
         if sample is not None and not self._observing:
             self.observer.reset(sample[1], sample[0])
             self._observing = True
-        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action)
+        obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action, now=t)
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)
         usable = False

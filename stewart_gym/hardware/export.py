@@ -1,8 +1,8 @@
 """Policy bundles for deployment: ONNX + JSON, run with onnxruntime and numpy (no torch, no pickle).
 
 A bundle is a folder with ``bundle.json`` and, for a learned policy,
-``policy.onnx``. ``bundle.json`` holds the kind (``"onnx"`` or ``"pid"``), the
-env id and action mode, the observation normalisation (VecNormalize mean, var,
+``policy.onnx``. ``bundle.json`` holds the kind (``"onnx"``, ``"pid"`` or ``"lqr"``),
+the env id and action mode, the observer (``estimator``), the observation normalisation (VecNormalize mean, var,
 clip, epsilon) and the action bounds. The ONNX graph maps a *normalised*
 observation to the deterministic action (PPO: the Gaussian mean; SAC/TD3: the
 actor's output) *before* clipping, as Stable-Baselines3's export guide
@@ -22,8 +22,9 @@ import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
 from stewart_gym.errors import PolicyError
+from stewart_gym.sensing import ESTIMATORS
 
-__all__ = ["BundlePolicy", "export_bundle_copy", "export_pid", "export_sb3", "pid_meta"]
+__all__ = ["BundlePolicy", "classical_meta", "export_bundle_copy", "export_pid", "export_sb3"]
 
 
 
@@ -106,14 +107,17 @@ def build_meta(geometry: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         "control_hz": int(env_kwargs.get("control_hz", 50)),
         "max_tilt": float(env_kwargs.get("max_tilt") or default_max_tilt(geo)),
         "observation_layout": ObservationBuilder.LAYOUT_VERSION,
+        "estimator": str(env_kwargs.get("estimator", "lowpass")),
     }
 
 
-def pid_meta(gains: dict[str, Any], env_id: str = "StewartBallBalance-v0",
-             geometry: Any = "servo-hexapod") -> dict[str, Any]:  # fmt: skip
-    """The ``bundle.json`` content of the PID baseline with these gains, for ``geometry``."""
-    meta = {"kind": "pid", "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains,
-            **build_meta(geometry, {"max_tilt": gains.get("max_tilt")})}  # fmt: skip
+def classical_meta(kind: str, gains: dict[str, Any], env_id: str = "StewartBallBalance-v0",
+                   geometry: Any = "servo-hexapod", estimator: str = "lowpass") -> dict[str, Any]:  # fmt: skip
+    """The ``bundle.json`` content of a classical controller (``kind`` ``"pid"`` or ``"lqr"``) with these gains,
+    for ``geometry``, behind the observer ``estimator``."""
+    gains = {k: list(v) if isinstance(v, tuple) else v for k, v in gains.items()}
+    meta = {"kind": kind, "env_id": env_id, "action_mode": "tilt", "obs_size": 12, "gains": gains,
+            **build_meta(geometry, {"max_tilt": gains.get("max_tilt"), "estimator": estimator})}  # fmt: skip
     meta["gains"] = {**gains, "max_tilt": meta["max_tilt"]}
     return meta
 
@@ -124,7 +128,7 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     values = gains if isinstance(gains, dict) else json.loads(Path(gains).read_text())
-    (out / "bundle.json").write_text(json.dumps(pid_meta(values, env_id, geometry), indent=2) + "\n")
+    (out / "bundle.json").write_text(json.dumps(classical_meta("pid", values, env_id, geometry), indent=2) + "\n")
     return out
 
 
@@ -163,9 +167,9 @@ class BundlePolicy:
         return self
 
     def _setup(self, meta: Any, folder: Path | None, meta_path: Path) -> None:
-        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", "pid"):
+        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", "pid", "lqr"):
             kind = meta.get("kind") if isinstance(meta, dict) else None
-            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx' or 'pid')")
+            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx', 'pid' or 'lqr')")
         self.meta = meta
         self.kind = meta["kind"]
         self.env_id = str(meta.get("env_id", "StewartBallBalance-v0"))
@@ -178,16 +182,26 @@ class BundlePolicy:
         #: the observation layout version it was made for (bundles older than the field: version 1)
         self.observation_layout = int(meta.get("observation_layout", 1))
         self.geometry = self._geometry(meta, meta_path)
-        if self.kind == "pid":
-            from stewart_gym.classical import CascadedPID, PIDGains
+        #: the observer it runs behind (bundles older than the field: the low-pass one)
+        self.estimator = str(meta.get("estimator", "lowpass"))
+        if self.estimator not in ESTIMATORS:
+            raise PolicyError(f"{meta_path}: estimator must be one of {list(ESTIMATORS)}, got {self.estimator!r}")
+        if self.kind in ("pid", "lqr"):
+            from stewart_gym.classical import CascadedPID, LQRController, LQRGains, PIDGains
 
             if self.action_mode != "tilt":
-                raise PolicyError(f"{meta_path}: the PID commands tilt, not {self.action_mode!r}")
+                raise PolicyError(f"{meta_path}: the {self.kind.upper()} commands tilt, not {self.action_mode!r}")
             width, depth = self.geometry.plate_extent
             try:
-                self._pid = CascadedPID(PIDGains(**meta["gains"]), plate_half=(width / 2, depth / 2))
-            except (KeyError, TypeError) as exc:
-                raise PolicyError(f"{meta_path}: malformed PID gains ({exc})") from None
+                if self.kind == "pid":
+                    self._classical: Any = CascadedPID(PIDGains(**meta["gains"]), plate_half=(width / 2, depth / 2))
+                else:
+                    gains = LQRGains(**{**meta["gains"], "k": tuple(float(v) for v in meta["gains"]["k"])})
+                    if len(gains.k) != 5:
+                        raise TypeError(f"k has {len(gains.k)} gains, expected 5")
+                    self._classical = LQRController(gains, plate_half=(width / 2, depth / 2))
+            except (KeyError, TypeError, ValueError) as exc:
+                raise PolicyError(f"{meta_path}: malformed {self.kind.upper()} gains ({exc})") from None
             self.obs_size = 10 + self.action_size
             return
         missing = [k for k in ("obs_size", "action_low", "action_high", "obs_mean", "obs_var", "clip_obs", "epsilon")
@@ -238,14 +252,14 @@ class BundlePolicy:
             raise PolicyError(f"{meta_path}: malformed geometry ({exc}); re-export the policy") from None
 
     def reset(self) -> None:
-        """Start of an episode (clears the PID integrator)."""
-        if self.kind == "pid":
-            self._pid.reset()
+        """Start of an episode (clears the PID's or LQR's state)."""
+        if self.kind in ("pid", "lqr"):
+            self._classical.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Action(s) for observation(s) (…, obs_size), clipped to the action bounds."""
-        if self.kind == "pid":
-            return self._pid(obs)
+        if self.kind in ("pid", "lqr"):
+            return self._classical(obs)
         o = np.asarray(obs, dtype=np.float64)
         if self._mean is not None:
             o = np.clip((o - self._mean) / self._std, -self._clip, self._clip)
