@@ -190,6 +190,8 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
     env_kwargs = hp.get("env_kwargs") or {}
     kept = {k: env_kwargs[k] for k in POLICY_ENV_KEYS + TASK_ENV_KEYS if k in env_kwargs}
     kept.setdefault("action_mode", "tilt")
+    if hp.get("residual"):  # not an env keyword: what the learned correction is added to (see sb3_models)
+        kept["residual"] = hp["residual"]
     return PolicySource(spec, "sb3", model_zip, str(options.get("env_id", DEFAULT_ENV)), kept)
 
 
@@ -216,9 +218,12 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.hardware.export import BundlePolicy
 
         return BundlePolicy(source.path)
-    from stewart_gym.sb3_models import load_sb3
+    from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_sb3, residual_base
 
     policy = load_sb3(source.path)
+    if source.env_kwargs.get("residual"):
+        spec = check_residual(source.env_kwargs["residual"])
+        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), spec["scale"])
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip

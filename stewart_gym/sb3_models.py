@@ -1,8 +1,13 @@
-"""Stable-Baselines3 models with the observation normalisation they were trained with.
+"""Stable-Baselines3 models with the observation normalisation they were trained with, and residual policies.
 
 :func:`load_sb3` reads a PPO, SAC or TD3 model and the ``vecnormalize.pkl``
 beside it; :class:`SB3Policy` normalises observations the way training did and
 predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
+
+A *residual* policy learns a correction on top of a classical controller: the action sent is
+``clip(base(obs) + scale · learned(obs), −1, 1)``. Training wraps the env in :class:`ResidualAction` (the
+hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one; the
+bundle records the base, so deploy runs the same sum.
 """
 
 from __future__ import annotations
@@ -10,11 +15,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from stewart_gym.errors import PolicyError
 
-__all__ = ["SB3Policy", "load_sb3"]
+__all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
+
+#: The classical controllers a residual can sit on, and their files under ``policies/``.
+RESIDUAL_BASES = {"lqr": "lqr.json", "pid": "pid_gains.json"}
 
 
 class SB3Policy:
@@ -70,3 +79,75 @@ def load_sb3(path: str | Path) -> SB3Policy:
         except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
             raise PolicyError(f"{stats}: unreadable normalisation statistics ({type(exc).__name__})") from None
     return SB3Policy(model, obs_rms, clip_obs)
+
+
+def check_residual(spec: Any) -> dict[str, Any]:
+    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid, scale: s}`` with 0 < s ≤ 2."""
+    from stewart_gym.errors import ConfigError
+
+    if not isinstance(spec, dict) or set(spec) - {"base", "scale"} or spec.get("base") not in RESIDUAL_BASES:
+        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S}}, got {spec!r}")
+    scale = spec.get("scale", 0.5)
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
+        raise ConfigError(f"residual scale must be a number in (0, 2], got {scale!r}")
+    return {"base": spec["base"], "scale": float(scale)}
+
+
+def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
+                  dt: float = 0.02) -> Any:  # fmt: skip
+    """The classical controller a residual policy adds to (the shipped gains or design, for ``geometry``)."""
+    import json
+
+    from stewart_gym.classical import CascadedPID, LQRController, LQRDesign, PIDGains, design_lqr, gains_for_geometry
+    from stewart_gym.presets import load_geometry
+
+    geo = load_geometry(geometry)
+    half = plate_half or (geo.plate_extent[0] / 2, geo.plate_extent[1] / 2)
+    values = json.loads((Path(__file__).resolve().parent / "policies" / RESIDUAL_BASES[spec["base"]]).read_text())
+    if spec["base"] == "lqr":
+        return LQRController(design_lqr(LQRDesign(**values), dt=dt, geometry=geo), plate_half=half)
+    return CascadedPID(gains_for_geometry(PIDGains(**values), geo), dt=dt, plate_half=half)
+
+
+class ResidualAction(gym.Wrapper):
+    """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
+
+    Sends ``clip(base(obs) + scale · action, −1, 1)``, with ``obs`` the observation the agent acted on;
+    resets the base's state with each episode.
+    """
+
+    def __init__(self, env: gym.Env, residual: dict[str, Any]) -> None:
+        super().__init__(env)
+        spec = check_residual(residual)
+        u = env.unwrapped
+        self.scale = spec["scale"]
+        self.base = residual_base(spec, u.sim.geometry, u.plate_half_extent, 1.0 / u.sim.control_hz)
+        self._obs: np.ndarray | None = None
+
+    def reset(self, **kwargs: Any) -> Any:
+        obs, info = self.env.reset(**kwargs)
+        self.base.reset()
+        self._obs = obs
+        return obs, info
+
+    def step(self, action: Any) -> Any:
+        if self._obs is None:
+            raise RuntimeError("call reset before step")
+        total = np.clip(self.base(self._obs) + self.scale * np.asarray(action), -1.0, 1.0)
+        obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
+
+class ResidualPolicy:
+    """A trained residual policy: ``clip(base(obs) + scale · learned(obs), −1, 1)`` (see :class:`ResidualAction`)."""
+
+    def __init__(self, learned: SB3Policy, base: Any, scale: float) -> None:
+        self.learned, self.base, self.scale = learned, base, float(scale)
+        self.obs_size, self.action_size = learned.obs_size, learned.action_size
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
+        base, _ = self.base.predict(obs, episode_start=episode_start)
+        correction, _ = self.learned.predict(obs, deterministic=deterministic)
+        return np.clip(base + self.scale * correction, -1.0, 1.0).astype(np.float32), None

@@ -508,11 +508,11 @@ def plot_sweep(spec: SweepSpec, rows: list[dict[str, Any]], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     configs = summarise_configs(spec, rows)[:30]
-    fig, ax = plt.subplots(figsize=(8, 0.35 * max(len(configs), 3) + 1.2))
+    fig, ax = plt.subplots(figsize=(10, 0.35 * max(len(configs), 3) + 1.2))
     labels = []
     for i, c in enumerate(configs):
-        label = ", ".join(f"{n.replace('env_kwargs.', '')}={_short(c[n])}" for n in spec.search) or "fixed"
-        labels.append(label)
+        label = ", ".join(f"{_ABBREVIATIONS.get(n, n.replace('env_kwargs.', ''))}={_short(c[n])}" for n in spec.search)
+        labels.append(f"{label or 'fixed'} ({c['seeds']} seed{'s' * (c['seeds'] > 1)})")
         key = tuple(repr(c[n]) for n in spec.search)
         values = [r[spec.metric] for r in rows if r["status"] == "finished"
                   and tuple(repr(r[n]) for n in spec.search) == key and r.get(spec.metric) is not None]  # fmt: skip
@@ -525,6 +525,10 @@ def plot_sweep(spec: SweepSpec, rows: list[dict[str, Any]], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+_ABBREVIATIONS = {"learning_rate": "lr", "ent_coef": "ent", "batch_size": "batch", "gae_lambda": "λ", "gamma": "γ",
+                  "clip_range": "clip"}  # fmt: skip
 
 
 def _short(value: Any) -> str:

@@ -32,13 +32,14 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.sb3_models import ResidualAction, check_residual
 
 __all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "run_hyperparams",
            "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
-ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes")
+ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual")
 
 
 @dataclass
@@ -120,6 +121,8 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     hp = run_hyperparams(config)
+    if hp.get("residual"):
+        check_residual(hp["residual"])
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -139,15 +142,19 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
 
 
-def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None) -> VecEnv:
-    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``.
+def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None,
+             residual: dict | None = None) -> VecEnv:  # fmt: skip
+    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``; with ``residual``
+    (``{base, scale}``) the agent's action corrects a classical controller's (:class:`ResidualAction`).
 
     The id is passed as ``stewart_gym:<id>`` so that a worker process, which has
     not imported the package, imports it (and so registers the ids) first.
     """
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
     full_id = env_id if ":" in env_id else f"stewart_gym:{env_id}"
-    return make_vec_env(full_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls)
+    wrapper = {"wrapper_class": ResidualAction, "wrapper_kwargs": {"residual": residual}} if residual else {}
+    return make_vec_env(full_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls,
+                        **wrapper)  # fmt: skip
 
 
 class _EvalLog(EvalCallback):
@@ -246,8 +253,9 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
     (run / "git.txt").write_text(_git_revision() + "\n")
 
-    env = make_env(config.env_id, n_envs, config.seed, env_kwargs)
-    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs)])
+    residual = check_residual(hp["residual"]) if hp.get("residual") else None
+    env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual)
+    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
     resume = Path(config.resume) if config.resume else None
     stats = None
     if resume is not None:
@@ -306,8 +314,9 @@ def _number(text: str) -> int | float | None:
     return int(value) if value.is_integer() and "." not in text else value
 
 
-def _monitored(env_id: str, env_kwargs: dict) -> Any:
+def _monitored(env_id: str, env_kwargs: dict, residual: dict | None = None) -> Any:
     import gymnasium as gym
     from stable_baselines3.common.monitor import Monitor
 
-    return Monitor(gym.make(env_id, **env_kwargs))
+    env = gym.make(env_id, **env_kwargs)
+    return Monitor(ResidualAction(env, residual) if residual else env)

@@ -86,6 +86,13 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         "epsilon": sb3.epsilon,
         **build_meta(env_kwargs.get("geometry", "servo-hexapod"), env_kwargs),
     }
+    if env_kwargs.get("residual"):  # the network's action corrects a classical controller's: record that one
+        from stewart_gym.sb3_models import check_residual, residual_base
+
+        spec = check_residual(env_kwargs["residual"])
+        base = residual_base(spec, env_kwargs.get("geometry", "servo-hexapod"))
+        meta["residual"] = {"scale": spec["scale"], "base": classical_meta(
+            spec["base"], vars(base.gains), env_id, env_kwargs.get("geometry", "servo-hexapod"), meta["estimator"])}
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
 
@@ -235,6 +242,14 @@ class BundlePolicy:
         self._clip = float(meta["clip_obs"])
         self._low = np.asarray(meta["action_low"], np.float32)
         self._high = np.asarray(meta["action_high"], np.float32)
+        #: a residual policy's classical base and the correction's scale (None: the network acts alone)
+        self._base: BundlePolicy | None = None
+        residual = meta.get("residual")
+        if residual is not None:
+            if not isinstance(residual, dict) or not isinstance(residual.get("scale"), (int, float)):
+                raise PolicyError(f"{meta_path}: malformed residual (expected {{scale, base}}); re-export the policy")
+            self._base = BundlePolicy.from_meta(residual.get("base"))
+            self._scale = float(residual["scale"])
 
     @staticmethod
     def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
@@ -252,9 +267,11 @@ class BundlePolicy:
             raise PolicyError(f"{meta_path}: malformed geometry ({exc}); re-export the policy") from None
 
     def reset(self) -> None:
-        """Start of an episode (clears the PID's or LQR's state)."""
+        """Start of an episode (clears the PID's or LQR's state, or a residual policy's base's)."""
         if self.kind in ("pid", "lqr"):
             self._classical.reset()
+        elif self._base is not None:
+            self._base.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Action(s) for observation(s) (…, obs_size), clipped to the action bounds."""
@@ -265,7 +282,10 @@ class BundlePolicy:
             o = np.clip((o - self._mean) / self._std, -self._clip, self._clip)
         x = o.astype(np.float32).reshape(-1, o.shape[-1])
         action = self._session.run(None, {"obs": x})[0]
-        return np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
+        action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
+        if self._base is not None:
+            return np.clip(self._base(obs) + self._scale * action, -1.0, 1.0).astype(np.float32)
+        return action
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
