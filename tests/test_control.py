@@ -141,3 +141,30 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
     metrics = evaluate("StewartBallBalance-v0", load_policy("lqr"), episodes=10, seed=100,
                        env_kwargs={"estimator": "kalman"})  # fmt: skip
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
+
+
+def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
+    """Train a residual PPO for a moment (CLI), then: the evaluated policy is clip(LQR + 0.5 · network), the
+    bundle gives the same actions with numpy + onnxruntime, and records the LQR and the Kalman observer."""
+    from stewart_gym.sb3_models import load_sb3
+
+    run, bundle_dir = tmp_path / "run", tmp_path / "bundle"
+    hp = Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml"
+    for args in (["train", "--hyperparams", str(hp), "--run-dir", str(run), "--timesteps", "1024", "--n-envs", "1",
+                  "--eval-freq", "1024", "--eval-episodes", "1", "--no-progress", "--no-tensorboard"],
+                 ["export", "--policy", str(run), "--out", str(bundle_dir)]):  # fmt: skip
+        proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
+                              timeout=300)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    meta = json.loads((bundle_dir / "bundle.json").read_text())
+    assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5
+    assert meta["residual"]["base"]["kind"] == "lqr"
+    policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(bundle_dir)))
+    network, lqr = load_sb3(run), load_policy("lqr")
+    rng = np.random.default_rng(1)
+    for _ in range(40):
+        obs = rng.uniform(-0.6, 0.6, 12).astype(np.float32)
+        action, _ = policy.predict(obs)
+        expected = np.clip(lqr(obs) + 0.5 * network.predict(obs)[0], -1, 1)
+        np.testing.assert_allclose(action, expected, atol=1e-5)
+        np.testing.assert_allclose(bundle(obs), action, atol=1e-4)
