@@ -312,6 +312,16 @@ BAD = [
     ["virtual-device", "--geometry", "nope"],
     ["demo", "--episodes", "0"],
     ["demo", "--out", "{files}/notes.txt"],
+    # sweep (the file is checked before Ray starts), the estimator, the LQR
+    ["sweep"],
+    ["sweep", "{files}/missing.yaml"],
+    ["sweep", "{files}/notes.txt"],
+    ["sweep", "{files}/binary.toml"],
+    ["sweep", "{files}/notes.txt", "--num-samples", "0"],
+    ["sweep", "{files}/notes.txt", "--address", "nowhere"],
+    ["evaluate", "--estimator", "particle"],
+    ["export", "--policy", "lqr", "--estimator", "x", "--out", "{tmp}/b"],
+    ["evaluate", "--policy", "lqr", "--geometry", "{files}/bad.toml"],
 ]
 DEVICE_FAILURES = {("deploy", DEV), ("calibrate", DEV)}  # a missing port is a device failure: exit 2
 
