@@ -29,7 +29,7 @@ from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
 __all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "design_lqr",
-           "gains_for_geometry", "trim_tilt"]  # fmt: skip
+           "gains_for_geometry", "residual_gate", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -306,3 +306,14 @@ class LQRController:
         if episode_start is not None and np.any(episode_start):
             self.reset()
         return self(obs), None
+
+
+def residual_gate(obs: np.ndarray, plate_half: tuple[float, float], fade_mm: float) -> np.ndarray:
+    """The weight (…, 1) of a residual policy's correction: ``min(1, d / fade_mm)`` with d the observed ball's
+    distance to the target; 1 everywhere when ``fade_mm`` is 0. Near the target the classical controller
+    acts alone (its precision and quiet servos), further out the learned correction joins in."""
+    o = np.asarray(obs, dtype=np.float64)
+    if fade_mm <= 0:
+        return np.ones((*o.shape[:-1], 1))
+    error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(plate_half, dtype=np.float64)
+    return np.minimum(1.0, np.linalg.norm(error, axis=-1, keepdims=True) / (fade_mm * 1e-3))

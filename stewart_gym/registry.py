@@ -223,7 +223,11 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     policy = load_sb3(source.path)
     if source.env_kwargs.get("residual"):
         spec = check_residual(source.env_kwargs["residual"])
-        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), spec["scale"])
+        from stewart_gym.presets import load_geometry
+
+        width, depth = load_geometry(source.geometry).plate_extent
+        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), spec["scale"], (width / 2, depth / 2),
+                                spec["fade_mm"])  # fmt: skip
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip

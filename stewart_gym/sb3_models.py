@@ -5,7 +5,8 @@ beside it; :class:`SB3Policy` normalises observations the way training did and
 predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 
 A *residual* policy learns a correction on top of a classical controller: the action sent is
-``clip(base(obs) + scale · learned(obs), −1, 1)``. Training wraps the env in :class:`ResidualAction` (the
+``clip(base(obs) + scale · w · learned(obs), −1, 1)``, where the weight w may fade the correction out near
+the target (``fade_mm``). Training wraps the env in :class:`ResidualAction` (the
 hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one; the
 bundle records the base, so deploy runs the same sum.
 """
@@ -82,15 +83,20 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
-    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid, scale: s}`` with 0 < s ≤ 2."""
+    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid, scale: s, fade_mm: f}`` with 0 < s ≤ 2 and
+    f ≥ 0 (the correction fades to nothing as the ball nears the target: :func:`~stewart_gym.classical.
+    residual_gate`; 0, the default, never fades)."""
     from stewart_gym.errors import ConfigError
 
-    if not isinstance(spec, dict) or set(spec) - {"base", "scale"} or spec.get("base") not in RESIDUAL_BASES:
-        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S}}, got {spec!r}")
-    scale = spec.get("scale", 0.5)
+    if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm"}
+            or spec.get("base") not in RESIDUAL_BASES):  # fmt: skip
+        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S, fade_mm: F}}, got {spec!r}")
+    scale, fade = spec.get("scale", 0.5), spec.get("fade_mm", 0.0)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
         raise ConfigError(f"residual scale must be a number in (0, 2], got {scale!r}")
-    return {"base": spec["base"], "scale": float(scale)}
+    if isinstance(fade, bool) or not isinstance(fade, (int, float)) or not 0 <= fade < 1000:
+        raise ConfigError(f"residual fade_mm must be a number in [0, 1000), got {fade!r}")
+    return {"base": spec["base"], "scale": float(scale), "fade_mm": float(fade)}
 
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
@@ -112,7 +118,8 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
 class ResidualAction(gym.Wrapper):
     """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
 
-    Sends ``clip(base(obs) + scale · action, −1, 1)``, with ``obs`` the observation the agent acted on;
+    Sends ``clip(base(obs) + scale · w · action, −1, 1)``, with ``obs`` the observation the agent acted on and
+    w its :func:`~stewart_gym.classical.residual_gate`;
     resets the base's state with each episode.
     """
 
@@ -120,7 +127,7 @@ class ResidualAction(gym.Wrapper):
         super().__init__(env)
         spec = check_residual(residual)
         u = env.unwrapped
-        self.scale = spec["scale"]
+        self.scale, self.fade_mm, self.plate_half = spec["scale"], spec["fade_mm"], u.plate_half_extent
         self.base = residual_base(spec, u.sim.geometry, u.plate_half_extent, 1.0 / u.sim.control_hz)
         self._obs: np.ndarray | None = None
 
@@ -133,7 +140,10 @@ class ResidualAction(gym.Wrapper):
     def step(self, action: Any) -> Any:
         if self._obs is None:
             raise RuntimeError("call reset before step")
-        total = np.clip(self.base(self._obs) + self.scale * np.asarray(action), -1.0, 1.0)
+        from stewart_gym.classical import residual_gate
+
+        weight = residual_gate(self._obs, self.plate_half, self.fade_mm)
+        total = np.clip(self.base(self._obs) + self.scale * weight * np.asarray(action), -1.0, 1.0)
         obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
         self._obs = obs
         return obs, reward, terminated, truncated, info
@@ -142,12 +152,17 @@ class ResidualAction(gym.Wrapper):
 class ResidualPolicy:
     """A trained residual policy: ``clip(base(obs) + scale · learned(obs), −1, 1)`` (see :class:`ResidualAction`)."""
 
-    def __init__(self, learned: SB3Policy, base: Any, scale: float) -> None:
+    def __init__(self, learned: SB3Policy, base: Any, scale: float, plate_half: tuple[float, float] = (0.15, 0.15),
+                 fade_mm: float = 0.0) -> None:  # fmt: skip
         self.learned, self.base, self.scale = learned, base, float(scale)
+        self.plate_half, self.fade_mm = plate_half, float(fade_mm)
         self.obs_size, self.action_size = learned.obs_size, learned.action_size
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
         base, _ = self.base.predict(obs, episode_start=episode_start)
+        from stewart_gym.classical import residual_gate
+
         correction, _ = self.learned.predict(obs, deterministic=deterministic)
-        return np.clip(base + self.scale * correction, -1.0, 1.0).astype(np.float32), None
+        weight = residual_gate(obs, self.plate_half, self.fade_mm)
+        return np.clip(base + self.scale * weight * correction, -1.0, 1.0).astype(np.float32), None

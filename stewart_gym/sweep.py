@@ -523,6 +523,7 @@ def plot_sweep(spec: SweepSpec, rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_xlabel(f"{spec.metric} at the end of training (bar: mean over seeds; dots: seeds)")
     ax.set_title(f"{spec.name}: {spec.env}, {spec.algo}, {spec.n_timesteps} steps per trial", fontsize=9)
     fig.tight_layout()
+    fig.subplots_adjust(left=max(fig.subplotpars.left, 0.3))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -144,8 +144,9 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
 
 
 def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
-    """Train a residual PPO for a moment (CLI), then: the evaluated policy is clip(LQR + 0.5 · network), the
-    bundle gives the same actions with numpy + onnxruntime, and records the LQR and the Kalman observer."""
+    """Train a residual PPO for a moment (CLI), then: the evaluated policy is clip(LQR + 0.5 · w · network), with
+    w = min(1, distance / 15 mm), the bundle gives the same actions with numpy + onnxruntime, and records the
+    LQR, the fade and the Kalman observer."""
     from stewart_gym.sb3_models import load_sb3
 
     run, bundle_dir = tmp_path / "run", tmp_path / "bundle"
@@ -157,14 +158,17 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
                               timeout=300)  # fmt: skip
         assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((bundle_dir / "bundle.json").read_text())
-    assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5
+    assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5 and meta["residual"]["fade_mm"] == 15
     assert meta["residual"]["base"]["kind"] == "lqr"
     policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(bundle_dir)))
     network, lqr = load_sb3(run), load_policy("lqr")
     rng = np.random.default_rng(1)
-    for _ in range(40):
+    for k in range(40):
         obs = rng.uniform(-0.6, 0.6, 12).astype(np.float32)
+        if k % 2:
+            obs[4:6] = obs[0:2] + rng.uniform(-0.08, 0.08, 2)  # within 12 mm of the target: the fade acts
         action, _ = policy.predict(obs)
-        expected = np.clip(lqr(obs) + 0.5 * network.predict(obs)[0], -1, 1)
+        distance_mm = 150 * np.hypot(*(obs[0:2] - obs[4:6]))  # observations are in plate half-widths (150 mm)
+        expected = np.clip(lqr(obs) + 0.5 * min(1.0, distance_mm / 15) * network.predict(obs)[0], -1, 1)
         np.testing.assert_allclose(action, expected, atol=1e-5)
         np.testing.assert_allclose(bundle(obs), action, atol=1e-4)

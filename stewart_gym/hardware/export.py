@@ -91,7 +91,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
 
         spec = check_residual(env_kwargs["residual"])
         base = residual_base(spec, env_kwargs.get("geometry", "servo-hexapod"))
-        meta["residual"] = {"scale": spec["scale"], "base": classical_meta(
+        meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "base": classical_meta(
             spec["base"], vars(base.gains), env_id, env_kwargs.get("geometry", "servo-hexapod"), meta["estimator"])}
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
@@ -249,7 +249,7 @@ class BundlePolicy:
             if not isinstance(residual, dict) or not isinstance(residual.get("scale"), (int, float)):
                 raise PolicyError(f"{meta_path}: malformed residual (expected {{scale, base}}); re-export the policy")
             self._base = BundlePolicy.from_meta(residual.get("base"))
-            self._scale = float(residual["scale"])
+            self._scale, self._fade_mm = float(residual["scale"]), float(residual.get("fade_mm", 0.0))
 
     @staticmethod
     def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
@@ -284,7 +284,11 @@ class BundlePolicy:
         action = self._session.run(None, {"obs": x})[0]
         action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
         if self._base is not None:
-            return np.clip(self._base(obs) + self._scale * action, -1.0, 1.0).astype(np.float32)
+            from stewart_gym.classical import residual_gate
+
+            width, depth = self.geometry.plate_extent
+            weight = residual_gate(np.asarray(obs, np.float64), (width / 2, depth / 2), self._fade_mm)
+            return np.clip(self._base(obs) + self._scale * weight * action, -1.0, 1.0).astype(np.float32)
         return action
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
