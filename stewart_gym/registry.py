@@ -4,6 +4,8 @@
 
 * ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
 * ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
+* ``shipped-residual``: the committed residual PPO policy, a learned correction on top of the LQR behind the
+  Kalman observer (:data:`SHIPPED_RESIDUAL`);
 * ``pid``: the tuned cascaded PID baseline (``policies/pid_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
   :func:`~stewart_gym.classical.design_lqr`);
@@ -33,8 +35,8 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.errors import PolicyError
 
-__all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "PolicySource", "deployable_policy", "export_policy",
-           "load_for_evaluation", "load_policy", "resolve_policy"]  # fmt: skip
+__all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
+           "export_policy", "load_for_evaluation", "load_policy", "resolve_policy"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
@@ -45,6 +47,10 @@ SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallT
            ("StewartBallDisturbance-v0", "servo-hexapod"): "balance"}
 #: The shipped policies trained with the camera sensor model (``--policy shipped-camera``): folder under ``policies/``.
 SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
+#: The shipped residual policies (``--policy shipped-residual``: PPO corrections of the LQR): folder under ``policies/``.
+SHIPPED_RESIDUAL = {("StewartBallBalance-v0", "servo-hexapod"): "balance_residual",
+                    ("StewartBallTrack-v0", "servo-hexapod"): "track_residual"}
+SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped-residual": SHIPPED_RESIDUAL}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
 POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator")
@@ -53,7 +59,8 @@ CLASSICAL = {"pid": ("pid_gains.json", "lowpass"), "lqr": ("lqr.json", "kalman")
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
-_KINDS_TEXT = "'shipped', 'shipped-camera', 'pid', 'lqr', a run folder, a model .zip, a bundle folder or a PID gains .json"
+_KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'lqr', a run folder, a model .zip, a bundle "
+               "folder or a PID gains .json")
 
 
 @dataclass(frozen=True)
@@ -88,7 +95,7 @@ class PolicySource:
 
     @property
     def label(self) -> str:
-        return self.spec if self.spec in ("shipped", "shipped-camera", *CLASSICAL) else self.path.name
+        return self.spec if self.spec in (*SHIPPED_TABLES, *CLASSICAL) else self.path.name
 
     @property
     def estimator(self) -> str:
@@ -118,9 +125,9 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
         name, estimator = CLASSICAL[spec]
         kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY, "estimator": estimator}
         return PolicySource(spec, spec, POLICY_DIR / name, env_id or DEFAULT_ENV, kwargs)
-    if spec in ("shipped", "shipped-camera"):
+    if spec in SHIPPED_TABLES:
         env_id, geo = env_id or DEFAULT_ENV, geometry or DEFAULT_GEOMETRY
-        table = SHIPPED if spec == "shipped" else SHIPPED_CAMERA
+        table = SHIPPED_TABLES[spec]
         if (env_id, geo) not in table:
             have = ", ".join(f"{e} on {g}" for e, g in table)
             raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}")

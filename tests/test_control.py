@@ -144,14 +144,15 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
 
 
 def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
-    """Train a residual PPO for a moment (CLI), then: the evaluated policy is clip(LQR + 0.5 · w · network), with
-    w = min(1, distance / 15 mm), the bundle gives the same actions with numpy + onnxruntime, and records the
-    LQR, the fade and the Kalman observer."""
+    """Train a residual PPO (the track settings) for a moment (CLI), then: the evaluated policy is
+    clip(LQR + 0.5 · w · network), with w = min(1, distance / 15 mm), the bundle gives the same actions with
+    numpy + onnxruntime, and records the LQR, the fade and the Kalman observer."""
     from stewart_gym.sb3_models import load_sb3
 
     run, bundle_dir = tmp_path / "run", tmp_path / "bundle"
     hp = Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml"
-    for args in (["train", "--hyperparams", str(hp), "--run-dir", str(run), "--timesteps", "1024", "--n-envs", "1",
+    for args in (["train", "--env", "StewartBallTrack-v0", "--hyperparams", str(hp), "--run-dir", str(run),
+                  "--timesteps", "1024", "--n-envs", "1",
                   "--eval-freq", "1024", "--eval-episodes", "1", "--no-progress", "--no-tensorboard"],
                  ["export", "--policy", str(run), "--out", str(bundle_dir)]):  # fmt: skip
         proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,

@@ -6,7 +6,8 @@ Run: ``.venv/bin/python train/results.py [--runs runs/seed0 runs/seed1 runs/seed
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
 episodes (seeds 0…N−1). Rows:
 
-* ``shipped``: the shipped learned policy of the task (its own observer);
+* ``shipped PPO``: the shipped learned policy of the task (behind the low-pass observer it was trained with);
+* ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the LQR);
 * ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``;
 * ``LQR``: the LQR behind the Kalman observer;
 * ``--runs``: run folders of one recipe trained with different seeds (e.g. ``make train`` with ``SEED=0,1,2``):
@@ -35,8 +36,9 @@ ROOT = Path(__file__).resolve().parents[1]
 BALANCE, TRACK = "StewartBallBalance-v0", "StewartBallTrack-v0"
 TRAJECTORIES = ("circle", "figure8", "waypoints")
 #: label → (policy, estimator or None for the policy's own)
-CONTROLLERS = {"shipped": ("shipped", None), "PID": ("pid", None), "PID + Kalman": ("pid", "kalman"),
-               "LQR": ("lqr", None)}  # fmt: skip
+CONTROLLERS = {"shipped PPO": ("shipped", None), "residual PPO": ("shipped-residual", None), "PID": ("pid", None),
+               "PID + Kalman": ("pid", "kalman"), "LQR": ("lqr", None)}  # fmt: skip
+ROBUST = ("shipped PPO", "residual PPO", "PID", "LQR")
 METRICS = [("success_rate", "success", "{:.0%}"), ("rms_error_mm", "RMS error, last 5 s (mm)", "{:.2f}"),
            ("final_error_mm", "final error (mm)", "{:.2f}"), ("settling_time_s", "settling time from 100 mm (s)",
                                                               "{:.2f}"),
@@ -69,7 +71,7 @@ def jobs_for(args: argparse.Namespace) -> list[dict[str, Any]]:
     for run in args.runs:
         jobs.append({"table": "balance", "row": f"seed:{run}", "policy": run, "estimator": None, "env": BALANCE,
                      "episodes": args.episodes})  # fmt: skip
-    for label in ("shipped", "PID", "LQR"):
+    for label in ROBUST:
         policy, estimator = CONTROLLERS[label]
         for ms in LATENCIES_MS:
             jobs.append({"table": "latency", "row": label, "value": ms, "policy": policy, "estimator": estimator,
@@ -113,7 +115,7 @@ def tables(results: list[dict[str, Any]], runs: list[str]) -> str:
         out += [f"### Success against the panel's {table} (balance, {unit})", "",
                 "| controller | " + " | ".join(f"{v:g} {unit}" for v in values) + " |",
                 "|---" * (len(values) + 1) + "|"]  # fmt: skip
-        for label in ("shipped", "PID", "LQR"):
+        for label in ROBUST:
             out.append(f"| {label} | " + " | ".join(fmt(rows.get((label, v)), "{:.0%}") for v in values) + " |")
         out.append("")
     return "\n".join(out)
@@ -127,7 +129,7 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     for ax, (table, unit, values) in zip(axes, (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM))):
-        for label in ("shipped", "PID", "LQR"):
+        for label in ROBUST:
             ys = [next((100 * r["metrics"]["success_rate"] for r in results if r["table"] == table
                         and r["row"] == label and r["value"] == v), None) for v in values]  # fmt: skip
             ax.plot(values, ys, marker="o", label=label)
