@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench train train-camera lint docs clean
+.PHONY: demo test bench train train-camera train-residual results sweep lint docs clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
@@ -39,6 +39,23 @@ train-camera: $(STAMP)
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
 # Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
+# The residual PPO policies (learned corrections of the LQR), as shipped: about 6 + 7 minutes on 2 cores.
+train-residual: $(STAMP)
+	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --overwrite --no-progress
+	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
+	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
+	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
+
+# The docs' control page (learned vs PID vs LQR), regenerated: the residual recipe trained with 3 seeds
+# (about 18 minutes on 2 cores), then every evaluation (about 25 minutes).
+results: $(STAMP)
+	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
+	$(PY) train/results.py --runs runs/residual_balance_s0 runs/residual_balance_s1 runs/residual_balance_s2
+
+# The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 25 minutes on 2 cores.
+sweep: $(STAMP)
+	$(PY) -m stewart_gym sweep train/sweeps/ppo_balance.yaml --out sweeps/ppo_balance
+
 train: $(STAMP)
 	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --max-minutes 15 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
