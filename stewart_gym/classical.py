@@ -40,6 +40,14 @@ TRIM_TOLERANCE_US = 15.0
 INTEGRAL_MARGIN = 1.5
 
 
+def observed_motion(obs: np.ndarray, position_scale: np.ndarray,
+                    velocity_scale: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The ball's and the target's position (m) and velocity (m/s) in observation(s) (…, 12), unscaled."""
+    o = np.asarray(obs, dtype=np.float64)
+    return (o[..., 0:2] * position_scale, o[..., 2:4] * velocity_scale, o[..., 4:6] * position_scale,
+            o[..., 6:8] * velocity_scale)  # fmt: skip
+
+
 @dataclass(frozen=True)
 class PIDGains:
     """Gains of :class:`CascadedPID` (tuned by ``train/tune_pid.py``; see the docs: Training and results).
@@ -88,11 +96,7 @@ class CascadedPID:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Tilt action(s) for observation(s); keeps one integrator per row of a batch."""
         g = self.gains
-        o = np.asarray(obs, dtype=np.float64)
-        pos = o[..., 0:2] * self._position_scale
-        vel = o[..., 2:4] * self._velocity_scale
-        target = o[..., 4:6] * self._position_scale
-        target_vel = o[..., 6:8] * self._velocity_scale
+        pos, vel, target, target_vel = observed_motion(obs, self._position_scale, self._velocity_scale)
         err = target - pos
         if self._integral.shape != err.shape:
             self._integral = np.zeros(err.shape)
@@ -277,10 +281,7 @@ class LQRController:
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         g = self.gains
         o = np.asarray(obs, dtype=np.float64)
-        pos = o[..., 0:2] * self._position_scale
-        vel = o[..., 2:4] * self._velocity_scale
-        target = o[..., 4:6] * self._position_scale
-        target_vel = o[..., 6:8] * self._velocity_scale
+        pos, vel, target, target_vel = observed_motion(o, self._position_scale, self._velocity_scale)
         roll, pitch = o[..., 8] * ObservationBuilder.TILT_SCALE, o[..., 9] * ObservationBuilder.TILT_SCALE
         in_force = np.stack([np.sin(pitch), -np.sin(roll)], axis=-1)  # sin(tilt) along x and y
         err = pos - target
