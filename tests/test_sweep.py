@@ -190,3 +190,21 @@ def test_an_interrupted_sweep_resumes_without_losing_finished_trials(tmp_path: P
         assert os.stat(Path(row["run_dir"]) / "metrics.json").st_mtime_ns == mtime  # kept, not trained again
     proc = sg("sweep", str(path), "--out", str(out), cwd=tmp_path)
     assert proc.returncode == 1 and "already holds a sweep" in proc.stderr
+
+
+def test_an_optuna_sweep_samples_each_configuration_once_per_seed(tmp_path: Path) -> None:
+    """searcher optuna: 2 sampled configurations × 2 seeds = 4 trials; each configuration is trained with both
+    seeds (Ray's Repeater), its values inside the ranges."""
+    path = write(tmp_path, seeds=[0, 1], searcher="optuna", num_samples=2, scheduler="fifo", search={
+        "learning_rate": {"loguniform": [1e-4, 1e-3]}, "env_kwargs.rate_penalty": {"uniform": [0.0, 1.0]}})
+    out = tmp_path / "out"
+    proc = sg("sweep", str(path), "--out", str(out), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    table = rows(out)
+    assert len(table) == 4 and all(r["status"] == "finished" for r in table)
+    configs: dict[tuple, set] = {}
+    for r in table:
+        lr, penalty = float(r["learning_rate"]), float(r["env_kwargs.rate_penalty"])
+        assert 1e-4 <= lr <= 1e-3 and 0.0 <= penalty <= 1.0
+        configs.setdefault((lr, penalty), set()).add(int(r["seed"]))
+    assert len(configs) == 2 and all(seeds == {0, 1} for seeds in configs.values())
