@@ -149,12 +149,19 @@ def main() -> None:
     ap.add_argument("--robust-episodes", type=int, default=50)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--out", default=str(ROOT / "docs/src/results.md"))
+    ap.add_argument("--from-json", action="store_true", help="rebuild the page from results.json beside it (after "
+                                                             "editing train/results_intro.md), evaluating nothing")
     args = ap.parse_args()
     out = Path(args.out)
     jobs = jobs_for(args)
-    with ProcessPoolExecutor(args.workers) as pool:
-        results = list(pool.map(run_job, jobs))
-    (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
+    if args.from_json:
+        results = json.loads((out.parent / "results.json").read_text())
+        args.runs = list(dict.fromkeys(r["row"][5:] for r in results if r["row"].startswith("seed:")))
+        jobs = results
+    else:
+        with ProcessPoolExecutor(args.workers) as pool:
+            results = list(pool.map(run_job, jobs))
+        (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
     plot(results, out.parent / "images" / "robustness.png")
     intro = (ROOT / "train" / "results_intro.md").read_text()
     text = intro.rstrip() + "\n\n" + tables(results, args.runs) + "\n![robustness](images/robustness.png)\n"
