@@ -38,7 +38,6 @@ train-camera: $(STAMP)
 	$(PY) -m stewart_gym train --sensor webcam30 --resume runs/camera_webcam/best/best_model.zip --hyperparams stewart_gym/hyperparams/ppo_finetune.yml --run-dir runs/camera_webcam2 --timesteps 500000 --overwrite --no-progress
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
-# Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
 # The residual PPO policies (learned corrections of the LQR), as shipped: about 6 + 7 minutes on 2 cores.
 train-residual: $(STAMP)
 	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --overwrite --no-progress
@@ -47,15 +46,16 @@ train-residual: $(STAMP)
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
 # The docs' control page (learned vs PID vs LQR), regenerated: the residual recipe trained with 3 seeds
-# (about 18 minutes on 2 cores), then every evaluation (about 25 minutes).
+# (about 18 minutes on 2 cores), then every evaluation (about 15 minutes).
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
 	$(PY) train/results.py --runs runs/residual_balance_s0 runs/residual_balance_s1 runs/residual_balance_s2
 
-# The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 25 minutes on 2 cores.
+# The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
 	$(PY) -m stewart_gym sweep train/sweeps/ppo_balance.yaml --out sweeps/ppo_balance
 
+# Reproduce the flagship policy from scratch (15 minutes of wall time on 2 cores).
 train: $(STAMP)
 	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --max-minutes 15 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
