@@ -342,7 +342,11 @@ def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
         (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")
         return out
     if source.kind == "bundle":
-        return export_bundle_copy(source.path, out_dir)
+        out = export_bundle_copy(source.path, out_dir)
+        meta = _read_json(out / "bundle.json")
+        if meta.get("estimator", "lowpass") != source.estimator:  # --estimator asked for another observer
+            (out / "bundle.json").write_text(json.dumps({**meta, "estimator": source.estimator}, indent=2) + "\n")
+        return out
     policy = load_policy(source)  # the model loads and its action size matches its configuration
     env_kwargs = {**source.env_kwargs, **resolved_env_kwargs(source, policy.action_size)}
     return export_sb3(source.path, out_dir, source.env_id, env_kwargs)

@@ -132,6 +132,10 @@ def test_the_lqr_bundle_acts_as_the_lqr_and_records_the_kalman_observer(tmp_path
         np.testing.assert_allclose(bundle(obs), direct(obs), atol=1e-6)
     override = deployable_policy(resolve_policy(str(out), estimator="lowpass"))
     assert override.estimator == "lowpass"
+    copy = tmp_path / "lqr_lowpass"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(out), "--estimator",
+                           "lowpass", "--out", str(copy)], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0 and json.loads((copy / "bundle.json").read_text())["estimator"] == "lowpass"
 
 
 def test_the_lqr_balances_the_randomised_ball() -> None:
