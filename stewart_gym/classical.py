@@ -200,7 +200,7 @@ class LQRGains:
     """A designed LQR (what a bundle stores: deploying it needs numpy only).
 
     Attributes:
-        k: the feedback gains on (position error m, velocity error m/s, plate acceleration in g·c units,
+        k: the feedback gains on (position error m, velocity error m/s, the plate's lagged sin(tilt),
             command in flight, integral m·s): command = −k · state, a ``sin(tilt)``.
         rolling_factor, tilt_lag_s, dt: the model it was designed with.
         max_tilt: rad, the tilt at action ±1.
