@@ -182,7 +182,8 @@ class LQRDesign:
         tilt_step: acceptable change of ``sin(tilt)`` per control period (servo rate and wear).
         rolling_factor: c (5/7 solid ball).
         tilt_lag_s: s.
-        max_tilt: rad, the tilt at action ±1 (set to the geometry's by :func:`design_lqr`).
+
+    The tilt at action ±1 is the geometry's default ``max_tilt`` (:func:`design_lqr`).
     """
 
     position_mm: float = 4.0
@@ -192,7 +193,6 @@ class LQRDesign:
     tilt_step: float = 0.002
     rolling_factor: float = 5.0 / 7.0
     tilt_lag_s: float = 0.019
-    max_tilt: float = DEFAULT_MAX_TILT
 
 
 @dataclass(frozen=True)
