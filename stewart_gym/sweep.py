@@ -384,6 +384,13 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
         raise ConfigError(f"--resume: {out} holds no sweep to resume (no {state}); run it without --resume first")
     if not resume and state.exists():
         raise ConfigError(f"{out} already holds a sweep; give another --out, or --resume it")
+    if resume and (out / "sweep.json").is_file():
+        saved = json.loads((out / "sweep.json").read_text())
+        changed = sorted(k for k, v in spec.to_dict().items()
+                         if k != "max_concurrent" and json.loads(json.dumps(v)) != saved.get(k))  # fmt: skip
+        if changed:
+            raise ConfigError(f"--resume: the sweep file differs from the one {out} was started with ({changed}); "
+                              "resume with that file, or start a new sweep in another --out")  # fmt: skip
     import logging  # an interrupted sweep's trials that never reported are rows of the table, not warnings
 
     logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)
