@@ -386,11 +386,10 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
         raise ConfigError(f"{out} already holds a sweep; give another --out, or --resume it")
     if resume and (out / "sweep.json").is_file():
         saved = json.loads((out / "sweep.json").read_text())
-        changed = sorted(k for k, v in spec.to_dict().items()
-                         if k != "max_concurrent" and json.loads(json.dumps(v)) != saved.get(k))  # fmt: skip
-        if changed:
-            raise ConfigError(f"--resume: the sweep file differs from the one {out} was started with ({changed}); "
-                              "resume with that file, or start a new sweep in another --out")  # fmt: skip
+        changed = sorted(k for k, v in spec.to_dict().items() if json.loads(json.dumps(v)) != saved.get(k))
+        if changed:  # Ray restores the search space, scheduler and concurrency it started with
+            raise ConfigError(f"--resume: the sweep file or options differ from those {out} was started with "
+                              f"({changed}); resume with the same, or start a new sweep in another --out")  # fmt: skip
     import logging  # an interrupted sweep's trials that never reported are rows of the table, not warnings
 
     logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)

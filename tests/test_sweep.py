@@ -193,7 +193,7 @@ def test_an_interrupted_sweep_resumes_without_losing_finished_trials(tmp_path: P
     changed = write(tmp_path, "changed.yaml", seeds=[0, 1], n_timesteps=2048,
                     search={"learning_rate": {"grid": [3e-4, 1e-3]}})  # fmt: skip
     proc = sg("sweep", str(changed), "--out", str(out), "--resume", cwd=tmp_path)
-    assert proc.returncode == 1 and "n_timesteps" in proc.stderr and "differs" in proc.stderr
+    assert proc.returncode == 1 and "n_timesteps" in proc.stderr and "differ from" in proc.stderr
 
 
 def test_an_optuna_sweep_samples_each_configuration_once_per_seed(tmp_path: Path) -> None:
