@@ -29,7 +29,7 @@ from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
 __all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "design_lqr",
-           "gains_for_geometry", "residual_gate", "trim_tilt"]  # fmt: skip
+           "classical_controller", "gains_for_geometry", "residual_action", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -309,12 +309,29 @@ class LQRController:
         return self(obs), None
 
 
-def residual_gate(obs: np.ndarray, plate_half: tuple[float, float], fade_mm: float) -> np.ndarray:
-    """The weight (…, 1) of a residual policy's correction: ``min(1, d / fade_mm)`` with d the observed ball's
-    distance to the target; 1 everywhere when ``fade_mm`` is 0. Near the target the classical controller
-    acts alone (its precision and quiet servos), further out the learned correction joins in."""
+def classical_controller(kind: str, design: PIDGains | LQRDesign, geometry: Any = "servo-hexapod", dt: float = 0.02,
+                         plate_half: tuple[float, float] | None = None) -> CascadedPID | LQRController:  # fmt: skip
+    """The PID (``kind`` ``"pid"``, from its gains, adapted by :func:`gains_for_geometry`) or the LQR (``"lqr"``,
+    designed by :func:`design_lqr`) for ``geometry`` at control period ``dt``; observation scales follow the
+    plate (``plate_half``, default the geometry's)."""
+    geo = load_geometry(geometry)
+    half = plate_half or (geo.plate_extent[0] / 2, geo.plate_extent[1] / 2)
+    if kind == "lqr":
+        assert isinstance(design, LQRDesign)
+        return LQRController(design_lqr(design, dt=dt, geometry=geo), plate_half=half)
+    assert isinstance(design, PIDGains)
+    return CascadedPID(gains_for_geometry(design, geo), dt=dt, plate_half=half)
+
+
+def residual_action(base_action: np.ndarray, correction: np.ndarray, obs: np.ndarray, scale: float,
+                    plate_half: tuple[float, float], fade_mm: float) -> np.ndarray:  # fmt: skip
+    """What a residual policy sends: ``clip(base + scale · w · correction, −1, 1)`` (float32), where the weight
+    ``w = min(1, d / fade_mm)`` with d the observed ball's distance to the target (``w = 1`` when ``fade_mm`` is
+    0): near the target the classical controller acts alone, further out the learned correction joins in."""
     o = np.asarray(obs, dtype=np.float64)
-    if fade_mm <= 0:
-        return np.ones((*o.shape[:-1], 1))
-    error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(plate_half, dtype=np.float64)
-    return np.minimum(1.0, np.linalg.norm(error, axis=-1, keepdims=True) / (fade_mm * 1e-3))
+    weight: Any = 1.0
+    if fade_mm > 0:
+        error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(plate_half, dtype=np.float64)
+        weight = np.minimum(1.0, np.linalg.norm(error, axis=-1, keepdims=True) / (fade_mm * 1e-3))
+    total = np.asarray(base_action, dtype=np.float64) + scale * weight * np.asarray(correction, dtype=np.float64)
+    return np.clip(total, -1.0, 1.0).astype(np.float32)

@@ -266,22 +266,16 @@ def same_geometry(a: str | Any, b: str | Any) -> bool:
 def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     """The cascaded PID with the gains in ``path``, adapted to ``geometry``
     (:func:`~stewart_gym.classical.gains_for_geometry`); its observation scales follow the plate."""
-    from stewart_gym.classical import CascadedPID, PIDGains, gains_for_geometry
-    from stewart_gym.presets import load_geometry
+    from stewart_gym.classical import PIDGains, classical_controller
 
-    geo = load_geometry(geometry)
-    width, depth = geo.plate_extent
-    return CascadedPID(gains_for_geometry(pid_gains(path, PIDGains), geo), plate_half=(width / 2, depth / 2))
+    return classical_controller("pid", pid_gains(path, PIDGains), geometry)
 
 
 def load_lqr(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     """The LQR designed from ``path`` (an :class:`~stewart_gym.classical.LQRDesign` as JSON) for ``geometry``."""
-    from stewart_gym.classical import LQRController, LQRDesign, design_lqr
-    from stewart_gym.presets import load_geometry
+    from stewart_gym.classical import LQRDesign, classical_controller
 
-    geo = load_geometry(geometry)
-    width, depth = geo.plate_extent
-    return LQRController(design_lqr(pid_gains(path, LQRDesign), geometry=geo), plate_half=(width / 2, depth / 2))
+    return classical_controller("lqr", pid_gains(path, LQRDesign), geometry)
 
 
 def pid_gains(path: Path, cls: Any) -> Any:
@@ -289,7 +283,7 @@ def pid_gains(path: Path, cls: Any) -> Any:
     try:
         gains = cls(**data)
     except TypeError as exc:
-        raise PolicyError(f"{path}: not PID gains ({exc})") from None
+        raise PolicyError(f"{path}: not {cls.__name__} values ({exc})") from None
     bad = [k for k, v in vars(gains).items() if isinstance(v, bool) or not isinstance(v, (int, float))
            or not v == v or abs(v) == float("inf")]  # fmt: skip
     if bad:

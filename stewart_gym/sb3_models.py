@@ -19,6 +19,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from stewart_gym.classical import LQRDesign, PIDGains, classical_controller, residual_action
 from stewart_gym.errors import PolicyError
 
 __all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
@@ -85,7 +86,7 @@ def load_sb3(path: str | Path) -> SB3Policy:
 def check_residual(spec: Any) -> dict[str, Any]:
     """A ``residual`` hyperparameter, checked: ``{base: lqr|pid, scale: s, fade_mm: f}`` with 0 < s ≤ 2 and
     f ≥ 0 (the correction fades to nothing as the ball nears the target: :func:`~stewart_gym.classical.
-    residual_gate`; 0, the default, never fades)."""
+    residual_action`; 0, the default, never fades)."""
     from stewart_gym.errors import ConfigError
 
     if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm"}
@@ -104,23 +105,16 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
     """The classical controller a residual policy adds to (the shipped gains or design, for ``geometry``)."""
     import json
 
-    from stewart_gym.classical import CascadedPID, LQRController, LQRDesign, PIDGains, design_lqr, gains_for_geometry
-    from stewart_gym.presets import load_geometry
-
-    geo = load_geometry(geometry)
-    half = plate_half or (geo.plate_extent[0] / 2, geo.plate_extent[1] / 2)
     values = json.loads((Path(__file__).resolve().parent / "policies" / RESIDUAL_BASES[spec["base"]]).read_text())
-    if spec["base"] == "lqr":
-        return LQRController(design_lqr(LQRDesign(**values), dt=dt, geometry=geo), plate_half=half)
-    return CascadedPID(gains_for_geometry(PIDGains(**values), geo), dt=dt, plate_half=half)
+    design = LQRDesign(**values) if spec["base"] == "lqr" else PIDGains(**values)
+    return classical_controller(spec["base"], design, geometry, dt, plate_half)
 
 
 class ResidualAction(gym.Wrapper):
     """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
 
-    Sends ``clip(base(obs) + scale · w · action, −1, 1)``, with ``obs`` the observation the agent acted on and
-    w its :func:`~stewart_gym.classical.residual_gate`;
-    resets the base's state with each episode.
+    Sends :func:`~stewart_gym.classical.residual_action` of the base's action and the agent's, for the
+    observation the agent acted on; resets the base's state with each episode.
     """
 
     def __init__(self, env: gym.Env, residual: dict[str, Any]) -> None:
@@ -140,17 +134,14 @@ class ResidualAction(gym.Wrapper):
     def step(self, action: Any) -> Any:
         if self._obs is None:
             raise RuntimeError("call reset before step")
-        from stewart_gym.classical import residual_gate
-
-        weight = residual_gate(self._obs, self.plate_half, self.fade_mm)
-        total = np.clip(self.base(self._obs) + self.scale * weight * np.asarray(action), -1.0, 1.0)
-        obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
+        total = residual_action(self.base(self._obs), action, self._obs, self.scale, self.plate_half, self.fade_mm)
+        obs, reward, terminated, truncated, info = self.env.step(total)
         self._obs = obs
         return obs, reward, terminated, truncated, info
 
 
 class ResidualPolicy:
-    """A trained residual policy: ``clip(base(obs) + scale · learned(obs), −1, 1)`` (see :class:`ResidualAction`)."""
+    """A trained residual policy: :func:`~stewart_gym.classical.residual_action` of its base and its network."""
 
     def __init__(self, learned: SB3Policy, base: Any, scale: float, plate_half: tuple[float, float] = (0.15, 0.15),
                  fade_mm: float = 0.0) -> None:  # fmt: skip
@@ -161,8 +152,5 @@ class ResidualPolicy:
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
         base, _ = self.base.predict(obs, episode_start=episode_start)
-        from stewart_gym.classical import residual_gate
-
         correction, _ = self.learned.predict(obs, deterministic=deterministic)
-        weight = residual_gate(obs, self.plate_half, self.fade_mm)
-        return np.clip(base + self.scale * weight * correction, -1.0, 1.0).astype(np.float32), None
+        return residual_action(base, correction, obs, self.scale, self.plate_half, self.fade_mm), None

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
+from stewart_gym.classical import residual_action
 from stewart_gym.errors import PolicyError
 from stewart_gym.sensing import ESTIMATORS
 
@@ -250,6 +251,8 @@ class BundlePolicy:
                 raise PolicyError(f"{meta_path}: malformed residual (expected {{scale, base}}); re-export the policy")
             self._base = BundlePolicy.from_meta(residual.get("base"))
             self._scale, self._fade_mm = float(residual["scale"]), float(residual.get("fade_mm", 0.0))
+            width, depth = self.geometry.plate_extent
+            self._plate_half = (width / 2, depth / 2)
 
     @staticmethod
     def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
@@ -284,11 +287,7 @@ class BundlePolicy:
         action = self._session.run(None, {"obs": x})[0]
         action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
         if self._base is not None:
-            from stewart_gym.classical import residual_gate
-
-            width, depth = self.geometry.plate_extent
-            weight = residual_gate(np.asarray(obs, np.float64), (width / 2, depth / 2), self._fade_mm)
-            return np.clip(self._base(obs) + self._scale * weight * action, -1.0, 1.0).astype(np.float32)
+            return residual_action(self._base(obs), action, obs, self._scale, self._plate_half, self._fade_mm)
         return action
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
