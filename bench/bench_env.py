@@ -81,13 +81,14 @@ def sim_replay(env: StewartBallEnv, log: list[Episode]) -> float:
 
 
 def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20, backend: str = "pybullet",
-            mode: str = "tilt", scale: float = 0.3) -> dict:  # fmt: skip
+            mode: str = "tilt", scale: float = 0.3, estimator: str = "lowpass") -> dict:  # fmt: skip
     """Medians over ``rounds`` rounds of ``steps`` env steps, each followed at once by its replay.
 
     Actions are uniform in ±``scale``. Interleaving keeps the env and its
     replay under the same machine load; the cost ratio is taken per round.
     """
-    env = gym.make(env_id, randomize=randomize, backend=backend, action_mode=mode).unwrapped  # the env's own cost
+    env = gym.make(env_id, randomize=randomize, backend=backend, action_mode=mode,
+                   estimator=estimator).unwrapped  # the env's own cost
     rng = np.random.default_rng(0)
     env_times, sim_times, episodes = [], [], 0
     for r in range(rounds):
@@ -103,6 +104,7 @@ def measure(env_id: str, randomize: bool, steps: int, rounds: int = 20, backend:
     env.close()
     env_t, sim_t = np.array(env_times), np.array(sim_times)
     return {"backend": backend, "id": env_id, "mode": mode, "actions": f"±{scale:g}", "randomize": randomize,
+            "estimator": estimator,
             "physics_hz": physics_hz, "episodes": episodes,
             "steps": steps * rounds, "steps_per_s": round(steps / float(np.median(env_t))),
             "sim_steps_per_s": round(steps / float(np.median(sim_t))),
@@ -140,9 +142,11 @@ def main() -> None:
                  for env_id in stewart_gym.ENV_IDS for randomize in (False, True)]  # fmt: skip
         rows += [measure("StewartBallBalance-v0", True, args.steps, args.rounds, backend, mode, 1.0)
                  for mode in ("tilt", "pose", "pulse")]  # fmt: skip
+        rows.append(measure("StewartBallBalance-v0", True, args.steps, args.rounds, backend, "tilt", 1.0, "kalman"))
         gaps[backend] = round(env_loop_gap(backend) * 1e3, 4)
     res = {"envs": rows, "loop_gap_full_tilt_mm": gaps}
-    speed = {(r["backend"], r["id"], r["mode"], r["actions"], r["randomize"]): r["steps_per_s"] for r in rows}
+    speed = {(r["backend"], r["id"], r["mode"], r["actions"], r["randomize"]): r["steps_per_s"] for r in rows
+             if r["estimator"] == "lowpass"}  # fmt: skip
     if len(args.backends) == 2:
         res["mujoco_vs_pybullet"] = {f"{k[1]} {k[2]} {k[3]} randomize={k[4]}": round(v / speed[("pybullet", *k[1:])], 2)
                                      for k, v in speed.items() if k[0] == "mujoco"}  # fmt: skip
@@ -155,7 +159,8 @@ def main() -> None:
         lo, hi = r["cost_vs_sim_range"]
         print(f"  {r['backend']:8s} {r['id']:24s} {r['mode']:5s} {r['actions']:4s} randomize={r['randomize']!s:5s} "
               f"{r['steps_per_s']:>6,} steps/s   sim replay {r['sim_steps_per_s']:>6,}/s   env cost "
-              f"{r['cost_vs_sim']:.2f}× ({lo:.2f}–{hi:.2f})   ({r['physics_hz']} Hz physics, {r['episodes']} episodes)")
+              f"{r['cost_vs_sim']:.2f}× ({lo:.2f}–{hi:.2f})   ({r['physics_hz']} Hz physics, {r['episodes']} episodes)"
+              + ("   Kalman observer" if r["estimator"] == "kalman" else ""))
     print("targets: ≥ 3,000 env steps/s in every action mode; env cost ≤ 1.3× the sim's; MuJoCo ≥ 2× PyBullet")
     for name, ratio in res.get("mujoco_vs_pybullet", {}).items():
         print(f"  MuJoCo / PyBullet, {name}: {ratio:.2f}×")
