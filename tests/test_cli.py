@@ -444,7 +444,7 @@ def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
     drain.stop()
     device.unplug()
     out, err = proc.communicate(timeout=30)
-    assert proc.returncode == 2, err
+    assert proc.returncode == 2, out + err
     assert "device failure" in out and "Traceback" not in err
     assert len((tmp_path / "l.csv").read_text().splitlines()) > 20  # the log is kept
 

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 
@@ -72,3 +73,24 @@ def test_line_controller_waits_for_ready_and_reads_the_panel(device: FakeDevice)
 def test_line_controller_without_ready_fails_clearly(device: FakeDevice) -> None:
     with pytest.raises(DeviceError, match="no 'ready' line"):
         LineController(device.path, ready_timeout=0.2)
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="termios is POSIX-only")
+def test_a_port_that_fails_in_flush_is_a_device_error() -> None:
+    """pyserial's flush() is tcdrain(): on a pty whose other end went away it raises termios.error, not OSError."""
+    import termios
+
+    class DrainFails:
+        port = "/dev/ttyFAKE"
+        is_open = True
+
+        def write(self, data: bytes) -> int:
+            return len(data)
+
+        def flush(self) -> None:
+            raise termios.error(5, "Input/output error")
+
+    ctl = SSC32Controller(DrainFails())
+    with pytest.raises(DeviceError, match="device unplugged"):
+        ctl.send(PULSES)
+    assert ctl.frames_sent == 0

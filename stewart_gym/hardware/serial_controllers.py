@@ -17,6 +17,13 @@ import serial
 from stewart_gym.errors import ConfigError, DeviceFailure
 from stewart_gym.hardware.protocols import SSC32, LineProtocol, Maestro
 
+try:  # POSIX: pyserial's flush() calls tcdrain(), whose termios.error is not an OSError
+    from termios import error as _TermiosError
+except ImportError:  # Windows
+    _TermiosError = OSError
+#: What a port that went away can raise from write, flush, in_waiting or read.
+PORT_ERRORS: tuple[type[Exception], ...] = (serial.SerialException, OSError, _TermiosError)
+
 __all__ = ["PROTOCOLS", "DeviceError", "LineController", "MaestroController", "ServoController", "SSC32Controller",
            "open_controller"]  # fmt: skip
 
@@ -67,7 +74,7 @@ class ServoController(ABC):
         try:
             self.serial.write(data)
             self.serial.flush()
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceError(f"serial write to {self.serial.port} failed (device unplugged?): {exc}") from None
 
     def close(self) -> None:
@@ -150,7 +157,7 @@ class LineController(ServoController):
             waiting = self.serial.in_waiting
             if waiting:
                 self._buffer += self.serial.read(waiting)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise DeviceError(f"serial read from {self.serial.port} failed (device unplugged?): {exc}") from None
         *lines, self._buffer = self._buffer.split(b"\n")
         return [ln.decode("ascii", "replace") for ln in lines]
