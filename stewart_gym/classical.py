@@ -324,14 +324,16 @@ def classical_controller(kind: str, design: PIDGains | LQRDesign, geometry: Any 
 
 
 def residual_action(base_action: np.ndarray, correction: np.ndarray, obs: np.ndarray, scale: float,
-                    plate_half: tuple[float, float], fade_mm: float) -> np.ndarray:  # fmt: skip
+                    plate_half: tuple[float, float], fade_mm: float, inner_mm: float = 0.0) -> np.ndarray:  # fmt: skip
     """What a residual policy sends: ``clip(base + scale · w · correction, −1, 1)`` (float32), where the weight
-    ``w = min(1, d / fade_mm)`` with d the observed ball's distance to the target (``w = 1`` when ``fade_mm`` is
-    0): near the target the classical controller acts alone, further out the learned correction joins in."""
+    ``w = clip((d − inner_mm) / fade_mm, 0, 1)`` with d the observed ball's distance to the target: within
+    ``inner_mm`` of the target the classical controller acts alone, over the next ``fade_mm`` the learned
+    correction fades in (``w = 1`` everywhere when both are 0; a step at ``inner_mm`` when ``fade_mm`` is 0)."""
     o = np.asarray(obs, dtype=np.float64)
     weight: Any = 1.0
-    if fade_mm > 0:
+    if fade_mm > 0 or inner_mm > 0:
         error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(plate_half, dtype=np.float64)
-        weight = np.minimum(1.0, np.linalg.norm(error, axis=-1, keepdims=True) / (fade_mm * 1e-3))
+        outside = np.linalg.norm(error, axis=-1, keepdims=True) * 1e3 - inner_mm  # mm beyond the inner radius
+        weight = np.clip(outside / fade_mm, 0.0, 1.0) if fade_mm > 0 else (outside > 0).astype(np.float64)
     total = np.asarray(base_action, dtype=np.float64) + scale * weight * np.asarray(correction, dtype=np.float64)
     return np.clip(total, -1.0, 1.0).astype(np.float32)

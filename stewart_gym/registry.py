@@ -6,7 +6,8 @@
 * ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
 * ``shipped-residual``: the committed residual PPO policy, a learned correction on top of the LQR behind the
   Kalman observer (:data:`SHIPPED_RESIDUAL`);
-* ``pid``: the tuned cascaded PID baseline (``policies/pid_gains.json``);
+* ``pid``: the tuned cascaded PID baseline behind the low-pass observer (``policies/pid_gains.json``);
+* ``pid-kalman``: the cascaded PID retuned behind the Kalman observer (``policies/pid_kalman_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
   :func:`~stewart_gym.classical.design_lqr`);
 * a **run folder** written by ``stewart-gym train`` (``model.zip`` or
@@ -54,13 +55,16 @@ SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
 POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator")
-#: The classical controllers by name: the kind of their PolicySource, their file and the observer they run behind.
-CLASSICAL = {"pid": ("pid_gains.json", "lowpass"), "lqr": ("lqr.json", "kalman")}
+#: The classical controllers by name: the kind of their PolicySource ("pid" or "lqr"), their file and the observer
+#: they run behind.
+CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
+             "lqr": ("lqr", "lqr.json", "kalman")}  # fmt: skip
+CLASSICAL_KINDS = ("pid", "lqr")
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
-_KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'lqr', a run folder, a model .zip, a bundle "
-               "folder or a PID gains .json")
+_KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', a run folder, a model "
+               ".zip, a bundle folder or a PID gains .json")
 
 
 @dataclass(frozen=True)
@@ -122,9 +126,9 @@ def resolve_policy(spec: str, env_id: str | None = None, geometry: str | None = 
 
 def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySource:
     if spec in CLASSICAL:
-        name, estimator = CLASSICAL[spec]
+        kind, name, estimator = CLASSICAL[spec]
         kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY, "estimator": estimator}
-        return PolicySource(spec, spec, POLICY_DIR / name, env_id or DEFAULT_ENV, kwargs)
+        return PolicySource(spec, kind, POLICY_DIR / name, env_id or DEFAULT_ENV, kwargs)
     if spec in SHIPPED_TABLES:
         env_id, geo = env_id or DEFAULT_ENV, geometry or DEFAULT_GEOMETRY
         table = SHIPPED_TABLES[spec]
@@ -234,7 +238,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
 
         width, depth = load_geometry(source.geometry).plate_extent
         policy = ResidualPolicy(policy, residual_base(spec, source.geometry), spec["scale"], (width / 2, depth / 2),
-                                spec["fade_mm"])  # fmt: skip
+                                spec["fade_mm"], spec["inner_mm"])  # fmt: skip
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip
@@ -249,7 +253,7 @@ def load_for_evaluation(spec: str, env_id: str | None = None, geometry: str | No
     one raises :class:`PolicyError` naming both (the PID runs on any).
     """
     source = resolve_policy(spec, env_id, geometry, estimator)
-    if geometry is not None and source.kind not in CLASSICAL and not same_geometry(geometry, source.geometry):
+    if geometry is not None and source.kind not in CLASSICAL_KINDS and not same_geometry(geometry, source.geometry):
         raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry!r}, not {geometry!r}: train one "
                           f"for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the pid")  # fmt: skip
     policy = load_policy(source)
@@ -308,7 +312,7 @@ def deployable_policy(source: PolicySource) -> Any:
     """A :class:`~stewart_gym.hardware.export.BundlePolicy` (numpy + onnxruntime only) for ``deploy``."""
     from stewart_gym.hardware.export import BundlePolicy
 
-    if source.kind in CLASSICAL:
+    if source.kind in CLASSICAL_KINDS:
         return BundlePolicy.from_meta(_classical_meta(source))
     if source.bundle is not None:
         policy = BundlePolicy(source.bundle)
@@ -330,7 +334,7 @@ def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
     """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder."""
     from stewart_gym.hardware.export import export_bundle_copy, export_sb3
 
-    if source.kind in CLASSICAL:
+    if source.kind in CLASSICAL_KINDS:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")

@@ -6,7 +6,7 @@ predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 
 A *residual* policy learns a correction on top of a classical controller: the action sent is
 ``clip(base(obs) + scale · w · learned(obs), −1, 1)``, where the weight w may fade the correction out near
-the target (``fade_mm``). Training wraps the env in :class:`ResidualAction` (the
+the target (``inner_mm``, ``fade_mm``). Training wraps the env in :class:`ResidualAction` (the
 hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one; the
 bundle records the base, so deploy runs the same sum.
 """
@@ -24,8 +24,9 @@ from stewart_gym.errors import PolicyError
 
 __all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
 
-#: The classical controllers a residual can sit on, and their files under ``policies/``.
-RESIDUAL_BASES = {"lqr": "lqr.json", "pid": "pid_gains.json"}
+#: The classical controllers a residual can sit on: their kind ("pid" or "lqr") and their file under ``policies/``.
+RESIDUAL_BASES = {"lqr": ("lqr", "lqr.json"), "pid": ("pid", "pid_gains.json"),
+                  "pid-kalman": ("pid", "pid_kalman_gains.json")}  # fmt: skip
 
 
 class SB3Policy:
@@ -84,20 +85,24 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
-    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid, scale: s, fade_mm: f}`` with 0 < s ≤ 2 and
-    f ≥ 0 (the correction fades to nothing as the ball nears the target: :func:`~stewart_gym.classical.
-    residual_action`; 0, the default, never fades)."""
+    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid|pid-kalman, scale: s, fade_mm: f, inner_mm: r}``
+    with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next f mm the
+    correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never fades)."""
     from stewart_gym.errors import ConfigError
 
-    if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm"}
+    if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm", "inner_mm"}
             or spec.get("base") not in RESIDUAL_BASES):  # fmt: skip
-        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S, fade_mm: F}}, got {spec!r}")
-    scale, fade = spec.get("scale", 0.5), spec.get("fade_mm", 0.0)
+        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S, fade_mm: F, inner_mm: R}}, "
+                          f"got {spec!r}")  # fmt: skip
+    scale = spec.get("scale", 0.5)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
         raise ConfigError(f"residual scale must be a number in (0, 2], got {scale!r}")
-    if isinstance(fade, bool) or not isinstance(fade, (int, float)) or not 0 <= fade < 1000:
-        raise ConfigError(f"residual fade_mm must be a number in [0, 1000), got {fade!r}")
-    return {"base": spec["base"], "scale": float(scale), "fade_mm": float(fade)}
+    for key in ("fade_mm", "inner_mm"):
+        value = spec.get(key, 0.0)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1000:
+            raise ConfigError(f"residual {key} must be a number in [0, 1000), got {value!r}")
+    return {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),
+            "inner_mm": float(spec.get("inner_mm", 0.0))}  # fmt: skip
 
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
@@ -105,9 +110,10 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
     """The classical controller a residual policy adds to (the shipped gains or design, for ``geometry``)."""
     import json
 
-    values = json.loads((Path(__file__).resolve().parent / "policies" / RESIDUAL_BASES[spec["base"]]).read_text())
-    design = LQRDesign(**values) if spec["base"] == "lqr" else PIDGains(**values)
-    return classical_controller(spec["base"], design, geometry, dt, plate_half)
+    kind, name = RESIDUAL_BASES[spec["base"]]
+    values = json.loads((Path(__file__).resolve().parent / "policies" / name).read_text())
+    design = LQRDesign(**values) if kind == "lqr" else PIDGains(**values)
+    return classical_controller(kind, design, geometry, dt, plate_half)
 
 
 class ResidualAction(gym.Wrapper):
@@ -121,7 +127,8 @@ class ResidualAction(gym.Wrapper):
         super().__init__(env)
         spec = check_residual(residual)
         u = env.unwrapped
-        self.scale, self.fade_mm, self.plate_half = spec["scale"], spec["fade_mm"], u.plate_half_extent
+        self.scale, self.plate_half = spec["scale"], u.plate_half_extent
+        self.fade_mm, self.inner_mm = spec["fade_mm"], spec["inner_mm"]
         self.base = residual_base(spec, u.sim.geometry, u.plate_half_extent, 1.0 / u.sim.control_hz)
         self._obs: np.ndarray | None = None
 
@@ -134,7 +141,8 @@ class ResidualAction(gym.Wrapper):
     def step(self, action: Any) -> Any:
         if self._obs is None:
             raise RuntimeError("call reset before step")
-        total = residual_action(self.base(self._obs), action, self._obs, self.scale, self.plate_half, self.fade_mm)
+        total = residual_action(self.base(self._obs), action, self._obs, self.scale, self.plate_half, self.fade_mm,
+                                self.inner_mm)  # fmt: skip
         obs, reward, terminated, truncated, info = self.env.step(total)
         self._obs = obs
         return obs, reward, terminated, truncated, info
@@ -144,13 +152,13 @@ class ResidualPolicy:
     """A trained residual policy: :func:`~stewart_gym.classical.residual_action` of its base and its network."""
 
     def __init__(self, learned: SB3Policy, base: Any, scale: float, plate_half: tuple[float, float] = (0.15, 0.15),
-                 fade_mm: float = 0.0) -> None:  # fmt: skip
+                 fade_mm: float = 0.0, inner_mm: float = 0.0) -> None:  # fmt: skip
         self.learned, self.base, self.scale = learned, base, float(scale)
-        self.plate_half, self.fade_mm = plate_half, float(fade_mm)
+        self.plate_half, self.fade_mm, self.inner_mm = plate_half, float(fade_mm), float(inner_mm)
         self.obs_size, self.action_size = learned.obs_size, learned.action_size
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
         base, _ = self.base.predict(obs, episode_start=episode_start)
         correction, _ = self.learned.predict(obs, deterministic=deterministic)
-        return residual_action(base, correction, obs, self.scale, self.plate_half, self.fade_mm), None
+        return residual_action(base, correction, obs, self.scale, self.plate_half, self.fade_mm, self.inner_mm), None

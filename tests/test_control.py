@@ -147,6 +147,28 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
 
 
+def test_pid_kalman_is_the_pid_retuned_behind_the_kalman_observer(tmp_path: Path) -> None:
+    """``--policy pid-kalman``: the PID with its own gains file, behind the Kalman observer, in evaluation and in
+    its bundle; it balances 10 randomised seeds."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import POLICY_DIR
+
+    out = tmp_path / "pk"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "pid-kalman", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((out / "bundle.json").read_text())
+    tuned = json.loads((POLICY_DIR / "pid_kalman_gains.json").read_text())
+    assert meta["kind"] == "pid" and meta["estimator"] == "kalman"
+    assert {k: meta["gains"][k] for k in ("kp_pos", "kp_vel", "ki_vel")} == {k: tuned[k] for k in
+                                                                            ("kp_pos", "kp_vel", "ki_vel")}
+    source = resolve_policy("pid-kalman")
+    assert source.kind == "pid" and source.estimator == "kalman" and resolve_policy("pid").estimator == "lowpass"
+    metrics = evaluate("StewartBallBalance-v0", load_policy(source), episodes=10, seed=100,
+                       env_kwargs={"estimator": "kalman"})  # fmt: skip
+    assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
+
+
 def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
     """Train a residual PPO (the track settings) for a moment (CLI), then: the evaluated policy is
     clip(LQR + 0.5 · w · network), with w = min(1, distance / 15 mm), the bundle gives the same actions with
@@ -177,3 +199,32 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
         expected = np.clip(lqr(obs) + 0.5 * min(1.0, distance_mm / 15) * network.predict(obs)[0], -1, 1)
         np.testing.assert_allclose(action, expected, atol=1e-5)
         np.testing.assert_allclose(bundle(obs), action, atol=1e-4)
+
+
+@pytest.mark.parametrize(("distance_mm", "inner_mm", "fade_mm", "weight"),
+                         [(3.0, 5.0, 10.0, 0.0), (10.0, 5.0, 10.0, 0.5), (20.0, 5.0, 10.0, 1.0), (7.5, 0.0, 15.0, 0.5),
+                          (4.0, 5.0, 0.0, 0.0), (6.0, 5.0, 0.0, 1.0), (0.1, 0.0, 0.0, 1.0)])  # fmt: skip
+def test_the_residual_weight_is_zero_inside_the_inner_radius_and_fades_in_beyond(distance_mm: float, inner_mm: float,
+                                                                                 fade_mm: float, weight: float) -> None:
+    from stewart_gym.classical import residual_action
+
+    obs = np.zeros(12)
+    obs[0] = distance_mm / 150.0  # plate half-widths of 150 mm; the target at the centre
+    base, correction = np.array([0.1, -0.2]), np.array([0.4, 0.4])
+    got = residual_action(base, correction, obs, 0.5, (0.15, 0.15), fade_mm, inner_mm)
+    np.testing.assert_allclose(got, base + 0.5 * weight * correction, atol=1e-6)
+
+
+@pytest.mark.parametrize(("spec", "match"), [({"base": "mpc"}, "base: lqr|pid|pid-kalman"),
+                                             ({"base": "lqr", "gain": 1}, "base: lqr"),
+                                             ({"base": "lqr", "scale": 0}, "scale"),
+                                             ({"base": "lqr", "fade_mm": -1}, "fade_mm"),
+                                             ({"base": "pid", "inner_mm": float("nan")}, "inner_mm"),
+                                             ({"base": "pid", "inner_mm": True}, "inner_mm")])  # fmt: skip
+def test_a_malformed_residual_is_refused_naming_the_key(spec: dict, match: str) -> None:
+    from stewart_gym.errors import ConfigError
+    from stewart_gym.sb3_models import check_residual
+
+    with pytest.raises(ConfigError, match=match):
+        check_residual(spec)
+    assert check_residual({"base": "pid-kalman", "inner_mm": 5})["inner_mm"] == 5.0

@@ -232,3 +232,32 @@ def test_reset_options_are_checked(options: dict, match: str) -> None:
         assert env.observation_space.contains(obs)  # a valid start near the edge still works after a refusal
     finally:
         env.close()
+
+
+def _trajectory_kind(env: gym.Env) -> str:
+    """Which trajectory the episode's target follows, judged from its path over 8 s."""
+    path = np.array([env.unwrapped.task.target(t)[0] for t in np.arange(0.0, 8.0, 0.1)])
+    radius = np.linalg.norm(path, axis=1)
+    if np.ptp(radius) < 1e-6:
+        return "circle"
+    steps = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    return "waypoints" if np.mean(steps < 1e-9) > 0.5 else "figure8"  # holds 2 s of every 3
+
+
+def test_mixed_trajectory_draws_each_kind_and_is_seeded() -> None:
+    kinds = {}
+    env = gym.make("StewartBallTrack-v0", trajectory="mixed")
+    for seed in range(30):
+        env.reset(seed=seed)
+        kinds[seed] = _trajectory_kind(env)
+        assert env.unwrapped.task.current_trajectory == kinds[seed]  # what deploy prints
+    assert set(kinds.values()) == {"circle", "figure8", "waypoints"}
+    for seed in (0, 1, 2):  # the same seed draws the same trajectory
+        env.reset(seed=seed)
+        assert _trajectory_kind(env) == kinds[seed]
+    for name in ("circle", "figure8", "waypoints"):  # the classifier itself
+        single = gym.make("StewartBallTrack-v0", trajectory=name)
+        single.reset(seed=3)
+        assert _trajectory_kind(single) == name
+    with pytest.raises(ValueError, match="mixed"):
+        gym.make("StewartBallTrack-v0", trajectory="spiral")

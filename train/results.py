@@ -1,6 +1,6 @@
 """Regenerate the docs' results page: learned vs PID vs LQR on every task and metric, with robustness.
 
-Run: ``.venv/bin/python train/results.py [--runs runs/seed0 runs/seed1 runs/seed2] [--episodes 100]
+Run: ``.venv/bin/python train/results.py [--recipe "LABEL=runs/s0,runs/s1,runs/s2" ...] [--episodes 100]
 [--robust-episodes 50] [--workers 2] [--out docs/src/results.md]``
 
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
@@ -8,11 +8,12 @@ episodes (seeds 0…N−1). Rows:
 
 * ``shipped PPO``: the shipped learned policy of the task (behind the low-pass observer it was trained with);
 * ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the LQR);
-* ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``;
+* ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``, the PID
+  retuned behind the Kalman observer (``--policy pid-kalman``);
 * ``LQR``: the LQR behind the Kalman observer;
-* ``--runs``: run folders of one recipe trained with different seeds (e.g. ``make train`` with ``SEED=0,1,2``):
-  each is evaluated on the balance task, and the page gives their mean and range (the spread over
-  training seeds, not the best run).
+* ``--recipe LABEL=RUN,RUN,RUN`` (repeatable): run folders of one recipe trained with different seeds: each is
+  evaluated on its task (a tracker on every trajectory), and the page gives a column per recipe with their
+  mean and range (the spread over training seeds, not the best run).
 
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
 (the rest of the randomisation as usual). Writes the page (Markdown), ``results.json`` beside it and
@@ -37,8 +38,8 @@ BALANCE, TRACK = "StewartBallBalance-v0", "StewartBallTrack-v0"
 TRAJECTORIES = ("circle", "figure8", "waypoints")
 #: label → (policy, estimator or None for the policy's own)
 CONTROLLERS = {"shipped PPO": ("shipped", None), "residual PPO": ("shipped-residual", None), "PID": ("pid", None),
-               "PID + Kalman": ("pid", "kalman"), "LQR": ("lqr", None)}  # fmt: skip
-ROBUST = ("shipped PPO", "residual PPO", "PID", "LQR")
+               "PID + Kalman": ("pid-kalman", None), "LQR": ("lqr", None)}  # fmt: skip
+ROBUST = ("shipped PPO", "residual PPO", "PID", "PID + Kalman", "LQR")
 METRICS = [("success_rate", "success", "{:.0%}"), ("rms_error_mm", "RMS error, last 5 s (mm)", "{:.2f}"),
            ("final_error_mm", "final error (mm)", "{:.2f}"), ("settling_time_s", "settling time from 100 mm (s)",
                                                               "{:.2f}"),
@@ -68,9 +69,16 @@ def jobs_for(args: argparse.Namespace) -> list[dict[str, Any]]:
         for trajectory in TRAJECTORIES:
             jobs.append({"table": f"track {trajectory}", "row": label, "policy": policy, "estimator": estimator,
                          "env": TRACK, "episodes": args.episodes, "env_kwargs": {"trajectory": trajectory}})  # fmt: skip
-    for run in args.runs:
-        jobs.append({"table": "balance", "row": f"seed:{run}", "policy": run, "estimator": None, "env": BALANCE,
-                     "episodes": args.episodes})  # fmt: skip
+    from stewart_gym.registry import resolve_policy
+
+    for label, runs in args.recipes.items():
+        for run in runs:
+            row = {"row": f"seed:{run}", "recipe": label, "policy": run, "estimator": None, "episodes": args.episodes}
+            if resolve_policy(run).env_id == TRACK:  # a tracker: on every trajectory
+                jobs += [{**row, "table": f"track {t}", "env": TRACK, "env_kwargs": {"trajectory": t}}
+                         for t in TRAJECTORIES]  # fmt: skip
+            else:
+                jobs.append({**row, "table": "balance", "env": BALANCE})
     for label in ROBUST:
         policy, estimator = CONTROLLERS[label]
         for ms in LATENCIES_MS:
@@ -95,19 +103,30 @@ def spread(values: list[float], pattern: str) -> str:
     return f"{fmt(statistics.mean(values), pattern)} ({fmt(min(values), pattern)}–{fmt(max(values), pattern)})"
 
 
-def tables(results: list[dict[str, Any]], runs: list[str]) -> str:
+def recipe(text: str) -> tuple[str, list[str]]:
+    """``LABEL=RUN,RUN,RUN``: a recipe's label and the run folders of its training seeds."""
+    label, sep, runs = text.partition("=")
+    if not sep or not label.strip() or not runs.strip():
+        raise argparse.ArgumentTypeError(f"{text!r}: give LABEL=RUN,RUN,RUN")
+    return label.strip(), [r.strip() for r in runs.split(",") if r.strip()]
+
+
+def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
     out = []
     for table in ["balance", *(f"track {t}" for t in TRAJECTORIES)]:
         rows = {r["row"]: r["metrics"] for r in results if r["table"] == table}
         columns = list(CONTROLLERS)
         metrics = METRICS if table == "balance" else [m for m in METRICS if m[0] != "settling_time_s"]
-        seeds = [rows[f"seed:{run}"] for run in runs if f"seed:{run}" in rows]
-        header = "| metric | " + " | ".join(columns) + (f" | recipe, {len(seeds)} training seeds |" if seeds else " |")
-        out += [f"### {table.capitalize()}", "", header, "|---" * (len(columns) + 1 + bool(seeds)) + "|"]
+        seeds = {label: [rows[f"seed:{run}"] for run in runs if f"seed:{run}" in rows]
+                 for label, runs in recipes.items()}  # fmt: skip
+        seeds = {label: got for label, got in seeds.items() if got}
+        header = "| metric | " + " | ".join(columns + [f"{label}, {len(got)} training seeds"
+                                                     for label, got in seeds.items()]) + " |"  # fmt: skip
+        out += [f"### {table.capitalize()}", "", header, "|---" * (len(columns) + 1 + len(seeds)) + "|"]
         for key, name, pattern in metrics:
             cells = [fmt(rows[c].get(key), pattern) if c in rows else "–" for c in columns]
-            if seeds:
-                cells.append(spread([s[key] for s in seeds if s.get(key) is not None], pattern))
+            for got in seeds.values():
+                cells.append(spread([m[key] for m in got if m.get(key) is not None], pattern))
             out.append(f"| {name} | " + " | ".join(cells) + " |")
         out.append("")
     for table, unit, values in (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM)):
@@ -144,7 +163,8 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--runs", nargs="*", default=[], help="run folders of one recipe, trained with different seeds")
+    ap.add_argument("--recipe", type=recipe, action="append", default=[],
+                    help="LABEL=RUN,RUN,RUN: run folders of one recipe, trained with different seeds (repeatable)")
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--robust-episodes", type=int, default=50)
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 1)
@@ -153,10 +173,14 @@ def main() -> None:
                                                              "editing train/results_intro.md), evaluating nothing")
     args = ap.parse_args()
     out = Path(args.out)
+    args.recipes = dict(args.recipe)
     jobs = jobs_for(args)
     if args.from_json:
         results = json.loads((out.parent / "results.json").read_text())
-        args.runs = list(dict.fromkeys(r["row"][5:] for r in results if r["row"].startswith("seed:")))
+        args.recipes = {}
+        for r in results:
+            if r["row"].startswith("seed:"):
+                args.recipes.setdefault(r["recipe"], []).append(r["row"][5:])
         jobs = results
     else:
         with ProcessPoolExecutor(args.workers) as pool:
@@ -164,7 +188,7 @@ def main() -> None:
         (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
     plot(results, out.parent / "images" / "robustness.png")
     intro = (ROOT / "train" / "results_intro.md").read_text()
-    text = intro.rstrip() + "\n\n" + tables(results, args.runs) + "\n![robustness](images/robustness.png)\n"
+    text = intro.rstrip() + "\n\n" + tables(results, args.recipes) + "\n![robustness](images/robustness.png)\n"
     out.write_text(f"<!-- generated by train/results.py on {len(jobs)} evaluations; edit train/results_intro.md -->\n"
                    + text.lstrip())  # fmt: skip
     print(f"wrote {out}, {out.parent / 'results.json'} and {out.parent / 'images' / 'robustness.png'}")

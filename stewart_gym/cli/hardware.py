@@ -149,7 +149,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
             controller.close()
             raise
     if task.moving_target:
-        print(f"tracking a {getattr(task, 'trajectory', 'moving')} target ({env_id})", flush=True)
+        print(f"tracking a {getattr(task, 'current_trajectory', 'moving')} target ({env_id})", flush=True)
     plant = sensor if isinstance(sensor, SimulatedPlant) else None
     try:
         summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
@@ -286,7 +286,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
-    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped', 'pid' or 'lqr'")
+    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped', 'pid', 'pid-kalman' or 'lqr'")
     add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for lqr)")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")

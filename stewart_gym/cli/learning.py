@@ -26,8 +26,8 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
-POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, lqr, a run folder, a model .zip, a bundle folder or "
-               "PID gains .json")
+POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, a run folder, a model .zip, a bundle "
+               "folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
                   "through the sensing delay); default the policy's own (kalman for lqr, else lowpass)")
 
@@ -135,11 +135,11 @@ def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, r
 
 def cmd_export(args: argparse.Namespace) -> int:
     """Export a policy (shipped, pid, a run folder, a model .zip) to a deployable ONNX/JSON bundle."""
-    from stewart_gym.registry import export_policy, resolve_policy, same_geometry
+    from stewart_gym.registry import CLASSICAL, SHIPPED_TABLES, export_policy, resolve_policy, same_geometry
 
     out = output_dir(args.out)
     source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
-    named = args.policy in ("shipped", "shipped-camera", "shipped-residual", "pid", "lqr")
+    named = args.policy in (*SHIPPED_TABLES, *CLASSICAL)
     if args.geometry and not named and not same_geometry(args.geometry, source.geometry):
         raise ConfigError(f"{args.policy} was trained for geometry {source.geometry!r}, not {args.geometry!r}")
     if args.env and not named and source.env_id != args.env:

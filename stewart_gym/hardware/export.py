@@ -88,12 +88,14 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         **build_meta(env_kwargs.get("geometry", "servo-hexapod"), env_kwargs),
     }
     if env_kwargs.get("residual"):  # the network's action corrects a classical controller's: record that one
-        from stewart_gym.sb3_models import check_residual, residual_base
+        from stewart_gym.sb3_models import RESIDUAL_BASES, check_residual, residual_base
 
         spec = check_residual(env_kwargs["residual"])
-        base = residual_base(spec, env_kwargs.get("geometry", "servo-hexapod"))
-        meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "base": classical_meta(
-            spec["base"], vars(base.gains), env_id, env_kwargs.get("geometry", "servo-hexapod"), meta["estimator"])}
+        geometry = env_kwargs.get("geometry", "servo-hexapod")
+        base = residual_base(spec, geometry)
+        meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
+                            "base": classical_meta(RESIDUAL_BASES[spec["base"]][0], vars(base.gains), env_id, geometry,
+                                                   meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
 
@@ -251,6 +253,7 @@ class BundlePolicy:
                 raise PolicyError(f"{meta_path}: malformed residual (expected {{scale, base}}); re-export the policy")
             self._base = BundlePolicy.from_meta(residual.get("base"))
             self._scale, self._fade_mm = float(residual["scale"]), float(residual.get("fade_mm", 0.0))
+            self._inner_mm = float(residual.get("inner_mm", 0.0))
             width, depth = self.geometry.plate_extent
             self._plate_half = (width / 2, depth / 2)
 
@@ -287,7 +290,8 @@ class BundlePolicy:
         action = self._session.run(None, {"obs": x})[0]
         action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
         if self._base is not None:
-            return residual_action(self._base(obs), action, obs, self._scale, self._plate_half, self._fade_mm)
+            return residual_action(self._base(obs), action, obs, self._scale, self._plate_half, self._fade_mm,
+                                   self._inner_mm)  # fmt: skip
         return action
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,

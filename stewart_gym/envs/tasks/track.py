@@ -22,7 +22,8 @@ class TrackTask(BallTask):
     ``trajectory``: ``"circle"`` (radius 60 mm, 8 s a turn, like seed 001's
     circle), ``"figure8"`` (±70 mm, 10 s a loop) or ``"waypoints"`` (random
     points within 70 mm, held 2 s, 1 s moves), with a random phase each
-    episode. Success: the ball has stayed within 20 mm of the moving target for
+    episode; ``"mixed"`` draws one of the three each episode (for training a
+    tracker that follows them all). Success: the ball has stayed within 20 mm of the moving target for
     the last second (``success_radius`` 0.02).
     """
 
@@ -31,14 +32,18 @@ class TrackTask(BallTask):
     default_success_radius = 0.020
 
     def __init__(self, trajectory: str = "circle", **kwargs: Any) -> None:
-        if trajectory not in TRAJECTORIES:
-            raise ConfigError(f"trajectory must be one of {TRAJECTORIES}, got {trajectory!r}")
+        if trajectory not in (*TRAJECTORIES, "mixed"):
+            raise ConfigError(f"trajectory must be one of {(*TRAJECTORIES, 'mixed')}, got {trajectory!r}")
         super().__init__(**kwargs)
         self.trajectory = trajectory
+        #: The trajectory of the current episode (one of the three; "mixed" draws it at each reset).
+        self.current_trajectory = trajectory
         self._target: Target = Fixed()
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
-        self._target = make_trajectory(self.trajectory, rng)
+        name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))] if self.trajectory == "mixed" else self.trajectory
+        self._target = make_trajectory(name, rng)
+        self.current_trajectory = name
 
     def target(self, t: float) -> tuple[XY, XY]:
         return self._target(t)
