@@ -462,6 +462,24 @@ def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_pat
     assert np.ptp(targets, axis=0).max() > 0.01  # the target in the observation moves
 
 
+def test_deploy_of_a_mixed_trajectory_tracker_says_which_trajectory_its_seed_drew(device: FakeDevice,
+                                                                                 tmp_path: Path) -> None:
+    """The shipped residual tracker was trained on mixed trajectories: deploy follows the one --seed draws."""
+    from stewart_gym.envs.tasks.track import TrackTask
+
+    drawn = set()
+    for seed in ("0", "1", "2", "3"):
+        proc, _ = deploy(device, "--policy", "shipped-residual", "--env", "StewartBallTrack-v0", "--seed", seed,
+                         "--rate", "10", "--duration", "0.3", "--log", str(tmp_path / f"l{seed}.csv"),
+                         cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        task = TrackTask(trajectory="mixed")
+        task.reset(np.random.default_rng(int(seed)), None)  # what deploy draws for this seed
+        assert f"tracking a {task.current_trajectory} target" in proc.stdout
+        drawn.add(task.current_trajectory)
+    assert len(drawn) > 1
+
+
 def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path) -> None:
     from stewart_gym.hardware.export import BundlePolicy
     from stewart_gym.registry import POLICY_DIR
