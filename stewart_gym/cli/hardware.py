@@ -287,7 +287,7 @@ def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
     p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped', 'pid', 'pid-kalman' or 'lqr'")
-    add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for lqr)")
+    add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for pid-kalman and lqr)")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
     p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")

@@ -29,7 +29,7 @@ ENV_CHOICES = tuple(ENV_IDS)
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, a run folder, a model .zip, a bundle "
                "folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
-                  "through the sensing delay); default the policy's own (kalman for lqr, else lowpass)")
+                  "through the sensing delay); default the policy's own (what it was trained or tuned behind)")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
