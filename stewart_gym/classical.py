@@ -28,8 +28,9 @@ from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "design_lqr",
-           "classical_controller", "gains_for_geometry", "residual_action", "trim_tilt"]  # fmt: skip
+__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign",
+           "LQRGains", "PIDGains", "classical_controller", "design_lqr", "gains_for_geometry", "residual_action",
+           "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -38,6 +39,11 @@ TRIM_TOLERANCE_US = 15.0
 
 #: The integral can cancel this multiple of the worst trim tilt (:func:`gains_for_geometry`).
 INTEGRAL_MARGIN = 1.5
+#: The shipped classical controllers by name (``--policy NAME``, a residual policy's ``base``): their kind
+#: ("pid" or "lqr"), their file under ``stewart_gym/policies/`` and the observer they run behind.
+CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
+             "lqr": ("lqr", "lqr.json", "kalman")}  # fmt: skip
+CLASSICAL_KINDS = ("pid", "lqr")
 
 
 def observed_motion(obs: np.ndarray, position_scale: np.ndarray,

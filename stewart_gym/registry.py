@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS
 from stewart_gym.errors import PolicyError
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
@@ -55,11 +56,6 @@ SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
 POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator")
-#: The classical controllers by name: the kind of their PolicySource ("pid" or "lqr"), their file and the observer
-#: they run behind.
-CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
-             "lqr": ("lqr", "lqr.json", "kalman")}  # fmt: skip
-CLASSICAL_KINDS = ("pid", "lqr")
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)

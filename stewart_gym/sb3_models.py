@@ -19,15 +19,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from stewart_gym.classical import LQRDesign, PIDGains, classical_controller, residual_action
+from stewart_gym.classical import CLASSICAL, LQRDesign, PIDGains, classical_controller, residual_action
 from stewart_gym.errors import PolicyError
 
 __all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
-
-#: The classical controllers a residual can sit on: their kind ("pid" or "lqr") and their file under ``policies/``.
-RESIDUAL_BASES = {"lqr": ("lqr", "lqr.json"), "pid": ("pid", "pid_gains.json"),
-                  "pid-kalman": ("pid", "pid_kalman_gains.json")}  # fmt: skip
-
 
 class SB3Policy:
     """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with."""
@@ -91,8 +86,8 @@ def check_residual(spec: Any) -> dict[str, Any]:
     from stewart_gym.errors import ConfigError
 
     if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm", "inner_mm"}
-            or spec.get("base") not in RESIDUAL_BASES):  # fmt: skip
-        raise ConfigError(f"residual must be {{base: {'|'.join(RESIDUAL_BASES)}, scale: S, fade_mm: F, inner_mm: R}}, "
+            or spec.get("base") not in CLASSICAL):  # fmt: skip
+        raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R}}, "
                           f"got {spec!r}")  # fmt: skip
     scale = spec.get("scale", 0.5)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
@@ -110,7 +105,7 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
     """The classical controller a residual policy adds to (the shipped gains or design, for ``geometry``)."""
     import json
 
-    kind, name = RESIDUAL_BASES[spec["base"]]
+    kind, name, _ = CLASSICAL[spec["base"]]
     values = json.loads((Path(__file__).resolve().parent / "policies" / name).read_text())
     design = LQRDesign(**values) if kind == "lqr" else PIDGains(**values)
     return classical_controller(kind, design, geometry, dt, plate_half)

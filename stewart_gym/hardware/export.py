@@ -88,13 +88,14 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         **build_meta(env_kwargs.get("geometry", "servo-hexapod"), env_kwargs),
     }
     if env_kwargs.get("residual"):  # the network's action corrects a classical controller's: record that one
-        from stewart_gym.sb3_models import RESIDUAL_BASES, check_residual, residual_base
+        from stewart_gym.classical import CLASSICAL
+        from stewart_gym.sb3_models import check_residual, residual_base
 
         spec = check_residual(env_kwargs["residual"])
         geometry = env_kwargs.get("geometry", "servo-hexapod")
         base = residual_base(spec, geometry)
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
-                            "base": classical_meta(RESIDUAL_BASES[spec["base"]][0], vars(base.gains), env_id, geometry,
+                            "base": classical_meta(CLASSICAL[spec["base"]][0], vars(base.gains), env_id, geometry,
                                                    meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
