@@ -55,7 +55,7 @@ SHIPPED_RESIDUAL = {("StewartBallBalance-v0", "servo-hexapod"): "balance_residua
 SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped-residual": SHIPPED_RESIDUAL}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
-POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator")
+POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimator", "integral")
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
@@ -210,6 +210,8 @@ def _bundle_source(spec: str, folder: Path) -> PolicySource:
         env_kwargs["geometry"] = str(meta["geometry"].get("name", DEFAULT_GEOMETRY))
     if "estimator" in meta:
         env_kwargs["estimator"] = str(meta["estimator"])
+    if meta.get("integral") is True:
+        env_kwargs["integral"] = True
     return PolicySource(spec, "bundle", folder, str(meta.get("env_id", DEFAULT_ENV)), env_kwargs, folder)
 
 

@@ -356,9 +356,16 @@ class ObservationBuilder:
         ("commanded roll, pitch (0 in `pulse` mode)", 2, "0.25 rad", 2.0),
         ("previous action, as applied", None, "1", 1.0),
     )
+    #: s: the error integral is divided by h × INTEGRAL_TIME (0.015 m·s on the reference plate).
+    INTEGRAL_TIME = 0.1
+    #: The optional last group (``integral=True``): the observer's integral of the position error.
+    INTEGRAL_FIELD: tuple[str, int, str, float] = (
+        "integral of target − ball near the target (only with `integral=True`)", 2, "h_x, h_y × 0.1 s (m·s)", 2.0)
 
-    def __init__(self, action_size: int, plate_half: tuple[float, float] = (0.15, 0.15)) -> None:
+    def __init__(self, action_size: int, plate_half: tuple[float, float] = (0.15, 0.15),
+                 integral: bool = False) -> None:  # fmt: skip
         self.action_size = int(action_size)
+        self.integral = bool(integral)
         hx, hy = (float(v) for v in plate_half)
         if not (math.isfinite(hx) and math.isfinite(hy) and hx > 0 and hy > 0):
             raise ValueError(f"plate_half must be two positive lengths, got {plate_half!r}")
@@ -366,9 +373,12 @@ class ObservationBuilder:
         self.velocity_scale = (hx / self.VELOCITY_TIME, hy / self.VELOCITY_TIME)
         scales = [*self.position_scale, *self.velocity_scale, *self.position_scale, *self.velocity_scale,
                   self.TILT_SCALE, self.TILT_SCALE] + [1.0] * self.action_size  # fmt: skip
+        self.integral_scale = (hx * self.INTEGRAL_TIME, hy * self.INTEGRAL_TIME)
         high: list[float] = []
-        for _, count, _, bound in self.FIELDS:
+        for _, count, _, bound in self.FIELDS + ((self.INTEGRAL_FIELD,) if self.integral else ()):
             high += [bound] * (self.action_size if count is None else count)
+        if self.integral:
+            scales += list(self.integral_scale)
         self.size = len(high)
         high_arr = np.array(high, dtype=np.float32)
         self.low, self.high = -high_arr, high_arr
@@ -383,9 +393,11 @@ class ObservationBuilder:
 
     def build(self, ball_xy: Sequence[float], ball_velocity: Sequence[float], target_xy: Sequence[float],
               target_velocity: Sequence[float], roll_pitch: Sequence[float],
-              previous_action: Sequence[float]) -> np.ndarray:  # fmt: skip
-        """Assemble, scale and clip one observation; shape (size,), float32."""
-        raw = [*ball_xy, *ball_velocity, *target_xy, *target_velocity, *roll_pitch, *previous_action]
+              previous_action: Sequence[float], error_integral: Sequence[float] = ()) -> np.ndarray:  # fmt: skip
+        """Assemble, scale and clip one observation; shape (size,), float32 (``error_integral``: m·s, only with
+        ``integral=True``)."""
+        raw = [*ball_xy, *ball_velocity, *target_xy, *target_velocity, *roll_pitch, *previous_action,
+               *error_integral]  # fmt: skip
         if len(raw) != self.size:
             raise ValueError(f"observation parts add up to {len(raw)} values, expected {self.size}")
         # scalar arithmetic: for a dozen values it is several times faster than numpy calls
@@ -401,15 +413,28 @@ class BallObserver:
     readings (:class:`VelocityEstimator`). ``estimator="kalman"``: both are :class:`BallKalmanFilter`'s
     prediction for *now*, through the sensing delay and any missed readings, with the commanded tilt as input.
     The observation is built by :class:`ObservationBuilder`.
+
+    ``integral=True`` appends the integral of the position error (target − estimate, m·s) per axis, what a
+    PID's integral term sees: the error is summed only while the ball is within :attr:`INTEGRAL_ZONE` of the
+    plate's half size of the target (so a fast approach does not wind it up), and the sum is held within the
+    observation's bound (± 2 × h × 0.1 s, anti-windup). It lets a learned policy cancel a steady offset, such
+    as the tilt left by servo trim errors.
     """
+
+    #: Fraction of the plate's half size: the error is integrated only this close to the target (30 mm on 300 mm).
+    INTEGRAL_ZONE = 0.2
 
     def __init__(self, action_size: int, velocity_cutoff_hz: float = 8.0,
                  plate_half: tuple[float, float] = (0.15, 0.15), estimator: str = "lowpass",
-                 kalman: KalmanSpec | None = None) -> None:  # fmt: skip
+                 kalman: KalmanSpec | None = None, integral: bool = False) -> None:  # fmt: skip
         if estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
         self.estimator = estimator
-        self.builder = ObservationBuilder(action_size, plate_half)
+        self.builder = ObservationBuilder(action_size, plate_half, integral=integral)
+        self.integral = bool(integral)
+        bound = ObservationBuilder.INTEGRAL_FIELD[3]
+        self.integral_limit = tuple(bound * k for k in self.builder.integral_scale)
+        self.integral_zone = self.INTEGRAL_ZONE * min(float(v) for v in plate_half)
         self.velocity = VelocityEstimator(velocity_cutoff_hz)
         self.kalman = BallKalmanFilter(kalman) if estimator == "kalman" else None
         self.reset(0.0, (0.0, 0.0))
@@ -419,6 +444,8 @@ class BallObserver:
         self.velocity.reset(t, xy)
         self.reading = (float(xy[0]), float(xy[1]))
         self.t = float(t)
+        self.error_integral = [0.0, 0.0]
+        self.integral_t = float(t)
         if self.kalman is not None:
             self.kalman.reset(t, xy)
 
@@ -444,7 +471,16 @@ class BallObserver:
                 self.kalman.update(min(reading[1], now), reading[0])
             pos, vel = self.kalman.estimate(now)
             self.t = float(now)
-        return self.builder.build(pos, vel, target_xy, target_velocity, roll_pitch, previous_action)
+        if not self.integral:
+            return self.builder.build(pos, vel, target_xy, target_velocity, roll_pitch, previous_action)
+        t = self.integral_t if now is None and reading is None else float(reading[1] if now is None else now)
+        dt, self.integral_t = max(0.0, t - self.integral_t), max(t, self.integral_t)
+        ex, ey = target_xy[0] - pos[0], target_xy[1] - pos[1]
+        if ex * ex + ey * ey <= self.integral_zone * self.integral_zone:
+            self.error_integral = [min(lim, max(-lim, acc + e * dt))
+                                   for acc, e, lim in zip(self.error_integral, (ex, ey), self.integral_limit)]  # fmt: skip
+        return self.builder.build(pos, vel, target_xy, target_velocity, roll_pitch, previous_action,
+                                  self.error_integral)  # fmt: skip
 
 
 def observation_table() -> str:
@@ -455,4 +491,6 @@ def observation_table() -> str:
         index = f"{first}, {first + 1}" if count == 2 else f"{first} … {first} + n − 1"
         rows.append(f"| {index} | {what} | {scale} | ±{bound:g} |")
         first += count or 0
+    what, _, scale, bound = ObservationBuilder.INTEGRAL_FIELD
+    rows.append(f"| 10 + n, 11 + n | {what} | {scale} | ±{bound:g} |")
     return "\n".join(rows)

@@ -36,3 +36,52 @@ def test_velocity_estimator_converges() -> None:
     for k in range(1, 200):
         vx, vy = est.update(k * 0.01, (0.2 * k * 0.01, -0.1 * k * 0.01))
     assert (vx, vy) == pytest.approx((0.2, -0.1), rel=1e-6)
+
+
+@pytest.mark.parametrize("estimator", ["lowpass", "kalman"])
+def test_error_integral_sums_near_the_target_and_is_bounded(estimator: str) -> None:
+    """``integral=True``: the last two entries integrate target − ball (m·s, scaled by h × 0.1 s) only within
+    20 % of the half plate of the target, held within the bound; reset clears it; without it, 12 values."""
+    from stewart_gym.sensing import BallObserver, ObservationBuilder
+
+    assert BallObserver(2, estimator=estimator).observe(((0.0, 0.0), 0.0), (0, 0), (0, 0), (0, 0), (0, 0)).shape == (12,)
+    obs = BallObserver(2, estimator=estimator, integral=True)
+    assert obs.builder.size == 14 and obs.builder.space.shape == (14,)
+    scale = 0.15 * ObservationBuilder.INTEGRAL_TIME
+
+    def hold(xy: tuple[float, float], seconds: float, t0: float) -> np.ndarray:
+        obs.reset(t0, xy)
+        out = np.zeros(14)
+        for k in range(1, int(round(seconds * 50)) + 1):
+            t = t0 + k / 50
+            out = obs.observe((xy, t), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.0, 0.0), now=t)
+        return out
+
+    near = hold((0.004, -0.002), 1.0, 3.0)  # 4.5 mm from the target for 1 s: −4 and +2 mm·s
+    assert near[-2:] == pytest.approx([-0.004 / scale, 0.002 / scale], rel=0.05)
+    assert obs.error_integral == pytest.approx([-0.004, 0.002], rel=0.05)
+    far = hold((0.05, 0.0), 1.0, 0.0)  # 50 mm away: outside the 30 mm zone, nothing is summed
+    assert far[-2:] == pytest.approx([0.0, 0.0], abs=1e-9)
+    wound = hold((0.02, 0.0), 10.0, 0.0)  # 20 mm for 10 s would be 0.2 m·s: held at the bound
+    assert wound[-2] == pytest.approx(-2.0) and obs.error_integral[0] == pytest.approx(-2 * scale)
+    obs.reset(0.0, (0.0, 0.0))
+    assert obs.error_integral == [0.0, 0.0]
+
+
+def test_env_integral_option() -> None:
+    """The env's observation gains the two integral entries with ``integral=True``; a non-boolean is refused."""
+    import gymnasium as gym
+
+    from stewart_gym.errors import ConfigError
+
+    env = gym.make("StewartBallBalance-v0", integral=True)
+    try:
+        obs, _ = env.reset(seed=0, options={"ball_position": (0.01, 0.0), "ball_velocity": (0.0, 0.0)})
+        assert obs.shape == (14,) and env.observation_space.shape == (14,)
+        for _ in range(10):
+            obs, *_ = env.step(np.zeros(2, dtype=np.float32))
+        assert obs[-2] < 0  # the ball sits at +x of the target: the error (target − ball) sums negative
+    finally:
+        env.close()
+    with pytest.raises(ConfigError, match="integral"):
+        gym.make("StewartBallBalance-v0", integral="yes")

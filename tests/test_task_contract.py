@@ -72,6 +72,21 @@ def test_unknown_task_is_a_clear_error() -> None:
         BallTask(success_radius=-1.0)
 
 
+def test_reward_shape_options() -> None:
+    """``near_scale`` sharpens the near-target term; ``settled_rate_penalty`` weighs the action rate only within
+    the success radius; both are checked."""
+    base, sharp = BallTask(), BallTask(near_scale=0.004)
+    assert base.reward(0.0, 0.0, False) == pytest.approx(sharp.reward(0.0, 0.0, False)) == pytest.approx(2.0)
+    assert base.reward(0.004, 0.0, False) - sharp.reward(0.004, 0.0, False) == pytest.approx(
+        math.exp(-0.004 / 0.015) - math.exp(-1.0))
+    quiet = BallTask(rate_penalty=1.0, settled_rate_penalty=100.0)
+    assert quiet.reward(0.005, 0.01, False) == pytest.approx(BallTask(rate_penalty=101.0).reward(0.005, 0.01, False))
+    assert quiet.reward(0.02, 0.01, False) == pytest.approx(BallTask(rate_penalty=1.0).reward(0.02, 0.01, False))
+    for bad in ({"near_scale": 0.0}, {"settled_rate_penalty": -1.0}, {"settled_rate_penalty": math.nan}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            BallTask(**bad)
+
+
 def test_disturbance_task_pushes_and_loads_on_schedule() -> None:
     task = load_task("disturbance")
     backend = _RecordingBackend()

@@ -110,8 +110,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``info["unreachable_count"]`` counts it over the episode.
 
     ## Observation Space
-    ``Box(float32)`` of size 10 + n (:class:`~stewart_gym.sensing.ObservationBuilder`), each entry divided by
-    its scale and clipped, so about ±1:
+    ``Box(float32)`` of size 10 + n, 12 + n with ``integral=True``
+    (:class:`~stewart_gym.sensing.ObservationBuilder`), each entry divided by its scale and clipped, so about ±1:
 
     OBSERVATION_TABLE
 
@@ -124,8 +124,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     built-in task, per step, with d the true ball-to-target distance (m):
     ``1 − d / 0.15 + exp(−d / 0.015) − rate_penalty · mean((a_t − a_{t−1})²)``:
     a distance term over the whole plate, a sharper one near the target (0.51 at
-    10 mm, 1 at 0), and an action-rate penalty for servo wear (``rate_penalty``,
-    default 0.1); ``−50`` on the step the ball leaves the plate.
+    10 mm, 1 at 0; ``near_scale`` sets the 0.015 m), and an action-rate penalty for servo wear
+    (``rate_penalty``, default 0.1, plus ``settled_rate_penalty`` within the success radius);
+    ``−50`` on the step the ball leaves the plate.
 
     ## Starting State
     Platform at home. The ball rests on the plate at a uniform random position
@@ -168,7 +169,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), ``estimator``
     (``"lowpass"``, the default: the last reading and a filtered finite-difference velocity; or
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
-    delay), and any keyword of the task (``trajectory`` for track).
+    delay), ``integral`` (append the observer's integral of the position error near the target, what a
+    PID's integral term sees), and any keyword of the task (``trajectory`` for track; ``near_scale`` and
+    ``settled_rate_penalty`` of the reward).
 
     ## Version History
     * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
@@ -196,13 +199,14 @@ class StewartBallEnv(gym.Env, EzPickle):
         rate_penalty: float = 0.1,
         backend: PhysicsBackend | str = "pybullet",
         estimator: str = "lowpass",
+        integral: bool = False,
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
                           success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
                           randomization=randomization, rate_penalty=rate_penalty, backend=backend,
-                          estimator=estimator, **task_kwargs)  # fmt: skip
+                          estimator=estimator, integral=integral, **task_kwargs)  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.randomize = bool(randomize)
@@ -231,7 +235,10 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
         if estimator not in ESTIMATORS:
             raise ConfigError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
-        self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent, estimator=estimator)
+        if not isinstance(integral, bool):
+            raise ConfigError(f"integral must be true or false, got {integral!r}")
+        self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent, estimator=estimator,
+                                     integral=integral)  # fmt: skip
         self.observation_space = self.observer.builder.space
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top

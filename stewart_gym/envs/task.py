@@ -75,36 +75,43 @@ class BallTask:
     """The shared reward and defaults of the ball tasks.
 
     Per step, with d the true ball-to-target distance (m) and h the plate's half
-    size: ``1 − min(d, 2h) / h + exp(−d / 0.015) − rate_penalty · rate`` and
-    ``−50`` on the step the ball leaves the plate: a distance term over the whole
-    plate, a sharper one near the target (0.51 at 10 mm, 1 at 0), and an
-    action-rate penalty for servo wear.
+    size: ``1 − min(d, 2h) / h + exp(−d / s) − (rate_penalty + [d ≤ r] · settled_rate_penalty) · rate``
+    and ``−50`` on the step the ball leaves the plate: a distance term over the whole
+    plate, a sharper one near the target (with the default s = 15 mm: 0.51 at 10 mm,
+    1 at 0), and an action-rate penalty for servo wear, optionally heavier once the
+    ball is within the success radius r (what buzzes a servo is jitter while holding).
 
     Args:
         success_radius: m (default: the class's ``default_success_radius``).
         success_window_s: s.
         rate_penalty: weight of the action-rate term.
         plate_half: m, h above.
+        near_scale: m, s above: a smaller one rewards precision near the target more steeply.
+        settled_rate_penalty: extra weight of the action-rate term within the success radius.
     """
 
     name: ClassVar[str] = "ball"
     moving_target: ClassVar[bool] = False
     default_success_radius: ClassVar[float] = 0.010
     FALL_PENALTY: ClassVar[float] = 50.0
-    NEAR_SCALE: ClassVar[float] = 0.015
+    NEAR_SCALE: ClassVar[float] = 0.015  # m, the default near_scale
 
     def __init__(self, success_radius: float | None = None, success_window_s: float = 1.0, rate_penalty: float = 0.1,
-                 plate_half: float = 0.15) -> None:  # fmt: skip
+                 plate_half: float = 0.15, near_scale: float | None = None,
+                 settled_rate_penalty: float = 0.0) -> None:  # fmt: skip
         self.success_radius = float(self.default_success_radius if success_radius is None else success_radius)
         self.success_window_s = float(success_window_s)
         self.rate_penalty = float(rate_penalty)
         self.plate_half = float(plate_half)
+        self.near_scale = float(self.NEAR_SCALE if near_scale is None else near_scale)
         for key, v in (("success_radius", self.success_radius), ("success_window_s", self.success_window_s),
-                       ("plate_half", self.plate_half)):  # fmt: skip
+                       ("plate_half", self.plate_half), ("near_scale", self.near_scale)):  # fmt: skip
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{key} must be a positive number, got {v!r}")
-        if not (math.isfinite(self.rate_penalty) and self.rate_penalty >= 0):
-            raise ConfigError(f"rate_penalty must be ≥ 0, got {self.rate_penalty!r}")
+        self.settled_rate_penalty = float(settled_rate_penalty)
+        for key, v in (("rate_penalty", self.rate_penalty), ("settled_rate_penalty", self.settled_rate_penalty)):
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{key} must be ≥ 0, got {v!r}")
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
         """Nothing to draw for a fixed target at the centre."""
@@ -117,8 +124,9 @@ class BallTask:
 
     def reward(self, distance: float, action_rate: float, fell: bool) -> float:
         half = self.plate_half
-        return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.NEAR_SCALE)
-                - self.rate_penalty * action_rate - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
+        weight = self.rate_penalty + (self.settled_rate_penalty if distance <= self.success_radius else 0.0)
+        return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.near_scale)
+                - weight * action_rate - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
 
     def info(self) -> dict[str, Any]:
         return {}

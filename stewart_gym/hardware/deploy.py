@@ -188,7 +188,8 @@ class DeployLoop:
         self.safety = SafetyLayer(mapper.calibration, self.config.max_step_us)
         width, depth = mapper.geometry.plate_extent
         self.observer = BallObserver(mapper.size, plate_half=(width / 2, depth / 2),
-                                     estimator=getattr(policy, "estimator", "lowpass"))  # the policy's own
+                                     estimator=getattr(policy, "estimator", "lowpass"),  # the policy's own
+                                     integral=getattr(policy, "integral", False))  # fmt: skip
         sizes = (getattr(policy, "obs_size", self.observer.builder.size), getattr(policy, "action_size", mapper.size))
         if sizes != (self.observer.builder.size, mapper.size):
             raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "

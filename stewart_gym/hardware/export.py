@@ -119,6 +119,7 @@ def build_meta(geometry: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
         "max_tilt": float(env_kwargs.get("max_tilt") or default_max_tilt(geo)),
         "observation_layout": ObservationBuilder.LAYOUT_VERSION,
         "estimator": str(env_kwargs.get("estimator", "lowpass")),
+        "integral": bool(env_kwargs.get("integral", False)),
     }
 
 
@@ -197,6 +198,10 @@ class BundlePolicy:
         self.estimator = str(meta.get("estimator", "lowpass"))
         if self.estimator not in ESTIMATORS:
             raise PolicyError(f"{meta_path}: estimator must be one of {list(ESTIMATORS)}, got {self.estimator!r}")
+        #: whether its observation ends with the error integral (bundles older than the field: no)
+        self.integral = meta.get("integral", False)
+        if not isinstance(self.integral, bool):
+            raise PolicyError(f"{meta_path}: integral must be true or false, got {self.integral!r}")
         if self.kind in ("pid", "lqr"):
             from stewart_gym.classical import CascadedPID, LQRController, LQRGains, PIDGains
 
