@@ -29,7 +29,8 @@ from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign",
-           "LQRGains", "PIDGains", "classical_controller", "design_lqr", "gains_for_geometry", "residual_action",
+           "LQRGains", "PIDGains", "classical_controller", "design_lqr", "gains_for_geometry", "integrate_error",
+           "residual_action",
            "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
@@ -66,6 +67,8 @@ class PIDGains:
         rolling_factor: c in a = c·g·sin(tilt) (5/7 for a solid ball).
         max_tilt: rad, the tilt at action ±1 (must match the env's).
         integral_limit: m·s, anti-windup bound on the integral.
+        integral_zone: m; if positive, the error is integrated only while it is this small (conditional
+            integration: a fast approach from far away does not wind the integral up); 0 integrates always.
     """
 
     kp_pos: float = 2.0
@@ -74,6 +77,16 @@ class PIDGains:
     rolling_factor: float = 5.0 / 7.0
     max_tilt: float = DEFAULT_MAX_TILT
     integral_limit: float = 0.05
+    integral_zone: float = 0.0
+
+
+def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: float, zone: float) -> np.ndarray:
+    """The integral of the position error one period on, held within ±``limit`` (anti-windup); with ``zone`` > 0,
+    only rows whose error is at most ``zone`` (m) long integrate (conditional integration)."""
+    step = err * dt
+    if zone > 0:
+        step = np.where(np.linalg.norm(err, axis=-1, keepdims=True) <= zone, step, 0.0)
+    return np.clip(integral + step, -limit, limit)
 
 
 class CascadedPID:
@@ -106,7 +119,7 @@ class CascadedPID:
         err = target - pos
         if self._integral.shape != err.shape:
             self._integral = np.zeros(err.shape)
-        self._integral = np.clip(self._integral + err * self.dt, -g.integral_limit, g.integral_limit)
+        self._integral = integrate_error(self._integral, err, self.dt, g.integral_limit, g.integral_zone)
         vel_sp = target_vel + g.kp_pos * err
         accel = g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
         s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
@@ -188,6 +201,8 @@ class LQRDesign:
         tilt_step: acceptable change of ``sin(tilt)`` per control period (servo rate and wear).
         rolling_factor: c (5/7 solid ball).
         tilt_lag_s: s.
+        integral_zone_mm: if positive, the error is integrated only while it is this small (as
+            :attr:`PIDGains.integral_zone`); 0 integrates always.
 
     The tilt at action ±1 is the geometry's default ``max_tilt`` (:func:`design_lqr`).
     """
@@ -199,6 +214,7 @@ class LQRDesign:
     tilt_step: float = 0.002
     rolling_factor: float = 5.0 / 7.0
     tilt_lag_s: float = 0.019
+    integral_zone_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -211,6 +227,7 @@ class LQRGains:
         rolling_factor, tilt_lag_s, dt: the model it was designed with.
         max_tilt: rad, the tilt at action ±1.
         integral_limit: m·s, anti-windup bound on the integral.
+        integral_zone: m, integrate only within it (0: always).
     """
 
     k: tuple[float, float, float, float, float]
@@ -219,6 +236,7 @@ class LQRGains:
     dt: float
     max_tilt: float
     integral_limit: float
+    integral_zone: float = 0.0
 
 
 def lqr_model(design: LQRDesign, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -259,7 +277,8 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
     geo = load_geometry(geometry)
     needed = math.sin(min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2))
     return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
-                    max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])))  # fmt: skip
+                    max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])),
+                    integral_zone=d.integral_zone_mm * 1e-3)  # fmt: skip
 
 
 class LQRController:
@@ -297,7 +316,7 @@ class LQRController:
                                 "target_vel": target_vel.copy(), "in_force": in_force.copy()}  # fmt: skip
         st["accel"] = self._phi * st["accel"] + (1 - self._phi) * st["in_force"]  # driven by last period's command
         st["in_force"] = in_force
-        st["integral"] = np.clip(st["integral"] + err * g.dt, -g.integral_limit, g.integral_limit)
+        st["integral"] = integrate_error(st["integral"], err, g.dt, g.integral_limit, g.integral_zone)
         feed = (target_vel - st["target_vel"]) / (g.dt * g.rolling_factor * GRAVITY)  # the target's acceleration
         st["target_vel"] = target_vel
         k = self._k

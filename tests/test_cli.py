@@ -552,6 +552,38 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     assert proc.returncode == 1 and "--overwrite" in proc.stderr  # a finished run is not overwritten
 
 
+def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_deploy(device: FakeDevice,
+                                                                                    tmp_path: Path) -> None:  # fmt: skip
+    """``integral: true``: train → evaluate → export → deploy through the command line; the bundle records it,
+    deploy builds the 14-value observation (the integral in the last two, summed while the ball is near the
+    centre); a bundle with a malformed flag is refused before the port opens."""
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
+                  "  env_kwargs: {estimator: kalman, integral: true}\n  n_steps: 64\n  batch_size: 32\n"
+                  "  n_epochs: 1\n  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
+    run, bundle = tmp_path / "run", tmp_path / "bundle"
+    proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--eval-freq", "64", "--eval-episodes", "1",
+              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    proc = sg("evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = sg("export", "--policy", str(run), "--out", str(bundle), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((bundle / "bundle.json").read_text())
+    assert meta["integral"] is True and meta["obs_size"] == 14 and meta["estimator"] == "kalman"
+    proc, _ = deploy(device, "--policy", str(bundle), "--sensor", "sim", "--duration", "2", "--log",
+                     str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "l.csv").open()))
+    assert "obs13" in rows[0] and "obs14" not in rows[0]
+    assert any(float(r["obs12"]) != 0.0 for r in rows)  # the simulated ball starts near the centre: it sums
+    (bundle / "bundle.json").write_text(json.dumps({**meta, "integral": "yes"}))
+    proc, data = deploy(device, "--policy", str(bundle), "--sensor", "sim", "--duration", "1", cwd=tmp_path)
+    assert proc.returncode != 0 and proc.stderr.startswith("error: ") and "integral" in proc.stderr and not data
+
+
 def test_training_records_the_package_revision_not_the_working_directory(tmp_path: Path) -> None:
     """git.txt names the revision of the stewart_gym source, even when training runs inside another repository."""
     from stewart_gym.training import _git_revision

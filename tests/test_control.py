@@ -147,6 +147,37 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
 
 
+def test_conditional_integration_sums_only_near_the_target(tmp_path: Path) -> None:
+    """With an ``integral_zone`` the PID and the LQR integrate the error only within it (a fast approach from
+    far away leaves the integral at zero), hold it within the limit, and their bundles carry the zone."""
+    from stewart_gym.classical import CascadedPID, PIDGains, integrate_error
+    from stewart_gym.hardware.export import BundlePolicy, classical_meta
+
+    err = np.array([[0.05, 0.0], [0.003, -0.004], [0.0, 0.0]])  # 50 mm, 5 mm, on target
+    out = integrate_error(np.zeros((3, 2)), err, 0.02, 0.05, 0.02)
+    np.testing.assert_allclose(out, [[0, 0], [0.003 * 0.02, -0.004 * 0.02], [0, 0]])
+    np.testing.assert_allclose(integrate_error(np.zeros((3, 2)), err, 0.02, 0.05, 0.0), err * 0.02)  # 0: always
+    np.testing.assert_allclose(integrate_error(np.full((3, 2), 0.049), err, 1.0, 0.05, 0.0)[0], [0.05, 0.049])  # held
+    for zone, summed in ((0.0, True), (0.02, False)):
+        pid = CascadedPID(PIDGains(integral_zone=zone))
+        far = np.zeros(12, dtype=np.float32)
+        far[0] = 0.05 / 0.15  # the ball 50 mm from the target, at rest…
+        for _ in range(10):
+            pid(far)
+        assert bool(np.any(pid(np.zeros(12, dtype=np.float32)) != 0)) is summed  # …then on it: only the integral acts
+    lqr = load_policy("lqr")
+    shipped = json.loads((Path(__file__).resolve().parents[1] / "stewart_gym/policies/lqr.json").read_text())
+    assert shipped["integral_zone_mm"] > 0 and lqr.gains.integral_zone == pytest.approx(shipped["integral_zone_mm"] * 1e-3)
+    for kind, policy in (("lqr", lqr), ("pid", load_policy("pid-kalman"))):
+        bundle = BundlePolicy.from_meta(classical_meta(kind, vars(policy.gains), estimator="kalman"))
+        assert policy.gains.integral_zone > 0 and bundle.meta["gains"]["integral_zone"] == policy.gains.integral_zone
+        rng = np.random.default_rng(2)
+        policy.reset()
+        for _ in range(30):  # the same actions, step after step (the integral included)
+            obs = rng.uniform(-0.1, 0.1, 12).astype(np.float32)
+            np.testing.assert_allclose(bundle(obs), policy(obs), atol=1e-6)
+
+
 def test_pid_kalman_is_the_pid_retuned_behind_the_kalman_observer(tmp_path: Path) -> None:
     """``--policy pid-kalman``: the PID with its own gains file, behind the Kalman observer, in evaluation and in
     its bundle; it balances 10 randomised seeds."""

@@ -8,7 +8,8 @@ ball is held (settled pulse rate). ``--estimator`` picks the observer the PID
 runs behind: ``kalman`` (the default) writes ``policies/pid_kalman_gains.json``
 (``--policy pid-kalman``), ``lowpass`` ``policies/pid_gains.json`` (``--policy
 pid``); ``--out`` writes elsewhere. ``--kp-pos``, ``--kp-vel`` and ``--ki-vel``
-give the grid. Prints the table.
+give the grid; ``--integral-zone-mm`` (default 20) the conditional integration zone
+(the error is integrated only this close to the target). Prints the table.
 
 Run: ``.venv/bin/python train/tune_pid.py [--episodes 30] [--estimator kalman]``
 """
@@ -39,12 +40,14 @@ def main() -> None:
     parser.add_argument("--kp-pos", type=floats, default=[1.0, 1.5, 2.0, 3.0])
     parser.add_argument("--kp-vel", type=floats, default=[2.0, 3.0, 4.0, 5.0])
     parser.add_argument("--ki-vel", type=floats, default=[2.0, 3.0, 4.0])
+    parser.add_argument("--integral-zone-mm", type=float, default=20.0,
+                        help="integrate the error only this close to the target (0: always; default 20)")
     args = parser.parse_args()
     args.out = args.out or str(POLICY_DIR / ("pid_kalman_gains.json" if args.estimator == "kalman" else "pid_gains.json"))
     grid = itertools.product(args.kp_pos, args.kp_vel, args.ki_vel)
     rows = []
     for kp_pos, kp_vel, ki_vel in grid:
-        gains = PIDGains(kp_pos=kp_pos, kp_vel=kp_vel, ki_vel=ki_vel)
+        gains = PIDGains(kp_pos=kp_pos, kp_vel=kp_vel, ki_vel=ki_vel, integral_zone=args.integral_zone_mm * 1e-3)
         m = evaluate("StewartBallBalance-v0", CascadedPID(gains), episodes=args.episodes, seed=10_000, settling=False,
                      env_kwargs={"estimator": args.estimator})  # fmt: skip
         rows.append((m["success_rate"], -m["rms_error_mm"], gains, m))
