@@ -157,3 +157,31 @@ def test_settled_servo_activity_is_reported() -> None:
     assert m["settled_pulse_p2p_us"] == pytest.approx(np.ptp(tail, axis=0).max())
     assert m["settled_pulse_rate_us_per_s"] == pytest.approx(np.abs(np.diff(tail, axis=0)).mean() / 0.02)
     assert 0 < m["settled_pulse_rate_us_per_s"] < 5000 and 0 < m["settled_pulse_p2p_us"] < 400
+
+
+def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -> None:
+    """``train/results.py --recipes-only``: the recipe's runs are evaluated, the controllers' rows of
+    results.json are kept as they were, an earlier recipe is replaced, and the page gets the recipe's column."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "images").mkdir()
+    kept = [{"table": "balance", "row": "LQR", "policy": "lqr", "estimator": None, "env": "StewartBallBalance-v0",
+             "episodes": 3, "metrics": {"success_rate": 1.0, "rms_error_mm": 1.5}},
+            {"table": "balance", "row": "seed:old", "recipe": "old", "policy": "old", "estimator": None,
+             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.5}}]  # fmt: skip
+    (tmp_path / "results.json").write_text(json.dumps(kept))
+    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
+                           "quick PID=pid", "--episodes", "1", "--workers", "1", "--out", str(tmp_path / "r.md")],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads((tmp_path / "results.json").read_text())
+    assert rows[0] == kept[0] and not any(r["row"] == "seed:old" for r in rows)
+    new = [r for r in rows if r["row"] == "seed:pid"]
+    assert len(new) == 1 and new[0]["episodes"] == 1 and new[0]["recipe"] == "quick PID"
+    assert 0.0 <= new[0]["metrics"]["success_rate"] <= 1.0
+    assert "quick PID, 1 training seeds" in (tmp_path / "r.md").read_text()
+    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--out",
+                          str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr

@@ -1,7 +1,8 @@
 """Regenerate the docs' results page: learned vs PID vs LQR on every task and metric, with robustness.
 
 Run: ``.venv/bin/python train/results.py [--recipe "LABEL=runs/s0,runs/s1,runs/s2" ...] [--episodes 100]
-[--robust-episodes 50] [--workers 2] [--out docs/src/results.md]``
+[--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --from-json]``
+(``--recipes-only``: evaluate only the recipes' runs and keep the controllers' rows of ``results.json``.)
 
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
 episodes (seeds 0…N−1). Rows:
@@ -171,6 +172,9 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "docs/src/results.md"))
     ap.add_argument("--from-json", action="store_true", help="rebuild the page from results.json beside it (after "
                                                              "editing train/results_intro.md), evaluating nothing")
+    ap.add_argument("--recipes-only", action="store_true", help="evaluate only the --recipe runs; keep the "
+                                                                "controllers' rows of results.json beside the page "
+                                                                "(earlier recipes are replaced)")
     args = ap.parse_args()
     out = Path(args.out)
     args.recipes = dict(args.recipe)
@@ -183,8 +187,15 @@ def main() -> None:
                 args.recipes.setdefault(r["recipe"], []).append(r["row"][5:])
         jobs = results
     else:
+        kept: list[dict[str, Any]] = []
+        if args.recipes_only:
+            if not args.recipes:
+                ap.error("--recipes-only needs at least one --recipe")
+            kept = [r for r in json.loads((out.parent / "results.json").read_text()) if not r["row"].startswith("seed:")]
+            jobs = [j for j in jobs if j["row"].startswith("seed:")]
         with ProcessPoolExecutor(args.workers) as pool:
-            results = list(pool.map(run_job, jobs))
+            results = kept + list(pool.map(run_job, jobs))
+        jobs = results
         (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
     plot(results, out.parent / "images" / "robustness.png")
     intro = (ROOT / "train" / "results_intro.md").read_text()
