@@ -431,7 +431,6 @@ class BallObserver:
             raise ValueError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
         self.estimator = estimator
         self.builder = ObservationBuilder(action_size, plate_half, integral=integral)
-        self.integral = bool(integral)
         bound = ObservationBuilder.INTEGRAL_FIELD[3]
         self.integral_limit = tuple(bound * k for k in self.builder.integral_scale)
         self.integral_zone = self.INTEGRAL_ZONE * min(float(v) for v in plate_half)
@@ -471,7 +470,7 @@ class BallObserver:
                 self.kalman.update(min(reading[1], now), reading[0])
             pos, vel = self.kalman.estimate(now)
             self.t = float(now)
-        if not self.integral:
+        if not self.builder.integral:
             return self.builder.build(pos, vel, target_xy, target_velocity, roll_pitch, previous_action)
         t = self.integral_t if now is None and reading is None else float(reading[1] if now is None else now)
         dt, self.integral_t = max(0.0, t - self.integral_t), max(t, self.integral_t)
