@@ -280,7 +280,15 @@ def load_lqr(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     return classical_controller("lqr", pid_gains(path, LQRDesign), geometry)
 
 
+#: Gains-file fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's
+#: acceptable sizes and servo lag (must be positive).
+NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
+POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
+
+
 def pid_gains(path: Path, cls: Any) -> Any:
+    """``cls`` (:class:`~stewart_gym.classical.PIDGains` or :class:`~stewart_gym.classical.LQRDesign`) from the
+    JSON file ``path``, checked: finite numbers, and no negative size."""
     data = _read_json(path)
     try:
         gains = cls(**data)
@@ -290,6 +298,11 @@ def pid_gains(path: Path, cls: Any) -> Any:
            or not v == v or abs(v) == float("inf")]  # fmt: skip
     if bad:
         raise PolicyError(f"{path}: gains must be finite numbers: {bad}")
+    values = vars(gains)
+    wrong = [f"{k} must be 0 (off) or more" for k in NON_NEGATIVE_GAINS if k in values and values[k] < 0]
+    wrong += [f"{k} must be positive" for k in POSITIVE_GAINS if k in values and values[k] <= 0]
+    if wrong:
+        raise PolicyError(f"{path}: {'; '.join(wrong)}")
     return gains
 
 

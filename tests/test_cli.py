@@ -58,6 +58,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "notazip.zip").write_text("not a zip archive\n")
     (d / "bad.json").write_text("{not json")
     (d / "wrong_gains.json").write_text('{"kp": 1}\n')
+    (d / "negative_zone.json").write_text('{"kp_pos": 2, "integral_zone": -0.02}\n')
     (d / "emptydir").mkdir()
     (d / "unknown_cols.csv").write_text("t,a,b\n0,1,2\n1,2,3\n")
     (d / "text_values.csv").write_text("t_s,x_mm\n0,abc\n")
@@ -225,6 +226,7 @@ BAD = [
     ["evaluate", "--policy", "{files}/notazip.zip"],
     ["evaluate", "--policy", "{files}/bad.json"],
     ["evaluate", "--policy", "{files}/wrong_gains.json"],
+    ["evaluate", "--policy", "{files}/negative_zone.json"],
     ["evaluate", "--policy", "{files}/emptydir"],
     ["evaluate", "--policy", "{files}/notes.txt"],
     ["evaluate", "--policy", "{files}/bad_bundle"],
