@@ -74,7 +74,7 @@ def test_unknown_task_is_a_clear_error() -> None:
 
 def test_reward_shape_options() -> None:
     """``near_scale`` sharpens the near-target term; ``settled_rate_penalty`` weighs the action rate only within
-    the success radius; both are checked."""
+    the success radius; ``outside_penalty`` costs each step beyond it; all are checked."""
     base, sharp = BallTask(), BallTask(near_scale=0.004)
     assert base.reward(0.0, 0.0, False) == pytest.approx(sharp.reward(0.0, 0.0, False)) == pytest.approx(2.0)
     assert base.reward(0.004, 0.0, False) - sharp.reward(0.004, 0.0, False) == pytest.approx(
@@ -82,7 +82,11 @@ def test_reward_shape_options() -> None:
     quiet = BallTask(rate_penalty=1.0, settled_rate_penalty=100.0)
     assert quiet.reward(0.005, 0.01, False) == pytest.approx(BallTask(rate_penalty=101.0).reward(0.005, 0.01, False))
     assert quiet.reward(0.02, 0.01, False) == pytest.approx(BallTask(rate_penalty=1.0).reward(0.02, 0.01, False))
-    for bad in ({"near_scale": 0.0}, {"settled_rate_penalty": -1.0}, {"settled_rate_penalty": math.nan}):
+    timed = BallTask(outside_penalty=0.5)
+    assert timed.reward(0.009, 0.0, False) == pytest.approx(base.reward(0.009, 0.0, False))
+    assert base.reward(0.011, 0.0, False) - timed.reward(0.011, 0.0, False) == pytest.approx(0.5)
+    for bad in ({"near_scale": 0.0}, {"settled_rate_penalty": -1.0}, {"settled_rate_penalty": math.nan},
+                {"outside_penalty": -0.1}, {"outside_penalty": math.inf}):
         with pytest.raises(ConfigError, match=next(iter(bad))):
             BallTask(**bad)
 

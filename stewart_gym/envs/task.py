@@ -75,11 +75,12 @@ class BallTask:
     """The shared reward and defaults of the ball tasks.
 
     Per step, with d the true ball-to-target distance (m) and h the plate's half
-    size: ``1 − min(d, 2h) / h + exp(−d / s) − (rate_penalty + [d ≤ r] · settled_rate_penalty) · rate``
-    and ``−50`` on the step the ball leaves the plate: a distance term over the whole
-    plate, a sharper one near the target (with the default s = 15 mm: 0.51 at 10 mm,
-    1 at 0), and an action-rate penalty for servo wear, optionally heavier once the
-    ball is within the success radius r (what buzzes a servo is jitter while holding).
+    size: ``1 − min(d, 2h) / h + exp(−d / s) − (rate_penalty + [d ≤ r] · settled_rate_penalty) · rate
+    − [d > r] · outside_penalty`` and ``−50`` on the step the ball leaves the plate: a distance term over the
+    whole plate, a sharper one near the target (with the default s = 15 mm: 0.51 at 10 mm, 1 at 0), an
+    action-rate penalty for servo wear, optionally heavier once the ball is within the success radius r (what
+    buzzes a servo is jitter while holding), and optionally a cost per step outside the success radius (what
+    the settling time counts).
 
     Args:
         success_radius: m (default: the class's ``default_success_radius``).
@@ -88,6 +89,7 @@ class BallTask:
         plate_half: m, h above.
         near_scale: m, s above: a smaller one rewards precision near the target more steeply.
         settled_rate_penalty: extra weight of the action-rate term within the success radius.
+        outside_penalty: cost per step while the ball is farther than the success radius (default 0).
     """
 
     name: ClassVar[str] = "ball"
@@ -98,7 +100,7 @@ class BallTask:
 
     def __init__(self, success_radius: float | None = None, success_window_s: float = 1.0, rate_penalty: float = 0.1,
                  plate_half: float = 0.15, near_scale: float | None = None,
-                 settled_rate_penalty: float = 0.0) -> None:  # fmt: skip
+                 settled_rate_penalty: float = 0.0, outside_penalty: float = 0.0) -> None:  # fmt: skip
         self.success_radius = float(self.default_success_radius if success_radius is None else success_radius)
         self.success_window_s = float(success_window_s)
         self.rate_penalty = float(rate_penalty)
@@ -109,7 +111,9 @@ class BallTask:
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{key} must be a positive number, got {v!r}")
         self.settled_rate_penalty = float(settled_rate_penalty)
-        for key, v in (("rate_penalty", self.rate_penalty), ("settled_rate_penalty", self.settled_rate_penalty)):
+        self.outside_penalty = float(outside_penalty)
+        for key, v in (("rate_penalty", self.rate_penalty), ("settled_rate_penalty", self.settled_rate_penalty),
+                       ("outside_penalty", self.outside_penalty)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{key} must be ≥ 0, got {v!r}")
 
@@ -124,9 +128,11 @@ class BallTask:
 
     def reward(self, distance: float, action_rate: float, fell: bool) -> float:
         half = self.plate_half
-        weight = self.rate_penalty + (self.settled_rate_penalty if distance <= self.success_radius else 0.0)
+        inside = distance <= self.success_radius
+        weight = self.rate_penalty + (self.settled_rate_penalty if inside else 0.0)
         return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.near_scale)
-                - weight * action_rate - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
+                - weight * action_rate - (0.0 if inside else self.outside_penalty)
+                - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
 
     def info(self) -> dict[str, Any]:
         return {}
