@@ -4,8 +4,8 @@
 
 * ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
 * ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
-* ``shipped-residual``: the committed residual PPO policy, a learned correction on top of the LQR behind the
-  Kalman observer (:data:`SHIPPED_RESIDUAL`);
+* ``shipped-residual``: the committed residual PPO policy, a learned correction on top of a classical
+  controller (balance: the PID + Kalman; track: the LQR) behind the Kalman observer (:data:`SHIPPED_RESIDUAL`);
 * ``pid``: the tuned cascaded PID baseline behind the low-pass observer (``policies/pid_gains.json``);
 * ``pid-kalman``: the cascaded PID retuned behind the Kalman observer (``policies/pid_kalman_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
@@ -49,7 +49,8 @@ SHIPPED = {("StewartBallBalance-v0", "servo-hexapod"): "balance", ("StewartBallT
            ("StewartBallDisturbance-v0", "servo-hexapod"): "balance"}
 #: The shipped policies trained with the camera sensor model (``--policy shipped-camera``): folder under ``policies/``.
 SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
-#: The shipped residual policies (``--policy shipped-residual``: PPO corrections of the LQR): folder under ``policies/``.
+#: The shipped residual policies (``--policy shipped-residual``: PPO corrections of a classical controller, the base
+#: their config.yaml names): folder under ``policies/``.
 SHIPPED_RESIDUAL = {("StewartBallBalance-v0", "servo-hexapod"): "balance_residual",
                     ("StewartBallTrack-v0", "servo-hexapod"): "track_residual"}
 SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped-residual": SHIPPED_RESIDUAL}
