@@ -232,6 +232,27 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
         np.testing.assert_allclose(bundle(obs), action, atol=1e-4)
 
 
+def test_the_shipped_balance_residual_is_the_pid_kalman_near_the_target_and_its_bundle_agrees() -> None:
+    """The shipped balance residual: within 5 mm of the target its action is the PID + Kalman's exactly (the
+    same integrator history), beyond 15 mm the network's correction acts, and its bundle gives the same."""
+    source = resolve_policy("shipped-residual")
+    assert source.env_kwargs["residual"]["base"] == "pid-kalman" and source.env_kwargs["residual"]["inner_mm"] == 5
+    rng = np.random.default_rng(3)
+    for within_mm, same in ((4.0, True), (40.0, False)):
+        residual, pid, bundle = load_policy(source), load_policy("pid-kalman"), deployable_policy(source)
+        differs = 0.0
+        for k in range(30):
+            obs = rng.uniform(-0.2, 0.2, 12).astype(np.float32)
+            direction = rng.uniform(0, 2 * math.pi)
+            obs[0:2] = obs[4:6] + within_mm / 150 * np.array([math.cos(direction), math.sin(direction)])
+            start = np.array([k == 0])
+            action = residual.predict(obs, episode_start=start)[0]
+            base = pid.predict(obs, episode_start=start)[0]
+            np.testing.assert_allclose(bundle(obs), action, atol=1e-4)
+            differs = max(differs, float(np.abs(np.asarray(action) - base).max()))
+        assert (differs == 0.0) if same else (differs > 1e-3), (within_mm, differs)
+
+
 @pytest.mark.parametrize(("distance_mm", "inner_mm", "fade_mm", "weight"),
                          [(3.0, 5.0, 10.0, 0.0), (10.0, 5.0, 10.0, 0.5), (20.0, 5.0, 10.0, 1.0), (7.5, 0.0, 15.0, 0.5),
                           (4.0, 5.0, 0.0, 0.0), (6.0, 5.0, 0.0, 1.0), (0.1, 0.0, 0.0, 1.0)])  # fmt: skip
