@@ -248,14 +248,15 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
     algo_kwargs = {k: v for k, v in hp.items() if k not in ZOO_KEYS}
     policy = hp.get("policy", "MlpPolicy")
+    residual = check_residual(hp["residual"]) if hp.get("residual") else None
+    # built here first: a bad env keyword is one error line, before the run folder and the worker processes
+    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
     (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
     (run / "git.txt").write_text(_git_revision() + "\n")
 
-    residual = check_residual(hp["residual"]) if hp.get("residual") else None
     env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual)
-    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
     resume = Path(config.resume) if config.resume else None
     stats = None
     if resume is not None:

@@ -54,6 +54,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "planar_partial.toml").write_text("L1 = 2.0\n")
     (d / "bad.yml").write_text("ppo: [unclosed\n")
     (d / "other.yml").write_text("SomethingElse-v0:\n  n_envs: 1\n")
+    (d / "bad_reward.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: {outside_penalty: -1}\n")
     (d / "notes.txt").write_text("hello\n")
     (d / "notazip.zip").write_text("not a zip archive\n")
     (d / "bad.json").write_text("{not json")
@@ -210,6 +211,7 @@ BAD = [
     ["train", "--hyperparams", "{files}/missing.yml", "--run-dir", "{tmp}/r"],
     ["train", "--hyperparams", "{files}/bad.yml", "--run-dir", "{tmp}/r"],
     ["train", "--hyperparams", "{files}/other.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/bad_reward.yml", "--run-dir", "{tmp}/r"],  # refused before the workers
     ["train", "--run-dir", "{files}/notes.txt"],
     ["train", "--run-dir", "{files}/run_done"],
     ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],
