@@ -29,9 +29,8 @@ from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign",
-           "LQRGains", "PIDGains", "classical_controller", "design_lqr", "gains_for_geometry", "integrate_error",
-           "residual_action",
-           "trim_tilt"]  # fmt: skip
+           "LQRGains", "PIDGains", "checked_design", "classical_controller", "design_lqr", "gains_for_geometry",
+           "integrate_error", "residual_action", "shipped_design", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -332,6 +331,40 @@ class LQRController:
         if episode_start is not None and np.any(episode_start):
             self.reset()
         return self(obs), None
+
+
+#: Design fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's
+#: acceptable sizes and servo lag (must be positive).
+NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
+POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
+
+
+def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign:
+    """The PID's gains (``kind`` "pid") or the LQR's design (``"lqr"``) from a mapping of its fields, checked:
+    known fields, finite numbers, no negative bound or zone, positive LQR sizes. Raises ``ValueError`` saying
+    what is wrong (callers add where the values came from)."""
+    cls = LQRDesign if kind == "lqr" else PIDGains
+    if not isinstance(values, dict):
+        raise ValueError(f"expected {cls.__name__} values as a mapping, got {type(values).__name__}")
+    try:
+        design = cls(**values)
+    except TypeError as exc:
+        raise ValueError(f"not {cls.__name__} values ({exc})") from None
+    fields = vars(design)
+    bad = [k for k, v in fields.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
+    if bad:
+        raise ValueError(f"gains must be finite numbers: {bad}")
+    wrong = [f"{k} must be 0 (off) or more" for k in NON_NEGATIVE_GAINS if k in fields and fields[k] < 0]
+    wrong += [f"{k} must be positive" for k in POSITIVE_GAINS if k in fields and fields[k] <= 0]
+    if wrong:
+        raise ValueError("; ".join(wrong))
+    return design
+
+
+def shipped_design(name: str) -> PIDGains | LQRDesign:
+    """The design of the shipped classical controller ``name`` (a key of :data:`CLASSICAL`), from its file."""
+    kind, filename, _ = CLASSICAL[name]
+    return checked_design(json.loads((Path(__file__).resolve().parent / "policies" / filename).read_text()), kind)
 
 
 def classical_controller(kind: str, design: PIDGains | LQRDesign, geometry: Any = "servo-hexapod", dt: float = 0.02,

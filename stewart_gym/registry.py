@@ -269,42 +269,27 @@ def same_geometry(a: str | Any, b: str | Any) -> bool:
 def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     """The cascaded PID with the gains in ``path``, adapted to ``geometry``
     (:func:`~stewart_gym.classical.gains_for_geometry`); its observation scales follow the plate."""
-    from stewart_gym.classical import PIDGains, classical_controller
+    from stewart_gym.classical import classical_controller
 
-    return classical_controller("pid", pid_gains(path, PIDGains), geometry)
+    return classical_controller("pid", read_design(path, "pid"), geometry)
 
 
 def load_lqr(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     """The LQR designed from ``path`` (an :class:`~stewart_gym.classical.LQRDesign` as JSON) for ``geometry``."""
-    from stewart_gym.classical import LQRDesign, classical_controller
+    from stewart_gym.classical import classical_controller
 
-    return classical_controller("lqr", pid_gains(path, LQRDesign), geometry)
-
-
-#: Gains-file fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's
-#: acceptable sizes and servo lag (must be positive).
-NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
-POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
+    return classical_controller("lqr", read_design(path, "lqr"), geometry)
 
 
-def pid_gains(path: Path, cls: Any) -> Any:
-    """``cls`` (:class:`~stewart_gym.classical.PIDGains` or :class:`~stewart_gym.classical.LQRDesign`) from the
-    JSON file ``path``, checked: finite numbers, and no negative size."""
-    data = _read_json(path)
+def read_design(path: Path, kind: str) -> Any:
+    """The PID's gains (``kind`` "pid") or the LQR's design ("lqr") in the JSON file ``path``, checked
+    (:func:`~stewart_gym.classical.checked_design`): finite numbers, and no negative size."""
+    from stewart_gym.classical import checked_design
+
     try:
-        gains = cls(**data)
-    except TypeError as exc:
-        raise PolicyError(f"{path}: not {cls.__name__} values ({exc})") from None
-    bad = [k for k, v in vars(gains).items() if isinstance(v, bool) or not isinstance(v, (int, float))
-           or not v == v or abs(v) == float("inf")]  # fmt: skip
-    if bad:
-        raise PolicyError(f"{path}: gains must be finite numbers: {bad}")
-    values = vars(gains)
-    wrong = [f"{k} must be 0 (off) or more" for k in NON_NEGATIVE_GAINS if k in values and values[k] < 0]
-    wrong += [f"{k} must be positive" for k in POSITIVE_GAINS if k in values and values[k] <= 0]
-    if wrong:
-        raise PolicyError(f"{path}: {'; '.join(wrong)}")
-    return gains
+        return checked_design(_read_json(path), kind)
+    except ValueError as exc:
+        raise PolicyError(f"{path}: {exc}") from None
 
 
 def resolved_env_kwargs(source: PolicySource, model_action_size: int | None = None) -> dict[str, Any]:

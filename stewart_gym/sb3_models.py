@@ -7,19 +7,21 @@ predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 A *residual* policy learns a correction on top of a classical controller: the action sent is
 ``clip(base(obs) + scale · w · learned(obs), −1, 1)``, where the weight w may fade the correction out near
 the target (``inner_mm``, ``fade_mm``). Training wraps the env in :class:`ResidualAction` (the
-hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one; the
-bundle records the base, so deploy runs the same sum.
+hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one. The run's
+``config.yaml`` records the base's gains or design as they were (``design``), so a later retune of the shipped
+controller does not change a trained policy; the bundle records the base too, so deploy runs the same sum.
 """
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from stewart_gym.classical import CLASSICAL, LQRDesign, PIDGains, classical_controller, residual_action
+from stewart_gym.classical import CLASSICAL, checked_design, classical_controller, residual_action, shipped_design
 from stewart_gym.errors import PolicyError
 
 __all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
@@ -80,13 +82,14 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
-    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid|pid-kalman, scale: s, fade_mm: f, inner_mm: r}``
-    with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next f mm the
-    correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never fades)."""
+    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid|pid-kalman, scale: s, fade_mm: f, inner_mm: r,
+    design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next
+    f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never
+    fades). ``design``, the base's gains or LQR design, defaults to the shipped one's (training records it)."""
     from stewart_gym.errors import ConfigError
 
-    if (not isinstance(spec, dict) or set(spec) - {"base", "scale", "fade_mm", "inner_mm"}
-            or spec.get("base") not in CLASSICAL):  # fmt: skip
+    keys = {"base", "scale", "fade_mm", "inner_mm", "design"}
+    if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R}}, "
                           f"got {spec!r}")  # fmt: skip
     scale = spec.get("scale", 0.5)
@@ -96,19 +99,20 @@ def check_residual(spec: Any) -> dict[str, Any]:
         value = spec.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1000:
             raise ConfigError(f"residual {key} must be a number in [0, 1000), got {value!r}")
+    kind = CLASSICAL[spec["base"]][0]
+    try:
+        design = checked_design(spec["design"], kind) if "design" in spec else shipped_design(spec["base"])
+    except ValueError as exc:
+        raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
     return {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),
-            "inner_mm": float(spec.get("inner_mm", 0.0))}  # fmt: skip
+            "inner_mm": float(spec.get("inner_mm", 0.0)), "design": asdict(design)}  # fmt: skip
 
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
                   dt: float = 0.02) -> Any:  # fmt: skip
-    """The classical controller a residual policy adds to (the shipped gains or design, for ``geometry``)."""
-    import json
-
-    kind, name, _ = CLASSICAL[spec["base"]]
-    values = json.loads((Path(__file__).resolve().parent / "policies" / name).read_text())
-    design = LQRDesign(**values) if kind == "lqr" else PIDGains(**values)
-    return classical_controller(kind, design, geometry, dt, plate_half)
+    """The classical controller a checked residual ``spec`` adds to (its ``design``, for ``geometry``)."""
+    kind = CLASSICAL[spec["base"]][0]
+    return classical_controller(kind, checked_design(spec["design"], kind), geometry, dt, plate_half)
 
 
 class ResidualAction(gym.Wrapper):

@@ -249,6 +249,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     algo_kwargs = {k: v for k, v in hp.items() if k not in ZOO_KEYS}
     policy = hp.get("policy", "MlpPolicy")
     residual = check_residual(hp["residual"]) if hp.get("residual") else None
+    if residual is not None:
+        hp["residual"] = residual  # with the base's design as it is now: a later retune leaves this run alone
     # built here first: a bad env keyword is one error line, before the run folder and the worker processes
     eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
     run = Path(config.run_dir)

@@ -6,17 +6,20 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stewart_gym.classical import LQRController, LQRDesign, design_lqr, lqr_model
+from stewart_gym.classical import LQRController, LQRDesign, design_lqr, lqr_model, shipped_design
 from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec
@@ -217,6 +220,8 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
         assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((bundle_dir / "bundle.json").read_text())
     assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5 and meta["residual"]["fade_mm"] == 15
+    recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]["residual"]["design"]
+    assert recorded == asdict(shipped_design("lqr"))  # the base as it was trained over
     assert meta["residual"]["base"]["kind"] == "lqr"
     policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(bundle_dir)))
     network, lqr = load_sb3(run), load_policy("lqr")
@@ -253,6 +258,25 @@ def test_the_shipped_balance_residual_is_the_pid_kalman_near_the_target_and_its_
         assert (differs == 0.0) if same else (differs > 1e-3), (within_mm, differs)
 
 
+def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Path) -> None:
+    """A run folder's residual adds to the base gains its config.yaml recorded, not to whatever the package ships
+    now (a later retune of the shipped PID must not change a trained policy); its bundle records the same."""
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual", run,
+                    ignore=shutil.ignore_patterns("bundle"))  # fmt: skip
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    assert cfg["hyperparams"]["residual"]["design"] == asdict(shipped_design("pid-kalman"))
+    cfg["hyperparams"]["residual"]["design"]["kp_pos"] = 1.25
+    (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    assert load_policy(str(run)).base.gains.kp_pos == 1.25
+    assert load_policy("shipped-residual").base.gains.kp_pos == shipped_design("pid-kalman").kp_pos != 1.25
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
+                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
+    assert meta["residual"]["base"]["gains"]["kp_pos"] == 1.25
+
+
 @pytest.mark.parametrize(("distance_mm", "inner_mm", "fade_mm", "weight"),
                          [(3.0, 5.0, 10.0, 0.0), (10.0, 5.0, 10.0, 0.5), (20.0, 5.0, 10.0, 1.0), (7.5, 0.0, 15.0, 0.5),
                           (4.0, 5.0, 0.0, 0.0), (6.0, 5.0, 0.0, 1.0), (0.1, 0.0, 0.0, 1.0)])  # fmt: skip
@@ -272,7 +296,10 @@ def test_the_residual_weight_is_zero_inside_the_inner_radius_and_fades_in_beyond
                                              ({"base": "lqr", "scale": 0}, "scale"),
                                              ({"base": "lqr", "fade_mm": -1}, "fade_mm"),
                                              ({"base": "pid", "inner_mm": float("nan")}, "inner_mm"),
-                                             ({"base": "pid", "inner_mm": True}, "inner_mm")])  # fmt: skip
+                                             ({"base": "pid", "inner_mm": True}, "inner_mm"),
+                                             ({"base": "pid", "design": {"kp_pos": float("nan")}}, "design.*finite"),
+                                             ({"base": "lqr", "design": {"kp_pos": 2.0}}, "design.*LQRDesign"),
+                                             ({"base": "lqr", "design": {"tilt": -0.1}}, "design.*positive")])  # fmt: skip
 def test_a_malformed_residual_is_refused_naming_the_key(spec: dict, match: str) -> None:
     from stewart_gym.errors import ConfigError
     from stewart_gym.sb3_models import check_residual
