@@ -1,4 +1,5 @@
-"""Classical ball controllers: a cascaded PID and an LQR, commanding plate tilt through the same IK → pulse path.
+"""Classical ball controllers: a cascaded PID, an LQR, and the LQR handing over to the PID near the target,
+commanding plate tilt through the same IK → pulse path.
 
 Both read the same observation vector as a learned policy
 (:class:`~stewart_gym.sensing.ObservationBuilder`) and return a "tilt" action,
@@ -28,9 +29,10 @@ from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "LQRController", "LQRDesign",
-           "LQRGains", "PIDGains", "checked_design", "classical_controller", "design_lqr", "gains_for_geometry",
-           "integrate_error", "residual_action", "shipped_design", "trim_tilt"]  # fmt: skip
+__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "HandoverController",
+           "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "checked_design",
+           "classical_controller", "controller_from_gains", "design_lqr", "gains_for_geometry", "integrate_error",
+           "residual_action", "shipped_design", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -40,10 +42,10 @@ TRIM_TOLERANCE_US = 15.0
 #: The integral can cancel this multiple of the worst trim tilt (:func:`gains_for_geometry`).
 INTEGRAL_MARGIN = 1.5
 #: The shipped classical controllers by name (``--policy NAME``, a residual policy's ``base``): their kind
-#: ("pid" or "lqr"), their file under ``stewart_gym/policies/`` and the observer they run behind.
+#: ("pid", "lqr" or "handover"), their file under ``stewart_gym/policies/`` and the observer they run behind.
 CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
-             "lqr": ("lqr", "lqr.json", "kalman")}  # fmt: skip
-CLASSICAL_KINDS = ("pid", "lqr")
+             "lqr": ("lqr", "lqr.json", "kalman"), "lqr-pid": ("handover", "lqr_pid.json", "kalman")}  # fmt: skip
+CLASSICAL_KINDS = ("pid", "lqr", "handover")
 
 
 def observed_motion(obs: np.ndarray, position_scale: np.ndarray,
@@ -125,6 +127,17 @@ class CascadedPID:
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
         action = np.stack([roll, pitch], axis=-1) / g.max_tilt
         return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+    def preload_integral(self, rows: np.ndarray, accel: np.ndarray) -> None:
+        """Set the integral of the rows where ``rows`` is true so that its term commands the ball acceleration
+        ``accel`` (m/s², …, 2), within the anti-windup bound: a bumpless hand-over of another controller's
+        estimate of the steady offset."""
+        g = self.gains
+        accel = np.asarray(accel, dtype=np.float64)
+        if self._integral.shape != accel.shape:
+            self._integral = np.zeros(accel.shape)
+        value = np.clip(accel / g.ki_vel, -g.integral_limit, g.integral_limit) if g.ki_vel > 0 else 0.0 * accel
+        self._integral = np.where(np.asarray(rows, dtype=bool)[..., None], value, self._integral)
 
     def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
@@ -302,6 +315,13 @@ class LQRController:
         """Start of an episode."""
         self._state: dict[str, np.ndarray] | None = None
 
+    def integral_command(self) -> np.ndarray:
+        """The ``sin(tilt)`` (…, 2; along x and y) its integral term commands now: its estimate of what holds
+        the ball against a steady offset (zero before the first observation)."""
+        if self._state is None:
+            return np.zeros(2)
+        return -self._k[4] * self._state["integral"]
+
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         g = self.gains
         o = np.asarray(obs, dtype=np.float64)
@@ -333,6 +353,101 @@ class LQRController:
         return self(obs), None
 
 
+# -------------------------------------------------------------------------------------------------- hand-over
+#: The hand-over's own sizes (:class:`HandoverDesign`).
+HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm")
+
+
+@dataclass(frozen=True)
+class HandoverDesign:
+    """The LQR bringing the ball in, the PID holding it (``policies/lqr_pid.json``, ``--policy lqr-pid``).
+
+    The LQR settles fastest (and tracks a moving target best: it feeds the target's acceleration forward) and
+    the PID behind the Kalman observer holds a still ball tightest and quietest; this controller runs the LQR
+    until the ball is within ``handover_mm`` of a target that stands still and slower than ``handover_mm_s``
+    relative to it, then the PID, until the ball is farther than ``release_mm`` or the target moves faster than
+    ``handover_mm_s`` (then the LQR again). At the hand-over the PID's integral takes over the LQR's integral
+    term (bumpless: the estimate of the steady offset carries over, the LQR's braking does not).
+
+    Attributes:
+        lqr: the LQR's design.
+        pid: the PID's gains.
+        handover_mm, handover_mm_s: the PID takes over within this distance of the target and below this speed
+            (the ball's relative to the target, and the target's).
+        release_mm: the LQR takes back beyond this distance (more than ``handover_mm``).
+    """
+
+    lqr: LQRDesign
+    pid: PIDGains
+    handover_mm: float = 2.0
+    handover_mm_s: float = 10.0
+    release_mm: float = 20.0
+
+
+@dataclass(frozen=True)
+class HandoverGains:
+    """A designed :class:`HandoverController` (what a bundle stores): the LQR's gains, the PID's gains (both for
+    one geometry), the tilt at action ±1, the hand-over sizes and the control period."""
+
+    lqr: LQRGains
+    pid: PIDGains
+    max_tilt: float
+    handover_mm: float
+    handover_mm_s: float
+    release_mm: float
+    dt: float
+
+
+class HandoverController:
+    """A policy: observation (…, 12) → tilt action (…, 2): the LQR far from the target, the PID near it
+    (:class:`HandoverDesign`). Both run every period (each keeps its state); one row per ball in a batch."""
+
+    def __init__(self, gains: HandoverGains, plate_half: tuple[float, float] = (0.15, 0.15)) -> None:
+        self.gains = gains
+        self.lqr = LQRController(gains.lqr, plate_half)
+        self.pid = CascadedPID(gains.pid, gains.dt, plate_half)
+        scales = ObservationBuilder(2, plate_half)
+        self._position_scale = np.array(scales.position_scale)
+        self._velocity_scale = np.array(scales.velocity_scale)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start of an episode: the LQR is in control."""
+        self.lqr.reset()
+        self.pid.reset()
+        self._near: np.ndarray | None = None
+
+    @property
+    def pid_in_control(self) -> np.ndarray | None:
+        """Whether the PID holds each row (None before the first observation)."""
+        return None if self._near is None else self._near.copy()
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        g = self.gains
+        o = np.asarray(obs, dtype=np.float64)
+        by_lqr = self.lqr(o)
+        pos, vel, target, target_vel = observed_motion(o, self._position_scale, self._velocity_scale)
+        distance_mm = np.linalg.norm(target - pos, axis=-1) * 1e3
+        speed_mm_s = np.linalg.norm(vel - target_vel, axis=-1) * 1e3
+        near = self._near if self._near is not None and self._near.shape == distance_mm.shape else \
+            np.zeros(distance_mm.shape, dtype=bool)  # fmt: skip
+        still = np.linalg.norm(target_vel, axis=-1) * 1e3 < g.handover_mm_s
+        enter = ~near & still & (distance_mm < g.handover_mm) & (speed_mm_s < g.handover_mm_s)
+        if np.any(enter):
+            offset = self.lqr.integral_command() * g.lqr.rolling_factor * GRAVITY  # m/s² along x and y
+            self.pid.preload_integral(enter, np.broadcast_to(offset, target.shape))
+        self._near = (near | enter) & still & ~(distance_mm > g.release_mm)
+        by_pid = self.pid(o)
+        return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
+
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        """Stable-Baselines3-style ``predict``: resets both where an episode starts."""
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        return self(obs), None
+
+
 #: Design fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's
 #: acceptable sizes and servo lag (must be positive).
 NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
@@ -343,6 +458,8 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign:
     """The PID's gains (``kind`` "pid") or the LQR's design (``"lqr"``) from a mapping of its fields, checked:
     known fields, finite numbers, no negative bound or zone, positive LQR sizes. Raises ``ValueError`` saying
     what is wrong (callers add where the values came from)."""
+    if kind == "handover":
+        return checked_handover(values)
     cls = LQRDesign if kind == "lqr" else PIDGains
     if not isinstance(values, dict):
         raise ValueError(f"expected {cls.__name__} values as a mapping, got {type(values).__name__}")
@@ -361,24 +478,74 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign:
     return design
 
 
+def checked_handover(values: Any) -> HandoverDesign:
+    """:class:`HandoverDesign` from a mapping (``lqr`` and ``pid`` sub-mappings and the hand-over sizes), checked."""
+    if not isinstance(values, dict) or not {"lqr", "pid"} <= set(values) or set(values) - set(HANDOVER_SIZES) - {
+            "lqr", "pid"}:  # fmt: skip
+        raise ValueError(f"expected HandoverDesign values {{lqr: {{…}}, pid: {{…}}, {', '.join(HANDOVER_SIZES)}}}, "
+                         f"got {values!r}")  # fmt: skip
+    try:
+        lqr, pid = checked_design(values["lqr"], "lqr"), checked_design(values["pid"], "pid")
+    except ValueError as exc:
+        raise ValueError(f"handover: {exc}") from None
+    sizes = {k: values.get(k, getattr(HandoverDesign, k)) for k in HANDOVER_SIZES}
+    bad = [k for k, v in sizes.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
+           or v <= 0]  # fmt: skip
+    if bad:
+        raise ValueError(f"{bad} must be positive numbers")
+    if sizes["release_mm"] <= sizes["handover_mm"]:
+        raise ValueError(f"release_mm ({sizes['release_mm']}) must be more than handover_mm ({sizes['handover_mm']})")
+    return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
+
+
 def shipped_design(name: str) -> PIDGains | LQRDesign:
     """The design of the shipped classical controller ``name`` (a key of :data:`CLASSICAL`), from its file."""
     kind, filename, _ = CLASSICAL[name]
     return checked_design(json.loads((Path(__file__).resolve().parent / "policies" / filename).read_text()), kind)
 
 
-def classical_controller(kind: str, design: PIDGains | LQRDesign, geometry: Any = "servo-hexapod", dt: float = 0.02,
-                         plate_half: tuple[float, float] | None = None) -> CascadedPID | LQRController:  # fmt: skip
-    """The PID (``kind`` ``"pid"``, from its gains, adapted by :func:`gains_for_geometry`) or the LQR (``"lqr"``,
-    designed by :func:`design_lqr`) for ``geometry`` at control period ``dt``; observation scales follow the
-    plate (``plate_half``, default the geometry's)."""
+def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesign, geometry: Any = "servo-hexapod",
+                         dt: float = 0.02, plate_half: tuple[float, float] | None = None) -> Any:  # fmt: skip
+    """The PID (``kind`` ``"pid"``, from its gains, adapted by :func:`gains_for_geometry`), the LQR (``"lqr"``,
+    designed by :func:`design_lqr`) or the LQR → PID hand-over (``"handover"``, both so) for ``geometry`` at
+    control period ``dt``; observation scales follow the plate (``plate_half``, default the geometry's)."""
     geo = load_geometry(geometry)
     half = plate_half or (geo.plate_extent[0] / 2, geo.plate_extent[1] / 2)
+    if kind == "handover":
+        assert isinstance(design, HandoverDesign)
+        lqr = design_lqr(design.lqr, dt=dt, geometry=geo)
+        pid = gains_for_geometry(design.pid, geo)
+        return HandoverController(HandoverGains(lqr=lqr, pid=pid, max_tilt=pid.max_tilt, handover_mm=design.handover_mm,
+                                                handover_mm_s=design.handover_mm_s, release_mm=design.release_mm,
+                                                dt=dt), plate_half=half)  # fmt: skip
     if kind == "lqr":
         assert isinstance(design, LQRDesign)
         return LQRController(design_lqr(design, dt=dt, geometry=geo), plate_half=half)
     assert isinstance(design, PIDGains)
     return CascadedPID(gains_for_geometry(design, geo), dt=dt, plate_half=half)
+
+
+def controller_from_gains(kind: str, gains: dict[str, Any],
+                          plate_half: tuple[float, float] = (0.15, 0.15)) -> Any:  # fmt: skip
+    """The controller of ``kind`` from gains as a bundle stores them (the fields of :class:`PIDGains`,
+    :class:`LQRGains` or :class:`HandoverGains`, lists for tuples): no design step, numpy only. Raises
+    ``KeyError``, ``TypeError`` or ``ValueError`` for malformed gains."""
+
+    def lqr_gains(values: dict[str, Any]) -> LQRGains:
+        lqr = LQRGains(**{**values, "k": tuple(float(v) for v in values["k"])})
+        if len(lqr.k) != 5:
+            raise TypeError(f"k has {len(lqr.k)} gains, expected 5")
+        return lqr
+
+    if kind == "pid":
+        return CascadedPID(PIDGains(**gains), plate_half=plate_half)
+    if kind == "lqr":
+        return LQRController(lqr_gains(gains), plate_half=plate_half)
+    if kind == "handover":
+        rest = {k: v for k, v in gains.items() if k not in ("lqr", "pid")}
+        return HandoverController(HandoverGains(lqr=lqr_gains(gains["lqr"]), pid=PIDGains(**gains["pid"]), **rest),
+                                  plate_half=plate_half)  # fmt: skip
+    raise ValueError(f"unknown classical kind {kind!r} (expected one of {list(CLASSICAL_KINDS)})")
 
 
 def residual_action(base_action: np.ndarray, correction: np.ndarray, obs: np.ndarray, scale: float,

@@ -10,6 +10,8 @@
 * ``pid-kalman``: the cascaded PID retuned behind the Kalman observer (``policies/pid_kalman_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
   :func:`~stewart_gym.classical.design_lqr`);
+* ``lqr-pid``: the LQR bringing the ball in and the PID + Kalman holding it (``policies/lqr_pid.json``, see
+  :class:`~stewart_gym.classical.HandoverDesign`);
 * a **run folder** written by ``stewart-gym train`` (``model.zip`` or
   ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
 * a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
@@ -60,8 +62,8 @@ POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimat
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
-_KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', a run folder, a model "
-               ".zip, a bundle folder or a PID gains .json")
+_KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', 'lqr-pid', a run folder, "
+               "a model .zip, a bundle folder or a PID gains .json")
 
 
 @dataclass(frozen=True)
@@ -70,8 +72,8 @@ class PolicySource:
 
     Attributes:
         spec: What the user gave.
-        kind: ``"pid"`` (gains file), ``"lqr"`` (LQR design file), ``"sb3"`` (a Stable-Baselines3 model) or
-            ``"bundle"`` (ONNX/PID/LQR bundle).
+        kind: ``"pid"`` (gains file), ``"lqr"`` (LQR design file), ``"handover"`` (LQR → PID design file),
+            ``"sb3"`` (a Stable-Baselines3 model) or ``"bundle"`` (ONNX/PID/LQR/hand-over bundle).
         path: The gains file, the model ``.zip`` or the bundle folder.
         env_id: The env id the policy was trained (or exported) for.
         env_kwargs: The env keywords that define its observation and action (and the track's trajectory).
@@ -220,10 +222,8 @@ def _bundle_source(spec: str, folder: Path) -> PolicySource:
 def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
     """A policy object with SB3's ``predict`` for evaluation: an SB3 model, the PID or a bundle."""
     source = spec if isinstance(spec, PolicySource) else resolve_policy(spec, env_id)
-    if source.kind == "pid":
-        return load_pid(source.path, source.geometry)
-    if source.kind == "lqr":
-        return load_lqr(source.path, source.geometry)
+    if source.kind in CLASSICAL_KINDS:
+        return load_classical(source.kind, source.path, source.geometry)
     if source.kind == "bundle":
         from stewart_gym.hardware.export import BundlePolicy
 
@@ -266,23 +266,18 @@ def same_geometry(a: str | Any, b: str | Any) -> bool:
     return a == b or load_geometry(a) == load_geometry(b)
 
 
-def load_pid(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
-    """The cascaded PID with the gains in ``path``, adapted to ``geometry``
-    (:func:`~stewart_gym.classical.gains_for_geometry`); its observation scales follow the plate."""
+def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
+    """The classical controller of ``kind`` (``pid``, ``lqr`` or ``handover``) whose gains or design are in
+    ``path``, for ``geometry`` (:func:`~stewart_gym.classical.classical_controller`: the PID's gains adapted,
+    the LQR designed); its observation scales follow the plate."""
     from stewart_gym.classical import classical_controller
 
-    return classical_controller("pid", read_design(path, "pid"), geometry)
-
-
-def load_lqr(path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
-    """The LQR designed from ``path`` (an :class:`~stewart_gym.classical.LQRDesign` as JSON) for ``geometry``."""
-    from stewart_gym.classical import classical_controller
-
-    return classical_controller("lqr", read_design(path, "lqr"), geometry)
+    return classical_controller(kind, read_design(path, kind), geometry)
 
 
 def read_design(path: Path, kind: str) -> Any:
-    """The PID's gains (``kind`` "pid") or the LQR's design ("lqr") in the JSON file ``path``, checked
+    """The PID's gains (``kind`` "pid"), the LQR's design ("lqr") or the hand-over's ("handover") in the JSON
+    file ``path``, checked
     (:func:`~stewart_gym.classical.checked_design`): finite numbers, and no negative size."""
     from stewart_gym.classical import checked_design
 
@@ -320,11 +315,14 @@ def deployable_policy(source: PolicySource) -> Any:
 
 
 def _classical_meta(source: PolicySource) -> dict[str, Any]:
-    """The ``bundle.json`` content of the PID or LQR named by ``source``, for its geometry and observer."""
+    """The ``bundle.json`` content of the classical controller named by ``source``, for its geometry and
+    observer."""
+    from dataclasses import asdict
+
     from stewart_gym.hardware.export import classical_meta
 
     controller = load_policy(source)
-    return classical_meta(source.kind, vars(controller.gains), source.env_id, source.geometry, source.estimator)
+    return classical_meta(source.kind, asdict(controller.gains), source.env_id, source.geometry, source.estimator)
 
 
 def export_policy(source: PolicySource, out_dir: str | Path) -> Path:

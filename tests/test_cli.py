@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -425,6 +426,18 @@ def test_deploy_pid_leaves_no_temporary_folder(device: FakeDevice, tmp_path: Pat
     proc, _ = deploy(device, "--policy", "pid", "--duration", "0.5", "--log", str(tmp_path / "l.csv"), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert set(Path(tempfile.gettempdir()).glob("stewart_pid_*")) == before
+
+
+def test_deploy_lqr_pid_drives_the_servos_within_their_limits(device: FakeDevice, tmp_path: Path) -> None:
+    """``--policy lqr-pid`` (the LQR handing over to the PID + Kalman) deploys like the PID and the LQR: it holds
+    the simulated ball within the success radius and every pulse sent is within the channel limits."""
+    proc, data = deploy(device, "--policy", "lqr-pid", "--sensor", "sim", "--duration", "1", "--log",
+                        str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    held = re.search(r"simulated ball ([\d.]+) mm from the centre", proc.stdout)
+    assert held and float(held.group(1)) < 10.0, proc.stdout
+    pulses = maestro_frames(data)
+    assert len(pulses) >= 40 and np.all((pulses >= 500) & (pulses <= 2500)), pulses.min()
 
 
 def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> None:

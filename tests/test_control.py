@@ -150,6 +150,89 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
 
 
+def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
+    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
+    obs = np.zeros(12, dtype=np.float32)
+    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
+    return np.tile(obs, (rows, 1)) if rows else obs
+
+
+def test_the_handover_gives_the_pid_the_lqrs_offset_and_takes_back_far_away() -> None:
+    """``lqr-pid``: the LQR alone while the ball is far; within 2 mm and slow the PID takes over with the LQR's
+    integral term (on target at rest it commands exactly the tilt the LQR's integral did, computed here from
+    the summed error); beyond 20 mm the LQR again, as if it had run alone throughout; a moving target stays
+    with the LQR; rows independent."""
+    from stewart_gym.classical import HandoverController
+
+    handover, lqr = load_policy("lqr-pid"), load_policy("lqr")
+    assert isinstance(handover, HandoverController) and isinstance(lqr, LQRController)
+    g = handover.gains
+    for _ in range(100):  # 5 mm off: the LQR acts and integrates (within its 20 mm zone)
+        np.testing.assert_array_equal(handover(lqr_obs((5.0, 0.0))), lqr(lqr_obs((5.0, 0.0))))
+    assert not handover.pid_in_control
+    integral = min(100 * 0.005 * g.dt, g.lqr.integral_limit)  # m·s of +5 mm error, within the anti-windup bound
+    sin_tilt = -g.lqr.k[4] * integral
+    action = handover(lqr_obs((0.0, 0.0)))
+    lqr(lqr_obs((0.0, 0.0)))
+    assert handover.pid_in_control
+    np.testing.assert_allclose(action, [0.0, math.asin(sin_tilt) / g.max_tilt], atol=1e-6)
+    assert abs(action[1]) > 0.01  # a real offset was handed over
+    handover(lqr_obs((10.0, 0.0)))  # beyond the hand-over distance, within the release distance: the PID holds
+    lqr(lqr_obs((10.0, 0.0)))
+    assert handover.pid_in_control
+    np.testing.assert_array_equal(handover(lqr_obs((30.0, 0.0))), lqr(lqr_obs((30.0, 0.0))))
+    assert not handover.pid_in_control
+    handover.reset()
+    moving = lqr_obs((1.0, 0.0))
+    moving[6] = 0.2  # the target moves (a tracking task): the LQR keeps it
+    batch = np.stack([lqr_obs((1.0, 0.0)), lqr_obs((0.0, 40.0)), moving])
+    handover(batch)
+    assert handover.pid_in_control.tolist() == [True, False, False]
+
+
+def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() -> None:
+    """``policies/lqr_pid.json`` holds today's ``lqr.json`` and ``pid_kalman_gains.json`` (no stale copy), and
+    a malformed hand-over design is refused saying what is wrong."""
+    from stewart_gym.classical import checked_design
+
+    policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
+    design = json.loads((policies / "lqr_pid.json").read_text())
+    assert design["lqr"] == json.loads((policies / "lqr.json").read_text())
+    assert design["pid"] == json.loads((policies / "pid_kalman_gains.json").read_text())
+    for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "HandoverDesign"),
+                       ({**design, "handover_mm_s": -1}, "positive"),
+                       ({**design, "pid": {**design["pid"], "kp_pos": "x"}}, "handover: gains must be finite")):
+        with pytest.raises(ValueError, match=match):
+            checked_design(bad, "handover")
+
+
+def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: Path) -> None:
+    """10 randomised seeds: all succeed, the ball ends within 3 mm, settles from 100 mm in under 0.75 s (the
+    LQR's pace); the exported bundle (CLI) gives the same actions through hand-overs and records the Kalman
+    observer."""
+    from stewart_gym.evaluation import evaluate
+
+    metrics = evaluate("StewartBallBalance-v0", load_policy("lqr-pid"), episodes=10, seed=100,
+                       env_kwargs={"estimator": "kalman"})  # fmt: skip
+    assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
+    assert metrics["settled_fraction"] == 1.0 and metrics["settling_time_s"] < 0.75, metrics
+    out = tmp_path / "lqr_pid"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "lqr-pid", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    meta = json.loads((out / "bundle.json").read_text())
+    assert meta["kind"] == "handover" and meta["estimator"] == "kalman" and meta["gains"]["handover_mm"] == 2.0
+    bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("lqr-pid")
+    rng = np.random.default_rng(4)
+    held = 0
+    for _ in range(80):
+        obs = lqr_obs(tuple(rng.uniform(-25, 25, 2) * rng.choice([0.05, 1.0])))
+        obs[2:4] = rng.uniform(-0.02, 0.02, 2)
+        np.testing.assert_allclose(bundle(obs), direct(obs), atol=1e-6)
+        held += bool(direct.pid_in_control)
+    assert 0 < held < 80  # both controllers acted
+
+
 def test_conditional_integration_sums_only_near_the_target(tmp_path: Path) -> None:
     """With an ``integral_zone`` the PID and the LQR integrate the error only within it (a fast approach from
     far away leaves the integral at zero), hold it within the limit, and their bundles carry the zone."""

@@ -26,8 +26,8 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
-POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, a run folder, a model .zip, a bundle "
-               "folder or a PID gains .json")
+POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
+               "a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
                   "through the sensing delay); default the policy's own (what it was trained or tuned behind)")
 

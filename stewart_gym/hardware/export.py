@@ -15,13 +15,14 @@ Exporting needs torch (training side); loading needs onnxruntime only.
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
-from stewart_gym.classical import residual_action
+from stewart_gym.classical import CLASSICAL_KINDS, controller_from_gains, residual_action
 from stewart_gym.errors import PolicyError
 from stewart_gym.sensing import ESTIMATORS
 
@@ -95,7 +96,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         geometry = env_kwargs.get("geometry", "servo-hexapod")
         base = residual_base(spec, geometry)
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
-                            "base": classical_meta(CLASSICAL[spec["base"]][0], vars(base.gains), env_id, geometry,
+                            "base": classical_meta(CLASSICAL[spec["base"]][0], asdict(base.gains), env_id, geometry,
                                                    meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
@@ -179,9 +180,10 @@ class BundlePolicy:
         return self
 
     def _setup(self, meta: Any, folder: Path | None, meta_path: Path) -> None:
-        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", "pid", "lqr"):
+        if not isinstance(meta, dict) or meta.get("kind") not in ("onnx", *CLASSICAL_KINDS):
             kind = meta.get("kind") if isinstance(meta, dict) else None
-            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx', 'pid' or 'lqr')")
+            raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx', 'pid', 'lqr' or "
+                              "'handover')")  # fmt: skip
         self.meta = meta
         self.kind = meta["kind"]
         self.env_id = str(meta.get("env_id", "StewartBallBalance-v0"))
@@ -202,21 +204,13 @@ class BundlePolicy:
         self.integral = meta.get("integral", False)
         if not isinstance(self.integral, bool):
             raise PolicyError(f"{meta_path}: integral must be true or false, got {self.integral!r}")
-        if self.kind in ("pid", "lqr"):
-            from stewart_gym.classical import CascadedPID, LQRController, LQRGains, PIDGains
-
+        if self.kind in CLASSICAL_KINDS:
             if self.action_mode != "tilt":
                 raise PolicyError(f"{meta_path}: the {self.kind.upper()} commands tilt, not {self.action_mode!r}")
             width, depth = self.geometry.plate_extent
             try:
-                if self.kind == "pid":
-                    self._classical: Any = CascadedPID(PIDGains(**meta["gains"]), plate_half=(width / 2, depth / 2))
-                else:
-                    gains = LQRGains(**{**meta["gains"], "k": tuple(float(v) for v in meta["gains"]["k"])})
-                    if len(gains.k) != 5:
-                        raise TypeError(f"k has {len(gains.k)} gains, expected 5")
-                    self._classical = LQRController(gains, plate_half=(width / 2, depth / 2))
-            except (KeyError, TypeError, ValueError) as exc:
+                self._classical: Any = controller_from_gains(self.kind, meta["gains"], (width / 2, depth / 2))
+            except (KeyError, TypeError, ValueError, AttributeError) as exc:
                 raise PolicyError(f"{meta_path}: malformed {self.kind.upper()} gains ({exc})") from None
             self.obs_size = 10 + self.action_size
             return
@@ -280,14 +274,14 @@ class BundlePolicy:
 
     def reset(self) -> None:
         """Start of an episode (clears the PID's or LQR's state, or a residual policy's base's)."""
-        if self.kind in ("pid", "lqr"):
+        if self.kind in CLASSICAL_KINDS:
             self._classical.reset()
         elif self._base is not None:
             self._base.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Action(s) for observation(s) (…, obs_size), clipped to the action bounds."""
-        if self.kind in ("pid", "lqr"):
+        if self.kind in CLASSICAL_KINDS:
             return self._classical(obs)
         o = np.asarray(obs, dtype=np.float64)
         if self._mean is not None:
