@@ -1,17 +1,20 @@
 """Regenerate the docs' results page: learned vs PID vs LQR on every task and metric, with robustness.
 
 Run: ``.venv/bin/python train/results.py [--recipe "LABEL=runs/s0,runs/s1,runs/s2" ...] [--episodes 100]
-[--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --from-json]``
-(``--recipes-only``: evaluate only the recipes' runs and keep the controllers' rows of ``results.json``.)
+[--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --rows LABELS | --from-json]``
+(``--recipes-only``: evaluate only the recipes' runs and keep the controllers' rows of ``results.json``;
+``--rows "LQR → PID"``: evaluate only those controllers and keep the rest.)
 
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
 episodes (seeds 0…N−1). Rows:
 
 * ``shipped PPO``: the shipped learned policy of the task (behind the low-pass observer it was trained with);
-* ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the LQR);
+* ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the
+  PID + Kalman for balance, of the LQR for track);
 * ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``, the PID
   retuned behind the Kalman observer (``--policy pid-kalman``);
 * ``LQR``: the LQR behind the Kalman observer;
+* ``LQR → PID``: the LQR bringing the ball in, the PID + Kalman holding it (``--policy lqr-pid``);
 * ``--recipe LABEL=RUN,RUN,RUN`` (repeatable): run folders of one recipe trained with different seeds: each is
   evaluated on its task (a tracker on every trajectory), and the page gives a column per recipe with their
   mean and range (the spread over training seeds, not the best run).
@@ -39,8 +42,8 @@ BALANCE, TRACK = "StewartBallBalance-v0", "StewartBallTrack-v0"
 TRAJECTORIES = ("circle", "figure8", "waypoints")
 #: label → (policy, estimator or None for the policy's own)
 CONTROLLERS = {"shipped PPO": ("shipped", None), "residual PPO": ("shipped-residual", None), "PID": ("pid", None),
-               "PID + Kalman": ("pid-kalman", None), "LQR": ("lqr", None)}  # fmt: skip
-ROBUST = ("shipped PPO", "residual PPO", "PID", "PID + Kalman", "LQR")
+               "PID + Kalman": ("pid-kalman", None), "LQR": ("lqr", None), "LQR → PID": ("lqr-pid", None)}  # fmt: skip
+ROBUST = ("shipped PPO", "residual PPO", "PID", "PID + Kalman", "LQR", "LQR → PID")
 METRICS = [("success_rate", "success", "{:.0%}"), ("rms_error_mm", "RMS error, last 5 s (mm)", "{:.2f}"),
            ("final_error_mm", "final error (mm)", "{:.2f}"), ("settling_time_s", "settling time from 100 mm (s)",
                                                               "{:.2f}"),
@@ -175,6 +178,9 @@ def main() -> None:
     ap.add_argument("--recipes-only", action="store_true", help="evaluate only the --recipe runs; keep the "
                                                                 "controllers' rows of results.json beside the page "
                                                                 "(earlier recipes are replaced)")
+    ap.add_argument("--rows", type=lambda t: [v.strip() for v in t.split(",") if v.strip()],
+                    help="evaluate only these controllers (labels, comma-separated, e.g. 'LQR → PID') and keep the "
+                         "rest of results.json beside the page")  # fmt: skip
     args = ap.parse_args()
     out = Path(args.out)
     args.recipes = dict(args.recipe)
@@ -188,7 +194,17 @@ def main() -> None:
         jobs = results
     else:
         kept: list[dict[str, Any]] = []
-        if args.recipes_only:
+        if args.rows:
+            unknown = [r for r in args.rows if r not in CONTROLLERS]
+            if unknown:
+                ap.error(f"--rows: unknown controller(s) {unknown}; known: {list(CONTROLLERS)}")
+            kept = [r for r in json.loads((out.parent / "results.json").read_text()) if r["row"] not in args.rows]
+            jobs = [j for j in jobs if j["row"] in args.rows]
+            args.recipes = {}
+            for r in kept:
+                if r["row"].startswith("seed:"):
+                    args.recipes.setdefault(r["recipe"], []).append(r["row"][5:])
+        elif args.recipes_only:
             if not args.recipes:
                 ap.error("--recipes-only needs at least one --recipe")
             kept = [r for r in json.loads((out.parent / "results.json").read_text()) if not r["row"].startswith("seed:")]
