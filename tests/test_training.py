@@ -185,3 +185,54 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr
+
+
+def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
+    """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
+    trajectories, latency and noise), every other row of results.json is kept, recipes included; an unknown
+    label is refused with exit 2."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "images").mkdir()
+    kept = [{"table": "balance", "row": "LQR", "policy": "lqr", "estimator": None, "env": "StewartBallBalance-v0",
+             "episodes": 3, "metrics": {"success_rate": 1.0, "rms_error_mm": 1.5}},
+            {"table": "balance", "row": "LQR → PID", "policy": "lqr-pid", "estimator": None,
+             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.25}},
+            {"table": "balance", "row": "seed:old", "recipe": "old", "policy": "old", "estimator": None,
+             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.5}}]  # fmt: skip
+    (tmp_path / "results.json").write_text(json.dumps(kept))
+    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "LQR → PID", "--episodes",
+                           "1", "--robust-episodes", "1", "--workers", "1", "--out", str(tmp_path / "r.md")],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads((tmp_path / "results.json").read_text())
+    assert kept[0] in rows and kept[2] in rows and kept[1] not in rows
+    new = [r for r in rows if r["row"] == "LQR → PID"]
+    assert sorted({r["table"] for r in new}) == ["balance", "latency", "noise", "track circle", "track figure8",
+                                                  "track waypoints"]  # fmt: skip
+    assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 13
+    assert "old, 1 training seeds" in (tmp_path / "r.md").read_text()
+    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
+                          str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert bad.returncode == 2 and "unknown controller" in bad.stderr
+
+
+def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
+    """``train/tune_handover.py`` on a 2-set grid: prints a row per set and writes the pick as a hand-over design
+    that loads (the shipped LQR and PID + Kalman inside, the picked hand-over distance)."""
+    import subprocess
+    import sys
+
+    from stewart_gym.classical import checked_design, shipped_design
+
+    root, out = Path(__file__).resolve().parents[1], tmp_path / "h.json"
+    proc = subprocess.run([sys.executable, str(root / "train" / "tune_handover.py"), "--episodes", "2",
+                           "--handover-mm", "2,4", "--handover-mm-s", "10", "--out", str(out)],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.count("handover ") >= 2 and "best: handover" in proc.stdout
+    design = checked_design(json.loads(out.read_text()), "handover")
+    assert design.handover_mm in (2.0, 4.0) and design.handover_mm_s == 10.0
+    assert design.lqr == shipped_design("lqr") and design.pid == shipped_design("pid-kalman")
