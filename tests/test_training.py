@@ -236,3 +236,21 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     design = checked_design(json.loads(out.read_text()), "handover")
     assert design.handover_mm in (2.0, 4.0) and design.handover_mm_s == 10.0
     assert design.lqr == shipped_design("lqr") and design.pid == shipped_design("pid-kalman")
+
+
+def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path) -> None:
+    """``train/memory_experiment.py --stack 2`` for one PPO rollout: exits 0 and reports the Control page's
+    metrics for the stacked policy (evaluated through the shared evaluation code); a bad size is refused."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "train" / "memory_experiment.py"
+    out = tmp_path / "m.json"
+    proc = subprocess.run([sys.executable, str(script), "--stack", "2", "--steps", "256", "--episodes", "1", "--out",
+                           str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert result["stack"] == 2 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
+    assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
+    bad = subprocess.run([sys.executable, str(script), "--stack", "0"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr

@@ -1,0 +1,110 @@
+"""Does memory help the `make train` recipe? Frame stacking or an LSTM policy, trained and evaluated alike.
+
+Trains PPO with the balance settings of ``stewart_gym/hyperparams/ppo.yml`` (2 envs in worker processes,
+VecNormalize, behind the Kalman observer, action-rate penalty 10) for ``--steps`` env steps, with the last
+``--stack`` observations as the input (SB3's ``VecFrameStack``; 1 is the recipe as it is), or with an LSTM
+policy (``--lstm``: sb3-contrib's RecurrentPPO, 64 units after the 64-64 layers; sb3-contrib is not a
+dependency of stewart_gym: ``pip install sb3-contrib``). Then evaluates the final model on ``--episodes``
+randomised seeds with :func:`stewart_gym.evaluation.evaluate` (the same code as every controller on the
+Control page), keeping the stack or the LSTM state through each episode, and prints one JSON line (also
+written to ``--out``). The docs' Control page quotes its results.
+
+Run: ``.venv/bin/python train/memory_experiment.py --stack 4 [--seed 0] [--steps 150000] [--episodes 100]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
+           "settled_pulse_p2p_us")  # fmt: skip
+
+
+class MemoryPolicy:
+    """The trained model as an evaluation policy: normalises like training, stacks or carries the LSTM state."""
+
+    def __init__(self, model: Any, obs_rms: Any, stack: int, recurrent: bool) -> None:
+        self.model, self.obs_rms, self.stack, self.recurrent = model, obs_rms, stack, recurrent
+        self.frames: np.ndarray | None = None
+        self.state: Any = None
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        o = np.asarray(obs, dtype=np.float32).reshape(1, -1)
+        start = episode_start is not None and bool(np.any(episode_start))
+        if start or self.frames is None:  # VecFrameStack starts an episode with zeros before the first frame
+            self.frames, self.state = np.zeros((1, o.shape[1] * self.stack), np.float32), None
+        self.frames = np.concatenate([self.frames[:, o.shape[1]:], o], axis=1)
+        x = np.clip((self.frames - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + 1e-8), -10, 10).astype(np.float32)
+        if self.recurrent:
+            action, self.state = self.model.predict(x, state=self.state, episode_start=np.array([start]),
+                                                    deterministic=True)  # fmt: skip
+        else:
+            action, _ = self.model.predict(x, deterministic=True)
+        return action, None
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--stack", type=int, default=1, help="observations stacked as the input (default 1: none)")
+    ap.add_argument("--lstm", action="store_true", help="an LSTM policy (RecurrentPPO; needs sb3-contrib)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--steps", type=int, default=150_000)
+    ap.add_argument("--episodes", type=int, default=100)
+    ap.add_argument("--out", help="also write the JSON line here")
+    args = ap.parse_args()
+    if args.stack < 1 or args.steps < 1 or args.episodes < 1:
+        ap.error("--stack, --steps and --episodes must be at least 1")
+    if args.lstm and args.stack != 1:
+        ap.error("--lstm carries its own memory: leave --stack at 1")
+    if args.lstm:
+        try:
+            from sb3_contrib import RecurrentPPO
+        except ImportError:
+            print("error: --lstm needs sb3-contrib, which stewart_gym does not install: pip install sb3-contrib",
+                  file=sys.stderr)  # fmt: skip
+            sys.exit(2)
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
+
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.training import make_env
+
+    hp = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo.yml").read_text())["StewartBallBalance-v0"]
+    env = make_env("StewartBallBalance-v0", hp["n_envs"], args.seed, hp["env_kwargs"])
+    if args.stack > 1:
+        env = VecFrameStack(env, args.stack)
+    env = VecNormalize(env, norm_obs=True, norm_reward=True)
+    kwargs = {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate",
+                                 "ent_coef", "clip_range")}  # fmt: skip
+    if args.lstm:
+        model = RecurrentPPO("MlpLstmPolicy", env, seed=args.seed, device="cpu",
+                             policy_kwargs={**hp["policy_kwargs"], "lstm_hidden_size": 64}, **kwargs)  # fmt: skip
+    else:
+        model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", policy_kwargs=hp["policy_kwargs"], **kwargs)
+    started = time.time()
+    model.learn(args.steps)
+    wall = time.time() - started
+    env.close()
+    policy = MemoryPolicy(model, env.obs_rms, args.stack, args.lstm)
+    metrics = evaluate("StewartBallBalance-v0", policy, episodes=args.episodes,
+                       env_kwargs={"estimator": hp["env_kwargs"]["estimator"]})  # fmt: skip
+    result = {"stack": args.stack, "lstm": args.lstm, "seed": args.seed, "steps": args.steps,
+              "train_wall_s": round(wall, 1), **{k: metrics[k] for k in METRICS}}  # fmt: skip
+    line = json.dumps(result)
+    print(line)
+    if args.out:
+        Path(args.out).write_text(line + "\n")
+
+
+if __name__ == "__main__":
+    main()
