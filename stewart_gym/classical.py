@@ -454,10 +454,11 @@ NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
 POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
 
 
-def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign:
-    """The PID's gains (``kind`` "pid") or the LQR's design (``"lqr"``) from a mapping of its fields, checked:
-    known fields, finite numbers, no negative bound or zone, positive LQR sizes. Raises ``ValueError`` saying
-    what is wrong (callers add where the values came from)."""
+def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDesign:
+    """The PID's gains (``kind`` "pid"), the LQR's design (``"lqr"``) or the hand-over's (``"handover"``:
+    :func:`checked_handover`) from a mapping of its fields, checked: known fields, finite numbers, no negative
+    bound or zone, positive LQR sizes. Raises ``ValueError`` saying what is wrong (callers add where the values
+    came from)."""
     if kind == "handover":
         return checked_handover(values)
     cls = LQRDesign if kind == "lqr" else PIDGains
@@ -488,6 +489,7 @@ def checked_handover(values: Any) -> HandoverDesign:
         lqr, pid = checked_design(values["lqr"], "lqr"), checked_design(values["pid"], "pid")
     except ValueError as exc:
         raise ValueError(f"handover: {exc}") from None
+    assert isinstance(lqr, LQRDesign) and isinstance(pid, PIDGains)
     sizes = {k: values.get(k, getattr(HandoverDesign, k)) for k in HANDOVER_SIZES}
     bad = [k for k, v in sizes.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
            or v <= 0]  # fmt: skip
@@ -498,7 +500,7 @@ def checked_handover(values: Any) -> HandoverDesign:
     return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
 
 
-def shipped_design(name: str) -> PIDGains | LQRDesign:
+def shipped_design(name: str) -> PIDGains | LQRDesign | HandoverDesign:
     """The design of the shipped classical controller ``name`` (a key of :data:`CLASSICAL`), from its file."""
     kind, filename, _ = CLASSICAL[name]
     return checked_design(json.loads((Path(__file__).resolve().parent / "policies" / filename).read_text()), kind)
