@@ -82,10 +82,11 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
-    """A ``residual`` hyperparameter, checked: ``{base: lqr|pid|pid-kalman, scale: s, fade_mm: f, inner_mm: r,
+    """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r,
     design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next
     f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never
-    fades). ``design``, the base's gains or LQR design, defaults to the shipped one's (training records it)."""
+    fades). NAME is a shipped classical controller (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid,
+    pid-kalman); ``design``, its gains or design, defaults to the shipped one's (training records it)."""
     from stewart_gym.errors import ConfigError
 
     keys = {"base", "scale", "fade_mm", "inner_mm", "design"}
