@@ -29,7 +29,7 @@ from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "HandoverController",
+__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "EpisodicController", "HandoverController",
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "checked_design",
            "classical_controller", "controller_from_gains", "design_lqr", "gains_for_geometry", "integrate_error",
            "residual_action", "shipped_design", "trim_tilt"]  # fmt: skip
@@ -293,7 +293,25 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
                     integral_zone=d.integral_zone_mm * 1e-3)  # fmt: skip
 
 
-class LQRController:
+class EpisodicController:
+    """A controller whose state is one episode's: its Stable-Baselines3-style ``predict`` resets it (every row)
+    where an episode starts. Subclasses give ``reset`` and ``__call__``."""
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
+        """Stable-Baselines3-style ``predict``: resets the state where an episode starts."""
+        if episode_start is not None and np.any(episode_start):
+            self.reset()
+        return self(obs), None
+
+
+class LQRController(EpisodicController):
     """A policy: observation (…, 12) → tilt action (…, 2), the LQR of :class:`LQRGains`.
 
     It reads the ball's position and velocity (indices 0–3: best from the Kalman observer, which predicts them
@@ -345,13 +363,6 @@ class LQRController:
         action = np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
-    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
-        """Stable-Baselines3-style ``predict``: resets its state where an episode starts."""
-        if episode_start is not None and np.any(episode_start):
-            self.reset()
-        return self(obs), None
-
 
 # -------------------------------------------------------------------------------------------------- hand-over
 #: The hand-over's own sizes (:class:`HandoverDesign`).
@@ -398,7 +409,7 @@ class HandoverGains:
     dt: float
 
 
-class HandoverController:
+class HandoverController(EpisodicController):
     """A policy: observation (…, 12) → tilt action (…, 2): the LQR far from the target, the PID near it
     (:class:`HandoverDesign`). Both run every period (each keeps its state); one row per ball in a batch."""
 
@@ -439,13 +450,6 @@ class HandoverController:
         self._near = (near | enter) & still & ~(distance_mm > g.release_mm)
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
-
-    def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
-                deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
-        """Stable-Baselines3-style ``predict``: resets both where an episode starts."""
-        if episode_start is not None and np.any(episode_start):
-            self.reset()
-        return self(obs), None
 
 
 #: Design fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's

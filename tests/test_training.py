@@ -236,6 +236,11 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     design = checked_design(json.loads(out.read_text()), "handover")
     assert design.handover_mm in (2.0, 4.0) and design.handover_mm_s == 10.0
     assert design.lqr == shipped_design("lqr") and design.pid == shipped_design("pid-kalman")
+    bad = subprocess.run([sys.executable, str(root / "train" / "tune_handover.py"), "--handover-mm", "30",
+                          "--release-mm", "20", "--out", str(tmp_path / "bad.json")],
+                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert bad.returncode == 2 and "error:" in bad.stderr and "release_mm" in bad.stderr
+    assert "Traceback" not in bad.stderr and not (tmp_path / "bad.json").exists()  # refused before any work
 
 
 def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path) -> None:

@@ -20,7 +20,7 @@ import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from stewart_gym.classical import classical_controller, shipped_design
+from stewart_gym.classical import checked_design, classical_controller, shipped_design
 from stewart_gym.evaluation import evaluate
 from stewart_gym.registry import POLICY_DIR
 
@@ -39,11 +39,19 @@ def main() -> None:
     parser.add_argument("--release-mm", type=float, default=20.0)
     parser.add_argument("--rms-margin", type=float, default=0.05, help="fraction of the lowest RMS (default 0.05)")
     args = parser.parse_args()
+    if args.episodes < 1 or not args.rms_margin >= 0:
+        parser.error("--episodes must be at least 1 and --rms-margin 0 or more")
     base = shipped_design("lqr-pid")
     base = replace(base, lqr=shipped_design("lqr"), pid=shipped_design("pid-kalman"), release_mm=args.release_mm)
-    rows = []
+    designs = []
     for mm, mm_s in itertools.product(args.handover_mm, args.handover_mm_s):
-        design = replace(base, handover_mm=mm, handover_mm_s=mm_s)
+        try:  # every set checked before the first evaluation
+            designs.append(checked_design(asdict(replace(base, handover_mm=mm, handover_mm_s=mm_s)), "handover"))
+        except ValueError as exc:
+            parser.error(f"hand-over {mm} mm, {mm_s} mm/s: {exc}")
+    rows = []
+    for design in designs:
+        mm, mm_s = design.handover_mm, design.handover_mm_s
         m = evaluate("StewartBallBalance-v0", classical_controller("handover", design), episodes=args.episodes,
                      seed=10_000, env_kwargs={"estimator": "kalman"})  # fmt: skip
         m["settling_time_s"] = m["settling_time_s"] if m["settling_time_s"] is not None else float("inf")  # none settled
