@@ -41,6 +41,9 @@ TRIM_TOLERANCE_US = 15.0
 
 #: The integral can cancel this multiple of the worst trim tilt (:func:`gains_for_geometry`).
 INTEGRAL_MARGIN = 1.5
+#: A conditional-integration zone covers this multiple of the offset at which the proportional terms alone hold
+#: the worst trim tilt (:func:`gains_for_geometry`, :func:`design_lqr`): the ball must come to rest inside it.
+ZONE_MARGIN = 1.2
 #: The shipped classical controllers by name (``--policy NAME``, a residual policy's ``base``): their kind
 #: ("pid", "lqr" or "handover"), their file under ``stewart_gym/policies/`` and the observer they run behind.
 CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
@@ -185,11 +188,21 @@ def gains_for_geometry(gains: PIDGains, geometry: Any) -> PIDGains:
       :data:`INTEGRAL_MARGIN` × the tilt that trim errors of ±15 µs cause
       (:func:`trim_tilt`): otherwise the anti-windup bound stops the integral
       short of a build's steady offset and the ball rests off target.
+    * ``integral_zone`` (if set) grows, if needed, to :data:`ZONE_MARGIN` × the
+      offset at which the proportional terms alone hold that trim tilt
+      (``c·g·sin(tilt) / (kp_pos·kp_vel)``): otherwise the ball comes to rest
+      outside the zone and the integral never starts.
     """
     geo = load_geometry(geometry)
-    tilt = min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2)
+    worst = trim_tilt(geo)
+    tilt = min(INTEGRAL_MARGIN * worst, math.pi / 2)
     needed = gains.rolling_factor * GRAVITY * math.sin(tilt) / gains.ki_vel if gains.ki_vel > 0 else 0.0
-    return replace(gains, max_tilt=default_max_tilt(geo), integral_limit=max(gains.integral_limit, needed))
+    zone = gains.integral_zone
+    if zone > 0 and gains.kp_pos * gains.kp_vel > 0:
+        rest = gains.rolling_factor * GRAVITY * math.sin(min(worst, math.pi / 2)) / (gains.kp_pos * gains.kp_vel)
+        zone = max(zone, ZONE_MARGIN * rest)
+    return replace(gains, max_tilt=default_max_tilt(geo), integral_limit=max(gains.integral_limit, needed),
+                   integral_zone=zone)  # fmt: skip
 
 
 # ------------------------------------------------------------------------------------------------------- LQR
@@ -272,7 +285,9 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
     """Discrete LQR gains for ``design`` at control period ``dt`` on ``geometry`` (its max tilt and trim tilt).
 
     Cost per period: Σ (state/acceptable)² + (u/tilt)² + ((u − u_in_flight)/tilt_step)², the last a cross
-    term (DARE with ``s``). The anti-windup bound lets the integral command 1.5× the worst trim tilt.
+    term (DARE with ``s``). The anti-windup bound lets the integral command 1.5× the worst trim tilt; the
+    integral zone (if set) grows, if needed, to :data:`ZONE_MARGIN` × the offset at which the other terms alone
+    hold that tilt (``sin(tilt)·(1 + k_a + k_u) / k_p``), as :func:`gains_for_geometry` does for the PID.
     """
     from scipy.linalg import solve_discrete_are
 
@@ -287,10 +302,15 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
     p = solve_discrete_are(a, b, q, r, s=n)
     k = np.linalg.solve(r + b.T @ p @ b, b.T @ p @ a + n.T).ravel()
     geo = load_geometry(geometry)
-    needed = math.sin(min(INTEGRAL_MARGIN * trim_tilt(geo), math.pi / 2))
+    worst = trim_tilt(geo)
+    needed = math.sin(min(INTEGRAL_MARGIN * worst, math.pi / 2))
+    zone = d.integral_zone_mm * 1e-3
+    if zone > 0:
+        rest = math.sin(min(worst, math.pi / 2)) * abs(1 + k[2] + k[3]) / abs(k[0])
+        zone = max(zone, ZONE_MARGIN * rest)
     return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
                     max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])),
-                    integral_zone=d.integral_zone_mm * 1e-3)  # fmt: skip
+                    integral_zone=float(zone))  # fmt: skip
 
 
 class EpisodicController:

@@ -258,3 +258,55 @@ def test_deploy_the_pid_on_another_preset(tmp_path: Path, device: FakeDevice) ->
     drain.stop()
     assert proc.returncode == 0, proc.stderr
     assert "completed; simulated ball" in proc.stdout
+
+
+def test_integral_zones_follow_the_build() -> None:
+    """Conditional integration must start where the ball comes to rest against the worst trim tilt: on the
+    linear build (3.7°) the proportional terms alone hold it 75 mm (PID + Kalman) and 30 mm (LQR) out, beyond
+    the shipped 20 mm zones. Checked on the controllers themselves: at the zone's edge / ZONE_MARGIN, at rest,
+    they command that tilt (the ball stays there), and the zone is larger; the reference keeps its 20 mm."""
+    from stewart_gym.classical import (
+        ZONE_MARGIN,
+        CascadedPID,
+        LQRController,
+        design_lqr,
+        gains_for_geometry,
+        shipped_design,
+        trim_tilt,
+    )
+    from stewart_gym.sensing import ObservationBuilder
+
+    assert gains_for_geometry(shipped_design("pid-kalman"), "servo-hexapod").integral_zone == pytest.approx(0.02)
+    assert design_lqr(shipped_design("lqr"), geometry="servo-hexapod").integral_zone == pytest.approx(0.02)
+    half = tuple(v / 2 for v in load_preset("senilov2018").plate_extent)
+    scale = ObservationBuilder(2, half)
+    worst = trim_tilt("senilov2018")
+    pid_gains = gains_for_geometry(shipped_design("pid-kalman"), "senilov2018")
+    lqr_gains = design_lqr(shipped_design("lqr"), geometry="senilov2018")
+    for ctrl, zone in ((CascadedPID(pid_gains, plate_half=half), pid_gains.integral_zone),
+                       (LQRController(lqr_gains, plate_half=half), lqr_gains.integral_zone)):  # fmt: skip
+        rest = zone / ZONE_MARGIN
+        assert rest > 0.025
+        # the ball at rest `rest` m along −x of a target at the centre; the plate holds the tilt it commands
+        obs = np.zeros(12, dtype=np.float32)
+        obs[0] = -rest / scale.position_scale[0]
+        pitch = np.arcsin(np.sin(worst))  # pitch tilts the plate along x
+        obs[9] = pitch / ObservationBuilder.TILT_SCALE
+        first = ctrl.predict(obs[None], episode_start=np.array([True]))[0][0]
+        commanded = first[1] * pid_gains.max_tilt
+        # within 2 %: the one period of integral that the first call adds
+        assert commanded == pytest.approx(worst, rel=0.02), (type(ctrl).__name__, commanded, worst)
+
+
+@pytest.mark.slow
+def test_the_pid_kalman_rests_on_target_on_the_linear_build() -> None:
+    """Seeds where the ball came to rest outside the 20 mm integral zone (with trims, dead band off) and the
+    PID + Kalman failed before the zone followed the build."""
+    from stewart_gym.evaluation import run_episode
+    from stewart_gym.registry import load_for_evaluation
+
+    _, policy, env_kwargs = load_for_evaluation("pid-kalman", "StewartBallBalance-v0", "senilov2018")
+    env = gym.make("StewartBallBalance-v0", **{**env_kwargs, "randomize": True,
+                                                "randomization": {"servo_deadband_us": [0, 0]}})  # fmt: skip
+    logs = [run_episode(env, policy, seed) for seed in (5, 6, 7, 10)]
+    assert all(lg.success for lg in logs), [round(lg.distance_mm[-1], 1) for lg in logs]

@@ -259,3 +259,28 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
     bad = subprocess.run([sys.executable, str(script), "--stack", "0"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr
+
+
+def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
+    """``train/builds.py`` for one build and one controller, one episode: the table between the markers is
+    replaced (a row per pair, every column filled) and the rest of the page is kept; an unknown build and a page
+    without markers are refused with one ``error:`` line before any evaluation."""
+    import subprocess
+    import sys
+
+    root, page = Path(__file__).resolve().parents[1], tmp_path / "page.md"
+    page.write_text("# before\n<!-- builds-table:start -->\nold table\n<!-- builds-table:end -->\nafter\n")
+    script = [sys.executable, str(root / "train" / "builds.py")]
+    proc = subprocess.run([*script, "--episodes", "1", "--builds", "desk-rect", "--controllers", "lqr", "--out",
+                           str(page)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    text = page.read_text()
+    assert text.startswith("# before\n<!-- builds-table:start -->\n| build (plate) |") and text.endswith("end -->\nafter\n")
+    rows = [line for line in text.splitlines() if line.startswith("| desk-rect")]
+    assert len(rows) == 1 and "LQR (`lqr`)" in rows[0] and "400 × 260 mm" in rows[0] and "old table" not in text
+    assert len(rows[0].split("|")) == 10 and "–" not in rows[0] and " µs |" in rows[0]
+    for args, says in ((["--builds", "my-desk", "--out", str(page)], "unknown build"),
+                       (["--out", str(tmp_path / "none.md")], "markers")):  # fmt: skip
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
+        assert "Traceback" not in bad.stderr

@@ -1,0 +1,98 @@
+"""Regenerate the table of the classical controllers on every ball preset (docs: Bring your own platform).
+
+Run: ``.venv/bin/python train/builds.py [--episodes 100] [--workers 2] [--builds NAMES] [--controllers NAMES]
+[--out docs/src/own-platform.md]``
+
+Each controller (``--policy NAME``, its reference gains or design adapted to the build by
+:func:`stewart_gym.classical.classical_controller`) goes through :func:`stewart_gym.evaluation.evaluate` on
+seeds 0…N−1 of the randomised balance task on each build, as ``stewart-gym evaluate --policy NAME
+--geometry BUILD --episodes N`` does. The table replaces the text between the ``builds-table`` markers of
+``--out`` (nothing else of the page changes); without the markers the script stops with one ``error:`` line (exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+ROOT = Path(__file__).resolve().parents[1]
+BALANCE = "StewartBallBalance-v0"
+BUILDS = ("servo-hexapod", "memememe-liverpool", "desk-rect", "senilov2018")
+CONTROLLERS = {"pid": "PID (`pid`)", "pid-kalman": "PID + Kalman (`pid-kalman`)", "lqr": "LQR (`lqr`)",
+               "lqr-pid": "LQR → PID (`lqr-pid`)"}  # fmt: skip
+START, END = "<!-- builds-table:start -->", "<!-- builds-table:end -->"
+
+
+def run_job(job: dict[str, Any]) -> dict[str, Any]:
+    """One evaluation (in a worker process)."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    _, policy, env_kwargs = load_for_evaluation(job["policy"], BALANCE, job["build"])
+    return {**job, "metrics": evaluate(BALANCE, policy, episodes=job["episodes"], seed=0, env_kwargs=env_kwargs)}
+
+
+def describe(build: str) -> str:
+    from stewart_gym.presets import load_preset
+
+    geo = load_preset(build)
+    width, depth = (round(v * 1e3) for v in geo.plate_extent)
+    kind = ", linear" if geo.kind == "linear" else ""
+    return f"{build}{kind} ({width} × {depth} mm)"
+
+
+def table(results: list[dict[str, Any]]) -> str:
+    rows = ["| build (plate) | controller | success | RMS error, last 5 s | final error | settling time (start) "
+            "| pulse rate | peak-to-peak |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in results:
+        m = r["metrics"]
+        settle = "–" if m["settling_time_s"] is None else f"{m['settling_time_s']:.2f} s"
+        rows.append(f"| {describe(r['build'])} | {CONTROLLERS[r['policy']]} | {m['success_rate']:.0%} | "
+                    f"{m['rms_error_mm']:.2f} mm | {m['final_error_mm']:.2f} mm | {settle} "
+                    f"({m['settling_offset_mm']:.0f} mm, {m['settled_fraction']:.0%} settled) | "
+                    f"{m['settled_pulse_rate_us_per_s']:,.0f} µs/s | {m['settled_pulse_p2p_us']:.0f} µs |")  # fmt: skip
+    return "\n".join(rows)
+
+
+def names(parser: argparse.ArgumentParser, text: str, known: tuple[str, ...] | list[str], what: str) -> list[str]:
+    chosen = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in chosen if n not in known]
+    if unknown or not chosen:
+        parser.error(f"unknown {what} {unknown or text!r}; choose from {', '.join(known)}")
+    return chosen
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--episodes", type=int, default=100)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--builds", default=",".join(BUILDS))
+    ap.add_argument("--controllers", default=",".join(CONTROLLERS))
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "src" / "own-platform.md")
+    args = ap.parse_args()
+    builds = names(ap, args.builds, BUILDS, "build")
+    controllers = names(ap, args.controllers, list(CONTROLLERS), "controller")
+    if args.episodes < 1 or args.workers < 1:
+        ap.error("--episodes and --workers must be at least 1")
+    page = args.out.read_text(encoding="utf-8") if args.out.is_file() else ""
+    if START not in page or END not in page or page.index(START) > page.index(END):
+        ap.error(f"{args.out} has no {START} … {END} section to replace; add the two markers")
+    jobs = [{"build": b, "policy": c, "episodes": args.episodes} for b in builds for c in controllers]
+    with ProcessPoolExecutor(args.workers) as pool:
+        results = list(pool.map(run_job, jobs))
+    text = table(results)
+    head, rest = page.split(START, 1)
+    args.out.write_text(f"{head}{START}\n{text}\n{END}{rest.split(END, 1)[1]}", encoding="utf-8")
+    print(text)
+    print(f"wrote {args.out}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
