@@ -18,6 +18,7 @@ import itertools
 import json
 import math
 from dataclasses import asdict, dataclass, replace
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
 from typing import Any
 
@@ -29,10 +30,11 @@ from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ObservationBuilder
 
-__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "TRIM_TOLERANCE_US", "CascadedPID", "EpisodicController", "HandoverController",
-           "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "checked_design",
-           "classical_controller", "controller_from_gains", "design_lqr", "gains_for_geometry", "integrate_error",
-           "residual_action", "shipped_design", "trim_tilt"]  # fmt: skip
+__all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
+           "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
+           "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
+           "design_kind", "design_lqr", "gains_for_geometry", "integrate_error", "residual_action", "shipped_design",
+           "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -476,6 +478,17 @@ class HandoverController(EpisodicController):
 #: acceptable sizes and servo lag (must be positive).
 NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
 POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
+
+
+def design_kind(values: Any) -> str:
+    """The kind of controller a gains or design file's values describe: ``"handover"`` (``lqr`` and ``pid``
+    sections), ``"lqr"`` (an LQR design: it has the acceptable sizes, e.g. ``position_mm``) or ``"pid"``."""
+    if isinstance(values, dict) and {"lqr", "pid"} & set(values):
+        return "handover"
+    only_lqr = {f.name for f in dataclass_fields(LQRDesign)} - {f.name for f in dataclass_fields(PIDGains)}
+    if isinstance(values, dict) and only_lqr & set(values):
+        return "lqr"
+    return "pid"
 
 
 def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDesign:

@@ -17,7 +17,10 @@
 * a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
   checkpoint; its run's ``config.yaml`` is found beside it or one folder up);
 * a **bundle** folder written by ``stewart-gym export`` (``bundle.json``);
-* a **PID gains** ``.json`` file.
+* a **gains** ``.json`` file: PID gains (as ``tune_pid.py`` writes them), an LQR design (as ``lqr.json``) or
+  a hand-over design (as ``lqr_pid.json``, as ``tune_handover.py`` writes it), told apart by their fields;
+  the LQR and the hand-over run behind the Kalman observer, PID gains behind the low-pass one unless
+  ``--estimator`` says otherwise.
 
 :func:`resolve_policy` works out which, and what the policy was trained for:
 the env id and the env keywords that define its observation and action
@@ -36,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.actions import ACTION_SIZES
-from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS
+from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_kind
 from stewart_gym.errors import PolicyError
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
@@ -63,7 +66,7 @@ DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
 _KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', 'lqr-pid', a run folder, "
-               "a model .zip, a bundle folder or a PID gains .json")
+               "a model .zip, a bundle folder or a gains .json (PID gains, an LQR or hand-over design)")
 
 
 @dataclass(frozen=True)
@@ -155,9 +158,13 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
     if path.suffix == ".zip":
         return _sb3_source(spec, path)
     if path.suffix == ".json":
-        _read_json(path)  # a readable JSON file, checked here; the gains themselves when loaded
-        return PolicySource(spec, "pid", path, env_id or DEFAULT_ENV, {"action_mode": "tilt"})
-    raise PolicyError(f"policy {spec!r}: not a .zip model or a .json PID gains file; give {_KINDS_TEXT}")
+        # a readable JSON file, checked here; its kind from its fields; the gains themselves when loaded
+        kind = design_kind(_read_json(path))
+        kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY}
+        if kind != "pid":  # the LQR's and the hand-over's model is the Kalman observer's, as for the named ones
+            kwargs["estimator"] = "kalman"
+        return PolicySource(spec, kind, path, env_id or DEFAULT_ENV, kwargs)
+    raise PolicyError(f"policy {spec!r}: not a .zip model or a .json gains or design file; give {_KINDS_TEXT}")
 
 
 def _read_json(path: Path) -> dict[str, Any]:

@@ -310,3 +310,26 @@ def test_the_pid_kalman_rests_on_target_on_the_linear_build() -> None:
                                                 "randomization": {"servo_deadband_us": [0, 0]}})  # fmt: skip
     logs = [run_episode(env, policy, seed) for seed in (5, 6, 7, 10)]
     assert all(lg.success for lg in logs), [round(lg.distance_mm[-1], 1) for lg in logs]
+
+
+def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path) -> None:
+    """A user's copy of a gains or design file (``--policy my.json``) is told apart by its fields and runs on
+    the build ``--geometry`` names exactly as the named controller does (gains adapted to that build, its
+    plate's observation scales, the Kalman observer for the LQR and the hand-over); export keeps the kind."""
+    policies = Path(__file__).resolve().parents[1] / "stewart_gym" / "policies"
+    results = {}
+    for name, file in (("pid", "pid_gains.json"), ("lqr-pid", "lqr_pid.json")):
+        mine = tmp_path / f"my_{file}"
+        mine.write_text((policies / file).read_text())
+        for spec in (name, str(mine)):
+            proc = sg("evaluate", "--policy", spec, "--geometry", "memememe-liverpool", "--episodes", "2", "--json",
+                      cwd=tmp_path)  # fmt: skip
+            assert proc.returncode == 0, proc.stderr[-2000:]
+            results[spec] = json.loads(proc.stdout)
+        named, copied = results[name], results[str(mine)]
+        for key in ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_p2p_us"):
+            assert copied[key] == pytest.approx(named[key], rel=1e-6, abs=1e-9), (name, key)
+    proc = sg("export", "--policy", str(tmp_path / "my_lqr_pid.json"), "--out", str(tmp_path / "b"), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
+    assert meta["kind"] == "handover" and meta["estimator"] == "kalman", meta
