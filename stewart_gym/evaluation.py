@@ -10,6 +10,7 @@ seeds.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -19,8 +20,8 @@ import numpy as np
 
 from stewart_gym.errors import PolicyError
 
-__all__ = ["EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "plot_episode", "run_episode",
-           "write_gif"]  # fmt: skip
+__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "paired_difference",
+           "plot_episode", "run_episode", "write_gif"]  # fmt: skip
 
 #: The standard offset for the settling-time test, m.
 SETTLING_OFFSET = 0.100
@@ -114,6 +115,10 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
       servo per second) and ``settled_pulse_p2p_us`` (the largest channel's
       peak-to-peak, averaged over those episodes): how much the servos buzz once
       the ball is held.
+    * ``per_episode``: per seed, in order: ``success``, ``rms_mm`` and ``tail_steps`` (each episode's RMS
+      over its last 5 s and how many steps that was: the pooled RMS weighs them so), ``final_mm`` and
+      ``settling_s`` (None where the ball did not settle): for paired comparisons on the same seeds
+      (:func:`paired_difference`).
     """
     env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
     check_fits(policy, env)
@@ -140,6 +145,13 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
             "settled_pulse_p2p_us": float(np.mean([np.ptp(w, axis=0).max() for w in settled])) if settled else None,
             "settling_time_s": None,
             "settled_fraction": None,
+            "per_episode": {
+                "success": [bool(lg.success) for lg in logs],
+                "rms_mm": [float(np.sqrt(np.mean(np.square(lg.distance_mm[-tail:])))) for lg in logs],
+                "tail_steps": [len(lg.distance_mm[-tail:]) for lg in logs],
+                "final_mm": [float(lg.distance_mm[-1]) for lg in logs],
+                "settling_s": None,
+            },
         }
         if settling and not env.unwrapped.task.moving_target:
             radius_mm = env.unwrapped.success_radius * 1e3
@@ -154,9 +166,54 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
             out["settled_fraction"] = float(np.mean(np.isfinite(t)))
             out["settling_offset_mm"] = round(settling_offset(env) * 1e3, 1)
             out["settling_time_s"] = float(np.nanmean(t)) if np.isfinite(t).any() else None
+            out["per_episode"]["settling_s"] = [float(v) if math.isfinite(v) else None for v in t]
         return out
     finally:
         env.close()
+
+
+#: What :func:`paired_difference` compares: the metrics whose per-episode values ``per_episode`` keeps.
+PAIRED_METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s")
+
+
+def _paired_statistic(per_episode: dict[str, Any], metric: str, index: np.ndarray) -> np.ndarray:
+    """The metric of ``evaluate`` recomputed from its per-episode values, for each row of episode indices."""
+    if metric == "success_rate":
+        return np.asarray(per_episode["success"], dtype=float)[index].mean(axis=-1)
+    if metric == "rms_error_mm":
+        rms, n = np.asarray(per_episode["rms_mm"], dtype=float), np.asarray(per_episode["tail_steps"], dtype=float)
+        return np.sqrt((n[index] * rms[index] ** 2).sum(axis=-1) / n[index].sum(axis=-1))
+    if metric == "final_error_mm":
+        return np.asarray(per_episode["final_mm"], dtype=float)[index].mean(axis=-1)
+    if metric == "settling_time_s":
+        t = np.array([np.nan if v is None else v for v in per_episode["settling_s"]], dtype=float)[index]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a resample in which none settled: NaN
+            return np.nanmean(t, axis=-1)
+    raise ValueError(f"metric must be one of {PAIRED_METRICS}, got {metric!r}")
+
+
+def paired_difference(a: dict[str, Any], b: dict[str, Any], metric: str, resamples: int = 2000,
+                      level: float = 0.95, seed: int = 0) -> tuple[float, float, float]:  # fmt: skip
+    """``metric`` of ``a`` minus that of ``b`` — two ``evaluate`` results on the same seeds — with a paired
+    bootstrap interval: (difference, low, high). Episodes are resampled together (seed k of ``a`` with seed
+    k of ``b``), so what the seeds share (start, trims, noise) cancels; an interval that holds 0 is a tie at
+    this many episodes. Settling time is each resample's mean over the episodes where both settled."""
+    pa, pb = a["per_episode"], b["per_episode"]
+    if len(pa["success"]) != len(pb["success"]) or a.get("seed") != b.get("seed"):
+        raise ValueError("paired comparison needs two evaluations on the same seeds")
+    if metric == "settling_time_s":
+        both = [x is not None and y is not None for x, y in zip(pa["settling_s"], pb["settling_s"])]
+        pa = {**pa, "settling_s": [x if ok else None for x, ok in zip(pa["settling_s"], both)]}
+        pb = {**pb, "settling_s": [y if ok else None for y, ok in zip(pb["settling_s"], both)]}
+    n = len(pa["success"])
+    everything = np.arange(n)[None]
+    diff = float((_paired_statistic(pa, metric, everything) - _paired_statistic(pb, metric, everything))[0])
+    index = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    boot = _paired_statistic(pa, metric, index) - _paired_statistic(pb, metric, index)
+    boot = boot[np.isfinite(boot)]
+    low, high = np.quantile(boot, [(1 - level) / 2, (1 + level) / 2]) if boot.size else (math.nan, math.nan)
+    return diff, float(low), float(high)
 
 
 def format_table(results: dict[str, dict[str, Any]]) -> str:

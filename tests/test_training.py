@@ -116,6 +116,48 @@ def test_evaluate_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert out["episodes"] == 2 and out["seed"] == 3
 
 
+def test_per_episode_values_give_back_every_pooled_metric(capsys: pytest.CaptureFixture[str]) -> None:
+    """``evaluate --json`` keeps each seed's values; recomputed from them (as the paired comparison does), every
+    pooled metric is the one it reports; a result compared with itself differs by exactly 0."""
+    from stewart_gym.evaluation import PAIRED_METRICS, paired_difference
+
+    assert main(["evaluate", "--policy", "pid", "--episodes", "3", "--seed", "5", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    per = out["per_episode"]
+    assert all(len(per[k]) == 3 for k in ("success", "rms_mm", "tail_steps", "final_mm", "settling_s"))
+    assert per["tail_steps"] == [250, 250, 250]
+    pooled = np.sqrt(np.average(np.square(per["rms_mm"]), weights=per["tail_steps"]))
+    assert pooled == pytest.approx(out["rms_error_mm"], rel=1e-9)
+    assert np.mean(per["final_mm"]) == pytest.approx(out["final_error_mm"], rel=1e-9)
+    assert np.mean(per["success"]) == out["success_rate"]
+    assert np.mean([t for t in per["settling_s"] if t is not None]) == pytest.approx(out["settling_time_s"], rel=1e-9)
+    for metric in PAIRED_METRICS:
+        assert paired_difference(out, out, metric) == (0.0, 0.0, 0.0)
+
+
+def test_paired_difference_pairs_seeds_and_weighs_tails() -> None:
+    """Hand-made evaluations: a constant shift on every seed is the difference with a zero-width interval;
+    the pooled RMS weighs each episode's tail length; settling compares only seeds where both settled; a
+    comparison on other seeds is refused."""
+    from stewart_gym.evaluation import paired_difference
+
+    def result(rms: list[float], tails: list[int], final: list[float], settle: list[float | None]) -> dict:
+        return {"seed": 0, "per_episode": {"success": [True] * len(rms), "rms_mm": rms, "tail_steps": tails,
+                                           "final_mm": final, "settling_s": settle}}  # fmt: skip
+
+    a = result([1.0, 3.0], [250, 50], [1.0, 2.0], [0.5, None])
+    b = result([1.0, 1.0], [250, 250], [0.5, 1.5], [1.0, 2.0])
+    diff, low, high = paired_difference(a, b, "final_error_mm")
+    assert (diff, low, high) == pytest.approx((0.5, 0.5, 0.5))
+    rms_a = np.sqrt((250 * 1.0 + 50 * 9.0) / 300)  # 1.53 mm, not the unweighted 2.24
+    assert paired_difference(a, b, "rms_error_mm")[0] == pytest.approx(rms_a - 1.0)
+    assert paired_difference(a, b, "settling_time_s") == pytest.approx((-0.5, -0.5, -0.5))  # seed 0 only
+    with pytest.raises(ValueError, match="same seeds"):
+        paired_difference(a, {**b, "seed": 100}, "final_error_mm")
+    with pytest.raises(ValueError, match="metric must be"):
+        paired_difference(a, b, "tilt")
+
+
 def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--episodes", "2", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -214,6 +256,9 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
                                                   "track waypoints"]  # fmt: skip
     assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 13
     assert "old, 1 training seeds" in (tmp_path / "r.md").read_text()
+    per = [r for r in new if r["table"] == "balance"][0]["metrics"]["per_episode"]  # kept for paired comparisons
+    assert len(per["rms_mm"]) == len(per["settling_s"]) == 1
+    assert all("per_episode" not in r["metrics"] for r in new if r["table"] != "balance")
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "unknown controller" in bad.stderr
@@ -284,3 +329,35 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
         bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
         assert "Traceback" not in bad.stderr
+
+
+def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
+    """``train/results.py --from-json``: the paired table gives each difference with its interval and verdict
+    (a shift on every seed is *better*/*worse*, a mixed one a *tie*); rows without per-seed values are left
+    out."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "images").mkdir()
+
+    def row(label: str, rms: list[float], final: list[float], settle: list[float]) -> dict:
+        per = {"success": [True] * 4, "rms_mm": rms, "tail_steps": [250] * 4, "final_mm": final, "settling_s": settle}
+        return {"table": "balance", "row": label, "policy": label, "estimator": None, "env": "StewartBallBalance-v0",
+                "episodes": 4, "metrics": {"seed": 0, "success_rate": 1.0, "per_episode": per}}  # fmt: skip
+
+    results = [row("LQR → PID", [1.0, 1.1, 0.9, 1.0], [0.5, 0.9, 0.4, 0.8], [0.6, 0.6, 0.7, 0.5]),
+               row("PID + Kalman", [1.0, 1.0, 1.0, 1.0], [0.6, 0.6, 0.6, 0.6], [1.4, 1.5, 1.5, 1.4]),
+               row("LQR", [2.0, 2.1, 1.9, 2.0], [1.0, 1.1, 0.9, 1.0], [0.6, 0.6, 0.7, 0.5])]  # fmt: skip
+    del results[2]["metrics"]["per_episode"]  # an old results.json row: no paired comparison with it
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    page = (tmp_path / "r.md").read_text()
+    assert "paired: row minus row on the same 4 seeds" in page
+    line = next(x for x in page.splitlines() if x.startswith("| LQR → PID − PID + Kalman |"))
+    rms, final, settle = (c.strip() for c in line.split("|")[2:5])
+    assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
+    assert settle.startswith("-0.85 [")
+    assert "| LQR → PID − LQR |" not in page and "| residual PPO −" not in page

@@ -50,6 +50,12 @@ METRICS = [("success_rate", "success", "{:.0%}"), ("rms_error_mm", "RMS error, l
            ("settled_pulse_rate_us_per_s", "settled pulse rate (µs/s per servo)", "{:.0f}"),
            ("settled_pulse_p2p_us", "settled peak-to-peak (µs, largest channel)", "{:.0f}"),
            ("fell_rate", "ball fell off", "{:.0%}")]  # fmt: skip
+#: The paired comparisons on the balance table (row minus row, seed by seed) and their metrics (lower is better).
+PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"), ("residual PPO", "LQR → PID"),
+         ("shipped PPO", "PID + Kalman"), ("shipped PPO", "LQR"), ("LQR → PID", "PID + Kalman"),
+         ("LQR → PID", "LQR"))  # fmt: skip
+PAIRED = (("rms_error_mm", "RMS error, last 5 s (mm)"), ("final_error_mm", "final error (mm)"),
+          ("settling_time_s", "settling time (s)"))  # fmt: skip
 LATENCIES_MS = (5, 25, 50, 75, 100)
 NOISES_MM = (0.5, 2.0, 4.0, 8.0)
 
@@ -62,7 +68,11 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     source, policy, env_kwargs = load_for_evaluation(job["policy"], job["env"], None, job["estimator"])
     env_kwargs = {**env_kwargs, **job.get("env_kwargs", {})}
     metrics = evaluate(job["env"], policy, episodes=job["episodes"], seed=0, env_kwargs=env_kwargs)
-    return {**job, "metrics": {k: v for k, v in metrics.items() if isinstance(v, (int, float)) or v is None}}
+    kept = {k: v for k, v in metrics.items() if isinstance(v, (int, float)) or v is None}
+    if job["table"] == "balance":  # each seed's values, for the paired comparisons (0.1 µm, 0.1 ms)
+        kept["per_episode"] = {k: [v if v is None or isinstance(v, (bool, int)) else round(v, 4) for v in values]
+                               for k, values in metrics["per_episode"].items() if values is not None}  # fmt: skip
+    return {**job, "metrics": kept}
 
 
 def jobs_for(args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -133,6 +143,7 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
                 cells.append(spread([m[key] for m in got if m.get(key) is not None], pattern))
             out.append(f"| {name} | " + " | ".join(cells) + " |")
         out.append("")
+    out += paired(results)
     for table, unit, values in (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM)):
         rows = {(r["row"], r["value"]): r["metrics"]["success_rate"] for r in results if r["table"] == table}
         out += [f"### Success against the panel's {table} (balance, {unit})", "",
@@ -142,6 +153,31 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
             out.append(f"| {label} | " + " | ".join(fmt(rows.get((label, v)), "{:.0%}") for v in values) + " |")
         out.append("")
     return "\n".join(out)
+
+
+def paired(results: list[dict[str, Any]]) -> list[str]:
+    """The balance table's paired comparisons (:data:`PAIRS`): the difference on the same seeds with its 95 %
+    bootstrap interval, and whether it is better, worse or a tie (the interval holds 0) at this many seeds."""
+    from stewart_gym.evaluation import paired_difference
+
+    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance" and "per_episode" in r["metrics"]}
+    pairs = [(a, b) for a, b in PAIRS if a in rows and b in rows]
+    if not pairs:
+        return []
+    episodes = len(rows[pairs[0][0]]["per_episode"]["success"])
+    out = [f"### Balance, paired: row minus row on the same {episodes} seeds", "",
+           "Each cell: the difference, its 95 % bootstrap interval (2,000 resamples of the seeds, both rows "
+           "resampled together), and the verdict: *better* or *worse* when the interval excludes 0, *tie* when "
+           "it holds 0 (no difference shown at this many seeds). Settling compares the seeds where both settled.", "",
+           "| rows | " + " | ".join(name for _, name in PAIRED) + " |", "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
+    for a, b in pairs:
+        cells = []
+        for key, _ in PAIRED:
+            diff, low, high = paired_difference(rows[a], rows[b], key)
+            verdict = "better" if high < 0 else "worse" if low > 0 else "tie"
+            cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}")
+        out.append(f"| {a} − {b} | " + " | ".join(cells) + " |")
+    return [*out, ""]
 
 
 def plot(results: list[dict[str, Any]], path: Path) -> None:
