@@ -33,8 +33,8 @@ from stewart_gym.sensing import ObservationBuilder
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
-           "design_kind", "design_lqr", "gains_for_geometry", "integrate_error", "residual_action", "shipped_design",
-           "trim_tilt"]  # fmt: skip
+           "design_kind", "design_lqr", "dither_action", "gains_for_geometry", "integrate_error", "residual_action",
+           "shipped_design", "trim_tilt"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -75,6 +75,9 @@ class PIDGains:
         integral_limit: m·s, anti-windup bound on the integral.
         integral_zone: m; if positive, the error is integrated only while it is this small (conditional
             integration: a fast approach from far away does not wind the integral up); 0 integrates always.
+        dither: rad; if positive, ± this tilt is added on both axes, the sign alternating every control
+            period (:func:`dither_action`): it carries small corrections through the actuators' dead band.
+            0 (off) in the shipped gains.
     """
 
     kp_pos: float = 2.0
@@ -84,6 +87,17 @@ class PIDGains:
     max_tilt: float = DEFAULT_MAX_TILT
     integral_limit: float = 0.05
     integral_zone: float = 0.0
+    dither: float = 0.0
+
+
+def dither_action(action: np.ndarray, dither: float, max_tilt: float, sign: float) -> np.ndarray:
+    """``action`` (…, 2) with ``sign`` · ``dither`` (rad of tilt, at action ±1 = ``max_tilt``) added to both axes,
+    clipped to [−1, 1] (float32). Alternating ``sign`` every control period makes a square wave whose mean is
+    zero: the servos' dead band (3–8 µs) otherwise swallows the small corrections of a quiet controller, and
+    the ball rests where the last correction that got through left it."""
+    if dither <= 0:
+        return np.asarray(action, dtype=np.float32)
+    return np.clip(np.asarray(action, dtype=np.float64) + sign * dither / max_tilt, -1.0, 1.0).astype(np.float32)
 
 
 def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: float, zone: float) -> np.ndarray:
@@ -113,10 +127,12 @@ class CascadedPID:
         self._position_scale = np.array(scales.position_scale)
         self._velocity_scale = np.array(scales.velocity_scale)
         self._integral = np.zeros(2)
+        self._dither_sign = 1.0
 
     def reset(self) -> None:
         """Clear the integrator (call at the start of an episode)."""
         self._integral = np.zeros(2)
+        self._dither_sign = 1.0
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Tilt action(s) for observation(s); keeps one integrator per row of a batch."""
@@ -130,8 +146,10 @@ class CascadedPID:
         accel = g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
         s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
-        action = np.stack([roll, pitch], axis=-1) / g.max_tilt
-        return np.clip(action, -1.0, 1.0).astype(np.float32)
+        action = np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0)
+        action = dither_action(action, g.dither, g.max_tilt, self._dither_sign)
+        self._dither_sign = -self._dither_sign
+        return action
 
     def preload_integral(self, rows: np.ndarray, accel: np.ndarray) -> None:
         """Set the integral of the rows where ``rows`` is true so that its term commands the ball acceleration
@@ -230,6 +248,7 @@ class LQRDesign:
         tilt_lag_s: s.
         integral_zone_mm: if positive, the error is integrated only while it is this small (as
             :attr:`PIDGains.integral_zone`); 0 integrates always.
+        dither: rad, as :attr:`PIDGains.dither` (0: off).
 
     The tilt at action ±1 is the geometry's default ``max_tilt`` (:func:`design_lqr`).
     """
@@ -242,6 +261,7 @@ class LQRDesign:
     rolling_factor: float = 5.0 / 7.0
     tilt_lag_s: float = 0.019
     integral_zone_mm: float = 0.0
+    dither: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -255,6 +275,7 @@ class LQRGains:
         max_tilt: rad, the tilt at action ±1.
         integral_limit: m·s, anti-windup bound on the integral.
         integral_zone: m, integrate only within it (0: always).
+        dither: rad, as :attr:`PIDGains.dither` (0: off).
     """
 
     k: tuple[float, float, float, float, float]
@@ -264,6 +285,7 @@ class LQRGains:
     max_tilt: float
     integral_limit: float
     integral_zone: float = 0.0
+    dither: float = 0.0
 
 
 def lqr_model(design: LQRDesign, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -312,7 +334,7 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
         zone = max(zone, ZONE_MARGIN * rest)
     return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
                     max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])),
-                    integral_zone=float(zone))  # fmt: skip
+                    integral_zone=float(zone), dither=d.dither)  # fmt: skip
 
 
 class EpisodicController:
@@ -354,6 +376,7 @@ class LQRController(EpisodicController):
     def reset(self) -> None:
         """Start of an episode."""
         self._state: dict[str, np.ndarray] | None = None
+        self._dither_sign = 1.0
 
     def integral_command(self) -> np.ndarray:
         """The ``sin(tilt)`` (…, 2; along x and y) its integral term commands now: its estimate of what holds
@@ -382,8 +405,10 @@ class LQRController(EpisodicController):
         u = feed - (k[0] * err + k[1] * (vel - target_vel) + k[2] * (st["accel"] - feed) + k[3] * (in_force - feed)
                     + k[4] * st["integral"])  # fmt: skip
         s = np.clip(u, -1.0, 1.0)
-        action = np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt
-        return np.clip(action, -1.0, 1.0).astype(np.float32)
+        action = np.clip(np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt, -1.0, 1.0)
+        action = dither_action(action, g.dither, g.max_tilt, self._dither_sign)
+        self._dither_sign = -self._dither_sign
+        return action
 
 
 # -------------------------------------------------------------------------------------------------- hand-over
@@ -474,9 +499,9 @@ class HandoverController(EpisodicController):
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
 
 
-#: Design fields that are bounds or zones (0 turns them off; a negative one is refused) and the LQR design's
+#: Design fields that are bounds, zones or dither (0 turns them off; a negative one is refused) and the LQR design's
 #: acceptable sizes and servo lag (must be positive).
-NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm")
+NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm", "dither")
 POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
 
 
