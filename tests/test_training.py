@@ -308,7 +308,8 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
 
 def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
     """``train/builds.py`` for one build and one controller, one episode: the table between the markers is
-    replaced (a row per pair, every column filled) and the rest of the page is kept; an unknown build and a page
+    replaced (a row per pair, every column filled) and the rest of the page is kept; with ``--dither-deg`` and
+    ``--section`` a second table goes between its own markers; an unknown build, a dither of 20° and a page
     without markers are refused with one ``error:`` line before any evaluation."""
     import subprocess
     import sys
@@ -324,7 +325,15 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
     rows = [line for line in text.splitlines() if line.startswith("| desk-rect")]
     assert len(rows) == 1 and "LQR (`lqr`)" in rows[0] and "400 × 260 mm" in rows[0] and "old table" not in text
     assert len(rows[0].split("|")) == 10 and "–" not in rows[0] and " µs |" in rows[0]
+    page.write_text(text + "<!-- shaken:start -->\n<!-- shaken:end -->\n")
+    proc = subprocess.run([*script, "--episodes", "1", "--builds", "desk-rect", "--controllers", "lqr-pid",
+                           "--dither-deg", "0.5", "--section", "shaken", "--out", str(page)],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    again = page.read_text()
+    assert again.startswith(text) and "| desk-rect (400 × 260 mm) | LQR → PID (`lqr-pid`) + 0.5° dither |" in again
     for args, says in ((["--builds", "my-desk", "--out", str(page)], "unknown build"),
+                       (["--dither-deg", "20", "--out", str(page)], "--dither-deg"),
                        (["--out", str(tmp_path / "none.md")], "markers")):  # fmt: skip
         bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
