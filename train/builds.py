@@ -78,8 +78,14 @@ def table(results: list[dict[str, Any]]) -> str:
         rows.append(f"| {describe(r['build'])} | {CONTROLLERS[r['policy']]}{dither} | {m['success_rate']:.0%} | "
                     f"{m['rms_error_mm']:.2f} mm | {m['final_error_mm']:.2f} mm | {settle} "
                     f"({m['settling_offset_mm']:.0f} mm, {m['settled_fraction']:.0%} settled) | "
-                    f"{m['settled_pulse_rate_us_per_s']:,.0f} µs/s | {m['settled_pulse_p2p_us']:.0f} µs |")  # fmt: skip
+                    f"{shown(m['settled_pulse_rate_us_per_s'], '{:,.0f} µs/s')} | "
+                    f"{shown(m['settled_pulse_p2p_us'], '{:.0f} µs')} |")  # fmt: skip
     return "\n".join(rows)
+
+
+def shown(value: float | None, pattern: str) -> str:
+    """A metric as text; "–" where there is none (every episode ended with the ball off the plate)."""
+    return "–" if value is None else pattern.format(value)
 
 
 def names(parser: argparse.ArgumentParser, text: str, known: tuple[str, ...] | list[str], what: str) -> list[str]:
