@@ -33,8 +33,8 @@ from stewart_gym.sensing import ObservationBuilder
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
-           "design_kind", "design_lqr", "dither_action", "gains_for_geometry", "integrate_error", "residual_action",
-           "shipped_design", "trim_tilt"]  # fmt: skip
+           "design_kind", "design_lqr", "gains_for_geometry", "grown_zone", "integrate_error", "residual_action",
+           "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -76,7 +76,7 @@ class PIDGains:
         integral_zone: m; if positive, the error is integrated only while it is this small (conditional
             integration: a fast approach from far away does not wind the integral up); 0 integrates always.
         dither: rad; if positive, ± this tilt is added on both axes, the sign alternating every control
-            period (:func:`dither_action`): it carries small corrections through the actuators' dead band.
+            period (:class:`SquareWaveDither`): it carries small corrections through the actuators' dead band.
             0 (off) in the shipped gains.
     """
 
@@ -90,14 +90,32 @@ class PIDGains:
     dither: float = 0.0
 
 
-def dither_action(action: np.ndarray, dither: float, max_tilt: float, sign: float) -> np.ndarray:
-    """``action`` (…, 2) with ``sign`` · ``dither`` (rad of tilt, at action ±1 = ``max_tilt``) added to both axes,
-    clipped to [−1, 1] (float32). Alternating ``sign`` every control period makes a square wave whose mean is
-    zero: the servos' dead band (3–8 µs) otherwise swallows the small corrections of a quiet controller, and
-    the ball rests where the last correction that got through left it."""
-    if dither <= 0:
-        return np.asarray(action, dtype=np.float32)
-    return np.clip(np.asarray(action, dtype=np.float64) + sign * dither / max_tilt, -1.0, 1.0).astype(np.float32)
+class SquareWaveDither:
+    """± ``dither`` rad of tilt (at action ±1 = ``max_tilt``) added to both axes of each action, the sign
+    alternating every control period from + after :meth:`reset`: a square wave whose mean is zero. The servos'
+    dead band (3–8 µs) otherwise swallows the small corrections of a quiet controller, and the ball rests
+    where the last correction that got through left it. ``dither`` 0 passes actions through."""
+
+    def __init__(self, dither: float, max_tilt: float) -> None:
+        self.step = dither / max_tilt
+        self.sign = 1.0
+
+    def reset(self) -> None:
+        self.sign = 1.0
+
+    def __call__(self, action: np.ndarray) -> np.ndarray:
+        """``action`` (…, 2) in [−1, 1] plus this period's ± step, clipped to [−1, 1] (float32)."""
+        if self.step <= 0:
+            return np.asarray(action, dtype=np.float32)
+        out = np.clip(np.asarray(action, dtype=np.float64) + self.sign * self.step, -1.0, 1.0)
+        self.sign = -self.sign
+        return out.astype(np.float32)
+
+
+def grown_zone(zone: float, rest: float) -> float:
+    """A conditional-integration ``zone`` (m; 0: off, kept off) grown, if needed, to :data:`ZONE_MARGIN` × the
+    offset ``rest`` (m) at which a controller's other terms alone hold the build's worst trim tilt."""
+    return max(zone, ZONE_MARGIN * rest) if zone > 0 else zone
 
 
 def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: float, zone: float) -> np.ndarray:
@@ -127,12 +145,12 @@ class CascadedPID:
         self._position_scale = np.array(scales.position_scale)
         self._velocity_scale = np.array(scales.velocity_scale)
         self._integral = np.zeros(2)
-        self._dither_sign = 1.0
+        self._dither = SquareWaveDither(self.gains.dither, self.gains.max_tilt)
 
     def reset(self) -> None:
-        """Clear the integrator (call at the start of an episode)."""
+        """Clear the integrator and restart the dither (call at the start of an episode)."""
         self._integral = np.zeros(2)
-        self._dither_sign = 1.0
+        self._dither.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Tilt action(s) for observation(s); keeps one integrator per row of a batch."""
@@ -146,10 +164,7 @@ class CascadedPID:
         accel = g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
         s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
-        action = np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0)
-        action = dither_action(action, g.dither, g.max_tilt, self._dither_sign)
-        self._dither_sign = -self._dither_sign
-        return action
+        return self._dither(np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0))
 
     def preload_integral(self, rows: np.ndarray, accel: np.ndarray) -> None:
         """Set the integral of the rows where ``rows`` is true so that its term commands the ball acceleration
@@ -218,9 +233,9 @@ def gains_for_geometry(gains: PIDGains, geometry: Any) -> PIDGains:
     tilt = min(INTEGRAL_MARGIN * worst, math.pi / 2)
     needed = gains.rolling_factor * GRAVITY * math.sin(tilt) / gains.ki_vel if gains.ki_vel > 0 else 0.0
     zone = gains.integral_zone
-    if zone > 0 and gains.kp_pos * gains.kp_vel > 0:
+    if gains.kp_pos * gains.kp_vel > 0:
         rest = gains.rolling_factor * GRAVITY * math.sin(min(worst, math.pi / 2)) / (gains.kp_pos * gains.kp_vel)
-        zone = max(zone, ZONE_MARGIN * rest)
+        zone = grown_zone(zone, rest)
     return replace(gains, max_tilt=default_max_tilt(geo), integral_limit=max(gains.integral_limit, needed),
                    integral_zone=zone)  # fmt: skip
 
@@ -328,10 +343,7 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
     geo = load_geometry(geometry)
     worst = trim_tilt(geo)
     needed = math.sin(min(INTEGRAL_MARGIN * worst, math.pi / 2))
-    zone = d.integral_zone_mm * 1e-3
-    if zone > 0:
-        rest = math.sin(min(worst, math.pi / 2)) * abs(1 + k[2] + k[3]) / abs(k[0])
-        zone = max(zone, ZONE_MARGIN * rest)
+    zone = grown_zone(d.integral_zone_mm * 1e-3, math.sin(min(worst, math.pi / 2)) * abs(1 + k[2] + k[3]) / abs(k[0]))
     return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
                     max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])),
                     integral_zone=float(zone), dither=d.dither)  # fmt: skip
@@ -371,12 +383,13 @@ class LQRController(EpisodicController):
         self._velocity_scale = np.array(scales.velocity_scale)
         self._k = np.asarray(gains.k, dtype=float)
         self._phi = math.exp(-gains.dt / gains.tilt_lag_s)
+        self._dither = SquareWaveDither(gains.dither, gains.max_tilt)
         self.reset()
 
     def reset(self) -> None:
         """Start of an episode."""
         self._state: dict[str, np.ndarray] | None = None
-        self._dither_sign = 1.0
+        self._dither.reset()
 
     def integral_command(self) -> np.ndarray:
         """The ``sin(tilt)`` (…, 2; along x and y) its integral term commands now: its estimate of what holds
@@ -405,10 +418,8 @@ class LQRController(EpisodicController):
         u = feed - (k[0] * err + k[1] * (vel - target_vel) + k[2] * (st["accel"] - feed) + k[3] * (in_force - feed)
                     + k[4] * st["integral"])  # fmt: skip
         s = np.clip(u, -1.0, 1.0)
-        action = np.clip(np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt, -1.0, 1.0)
-        action = dither_action(action, g.dither, g.max_tilt, self._dither_sign)
-        self._dither_sign = -self._dither_sign
-        return action
+        return self._dither(np.clip(np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt,
+                                    -1.0, 1.0))  # fmt: skip
 
 
 # -------------------------------------------------------------------------------------------------- hand-over

@@ -9,7 +9,7 @@ seeds 0…N−1 of the randomised balance task on each build, as ``stewart-gym e
 --geometry BUILD --episodes N`` does. The table replaces the text between the ``builds-table`` markers of
 ``--out`` (nothing else of the page changes); without the markers the script stops with one ``error:`` line (exit 2).
 ``--dither-deg D`` runs the controllers with D degrees of dither added to their shipped design
-(:func:`stewart_gym.classical.dither_action`); ``--section NAME`` picks the markers ``<!-- NAME:start -->`` …
+(:class:`stewart_gym.classical.SquareWaveDither`); ``--section NAME`` picks the markers ``<!-- NAME:start -->`` …
 ``<!-- NAME:end -->`` (default ``builds-table``), so that one page can hold several tables.
 """
 
@@ -36,10 +36,10 @@ def with_dither(name: str, dither: float) -> Any:
     """The shipped design of controller ``name`` with ``dither`` rad (both parts of the hand-over)."""
     from dataclasses import replace
 
-    from stewart_gym.classical import shipped_design
+    from stewart_gym.classical import HandoverDesign, shipped_design
 
     design = shipped_design(name)
-    if hasattr(design, "lqr"):
+    if isinstance(design, HandoverDesign):
         return replace(design, lqr=replace(design.lqr, dither=dither), pid=replace(design.pid, dither=dither))
     return replace(design, dither=dither)
 
