@@ -28,13 +28,13 @@ from stewart_gym.actions import DEFAULT_MAX_TILT, default_max_tilt
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
-from stewart_gym.sensing import ObservationBuilder
+from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
 
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
-           "design_kind", "design_lqr", "gains_for_geometry", "grown_zone", "integrate_error", "residual_action",
-           "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
+           "design_estimator", "design_kind", "design_lqr", "gains_for_geometry", "grown_zone", "integrate_error",
+           "residual_action", "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -94,9 +94,13 @@ class SquareWaveDither:
     """± ``dither`` rad of tilt (at action ±1 = ``max_tilt``) added to both axes of each action, the sign
     alternating every control period from + after :meth:`reset`: a square wave whose mean is zero. The servos'
     dead band (3–8 µs) otherwise swallows the small corrections of a quiet controller, and the ball rests
-    where the last correction that got through left it. ``dither`` 0 passes actions through."""
+    where the last correction that got through left it. ``dither`` 0 passes actions through; it must be less
+    than half ``max_tilt`` (more would leave the controller less than half its range: ``ValueError``)."""
 
     def __init__(self, dither: float, max_tilt: float) -> None:
+        if not 0 <= dither < max_tilt / 2:
+            raise ValueError(f"dither must be 0 (off) or more and less than half the build's max tilt "
+                             f"({math.degrees(max_tilt) / 2:.2f}°), got {math.degrees(dither):.2f}°")  # fmt: skip
         self.step = dither / max_tilt
         self.sign = 1.0
 
@@ -516,6 +520,22 @@ NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm", "di
 POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
 
 
+#: The optional field of a gains or design file that names the observer it was tuned behind (``lowpass`` or
+#: ``kalman``): a copy of ``pid_kalman_gains.json`` runs behind the Kalman observer, as ``--policy pid-kalman`` does.
+ESTIMATOR_FIELD = "estimator"
+
+
+def design_estimator(values: Any) -> str | None:
+    """The observer a gains or design file's values name (their ``estimator`` field; None without one). Raises
+    ``ValueError`` if it is not one of :data:`~stewart_gym.sensing.ESTIMATORS`."""
+    if not isinstance(values, dict) or ESTIMATOR_FIELD not in values:
+        return None
+    named = values[ESTIMATOR_FIELD]
+    if named not in ESTIMATORS:
+        raise ValueError(f"{ESTIMATOR_FIELD} must be one of {list(ESTIMATORS)}, got {named!r}")
+    return str(named)
+
+
 def design_kind(values: Any) -> str:
     """The kind of controller a gains or design file's values describe: ``"handover"`` (``lqr`` and ``pid``
     sections), ``"lqr"`` (an LQR design: it has the acceptable sizes, e.g. ``position_mm``) or ``"pid"``."""
@@ -530,8 +550,10 @@ def design_kind(values: Any) -> str:
 def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDesign:
     """The PID's gains (``kind`` "pid"), the LQR's design (``"lqr"``) or the hand-over's (``"handover"``:
     :func:`checked_handover`) from a mapping of its fields, checked: known fields, finite numbers, no negative
-    bound or zone, positive LQR sizes. Raises ``ValueError`` saying what is wrong (callers add where the values
-    came from)."""
+    bound or zone, positive LQR sizes; an ``estimator`` field (:func:`design_estimator`) is checked and left
+    out. Raises ``ValueError`` saying what is wrong (callers add where the values came from)."""
+    if design_estimator(values) is not None:
+        values = {k: v for k, v in values.items() if k != ESTIMATOR_FIELD}
     if kind == "handover":
         return checked_handover(values)
     cls = LQRDesign if kind == "lqr" else PIDGains

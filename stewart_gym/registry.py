@@ -19,8 +19,9 @@
 * a **bundle** folder written by ``stewart-gym export`` (``bundle.json``);
 * a **gains** ``.json`` file: PID gains (as ``tune_pid.py`` writes them), an LQR design (as ``lqr.json``) or
   a hand-over design (as ``lqr_pid.json``, as ``tune_handover.py`` writes it), told apart by their fields;
-  the LQR and the hand-over run behind the Kalman observer, PID gains behind the low-pass one unless
-  ``--estimator`` says otherwise.
+  each runs behind the observer its ``estimator`` field names (``pid_kalman_gains.json`` says ``kalman``);
+  without one the LQR and the hand-over run behind the Kalman observer and PID gains behind the low-pass one;
+  ``--estimator`` overrides both.
 
 :func:`resolve_policy` works out which, and what the policy was trained for:
 the env id and the env keywords that define its observation and action
@@ -39,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.actions import ACTION_SIZES
-from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_kind
+from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
@@ -159,10 +160,15 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
         return _sb3_source(spec, path)
     if path.suffix == ".json":
         # a readable JSON file, checked here; its kind from its fields; the gains themselves when loaded
-        kind = design_kind(_read_json(path))
+        values = _read_json(path)
+        try:  # the observer the file names; else the LQR's and the hand-over's model is the Kalman observer's
+            named = design_estimator(values)
+        except ValueError as exc:
+            raise PolicyError(f"{path}: {exc}") from None
+        kind = design_kind(values)
         kwargs = {"action_mode": "tilt", "geometry": geometry or DEFAULT_GEOMETRY}
-        if kind != "pid":  # the LQR's and the hand-over's model is the Kalman observer's, as for the named ones
-            kwargs["estimator"] = "kalman"
+        if named is not None or kind != "pid":
+            kwargs["estimator"] = named or "kalman"
         return PolicySource(spec, kind, path, env_id or DEFAULT_ENV, kwargs)
     raise PolicyError(f"policy {spec!r}: not a .zip model or a .json gains or design file; give {_KINDS_TEXT}")
 
@@ -279,7 +285,11 @@ def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY
     the LQR designed); its observation scales follow the plate."""
     from stewart_gym.classical import classical_controller
 
-    return classical_controller(kind, read_design(path, kind), geometry)
+    design = read_design(path, kind)
+    try:  # what only the build can tell (a dither against its max tilt)
+        return classical_controller(kind, design, geometry)
+    except ValueError as exc:
+        raise PolicyError(f"{path}: {exc}") from None
 
 
 def read_design(path: Path, kind: str) -> Any:

@@ -198,7 +198,8 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
     policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
     design = json.loads((policies / "lqr_pid.json").read_text())
     assert design["lqr"] == json.loads((policies / "lqr.json").read_text())
-    assert design["pid"] == json.loads((policies / "pid_kalman_gains.json").read_text())
+    pid_kalman = json.loads((policies / "pid_kalman_gains.json").read_text())
+    assert pid_kalman.pop("estimator") == "kalman" and design["pid"] == pid_kalman
     for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "HandoverDesign"),
                        ({**design, "handover_mm_s": -1}, "positive"),
                        ({**design, "pid": {**design["pid"], "kp_pos": "x"}}, "handover: gains must be finite")):

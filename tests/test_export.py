@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -55,3 +56,13 @@ def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "(2,)" in out.stdout
+
+
+def test_export_pid_keeps_the_observer_its_gains_name(tmp_path: Path) -> None:
+    """Gains that name their observer (``pid_kalman_gains.json``: ``kalman``) export behind it; gains that name
+    none, behind the low-pass one; the bundle's gains are the checked gains, without the ``estimator`` field."""
+    policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
+    kalman = json.loads((export_pid(policies / "pid_kalman_gains.json", tmp_path / "k") / "bundle.json").read_text())
+    plain = json.loads((export_pid(policies / "pid_gains.json", tmp_path / "p") / "bundle.json").read_text())
+    assert (kalman["estimator"], plain["estimator"]) == ("kalman", "lowpass")
+    assert "estimator" not in kalman["gains"] and kalman["gains"]["kp_pos"] == 2.0

@@ -314,10 +314,12 @@ def test_the_pid_kalman_rests_on_target_on_the_linear_build() -> None:
 def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path) -> None:
     """A user's copy of a gains or design file (``--policy my.json``) is told apart by its fields and runs on
     the build ``--geometry`` names exactly as the named controller does (gains adapted to that build, its
-    plate's observation scales, the Kalman observer for the LQR and the hand-over); export keeps the kind."""
+    plate's observation scales, the observer the file names or else the Kalman observer for the LQR and the
+    hand-over); export keeps the kind. A file naming an unknown observer, or a dither the build cannot give,
+    is refused with one ``error:`` line."""
     policies = Path(__file__).resolve().parents[1] / "stewart_gym" / "policies"
     results = {}
-    for name, file in (("pid", "pid_gains.json"), ("lqr-pid", "lqr_pid.json")):
+    for name, file in (("pid", "pid_gains.json"), ("pid-kalman", "pid_kalman_gains.json"), ("lqr-pid", "lqr_pid.json")):
         mine = tmp_path / f"my_{file}"
         mine.write_text((policies / file).read_text())
         for spec in (name, str(mine)):
@@ -332,3 +334,10 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
     assert meta["kind"] == "handover" and meta["estimator"] == "kalman", meta
+    pid_kalman = json.loads((policies / "pid_kalman_gains.json").read_text())
+    for bad, says in (({**pid_kalman, "estimator": "magic"}, "estimator must be one of"),
+                      ({**pid_kalman, "dither": 0.1}, "less than half the build's max tilt")):  # 5.7° of 10°
+        (tmp_path / "bad.json").write_text(json.dumps(bad))
+        proc = sg("evaluate", "--policy", str(tmp_path / "bad.json"), "--episodes", "1", cwd=tmp_path)
+        assert proc.returncode != 0 and proc.stderr.startswith("error: ") and says in proc.stderr, proc.stderr
+        assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr

@@ -59,7 +59,7 @@ def main() -> None:
     lowest = min(-r[1] for r in rows if r[0] == top)
     near = [r for r in rows if r[0] == top and -r[1] <= 1.1 * lowest]
     best = min(near, key=lambda r: (r[3]["settled_pulse_rate_us_per_s"], -r[1]))
-    Path(args.out).write_text(json.dumps(asdict(best[2]), indent=2) + "\n")
+    Path(args.out).write_text(json.dumps({**asdict(best[2]), "estimator": args.estimator}, indent=2) + "\n")
     m = best[3]
     print(f"best: {asdict(best[2])} → {args.out}: success {m['success_rate']:.0%}, RMS {m['rms_error_mm']:.2f} mm")
 

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
-from stewart_gym.classical import CLASSICAL_KINDS, controller_from_gains, residual_action
+from stewart_gym.classical import CLASSICAL_KINDS, checked_design, controller_from_gains, design_estimator, residual_action
 from stewart_gym.errors import PolicyError
 from stewart_gym.sensing import ESTIMATORS
 
@@ -137,11 +137,14 @@ def classical_meta(kind: str, gains: dict[str, Any], env_id: str = "StewartBallB
 
 def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: str = "StewartBallBalance-v0",
                geometry: Any = "servo-hexapod") -> Path:  # fmt: skip
-    """Export the PID baseline's gains (a dict or a gains ``.json``) to a bundle (``kind: "pid"``)."""
+    """Export the PID baseline's gains (a dict or a gains ``.json``, checked) to a bundle (``kind: "pid"``),
+    behind the observer the gains name (``estimator``; the low-pass one if they name none)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     values = gains if isinstance(gains, dict) else json.loads(Path(gains).read_text())
-    (out / "bundle.json").write_text(json.dumps(classical_meta("pid", values, env_id, geometry), indent=2) + "\n")
+    estimator = design_estimator(values) or "lowpass"  # the observer the gains name, else the plain PID's
+    meta = classical_meta("pid", asdict(checked_design(values, "pid")), env_id, geometry, estimator)
+    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
 
 
