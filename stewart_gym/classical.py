@@ -33,8 +33,8 @@ from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
-           "design_estimator", "design_kind", "design_lqr", "gains_for_geometry", "grown_zone", "integrate_error",
-           "residual_action", "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
+           "design_estimator", "design_kind", "design_lqr", "fastest_settling", "gains_for_geometry", "grown_zone",
+           "integrate_error", "residual_action", "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -322,6 +322,57 @@ def lqr_model(design: LQRDesign, dt: float) -> tuple[np.ndarray, np.ndarray]:
     b = np.zeros((5, 1))
     b[3, 0] = 1.0  # …and the new command is in flight next
     return a, b
+
+
+def fastest_settling(start: tuple[float, float], radius: float, max_tilt: float = DEFAULT_MAX_TILT,
+                     design: LQRDesign | None = None, dt: float = 0.02, hold_s: float = 0.8,
+                     sides: int = 16) -> float:  # fmt: skip
+    """s: a lower bound on the settling time from rest at ``start`` (x, y, m from the target) under the LQR's
+    linear model (:func:`lqr_model` of ``design``: the rolling ball, one control period of dead time, the tilt's
+    lag, the command held for ``dt``), each axis' tilt within ±``max_tilt``: the fewest periods N such that some
+    command sequence keeps the ball within ``radius`` (a ``sides``-gon inside that circle) from period N on for
+    ``hold_s`` more and leaves it at rest. Each N is a linear program (scipy's HiGHS), N found by bisection
+    (a sequence that settles by N settles by N + 1). The simulator adds
+    what the model leaves out (the ball's first push away from the target as the plate starts to turn, rolling
+    friction, the servos' speed limit), so no controller there reaches this bound; it tells how far one is
+    from it."""
+    from scipy.optimize import linprog
+
+    d = design or LQRDesign()
+    a4 = lqr_model(d, dt)[0][:4, :4]  # (p, v, a, u in flight); the new command enters as u in flight
+    limit, hold = math.sin(max_tilt), max(1, round(hold_s / dt))
+
+    def feasible(n: int) -> bool:
+        periods = n + hold
+        rows, bounds_ub, eq_rows, eq_b = [], [], [], []
+        free = [np.array([p0, 0.0, 0.0, 0.0]) for p0 in start]  # each axis' state with no command
+        gain = [np.zeros((4, periods)) for _ in start]  # … and its response to each command
+        for k in range(periods + 1):
+            if k >= n:
+                for i in range(sides):
+                    cx, cy = math.cos(2 * math.pi * i / sides), math.sin(2 * math.pi * i / sides)
+                    rows.append(np.concatenate([cx * gain[0][0], cy * gain[1][0]]))
+                    bounds_ub.append(radius * math.cos(math.pi / sides) - cx * free[0][0] - cy * free[1][0])
+            if k == periods:
+                break
+            for axis in range(2):
+                free[axis], gain[axis] = a4 @ free[axis], a4 @ gain[axis]
+                gain[axis][3, k] += 1.0  # the command sent at period k is in flight during period k + 1
+        for axis in range(2):  # at rest at the end
+            eq_rows.append(np.concatenate([gain[0][1] if axis == 0 else 0 * gain[0][1],
+                                           gain[1][1] if axis == 1 else 0 * gain[1][1]]))  # fmt: skip
+            eq_b.append(-free[axis][1])
+        result = linprog(np.zeros(2 * periods), A_ub=np.array(rows), b_ub=np.array(bounds_ub), A_eq=np.array(eq_rows),
+                         b_eq=np.array(eq_b), bounds=[(-limit, limit)] * (2 * periods), method="highs")  # fmt: skip
+        return bool(result.status == 0)
+
+    low, high = 0, 1  # settles by high, not by low − 1
+    while not feasible(high):
+        low, high = high + 1, 2 * high
+    while low < high:
+        mid = (low + high) // 2
+        low, high = (low, mid) if feasible(mid) else (mid + 1, high)
+    return high * dt
 
 
 def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any = "servo-hexapod") -> LQRGains:

@@ -370,3 +370,25 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
     assert settle.startswith("-0.85 [")
     assert "| LQR → PID − LQR |" not in page and "| residual PPO −" not in page
+
+
+def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None:
+    """``train/settling_bound.py``: a row per start angle and the mean; the diagonal starts (both axes at full
+    tilt) settle sooner than the axis-aligned ones; impossible sizes are refused with one ``error:`` line."""
+    import subprocess
+    import sys
+
+    script = [sys.executable, str(Path(__file__).resolve().parents[1] / "train" / "settling_bound.py")]
+    proc = subprocess.run([*script, "--episodes", "8"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = {float(line.split("|")[1]): float(line.split("|")[2]) for line in proc.stdout.splitlines()
+            if line.startswith("| ") and line[2].isdigit()}  # fmt: skip
+    assert sorted(rows) == [0, 45, 90, 135, 180, 225, 270, 315]
+    assert all(0.3 < t < 0.6 for t in rows.values()) and rows[45] < rows[0], rows
+    mean = float(proc.stdout.split("mean bound ")[1].split(" s over 8 starts")[0])
+    assert mean == pytest.approx(sum(rows.values()) / 8, abs=0.006), (mean, rows)
+    for args, says in ((["--episodes", "0"], "--episodes"), (["--radius-mm", "200"], "--radius-mm"),
+                       (["--max-tilt-deg", "nan"], "--max-tilt-deg")):  # fmt: skip
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
+        assert "Traceback" not in bad.stderr
