@@ -234,6 +234,27 @@ def test_reset_options_are_checked(options: dict, match: str) -> None:
         env.close()
 
 
+def test_start_distance_draws_the_start_on_a_ring_and_is_checked() -> None:
+    """``start_distance=(low, high)`` starts the ball at a distance in that range from the centre, in varied
+    directions; without it the start is the usual seeded draw; bad ranges are refused naming the keyword."""
+    from stewart_gym.errors import ConfigError
+
+    env = gym.make("StewartBallBalance-v0", start_distance=(0.05, 0.11))
+    plain, again = gym.make("StewartBallBalance-v0"), gym.make("StewartBallBalance-v0")
+    try:
+        starts = np.array([env.reset(seed=s)[1]["ball_xy_m"] for s in range(30)])
+        distance = np.linalg.norm(starts, axis=1)
+        assert np.all((distance >= 0.05 - 1e-9) & (distance <= 0.11 + 1e-9)), distance
+        assert np.ptp(np.arctan2(starts[:, 1], starts[:, 0])) > 4.0  # directions all round
+        assert np.allclose(plain.reset(seed=3)[1]["ball_xy_m"], again.reset(seed=3)[1]["ball_xy_m"])
+        for bad in ((0.11, 0.05), (-0.01, 0.05), (0.0, math.nan), (0.05, 0.2), (0.05,), "far"):
+            with pytest.raises(ConfigError, match="start_distance"):
+                gym.make("StewartBallBalance-v0", start_distance=bad)
+    finally:
+        for e in (env, plain, again):
+            e.close()
+
+
 def _trajectory_kind(env: gym.Env) -> str:
     """Which trajectory the episode's target follows, judged from its path over 8 s."""
     path = np.array([env.unwrapped.task.target(t)[0] for t in np.arange(0.0, 8.0, 0.1)])

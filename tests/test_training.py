@@ -203,7 +203,8 @@ def test_settled_servo_activity_is_reported() -> None:
 
 def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -> None:
     """``train/results.py --recipes-only``: the recipe's runs are evaluated, the controllers' rows of
-    results.json are kept as they were, an earlier recipe is replaced, and the page gets the recipe's column."""
+    results.json and the other recipes are kept as they were, an earlier run of the same recipe is replaced,
+    and the page gets the recipe's column next to the others."""
     import subprocess
     import sys
 
@@ -212,18 +213,21 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     kept = [{"table": "balance", "row": "LQR", "policy": "lqr", "estimator": None, "env": "StewartBallBalance-v0",
              "episodes": 3, "metrics": {"success_rate": 1.0, "rms_error_mm": 1.5}},
             {"table": "balance", "row": "seed:old", "recipe": "old", "policy": "old", "estimator": None,
-             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.5}}]  # fmt: skip
+             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.5}},
+            {"table": "balance", "row": "seed:stale", "recipe": "quick PID", "policy": "stale", "estimator": None,
+             "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.25}}]  # fmt: skip
     (tmp_path / "results.json").write_text(json.dumps(kept))
     proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
                            "quick PID=pid", "--episodes", "1", "--workers", "1", "--out", str(tmp_path / "r.md")],
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = json.loads((tmp_path / "results.json").read_text())
-    assert rows[0] == kept[0] and not any(r["row"] == "seed:old" for r in rows)
+    assert rows[0] == kept[0] and kept[1] in rows and not any(r["row"] == "seed:stale" for r in rows)
     new = [r for r in rows if r["row"] == "seed:pid"]
     assert len(new) == 1 and new[0]["episodes"] == 1 and new[0]["recipe"] == "quick PID"
     assert 0.0 <= new[0]["metrics"]["success_rate"] <= 1.0
-    assert "quick PID, 1 training seeds" in (tmp_path / "r.md").read_text()
+    page = (tmp_path / "r.md").read_text()
+    assert "quick PID, 1 training seeds" in page and "old, 1 training seeds" in page
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr

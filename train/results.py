@@ -2,7 +2,8 @@
 
 Run: ``.venv/bin/python train/results.py [--recipe "LABEL=runs/s0,runs/s1,runs/s2" ...] [--episodes 100]
 [--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --rows LABELS | --from-json]``
-(``--recipes-only``: evaluate only the recipes' runs and keep the controllers' rows of ``results.json``;
+(``--recipes-only``: evaluate only the given recipes' runs and keep the rest of ``results.json``, the other
+recipes included;
 ``--rows "LQR → PID"``: evaluate only those controllers and keep the rest.)
 
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
@@ -211,9 +212,9 @@ def main() -> None:
     ap.add_argument("--out", default=str(ROOT / "docs/src/results.md"))
     ap.add_argument("--from-json", action="store_true", help="rebuild the page from results.json beside it (after "
                                                              "editing train/results_intro.md), evaluating nothing")
-    ap.add_argument("--recipes-only", action="store_true", help="evaluate only the --recipe runs; keep the "
-                                                                "controllers' rows of results.json beside the page "
-                                                                "(earlier recipes are replaced)")
+    ap.add_argument("--recipes-only", action="store_true", help="evaluate only the --recipe runs; keep the rest "
+                                                                "of results.json beside the page (a recipe of the "
+                                                                "same label is replaced)")
     ap.add_argument("--rows", type=lambda t: [v.strip() for v in t.split(",") if v.strip()],
                     help="evaluate only these controllers (labels, comma-separated, e.g. 'LQR → PID') and keep the "
                          "rest of results.json beside the page")  # fmt: skip
@@ -243,8 +244,14 @@ def main() -> None:
         elif args.recipes_only:
             if not args.recipes:
                 ap.error("--recipes-only needs at least one --recipe")
-            kept = [r for r in json.loads((out.parent / "results.json").read_text()) if not r["row"].startswith("seed:")]
+            kept = [r for r in json.loads((out.parent / "results.json").read_text())
+                    if not r["row"].startswith("seed:") or r["recipe"] not in args.recipes]  # fmt: skip
             jobs = [j for j in jobs if j["row"].startswith("seed:")]
+            for r in kept:  # the other recipes' columns stay, in their order
+                if r["row"].startswith("seed:"):
+                    args.recipes.setdefault(r["recipe"], [])
+                    if r["row"][5:] not in args.recipes[r["recipe"]]:
+                        args.recipes[r["recipe"]].append(r["row"][5:])
         with ProcessPoolExecutor(args.workers) as pool:
             results = kept + list(pool.map(run_job, jobs))
         jobs = results

@@ -4,7 +4,7 @@ the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -133,7 +133,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     Platform at home. The ball rests on the plate at a uniform random position
     within 2/3 of the plate's half size of the centre on each axis (±0.10 m on
     the 300 mm plate) rolling at a uniform random speed up to 0.1 m/s in a
-    random direction. ``reset(options={"ball_position": (x, y), "ball_velocity":
+    random direction; with ``start_distance=(low, high)`` (m) it starts instead at a uniform random distance in
+    that range from the centre, in a uniform random direction (to train the approach from afar).
+    ``reset(options={"ball_position": (x, y), "ball_velocity":
     (vx, vy)})`` sets them (m, m/s, plate frame); they are checked: two finite
     numbers each, the ball's centre at most half the plate minus its radius from
     the centre on each axis, at most 2 m/s, and no other keys
@@ -171,8 +173,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     (``"lowpass"``, the default: the last reading and a filtered finite-difference velocity; or
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
     delay), ``integral`` (append the observer's integral of the position error near the target, what a
-    PID's integral term sees), and any keyword of the task (``trajectory`` for track; ``near_scale``,
-    ``settled_rate_penalty`` and ``outside_penalty`` of the reward).
+    PID's integral term sees), ``start_distance`` (see Starting State), and any keyword of the task
+    (``trajectory`` for track; ``near_scale``, ``settled_rate_penalty`` and ``outside_penalty`` of the reward).
 
     ## Version History
     * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).
@@ -201,13 +203,15 @@ class StewartBallEnv(gym.Env, EzPickle):
         backend: PhysicsBackend | str = "pybullet",
         estimator: str = "lowpass",
         integral: bool = False,
+        start_distance: Sequence[float] | None = None,
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
                           success_radius=success_radius, success_window_s=success_window_s, physics_hz=physics_hz,
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
                           randomization=randomization, rate_penalty=rate_penalty, backend=backend,
-                          estimator=estimator, integral=integral, **task_kwargs)  # fmt: skip
+                          estimator=estimator, integral=integral, start_distance=start_distance,
+                          **task_kwargs)  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.randomize = bool(randomize)
@@ -238,6 +242,7 @@ class StewartBallEnv(gym.Env, EzPickle):
             raise ConfigError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
         if not isinstance(integral, bool):
             raise ConfigError(f"integral must be true or false, got {integral!r}")
+        self.start_distance = self._checked_start_distance(start_distance)
         self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent, estimator=estimator,
                                      integral=integral)  # fmt: skip
         self.observation_space = self.observer.builder.space
@@ -261,6 +266,9 @@ class StewartBallEnv(gym.Env, EzPickle):
                        plate_load=params.plate_load)  # fmt: skip
         if "ball_position" in options:
             xy = options["ball_position"]
+        elif self.start_distance is not None:
+            radius, ang = rng.uniform(*self.start_distance), rng.uniform(0, 2 * math.pi)
+            xy = np.array([radius * math.cos(ang), radius * math.sin(ang)])
         else:
             xy = rng.uniform(-1.0, 1.0, 2) * self.START_FRACTION * np.array(self.plate_half_extent)
         if "ball_velocity" in options:
@@ -285,6 +293,25 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     #: The ball starts within this fraction of the plate's half size of the centre (0.10 m on the 300 mm plate).
     START_FRACTION = 2.0 / 3.0
+    #: ``start_distance`` may reach this fraction of the plate's smaller half size (0.12 m on the 300 mm plate).
+    MAX_START_FRACTION = 0.8
+
+    def _checked_start_distance(self, value: Sequence[float] | None) -> tuple[float, float] | None:
+        """``start_distance`` as (low, high) m, checked: two finite numbers, 0 ≤ low ≤ high ≤
+        :attr:`MAX_START_FRACTION` of the plate's smaller half size; :class:`~stewart_gym.errors.ConfigError`
+        otherwise."""
+        if value is None:
+            return None
+        reach = self.MAX_START_FRACTION * min(self.plate_half_extent)
+        try:
+            low, high = (float(v) for v in value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"start_distance must be two numbers (low, high) in m, got {value!r}") from None
+        if not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high <= reach):
+            raise ConfigError(f"start_distance must be (low, high) m with 0 ≤ low ≤ high ≤ {reach:.3f} (on this plate), "
+                              f"got {value!r}")  # fmt: skip
+        return low, high
+
     #: The keys ``reset(options=…)`` accepts.
     RESET_OPTIONS = ("ball_position", "ball_velocity")
     #: m/s, the fastest ball speed a reset may ask for.
