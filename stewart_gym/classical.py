@@ -344,7 +344,7 @@ def fastest_settling(start: tuple[float, float], radius: float, max_tilt: float 
 
     def feasible(n: int) -> bool:
         periods = n + hold
-        rows, bounds_ub, eq_rows, eq_b = [], [], [], []
+        rows, bounds_ub = [], []
         free = [np.array([p0, 0.0, 0.0, 0.0]) for p0 in start]  # each axis' state with no command
         gain = [np.zeros((4, periods)) for _ in start]  # … and its response to each command
         for k in range(periods + 1):
@@ -358,12 +358,11 @@ def fastest_settling(start: tuple[float, float], radius: float, max_tilt: float 
             for axis in range(2):
                 free[axis], gain[axis] = a4 @ free[axis], a4 @ gain[axis]
                 gain[axis][3, k] += 1.0  # the command sent at period k is in flight during period k + 1
-        for axis in range(2):  # at rest at the end
-            eq_rows.append(np.concatenate([gain[0][1] if axis == 0 else 0 * gain[0][1],
-                                           gain[1][1] if axis == 1 else 0 * gain[1][1]]))  # fmt: skip
-            eq_b.append(-free[axis][1])
-        result = linprog(np.zeros(2 * periods), A_ub=np.array(rows), b_ub=np.array(bounds_ub), A_eq=np.array(eq_rows),
-                         b_eq=np.array(eq_b), bounds=[(-limit, limit)] * (2 * periods), method="highs")  # fmt: skip
+        none = np.zeros(periods)  # at rest at the end: each axis' velocity from its own commands
+        at_rest = np.array([np.concatenate([gain[0][1], none]), np.concatenate([none, gain[1][1]])])
+        result = linprog(np.zeros(2 * periods), A_ub=np.array(rows), b_ub=np.array(bounds_ub), A_eq=at_rest,
+                         b_eq=[-free[0][1], -free[1][1]], bounds=[(-limit, limit)] * (2 * periods),
+                         method="highs")  # fmt: skip
         return bool(result.status == 0)
 
     low, high = 0, 1  # settles by high, not by low − 1

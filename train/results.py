@@ -202,6 +202,14 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def add_recipe_runs(recipes: dict[str, list[str]], rows: list[dict[str, Any]]) -> None:
+    """Add the run of each recipe row (``seed:RUN``) of ``rows`` to its recipe's list in ``recipes``, once (a
+    tracker's run has a row per trajectory)."""
+    for r in rows:
+        if r["row"].startswith("seed:") and r["row"][5:] not in recipes.setdefault(r["recipe"], []):
+            recipes[r["recipe"]].append(r["row"][5:])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--recipe", type=recipe, action="append", default=[],
@@ -225,9 +233,7 @@ def main() -> None:
     if args.from_json:
         results = json.loads((out.parent / "results.json").read_text())
         args.recipes = {}
-        for r in results:
-            if r["row"].startswith("seed:"):
-                args.recipes.setdefault(r["recipe"], []).append(r["row"][5:])
+        add_recipe_runs(args.recipes, results)
         jobs = results
     else:
         kept: list[dict[str, Any]] = []
@@ -238,20 +244,14 @@ def main() -> None:
             kept = [r for r in json.loads((out.parent / "results.json").read_text()) if r["row"] not in args.rows]
             jobs = [j for j in jobs if j["row"] in args.rows]
             args.recipes = {}
-            for r in kept:
-                if r["row"].startswith("seed:"):
-                    args.recipes.setdefault(r["recipe"], []).append(r["row"][5:])
+            add_recipe_runs(args.recipes, kept)
         elif args.recipes_only:
             if not args.recipes:
                 ap.error("--recipes-only needs at least one --recipe")
             kept = [r for r in json.loads((out.parent / "results.json").read_text())
                     if not r["row"].startswith("seed:") or r["recipe"] not in args.recipes]  # fmt: skip
             jobs = [j for j in jobs if j["row"].startswith("seed:")]
-            for r in kept:  # the other recipes' columns stay, in their order
-                if r["row"].startswith("seed:"):
-                    args.recipes.setdefault(r["recipe"], [])
-                    if r["row"][5:] not in args.recipes[r["recipe"]]:
-                        args.recipes[r["recipe"]].append(r["row"][5:])
+            add_recipe_runs(args.recipes, kept)  # the other recipes' columns stay, in their order
         with ProcessPoolExecutor(args.workers) as pool:
             results = kept + list(pool.map(run_job, jobs))
         jobs = results
