@@ -39,24 +39,24 @@ train-camera: $(STAMP)
 	$(PY) -m stewart_gym train --sensor webcam30 --resume runs/camera_webcam/best/best_model.zip --hyperparams stewart_gym/hyperparams/ppo_finetune.yml --run-dir runs/camera_webcam2 --timesteps 500000 --overwrite --no-progress
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
-# The residual PPO policies (learned corrections of the PID + Kalman for balance, of the LQR for track), as
-# shipped: about 5 + 6 minutes on 2 cores.
+# The residual PPO policies (learned corrections of the LQR -> PID's approach for balance, of the LQR for
+# track), as shipped (balance: 21 minutes per seed with three seeds sharing 2 cores; track: about 6 minutes).
 train-residual: $(STAMP)
-	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --overwrite --no-progress
+	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --seed 1 --overwrite --no-progress
 	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
 # The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
-# error integral observed (3 minutes each), the balance residual recipe (5 minutes each) and the residual
-# trained on the approach (13 minutes each with two runs sharing the cores), each trained with 3 seeds, then every evaluation
-# (about 25 minutes).
+# error integral observed (3 minutes each), the shipped balance residual's recipe (on the approach, 21
+# minutes each) and the first one, over the PID + Kalman (5 minutes each), each trained with 3 seeds, then every
+# evaluation (about 25 minutes).
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_bal_s$$s --seed $$s --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_approach.yml --run-dir runs/approach_s$$s --seed $$s --overwrite --no-progress; done
-	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach=runs/approach_s0,runs/approach_s1,runs/approach_s2"
+	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s$$s --seed $$s --overwrite --no-progress; done
+	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/approach_s$$s --seed $$s --overwrite --no-progress; done
+	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach=runs/approach_s0,runs/approach_s1,runs/approach_s2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)

@@ -22,7 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from stewart_gym.classical import CLASSICAL, checked_design, classical_controller, residual_action, shipped_design
-from stewart_gym.errors import PolicyError
+from stewart_gym.errors import ConfigError, PolicyError
 
 __all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
 
@@ -87,8 +87,6 @@ def check_residual(spec: Any) -> dict[str, Any]:
     f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never
     fades). NAME is a shipped classical controller (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid,
     pid-kalman); ``design``, its gains or design, defaults to the shipped one's (training records it)."""
-    from stewart_gym.errors import ConfigError
-
     keys = {"base", "scale", "fade_mm", "inner_mm", "design"}
     if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R}}, "
@@ -111,9 +109,13 @@ def check_residual(spec: Any) -> dict[str, Any]:
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
                   dt: float = 0.02) -> Any:  # fmt: skip
-    """The classical controller a checked residual ``spec`` adds to (its ``design``, for ``geometry``)."""
+    """The classical controller a checked residual ``spec`` adds to (its ``design``, for ``geometry``). Raises
+    :class:`ConfigError` if the design does not fit the build (a dither of half its max tilt or more)."""
     kind = CLASSICAL[spec["base"]][0]
-    return classical_controller(kind, checked_design(spec["design"], kind), geometry, dt, plate_half)
+    try:
+        return classical_controller(kind, checked_design(spec["design"], kind), geometry, dt, plate_half)
+    except ValueError as exc:
+        raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
 
 
 class ResidualAction(gym.Wrapper):

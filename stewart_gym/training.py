@@ -32,7 +32,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
-from stewart_gym.sb3_models import ResidualAction, check_residual
+from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
 __all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "run_hyperparams",
            "train"]
@@ -121,13 +121,14 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     hp = run_hyperparams(config)
-    if hp.get("residual"):
-        check_residual(hp["residual"])
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
 
         check_ball_geometry(geometry)
+    if hp.get("residual"):  # the base as it will run on this build (a dither it cannot give is refused)
+        spec = check_residual(hp["residual"])
+        residual_base(spec, geometry) if geometry is not None else residual_base(spec)
     run = output_dir(config.run_dir)
     if config.resume:
         resume = Path(config.resume)

@@ -321,14 +321,15 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
         np.testing.assert_allclose(bundle(obs), action, atol=1e-4)
 
 
-def test_the_shipped_balance_residual_is_the_pid_kalman_near_the_target_and_its_bundle_agrees() -> None:
-    """The shipped balance residual: within 5 mm of the target its action is the PID + Kalman's exactly (the
-    same integrator history), beyond 15 mm the network's correction acts, and its bundle gives the same."""
+def test_the_shipped_balance_residual_is_the_lqr_pid_near_the_target_and_its_bundle_agrees() -> None:
+    """The shipped balance residual: within 5 mm of the target its action is the LQR → PID's exactly (the same
+    integrator and hand-over history), beyond 15 mm the network's correction acts, and its bundle gives the
+    same."""
     source = resolve_policy("shipped-residual")
-    assert source.env_kwargs["residual"]["base"] == "pid-kalman" and source.env_kwargs["residual"]["inner_mm"] == 5
+    assert source.env_kwargs["residual"]["base"] == "lqr-pid" and source.env_kwargs["residual"]["inner_mm"] == 5
     rng = np.random.default_rng(3)
     for within_mm, same in ((4.0, True), (40.0, False)):
-        residual, pid, bundle = load_policy(source), load_policy("pid-kalman"), deployable_policy(source)
+        residual, pid, bundle = load_policy(source), load_policy("lqr-pid"), deployable_policy(source)
         differs = 0.0
         for k in range(30):
             obs = rng.uniform(-0.2, 0.2, 12).astype(np.float32)
@@ -351,16 +352,39 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     from stewart_gym.classical import checked_design
 
-    assert checked_design(cfg["hyperparams"]["residual"]["design"], "pid") == shipped_design("pid-kalman")
-    cfg["hyperparams"]["residual"]["design"]["kp_pos"] = 1.25
+    assert checked_design(cfg["hyperparams"]["residual"]["design"], "handover") == shipped_design("lqr-pid")
+    cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    assert load_policy(str(run)).base.gains.kp_pos == 1.25
-    assert load_policy("shipped-residual").base.gains.kp_pos == shipped_design("pid-kalman").kp_pos != 1.25
+    assert load_policy(str(run)).base.gains.pid.kp_pos == 1.25
+    assert load_policy("shipped-residual").base.gains.pid.kp_pos == shipped_design("lqr-pid").pid.kp_pos != 1.25
     proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
                            str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
-    assert meta["residual"]["base"]["gains"]["kp_pos"] == 1.25
+    assert meta["residual"]["base"]["gains"]["pid"]["kp_pos"] == 1.25
+
+
+def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_line(tmp_path: Path) -> None:
+    """A residual's base design with a dither of half the build's max tilt or more is refused with one ``error:``
+    line: in a run folder's config.yaml (evaluate, export) and in a hyperparameters file (train, before the run
+    folder is made)."""
+    run = tmp_path / "run"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual", run,
+                    ignore=shutil.ignore_patterns("bundle"))  # fmt: skip
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    cfg["hyperparams"]["residual"]["design"]["pid"]["dither"] = 0.1  # 5.7° of the build's 10°
+    (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    hyperparams = tmp_path / "hp.yml"
+    hyperparams.write_text(yaml.safe_dump({"StewartBallBalance-v0": {**cfg["hyperparams"], "n_timesteps": 256}}))
+    for args in (["evaluate", "--policy", str(run), "--episodes", "1"],
+                 ["export", "--policy", str(run), "--out", str(tmp_path / "bundle")],
+                 ["train", "--hyperparams", str(hyperparams), "--run-dir", str(tmp_path / "new"), "--no-progress"]):
+        proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
+                              timeout=300, cwd=tmp_path)  # fmt: skip
+        assert proc.returncode != 0 and proc.stderr.startswith("error: "), (args[0], proc.stderr[-2000:])
+        assert "less than half the build's max tilt" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, \
+            (args[0], proc.stderr)  # fmt: skip
+    assert not (tmp_path / "new").exists() and not (tmp_path / "bundle").exists()
 
 
 @pytest.mark.parametrize(("distance_mm", "inner_mm", "fade_mm", "weight"),

@@ -235,8 +235,8 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
 
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
     """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
-    trajectories, latency and noise), every other row of results.json is kept, recipes included; an unknown
-    label is refused with exit 2."""
+    trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
+    re-evaluated row takes its old row's place; an unknown label is refused with exit 2."""
     import subprocess
     import sys
 
@@ -259,6 +259,8 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     assert sorted({r["table"] for r in new}) == ["balance", "latency", "noise", "track circle", "track figure8",
                                                   "track waypoints"]  # fmt: skip
     assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 13
+    assert rows[0] == kept[0] and rows[1]["row"] == "LQR → PID" and rows[1]["table"] == "balance"  # in its old place
+    assert rows[2] == kept[2]  # the rows it had no place for (the tracks, the robustness) come after the kept ones
     assert "old, 1 training seeds" in (tmp_path / "r.md").read_text()
     per = [r for r in new if r["table"] == "balance"][0]["metrics"]["per_episode"]  # kept for paired comparisons
     assert len(per["rms_mm"]) == len(per["settling_s"]) == 1
@@ -374,6 +376,26 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
     assert settle.startswith("-0.85 [")
     assert "| LQR → PID − LQR |" not in page and "| residual PPO −" not in page
+
+
+def test_readme_headline_is_the_results_json_table() -> None:
+    """The README's headline table (between its markers) is what ``train/results.py`` makes of
+    ``docs/src/results.json``: no figure there goes stale when the results are regenerated; it names the
+    shipped residual, the PID + Kalman and the LQR, and pairs the residual with both."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("results_script", root / "train" / "results.py")
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    table = script.headline(json.loads((root / "docs" / "src" / "results.json").read_text()))
+    start, end = script.README_MARKERS
+    readme = (root / "README.md").read_text()
+    assert readme.split(start, 1)[1].split(end, 1)[0].strip() == table.strip(), \
+        "README headline is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+    assert "| residual PPO | PID + Kalman | LQR |" in table
+    assert "| residual PPO − PID + Kalman |" in table and "| residual PPO − LQR |" in table
 
 
 def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None:

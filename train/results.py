@@ -11,7 +11,7 @@ episodes (seeds 0…N−1). Rows:
 
 * ``shipped PPO``: the shipped learned policy of the task (behind the low-pass observer it was trained with);
 * ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the
-  PID + Kalman for balance, of the LQR for track);
+  LQR → PID's approach for balance, of the LQR for track);
 * ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``, the PID
   retuned behind the Kalman observer (``--policy pid-kalman``);
 * ``LQR``: the LQR behind the Kalman observer;
@@ -57,6 +57,11 @@ PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"), ("residual P
          ("LQR → PID", "LQR"))  # fmt: skip
 PAIRED = (("rms_error_mm", "RMS error, last 5 s (mm)"), ("final_error_mm", "final error (mm)"),
           ("settling_time_s", "settling time (s)"))  # fmt: skip
+#: The README's headline (balance): the shipped learned policies against the classical controllers, and the
+#: shipped residual paired with the best two; written between these markers when the docs page is regenerated.
+HEADLINE = ("residual PPO", "PID + Kalman", "LQR", "LQR → PID", "PID", "shipped PPO")
+HEADLINE_PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"))
+README_MARKERS = ("<!-- headline:start -->", "<!-- headline:end -->")
 LATENCIES_MS = (5, 25, 50, 75, 100)
 NOISES_MM = (0.5, 2.0, 4.0, 8.0)
 
@@ -159,8 +164,6 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
 def paired(results: list[dict[str, Any]]) -> list[str]:
     """The balance table's paired comparisons (:data:`PAIRS`): the difference on the same seeds with its 95 %
     bootstrap interval, and whether it is better, worse or a tie (the interval holds 0) at this many seeds."""
-    from stewart_gym.evaluation import paired_difference
-
     rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance" and "per_episode" in r["metrics"]}
     pairs = [(a, b) for a, b in PAIRS if a in rows and b in rows]
     if not pairs:
@@ -171,14 +174,48 @@ def paired(results: list[dict[str, Any]]) -> list[str]:
            "resampled together), and the verdict: *better* or *worse* when the interval excludes 0, *tie* when "
            "it holds 0 (no difference shown at this many seeds). Settling compares the seeds where both settled.", "",
            "| rows | " + " | ".join(name for _, name in PAIRED) + " |", "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
-    for a, b in pairs:
-        cells = []
-        for key, _ in PAIRED:
-            diff, low, high = paired_difference(rows[a], rows[b], key)
-            verdict = "better" if high < 0 else "worse" if low > 0 else "tie"
-            cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}")
-        out.append(f"| {a} − {b} | " + " | ".join(cells) + " |")
+    out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
     return [*out, ""]
+
+
+def paired_cells(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
+    """Row ``a`` minus row ``b`` (their metrics with ``per_episode``) on each :data:`PAIRED` metric: the
+    difference, its 95 % bootstrap interval and the verdict (better, worse, or tie when the interval holds 0)."""
+    from stewart_gym.evaluation import paired_difference
+
+    cells = []
+    for key, _ in PAIRED:
+        diff, low, high = paired_difference(a, b, key)
+        verdict = "better" if high < 0 else "worse" if low > 0 else "tie"
+        cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}")
+    return cells
+
+
+def headline(results: list[dict[str, Any]]) -> str:
+    """The README's headline table (:data:`HEADLINE` on the balance task) and the shipped residual's paired
+    comparisons (:data:`HEADLINE_PAIRS`), from the results."""
+    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance"}
+    columns = [c for c in HEADLINE if c in rows]
+    episodes = rows[columns[0]]["episodes"] if columns and "episodes" in rows[columns[0]] else "the"
+    out = [f"| balance, {episodes} seeds | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for key, name, pattern in METRICS:
+        out.append(f"| {name} | " + " | ".join(fmt(rows[c].get(key), pattern) for c in columns) + " |")
+    pairs = [(a, b) for a, b in HEADLINE_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
+    if pairs:
+        out += ["", "| paired, seed by seed (95 % interval) | " + " | ".join(name for _, name in PAIRED) + " |",
+                "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
+        out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
+    return "\n".join(out)
+
+
+def write_headline(readme: Path, results: list[dict[str, Any]]) -> None:
+    """Replace the text between :data:`README_MARKERS` in ``readme`` with :func:`headline`."""
+    text = readme.read_text()
+    start, end = README_MARKERS
+    if start not in text or end not in text:
+        raise SystemExit(f"error: {readme} has no {start} … {end} section for the headline table")
+    head, rest = text.split(start, 1)
+    readme.write_text(head + start + "\n" + headline(results) + "\n" + end + rest.split(end, 1)[1])
 
 
 def plot(results: list[dict[str, Any]], path: Path) -> None:
@@ -200,6 +237,17 @@ def plot(results: list[dict[str, Any]], path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def in_place(before: list[dict[str, Any]], kept: list[dict[str, Any]], fresh: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The kept rows and the freshly evaluated ones, in the order the rows had ``before`` (a re-evaluated row
+    where its old one was; new rows last), so that results.json changes only where values do."""
+
+    def key(r: dict[str, Any]) -> str:
+        return json.dumps([r["table"], r["row"], r.get("value"), r.get("env_kwargs")], sort_keys=True)
+
+    order = {key(r): i for i, r in enumerate(before)}
+    return sorted(kept + fresh, key=lambda r: order.get(key(r), len(order)))
 
 
 def add_recipe_runs(recipes: dict[str, list[str]], rows: list[dict[str, Any]]) -> None:
@@ -253,7 +301,8 @@ def main() -> None:
             jobs = [j for j in jobs if j["row"].startswith("seed:")]
             add_recipe_runs(args.recipes, kept)  # the other recipes' columns stay, in their order
         with ProcessPoolExecutor(args.workers) as pool:
-            results = kept + list(pool.map(run_job, jobs))
+            results = in_place(json.loads((out.parent / "results.json").read_text()) if kept else [], kept,
+                               list(pool.map(run_job, jobs)))  # fmt: skip
         jobs = results
         (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
     plot(results, out.parent / "images" / "robustness.png")
@@ -261,6 +310,8 @@ def main() -> None:
     text = intro.rstrip() + "\n\n" + tables(results, args.recipes) + "\n![robustness](images/robustness.png)\n"
     out.write_text(f"<!-- generated by train/results.py on {len(jobs)} evaluations; edit train/results_intro.md -->\n"
                    + text.lstrip())  # fmt: skip
+    if out.resolve() == (ROOT / "docs/src/results.md").resolve():  # the docs' page: the README's headline too
+        write_headline(ROOT / "README.md", results)
     print(f"wrote {out}, {out.parent / 'results.json'} and {out.parent / 'images' / 'robustness.png'}")
 
 

@@ -38,7 +38,9 @@ def main() -> None:
     metrics["shipped_model"] = args.model
     metrics["note"] = args.note
     if args.eval:
-        metrics["evaluation_100_seeds"] = json.loads(Path(args.eval).read_text().strip().splitlines()[-1])
+        evaluation = json.loads(Path(args.eval).read_text().strip().splitlines()[-1])
+        evaluation.pop("per_episode", None)  # the summary only: each seed's values belong to the results page
+        metrics["evaluation_100_seeds"] = evaluation
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     export_policy(resolve_policy(str(out)), out / "bundle")  # env id, action mode and geometry from config.yaml
     print(f"shipped {src} as {out}")
