@@ -22,7 +22,8 @@ episodes (seeds 0…N−1). Rows:
 
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
 (the rest of the randomisation as usual). Writes the page (Markdown), ``results.json`` beside it and
-``images/robustness.png``.
+``images/robustness.png``; for the docs' own page also the README's headline table (:func:`headline`, between
+:data:`README_MARKERS`).
 """
 
 from __future__ import annotations
