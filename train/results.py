@@ -197,8 +197,9 @@ def headline(results: list[dict[str, Any]]) -> str:
     comparisons (:data:`HEADLINE_PAIRS`), from the results."""
     rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance"}
     columns = [c for c in HEADLINE if c in rows]
-    episodes = rows[columns[0]]["episodes"] if columns and "episodes" in rows[columns[0]] else "the"
-    out = [f"| balance, {episodes} seeds | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    episodes = {rows[c].get("episodes") for c in columns}
+    title = f"balance, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else "balance"
+    out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
     for key, name, pattern in METRICS:
         out.append(f"| {name} | " + " | ".join(fmt(rows[c].get(key), pattern) for c in columns) + " |")
     pairs = [(a, b) for a, b in HEADLINE_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
@@ -285,25 +286,26 @@ def main() -> None:
         add_recipe_runs(args.recipes, results)
         jobs = results
     else:
+        before: list[dict[str, Any]] = []  # the rows kept from results.json (--rows, --recipes-only)
         kept: list[dict[str, Any]] = []
         if args.rows:
             unknown = [r for r in args.rows if r not in CONTROLLERS]
             if unknown:
                 ap.error(f"--rows: unknown controller(s) {unknown}; known: {list(CONTROLLERS)}")
-            kept = [r for r in json.loads((out.parent / "results.json").read_text()) if r["row"] not in args.rows]
+            before = json.loads((out.parent / "results.json").read_text())
+            kept = [r for r in before if r["row"] not in args.rows]
             jobs = [j for j in jobs if j["row"] in args.rows]
             args.recipes = {}
             add_recipe_runs(args.recipes, kept)
         elif args.recipes_only:
             if not args.recipes:
                 ap.error("--recipes-only needs at least one --recipe")
-            kept = [r for r in json.loads((out.parent / "results.json").read_text())
-                    if not r["row"].startswith("seed:") or r["recipe"] not in args.recipes]  # fmt: skip
+            before = json.loads((out.parent / "results.json").read_text())
+            kept = [r for r in before if not r["row"].startswith("seed:") or r["recipe"] not in args.recipes]
             jobs = [j for j in jobs if j["row"].startswith("seed:")]
             add_recipe_runs(args.recipes, kept)  # the other recipes' columns stay, in their order
         with ProcessPoolExecutor(args.workers) as pool:
-            results = in_place(json.loads((out.parent / "results.json").read_text()) if kept else [], kept,
-                               list(pool.map(run_job, jobs)))  # fmt: skip
+            results = in_place(before, kept, list(pool.map(run_job, jobs)))
         jobs = results
         (out.parent / "results.json").write_text(json.dumps(results, indent=1, default=str) + "\n")
     plot(results, out.parent / "images" / "robustness.png")
