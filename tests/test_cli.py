@@ -345,6 +345,13 @@ def test_bad_input_table_is_large() -> None:
     assert len(BAD) >= 60 and {a[0] for a in BAD if a} >= set(SUBCOMMANDS)
 
 
+def test_demo_on_a_build_without_a_shipped_policy_is_one_error_line_and_writes_nothing(tmp_path: Path) -> None:
+    proc = sg("demo", "--geometry", "senilov2018", "--out", str(tmp_path / "demo"), cwd=tmp_path)
+    lines = error_lines(proc)
+    assert proc.returncode == 1 and len(lines) == 1 and "no shipped policy" in lines[0] and "senilov2018" in lines[0]
+    assert not (tmp_path / "demo").exists()
+
+
 def test_a_missing_port_is_a_device_failure(tmp_path: Path) -> None:
     for cmd in ("deploy", "calibrate"):
         proc = sg(cmd, "--port", DEV, "--duration" if cmd == "deploy" else "--step", "1", cwd=tmp_path)

@@ -161,10 +161,22 @@ def test_paired_difference_pairs_seeds_and_weighs_tails() -> None:
 def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--episodes", "2", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    assert "success rate" in out and "shipped" in out and "pid" in out
+    assert "success rate" in out and "(policy shipped-residual)" in out
     metrics = json.loads((tmp_path / "demo_metrics.json").read_text())
-    assert set(metrics) == {"shipped", "pid"} and metrics["shipped"]["episodes"] == 2
+    names = ["shipped-residual", "shipped", "pid-kalman", "lqr"]
+    assert list(metrics) == names and all(metrics[n]["episodes"] == 2 for n in names)
+    assert any(all(n in line for n in names) for line in out.splitlines())  # the table's header
+    # each ran behind its own observer: the residual's and the LQR's settled servo motion differ from the PPO's
+    assert metrics["shipped"]["settled_pulse_rate_us_per_s"] > 3 * metrics["pid-kalman"]["settled_pulse_rate_us_per_s"]
     assert (tmp_path / "demo.gif").stat().st_size > 50_000 and (tmp_path / "demo_pulses.png").stat().st_size > 20_000
+
+
+def test_demo_compares_the_learned_policies_shipped_for_the_build_with_the_strongest_classical_ones() -> None:
+    from stewart_gym.cli.learning import demo_policies
+
+    env = "StewartBallBalance-v0"
+    assert demo_policies(env, None) == ["shipped-residual", "shipped", "pid-kalman", "lqr"]
+    assert demo_policies(env, "memememe-liverpool") == ["shipped", "pid-kalman", "lqr"]  # no residual shipped for it
 
 
 def test_shipped_policy_files_are_small_and_complete() -> None:

@@ -74,30 +74,49 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+#: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
+#: and the two strongest classical controllers, each behind the observer it was tuned behind.
+DEMO_LEARNED = ("shipped-residual", "shipped")
+DEMO_CLASSICAL = ("pid-kalman", "lqr")
+
+
+def demo_policies(env_id: str, geometry: str | None) -> list[str]:
+    """The ``--policy`` names ``demo`` evaluates on ``geometry``: the shipped learned policies that exist for it
+    (``shipped`` always: where none exists, loading it says so), then :data:`DEMO_CLASSICAL`."""
+    from stewart_gym.registry import DEFAULT_GEOMETRY, SHIPPED_TABLES
+
+    key = (env_id, geometry or DEFAULT_GEOMETRY)
+    learned = [name for name in DEMO_LEARNED if name == "shipped" or key in SHIPPED_TABLES[name]]
+    return [*learned, *DEMO_CLASSICAL]
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
-    """The main job: evaluate the shipped policy next to the PID baseline; write a GIF and a pulse-width plot."""
+    """The main job: evaluate the shipped learned policies next to the PID + Kalman and the LQR on the same seeded
+    episodes; write a GIF and a pulse-width plot of the best learned one."""
     from stewart_gym.cli.analysis import json_safe
     from stewart_gym.evaluation import evaluate, format_table
     from stewart_gym.registry import load_for_evaluation
 
     out = output_dir(args.out)
     check_can_render(args.backend)
-    out.mkdir(parents=True, exist_ok=True)
     env_id = "StewartBallBalance-v0"
-    results, loaded = {}, {}
-    for name in ("shipped", "pid"):
-        source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
-        env_kwargs = with_backend(env_kwargs, args.backend)
-        loaded[name] = (source, policy, env_kwargs)
+    names = demo_policies(env_id, args.geometry)
+    loaded = {}
+    for name in names:  # every policy loaded before the output folder and the first evaluation
+        _, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
+        loaded[name] = (policy, with_backend(env_kwargs, args.backend))
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name, (policy, env_kwargs) in loaded.items():
         engine = env_kwargs.get("backend", "pybullet")
         print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation ({engine})…", flush=True)
         results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
     print()
     print(format_table(results))
     (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
-    _, policy, env_kwargs = loaded["shipped"]
-    _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", "shipped")
-    print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} and {out / 'demo_metrics.json'}")
+    policy, env_kwargs = loaded[names[0]]
+    _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", names[0])
+    print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} (policy {names[0]}) and {out / 'demo_metrics.json'}")
     return EXIT_OK
 
 
