@@ -31,7 +31,7 @@ from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
 
 __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", "HandoverController",
-           "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains",
+           "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "ResidualMix",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
            "design_estimator", "design_kind", "design_lqr", "fastest_settling", "gains_for_geometry", "grown_zone",
            "integrate_error", "residual_action", "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
@@ -709,3 +709,36 @@ def residual_action(base_action: np.ndarray, correction: np.ndarray, obs: np.nda
         weight = np.clip(outside / fade_mm, 0.0, 1.0) if fade_mm > 0 else (outside > 0).astype(np.float64)
     total = np.asarray(base_action, dtype=np.float64) + scale * weight * np.asarray(correction, dtype=np.float64)
     return np.clip(total, -1.0, 1.0).astype(np.float32)
+
+
+class ResidualMix:
+    """What a residual policy sends, step by step: :func:`residual_action`, and with ``release_mm`` > 0 a latch.
+    Once the observed ball has come within ``inner_mm`` of the target the correction stays off (the base acts
+    alone) until the ball is observed farther than ``release_mm`` from it, as the LQR → PID's hand-over does, so
+    that sensor noise around the inner radius cannot switch the correction on while the base holds the ball.
+    One latch per row of a batch; :meth:`reset` at the start of an episode.
+    """
+
+    def __init__(self, scale: float, plate_half: tuple[float, float], fade_mm: float = 0.0, inner_mm: float = 0.0,
+                 release_mm: float = 0.0) -> None:  # fmt: skip
+        if release_mm > 0 and not release_mm > inner_mm > 0:
+            raise ValueError(f"release_mm ({release_mm}) must be 0 (no latch) or more than inner_mm ({inner_mm}) > 0")
+        self.scale, self.plate_half = float(scale), (float(plate_half[0]), float(plate_half[1]))
+        self.fade_mm, self.inner_mm, self.release_mm = float(fade_mm), float(inner_mm), float(release_mm)
+        self._off: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Start of an episode: the latch is open (the correction acts wherever the fade lets it)."""
+        self._off = None
+
+    def __call__(self, base_action: np.ndarray, correction: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        correction = np.asarray(correction, dtype=np.float64)
+        if self.release_mm > 0:
+            o = np.asarray(obs, dtype=np.float64)
+            error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(self.plate_half, dtype=np.float64)
+            distance_mm = np.linalg.norm(error, axis=-1) * 1e3
+            off = self._off if self._off is not None and self._off.shape == distance_mm.shape else \
+                np.zeros(distance_mm.shape, dtype=bool)  # fmt: skip
+            self._off = (off | (distance_mm < self.inner_mm)) & ~(distance_mm > self.release_mm)
+            correction = np.where(self._off[..., None], 0.0, correction)
+        return residual_action(base_action, correction, obs, self.scale, self.plate_half, self.fade_mm, self.inner_mm)

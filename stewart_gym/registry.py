@@ -241,7 +241,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.hardware.export import BundlePolicy
 
         return BundlePolicy(source.path)
-    from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_sb3, residual_base
+    from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_sb3, residual_base, residual_mix
 
     policy = load_sb3(source.path)
     if source.env_kwargs.get("residual"):
@@ -249,8 +249,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.presets import load_geometry
 
         width, depth = load_geometry(source.geometry).plate_extent
-        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), spec["scale"], (width / 2, depth / 2),
-                                spec["fade_mm"], spec["inner_mm"])  # fmt: skip
+        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), residual_mix(spec, (width / 2, depth / 2)))
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip

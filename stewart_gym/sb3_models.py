@@ -6,8 +6,9 @@ predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 
 A *residual* policy learns a correction on top of a classical controller: the action sent is
 ``clip(base(obs) + scale · w · learned(obs), −1, 1)``, where the weight w may fade the correction out near
-the target (``inner_mm``, ``fade_mm``). Training wraps the env in :class:`ResidualAction` (the
-hyperparameter ``residual: {base: lqr, scale: 0.5}``); :class:`ResidualPolicy` runs a trained one. The run's
+the target (``inner_mm``, ``fade_mm``) and keep it out once the ball has come in (``release_mm``). Training
+wraps the env in :class:`ResidualAction` (the hyperparameter ``residual: {base: lqr, scale: 0.5}``);
+:class:`ResidualPolicy` runs a trained one. The run's
 ``config.yaml`` records the base's gains or design as they were (``design``), so a later retune of the shipped
 controller does not change a trained policy; the bundle records the base too, so deploy runs the same sum.
 """
@@ -21,10 +22,10 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from stewart_gym.classical import CLASSICAL, checked_design, classical_controller, residual_action, shipped_design
+from stewart_gym.classical import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
 from stewart_gym.errors import ConfigError, PolicyError
 
-__all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base"]
+__all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base", "residual_mix"]
 
 class SB3Policy:
     """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with."""
@@ -82,29 +83,40 @@ def load_sb3(path: str | Path) -> SB3Policy:
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
-    """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r,
+    """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r, release_mm: q,
     design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next
     f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never
-    fades). NAME is a shipped classical controller (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid,
-    pid-kalman); ``design``, its gains or design, defaults to the shipped one's (training records it)."""
-    keys = {"base", "scale", "fade_mm", "inner_mm", "design"}
+    fades) and q 0 (the default) or more than r > 0 (once within r, the correction stays off until the ball is
+    farther than q: :class:`~stewart_gym.classical.ResidualMix`). NAME is a shipped classical controller
+    (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
+    defaults to the shipped one's (training records it)."""
+    keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "design"}
     if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
-        raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R}}, "
-                          f"got {spec!r}")  # fmt: skip
+        raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R, "
+                          f"release_mm: Q}}, got {spec!r}")  # fmt: skip
     scale = spec.get("scale", 0.5)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
         raise ConfigError(f"residual scale must be a number in (0, 2], got {scale!r}")
-    for key in ("fade_mm", "inner_mm"):
+    for key in ("fade_mm", "inner_mm", "release_mm"):
         value = spec.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1000:
             raise ConfigError(f"residual {key} must be a number in [0, 1000), got {value!r}")
+    release, inner = float(spec.get("release_mm", 0.0)), float(spec.get("inner_mm", 0.0))
+    if release > 0 and not release > inner > 0:
+        raise ConfigError(f"residual release_mm ({release:g}) must be 0 (no latch) or more than inner_mm ({inner:g}), "
+                          "which must then be more than 0")  # fmt: skip
     kind = CLASSICAL[spec["base"]][0]
     try:
         design = checked_design(spec["design"], kind) if "design" in spec else shipped_design(spec["base"])
     except ValueError as exc:
         raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
     return {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),
-            "inner_mm": float(spec.get("inner_mm", 0.0)), "design": asdict(design)}  # fmt: skip
+            "inner_mm": inner, "release_mm": release, "design": asdict(design)}  # fmt: skip
+
+
+def residual_mix(spec: dict[str, Any], plate_half: tuple[float, float]) -> ResidualMix:
+    """How a checked residual ``spec`` adds its correction to its base's action on a plate of ``plate_half`` (m)."""
+    return ResidualMix(spec["scale"], plate_half, spec["fade_mm"], spec["inner_mm"], spec["release_mm"])
 
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
@@ -121,46 +133,45 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
 class ResidualAction(gym.Wrapper):
     """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
 
-    Sends :func:`~stewart_gym.classical.residual_action` of the base's action and the agent's, for the
-    observation the agent acted on; resets the base's state with each episode.
+    Sends the :class:`~stewart_gym.classical.ResidualMix` of the base's action and the agent's, for the
+    observation the agent acted on; resets the base's and the mix's state with each episode.
     """
 
     def __init__(self, env: gym.Env, residual: dict[str, Any]) -> None:
         super().__init__(env)
         spec = check_residual(residual)
         u = env.unwrapped
-        self.scale, self.plate_half = spec["scale"], u.plate_half_extent
-        self.fade_mm, self.inner_mm = spec["fade_mm"], spec["inner_mm"]
+        self.mix = residual_mix(spec, u.plate_half_extent)
         self.base = residual_base(spec, u.sim.geometry, u.plate_half_extent, 1.0 / u.sim.control_hz)
         self._obs: np.ndarray | None = None
 
     def reset(self, **kwargs: Any) -> Any:
         obs, info = self.env.reset(**kwargs)
         self.base.reset()
+        self.mix.reset()
         self._obs = obs
         return obs, info
 
     def step(self, action: Any) -> Any:
         if self._obs is None:
             raise RuntimeError("call reset before step")
-        total = residual_action(self.base(self._obs), action, self._obs, self.scale, self.plate_half, self.fade_mm,
-                                self.inner_mm)  # fmt: skip
+        total = self.mix(self.base(self._obs), action, self._obs)
         obs, reward, terminated, truncated, info = self.env.step(total)
         self._obs = obs
         return obs, reward, terminated, truncated, info
 
 
 class ResidualPolicy:
-    """A trained residual policy: :func:`~stewart_gym.classical.residual_action` of its base and its network."""
+    """A trained residual policy: the :class:`~stewart_gym.classical.ResidualMix` of its base and its network."""
 
-    def __init__(self, learned: SB3Policy, base: Any, scale: float, plate_half: tuple[float, float] = (0.15, 0.15),
-                 fade_mm: float = 0.0, inner_mm: float = 0.0) -> None:  # fmt: skip
-        self.learned, self.base, self.scale = learned, base, float(scale)
-        self.plate_half, self.fade_mm, self.inner_mm = plate_half, float(fade_mm), float(inner_mm)
+    def __init__(self, learned: SB3Policy, base: Any, mix: ResidualMix) -> None:
+        self.learned, self.base, self.mix = learned, base, mix
         self.obs_size, self.action_size = learned.obs_size, learned.action_size
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
+        if episode_start is not None and np.any(episode_start):
+            self.mix.reset()
         base, _ = self.base.predict(obs, episode_start=episode_start)
         correction, _ = self.learned.predict(obs, deterministic=deterministic)
-        return residual_action(base, correction, obs, self.scale, self.plate_half, self.fade_mm, self.inner_mm), None
+        return self.mix(base, correction, obs), None

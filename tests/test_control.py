@@ -401,12 +401,66 @@ def test_the_residual_weight_is_zero_inside_the_inner_radius_and_fades_in_beyond
     np.testing.assert_allclose(got, base + 0.5 * weight * correction, atol=1e-6)
 
 
+def test_the_latch_keeps_the_correction_off_from_the_inner_radius_until_the_release_distance() -> None:
+    """With release_mm, the correction is off from the first step within inner_mm until the ball is farther than
+    release_mm (the fade alone would let it back in at inner_mm); a reset reopens it; without, the fade alone."""
+    from stewart_gym.classical import ResidualMix
+
+    base, correction = np.array([0.1, -0.2]), np.array([0.4, 0.4])
+    distances = [30.0, 12.0, 4.0, 8.0, 12.0, 19.0, 25.0, 12.0]
+    latched = [1.0, 0.7, 0.0, 0.0, 0.0, 0.0, 1.0, 0.7]  # inner 5 mm, fade 10 mm, release 20 mm
+    faded = [1.0, 0.7, 0.0, 0.3, 0.7, 1.0, 1.0, 0.7]
+    for release_mm, weights in ((20.0, latched), (0.0, faded)):
+        mix = ResidualMix(0.5, (0.15, 0.15), fade_mm=10.0, inner_mm=5.0, release_mm=release_mm)
+        for episode in range(2):  # the second after a reset: the same
+            mix.reset()
+            for distance_mm, weight in zip(distances, weights):
+                obs = np.zeros(12)
+                obs[1], obs[5] = 0.2 + distance_mm / 150.0, 0.2  # the target off the centre, the ball beyond it
+                np.testing.assert_allclose(mix(base, correction, obs), base + 0.5 * weight * correction, atol=1e-6,
+                                           err_msg=f"release {release_mm}, {distance_mm} mm, episode {episode}")
+    rows = ResidualMix(0.5, (0.15, 0.15), fade_mm=10.0, inner_mm=5.0, release_mm=20.0)  # one latch per row
+    obs = np.zeros((2, 12))
+    obs[:, 0] = [4.0 / 150, 30.0 / 150]
+    rows(np.zeros((2, 2)), np.ones((2, 2)), obs)
+    obs[:, 0] = 8.0 / 150
+    np.testing.assert_allclose(rows(np.zeros((2, 2)), np.ones((2, 2)), obs), [[0.0, 0.0], [0.15, 0.15]], atol=1e-6)
+    with pytest.raises(ValueError, match="release_mm"):
+        ResidualMix(0.5, (0.15, 0.15), inner_mm=5.0, release_mm=3.0)
+
+
+def test_the_shipped_balance_residual_latches_its_correction_off_in_evaluation_and_in_its_bundle() -> None:
+    """The shipped balance residual (release_mm 20): after the ball has been within 5 mm, at 8 mm its action is
+    the LQR → PID's exactly (the fade alone would add 0.3 of the correction), until it is beyond 20 mm; its
+    bundle sends the same throughout."""
+    source = resolve_policy("shipped-residual")
+    assert source.env_kwargs["residual"]["release_mm"] == 20
+    residual, base, bundle = load_policy(source), load_policy("lqr-pid"), deployable_policy(source)
+    rng = np.random.default_rng(5)
+    target = rng.uniform(-0.2, 0.2, 2)
+    for k, (distance_mm, same) in enumerate([(40.0, False), (4.0, True), (8.0, True), (12.0, True), (30.0, False),
+                                             (8.0, False)]):  # fmt: skip
+        obs = rng.uniform(-0.2, 0.2, 12).astype(np.float32)
+        direction = rng.uniform(0, 2 * math.pi)
+        obs[4:6] = target
+        obs[0:2] = target + distance_mm / 150 * np.array([math.cos(direction), math.sin(direction)])
+        start = np.array([k == 0])
+        action, by_base = residual.predict(obs, episode_start=start)[0], base.predict(obs, episode_start=start)[0]
+        np.testing.assert_allclose(bundle.predict(obs, episode_start=start)[0], action, atol=1e-4)
+        differs = float(np.abs(np.asarray(action) - by_base).max())
+        assert (differs == 0.0) if same else (differs > 1e-3), (k, distance_mm, differs)
+
+
 @pytest.mark.parametrize(("spec", "match"), [({"base": "mpc"}, "base: lqr|pid|pid-kalman"),
                                              ({"base": "lqr", "gain": 1}, "base: lqr"),
                                              ({"base": "lqr", "scale": 0}, "scale"),
                                              ({"base": "lqr", "fade_mm": -1}, "fade_mm"),
                                              ({"base": "pid", "inner_mm": float("nan")}, "inner_mm"),
                                              ({"base": "pid", "inner_mm": True}, "inner_mm"),
+                                             ({"base": "lqr-pid", "inner_mm": 5, "release_mm": 5}, "release_mm"),
+                                             ({"base": "lqr", "release_mm": 20}, "release_mm"),
+                                             ({"base": "lqr", "inner_mm": 5, "release_mm": -1}, "release_mm"),
+                                             ({"base": "lqr", "inner_mm": 5, "release_mm": float("inf")}, "release_mm"),
                                              ({"base": "pid", "design": {"kp_pos": float("nan")}}, "design.*finite"),
                                              ({"base": "lqr", "design": {"kp_pos": 2.0}}, "design.*LQRDesign"),
                                              ({"base": "lqr", "design": {"tilt": -0.1}}, "design.*positive")])  # fmt: skip

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
-from stewart_gym.classical import CLASSICAL_KINDS, checked_design, controller_from_gains, design_estimator, residual_action
+from stewart_gym.classical import CLASSICAL_KINDS, ResidualMix, checked_design, controller_from_gains, design_estimator
 from stewart_gym.errors import PolicyError
 from stewart_gym.sensing import ESTIMATORS
 
@@ -96,6 +96,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         geometry = env_kwargs.get("geometry", "servo-hexapod")
         base = residual_base(spec, geometry)
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
+                            "release_mm": spec["release_mm"],
                             "base": classical_meta(CLASSICAL[spec["base"]][0], asdict(base.gains), env_id, geometry,
                                                    meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -248,17 +249,21 @@ class BundlePolicy:
         self._clip = float(meta["clip_obs"])
         self._low = np.asarray(meta["action_low"], np.float32)
         self._high = np.asarray(meta["action_high"], np.float32)
-        #: a residual policy's classical base and the correction's scale (None: the network acts alone)
+        #: a residual policy's classical base and how the correction is added (None: the network acts alone)
         self._base: BundlePolicy | None = None
+        self._mix: ResidualMix | None = None
         residual = meta.get("residual")
         if residual is not None:
             if not isinstance(residual, dict) or not isinstance(residual.get("scale"), (int, float)):
                 raise PolicyError(f"{meta_path}: malformed residual (expected {{scale, base}}); re-export the policy")
             self._base = BundlePolicy.from_meta(residual.get("base"))
-            self._scale, self._fade_mm = float(residual["scale"]), float(residual.get("fade_mm", 0.0))
-            self._inner_mm = float(residual.get("inner_mm", 0.0))
             width, depth = self.geometry.plate_extent
-            self._plate_half = (width / 2, depth / 2)
+            try:
+                self._mix = ResidualMix(float(residual["scale"]), (width / 2, depth / 2),
+                                        float(residual.get("fade_mm", 0.0)), float(residual.get("inner_mm", 0.0)),
+                                        float(residual.get("release_mm", 0.0)))  # fmt: skip
+            except (TypeError, ValueError) as exc:
+                raise PolicyError(f"{meta_path}: malformed residual ({exc}); re-export the policy") from None
 
     @staticmethod
     def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
@@ -279,8 +284,9 @@ class BundlePolicy:
         """Start of an episode (clears the PID's or LQR's state, or a residual policy's base's)."""
         if self.kind in CLASSICAL_KINDS:
             self._classical.reset()
-        elif self._base is not None:
+        elif self._base is not None and self._mix is not None:
             self._base.reset()
+            self._mix.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Action(s) for observation(s) (…, obs_size), clipped to the action bounds."""
@@ -292,9 +298,8 @@ class BundlePolicy:
         x = o.astype(np.float32).reshape(-1, o.shape[-1])
         action = self._session.run(None, {"obs": x})[0]
         action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
-        if self._base is not None:
-            return residual_action(self._base(obs), action, obs, self._scale, self._plate_half, self._fade_mm,
-                                   self._inner_mm)  # fmt: skip
+        if self._base is not None and self._mix is not None:
+            return self._mix(self._base(obs), action, obs)
         return action
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
