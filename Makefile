@@ -40,7 +40,8 @@ train-camera: $(STAMP)
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
 # The residual PPO policies (learned corrections of the LQR -> PID's approach for balance, of the LQR for
-# track), as shipped (balance: 12 minutes on 2 cores; track: about 6 minutes).
+# track), as shipped (balance: 5 minutes on 2 cores, 12 on an earlier, slower machine; track: about 6 minutes
+# there).
 train-residual: $(STAMP)
 	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --seed 1 --overwrite --no-progress
 	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
@@ -48,7 +49,7 @@ train-residual: $(STAMP)
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
 # The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
-# error integral observed (3 minutes each), the shipped balance residual's recipe (on the approach, 12
+# error integral observed (3 minutes each), the shipped balance residual's recipe (on the approach, 5
 # minutes each) and the first one, over the PID + Kalman (5 minutes each), each trained with 3 seeds, then every
 # evaluation (about 25 minutes).
 results: $(STAMP)

@@ -170,17 +170,6 @@ class CascadedPID:
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
         return self._dither(np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0))
 
-    def preload_integral(self, rows: np.ndarray, accel: np.ndarray) -> None:
-        """Set the integral of the rows where ``rows`` is true so that its term commands the ball acceleration
-        ``accel`` (m/s², …, 2), within the anti-windup bound: a bumpless hand-over of another controller's
-        estimate of the steady offset."""
-        g = self.gains
-        accel = np.asarray(accel, dtype=np.float64)
-        if self._integral.shape != accel.shape:
-            self._integral = np.zeros(accel.shape)
-        value = np.clip(accel / g.ki_vel, -g.integral_limit, g.integral_limit) if g.ki_vel > 0 else 0.0 * accel
-        self._integral = np.where(np.asarray(rows, dtype=bool)[..., None], value, self._integral)
-
     def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
         """Stable-Baselines3-style ``predict``: resets the integrator where an episode starts."""
@@ -445,13 +434,6 @@ class LQRController(EpisodicController):
         self._state: dict[str, np.ndarray] | None = None
         self._dither.reset()
 
-    def integral_command(self) -> np.ndarray:
-        """The ``sin(tilt)`` (…, 2; along x and y) its integral term commands now: its estimate of what holds
-        the ball against a steady offset (zero before the first observation)."""
-        if self._state is None:
-            return np.zeros(2)
-        return -self._k[4] * self._state["integral"]
-
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         g = self.gains
         o = np.asarray(obs, dtype=np.float64)
@@ -489,8 +471,9 @@ class HandoverDesign:
     the PID behind the Kalman observer holds a still ball tightest and quietest; this controller runs the LQR
     until the ball is within ``handover_mm`` of a target that stands still and slower than ``handover_mm_s``
     relative to it, then the PID, until the ball is farther than ``release_mm`` or the target moves faster than
-    ``handover_mm_s`` (then the LQR again). At the hand-over the PID's integral takes over the LQR's integral
-    term (bumpless: the estimate of the steady offset carries over, the LQR's braking does not).
+    ``handover_mm_s`` (then the LQR again). The PID takes over with its own integral, which it has kept within
+    its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
+    after a fast approach the ball could drift out of the success radius for seconds).
 
     Attributes:
         lqr: the LQR's design.
@@ -556,9 +539,6 @@ class HandoverController(EpisodicController):
             np.zeros(distance_mm.shape, dtype=bool)  # fmt: skip
         still = np.linalg.norm(target_vel, axis=-1) * 1e3 < g.handover_mm_s
         enter = ~near & still & (distance_mm < g.handover_mm) & (speed_mm_s < g.handover_mm_s)
-        if np.any(enter):
-            offset = self.lqr.integral_command() * g.lqr.rolling_factor * GRAVITY  # m/s² along x and y
-            self.pid.preload_integral(enter, np.broadcast_to(offset, target.shape))
         self._near = (near | enter) & still & ~(distance_mm > g.release_mm)
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)

@@ -157,26 +157,28 @@ def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
     return np.tile(obs, (rows, 1)) if rows else obs
 
 
-def test_the_handover_gives_the_pid_the_lqrs_offset_and_takes_back_far_away() -> None:
-    """``lqr-pid``: the LQR alone while the ball is far; within 2 mm and slow the PID takes over with the LQR's
-    integral term (on target at rest it commands exactly the tilt the LQR's integral did, computed here from
-    the summed error); beyond 20 mm the LQR again, as if it had run alone throughout; a moving target stays
-    with the LQR; rows independent."""
+def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_back_far_away() -> None:
+    """``lqr-pid``: the LQR alone while the ball is far; within 2 mm and slow the PID takes over with the
+    integral it kept all along (its action is that of the PID + Kalman run alone on the same observations, and
+    the integral of 100 periods at 5 mm shows in it); beyond 20 mm the LQR again, as if it had run alone
+    throughout; a moving target stays with the LQR; rows independent."""
     from stewart_gym.classical import HandoverController
 
-    handover, lqr = load_policy("lqr-pid"), load_policy("lqr")
+    handover, lqr, pid = load_policy("lqr-pid"), load_policy("lqr"), load_policy("pid-kalman")
     assert isinstance(handover, HandoverController) and isinstance(lqr, LQRController)
     g = handover.gains
-    for _ in range(100):  # 5 mm off: the LQR acts and integrates (within its 20 mm zone)
+    for _ in range(100):  # 5 mm off: the LQR acts; both integrate (within their 20 mm zones)
         np.testing.assert_array_equal(handover(lqr_obs((5.0, 0.0))), lqr(lqr_obs((5.0, 0.0))))
+        pid(lqr_obs((5.0, 0.0)))
     assert not handover.pid_in_control
-    integral = min(100 * 0.005 * g.dt, g.lqr.integral_limit)  # m·s of +5 mm error, within the anti-windup bound
-    sin_tilt = -g.lqr.k[4] * integral
     action = handover(lqr_obs((0.0, 0.0)))
     lqr(lqr_obs((0.0, 0.0)))
     assert handover.pid_in_control
+    np.testing.assert_allclose(action, pid(lqr_obs((0.0, 0.0))), atol=1e-6)
+    integral = -100 * 0.005 * g.dt  # m·s of the error (target − ball) at 5 mm, within the anti-windup bound
+    sin_tilt = g.pid.ki_vel * integral / (g.pid.rolling_factor * 9.80665)
     np.testing.assert_allclose(action, [0.0, math.asin(sin_tilt) / g.max_tilt], atol=1e-6)
-    assert abs(action[1]) > 0.01  # a real offset was handed over
+    assert abs(action[1]) > 0.01  # the integral is in it
     handover(lqr_obs((10.0, 0.0)))  # beyond the hand-over distance, within the release distance: the PID holds
     lqr(lqr_obs((10.0, 0.0)))
     assert handover.pid_in_control

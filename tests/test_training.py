@@ -240,6 +240,7 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     assert 0.0 <= new[0]["metrics"]["success_rate"] <= 1.0
     page = (tmp_path / "r.md").read_text()
     assert "quick PID, 1 training seeds" in page and "old, 1 training seeds" in page
+    assert page.index("old, 1 training seeds") < page.index("quick PID, 1 training seeds")  # the columns' order kept
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr
