@@ -40,8 +40,7 @@ train-camera: $(STAMP)
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera_webcam2 --sensor $$s --episodes 100; done
 
 # The residual PPO policies (learned corrections of the LQR -> PID's approach for balance, of the LQR for
-# track), as shipped (balance: 5 minutes on 2 cores, 12 on an earlier, slower machine; track: about 6 minutes
-# there).
+# track), as shipped (balance: 5 minutes on 2 cores, 12 on an earlier, slower machine; track: 6 minutes).
 train-residual: $(STAMP)
 	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --seed 1 --overwrite --no-progress
 	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
