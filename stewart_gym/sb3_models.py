@@ -102,9 +102,10 @@ def check_residual(spec: Any) -> dict[str, Any]:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1000:
             raise ConfigError(f"residual {key} must be a number in [0, 1000), got {value!r}")
     release, inner = float(spec.get("release_mm", 0.0)), float(spec.get("inner_mm", 0.0))
-    if release > 0 and not release > inner > 0:
-        raise ConfigError(f"residual release_mm ({release:g}) must be 0 (no latch) or more than inner_mm ({inner:g}), "
-                          "which must then be more than 0")  # fmt: skip
+    try:  # the latch's own check (release beyond inner), once
+        ResidualMix(float(scale), (1.0, 1.0), float(spec.get("fade_mm", 0.0)), inner, release)
+    except ValueError as exc:
+        raise ConfigError(f"residual {exc}") from None
     kind = CLASSICAL[spec["base"]][0]
     try:
         design = checked_design(spec["design"], kind) if "design" in spec else shipped_design(spec["base"])
