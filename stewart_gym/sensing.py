@@ -203,6 +203,54 @@ class VelocityEstimator:
         return self.vx, self.vy
 
 
+class ReadingNoise:
+    """The noise of a sensor's readings, estimated from the readings themselves.
+
+    The third difference of equally spaced readings, ``z[k] − 3 z[k−1] + 3 z[k−2] − z[k−3]``, cancels every
+    motion of constant acceleration; what motion leaves (the jerk times the spacing cubed: micrometres for a
+    rolling ball read at 50 Hz) is small against the noise, whose part has variance 20 σ² for independent
+    noise of σ per coordinate. The estimate of σ² is a running mean of that, over both axes, that starts at
+    ``prior_mm`` (weighed as ``prior_readings`` readings) and forgets with a window of ``window`` readings.
+    A reading whose spacing differs by more than a quarter from the one before (a missed sample, the ball
+    lifted off) starts the differences over; the estimate is kept.
+    """
+
+    def __init__(self, prior_mm: float, window: int = 50, prior_readings: int = 10) -> None:
+        if not (math.isfinite(prior_mm) and prior_mm > 0 and window >= 1 and prior_readings >= 1):
+            raise ValueError(f"need prior_mm > 0, window ≥ 1 and prior_readings ≥ 1, got {prior_mm!r}, {window!r}, "
+                             f"{prior_readings!r}")  # fmt: skip
+        self.prior = (prior_mm * 1e-3) ** 2
+        self.window, self.prior_readings = int(window), int(prior_readings)
+        self.reset()
+
+    def reset(self) -> None:
+        """Back to the prior, no readings."""
+        self.variance = self.prior  # m², per coordinate
+        self.count = 0
+        self._last: list[tuple[float, float, float]] = []  # (t, x, y), equally spaced, oldest first
+
+    @property
+    def noise_mm(self) -> float:
+        """The estimated standard deviation of one coordinate of a reading, mm."""
+        return math.sqrt(self.variance) * 1e3
+
+    def update(self, ts: float, xy: Sequence[float]) -> float:
+        """A reading ``xy`` (m) taken at ``ts`` (s), later than the last; returns the estimated variance (m²)."""
+        last = self._last
+        if len(last) >= 2 and abs((ts - last[-1][0]) - (last[-1][0] - last[-2][0])) > 0.25 * (ts - last[-1][0]):
+            del last[:-1]
+        last.append((float(ts), float(xy[0]), float(xy[1])))
+        if len(last) == 4:
+            (_, x0, y0), (_, x1, y1), (_, x2, y2), (_, x3, y3) = last
+            dx, dy = x3 - 3 * x2 + 3 * x1 - x0, y3 - 3 * y2 + 3 * y1 - y0
+            if math.isfinite(dx) and math.isfinite(dy):
+                self.count += 1
+                weight = max(1.0 / (self.count + self.prior_readings), 1.0 / self.window)
+                self.variance += weight * ((dx * dx + dy * dy) / 40.0 - self.variance)
+            del last[0]
+        return self.variance
+
+
 @dataclass(frozen=True)
 class KalmanSpec:
     """The model of :class:`BallKalmanFilter`, per plate axis.
@@ -218,7 +266,11 @@ class KalmanSpec:
         dead_time_s: s, from a command to the start of the plate's motion.
         accel_noise: m/s², white acceleration noise (rolling friction, tilt errors, contact).
         bias_noise: m/s² per √s, random walk of the bias.
-        measurement_noise_mm: mm, standard deviation of a reading.
+        measurement_noise_mm: mm, standard deviation of a reading: the filter's starting value when it
+            estimates the noise itself.
+        noise_window: readings; > 0: the filter estimates the readings' noise from the readings
+            (:class:`ReadingNoise`, this window) and weighs them by it, so one filter suits a quiet panel and a
+            noisy one; 0: it keeps ``measurement_noise_mm``.
     """
 
     rolling_factor: float = 5.0 / 7.0
@@ -227,8 +279,11 @@ class KalmanSpec:
     accel_noise: float = 0.05
     bias_noise: float = 0.05
     measurement_noise_mm: float = 1.5
+    noise_window: int = 50
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.noise_window, int) and self.noise_window >= 0):
+            raise ValueError(f"noise_window must be a whole number ≥ 0, got {self.noise_window!r}")
         for key in ("rolling_factor", "tilt_lag_s", "accel_noise", "measurement_noise_mm"):
             v = getattr(self, key)
             if not (math.isfinite(v) and v > 0):
@@ -246,7 +301,9 @@ class BallKalmanFilter:
     input is the commanded tilt, known to the controller. A reading taken at ``ts`` updates the estimate at
     ``ts`` (the filter runs at the readings' own times, so sensing latency is in the model, not an error), and
     :meth:`estimate` predicts from there to now through the commands sent since, which also bridges missed
-    readings. Exact discretisation (matrix exponential) for any interval.
+    readings. Exact discretisation (matrix exponential) for any interval. By default it weighs each reading by
+    the noise it measures in the readings (:class:`ReadingNoise`, ``KalmanSpec.noise_window``), so the same
+    filter smooths a noisy panel more and follows a quiet one more closely.
     """
 
     def __init__(self, spec: KalmanSpec | None = None) -> None:
@@ -255,12 +312,16 @@ class BallKalmanFilter:
         self._a = np.array([[0, 1, 0, 0], [0, 0, 1, 1], [0, 0, -1 / tau, 0], [0, 0, 0, 0]], dtype=float)
         self._b = np.array([0, 0, c.rolling_factor * GRAVITY / tau, 0], dtype=float)
         self._qc = np.diag([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])
+        self.noise = ReadingNoise(c.measurement_noise_mm, c.noise_window) if c.noise_window else None
         self._r = (c.measurement_noise_mm * 1e-3) ** 2
         self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self.reset(0.0, (0.0, 0.0))
 
     def reset(self, t: float, xy: Sequence[float]) -> None:
         """The ball at rest at ``xy`` (m) at ``t`` (s), no commands yet; the bias and velocity uncertain."""
+        if self.noise is not None:
+            self.noise.reset()
+            self._r = self.noise.variance
         self.x = np.zeros((4, 2))
         self.x[0] = (float(xy[0]), float(xy[1]))
         self.P = np.diag([self._r, 0.1**2, 0.5**2, 0.5**2])
@@ -282,6 +343,8 @@ class BallKalmanFilter:
         """A reading of the ball at ``xy`` (m) taken at ``ts`` (s); older than the estimate: ignored."""
         if ts <= self.t:
             return
+        if self.noise is not None:
+            self._r = self.noise.update(ts, xy)
         self.x, self.P = self._propagate(self.x, self.P, self.t, ts)
         self.t = float(ts)
         gain = self.P[:, 0] / (self.P[0, 0] + self._r)

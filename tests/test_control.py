@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from stewart_gym.classical import LQRController, LQRDesign, design_lqr, lqr_model, shipped_design
 from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
-from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec
+from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec, ReadingNoise
 
 G_ROLL = 5.0 / 7.0 * 9.80665
 
@@ -62,6 +62,83 @@ def test_the_filter_uses_the_commanded_tilt_as_its_input() -> None:
     _, v2 = kf.estimate(1.0)
     accel = (v2[0] - v1[0]) / 0.5
     assert accel == pytest.approx(G_ROLL * math.sin(pitch), rel=0.02) and abs(v2[1]) < 1e-12
+
+
+@given(noise_mm=st.floats(0.2, 10.0), accel=st.floats(-2.0, 2.0), v0=st.floats(-0.3, 0.3),
+       spacing=st.sampled_from([0.01, 0.02, 0.033]))
+@settings(max_examples=40, deadline=None)
+def test_the_reading_noise_is_estimated_from_the_readings_of_an_accelerating_ball(
+        noise_mm: float, accel: float, v0: float, spacing: float) -> None:  # fmt: skip
+    """Readings of a ball under constant acceleration plus Gaussian noise (one seeded draw, scaled), starting
+    from a prior of 1.5 mm: after 300 readings the estimate is within 20 % of the noise whatever the motion
+    and the spacing (the motion cancels in the third differences; the window of 50 readings leaves a spread
+    of 7 % (one standard deviation over 200 draws), which the seeded draw here keeps away from the bound)."""
+    rng = np.random.default_rng(0)
+    est = ReadingNoise(1.5, window=50)
+    sigma = noise_mm * 1e-3
+    for k in range(300):
+        t = 0.1 + k * spacing
+        x = coasting(0.0, v0, accel, t)
+        est.update(t, (x + sigma * rng.standard_normal(), -x + sigma * rng.standard_normal()))
+    assert est.noise_mm == pytest.approx(noise_mm, rel=0.2)
+
+
+def test_the_reading_noise_starts_at_its_prior_and_restarts_its_differences_after_a_gap() -> None:
+    """No noise on a smooth motion: the estimate falls from the prior towards 0. A gap in the readings (the
+    same motion, but one reading 0.1 s late) must not count as noise: across it the differences start over."""
+    est = ReadingNoise(2.0, window=50)
+    assert est.noise_mm == pytest.approx(2.0)
+    times = [0.02 * k for k in range(1, 601)] + [12.1 + 0.02 * k for k in range(10)]  # 0.1 s without readings
+    for t in times:
+        est.update(t, (math.sin(3 * t) * 0.05, 0.1 * t))  # across the gap the ball moved 10 mm
+    assert est.noise_mm < 0.01
+    est.reset()
+    assert est.noise_mm == pytest.approx(2.0) and est.count == 0
+    with pytest.raises(ValueError, match="prior_mm"):
+        ReadingNoise(float("nan"))
+    with pytest.raises(ValueError, match="noise_window"):
+        KalmanSpec(noise_window=-1)
+
+
+@pytest.mark.parametrize("noise_mm", [4.0, 8.0])
+def test_the_filter_that_measures_the_noise_estimates_a_noisy_panels_ball_better(noise_mm: float) -> None:
+    """A ball rolling under a slowly swinging tilt, read at 50 Hz with ``noise_mm`` of noise: the filter that
+    estimates the noise (the default) against the same filter keeping its fixed 1.5 mm, which trusts the
+    noisy readings too much (measured: 4 mm of noise 2.01 → 1.63 mm RMS, 8 mm 4.02 → 2.86 mm). On a quiet
+    panel, where the model is exact as here, the fixed 1.5 mm smooths more and estimates better (0.5 mm:
+    0.25 against 0.32 mm); in the simulator the measured noise holds the ball closer there (next test)."""
+    errors = {}
+    for window in (50, 0):
+        kf = BallKalmanFilter(KalmanSpec(noise_window=window))
+        kf.reset(0.0, (0.0, 0.0))
+        x, v, err = 0.0, 0.0, []
+        local = np.random.default_rng(3)
+        for k in range(1, 501):
+            t = 0.02 * k
+            pitch = math.radians(2.0) * math.sin(2.0 * t)
+            kf.command(t - 0.02, (0.0, pitch))
+            for _ in range(20):  # the true ball, 1 ms steps, the tilt acting after the filter's dead time and lag
+                v += G_ROLL * math.sin(math.radians(2.0) * math.sin(2.0 * (t - 0.036))) * 1e-3
+                x += v * 1e-3
+            kf.update(t, (x + noise_mm * 1e-3 * local.standard_normal(), noise_mm * 1e-3 * local.standard_normal()))
+            if k > 100:
+                err.append(kf.estimate(t)[0][0] - x)
+        errors[window] = float(np.sqrt(np.mean(np.square(err)))) * 1e3
+    assert errors[50] < 0.85 * errors[0], errors
+
+
+def test_on_a_quiet_panel_the_pid_kalman_holds_the_ball_closer_than_with_the_fixed_noise() -> None:
+    """0.5 mm of panel noise, 10 randomised seeds: the PID + Kalman holds the ball within 0.7 mm RMS over the
+    last 5 s (measured 0.46 mm; with the filter's noise fixed at 1.5 mm, as before it estimated it, 0.93 mm:
+    its corrections then fell in the servos' dead band). The estimate is not closer to the truth there; the
+    readings, weighed more, keep the servos moving through the dead band (settled 209 µs/s against 81)."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    _, policy, kwargs = load_for_evaluation("pid-kalman", "StewartBallBalance-v0", None, None)
+    m = evaluate("StewartBallBalance-v0", policy, episodes=10, seed=0, settling=False,
+                 env_kwargs={**kwargs, "randomization": {"sensor_noise_mm": [0.5, 0.5]}})  # fmt: skip
+    assert m["success_rate"] == 1.0 and m["rms_error_mm"] < 0.7, m
 
 
 def test_the_kalman_observer_tracks_the_true_ball_better_than_the_lowpass_one() -> None:
@@ -531,7 +608,7 @@ def test_dither_carries_the_quiet_controllers_through_the_linear_actuators_dead_
     half = (geo.plate_extent[0] / 2, geo.plate_extent[1] / 2)
     gains = asdict(shipped_design("pid-kalman"))
     env = gym.make("StewartBallBalance-v0", geometry="senilov2018", randomize=True, estimator="kalman")
-    seeds = (1, 3, 6, 8)  # the quiet controller's failures among seeds 0–11
+    seeds = (1, 6, 13, 15)  # the quiet controller's first failures among seeds 0–23 (7 of 24)
     quiet = classical_controller("pid", checked_design(gains, "pid"), geo, plate_half=half)
     shaken = classical_controller("pid", checked_design({**gains, "dither": math.radians(0.8)}, "pid"), geo,
                                   plate_half=half)  # fmt: skip
