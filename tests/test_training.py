@@ -274,7 +274,10 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 13
     assert rows[0] == kept[0] and rows[1]["row"] == "LQR → PID" and rows[1]["table"] == "balance"  # in its old place
     assert rows[2] == kept[2]  # the rows it had no place for (the tracks, the robustness) come after the kept ones
-    assert "old, 1 training seeds" in (tmp_path / "r.md").read_text()
+    page = (tmp_path / "r.md").read_text()
+    assert "old, 1 training seeds" in page
+    noise = [r for r in new if r["table"] == "noise" and r["value"] == 8.0][0]["metrics"]
+    assert f"{noise['success_rate']:.0%} ({noise['rms_error_mm']:.2f} mm)" in page  # success and RMS in each cell
     per = [r for r in new if r["table"] == "balance"][0]["metrics"]["per_episode"]  # kept for paired comparisons
     assert len(per["rms_mm"]) == len(per["settling_s"]) == 1
     assert all("per_episode" not in r["metrics"] for r in new if r["table"] != "balance")

@@ -152,14 +152,22 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
         out.append("")
     out += paired(results)
     for table, unit, values in (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM)):
-        rows = {(r["row"], r["value"]): r["metrics"]["success_rate"] for r in results if r["table"] == table}
-        out += [f"### Success against the panel's {table} (balance, {unit})", "",
-                "| controller | " + " | ".join(f"{v:g} {unit}" for v in values) + " |",
+        rows = {(r["row"], r["value"]): r["metrics"] for r in results if r["table"] == table}
+        out += [f"### Success against the panel's {table} (balance, {unit}; in brackets the RMS error over the "
+                "last 5 s)", "", "| controller | " + " | ".join(f"{v:g} {unit}" for v in values) + " |",
                 "|---" * (len(values) + 1) + "|"]  # fmt: skip
         for label in ROBUST:
-            out.append(f"| {label} | " + " | ".join(fmt(rows.get((label, v)), "{:.0%}") for v in values) + " |")
+            out.append(f"| {label} | " + " | ".join(robust_cell(rows.get((label, v))) for v in values) + " |")
         out.append("")
     return "\n".join(out)
+
+
+def robust_cell(metrics: dict[str, Any] | None) -> str:
+    """A robustness table's cell: the success rate, and the RMS error in brackets where it was kept."""
+    if metrics is None:
+        return "–"
+    rms = metrics.get("rms_error_mm")
+    return fmt(metrics.get("success_rate"), "{:.0%}") + ("" if rms is None else f" ({rms:.2f} mm)")
 
 
 def paired(results: list[dict[str, Any]]) -> list[str]:
