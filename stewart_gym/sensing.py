@@ -306,6 +306,10 @@ class BallKalmanFilter:
     filter smooths a noisy panel more and follows a quiet one more closely.
     """
 
+    #: m: the least reading noise the filter assumes when it measures less (a noise-free simulated sensor; a
+    #: real panel's quantisation is more), so that it never takes a reading for exact.
+    MIN_NOISE_M = 5e-5
+
     def __init__(self, spec: KalmanSpec | None = None) -> None:
         self.spec = spec or KalmanSpec()
         c, tau = self.spec, self.spec.tilt_lag_s
@@ -344,7 +348,7 @@ class BallKalmanFilter:
         if ts <= self.t:
             return
         if self.noise is not None:
-            self._r = self.noise.update(ts, xy)
+            self._r = max(self.noise.update(ts, xy), self.MIN_NOISE_M**2)
         self.x, self.P = self._propagate(self.x, self.P, self.t, ts)
         self.t = float(ts)
         gain = self.P[:, 0] / (self.P[0, 0] + self._r)

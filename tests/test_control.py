@@ -94,6 +94,12 @@ def test_the_reading_noise_starts_at_its_prior_and_restarts_its_differences_afte
     assert est.noise_mm < 0.01
     est.reset()
     assert est.noise_mm == pytest.approx(2.0) and est.count == 0
+    kf = BallKalmanFilter()  # fed the same exact readings: it never takes them for exact (its floor, 0.05 mm)
+    kf.reset(0.0, (0.0, 0.0))
+    for t in times:
+        kf.update(t, (math.sin(3 * t) * 0.05, 0.1 * t))
+    assert kf.noise is not None and kf.noise.noise_mm < 0.01
+    assert np.all(np.isfinite(kf.x)) and kf.P[0, 0] > 0 and abs(kf.x[0, 1] - 0.1 * times[-1]) < 1e-4
     with pytest.raises(ValueError, match="prior_mm"):
         ReadingNoise(float("nan"))
     with pytest.raises(ValueError, match="noise_window"):
