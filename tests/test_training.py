@@ -249,7 +249,8 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
     """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
     trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
-    re-evaluated row takes its old row's place; an unknown label is refused with exit 2."""
+    re-evaluated row takes its old row's place; an unknown label, or no results.json to keep rows from, is
+    refused with one error line and exit 2."""
     import subprocess
     import sys
 
@@ -284,6 +285,11 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "unknown controller" in bad.stderr
+    (tmp_path / "empty").mkdir()  # no results.json to keep rows from: one error line, exit 2, nothing written
+    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+                          str(tmp_path / "empty" / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert bad.returncode == 2 and "results.json not found" in bad.stderr and "Traceback" not in bad.stderr
+    assert not any((tmp_path / "empty").iterdir())
 
 
 def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
