@@ -358,9 +358,9 @@ def connect(address: str | None) -> dict[str, Any]:
     import ray
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    if address is None:
-        ray.init(num_cpus=os.cpu_count(), include_dashboard=False, object_store_memory=200 * 1024**2,
-                 log_to_driver=False, configure_logging=False)  # fmt: skip
+    if address is None:  # "local": a Ray of its own, even where another runs here (ray start, another sweep)
+        ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False,
+                 object_store_memory=200 * 1024**2, log_to_driver=False, configure_logging=False)  # fmt: skip
     else:
         check_reachable(address)
         try:
