@@ -64,6 +64,24 @@ def test_the_filter_uses_the_commanded_tilt_as_its_input() -> None:
     assert accel == pytest.approx(G_ROLL * math.sin(pitch), rel=0.02) and abs(v2[1]) < 1e-12
 
 
+@given(h=st.floats(1e-6, 0.5), tau=st.floats(0.002, 0.2), rolling=st.floats(0.4, 1.0))
+@settings(max_examples=60, deadline=None)
+def test_the_filters_closed_form_transition_is_the_matrix_exponential(h: float, tau: float, rolling: float) -> None:
+    """Φ and Γ of any interval, in closed form, equal ``expm([[A, B], [0, 0]] h)`` of the filter's own model
+    (scipy, computed here independently): a real clock's intervals never repeat, so the filter cannot lean on a
+    cache of exponentials, and computing them each tick was slow (see BallKalmanFilter._discrete)."""
+    from scipy.linalg import expm
+
+    kf = BallKalmanFilter(KalmanSpec(tilt_lag_s=tau, rolling_factor=rolling))
+    a = np.array([[0, 1, 0, 0], [0, 0, 1, 1], [0, 0, -1 / tau, 0], [0, 0, 0, 0]], dtype=float)
+    b = np.array([0, 0, rolling * 9.80665 / tau, 0], dtype=float)  # standard gravity
+    m = np.zeros((5, 5))
+    m[:4, :4], m[:4, 4] = a * h, b * h
+    e = expm(m)
+    phi, gamma = kf.transition(h)
+    assert np.allclose(phi, e[:4, :4], rtol=1e-9, atol=1e-12) and np.allclose(gamma, e[:4, 4], rtol=1e-9, atol=1e-12)
+
+
 @given(noise_mm=st.floats(0.2, 10.0), accel=st.floats(-2.0, 2.0), v0=st.floats(-0.3, 0.3),
        spacing=st.sampled_from([0.01, 0.02, 0.033]))
 @settings(max_examples=40, deadline=None)
