@@ -55,7 +55,8 @@ def one_run(seed: int, seconds: float, backend: str, protocol: str, folder: Path
         fell = distance > 150.0
     return {"seed": seed, "deploy_exit": dep.returncode, "fell_off": fell, "final_distance_mm": distance,
             "panel_rms_last_5s_mm": float(np.sqrt(np.mean(np.sum(xy[tail] ** 2, 1)))),
-            "missed_deadlines": int(dep.stdout.split("missed deadlines ")[1].split(",")[0])}
+            "missed_deadlines": int(dep.stdout.split("missed deadlines ")[1].split(",")[0]),
+            "malformed": int(summary.split(" malformed")[0].rsplit(", ", 1)[1])}
 
 
 def main() -> None:
@@ -70,6 +71,7 @@ def main() -> None:
         runs = [one_run(k, args.seconds, args.backend, args.protocol, Path(tmp)) for k in range(args.runs)]
     res = {"backend": args.backend, "protocol": args.protocol, "seconds": args.seconds, "runs": runs,
            "falls": sum(r["fell_off"] for r in runs), "deploy_failures": sum(r["deploy_exit"] != 0 for r in runs),
+           "malformed": sum(r["malformed"] for r in runs),
            "final_distance_mm_mean": float(np.mean([r["final_distance_mm"] for r in runs])),
            "panel_rms_last_5s_mm": float(np.sqrt(np.mean([r["panel_rms_last_5s_mm"] ** 2 for r in runs])))}
     if args.json:
@@ -80,7 +82,8 @@ def main() -> None:
               f"{r['final_distance_mm']:.1f} mm from the centre, RMS seen (last 5 s) {r['panel_rms_last_5s_mm']:.1f} mm, "
               f"{r['missed_deadlines']} missed deadlines")  # fmt: skip
     print(f"{args.runs} runs of {args.seconds:g} s, {args.protocol} protocol, twin in {args.backend}: {res['falls']} falls, "
-          f"{res['deploy_failures']} failed deploys, final distance {res['final_distance_mm_mean']:.1f} mm on average, "
+          f"{res['deploy_failures']} failed deploys, {res['malformed']} malformed messages, "
+          f"final distance {res['final_distance_mm_mean']:.1f} mm on average, "
           f"RMS seen over the last 5 s {res['panel_rms_last_5s_mm']:.1f} mm")  # fmt: skip
 
 

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["output_dir", "output_file"]
+__all__ = ["output_dir", "output_file", "run_config"]
 
 
 def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
@@ -49,3 +50,20 @@ def _writable_dir(folder: Path) -> None:
         raise ConfigError(f"{folder}: {existing} is a file, not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ConfigError(f"{folder}: no permission to write in {existing}")
+
+
+def run_config(model_zip: Path) -> dict[str, Any] | None:
+    """The ``config.yaml`` of the training run a model belongs to: beside it, or one folder up (``best/``,
+    ``checkpoints/``); None where there is none. Raises ``ValueError`` if it cannot be read, ``ImportError``
+    without pyyaml."""
+    import yaml
+
+    for folder in (model_zip.parent, model_zip.parent.parent):
+        cfg = folder / "config.yaml"
+        if cfg.is_file():
+            try:
+                data = yaml.safe_load(cfg.read_text())
+            except (yaml.YAMLError, UnicodeDecodeError) as exc:
+                raise ValueError(f"{cfg}: not a readable run configuration ({exc})") from None
+            return data if isinstance(data, dict) else None
+    return None

@@ -42,6 +42,7 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
+from stewart_gym.outputs import run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
            "export_policy", "load_for_evaluation", "load_policy", "resolve_policy"]  # fmt: skip
@@ -186,21 +187,13 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 
 def _run_config(model_zip: Path) -> dict[str, Any] | None:
-    """The ``config.yaml`` of the run a model belongs to: beside it, or one folder up (``best/``, ``checkpoints/``)."""
+    """The ``config.yaml`` of the run a model belongs to (:func:`~stewart_gym.outputs.run_config`)."""
     try:
-        import yaml
+        return run_config(model_zip)
     except ImportError:
         raise PolicyError("reading a training run needs pyyaml: pip install 'stewart_gym[train]'") from None
-
-    for folder in (model_zip.parent, model_zip.parent.parent):
-        cfg = folder / "config.yaml"
-        if cfg.is_file():
-            try:
-                data = yaml.safe_load(cfg.read_text())
-            except (yaml.YAMLError, UnicodeDecodeError) as exc:
-                raise PolicyError(f"{cfg}: not a readable run configuration ({exc})") from None
-            return data if isinstance(data, dict) else None
-    return None
+    except ValueError as exc:
+        raise PolicyError(str(exc)) from None
 
 
 def _sb3_source(spec: str, model_zip: Path) -> PolicySource:

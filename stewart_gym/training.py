@@ -32,6 +32,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
 __all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "run_hyperparams",
@@ -139,8 +140,31 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
             raise ConfigError(f"--resume {config.resume}: no normalisation statistics beside the model "
                               "(vecnormalize.pkl); resume from a run folder, its best/best_model.zip or a "
                               "checkpoint")  # fmt: skip
+        check_resumed_observer(config, hp, model)
     elif not overwrite and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
         raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
+
+
+def check_resumed_observer(config: TrainConfig, hp: dict[str, Any], model: Path) -> None:
+    """A resumed policy keeps the observer it was trained behind: if its run's ``config.yaml`` names another
+    ``estimator`` than this run's YAML (or the default), that is a :class:`ConfigError` unless ``--estimator``
+    was given (an explicit choice). The network reads the observer's estimate, so another observer under it
+    is another input, not a fine-tuning."""
+    if config.estimator is not None:
+        return
+    try:
+        resumed_cfg = run_config(model)
+    except (ValueError, ImportError) as exc:
+        raise ConfigError(f"--resume {config.resume}: {exc}") from None
+    resumed_kwargs = ((resumed_cfg or {}).get("hyperparams") or {}).get("env_kwargs") or {}
+    if resumed_cfg is None or not isinstance(resumed_kwargs, dict):
+        return
+    was = str(resumed_kwargs.get("estimator", "lowpass"))
+    now = str((hp.get("env_kwargs") or {}).get("estimator", "lowpass"))
+    if was != now:
+        raise ConfigError(f"--resume {config.resume} was trained behind the {was} observer, but this run's "
+                          f"hyperparameters put it behind the {now} one; give --estimator {was} to keep its "
+                          f"observer (or --estimator {now} to change it on purpose)")  # fmt: skip
 
 
 def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None,

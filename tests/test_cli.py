@@ -417,7 +417,10 @@ def test_deploy_with_the_panel_on_the_line_protocol(device: FakeDevice, tmp_path
 
     rows = list(csv.DictReader((tmp_path / "l.csv").open()))
     assert len(rows) == 50 and sum(int(r["stale"]) for r in rows) < 5
-    assert abs(float(rows[-1]["obs0"]) * 0.15 - 0.040) < 1e-6  # the panel's reading is the observed position
+    # the panel's reading is the observed position: the shipped policy runs behind the Kalman observer, whose
+    # estimate of a ball read still at 40 mm for 1 s comes within 0.1 mm of it (measured: 0.02 mm) while the
+    # policy tilts the plate (the filter's bias state learns that the ball does not roll)
+    assert abs(float(rows[-1]["obs0"]) * 0.15 - 0.040) < 1e-4
     assert data.count(b"W ") >= 50
 
 

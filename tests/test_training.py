@@ -68,6 +68,33 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
                                   resume=str(lone / "model.zip")))  # fmt: skip
 
 
+def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
+    """Resuming the shipped balance PPO (trained behind the Kalman observer) with hyperparameters that put it
+    behind the low-pass one is one error line from the command line, before any run folder; --estimator keeps
+    the observer (or changes it on purpose), and hyperparameters with the same observer pass."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    shipped = root / "stewart_gym/policies/balance"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "train", "--resume", str(shipped), "--hyperparams",
+                           str(root / "stewart_gym/hyperparams/ppo_finetune.yml"), "--run-dir", str(tmp_path / "r")],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
+    assert proc.stderr.startswith("error: --resume") and "kalman observer" in proc.stderr
+    assert "--estimator kalman" in proc.stderr and not (tmp_path / "r").exists()
+    from stewart_gym.training import check_run_dir
+
+    for estimator in ("kalman", "lowpass"):  # an explicit choice is the user's
+        check_run_dir(TrainConfig(hyperparams=str(root / "stewart_gym/hyperparams/ppo_finetune.yml"),
+                                  run_dir=str(tmp_path / estimator), resume=str(shipped), estimator=estimator))
+    check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"), run_dir=str(tmp_path / "c"),
+                              resume=str(shipped / "model.zip")))  # the camera recipe keeps the Kalman observer
+    with pytest.raises(ConfigError, match="lowpass observer"):  # and the other way round (the track PPO: low-pass)
+        check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"),
+                                  run_dir=str(tmp_path / "d"), resume=str(root / "stewart_gym/policies/track")))
+
+
 def test_hyperparameter_files_have_every_env() -> None:
     import stewart_gym
 
@@ -166,8 +193,9 @@ def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFi
     names = ["shipped-residual", "shipped", "pid-kalman", "lqr"]
     assert list(metrics) == names and all(metrics[n]["episodes"] == 2 for n in names)
     assert any(all(n in line for n in names) for line in out.splitlines())  # the table's header
-    # each ran as shipped: the end-to-end PPO moves its servos far more, once the ball is held, than the PID + Kalman
-    assert metrics["shipped"]["settled_pulse_rate_us_per_s"] > 3 * metrics["pid-kalman"]["settled_pulse_rate_us_per_s"]
+    # each ran as itself: the end-to-end PPO, which sees no error integral, holds the ball looser than the residual,
+    # whose PID holds it (seeds 0 and 1: about 2.0 against 0.6-0.7 mm RMS)
+    assert metrics["shipped"]["rms_error_mm"] > 1.5 * metrics["shipped-residual"]["rms_error_mm"]
     assert (tmp_path / "demo.gif").stat().st_size > 50_000 and (tmp_path / "demo_pulses.png").stat().st_size > 20_000
 
 
