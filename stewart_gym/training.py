@@ -35,8 +35,8 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.outputs import run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
-__all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_run_dir", "load_hyperparams", "make_env", "run_hyperparams",
-           "train"]
+__all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_resumed_observer", "check_run_dir", "load_hyperparams",
+           "make_env", "run_hyperparams", "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -156,8 +156,9 @@ def check_resumed_observer(config: TrainConfig, hp: dict[str, Any], model: Path)
         resumed_cfg = run_config(model)
     except (ValueError, ImportError) as exc:
         raise ConfigError(f"--resume {config.resume}: {exc}") from None
-    resumed_kwargs = ((resumed_cfg or {}).get("hyperparams") or {}).get("env_kwargs") or {}
-    if resumed_cfg is None or not isinstance(resumed_kwargs, dict):
+    resumed_hp = resumed_cfg.get("hyperparams") if isinstance(resumed_cfg, dict) else None
+    resumed_kwargs = resumed_hp.get("env_kwargs") if isinstance(resumed_hp, dict) else None
+    if not isinstance(resumed_kwargs, dict):  # no run configuration to compare with (a bare model, an old run)
         return
     was = str(resumed_kwargs.get("estimator", "lowpass"))
     now = str((hp.get("env_kwargs") or {}).get("estimator", "lowpass"))
