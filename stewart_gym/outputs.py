@@ -1,6 +1,7 @@
-"""Output paths checked before long work starts: a run that would fail to save its result fails at once.
+"""Output paths checked before long work starts: a run that would fail to save its result fails at once; and
+the configuration a training run left beside its model (:func:`run_config`).
 
-Used by the command line and by :func:`stewart_gym.training.train`; raises
+Used by the command line, the policy registry and :func:`stewart_gym.training.train`; raises
 :class:`~stewart_gym.errors.ConfigError` with what to do.
 """
 

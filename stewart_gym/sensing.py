@@ -301,9 +301,10 @@ class BallKalmanFilter:
     input is the commanded tilt, known to the controller. A reading taken at ``ts`` updates the estimate at
     ``ts`` (the filter runs at the readings' own times, so sensing latency is in the model, not an error), and
     :meth:`estimate` predicts from there to now through the commands sent since, which also bridges missed
-    readings. Exact discretisation (matrix exponential) for any interval. By default it weighs each reading by
-    the noise it measures in the readings (:class:`ReadingNoise`, ``KalmanSpec.noise_window``), so the same
-    filter smooths a noisy panel more and follows a quiet one more closely.
+    readings. Exact discretisation for any interval (the matrix exponential in closed form: :meth:`transition`).
+    By default it weighs each reading by the noise it measures in the readings (:class:`ReadingNoise`,
+    ``KalmanSpec.noise_window``), so the same filter smooths a noisy panel more and follows a quiet one more
+    closely.
     """
 
     #: m: the least reading noise the filter assumes when it measures less (a noise-free simulated sensor; a
@@ -312,9 +313,7 @@ class BallKalmanFilter:
 
     def __init__(self, spec: KalmanSpec | None = None) -> None:
         self.spec = spec or KalmanSpec()
-        c, tau = self.spec, self.spec.tilt_lag_s
-        self._a = np.array([[0, 1, 0, 0], [0, 0, 1, 1], [0, 0, -1 / tau, 0], [0, 0, 0, 0]], dtype=float)
-        self._b = np.array([0, 0, c.rolling_factor * GRAVITY / tau, 0], dtype=float)
+        c = self.spec
         self._qc = np.diag([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])
         self.noise = ReadingNoise(c.measurement_noise_mm, c.noise_window) if c.noise_window else None
         self._r = (c.measurement_noise_mm * 1e-3) ** 2
