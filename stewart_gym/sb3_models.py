@@ -1,6 +1,6 @@
 """Stable-Baselines3 models with the observation normalisation they were trained with, and residual policies.
 
-:func:`load_sb3` reads a PPO, SAC or TD3 model and the ``vecnormalize.pkl``
+:func:`load_sb3` reads a PPO, SAC, TD3 or TQC model and the ``vecnormalize.pkl``
 beside it; :class:`SB3Policy` normalises observations the way training did and
 predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 
@@ -46,12 +46,26 @@ class SB3Policy:
         return self.model.predict(self.normalize(np.asarray(obs, dtype=np.float32)), deterministic=deterministic)
 
 
+def _policy_module(zip_path: Path) -> str:
+    """The module of the policy class saved in an SB3 model archive ("" if it cannot be read)."""
+    import json
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(zip_path) as archive:
+            data = json.loads(archive.read("data"))
+        return str(data["policy_class"]["__module__"])
+    except (KeyError, TypeError, ValueError, OSError, zipfile.BadZipFile):
+        return ""
+
+
 def load_sb3(path: str | Path) -> SB3Policy:
-    """Load a PPO, SAC or TD3 model (a ``.zip``, or a folder with ``model.zip`` or ``best_model.zip``)
+    """Load a PPO, SAC, TD3 or TQC model (a ``.zip``, or a folder with ``model.zip`` or ``best_model.zip``)
     and the ``vecnormalize.pkl`` beside it if present."""
     import pickle
     import zipfile
 
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC, TD3
 
     path = Path(path)
@@ -62,14 +76,16 @@ def load_sb3(path: str | Path) -> SB3Policy:
         raise PolicyError(f"no model at {zip_path}")
     if not zipfile.is_zipfile(zip_path):
         raise PolicyError(f"{zip_path}: not a Stable-Baselines3 model (not a zip archive)")
-    for algo in (PPO, SAC, TD3):
+    # SAC and TQC each load the other's model without complaint: the saved policy class says which it is
+    order = (TQC, PPO, SAC, TD3) if _policy_module(zip_path).startswith("sb3_contrib.tqc") else (PPO, SAC, TD3, TQC)
+    for algo in order:
         try:
             model = algo.load(zip_path, device="cpu")
             break
         except (ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, RuntimeError):
             continue
     else:
-        raise PolicyError(f"{zip_path} is not a PPO, SAC or TD3 model")
+        raise PolicyError(f"{zip_path} is not a PPO, SAC, TD3 or TQC model")
     obs_rms, clip_obs = None, 10.0
     stats = zip_path.parent / "vecnormalize.pkl"
     if stats.exists():

@@ -3,7 +3,7 @@
 A sweep file (YAML) names the task and the search space::
 
     env: StewartBallBalance-v0         # an env id
-    algo: ppo                          # ppo, sac or td3
+    algo: ppo                          # ppo, sac, td3 or tqc
     geometry: servo-hexapod            # optional: a preset or TOML file
     n_timesteps: 150000                # per trial
     n_envs: 1                          # env workers per trial = CPUs per trial

@@ -1,4 +1,4 @@
-"""Train Stable-Baselines3 agents (PPO, SAC, TD3) on the registered environments.
+"""Train Stable-Baselines3 agents (PPO, SAC, TD3, and sb3-contrib's TQC) on the registered environments.
 
 Hyperparameters live in RL-Zoo-style YAML files, one section per env id
 (``stewart_gym/hyperparams/<algo>.yml``): ``n_envs``, ``n_timesteps``, ``normalize``,
@@ -25,22 +25,28 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
+from sb3_contrib import TQC
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.outputs import run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
-__all__ = ["ALGOS", "ZOO_KEYS", "TrainConfig", "check_resumed_observer", "check_run_dir", "load_hyperparams",
+__all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "check_action_noise", "check_resumed_observer",
+           "check_run_dir", "action_noise", "load_hyperparams",
            "make_env", "run_hyperparams", "train"]
 
-ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3}
+ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
-ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual")
+ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual",
+            "noise_type", "noise_std")
+#: RL-Zoo's ``noise_type``: Gaussian or Ornstein-Uhlenbeck exploration noise on the actions of SAC, TD3 or TQC
+NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
 
 
 @dataclass
@@ -109,6 +115,32 @@ def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
     return hp
 
 
+def check_action_noise(algo: str, hp: dict[str, Any]) -> None:
+    """RL-Zoo's ``noise_type`` and ``noise_std`` (std of the noise, in action units, 0–1) are given together, to
+    an off-policy algorithm. Without them TD3 explores only through its first ``learning_starts`` random steps
+    (Stable-Baselines3 adds no action noise by default)."""
+    if "noise_type" not in hp and "noise_std" not in hp:
+        return
+    if algo == "ppo":
+        raise ConfigError("noise_type/noise_std: action noise is for sac, td3 or tqc; PPO explores through its "
+                          "policy's own standard deviation (policy_kwargs.log_std_init)")
+    kind, std = hp.get("noise_type"), hp.get("noise_std")
+    if kind not in NOISE_TYPES:
+        raise ConfigError(f"noise_type must be one of {list(NOISE_TYPES)} (with noise_std), got {kind!r}")
+    if isinstance(std, bool) or not isinstance(std, (int, float)) or not 0 < std <= 1:
+        raise ConfigError(f"noise_std must be a number in (0, 1] (the noise's std in action units), got {std!r}")
+
+
+def action_noise(hp: dict[str, Any], n_actions: int) -> ActionNoise | None:
+    """The exploration noise that ``noise_type``/``noise_std`` describe (checked by :func:`check_action_noise`)."""
+    if "noise_type" not in hp:
+        return None
+    mean, sigma = np.zeros(n_actions), float(hp["noise_std"]) * np.ones(n_actions)
+    if hp["noise_type"] == "normal":
+        return NormalActionNoise(mean, sigma)
+    return OrnsteinUhlenbeckActionNoise(mean, sigma)
+
+
 def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
     the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
@@ -122,6 +154,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     hp = run_hyperparams(config)
+    check_action_noise(config.algo, hp)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -298,14 +331,17 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
                                                                                 if k not in ("norm_reward",)})  # fmt: skip
     tb = str(run / "tb") if config.tensorboard else None
+    noise = action_noise(hp, int(env.action_space.shape[0]))
     if resume is not None:
         zip_path = resume / "model.zip" if resume.is_dir() else resume
         # the YAML's learning rate (and PPO's clip range) apply to the continued run, e.g. to fine-tune
         custom = {k: algo_kwargs[k] for k in ("learning_rate", "clip_range") if k in algo_kwargs}
         model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb, custom_objects=custom)
+        if noise is not None:  # not saved with the model
+            model.action_noise = noise
     else:
         model = algo_cls(policy, env, seed=config.seed, device="cpu", tensorboard_log=tb, verbose=config.verbose,
-                         **algo_kwargs)  # fmt: skip
+                         **({"action_noise": noise} if noise is not None else {}), **algo_kwargs)  # fmt: skip
     started = time.time()
     callbacks = CallbackList([
         _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),

@@ -18,15 +18,17 @@ PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
 
 
 def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
-    """Bundle (onnxruntime + numpy) vs SB3 predict(deterministic=True) on 1,000 observations, for PPO, SAC and TD3."""
+    """Bundle (onnxruntime + numpy) vs SB3 predict(deterministic=True) on 1,000 observations, for PPO, SAC, TD3
+    and TQC; each model loads back as the algorithm that trained it."""
     import gymnasium as gym
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC, TD3
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from stewart_gym.sb3_models import load_sb3
 
     obs = np.random.default_rng(0).normal(0, 1, (1000, 12)).astype(np.float32)
-    for algo in (PPO, SAC, TD3):
+    for algo in (PPO, SAC, TD3, TQC):
         venv = VecNormalize(DummyVecEnv([lambda: gym.make("StewartBallBalance-v0")]))
         kwargs = {"n_steps": 64, "batch_size": 32} if algo is PPO else {"learning_starts": 10, "buffer_size": 500}
         model = algo("MlpPolicy", venv, policy_kwargs={"net_arch": [32, 32]}, device="cpu", seed=0, **kwargs)
@@ -38,6 +40,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
         venv.close()
         bundle = BundlePolicy(export_sb3(folder, tmp_path / f"{algo.__name__}_bundle"))
         reference = load_sb3(folder)
+        assert type(reference.model) is algo
         expected = reference.predict(obs, deterministic=True)[0]
         got = bundle(obs)
         assert np.abs(got - expected).max() <= 1e-5, algo.__name__

@@ -20,7 +20,9 @@ from stewart_gym.training import TrainConfig, load_hyperparams, train
 SMOKE = {
     "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
     "sac": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
-    "td3": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
+    "td3": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1,
+            "noise_type": "normal", "noise_std": 0.1},
+    "tqc": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
 }
 
 
@@ -98,7 +100,7 @@ def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
 def test_hyperparameter_files_have_every_env() -> None:
     import stewart_gym
 
-    for algo in ("ppo", "sac", "td3"):
+    for algo in ("ppo", "sac", "td3", "tqc"):
         for env_id in stewart_gym.ENV_IDS:
             hp = load_hyperparams(algo, env_id)
             assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
@@ -115,6 +117,38 @@ def test_train_refuses_bad_options_before_starting(field: str, value: object, tm
     with pytest.raises(ConfigError, match=field.split("_")[0]):
         train(TrainConfig(run_dir=str(tmp_path / "run"), **{field: value}))
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("algo,noise,match", [
+    ("ppo", {"noise_type": "normal", "noise_std": 0.1}, "for sac, td3 or tqc"),
+    ("td3", {"noise_type": "pink", "noise_std": 0.1}, "noise_type"),
+    ("td3", {"noise_std": 0.1}, "noise_type"),
+    ("sac", {"noise_type": "normal"}, "noise_std"),
+    ("tqc", {"noise_type": "normal", "noise_std": 0.0}, "noise_std"),
+    ("td3", {"noise_type": "normal", "noise_std": float("nan")}, "noise_std"),
+    ("td3", {"noise_type": "normal", "noise_std": True}, "noise_std"),
+    ("td3", {"noise_type": "normal", "noise_std": 1.5}, "noise_std"),
+])  # fmt: skip
+def test_bad_action_noise_is_refused_before_starting(algo: str, noise: dict, match: str, tmp_path: Path) -> None:
+    hp_file = tmp_path / "hp.yml"
+    hp_file.write_text(yaml.safe_dump({"StewartBallBalance-v0": {"n_envs": 1, **noise}}))
+    with pytest.raises(ConfigError, match=match):
+        train(TrainConfig(algo=algo, hyperparams=str(hp_file), run_dir=str(tmp_path / "run")))
+    assert not (tmp_path / "run").exists()
+
+
+def test_action_noise_is_the_one_the_yaml_names() -> None:
+    from stable_baselines3.common.noise import NormalActionNoise, OrnsteinUhlenbeckActionNoise
+
+    from stewart_gym.training import action_noise
+
+    assert action_noise({"n_envs": 2}, 2) is None
+    normal = action_noise({"noise_type": "normal", "noise_std": 0.2}, 3)
+    assert isinstance(normal, NormalActionNoise)
+    draws = np.array([normal() for _ in range(4000)])
+    assert draws.shape == (4000, 3) and np.allclose(draws.std(axis=0), 0.2, rtol=0.1)
+    assert isinstance(action_noise({"noise_type": "ornstein-uhlenbeck", "noise_std": 0.2}, 2),
+                      OrnsteinUhlenbeckActionNoise)
 
 
 def test_pid_balances_the_ball() -> None:

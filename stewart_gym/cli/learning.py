@@ -33,7 +33,7 @@ ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or ka
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """Train an agent with Stable-Baselines3 (PPO, SAC, TD3); hyperparameters from stewart_gym/hyperparams/<algo>.yml."""
+    """Train PPO, SAC, TD3 (Stable-Baselines3) or TQC (sb3-contrib); hyperparameters: stewart_gym/hyperparams/<algo>.yml."""
     from stewart_gym.training import TrainConfig, check_run_dir, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
@@ -199,7 +199,7 @@ def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
-    p.add_argument("--algo", choices=["ppo", "sac", "td3"], default="ppo")
+    p.add_argument("--algo", choices=["ppo", "sac", "td3", "tqc"], default="ppo")
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")

@@ -4,7 +4,7 @@ A bundle is a folder with ``bundle.json`` and, for a learned policy,
 ``policy.onnx``. ``bundle.json`` holds the kind (``"onnx"``, ``"pid"`` or ``"lqr"``),
 the env id and action mode, the observer (``estimator``), the observation normalisation (VecNormalize mean, var,
 clip, epsilon) and the action bounds. The ONNX graph maps a *normalised*
-observation to the deterministic action (PPO: the Gaussian mean; SAC/TD3: the
+observation to the deterministic action (PPO: the Gaussian mean; SAC/TQC/TD3: the
 actor's output) *before* clipping, as Stable-Baselines3's export guide
 describes; :class:`BundlePolicy` normalises and clips around it exactly as
 ``model.predict(deterministic=True)`` does.
@@ -39,6 +39,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     and the track's ``trajectory``); they go into ``bundle.json``.
     """
     import torch
+    from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
     from stewart_gym.sb3_models import load_sb3
@@ -59,7 +60,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
             p = self.policy
             if isinstance(model, PPO):  # the Gaussian's mean
                 return p.action_net(p.mlp_extractor.forward_actor(p.extract_features(obs, p.pi_features_extractor)))
-            if isinstance(model, SAC):  # tanh-squashed mean
+            if isinstance(model, (SAC, TQC)):  # tanh-squashed mean
                 return p(obs, deterministic=True)
             return p(obs)  # TD3: tanh output
 
