@@ -459,8 +459,8 @@ class LQRController(EpisodicController):
 
 
 # -------------------------------------------------------------------------------------------------- hand-over
-#: The hand-over's own sizes (:class:`HandoverDesign`).
-HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm")
+#: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the dwell 0 (off) or more.
+HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s")
 
 
 @dataclass(frozen=True)
@@ -471,7 +471,10 @@ class HandoverDesign:
     the PID behind the Kalman observer holds a still ball tightest and quietest; this controller runs the LQR
     until the ball is within ``handover_mm`` of a target that stands still and slower than ``handover_mm_s``
     relative to it, then the PID, until the ball is farther than ``release_mm`` or the target moves faster than
-    ``handover_mm_s`` (then the LQR again). The PID takes over with its own integral, which it has kept within
+    ``handover_mm_s`` (then the LQR again). Under heavy panel noise the observed speed seldom falls below
+    ``handover_mm_s`` (8 mm of noise leaves about 20 mm/s in the estimate), so once the ball has stayed within
+    ``release_mm`` of the still target for ``handover_dwell_s``, the PID takes over within ``handover_mm``
+    whatever the observed speed (0: never). The PID takes over with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
@@ -481,6 +484,7 @@ class HandoverDesign:
         handover_mm, handover_mm_s: the PID takes over within this distance of the target and below this speed
             (the ball's relative to the target, and the target's).
         release_mm: the LQR takes back beyond this distance (more than ``handover_mm``).
+        handover_dwell_s: after this long within ``release_mm`` the speed no longer matters (0: it always does).
     """
 
     lqr: LQRDesign
@@ -488,6 +492,7 @@ class HandoverDesign:
     handover_mm: float = 2.0
     handover_mm_s: float = 10.0
     release_mm: float = 20.0
+    handover_dwell_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -502,6 +507,7 @@ class HandoverGains:
     handover_mm_s: float
     release_mm: float
     dt: float
+    handover_dwell_s: float = 0.0  # after the others: bundles written before it load without it
 
 
 class HandoverController(EpisodicController):
@@ -522,6 +528,7 @@ class HandoverController(EpisodicController):
         self.lqr.reset()
         self.pid.reset()
         self._near: np.ndarray | None = None
+        self._inside: np.ndarray | None = None  # periods each ball has been within release_mm of a still target
 
     @property
     def pid_in_control(self) -> np.ndarray | None:
@@ -535,10 +542,15 @@ class HandoverController(EpisodicController):
         pos, vel, target, target_vel = observed_motion(o, self._position_scale, self._velocity_scale)
         distance_mm = np.linalg.norm(target - pos, axis=-1) * 1e3
         speed_mm_s = np.linalg.norm(vel - target_vel, axis=-1) * 1e3
-        near = self._near if self._near is not None and self._near.shape == distance_mm.shape else \
-            np.zeros(distance_mm.shape, dtype=bool)  # fmt: skip
+        fresh = self._near is None or self._near.shape != distance_mm.shape
+        near = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._near
+        inside = np.zeros(distance_mm.shape, dtype=int) if fresh or self._inside is None else self._inside
         still = np.linalg.norm(target_vel, axis=-1) * 1e3 < g.handover_mm_s
-        enter = ~near & still & (distance_mm < g.handover_mm) & (speed_mm_s < g.handover_mm_s)
+        self._inside = inside = np.where(still & (distance_mm <= g.release_mm), inside + 1, 0)
+        slow = speed_mm_s < g.handover_mm_s
+        if g.handover_dwell_s > 0:  # whole periods: 3 s at 50 Hz is the 150th
+            slow |= inside >= math.ceil(g.handover_dwell_s / g.dt - 1e-9)
+        enter = ~near & still & (distance_mm < g.handover_mm) & slow
         self._near = (near | enter) & still & ~(distance_mm > g.release_mm)
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
@@ -617,9 +629,9 @@ def checked_handover(values: Any) -> HandoverDesign:
     assert isinstance(lqr, LQRDesign) and isinstance(pid, PIDGains)
     sizes = {k: values.get(k, getattr(HandoverDesign, k)) for k in HANDOVER_SIZES}
     bad = [k for k, v in sizes.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-           or v <= 0]  # fmt: skip
+           or v < 0 or (v == 0 and k != "handover_dwell_s")]  # fmt: skip
     if bad:
-        raise ValueError(f"{bad} must be positive numbers")
+        raise ValueError(f"{bad} must be positive numbers (handover_dwell_s may be 0: off)")
     if sizes["release_mm"] <= sizes["handover_mm"]:
         raise ValueError(f"release_mm ({sizes['release_mm']}) must be more than handover_mm ({sizes['handover_mm']})")
     return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
@@ -644,7 +656,8 @@ def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesig
         pid = gains_for_geometry(design.pid, geo)
         return HandoverController(HandoverGains(lqr=lqr, pid=pid, max_tilt=pid.max_tilt, handover_mm=design.handover_mm,
                                                 handover_mm_s=design.handover_mm_s, release_mm=design.release_mm,
-                                                dt=dt), plate_half=half)  # fmt: skip
+                                                dt=dt, handover_dwell_s=design.handover_dwell_s),
+                                  plate_half=half)  # fmt: skip
     if kind == "lqr":
         assert isinstance(design, LQRDesign)
         return LQRController(design_lqr(design, dt=dt, geometry=geo), plate_half=half)

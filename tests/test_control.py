@@ -294,6 +294,56 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
     assert handover.pid_in_control.tolist() == [True, False, False]
 
 
+def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whatever_its_observed_speed() -> None:
+    """Heavy panel noise keeps the observed speed above ``handover_mm_s``: a ball observed 1 mm from the still
+    target at 30 mm/s stays with the LQR until it has been within ``release_mm`` for ``handover_dwell_s``
+    (3 s, 150 periods), then the PID holds it; a ball that leaves ``release_mm`` restarts the count; with the
+    dwell off (0, the shipped ``lqr-pid``'s) the LQR keeps it; rows count apart. The shipped residual's base
+    has the 3 s dwell, in its bundle and in its run configuration alike."""
+    from dataclasses import replace
+
+    from stewart_gym.classical import HandoverController
+    from stewart_gym.sensing import ObservationBuilder
+
+    shipped = load_policy("lqr-pid")
+    assert isinstance(shipped, HandoverController) and shipped.gains.handover_dwell_s == 0.0
+    handover = HandoverController(replace(shipped.gains, handover_dwell_s=3.0))
+    periods = round(handover.gains.handover_dwell_s / handover.gains.dt)
+    fast = lqr_obs((1.0, 0.0))
+    fast[2] = 0.030 / ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]  # 30 mm/s
+    for k in range(periods - 1):
+        handover(fast)
+        assert not handover.pid_in_control, k
+    handover(fast)
+    assert handover.pid_in_control
+    handover.reset()
+    for _ in range(periods - 1):
+        handover(fast)
+    handover(lqr_obs((25.0, 0.0)))  # beyond release_mm: the count starts again
+    for _ in range(periods - 1):
+        handover(fast)
+    assert not handover.pid_in_control
+    handover.reset()
+    far = lqr_obs((30.0, 0.0))
+    for _ in range(periods):
+        handover(np.stack([fast, far]))
+    assert handover.pid_in_control.tolist() == [True, False]
+    for _ in range(5 * periods):
+        shipped(fast)
+    assert not shipped.pid_in_control
+    residual = Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual"
+    bundle = json.loads((residual / "bundle" / "bundle.json").read_text())
+    config = yaml.safe_load((residual / "config.yaml").read_text())
+    assert config["hyperparams"]["residual"]["design"]["handover_dwell_s"] == 3.0
+
+    def dwells(node: object) -> list[float]:  # every handover_dwell_s in the bundle (its design and its gains)
+        if isinstance(node, dict):
+            return [v for k, v in node.items() if k == "handover_dwell_s"] + [d for v in node.values() for d in dwells(v)]
+        return [d for v in node for d in dwells(v)] if isinstance(node, list) else []
+
+    assert dwells(bundle) == [3.0, 3.0]
+
+
 def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() -> None:
     """``policies/lqr_pid.json`` holds today's ``lqr.json`` and ``pid_kalman_gains.json`` (no stale copy), and
     a malformed hand-over design is refused saying what is wrong."""
@@ -304,8 +354,10 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
     assert design["lqr"] == json.loads((policies / "lqr.json").read_text())
     pid_kalman = json.loads((policies / "pid_kalman_gains.json").read_text())
     assert pid_kalman.pop("estimator") == "kalman" and design["pid"] == pid_kalman
+    assert checked_design({**design, "handover_dwell_s": 0}, "handover").handover_dwell_s == 0.0  # 0: off
     for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "HandoverDesign"),
-                       ({**design, "handover_mm_s": -1}, "positive"),
+                       ({**design, "handover_mm_s": -1}, "positive"), ({**design, "handover_dwell_s": -0.5}, "positive"),
+                       ({**design, "handover_dwell_s": float("nan")}, "positive"),
                        ({**design, "pid": {**design["pid"], "kp_pos": "x"}}, "handover: gains must be finite")):
         with pytest.raises(ValueError, match=match):
             checked_design(bad, "handover")
@@ -327,6 +379,7 @@ def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: P
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((out / "bundle.json").read_text())
     assert meta["kind"] == "handover" and meta["estimator"] == "kalman" and meta["gains"]["handover_mm"] == 2.0
+    assert meta["gains"]["handover_dwell_s"] == 0.0
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("lqr-pid")
     rng = np.random.default_rng(4)
     held = 0
