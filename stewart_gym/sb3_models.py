@@ -105,7 +105,8 @@ def check_residual(spec: Any) -> dict[str, Any]:
     fades) and q 0 (the default) or more than r > 0 (once within r, the correction stays off until the ball is
     farther than q: :class:`~stewart_gym.classical.ResidualMix`). NAME is a shipped classical controller
     (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
-    defaults to the shipped one's (training records it)."""
+    is the shipped one's with any fields that ``design`` gives replaced (all of them, or a few, e.g.
+    ``{handover_dwell_s: 3}``); training records the whole design."""
     keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "design"}
     if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R, "
@@ -124,7 +125,10 @@ def check_residual(spec: Any) -> dict[str, Any]:
         raise ConfigError(f"residual {exc}") from None
     kind = CLASSICAL[spec["base"]][0]
     try:
-        design = checked_design(spec["design"], kind) if "design" in spec else shipped_design(spec["base"])
+        changes = spec.get("design", {})
+        if not isinstance(changes, dict):
+            raise ValueError(f"design must be a mapping of the design's fields, got {changes!r}")
+        design = checked_design({**asdict(shipped_design(spec["base"])), **changes}, kind)
     except ValueError as exc:
         raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
     return {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),

@@ -511,13 +511,16 @@ def test_the_shipped_balance_residual_is_the_lqr_pid_near_the_target_and_its_bun
 def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Path) -> None:
     """A run folder's residual adds to the base gains its config.yaml recorded, not to whatever the package ships
     now (a later retune of the shipped PID must not change a trained policy); its bundle records the same."""
+    from dataclasses import replace
+
     run = tmp_path / "run"
     shutil.copytree(Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual", run,
                     ignore=shutil.ignore_patterns("bundle"))  # fmt: skip
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     from stewart_gym.classical import checked_design
 
-    assert checked_design(cfg["hyperparams"]["residual"]["design"], "handover") == shipped_design("lqr-pid")
+    recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
+    assert recorded == replace(shipped_design("lqr-pid"), handover_dwell_s=3.0)  # the recipe's one change
     cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     assert load_policy(str(run)).base.gains.pid.kp_pos == 1.25
@@ -636,6 +639,24 @@ def test_a_malformed_residual_is_refused_naming_the_key(spec: dict, match: str) 
     with pytest.raises(ConfigError, match=match):
         check_residual(spec)
     assert check_residual({"base": "pid-kalman", "inner_mm": 5})["inner_mm"] == 5.0
+
+
+def test_a_residual_design_replaces_only_the_fields_it_gives() -> None:
+    """``design: {handover_dwell_s: 3}`` (the balance recipe's) is the shipped LQR → PID with that one field
+    changed; a bad value in it, or a design that is not a mapping, is refused naming the base."""
+    from dataclasses import asdict, replace
+
+    from stewart_gym.errors import ConfigError
+    from stewart_gym.sb3_models import check_residual
+
+    spec = check_residual({"base": "lqr-pid", "design": {"handover_dwell_s": 3}})
+    assert spec["design"] == asdict(replace(shipped_design("lqr-pid"), handover_dwell_s=3.0))
+    recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
+                            .read_text())["StewartBallBalance-v0"]["residual"]  # fmt: skip
+    assert check_residual(recipe)["design"]["handover_dwell_s"] == 3.0
+    for bad in ({"handover_dwell_s": -1}, [3.0]):
+        with pytest.raises(ConfigError, match="lqr-pid base"):
+            check_residual({"base": "lqr-pid", "design": bad})
 
 
 @pytest.mark.parametrize("name", ["pid-kalman", "lqr", "lqr-pid"])
