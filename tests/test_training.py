@@ -396,6 +396,28 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr
 
 
+def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_path: Path) -> None:
+    """``train/distill_experiment.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
+    Control page's metrics for the network, with every step of the teacher's 3 full episodes and of the DAgger
+    episode (which the student may end early) as data; bad options are one ``error:`` line, exit 2."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "train" / "distill_experiment.py"
+    out = tmp_path / "d.json"
+    proc = subprocess.run([sys.executable, str(script), "--bc-episodes", "3", "--dagger", "0", "--dagger-episodes",
+                           "1", "--episodes", "2", "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert result["bc_episodes"] == 3 and result["dagger"] == [0.0] and 1500 < result["samples"] <= 2000
+    assert 0.0 <= result["success_rate"] <= 1.0 and result["rms_error_mm"] > 0 and result["final_loss"] >= 0
+    assert "settled_pulse_p2p_us" in result and "settling_time_s" in result
+    for bad in (["--dagger", "0.5,2"], ["--dagger", "x"], ["--episodes", "0"]):
+        proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and proc.stderr.startswith("error:") and "Traceback" not in proc.stderr, bad
+
+
 def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
     """``train/builds.py`` for one build and one controller, one episode: the table between the markers is
     replaced (a row per pair, every column filled) and the rest of the page is kept; with ``--dither-deg`` and

@@ -3,8 +3,8 @@
 Trains PPO with the balance settings of ``stewart_gym/hyperparams/ppo.yml`` (2 envs in worker processes,
 VecNormalize, behind the Kalman observer, action-rate penalty 10) for ``--steps`` env steps, with the last
 ``--stack`` observations as the input (SB3's ``VecFrameStack``; 1 is the recipe as it is), or with an LSTM
-policy (``--lstm``: sb3-contrib's RecurrentPPO, 64 units after the 64-64 layers; sb3-contrib is not a
-dependency of stewart_gym: ``pip install sb3-contrib``). Then evaluates the final model on ``--episodes``
+policy (``--lstm``: sb3-contrib's RecurrentPPO, 64 units after the 64-64 layers; sb3-contrib comes with
+the ``train`` extra). Then evaluates the final model on ``--episodes``
 randomised seeds with :func:`stewart_gym.evaluation.evaluate` (the same code as every controller on the
 Control page), keeping the stack or the LSTM state through each episode, and prints one JSON line (also
 written to ``--out``). The docs' Control page quotes its results.
@@ -70,8 +70,7 @@ def main() -> None:
         try:
             from sb3_contrib import RecurrentPPO
         except ImportError:
-            print("error: --lstm needs sb3-contrib, which stewart_gym does not install: pip install sb3-contrib",
-                  file=sys.stderr)  # fmt: skip
+            print("error: --lstm needs sb3-contrib (the train extra): pip install -e '.[train]'", file=sys.stderr)
             sys.exit(2)
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
