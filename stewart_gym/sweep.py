@@ -50,8 +50,6 @@ DOMAINS = ("choice", "grid", "uniform", "loguniform")
 SEARCHERS = ("random", "optuna")
 SCHEDULERS = ("asha", "fifo")
 METRICS = ("success_rate", "mean_reward")
-#: Keywords of an algorithm that the sweep sets itself (or that make no sense to sweep).
-_NOT_HYPERPARAMS = {"self", "env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model", "policy_kwargs_"}
 
 
 @dataclass
@@ -99,10 +97,9 @@ def _whole(value: Any, key: str, least: int = 1) -> int:
 
 def hyperparam_names(algo: str) -> set[str]:
     """What a sweep may set for ``algo``: the algorithm's keywords and the RL-Zoo keys of the YAML files."""
-    from stewart_gym.training import ALGOS, ZOO_KEYS
+    from stewart_gym.training import ZOO_KEYS, algo_keywords
 
-    params = set(inspect.signature(ALGOS[algo].__init__).parameters) - _NOT_HYPERPARAMS
-    return (params | set(ZOO_KEYS)) - {"n_envs", "n_timesteps", "eval_freq", "eval_episodes"}
+    return (algo_keywords(algo) | set(ZOO_KEYS)) - {"n_envs", "n_timesteps", "eval_freq", "eval_episodes"}
 
 
 def env_keyword_names(env_id: str) -> set[str]:

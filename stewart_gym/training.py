@@ -14,6 +14,7 @@ mean reward, success rate) and ``metrics.json``.
 from __future__ import annotations
 
 import csv
+import inspect
 import json
 import subprocess
 import time
@@ -31,14 +32,15 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.outputs import run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
-__all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "check_action_noise", "check_resumed_observer",
-           "check_run_dir", "action_noise", "load_hyperparams",
+__all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "algo_keywords", "check_action_noise",
+           "check_algo_keywords", "check_resumed_observer", "check_run_dir", "action_noise", "load_hyperparams",
            "make_env", "run_hyperparams", "train"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
@@ -115,15 +117,35 @@ def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
     return hp
 
 
+#: Constructor keywords that :func:`train` sets itself (from the run's options, or ``noise_type``/``noise_std``).
+SET_BY_TRAIN = frozenset({"self", "policy", "env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model",
+                          "action_noise"})  # fmt: skip
+
+
+def algo_keywords(algo: str) -> set[str]:
+    """The keywords of ``algo``'s constructor that a hyperparameter file may set (its own, not :data:`ZOO_KEYS`)."""
+    return set(inspect.signature(ALGOS[algo].__init__).parameters) - SET_BY_TRAIN
+
+
+def check_algo_keywords(algo: str, hp: dict[str, Any]) -> None:
+    """Every key of a hyperparameter section is an RL-Zoo key or a keyword of ``algo`` (raises
+    :class:`ConfigError` naming the others: most often a file written for another algorithm)."""
+    unknown = sorted(set(hp) - set(ZOO_KEYS) - algo_keywords(algo))
+    if unknown:
+        raise ConfigError(f"{unknown} are not {algo.upper()} hyperparameters (a file for another algorithm? "
+                          f"stewart_gym/hyperparams/{algo}.yml is {algo.upper()}'s)")
+
+
 def check_action_noise(algo: str, hp: dict[str, Any]) -> None:
     """RL-Zoo's ``noise_type`` and ``noise_std`` (std of the noise, in action units, 0–1) are given together, to
     an off-policy algorithm. Without them TD3 explores only through its first ``learning_starts`` random steps
     (Stable-Baselines3 adds no action noise by default)."""
     if "noise_type" not in hp and "noise_std" not in hp:
         return
-    if algo == "ppo":
-        raise ConfigError("noise_type/noise_std: action noise is for sac, td3 or tqc; PPO explores through its "
-                          "policy's own standard deviation (policy_kwargs.log_std_init)")
+    if not issubclass(ALGOS[algo], OffPolicyAlgorithm):
+        off_policy = ", ".join(sorted(k for k, v in ALGOS.items() if issubclass(v, OffPolicyAlgorithm)))
+        raise ConfigError(f"noise_type/noise_std: action noise is for {off_policy}; {algo.upper()} explores through "
+                          "its policy's own standard deviation (policy_kwargs.log_std_init)")
     kind, std = hp.get("noise_type"), hp.get("noise_std")
     if kind not in NOISE_TYPES:
         raise ConfigError(f"noise_type must be one of {list(NOISE_TYPES)} (with noise_std), got {kind!r}")
@@ -154,6 +176,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     hp = run_hyperparams(config)
+    check_algo_keywords(config.algo, hp)
     check_action_noise(config.algo, hp)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:

@@ -98,9 +98,13 @@ def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
 
 
 def test_hyperparameter_files_have_every_env() -> None:
+    """Every algorithm the command line offers (the same as training's) has a file with every env."""
     import stewart_gym
+    from stewart_gym.cli.learning import ALGO_CHOICES
+    from stewart_gym.training import ALGOS
 
-    for algo in ("ppo", "sac", "td3", "tqc"):
+    assert sorted(ALGO_CHOICES) == sorted(ALGOS)
+    for algo in ALGO_CHOICES:
         for env_id in stewart_gym.ENV_IDS:
             hp = load_hyperparams(algo, env_id)
             assert hp["n_timesteps"] > 0 and hp["n_envs"] >= 1
@@ -120,7 +124,7 @@ def test_train_refuses_bad_options_before_starting(field: str, value: object, tm
 
 
 @pytest.mark.parametrize("algo,noise,match", [
-    ("ppo", {"noise_type": "normal", "noise_std": 0.1}, "for sac, td3 or tqc"),
+    ("ppo", {"noise_type": "normal", "noise_std": 0.1}, "for sac, td3, tqc; PPO explores"),
     ("td3", {"noise_type": "pink", "noise_std": 0.1}, "noise_type"),
     ("td3", {"noise_std": 0.1}, "noise_type"),
     ("sac", {"noise_type": "normal"}, "noise_std"),

@@ -40,11 +40,9 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=100, help="evaluation seeds 0…N−1")
     ap.add_argument("--out", type=Path, help="also write the JSON line here")
     args = ap.parse_args()
-    try:
-        betas = [float(b) for b in args.dagger.split(",") if b.strip()]
-    except ValueError:
-        betas = [-1.0]
-    if not all(0.0 <= b <= 1.0 for b in betas):
+    parts = [b.strip() for b in args.dagger.split(",") if b.strip()]
+    betas = [float(b) for b in parts if b.replace(".", "", 1).isdigit()]
+    if len(betas) != len(parts) or not all(b <= 1.0 for b in betas):
         print(f"error: --dagger must be comma-separated numbers in [0, 1], got {args.dagger!r}", file=sys.stderr)
         sys.exit(2)
     for name in ("bc_episodes", "dagger_episodes", "epochs", "episodes"):

@@ -26,6 +26,9 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
+#: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
+#: keeps them equal)
+ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -199,7 +202,7 @@ def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
     p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
-    p.add_argument("--algo", choices=["ppo", "sac", "td3", "tqc"], default="ppo")
+    p.add_argument("--algo", choices=ALGO_CHOICES, default="ppo")
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
