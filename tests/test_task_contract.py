@@ -91,6 +91,39 @@ def test_reward_shape_options() -> None:
             BallTask(**bad)
 
 
+def test_charge_until_settled_makes_the_outside_cost_the_settling_time() -> None:
+    """With ``charge_until_settled`` a ball that leaves the success radius again is charged ``outside_penalty``
+    for every step it had spent inside since it entered, so an episode's outside cost is ``outside_penalty`` ×
+    the steps until the ball entered for good (the settling time); without it, only the steps outside; a new
+    episode (``reset``) starts the count again; a non-boolean is refused."""
+    from stewart_gym.evaluation import EpisodeLog
+
+    distances_mm = [40, 20, 9, 5, 8, 12, 11, 7, 3, 2, 2, 2]  # overshoots out after 3 steps in; in for good at 7
+    log = EpisodeLog(dt=1.0, distance_mm=[float(d) for d in distances_mm])
+
+    def outside_cost(task: BallTask) -> float:
+        plain = BallTask()
+        return sum(plain.reward(d / 1e3, 0.0, False) - task.reward(d / 1e3, 0.0, False) for d in distances_mm)
+
+    charged, plain = BallTask(outside_penalty=2.0, charge_until_settled=True), BallTask(outside_penalty=2.0)
+    assert outside_cost(charged) == pytest.approx(2.0 * log.settling_time(10.0)) == pytest.approx(14.0)
+    assert outside_cost(plain) == pytest.approx(2.0 * 4)  # the four steps beyond 10 mm only
+    charged.reward(0.005, 0.0, False)  # inside at the end of the last episode ...
+    charged.reset(np.random.default_rng(0), None)  # ... forgotten by the next
+    assert charged.reward(0.011, 0.0, False) == pytest.approx(plain.reward(0.011, 0.0, False))
+    track = load_task("track", outside_penalty=1.0, charge_until_settled=True)
+    track.reward(0.005, 0.0, False)
+    track.reset(np.random.default_rng(0), None)  # a task that draws its target resets the count too
+    assert track.reward(0.03, 0.0, False) == pytest.approx(load_task("track", outside_penalty=1.0).reward(0.03, 0.0, False))
+    with pytest.raises(ConfigError, match="charge_until_settled"):
+        BallTask(charge_until_settled="yes")
+    env = gym.make("StewartBallBalance-v0", outside_penalty=1.0, charge_until_settled=True)  # an env keyword
+    try:
+        assert env.unwrapped.task.charge_until_settled is True
+    finally:
+        env.close()
+
+
 def test_disturbance_task_pushes_and_loads_on_schedule() -> None:
     task = load_task("disturbance")
     backend = _RecordingBackend()

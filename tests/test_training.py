@@ -347,7 +347,9 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     assert f"{noise['success_rate']:.0%} ({noise['rms_error_mm']:.2f} mm)" in page  # success and RMS in each cell
     per = [r for r in new if r["table"] == "balance"][0]["metrics"]["per_episode"]  # kept for paired comparisons
     assert len(per["rms_mm"]) == len(per["settling_s"]) == 1
-    assert all("per_episode" not in r["metrics"] for r in new if r["table"] != "balance")
+    track = [r for r in new if r["table"].startswith("track")][0]["metrics"]["per_episode"]  # paired on the tracks
+    assert len(track["rms_mm"]) == 1 and "settling_s" not in track
+    assert all("per_episode" not in r["metrics"] for r in new if r["table"] in ("latency", "noise"))
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "unknown controller" in bad.stderr
@@ -486,6 +488,49 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
     assert settle.startswith("-0.85 [")
     assert "| LQR → PID − LQR |" not in page and "| residual PPO −" not in page
+
+
+def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise(tmp_path: Path) -> None:
+    """``train/results.py --from-json``: each track table's residual is paired with the LQR seed by seed; the
+    balance table gives the median settling time beside the mean (from each seed's values; "–" without them);
+    the noise rows' settled peak-to-peak and pulse rate make their own table."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "images").mkdir()
+
+    def track(label: str, rms: list[float]) -> dict:
+        per = {"success": [True] * 4, "rms_mm": rms, "tail_steps": [250] * 4, "final_mm": rms}
+        return {"table": "track circle", "row": label, "policy": label, "estimator": None,
+                "env": "StewartBallTrack-v0", "episodes": 4, "env_kwargs": {"trajectory": "circle"},
+                "metrics": {"success_rate": 1.0, "rms_error_mm": 1.0, "per_episode": per}}  # fmt: skip
+
+    per = {"success": [True] * 4, "rms_mm": [1.0] * 4, "tail_steps": [250] * 4, "final_mm": [1.0] * 4,
+           "settling_s": [0.5, 0.6, None, 2.0]}  # fmt: skip
+    results = [{"table": "balance", "row": "LQR", "policy": "lqr", "estimator": None, "env": "StewartBallBalance-v0",
+                "episodes": 4, "metrics": {"success_rate": 1.0, "settling_time_s": 1.03, "per_episode": per}},
+               {"table": "balance", "row": "PID", "policy": "pid", "estimator": None, "env": "StewartBallBalance-v0",
+                "episodes": 4, "metrics": {"success_rate": 1.0, "settling_time_s": 2.0}},
+               track("residual PPO", [0.9, 1.0, 1.1, 1.2]), track("LQR", [1.0, 1.1, 1.2, 1.3]),
+               {"table": "noise", "row": "LQR", "value": 2.0, "policy": "lqr", "estimator": None,
+                "env": "StewartBallBalance-v0", "episodes": 4,
+                "metrics": {"success_rate": 1.0, "settled_pulse_p2p_us": 81.5, "settled_pulse_rate_us_per_s": 173.2}}]
+    (tmp_path / "results.json").write_text(json.dumps(results))
+    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = (tmp_path / "r.md").read_text().splitlines()
+    header = next(x for x in lines if x.startswith("| metric | shipped PPO"))
+    median = [c.strip() for c in next(x for x in lines if x.startswith("| median settling time (s) |")).split("|")]
+    columns = [c.strip() for c in header.split("|")]
+    assert median[columns.index("LQR")] == "0.60" and median[columns.index("PID")] == "–"  # median of 0.5, 0.6, 2.0
+    pair = next(x for x in lines if x.startswith("| circle: residual PPO − LQR |"))
+    rms, final = (c.strip() for c in pair.split("|")[2:4])
+    assert rms.startswith("-0.10 [") and rms.endswith("better") and final.endswith("better")
+    assert not any(x.startswith("| circle: residual PPO − LQR → PID |") for x in lines)  # no such row given
+    noise = next(x for x in lines if x.startswith("| LQR |") and "(173)" in x)
+    assert [c.strip() for c in noise.split("|")[1:6]] == ["LQR", "–", "82 (173)", "–", "–"]
 
 
 def test_readme_headline_is_the_results_json_table() -> None:

@@ -21,7 +21,9 @@ episodes (seeds 0…N−1). Rows:
   mean and range (the spread over training seeds, not the best run).
 
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
-(the rest of the randomisation as usual). Writes the page (Markdown), ``results.json`` beside it and
+(the rest of the randomisation as usual), and the settled servo motion against the noise. results.json keeps
+each seed's values for every balance and track row: the paired comparisons (row minus row, seed by seed, on
+balance and on each trajectory) and the balance table's median settling time come from them. Writes the page (Markdown), ``results.json`` beside it and
 ``images/robustness.png``; for the docs' own page also the README's headline table (:func:`headline`, between
 :data:`README_MARKERS`).
 """
@@ -58,6 +60,11 @@ PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"), ("residual P
          ("LQR → PID", "LQR"))  # fmt: skip
 PAIRED = (("rms_error_mm", "RMS error, last 5 s (mm)"), ("final_error_mm", "final error (mm)"),
           ("settling_time_s", "settling time (s)"))  # fmt: skip
+#: The paired comparisons on each track table: the shipped residual against the trackers it builds on.
+TRACK_PAIRS = (("residual PPO", "LQR"), ("residual PPO", "LQR → PID"))
+#: A row of the balance table computed from each seed's values rather than kept by ``evaluate``: the median of
+#: the settling times (the mean is the issue's metric; a few slow starts move it, not the median).
+MEDIAN_SETTLING = ("settling_median_s", "median settling time (s)", "{:.2f}")
 #: The README's headline (balance): the shipped learned policies against the classical controllers, and the
 #: shipped residual paired with the best two; written between these markers when the docs page is regenerated.
 HEADLINE = ("residual PPO", "PID + Kalman", "LQR", "LQR → PID", "PID", "shipped PPO")
@@ -65,6 +72,7 @@ HEADLINE_PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"))
 README_MARKERS = ("<!-- headline:start -->", "<!-- headline:end -->")
 LATENCIES_MS = (5, 25, 50, 75, 100)
 NOISES_MM = (0.5, 2.0, 4.0, 8.0)
+ROBUSTNESS = ("latency", "noise")
 
 
 def run_job(job: dict[str, Any]) -> dict[str, Any]:
@@ -76,7 +84,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     env_kwargs = {**env_kwargs, **job.get("env_kwargs", {})}
     metrics = evaluate(job["env"], policy, episodes=job["episodes"], seed=0, env_kwargs=env_kwargs)
     kept = {k: v for k, v in metrics.items() if isinstance(v, (int, float)) or v is None}
-    if job["table"] == "balance":  # each seed's values, for the paired comparisons (0.1 µm, 0.1 ms)
+    if job["table"] not in ROBUSTNESS:  # each seed's values, for the paired comparisons (0.1 µm, 0.1 ms)
         kept["per_episode"] = {k: [v if v is None or isinstance(v, (bool, int)) else round(v, 4) for v in values]
                                for k, values in metrics["per_episode"].items() if values is not None}  # fmt: skip
     return {**job, "metrics": kept}
@@ -137,7 +145,7 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
     for table in ["balance", *(f"track {t}" for t in TRAJECTORIES)]:
         rows = {r["row"]: r["metrics"] for r in results if r["table"] == table}
         columns = list(CONTROLLERS)
-        metrics = METRICS if table == "balance" else [m for m in METRICS if m[0] != "settling_time_s"]
+        metrics = balance_metrics() if table == "balance" else [m for m in METRICS if m[0] != "settling_time_s"]
         seeds = {label: [rows[f"seed:{run}"] for run in runs if f"seed:{run}" in rows]
                  for label, runs in recipes.items()}  # fmt: skip
         seeds = {label: got for label, got in seeds.items() if got}
@@ -145,12 +153,12 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
                                                      for label, got in seeds.items()]) + " |"  # fmt: skip
         out += [f"### {table.capitalize()}", "", header, "|---" * (len(columns) + 1 + len(seeds)) + "|"]
         for key, name, pattern in metrics:
-            cells = [fmt(rows[c].get(key), pattern) if c in rows else "–" for c in columns]
+            cells = [fmt(metric(rows[c], key), pattern) if c in rows else "–" for c in columns]
             for got in seeds.values():
-                cells.append(spread([m[key] for m in got if m.get(key) is not None], pattern))
+                cells.append(spread([v for m in got if (v := metric(m, key)) is not None], pattern))
             out.append(f"| {name} | " + " | ".join(cells) + " |")
         out.append("")
-    out += paired(results)
+    out += paired(results) + paired_track(results)
     for table, unit, values in (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM)):
         rows = {(r["row"], r["value"]): r["metrics"] for r in results if r["table"] == table}
         out += [f"### Success against the panel's {table} (balance, {unit}; in brackets the RMS error over the "
@@ -159,7 +167,41 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
         for label in ROBUST:
             out.append(f"| {label} | " + " | ".join(robust_cell(rows.get((label, v))) for v in values) + " |")
         out.append("")
-    return "\n".join(out)
+    return "\n".join(out + servo_noise(results))
+
+
+def balance_metrics() -> list[tuple[str, str, str]]:
+    """The balance table's rows: :data:`METRICS` with :data:`MEDIAN_SETTLING` after the (mean) settling time."""
+    at = [m[0] for m in METRICS].index("settling_time_s") + 1
+    return [*METRICS[:at], MEDIAN_SETTLING, *METRICS[at:]]
+
+
+def metric(metrics: dict[str, Any], key: str) -> Any:
+    """A metric of one evaluation; the median settling time from its seeds' values (None without them, or where
+    no start settled)."""
+    if key != MEDIAN_SETTLING[0]:
+        return metrics.get(key)
+    times = [t for t in (metrics.get("per_episode") or {}).get("settling_s") or [] if t is not None]
+    return statistics.median(times) if times else None
+
+
+def servo_noise(results: list[dict[str, Any]]) -> list[str]:
+    """How much the servos move once the ball is held, against the panel's noise (the noise rows' settled
+    peak-to-peak and pulse rate): what the sensor noise itself demands of every controller."""
+    rows = {(r["row"], r["value"]): r["metrics"] for r in results if r["table"] == "noise"}
+    if not rows:
+        return []
+    out = ["### Settled servo motion against the panel's noise (balance, mm; the largest channel's peak-to-peak "
+           "over the last 5 s in µs, in brackets the pulse rate in µs/s per servo)", "",
+           "| controller | " + " | ".join(f"{v:g} mm" for v in NOISES_MM) + " |", "|---" * (len(NOISES_MM) + 1) + "|"]
+    for label in ROBUST:
+        cells = []
+        for v in NOISES_MM:
+            m = rows.get((label, v)) or {}
+            p2p, rate = m.get("settled_pulse_p2p_us"), m.get("settled_pulse_rate_us_per_s")
+            cells.append("–" if p2p is None else f"{p2p:.0f}" + ("" if rate is None else f" ({rate:.0f})"))
+        out.append(f"| {label} | " + " | ".join(cells) + " |")
+    return [*out, ""]
 
 
 def robust_cell(metrics: dict[str, Any] | None) -> str:
@@ -187,13 +229,31 @@ def paired(results: list[dict[str, Any]]) -> list[str]:
     return [*out, ""]
 
 
-def paired_cells(a: dict[str, Any], b: dict[str, Any]) -> list[str]:
-    """Row ``a`` minus row ``b`` (their metrics with ``per_episode``) on each :data:`PAIRED` metric: the
+def paired_track(results: list[dict[str, Any]]) -> list[str]:
+    """The track tables' paired comparisons (:data:`TRACK_PAIRS`, RMS and final error), one line per trajectory
+    and pair where both rows kept their seeds' values."""
+    lines = []
+    for trajectory in TRAJECTORIES:
+        rows = {r["row"]: r["metrics"] for r in results
+                if r["table"] == f"track {trajectory}" and "per_episode" in r["metrics"]}  # fmt: skip
+        lines += [f"| {trajectory}: {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b], PAIRED[:2])) + " |"
+                  for a, b in TRACK_PAIRS if a in rows and b in rows]  # fmt: skip
+    if not lines:
+        return []
+    return ["### Track, paired: row minus row on the same seeds", "",
+            "As for balance: the difference, its 95 % bootstrap interval, and the verdict.", "",
+            "| trajectory: rows | " + " | ".join(name for _, name in PAIRED[:2]) + " |", "|---" * 3 + "|",
+            *lines, ""]  # fmt: skip
+
+
+def paired_cells(a: dict[str, Any], b: dict[str, Any],
+                 metrics: tuple[tuple[str, str], ...] = PAIRED) -> list[str]:  # fmt: skip
+    """Row ``a`` minus row ``b`` (their metrics with ``per_episode``) on each of ``metrics`` (:data:`PAIRED`): the
     difference, its 95 % bootstrap interval and the verdict (better, worse, or tie when the interval holds 0)."""
     from stewart_gym.evaluation import paired_difference
 
     cells = []
-    for key, _ in PAIRED:
+    for key, _ in metrics:
         diff, low, high = paired_difference(a, b, key)
         verdict = "better" if high < 0 else "worse" if low > 0 else "tie"
         cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}")
@@ -208,8 +268,8 @@ def headline(results: list[dict[str, Any]]) -> str:
     episodes = {rows[c].get("episodes") for c in columns}
     title = f"balance, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else "balance"
     out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
-    for key, name, pattern in METRICS:
-        out.append(f"| {name} | " + " | ".join(fmt(rows[c].get(key), pattern) for c in columns) + " |")
+    for key, name, pattern in balance_metrics():
+        out.append(f"| {name} | " + " | ".join(fmt(metric(rows[c], key), pattern) for c in columns) + " |")
     pairs = [(a, b) for a, b in HEADLINE_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
     if pairs:
         out += ["", "| paired, seed by seed (95 % interval) | " + " | ".join(name for _, name in PAIRED) + " |",

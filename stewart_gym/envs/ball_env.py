@@ -126,7 +126,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     a distance term over the whole plate, a sharper one near the target (0.51 at
     10 mm, 1 at 0; ``near_scale`` sets the 0.015 m), and an action-rate penalty for servo wear
     (``rate_penalty``, default 0.1, plus ``settled_rate_penalty`` within the success radius);
-    ``outside_penalty`` (default 0) per step while the ball is beyond the success radius;
+    ``outside_penalty`` (default 0) per step while the ball is beyond the success radius (with
+    ``charge_until_settled``, also for the steps it spent inside before leaving again: the settling time);
     ``−50`` on the step the ball leaves the plate.
 
     ## Starting State
@@ -174,7 +175,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
     delay), ``integral`` (append the observer's integral of the position error near the target, what a
     PID's integral term sees), ``start_distance`` (see Starting State), and any keyword of the task
-    (``trajectory`` for track; ``near_scale``, ``settled_rate_penalty`` and ``outside_penalty`` of the reward).
+    (``trajectory`` for track; ``near_scale``, ``settled_rate_penalty``, ``outside_penalty`` and
+    ``charge_until_settled`` of the reward).
 
     ## Version History
     * v0: initial release (``StewartBallDisturbance-v0`` added later, same version).

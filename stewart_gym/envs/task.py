@@ -79,8 +79,11 @@ class BallTask:
     − [d > r] · outside_penalty`` and ``−50`` on the step the ball leaves the plate: a distance term over the
     whole plate, a sharper one near the target (with the default s = 15 mm: 0.51 at 10 mm, 1 at 0), an
     action-rate penalty for servo wear, optionally heavier once the ball is within the success radius r (what
-    buzzes a servo is jitter while holding), and optionally a cost per step outside the success radius (what
-    the settling time counts).
+    buzzes a servo is jitter while holding), and optionally a cost per step outside the success radius. With
+    ``charge_until_settled``, a ball that leaves the success radius again also costs ``outside_penalty`` for
+    each step it had spent inside since it last entered: an episode then costs ``outside_penalty`` × the steps
+    until the ball entered for good, which is what the settling time counts (an overshoot that comes back costs
+    the whole time until it is back, as it does in the settling time, not only its steps outside).
 
     Args:
         success_radius: m (default: the class's ``default_success_radius``).
@@ -90,6 +93,7 @@ class BallTask:
         near_scale: m, s above: a smaller one rewards precision near the target more steeply.
         settled_rate_penalty: extra weight of the action-rate term within the success radius.
         outside_penalty: cost per step while the ball is farther than the success radius (default 0).
+        charge_until_settled: also charge ``outside_penalty`` for the steps spent inside before leaving again.
     """
 
     name: ClassVar[str] = "ball"
@@ -100,7 +104,8 @@ class BallTask:
 
     def __init__(self, success_radius: float | None = None, success_window_s: float = 1.0, rate_penalty: float = 0.1,
                  plate_half: float = 0.15, near_scale: float | None = None,
-                 settled_rate_penalty: float = 0.0, outside_penalty: float = 0.0) -> None:  # fmt: skip
+                 settled_rate_penalty: float = 0.0, outside_penalty: float = 0.0,
+                 charge_until_settled: bool = False) -> None:  # fmt: skip
         self.success_radius = float(self.default_success_radius if success_radius is None else success_radius)
         self.success_window_s = float(success_window_s)
         self.rate_penalty = float(rate_penalty)
@@ -116,9 +121,15 @@ class BallTask:
                        ("outside_penalty", self.outside_penalty)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{key} must be ≥ 0, got {v!r}")
+        if not isinstance(charge_until_settled, bool):
+            raise ConfigError(f"charge_until_settled must be true or false, got {charge_until_settled!r}")
+        self.charge_until_settled = charge_until_settled
+        self._steps_inside = 0  # since the ball last entered the success radius (charge_until_settled)
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
-        """Nothing to draw for a fixed target at the centre."""
+        """Nothing to draw for a fixed target at the centre; the reward's count of steps inside starts again.
+        Subclasses that draw something call this too."""
+        self._steps_inside = 0
 
     def target(self, t: float) -> tuple[XY, XY]:
         return (0.0, 0.0), (0.0, 0.0)
@@ -130,9 +141,11 @@ class BallTask:
         half = self.plate_half
         inside = distance <= self.success_radius
         weight = self.rate_penalty + (self.settled_rate_penalty if inside else 0.0)
+        outside = 0.0 if inside else self.outside_penalty * (1 + (self._steps_inside if self.charge_until_settled
+                                                                   else 0))  # fmt: skip
+        self._steps_inside = self._steps_inside + 1 if inside else 0
         return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.near_scale)
-                - weight * action_rate - (0.0 if inside else self.outside_penalty)
-                - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
+                - weight * action_rate - outside - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
 
     def info(self) -> dict[str, Any]:
         return {}

@@ -49,6 +49,7 @@ class DisturbanceTask(BallTask):
         self._load_on = False
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
+        super().reset(rng, backend)
         pushes, t = [], float(rng.uniform(1.0, 2.0))
         while t <= self.last_push_s:
             angle, size = rng.uniform(0, 2 * math.pi), rng.uniform(*self.push_impulse)

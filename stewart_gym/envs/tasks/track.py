@@ -41,6 +41,7 @@ class TrackTask(BallTask):
         self._target: Target = Fixed()
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
+        super().reset(rng, backend)
         name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))] if self.trajectory == "mixed" else self.trajectory
         self._target = make_trajectory(name, rng)
         self.current_trajectory = name
