@@ -72,8 +72,11 @@ def main() -> None:
         except ImportError:
             print("error: --lstm needs sb3-contrib (the train extra): pip install -e '.[train]'", file=sys.stderr)
             sys.exit(2)
+    import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
+
+    torch.set_num_threads(1)  # as `train` does: extra threads only fight the env workers for the cores
 
     from stewart_gym.evaluation import evaluate
     from stewart_gym.training import make_env
