@@ -23,9 +23,10 @@ episodes (seeds 0…N−1). Rows:
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
 (the rest of the randomisation as usual), and the settled servo motion against the noise. results.json keeps
 each seed's values for every balance and track row: the paired comparisons (row minus row, seed by seed, on
-balance and on each trajectory) and the balance table's median settling time come from them. Writes the page (Markdown), ``results.json`` beside it and
-``images/robustness.png``; for the docs' own page also the README's headline table (:func:`headline`, between
-:data:`README_MARKERS`).
+balance and on each trajectory) and the balance table's median settling time come from them.
+
+Writes the page (Markdown), ``results.json`` beside it and ``images/robustness.png``; for the docs' own page
+also the README's headline table (:func:`headline`, between :data:`README_MARKERS`).
 """
 
 from __future__ import annotations
