@@ -37,24 +37,33 @@ train-camera: $(STAMP)
 	$(PY) -m stewart_gym train --sensor camera --resume stewart_gym/policies/balance --hyperparams train/recipes/ppo_camera.yml --run-dir runs/camera --overwrite --no-progress
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera --sensor $$s --episodes 100; done
 
-# The residual PPO policies (learned corrections of the LQR -> PID's approach for balance, of the LQR for
-# track), as shipped (balance: 5 minutes on 2 cores, 12 on an earlier, slower machine; track: 6 minutes).
+# The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach (seeds
+# 0-5, about 6.5 minutes each on 2 cores) averaged into one policy (`stewart-gym ensemble`); for track, one
+# correction of the LQR (6 minutes). About 45 minutes in all.
 train-residual: $(STAMP)
-	$(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance --seed 1 --overwrite --no-progress
+	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
+	rm -rf runs/residual_balance
+	$(PY) -m stewart_gym ensemble runs/residual_balance_s0 runs/residual_balance_s1 runs/residual_balance_s2 runs/residual_balance_s3 runs/residual_balance_s4 runs/residual_balance_s5 --out runs/residual_balance --note "ppo_residual.yml, seeds 0-5"
 	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
 # The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
-# error integral observed (3 minutes each), the shipped balance residual's recipe (on the approach, 5
-# minutes each) and the first one, over the PID + Kalman (5 minutes each), each trained with 3 seeds, then every
-# evaluation (about 25 minutes).
+# error integral observed (3 minutes each), the first balance residual, over the PID + Kalman, and the approach
+# residual as one network (5 minutes each), each trained with 3 seeds; the shipped balance residual's recipe
+# (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (about 2 hours); then every evaluation (about
+# 30 minutes). About 3.5 hours on 2 cores.
+ENSEMBLE_DRAWS := 0 1 2
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s$$s --seed $$s --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/approach_s$$s --seed $$s --overwrite --no-progress; done
-	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach=runs/approach_s0,runs/approach_s1,runs/approach_s2"
+	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_single.yml --run-dir runs/approach_s$$s --seed $$s --overwrite --no-progress; done
+	for d in $(ENSEMBLE_DRAWS); do \
+	  for k in 0 1 2 3 4 5; do s=$$((6 * d + k)); $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s$$s --seed $$s --overwrite --no-progress || exit 1; done; \
+	  rm -rf runs/ensemble_d$$d; $(PY) -m stewart_gym ensemble runs/ensemble_d$${d}_s* --out runs/ensemble_d$$d || exit 1; \
+	done
+	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)

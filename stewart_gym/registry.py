@@ -16,6 +16,8 @@
   ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
 * a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
   checkpoint; its run's ``config.yaml`` is found beside it or one folder up);
+* an **ensemble** folder written by ``stewart-gym ensemble`` (``ensemble.json``: several networks trained alike,
+  acting with the mean of their actions; :func:`write_ensemble`);
 * a **bundle** folder written by ``stewart-gym export`` (``bundle.json``);
 * a **gains** ``.json`` file: PID gains (as ``tune_pid.py`` writes them), an LQR design (as ``lqr.json``) or
   a hand-over design (as ``lqr_pid.json``, as ``tune_handover.py`` writes it), told apart by their fields;
@@ -45,7 +47,7 @@ from stewart_gym.errors import PolicyError
 from stewart_gym.outputs import run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
-           "export_policy", "load_for_evaluation", "load_policy", "resolve_policy"]  # fmt: skip
+           "export_policy", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
@@ -68,7 +70,7 @@ DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
 _KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', 'lqr-pid', a run folder, "
-               "a model .zip, a bundle folder or a gains .json (PID gains, an LQR or hand-over design)")
+               "a model .zip, an ensemble folder, a bundle folder or a gains .json (PID gains, an LQR or hand-over design)")
 
 
 @dataclass(frozen=True)
@@ -78,8 +80,9 @@ class PolicySource:
     Attributes:
         spec: What the user gave.
         kind: ``"pid"`` (gains file), ``"lqr"`` (LQR design file), ``"handover"`` (LQR → PID design file),
-            ``"sb3"`` (a Stable-Baselines3 model) or ``"bundle"`` (ONNX/PID/LQR/hand-over bundle).
-        path: The gains file, the model ``.zip`` or the bundle folder.
+            ``"sb3"`` (a Stable-Baselines3 model), ``"ensemble"`` (several, averaged) or ``"bundle"``
+            (ONNX/PID/LQR/hand-over bundle).
+        path: The gains file, the model ``.zip``, the ensemble folder or the bundle folder.
         env_id: The env id the policy was trained (or exported) for.
         env_kwargs: The env keywords that define its observation and action (and the track's trajectory).
         bundle: A ready-made bundle of this policy, if there is one (the shipped policies have one).
@@ -141,17 +144,25 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
             raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}")
         folder = POLICY_DIR / table[(env_id, geo)]
         extra = {"geometry": geo, **({"sensor": "camera"} if spec == "shipped-camera" else {})}
+        from stewart_gym.sb3_models import ENSEMBLE_FILE
+
+        ensemble = (folder / ENSEMBLE_FILE).is_file()
+        kind, model = ("ensemble", folder) if ensemble else ("sb3", folder / "model.zip")
         if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
             env_kwargs = {**_bundle_source(spec, folder / "bundle").env_kwargs, **extra}
-            return PolicySource(spec, "sb3", folder / "model.zip", env_id, env_kwargs, folder / "bundle")
-        source = _sb3_source(spec, folder / "model.zip")
-        return PolicySource(spec, "sb3", source.path, env_id, {**source.env_kwargs, **extra})
+            return PolicySource(spec, kind, model, env_id, env_kwargs, folder / "bundle")
+        source = _ensemble_source(spec, folder) if ensemble else _sb3_source(spec, model)
+        return PolicySource(spec, kind, source.path, env_id, {**source.env_kwargs, **extra})
     path = Path(spec)
     if not path.exists():
         raise PolicyError(f"policy {spec!r}: no such file or folder; give {_KINDS_TEXT}")
     if path.is_dir():
         if (path / "bundle.json").exists():
             return _bundle_source(spec, path)
+        from stewart_gym.sb3_models import ENSEMBLE_FILE
+
+        if (path / ENSEMBLE_FILE).exists():
+            return _ensemble_source(spec, path)
         for name in ("model.zip", "best/best_model.zip", "best_model.zip"):
             if (path / name).is_file():
                 return _sb3_source(spec, path / name)
@@ -211,6 +222,71 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
     return PolicySource(spec, "sb3", model_zip, str(options.get("env_id", DEFAULT_ENV)), kept)
 
 
+def _ensemble_source(spec: str, folder: Path) -> PolicySource:
+    """An ensemble folder: its members' env id and keywords, which must agree (they are one recipe's networks)."""
+    from stewart_gym.sb3_models import ensemble_members
+
+    members = [_sb3_source(spec, m / "model.zip") for m in ensemble_members(folder)]
+    for member in members[1:]:
+        _check_alike(members[0], member)
+    return PolicySource(spec, "ensemble", folder, members[0].env_id, members[0].env_kwargs)
+
+
+def _check_alike(first: PolicySource, other: PolicySource) -> None:
+    """Raise :class:`PolicyError` unless two networks were trained for the same env id, observation and action
+    (and residual base): only then can their actions be averaged."""
+    if first.env_id != other.env_id:
+        raise PolicyError(f"{other.path} was trained for {other.env_id} but {first.path} for {first.env_id}; an "
+                          "ensemble's networks must be trained alike (one recipe, different seeds)")  # fmt: skip
+    if first.env_kwargs != other.env_kwargs:
+        differ = sorted(k for k in {*first.env_kwargs, *other.env_kwargs}
+                        if first.env_kwargs.get(k) != other.env_kwargs.get(k))  # fmt: skip
+        raise PolicyError(f"{other.path} and {first.path} were trained with different {', '.join(differ)}; an "
+                          "ensemble's networks must be trained alike (one recipe, different seeds)")  # fmt: skip
+
+
+def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path:
+    """Write the ensemble folder of ``runs`` (run folders or model ``.zip`` files of one recipe, trained with
+    different seeds) into ``out_dir``, which must not hold one yet: ``members/<k>/`` with each run's model,
+    normalisation statistics, ``config.yaml`` and ``metrics.json``, and ``ensemble.json`` listing them. The
+    runs are checked (trained models, for the same env id, observation, action and residual base) and the
+    folder is loaded once written. Raises :class:`PolicyError` naming what is wrong."""
+    import shutil
+
+    from stewart_gym.sb3_models import ENSEMBLE_FILE, load_learned
+
+    if len(runs) < 2:
+        raise PolicyError(f"an ensemble averages 2 or more trained networks; got {len(runs)}")
+    sources = [resolve_policy(r) for r in runs]
+    for source in sources:
+        if source.kind != "sb3":
+            raise PolicyError(f"{source.spec!r} is not a trained network (a run folder or a model .zip), so it "
+                              "cannot be an ensemble's member")  # fmt: skip
+        _check_alike(sources[0], source)
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise PolicyError(f"{out} already exists and is not an empty folder; give a new --out")
+    members = []
+    for k, source in enumerate(sources):
+        member = out / "members" / str(k)
+        member.mkdir(parents=True)
+        shutil.copyfile(source.path, member / "model.zip")
+        stats = source.path.parent / "vecnormalize.pkl"
+        if stats.is_file():
+            shutil.copyfile(stats, member / "vecnormalize.pkl")
+        for name in ("config.yaml", "metrics.json"):  # beside the model, or one folder up (best/, checkpoints/)
+            found = next((f / name for f in (source.path.parent, source.path.parent.parent) if (f / name).is_file()),
+                         None)  # fmt: skip
+            if found is not None:
+                shutil.copyfile(found, member / name)
+        members.append(f"members/{k}")
+    index = {"members": members, "sources": [str(r) for r in runs], "note": note}
+    (out / ENSEMBLE_FILE).write_text(json.dumps(index, indent=2) + "\n")
+    _ensemble_source(str(out), out)  # the copies read back alike
+    load_learned(out)
+    return out
+
+
 def _bundle_source(spec: str, folder: Path) -> PolicySource:
     meta = _read_json(folder / "bundle.json")
     env_kwargs = dict(meta.get("env_kwargs") or {})
@@ -234,9 +310,9 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.hardware.export import BundlePolicy
 
         return BundlePolicy(source.path)
-    from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_sb3, residual_base, residual_mix
+    from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_learned, residual_base, residual_mix
 
-    policy = load_sb3(source.path)
+    policy = load_learned(source.path)
     if source.env_kwargs.get("residual"):
         spec = check_residual(source.env_kwargs["residual"])
         from stewart_gym.presets import load_geometry
@@ -319,8 +395,9 @@ def deployable_policy(source: PolicySource) -> Any:
         policy = BundlePolicy(source.bundle)
         policy.estimator = source.estimator  # the bundle's own, unless --estimator replaced it
         return policy
-    raise PolicyError(f"policy {source.spec!r} is a Stable-Baselines3 model; deploy runs bundles: export it first "
-                      f"(stewart-gym export --policy {source.spec} --out BUNDLE_DIR) and deploy BUNDLE_DIR")  # fmt: skip
+    raise PolicyError(f"policy {source.spec!r} is a trained network (Stable-Baselines3); deploy runs bundles: "
+                      f"export it first (stewart-gym export --policy {source.spec} --out BUNDLE_DIR) and deploy "
+                      "BUNDLE_DIR")  # fmt: skip
 
 
 def _classical_meta(source: PolicySource) -> dict[str, Any]:

@@ -11,6 +11,10 @@ wraps the env in :class:`ResidualAction` (the hyperparameter ``residual: {base: 
 :class:`ResidualPolicy` runs a trained one. The run's
 ``config.yaml`` records the base's gains or design as they were (``design``), so a later retune of the shipped
 controller does not change a trained policy; the bundle records the base too, so deploy runs the same sum.
+
+An *ensemble* folder (``stewart-gym ensemble``) holds several networks trained alike with different seeds
+(``members/0``, ``members/1``, … each a run folder in miniature, listed in ``ensemble.json``); :func:`load_learned`
+reads one as an :class:`EnsemblePolicy`, which acts with the mean of its members' deterministic actions.
 """
 
 from __future__ import annotations
@@ -25,7 +29,12 @@ import numpy as np
 from stewart_gym.classical import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
 from stewart_gym.errors import ConfigError, PolicyError
 
-__all__ = ["ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "load_sb3", "residual_base", "residual_mix"]
+__all__ = ["ENSEMBLE_FILE", "EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual",
+           "deterministic_module", "ensemble_members", "load_learned", "load_sb3", "mean_module", "residual_base",
+           "residual_mix"]  # fmt: skip
+
+#: The file that makes a folder an ensemble of networks: ``{"members": ["members/0", ...], ...}``.
+ENSEMBLE_FILE = "ensemble.json"
 
 class SB3Policy:
     """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with."""
@@ -96,6 +105,118 @@ def load_sb3(path: str | Path) -> SB3Policy:
         except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
             raise PolicyError(f"{stats}: unreadable normalisation statistics ({type(exc).__name__})") from None
     return SB3Policy(model, obs_rms, clip_obs)
+
+
+class EnsemblePolicy:
+    """Several networks trained alike (one recipe, different seeds) acting as one: the mean of their actions,
+    each as its own :meth:`SB3Policy.predict` gives it (normalised with its own statistics, clipped to the bounds).
+    Averaging cancels much of what each network got wrong by chance (docs: Control).
+
+    The deterministic mean is one torch module (:attr:`module`, raw observation → mean action), the graph that
+    ``export`` writes to ONNX, so evaluation and the bundle run the same computation.
+    """
+
+    def __init__(self, members: list[SB3Policy]) -> None:
+        if len(members) < 1:
+            raise PolicyError("an ensemble needs at least one network")
+        sizes = {(m.obs_size, m.action_size) for m in members}
+        if len(sizes) != 1:
+            raise PolicyError(f"the ensemble's networks differ in (observation, action) size: {sorted(sizes)}")
+        if any(m.obs_rms is None for m in members):
+            raise PolicyError("an ensemble's networks must each have their vecnormalize.pkl (train with normalize)")
+        self.members = members
+        self.obs_size, self.action_size = sizes.pop()
+        self.module = mean_module(members)
+
+    def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
+        if not deterministic:  # each network's own sample, averaged
+            actions = [m.predict(obs, deterministic=False)[0] for m in self.members]
+            return np.mean(actions, axis=0, dtype=np.float64).astype(np.float32), None
+        import torch
+
+        x = np.asarray(obs, dtype=np.float32)
+        with torch.no_grad():
+            action = self.module(torch.as_tensor(x.reshape(-1, self.obs_size))).numpy()
+        return action.reshape(*x.shape[:-1], self.action_size), None
+
+
+def deterministic_module(model: Any) -> Any:
+    """A torch module: normalised observation → the deterministic action of SB3 ``model`` before clipping (PPO:
+    the Gaussian's mean; SAC/TQC: the tanh-squashed mean; TD3: the actor's output), as SB3's export guide does."""
+    import torch
+    from sb3_contrib import TQC
+    from stable_baselines3 import PPO, SAC
+
+    class Deterministic(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.policy = model.policy if isinstance(model, PPO) else model.policy.actor
+
+        def forward(self, obs: torch.Tensor) -> torch.Tensor:
+            p = self.policy
+            if isinstance(model, PPO):
+                return p.action_net(p.mlp_extractor.forward_actor(p.extract_features(obs, p.pi_features_extractor)))
+            if isinstance(model, (SAC, TQC)):
+                return p(obs, deterministic=True)
+            return p(obs)
+
+    return Deterministic()
+
+
+def mean_module(members: list[SB3Policy]) -> Any:
+    """A torch module (in eval mode): raw observation → the mean of the members' deterministic actions, each
+    normalised and clipped as :meth:`SB3Policy.predict` does (float32 throughout)."""
+    import torch
+
+    space = members[0].model.action_space
+    low = torch.as_tensor(space.low, dtype=torch.float32)
+    high = torch.as_tensor(space.high, dtype=torch.float32)
+
+    class Mean(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.nets = torch.nn.ModuleList(deterministic_module(m.model) for m in members)
+            self.stats = [tuple(torch.as_tensor(np.asarray(v), dtype=torch.float32)
+                                for v in (m.obs_rms.mean, np.sqrt(m.obs_rms.var + m.epsilon), m.clip_obs))
+                          for m in members]  # fmt: skip
+
+        def forward(self, obs: torch.Tensor) -> torch.Tensor:
+            actions = []
+            for net, (mean, std, clip) in zip(self.nets, self.stats):
+                normalised = torch.minimum(torch.maximum((obs - mean) / std, -clip), clip)
+                actions.append(torch.minimum(torch.maximum(net(normalised), low), high))
+            return torch.stack(actions).mean(dim=0)
+
+    return Mean().eval()
+
+
+def ensemble_members(folder: str | Path) -> list[Path]:
+    """The member folders an ensemble folder's ``ensemble.json`` lists (relative to it), checked to exist."""
+    import json
+
+    folder = Path(folder)
+    index = folder / ENSEMBLE_FILE
+    try:
+        listed = json.loads(index.read_text())["members"]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise PolicyError(f"{index}: not a readable ensemble index ({type(exc).__name__}: {exc}); write it with "
+                          "stewart-gym ensemble") from None  # fmt: skip
+    if not isinstance(listed, list) or not listed or not all(isinstance(m, str) for m in listed):
+        raise PolicyError(f"{index}: 'members' must be a non-empty list of folders, got {listed!r}")
+    members = [folder / m for m in listed]
+    missing = [str(m) for m in members if not (m / "model.zip").is_file()]
+    if missing:
+        raise PolicyError(f"{index}: no model.zip in member folder(s) {missing}")
+    return members
+
+
+def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:
+    """An ensemble folder's :class:`EnsemblePolicy` (:data:`ENSEMBLE_FILE` in it), else :func:`load_sb3`."""
+    path = Path(path)
+    if path.is_dir() and (path / ENSEMBLE_FILE).is_file():
+        return EnsemblePolicy([load_sb3(m) for m in ensemble_members(path)])
+    return load_sb3(path)
 
 
 def check_residual(spec: Any) -> dict[str, Any]:
@@ -185,7 +306,7 @@ class ResidualAction(gym.Wrapper):
 class ResidualPolicy:
     """A trained residual policy: the :class:`~stewart_gym.classical.ResidualMix` of its base and its network."""
 
-    def __init__(self, learned: SB3Policy, base: Any, mix: ResidualMix) -> None:
+    def __init__(self, learned: SB3Policy | EnsemblePolicy, base: Any, mix: ResidualMix) -> None:
         self.learned, self.base, self.mix = learned, base, mix
         self.obs_size, self.action_size = learned.obs_size, learned.action_size
 

@@ -29,7 +29,7 @@ from conftest import Drain, FakeDevice
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
-               "camera-check", "sweep")  # fmt: skip
+               "camera-check", "sweep", "ensemble")  # fmt: skip
 
 
 def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,
@@ -72,6 +72,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "existing.csv").write_text("keep me\n")
     (d / "run_done").mkdir()
     (d / "run_done" / "model.zip").write_text("a finished run\n")
+    (d / "bad_ensemble").mkdir()
+    (d / "bad_ensemble" / "ensemble.json").write_text('{"members": "members/0"}\n')
     bundle = d / "bad_bundle"
     bundle.mkdir()
     (bundle / "bundle.json").write_text(json.dumps({"kind": "onnx", "env_id": "StewartBallBalance-v0",
@@ -244,6 +246,12 @@ BAD = [
     # export
     ["export"],
     ["export", "--policy", "nope", "--out", "{tmp}/b"],
+    ["export", "--policy", "{files}/bad_ensemble", "--out", "{tmp}/b"],
+    ["ensemble"],
+    ["ensemble", "{files}/run_done", "--out", "{tmp}/e"],
+    ["ensemble", "nope1", "nope2", "--out", "{tmp}/e"],
+    ["ensemble", "{files}/bad_bundle", "{files}/bad_bundle", "--out", "{tmp}/e"],
+    ["ensemble", "{files}/run_done", "{files}/run_done", "--out", "{files}/notes.txt"],
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
     # deploy: the arguments are checked before the port is opened
@@ -511,6 +519,14 @@ def test_deploy_of_a_mixed_trajectory_tracker_says_which_trajectory_its_seed_dre
         assert f"tracking a {task.current_trajectory} target" in proc.stdout
         drawn.add(task.current_trajectory)
     assert len(drawn) > 1
+
+
+def test_deploy_runs_the_shipped_balance_residual_whose_bundle_averages_six_networks(device: FakeDevice,
+                                                                                     tmp_path: Path) -> None:
+    proc, sent = deploy(device, "--policy", "shipped-residual", "--rate", "10", "--duration", "0.5", "--log",
+                        str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert len((tmp_path / "l.csv").read_text().splitlines()) >= 4 and sent
 
 
 def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path) -> None:

@@ -24,6 +24,9 @@ from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec, ReadingNoise
 
+#: The run folder of one of the shipped balance residual's six networks (seed 0)
+SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual/members/0"
+
 G_ROLL = 5.0 / 7.0 * 9.80665
 
 
@@ -333,7 +336,7 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
     assert not shipped.pid_in_control
     residual = Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual"
     bundle = json.loads((residual / "bundle" / "bundle.json").read_text())
-    config = yaml.safe_load((residual / "config.yaml").read_text())
+    config = yaml.safe_load((residual / "members" / "0" / "config.yaml").read_text())  # one of its networks' runs
     assert config["hyperparams"]["residual"]["design"]["handover_dwell_s"] == 3.0
 
     def dwells(node: object) -> list[float]:  # every handover_dwell_s in the bundle (its design and its gains)
@@ -514,8 +517,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     from dataclasses import replace
 
     run = tmp_path / "run"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual", run,
-                    ignore=shutil.ignore_patterns("bundle"))  # fmt: skip
+    shutil.copytree(SHIPPED_RESIDUAL_RUN, run)
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     from stewart_gym.classical import checked_design
 
@@ -537,8 +539,7 @@ def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_li
     line: in a run folder's config.yaml (evaluate, export) and in a hyperparameters file (train, before the run
     folder is made)."""
     run = tmp_path / "run"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual", run,
-                    ignore=shutil.ignore_patterns("bundle"))  # fmt: skip
+    shutil.copytree(SHIPPED_RESIDUAL_RUN, run)
     cfg = yaml.safe_load((run / "config.yaml").read_text())
     cfg["hyperparams"]["residual"]["design"]["pid"]["dither"] = 0.1  # 5.7° of the build's 10°
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))

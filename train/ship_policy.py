@@ -1,9 +1,11 @@
-"""Copy a trained run into the package as the shipped policy, with its ONNX bundle and metrics.
+"""Copy a trained run, or an ensemble folder, into the package as a shipped policy, with its ONNX bundle and metrics.
 
 Run: ``python train/ship_policy.py runs/ppo_balance_ft [--model best] [--name balance] [--eval out/eval.json]``,
 then add the folder to ``SHIPPED`` in ``stewart_gym/registry.py`` under its env id and geometry.
 Writes ``stewart_gym/policies/<name>/``: model.zip, vecnormalize.pkl, config.yaml, eval.csv, metrics.json
 (training metrics plus the 100-episode evaluation given by --eval) and bundle/ (policy.onnx, bundle.json).
+An ensemble folder (``stewart-gym ensemble``) is copied whole (ensemble.json, members/, each member's run files);
+its metrics.json holds the members' training metrics and the evaluation.
 """
 
 from __future__ import annotations
@@ -29,13 +31,15 @@ def main() -> None:
     out = POLICY_DIR / args.name
     if out.exists():
         shutil.rmtree(out)
-    out.mkdir(parents=True)
-    shutil.copy(src / ("best_model.zip" if args.model == "best" else "model.zip"), out / "model.zip")
-    shutil.copy(src / "vecnormalize.pkl", out / "vecnormalize.pkl")
-    for name in ("config.yaml", "eval.csv"):
-        shutil.copy(run / name, out / name)
-    metrics = json.loads((run / "metrics.json").read_text())
-    metrics["shipped_model"] = args.model
+    if (run / "ensemble.json").is_file():
+        top = run.resolve()  # its own bundle and metrics are written below; the members' files are kept
+        shutil.copytree(run, out, ignore=lambda d, names: [n for n in names if Path(d).resolve() == top
+                                                           and n in ("bundle", "metrics.json")])  # fmt: skip
+        members = json.loads((run / "ensemble.json").read_text())["members"]
+        metrics = {"ensemble": len(members),
+                   "members": [json.loads((run / m / "metrics.json").read_text()) for m in members]}  # fmt: skip
+    else:
+        metrics = ship_run(run, src, out, args.model)
     metrics["note"] = args.note
     if args.eval:
         evaluation = json.loads(Path(args.eval).read_text().strip().splitlines()[-1])
@@ -44,6 +48,18 @@ def main() -> None:
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     export_policy(resolve_policy(str(out)), out / "bundle")  # env id, action mode and geometry from config.yaml
     print(f"shipped {src} as {out}")
+
+
+def ship_run(run: Path, src: Path, out: Path, model: str) -> dict:
+    """Copy one run's model (``final`` or ``best``), statistics, configuration and curve; its training metrics."""
+    out.mkdir(parents=True)
+    shutil.copy(src / ("best_model.zip" if model == "best" else "model.zip"), out / "model.zip")
+    shutil.copy(src / "vecnormalize.pkl", out / "vecnormalize.pkl")
+    for name in ("config.yaml", "eval.csv"):
+        shutil.copy(run / name, out / name)
+    metrics = json.loads((run / "metrics.json").read_text())
+    metrics["shipped_model"] = model
+    return metrics
 
 
 if __name__ == "__main__":

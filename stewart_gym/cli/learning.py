@@ -30,7 +30,7 @@ ENV_CHOICES = tuple(ENV_IDS)
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
-               "a bundle folder or a PID gains .json")
+               "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
                   "through the sensing delay); default the policy's own (what it was trained or tuned behind)")
 
@@ -171,6 +171,19 @@ def cmd_export(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def cmd_ensemble(args: argparse.Namespace) -> int:
+    """Average several trained networks (one recipe, different seeds) into one policy folder: it acts with the
+    mean of their actions, and evaluates, exports and deploys like a run folder."""
+    from stewart_gym.registry import resolve_policy, write_ensemble
+
+    out = output_dir(args.out)
+    folder = write_ensemble(args.runs, out, note=args.note)
+    source = resolve_policy(str(folder))
+    print(f"ensemble of {len(args.runs)} networks written to {folder} ({source.env_id}, action mode "
+          f"{source.action_mode}); evaluate it with: stewart-gym evaluate --policy {folder}")  # fmt: skip
+    return EXIT_OK
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run a sweep of trainings on Ray Tune (this machine, or a cluster with --address); see `stewart_gym.sweep`."""
     from stewart_gym.sweep import load_sweep, run_sweep
@@ -245,6 +258,12 @@ def register(sub: Any) -> None:
     p.add_argument("--out", required=True, help="bundle folder")
     add_estimator(p, ESTIMATOR_HELP + "; the bundle records it and deploy uses it")
     p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("ensemble", help=cmd_ensemble.__doc__.split(":")[0], description=cmd_ensemble.__doc__)
+    p.add_argument("runs", nargs="+", metavar="RUN", help="run folders or model .zip files, trained alike (2 or more)")
+    p.add_argument("--out", required=True, help="the ensemble folder to write (new, or empty)")
+    p.add_argument("--note", default="", help="free text stored in ensemble.json (e.g. the recipe)")
+    p.set_defaults(func=cmd_ensemble)
 
     p = sub.add_parser("sweep", help=cmd_sweep.__doc__, description=cmd_sweep.__doc__)
     p.add_argument("config", help="sweep file (YAML): env, algo, n_timesteps, n_envs, seeds, fixed hyperparameters "

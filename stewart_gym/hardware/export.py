@@ -32,44 +32,32 @@ __all__ = ["BundlePolicy", "classical_meta", "export_bundle_copy", "export_pid",
 
 def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "StewartBallBalance-v0",
                env_kwargs: dict[str, Any] | None = None) -> Path:  # fmt: skip
-    """Export an SB3 model folder/zip (with its ``vecnormalize.pkl``) to a bundle in ``out_dir``.
+    """Export an SB3 model folder/zip (with its ``vecnormalize.pkl``), or an ensemble folder, to a bundle in
+    ``out_dir``.
 
     ``env_kwargs`` are the env keywords the model was trained with that define
     its observation and action (``action_mode``, ``max_tilt``, ``control_hz``,
-    and the track's ``trajectory``); they go into ``bundle.json``.
+    and the track's ``trajectory``); they go into ``bundle.json``. An ensemble's graph holds every network with
+    its own normalisation and clipping, and outputs their mean (``bundle.json``: ``ensemble`` N, no
+    ``obs_mean``); a single network's graph takes the normalised observation.
     """
     import torch
-    from sb3_contrib import TQC
-    from stable_baselines3 import PPO, SAC
 
-    from stewart_gym.sb3_models import load_sb3
+    from stewart_gym.sb3_models import EnsemblePolicy, deterministic_module, load_learned
 
-    sb3 = load_sb3(model_path)
-    model = sb3.model
+    learned = load_learned(model_path)
+    ensemble = isinstance(learned, EnsemblePolicy)
+    members = learned.members if ensemble else [learned]
+    model = members[0].model
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-
-    class _Deterministic(torch.nn.Module):
-        """Normalised observation → deterministic action, before clipping (SB3's predict, minus the clip)."""
-
-        def __init__(self) -> None:
-            super().__init__()
-            self.policy = model.policy if isinstance(model, PPO) else model.policy.actor
-
-        def forward(self, obs: torch.Tensor) -> torch.Tensor:
-            p = self.policy
-            if isinstance(model, PPO):  # the Gaussian's mean
-                return p.action_net(p.mlp_extractor.forward_actor(p.extract_features(obs, p.pi_features_extractor)))
-            if isinstance(model, (SAC, TQC)):  # tanh-squashed mean
-                return p(obs, deterministic=True)
-            return p(obs)  # TD3: tanh output
-
-    net = _Deterministic().eval()
+    net = learned.module if ensemble else deterministic_module(model).eval()
     n_obs = int(model.observation_space.shape[0])
     with torch.no_grad():
         torch.onnx.export(net, torch.zeros(1, n_obs), str(out / "policy.onnx"), input_names=["obs"],
                           output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
                           dynamo=False)  # fmt: skip
+    sb3 = members[0]
     env_kwargs = dict(env_kwargs or {})
     action_mode = str(env_kwargs.get("action_mode", "tilt"))
     if int(model.action_space.shape[0]) != ACTION_SIZES.get(action_mode, -1):
@@ -83,12 +71,14 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         "obs_size": n_obs,
         "action_low": model.action_space.low.tolist(),
         "action_high": model.action_space.high.tolist(),
-        "obs_mean": None if sb3.obs_rms is None else sb3.obs_rms.mean.tolist(),
-        "obs_var": None if sb3.obs_rms is None else sb3.obs_rms.var.tolist(),
+        "obs_mean": None if ensemble or sb3.obs_rms is None else sb3.obs_rms.mean.tolist(),
+        "obs_var": None if ensemble or sb3.obs_rms is None else sb3.obs_rms.var.tolist(),
         "clip_obs": sb3.clip_obs,
         "epsilon": sb3.epsilon,
         **build_meta(env_kwargs.get("geometry", "servo-hexapod"), env_kwargs),
     }
+    if ensemble:  # the graph normalises each network's input itself
+        meta["ensemble"] = len(members)
     if env_kwargs.get("residual"):  # the network's action corrects a classical controller's: record that one
         from stewart_gym.classical import CLASSICAL
         from stewart_gym.sb3_models import check_residual, residual_base

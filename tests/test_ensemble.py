@@ -1,0 +1,113 @@
+"""Ensembles: several networks of one recipe, trained with different seeds, acting with the mean of their actions.
+
+``stewart-gym ensemble`` writes the folder; ``--policy`` runs it (evaluate, export, deploy) like a run folder; its
+bundle's one ONNX graph holds every network with its own normalisation. The shipped balance residual is one.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from stewart_gym.hardware.export import BundlePolicy
+from stewart_gym.registry import POLICY_DIR, deployable_policy, load_policy, resolve_policy
+from stewart_gym.sb3_models import ensemble_members
+
+ROOT = Path(__file__).resolve().parents[1]
+RESIDUAL = POLICY_DIR / "balance_residual"
+
+
+def sg(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``python -m stewart_gym ARGS`` as a user runs it."""
+    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=300)  # fmt: skip
+
+
+def observations(n: int, seed: int) -> np.ndarray:
+    """Observations with the ball 0–75 mm from the target: far enough that the residual's correction acts."""
+    rng = np.random.default_rng(seed)
+    obs = rng.uniform(-0.2, 0.2, (n, 12)).astype(np.float32)
+    obs[:, 0:2] = obs[:, 4:6] + rng.uniform(-0.5, 0.5, (n, 2))
+    return obs
+
+
+def test_the_shipped_balance_residual_is_six_networks_of_the_shipped_recipe_averaged() -> None:
+    """Six members, seeds 0–5, each trained with the balance section of ppo_residual.yml as it is now; the
+    correction is the mean of theirs (and differs from every one of them); the bundle sends the same sum."""
+    source = resolve_policy("shipped-residual")
+    assert source.kind == "ensemble"
+    recipe = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo_residual.yml").read_text())["StewartBallBalance-v0"]
+    configs = [yaml.safe_load((m / "config.yaml").read_text()) for m in ensemble_members(RESIDUAL)]
+    assert sorted(c["options"]["seed"] for c in configs) == [0, 1, 2, 3, 4, 5]
+    for config in configs:
+        trained = {k: v for k, v in config["hyperparams"].items() if k in recipe}
+        assert trained["gamma"] == 0.995 and trained["residual"]["base"] == "lqr-pid"
+        assert {k: v for k, v in trained.items() if k != "residual"} == {k: v for k, v in recipe.items()
+                                                                          if k != "residual"}  # fmt: skip
+    policy = load_policy(source)
+    obs = observations(64, 0)
+    members = np.stack([m.predict(obs)[0] for m in policy.learned.members])
+    mean = policy.learned.predict(obs)[0]
+    np.testing.assert_allclose(mean, members.mean(axis=0), atol=1e-6)
+    assert min(np.abs(mean - m).max() for m in members) > 1e-2
+    bundle = deployable_policy(source)
+    assert bundle.meta["ensemble"] == 6 and bundle.meta["obs_mean"] is None
+    for k, o in enumerate(observations(40, 1)):
+        start = np.array([k == 0])
+        np.testing.assert_allclose(bundle.predict(o, episode_start=start)[0],
+                                   policy.predict(o, episode_start=start)[0], atol=1e-4)  # fmt: skip
+
+
+def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(tmp_path: Path) -> None:
+    """``stewart-gym ensemble`` of two run folders: ``evaluate`` and ``export`` take the folder, the bundle's graph
+    gives the mean of the two networks' corrections (each normalised with its own statistics), and the policy
+    deploy runs from the bundle sends what the folder's policy does."""
+    runs = [str(m) for m in ensemble_members(RESIDUAL)[:2]]
+    made = sg("ensemble", *runs, "--out", "pair", "--note", "two of the shipped six", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-2000:]
+    assert "ensemble of 2 networks written to pair" in made.stdout
+    index = json.loads((tmp_path / "pair" / "ensemble.json").read_text())
+    assert index["members"] == ["members/0", "members/1"] and index["note"] == "two of the shipped six"
+    evaluated = sg("evaluate", "--policy", "pair", "--episodes", "2", "--json", cwd=tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr[-2000:]
+    assert 0.0 <= json.loads(evaluated.stdout)["success_rate"] <= 1.0
+    exported = sg("export", "--policy", "pair", "--out", "bundle", cwd=tmp_path)
+    assert exported.returncode == 0, exported.stderr[-2000:]
+    pair, bundle = load_policy(str(tmp_path / "pair")), BundlePolicy(tmp_path / "bundle")
+    singles = [load_policy(r) for r in runs]
+    obs = observations(200, 2)
+    correction = pair.learned.predict(obs)[0]
+    np.testing.assert_allclose(correction, np.mean([s.learned.predict(obs)[0] for s in singles], axis=0), atol=1e-6)
+    import onnxruntime as ort
+
+    graph = ort.InferenceSession(str(tmp_path / "bundle" / "policy.onnx"), providers=["CPUExecutionProvider"])
+    np.testing.assert_allclose(graph.run(None, {"obs": obs})[0], correction, atol=1e-4)  # the mean correction
+    deployed = deployable_policy(resolve_policy(str(tmp_path / "bundle")))  # what deploy runs
+    for k, o in enumerate(obs[:40]):
+        start = np.array([k == 0])
+        np.testing.assert_allclose(deployed.predict(o, episode_start=start)[0], pair.predict(o, episode_start=start)[0],
+                                   atol=1e-4)  # fmt: skip
+    assert bundle.meta["ensemble"] == 2
+
+
+def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_nothing_is_written(
+        tmp_path: Path) -> None:  # fmt: skip
+    """The shipped balance network (no residual base) and a residual member cannot be averaged; an
+    ensemble is not written over a folder that holds files; one network is not an ensemble."""
+    member = str(ensemble_members(RESIDUAL)[0])
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("keep me\n")
+    cases = [([str(POLICY_DIR / "balance"), member, "--out", "e"], "trained with different residual"),
+             ([member, member, "--out", "full"], "already exists"),
+             ([member, "--out", "e"], "2 or more")]  # fmt: skip
+    for args, message in cases:
+        proc = sg("ensemble", *args, cwd=tmp_path)
+        lines = [line for line in proc.stderr.splitlines() if line.strip()]
+        assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-2000:]
+        assert message in lines[0], lines[0]
+    assert not (tmp_path / "e").exists() and sorted(p.name for p in (tmp_path / "full").iterdir()) == ["keep.txt"]
