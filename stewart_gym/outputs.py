@@ -1,5 +1,6 @@
 """Output paths checked before long work starts: a run that would fail to save its result fails at once; and
-the configuration a training run left beside its model (:func:`run_config`).
+the configuration a training run left beside its model (:func:`run_config`); the members an ensemble folder
+lists (:func:`ensemble_members`).
 
 Used by the command line, the policy registry and :func:`stewart_gym.training.train`; raises
 :class:`~stewart_gym.errors.ConfigError` with what to do.
@@ -11,9 +12,13 @@ import os
 from pathlib import Path
 from typing import Any
 
-from stewart_gym.errors import ConfigError
+from stewart_gym.errors import ConfigError, PolicyError
 
-__all__ = ["output_dir", "output_file", "run_config"]
+__all__ = ["ENSEMBLE_FILE", "ensemble_members", "output_dir", "output_file", "run_config"]
+
+#: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
+#: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
+ENSEMBLE_FILE = "ensemble.json"
 
 
 def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
@@ -68,3 +73,23 @@ def run_config(model_zip: Path) -> dict[str, Any] | None:
                 raise ValueError(f"{cfg}: not a readable run configuration ({exc})") from None
             return data if isinstance(data, dict) else None
     return None
+
+
+def ensemble_members(folder: str | Path) -> list[Path]:
+    """The member folders an ensemble folder's ``ensemble.json`` lists (relative to it), checked to exist."""
+    import json
+
+    folder = Path(folder)
+    index = folder / ENSEMBLE_FILE
+    try:
+        listed = json.loads(index.read_text())["members"]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise PolicyError(f"{index}: not a readable ensemble index ({type(exc).__name__}: {exc}); write it with "
+                          "stewart-gym ensemble") from None  # fmt: skip
+    if not isinstance(listed, list) or not listed or not all(isinstance(m, str) for m in listed):
+        raise PolicyError(f"{index}: 'members' must be a non-empty list of folders, got {listed!r}")
+    members = [folder / m for m in listed]
+    missing = [str(m) for m in members if not (m / "model.zip").is_file()]
+    if missing:
+        raise PolicyError(f"{index}: no model.zip in member folder(s) {missing}")
+    return members

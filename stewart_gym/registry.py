@@ -44,7 +44,7 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
-from stewart_gym.outputs import run_config
+from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
            "export_policy", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
@@ -144,8 +144,6 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
             raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}")
         folder = POLICY_DIR / table[(env_id, geo)]
         extra = {"geometry": geo, **({"sensor": "camera"} if spec == "shipped-camera" else {})}
-        from stewart_gym.sb3_models import ENSEMBLE_FILE
-
         ensemble = (folder / ENSEMBLE_FILE).is_file()
         kind, model = ("ensemble", folder) if ensemble else ("sb3", folder / "model.zip")
         if (folder / "bundle" / "bundle.json").is_file():  # its settings from JSON: no YAML needed to deploy it
@@ -159,8 +157,6 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
     if path.is_dir():
         if (path / "bundle.json").exists():
             return _bundle_source(spec, path)
-        from stewart_gym.sb3_models import ENSEMBLE_FILE
-
         if (path / ENSEMBLE_FILE).exists():
             return _ensemble_source(spec, path)
         for name in ("model.zip", "best/best_model.zip", "best_model.zip"):
@@ -224,8 +220,6 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
 
 def _ensemble_source(spec: str, folder: Path) -> PolicySource:
     """An ensemble folder: its members' env id and keywords, which must agree (they are one recipe's networks)."""
-    from stewart_gym.sb3_models import ensemble_members
-
     members = [_sb3_source(spec, m / "model.zip") for m in ensemble_members(folder)]
     for member in members[1:]:
         _check_alike(members[0], member)
@@ -253,7 +247,7 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     folder is loaded once written. Raises :class:`PolicyError` naming what is wrong."""
     import shutil
 
-    from stewart_gym.sb3_models import ENSEMBLE_FILE, load_learned
+    from stewart_gym.sb3_models import load_learned
 
     if len(runs) < 2:
         raise PolicyError(f"an ensemble averages 2 or more trained networks; got {len(runs)}")

@@ -13,7 +13,8 @@ wraps the env in :class:`ResidualAction` (the hyperparameter ``residual: {base: 
 controller does not change a trained policy; the bundle records the base too, so deploy runs the same sum.
 
 An *ensemble* folder (``stewart-gym ensemble``) holds several networks trained alike with different seeds
-(``members/0``, ``members/1``, … each a run folder in miniature, listed in ``ensemble.json``); :func:`load_learned`
+(``members/0``, ``members/1``, … each a run folder in miniature, listed in ``ensemble.json``:
+:func:`~stewart_gym.outputs.ensemble_members`); :func:`load_learned`
 reads one as an :class:`EnsemblePolicy`, which acts with the mean of its members' deterministic actions.
 """
 
@@ -28,13 +29,11 @@ import numpy as np
 
 from stewart_gym.classical import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
 from stewart_gym.errors import ConfigError, PolicyError
+from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members
 
-__all__ = ["ENSEMBLE_FILE", "EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual",
-           "deterministic_module", "ensemble_members", "load_learned", "load_sb3", "mean_module", "residual_base",
-           "residual_mix"]  # fmt: skip
+__all__ = ["EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "deterministic_module",
+           "load_learned", "load_sb3", "mean_module", "residual_base", "residual_mix"]  # fmt: skip
 
-#: The file that makes a folder an ensemble of networks: ``{"members": ["members/0", ...], ...}``.
-ENSEMBLE_FILE = "ensemble.json"
 
 class SB3Policy:
     """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with."""
@@ -189,26 +188,6 @@ def mean_module(members: list[SB3Policy]) -> Any:
             return torch.stack(actions).mean(dim=0)
 
     return Mean().eval()
-
-
-def ensemble_members(folder: str | Path) -> list[Path]:
-    """The member folders an ensemble folder's ``ensemble.json`` lists (relative to it), checked to exist."""
-    import json
-
-    folder = Path(folder)
-    index = folder / ENSEMBLE_FILE
-    try:
-        listed = json.loads(index.read_text())["members"]
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
-        raise PolicyError(f"{index}: not a readable ensemble index ({type(exc).__name__}: {exc}); write it with "
-                          "stewart-gym ensemble") from None  # fmt: skip
-    if not isinstance(listed, list) or not listed or not all(isinstance(m, str) for m in listed):
-        raise PolicyError(f"{index}: 'members' must be a non-empty list of folders, got {listed!r}")
-    members = [folder / m for m in listed]
-    missing = [str(m) for m in members if not (m / "model.zip").is_file()]
-    if missing:
-        raise PolicyError(f"{index}: no model.zip in member folder(s) {missing}")
-    return members
 
 
 def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:

@@ -15,8 +15,8 @@ import numpy as np
 import yaml
 
 from stewart_gym.hardware.export import BundlePolicy
+from stewart_gym.outputs import ensemble_members
 from stewart_gym.registry import POLICY_DIR, deployable_policy, load_policy, resolve_policy
-from stewart_gym.sb3_models import ensemble_members
 
 ROOT = Path(__file__).resolve().parents[1]
 RESIDUAL = POLICY_DIR / "balance_residual"
