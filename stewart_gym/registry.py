@@ -243,11 +243,11 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     """Write the ensemble folder of ``runs`` (run folders or model ``.zip`` files of one recipe, trained with
     different seeds) into ``out_dir``, which must not hold one yet: ``members/<k>/`` with each run's model,
     normalisation statistics, ``config.yaml`` and ``metrics.json``, and ``ensemble.json`` listing them. The
-    runs are checked (trained models, for the same env id, observation, action and residual base) and the
-    folder is loaded once written. Raises :class:`PolicyError` naming what is wrong."""
+    runs are checked before anything is written (trained models that load, each with its statistics, for the
+    same env id, observation, action and residual base). Raises :class:`PolicyError` naming what is wrong."""
     import shutil
 
-    from stewart_gym.sb3_models import load_learned
+    from stewart_gym.sb3_models import EnsemblePolicy, load_sb3
 
     if len(runs) < 2:
         raise PolicyError(f"an ensemble averages 2 or more trained networks; got {len(runs)}")
@@ -260,6 +260,7 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise PolicyError(f"{out} already exists and is not an empty folder; give a new --out")
+    EnsemblePolicy([load_sb3(s.path) for s in sources])  # loads, same sizes, each with its statistics: before writing
     members = []
     for k, source in enumerate(sources):
         member = out / "members" / str(k)
@@ -277,7 +278,6 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     index = {"members": members, "sources": [str(r) for r in runs], "note": note}
     (out / ENSEMBLE_FILE).write_text(json.dumps(index, indent=2) + "\n")
     _ensemble_source(str(out), out)  # the copies read back alike
-    load_learned(out)
     return out
 
 

@@ -100,11 +100,16 @@ def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_n
     """The shipped balance network (no residual base) and a residual member cannot be averaged; an
     ensemble is not written over a folder that holds files; one network is not an ensemble."""
     member = str(ensemble_members(RESIDUAL)[0])
+    bare = tmp_path / "bare"  # a run without its normalisation statistics
+    bare.mkdir()
+    for name in ("model.zip", "config.yaml"):
+        (bare / name).write_bytes((Path(member) / name).read_bytes())
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("keep me\n")
     cases = [([str(POLICY_DIR / "balance"), member, "--out", "e"], "trained with different residual"),
              ([member, member, "--out", "full"], "already exists"),
-             ([member, "--out", "e"], "2 or more")]  # fmt: skip
+             ([member, "--out", "e"], "2 or more"),
+             ([member, str(bare), "--out", "e"], "vecnormalize.pkl")]  # fmt: skip
     for args, message in cases:
         proc = sg("ensemble", *args, cwd=tmp_path)
         lines = [line for line in proc.stderr.splitlines() if line.strip()]

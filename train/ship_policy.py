@@ -15,6 +15,7 @@ import json
 import shutil
 from pathlib import Path
 
+from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members
 from stewart_gym.registry import POLICY_DIR, export_policy, resolve_policy
 
 
@@ -31,13 +32,12 @@ def main() -> None:
     out = POLICY_DIR / args.name
     if out.exists():
         shutil.rmtree(out)
-    if (run / "ensemble.json").is_file():
+    if (run / ENSEMBLE_FILE).is_file():
         top = run.resolve()  # its own bundle and metrics are written below; the members' files are kept
         shutil.copytree(run, out, ignore=lambda d, names: [n for n in names if Path(d).resolve() == top
                                                            and n in ("bundle", "metrics.json")])  # fmt: skip
-        members = json.loads((run / "ensemble.json").read_text())["members"]
-        metrics = {"ensemble": len(members),
-                   "members": [json.loads((run / m / "metrics.json").read_text()) for m in members]}  # fmt: skip
+        members = ensemble_members(run)
+        metrics = {"ensemble": len(members), "members": [json.loads((m / "metrics.json").read_text()) for m in members]}
     else:
         metrics = ship_run(run, src, out, args.model)
     metrics["note"] = args.note
