@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import pty
+import select
 import threading
 import time
 
@@ -88,17 +89,28 @@ class FakeDevice:
         self._slave = slave  # keep the slave open so the pty survives until the client opens it
         os.set_blocking(self.master, False)
 
-    def read_all(self, wait: float = 0.1) -> bytes:
-        time.sleep(wait)
+    def read_all(self, wait: float = 0.1, size: int | None = None, timeout: float = 10.0) -> bytes:
+        """What the code under test has written: read until at least ``size`` bytes have come (when given) and
+        then nothing more for ``wait`` seconds, or until ``timeout``. The kernel hands bytes written to a pty over to
+        its other end asynchronously, late on a loaded machine, so a fixed sleep before one read can read nothing."""
         out = b""
-        while True:
-            try:
-                chunk = os.read(self.master, 4096)
-            except (BlockingIOError, OSError):
+        start = quiet_since = time.monotonic()
+        while time.monotonic() - start < timeout:
+            ready, _, _ = select.select([self.master], [], [], 0.005)
+            chunk = b""
+            if ready:
+                try:
+                    chunk = os.read(self.master, 4096)
+                except BlockingIOError:
+                    pass
+                except OSError:  # EIO: the other end is closed and nothing is left
+                    return out
+            if chunk:
+                out += chunk
+                quiet_since = time.monotonic()
+            elif (size is None or len(out) >= size) and time.monotonic() - quiet_since >= wait:
                 return out
-            if not chunk:
-                return out
-            out += chunk
+        return out
 
     def write(self, data: bytes) -> None:
         os.write(self.master, data)
@@ -134,8 +146,12 @@ class Drain:
         while not self._stop.is_set():
             self.data.extend(self.device.read_all(0.01))
 
-    def stop(self) -> bytes:
-        time.sleep(0.05)
+    def stop(self, quiet: float = 0.2, timeout: float = 10.0) -> bytes:
+        """Everything received, once nothing more has come for ``quiet`` seconds (the pty's hand-over lags)."""
+        start, seen = time.monotonic(), -1
+        while len(self.data) != seen and time.monotonic() - start < timeout:
+            seen = len(self.data)
+            time.sleep(quiet)
         self._stop.set()
         self._thread.join(1.0)
         return bytes(self.data)

@@ -575,10 +575,12 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     hp.write_text(f"StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
                   f"  env_kwargs:\n    action_mode: {mode}\n  n_steps: 64\n  batch_size: 32\n  n_epochs: 1\n"
                   "  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
-    run = tmp_path / "run"
+    run, tmp = tmp_path / "run", tmp_path / "tmp"
+    tmp.mkdir()
     proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--eval-freq", "64", "--eval-episodes", "1",
-              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+              "--no-progress", "--no-tensorboard", cwd=tmp_path, env={"TMPDIR": str(tmp)})  # fmt: skip
     assert proc.returncode == 0, proc.stderr
+    assert not list(tmp.glob("SB3-*"))  # SB3's logger left no folder in the temporary directory
     metrics = json.loads((run / "metrics.json").read_text())
     assert isinstance(metrics["last_eval"]["timesteps"], int) and isinstance(metrics["last_eval"]["wall_s"], float)
     assert "not a git checkout" in (run / "git.txt").read_text() or "stewart_gym" in (run / "git.txt").read_text()

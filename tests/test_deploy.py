@@ -73,8 +73,8 @@ def test_ctrl_c_sends_home_before_closing(device: FakeDevice, tmp_path: Path) ->
                       StaticSensor(interrupt_at=20), DeployConfig(log_path=str(tmp_path / "log.csv")))  # fmt: skip
     summary = loop.run()
     assert summary.message == "stopped by Ctrl-C" and summary.homed and summary.exit_code == 0
-    data = device.read_all()
     home_frame = b"".join(Maestro.set_target(i, w) for i, w in enumerate(CAL.neutral_us))
+    data = device.read_all(wait=0.3, size=summary.frames_sent * len(home_frame))
     assert data.endswith(home_frame) and not ctl.serial.is_open
 
 

@@ -24,12 +24,14 @@ PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
 def test_fake_maestro_receives_exact_bytes(device: FakeDevice) -> None:
     ctl = MaestroController(device.path, channels=[0, 1, 2, 3, 4, 5])
     ctl.send(PULSES)
-    got = device.read_all()
-    assert got == b"".join(Maestro.set_target(i, w) for i, w in enumerate(PULSES))
+    want = b"".join(Maestro.set_target(i, w) for i, w in enumerate(PULSES))
+    got = device.read_all(size=len(want))
+    assert got == want
     assert got[8:12] == bytes([0x84, 0x02, 0x02, 0x32])  # 1600.5 µs = 6402 quarter-µs = 50·128 + 2, channel 2
     multi = MaestroController(device.path, channels=range(6), multiple_targets=True)
     multi.send(PULSES)
-    assert device.read_all() == Maestro.set_multiple_targets(0, PULSES)
+    want = Maestro.set_multiple_targets(0, PULSES)
+    assert device.read_all(size=len(want)) == want
 
     def answer() -> None:  # the device answers Get Errors with overrun + RX-buffer-full
         for _ in range(50):
@@ -47,7 +49,8 @@ def test_fake_maestro_receives_exact_bytes(device: FakeDevice) -> None:
 def test_fake_ssc32_group_framing(device: FakeDevice) -> None:
     ctl = SSC32Controller(device.path, channels=[10, 11, 12, 13, 14, 15], move_ms=20)
     ctl.send(PULSES)
-    assert device.read_all() == b"#10P1500#11P1400#12P1600#13P1100#14P1900#15P1235T20\r"
+    want = b"#10P1500#11P1400#12P1600#13P1100#14P1900#15P1235T20\r"
+    assert device.read_all(size=len(want)) == want
     ctl.close()
 
 
@@ -62,7 +65,8 @@ def test_line_controller_waits_for_ready_and_reads_the_panel(device: FakeDevice)
     assert time.monotonic() - t0 >= 0.29
     assert device.read_all(0.05) == b""  # nothing was sent before "ready"
     ctl.send(PULSES)
-    assert device.read_all() == b"W 1500,1400,1600,1100,1900,1235\n"
+    want = b"W 1500,1400,1600,1100,1900,1235\n"
+    assert device.read_all(size=len(want)) == want
     device.write(b"B 10.0,-5.5\nB 12.0,-6.0\n")
     time.sleep(0.05)
     (xy, _t) = ctl.poll_ball()

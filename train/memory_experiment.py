@@ -74,6 +74,7 @@ def main() -> None:
             sys.exit(2)
     import torch
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
     torch.set_num_threads(1)  # as `train` does: extra threads only fight the env workers for the cores
@@ -93,6 +94,7 @@ def main() -> None:
                              policy_kwargs={**hp["policy_kwargs"], "lstm_hidden_size": 64}, **kwargs)  # fmt: skip
     else:
         model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", policy_kwargs=hp["policy_kwargs"], **kwargs)
+    model.set_logger(Logger(folder=None, output_formats=[]))  # else SB3 leaves an empty tempdir/SB3-<time> folder
     started = time.time()
     model.learn(args.steps)
     wall = time.time() - started
