@@ -116,3 +116,20 @@ def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_n
         assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-2000:]
         assert message in lines[0], lines[0]
     assert not (tmp_path / "e").exists() and sorted(p.name for p in (tmp_path / "full").iterdir()) == ["keep.txt"]
+
+
+def test_a_sampling_ensemble_averages_the_networks_samples() -> None:
+    """``predict(deterministic=False)``: each network samples its own action and the ensemble sends their mean, so
+    the samples stay within the bounds, vary from call to call, scatter less than one network's (independent
+    noise, averaged over 6) and centre near the deterministic mean."""
+    import torch
+
+    torch.manual_seed(0)
+    ensemble = load_policy(resolve_policy("shipped-residual")).learned
+    obs = observations(1, 2)[0]
+    one = np.stack([ensemble.members[0].predict(obs, deterministic=False)[0] for _ in range(400)])
+    many = np.stack([ensemble.predict(obs, deterministic=False)[0] for _ in range(400)])
+    low, high = ensemble.members[0].model.action_space.low, ensemble.members[0].model.action_space.high
+    assert np.all(many >= low) and np.all(many <= high) and np.ptp(many, axis=0).min() > 0
+    assert np.all(many.std(axis=0) < 0.7 * one.std(axis=0))
+    np.testing.assert_allclose(many.mean(axis=0), ensemble.predict(obs)[0], atol=0.03)  # one network: 0.15 off
