@@ -334,9 +334,8 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
     for _ in range(5 * periods):
         shipped(fast)
     assert not shipped.pid_in_control
-    residual = Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual"
-    bundle = json.loads((residual / "bundle" / "bundle.json").read_text())
-    config = yaml.safe_load((residual / "members" / "0" / "config.yaml").read_text())  # one of its networks' runs
+    bundle = json.loads((SHIPPED_RESIDUAL_RUN.parents[1] / "bundle" / "bundle.json").read_text())
+    config = yaml.safe_load((SHIPPED_RESIDUAL_RUN / "config.yaml").read_text())  # one of its networks' runs
     assert config["hyperparams"]["residual"]["design"]["handover_dwell_s"] == 3.0
 
     def dwells(node: object) -> list[float]:  # every handover_dwell_s in the bundle (its design and its gains)
