@@ -37,14 +37,16 @@ train-camera: $(STAMP)
 	$(PY) -m stewart_gym train --sensor camera --resume stewart_gym/policies/balance --hyperparams train/recipes/ppo_camera.yml --run-dir runs/camera --overwrite --no-progress
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera --sensor $$s --episodes 100; done
 
-# The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach (seeds
-# 0-5, about 6.5 minutes each on 2 cores) averaged into one policy (`stewart-gym ensemble`); for track, one
-# correction of the LQR (6 minutes). About 45 minutes in all.
+# The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach, for
+# track 6 corrections of the LQR (seeds 0-5, about 6.5 minutes each on 2 cores), each 6 averaged into one policy
+# (`stewart-gym ensemble`). About 80 minutes in all.
 train-residual: $(STAMP)
 	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
 	rm -rf runs/residual_balance
 	$(PY) -m stewart_gym ensemble runs/residual_balance_s0 runs/residual_balance_s1 runs/residual_balance_s2 runs/residual_balance_s3 runs/residual_balance_s4 runs/residual_balance_s5 --out runs/residual_balance --note "ppo_residual.yml, seeds 0-5"
-	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track --overwrite --no-progress
+	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track_s$$s --seed $$s --overwrite --no-progress; done
+	rm -rf runs/residual_track
+	$(PY) -m stewart_gym ensemble runs/residual_track_s0 runs/residual_track_s1 runs/residual_track_s2 runs/residual_track_s3 runs/residual_track_s4 runs/residual_track_s5 --out runs/residual_track --note "ppo_residual.yml track, seeds 0-5"
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 

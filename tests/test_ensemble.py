@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from stewart_gym.hardware.export import BundlePolicy
@@ -36,17 +37,23 @@ def observations(n: int, seed: int) -> np.ndarray:
     return obs
 
 
-def test_the_shipped_balance_residual_is_six_networks_of_the_shipped_recipe_averaged() -> None:
-    """Six members, seeds 0–5, each trained with the balance section of ppo_residual.yml as it is now; the
+@pytest.mark.parametrize(("env_id", "folder", "base", "gamma"), [
+    ("StewartBallBalance-v0", RESIDUAL, "lqr-pid", 0.995),
+    ("StewartBallTrack-v0", POLICY_DIR / "track_residual", "lqr", 0.98),
+])  # fmt: skip
+def test_the_shipped_residuals_are_six_networks_of_the_shipped_recipe_averaged(env_id: str, folder: Path, base: str,
+                                                                                gamma: float) -> None:  # fmt: skip
+    """Six members, seeds 0–5, each trained with the env's section of ppo_residual.yml as it is now; the
     correction is the mean of theirs (and differs from every one of them); the bundle sends the same sum."""
-    source = resolve_policy("shipped-residual")
-    assert source.kind == "ensemble"
-    recipe = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo_residual.yml").read_text())["StewartBallBalance-v0"]
-    configs = [yaml.safe_load((m / "config.yaml").read_text()) for m in ensemble_members(RESIDUAL)]
+    source = resolve_policy("shipped-residual", env_id=env_id)
+    assert source.kind == "ensemble" and source.path == folder
+    recipe = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo_residual.yml").read_text())[env_id]
+    configs = [yaml.safe_load((m / "config.yaml").read_text()) for m in ensemble_members(folder)]
     assert sorted(c["options"]["seed"] for c in configs) == [0, 1, 2, 3, 4, 5]
     for config in configs:
+        assert config["options"]["env_id"] == env_id
         trained = {k: v for k, v in config["hyperparams"].items() if k in recipe}
-        assert trained["gamma"] == 0.995 and trained["residual"]["base"] == "lqr-pid"
+        assert trained["gamma"] == gamma and trained["residual"]["base"] == base
         assert {k: v for k, v in trained.items() if k != "residual"} == {k: v for k, v in recipe.items()
                                                                           if k != "residual"}  # fmt: skip
     policy = load_policy(source)
