@@ -3,8 +3,9 @@
 Run: ``.venv/bin/python bench/bench_deploy.py [--bundle DIR] [--json]``. Uses a bundle (default: the shipped
 balance PPO's; ``stewart_gym/policies/balance_residual/bundle`` is the shipped residual, 6 networks in one ONNX
 graph beside the LQR → PID) on onnxruntime with one thread, behind its observer (the Kalman filter), and the
-Maestro framing; no serial I/O is timed. It also times the policy's call alone (observation → action). The ticks and the readings' ages jitter as a real clock's do (the tick up to 1 ms late, readings 5–15 ms
-old): on an exact 20 ms grid the filter's per-interval matrices would always come from its cache.
+Maestro framing; no serial I/O is timed. It also times the policy's call alone (observation → action). The
+ticks and the readings' ages jitter as a real clock's do (the tick up to 1 ms late, readings 5–15 ms old):
+on an exact 20 ms grid the filter's per-interval matrices would always come from its cache.
 """
 
 from __future__ import annotations
