@@ -23,6 +23,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
     import gymnasium as gym
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC, TD3
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from stewart_gym.sb3_models import load_sb3
@@ -32,6 +33,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
         venv = VecNormalize(DummyVecEnv([lambda: gym.make("StewartBallBalance-v0")]))
         kwargs = {"n_steps": 64, "batch_size": 32} if algo is PPO else {"learning_starts": 10, "buffer_size": 500}
         model = algo("MlpPolicy", venv, policy_kwargs={"net_arch": [32, 32]}, device="cpu", seed=0, **kwargs)
+        model.set_logger(Logger(folder=None, output_formats=[]))  # no empty tempdir/SB3-<time> folder
         model.learn(100)
         folder = tmp_path / algo.__name__
         folder.mkdir()
