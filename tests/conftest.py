@@ -96,15 +96,14 @@ class FakeDevice:
         out = b""
         start = quiet_since = time.monotonic()
         while time.monotonic() - start < timeout:
-            ready, _, _ = select.select([self.master], [], [], 0.005)
             chunk = b""
-            if ready:
-                try:
+            try:
+                if select.select([self.master], [], [], 0.005)[0]:
                     chunk = os.read(self.master, 4096)
-                except BlockingIOError:
-                    pass
-                except OSError:  # EIO: the other end is closed and nothing is left
-                    return out
+            except BlockingIOError:
+                pass
+            except OSError:  # EIO: the other end is closed and nothing is left; EBADF: unplugged
+                return out
             if chunk:
                 out += chunk
                 quiet_since = time.monotonic()
