@@ -6,6 +6,8 @@ import math
 import os
 import pty
 import select
+import subprocess
+import sys
 import threading
 import time
 
@@ -78,6 +80,13 @@ def mirror_permutation(geo: PlatformGeometry) -> np.ndarray:
         perm[i] = int(np.argmin(d))
         assert d[perm[i]] < 1e-9, f"{geo.name} is not mirror-symmetric about the y-z plane"
     return perm
+
+
+def sg(*args: str, cwd: str | os.PathLike | None = None, timeout: float = 600, stdin: str | None = None,
+       env: dict | None = None) -> subprocess.CompletedProcess:  # fmt: skip
+    """Run ``python -m stewart_gym ARGS`` as a user would (``env`` adds to this process's environment)."""
+    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=timeout, input=stdin, env={**os.environ, **(env or {})})  # fmt: skip
 
 
 class FakeDevice:

@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,7 +12,7 @@ import cv2
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice
+from conftest import Drain, FakeDevice, sg
 
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.errors import ConfigError
@@ -42,11 +39,6 @@ hsv_low = [5, 120, 120]
 hsv_high = [25, 255, 255]
 radius_mm = 12.7
 """
-
-
-def sg(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=300, env=dict(os.environ))  # fmt: skip
 
 
 # ------------------------------------------------------------------ model

@@ -24,19 +24,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice
+from conftest import Drain, FakeDevice, sg
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
                "camera-check", "sweep", "ensemble")  # fmt: skip
-
-
-def sg(*args: str, cwd: Path | None = None, timeout: float = 300, stdin: str | None = None,
-       env: dict | None = None) -> subprocess.CompletedProcess:  # fmt: skip
-    """Run ``python -m stewart_gym ARGS`` as a user would."""
-    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=timeout, input=stdin, env={**os.environ, **(env or {})})  # fmt: skip
 
 
 def error_lines(proc: subprocess.CompletedProcess) -> list[str]:

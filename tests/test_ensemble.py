@@ -7,13 +7,12 @@ bundle's one ONNX graph holds every network with its own normalisation. The ship
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from conftest import sg
 
 from stewart_gym.hardware.export import BundlePolicy
 from stewart_gym.outputs import ensemble_members
@@ -21,12 +20,6 @@ from stewart_gym.registry import POLICY_DIR, deployable_policy, load_policy, res
 
 ROOT = Path(__file__).resolve().parents[1]
 RESIDUAL = POLICY_DIR / "balance_residual"
-
-
-def sg(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """``python -m stewart_gym ARGS`` as a user runs it."""
-    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=300)  # fmt: skip
 
 
 def observations(n: int, seed: int) -> np.ndarray:

@@ -5,24 +5,16 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice
+from conftest import Drain, FakeDevice, sg
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.presets import load_preset
-
-
-def sg(*args: str, cwd: Path, stdin: str | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=600, input=stdin, env=dict(os.environ))  # fmt: skip
 
 
 def my_build(tmp_path: Path) -> Path:

@@ -17,6 +17,8 @@ import yaml
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make test installs it)")
 
+from conftest import sg  # noqa: E402
+
 from stewart_gym.errors import ConfigError  # noqa: E402
 from stewart_gym.sweep import SweepSpec, load_sweep, rank_trials, summarise_configs, trial_overrides  # noqa: E402
 
@@ -29,11 +31,6 @@ def write(folder: Path, name: str = "sweep.yaml", **entries: object) -> Path:
     path = folder / name
     path.write_text(yaml.safe_dump({**TINY, **entries}, sort_keys=False))
     return path
-
-
-def sg(*args: str, cwd: Path, timeout: float = 600) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True, cwd=cwd,
-                          timeout=timeout)  # fmt: skip
 
 
 def rows(out: Path) -> list[dict[str, str]]:
