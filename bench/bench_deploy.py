@@ -17,12 +17,14 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
 from stewart_gym.actions import ActionMapper  # noqa: E402
 from stewart_gym.calibration import ServoCalibration  # noqa: E402
+from stewart_gym.errors import PolicyError  # noqa: E402
 from stewart_gym.hardware.deploy import DeployLoop  # noqa: E402
 from stewart_gym.hardware.export import BundlePolicy  # noqa: E402
 from stewart_gym.hardware.serial_controllers import MaestroController  # noqa: E402
@@ -52,7 +54,10 @@ def main() -> None:
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     cal = ServoCalibration.default("servo-hexapod")
-    policy = BundlePolicy(args.bundle)
+    try:
+        policy = BundlePolicy(args.bundle)
+    except PolicyError as exc:
+        sys.exit(f"error: {exc}")
     controller = MaestroController(_NullSerial())  # type: ignore[arg-type]
     loop = DeployLoop(policy, ActionMapper("servo-hexapod", cal, policy.action_mode), controller, sensor=None)  # type: ignore[arg-type]
     rng = np.random.default_rng(0)
