@@ -17,6 +17,9 @@ import yaml
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make test installs it)")
 
+#: `make test` runs the suite on two workers; every Ray cluster of this file starts on the same one.
+pytestmark = pytest.mark.xdist_group("ray")
+
 from conftest import sg  # noqa: E402
 
 from stewart_gym.errors import ConfigError  # noqa: E402
