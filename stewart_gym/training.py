@@ -31,7 +31,7 @@ from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
 from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.logger import configure as configure_logger
+from stable_baselines3.common.logger import configure as make_sb3_logger
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
@@ -367,7 +367,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         model = algo_cls(policy, env, seed=config.seed, device="cpu", tensorboard_log=tb, verbose=config.verbose,
                          **({"action_noise": noise} if noise is not None else {}), **algo_kwargs)  # fmt: skip
     if tb is None:  # else SB3 makes an empty tempdir/SB3-<time> folder for its logger on every run
-        model.set_logger(configure_logger(str(run), ["stdout"] if config.verbose else []))
+        model.set_logger(make_sb3_logger(str(run), ["stdout"] if config.verbose else []))
     started = time.time()
     callbacks = CallbackList([
         _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),

@@ -4,9 +4,7 @@ PyBullet on the same pulses and the same tilts."""
 from __future__ import annotations
 
 import math
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import mujoco
@@ -19,6 +17,7 @@ from conftest import (
     random_reachable_poses,
     servo_step_response,
     settled_pose_errors,
+    sg,
     xml_differences,
 )
 
@@ -64,13 +63,11 @@ def test_committed_mjcf_matches_generator_and_loads_from_file() -> None:
 
 def test_mjcf_command_writes_a_model_for_any_geometry(tmp_path: Path) -> None:
     out = tmp_path / "lin.xml"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "mjcf", "--geometry", "senilov2018", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120, env=dict(os.environ))  # fmt: skip
+    proc = sg("mjcf", "--geometry", "senilov2018", "--out", str(out), timeout=120)
     assert proc.returncode == 0 and "mujoco.viewer" in proc.stdout, proc.stderr
     model = mujoco.MjModel.from_xml_path(str(out))
     assert model.nu == 6 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "ball") >= 0
-    bad = subprocess.run([sys.executable, "-m", "stewart_gym", "mjcf", "--out", str(tmp_path / "m.txt")],
-                         capture_output=True, text=True, timeout=120)  # fmt: skip
+    bad = sg("mjcf", "--out", str(tmp_path / "m.txt"), timeout=120)
     errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]
     assert bad.returncode != 0 and len(errors) == 1 and ".xml" in errors[0], bad.stderr
 
@@ -237,8 +234,7 @@ def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -
     except ConfigError:
         can_render = False
     gif = tmp_path / "m.gif"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--backend", "mujoco", "--episodes", "1",
-                           "--gif", str(gif)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = sg("evaluate", "--backend", "mujoco", "--episodes", "1", "--gif", str(gif), timeout=300)
     if can_render:
         assert proc.returncode == 0 and gif.stat().st_size > 1000, proc.stderr
     else:
@@ -252,22 +248,21 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
     engine), and ``deploy --sensor sim --backend mujoco`` on a fake Maestro."""
     import json
 
-    def sg(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
-                              timeout=600, cwd=tmp_path)  # fmt: skip
+    def sg_here(*args: str) -> subprocess.CompletedProcess:
+        return sg(*args, cwd=tmp_path)
 
-    ev = sg("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
+    ev = sg_here("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
     assert ev.returncode == 0, ev.stderr
     assert json.loads(ev.stdout.strip().splitlines()[-1])["success_rate"] == 1.0
     hp = tmp_path / "hp.yml"
     hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n  policy: MlpPolicy\n"
                   "  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
-    run = sg("train", "--backend", "mujoco", "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
+    run = sg_here("train", "--backend", "mujoco", "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
              "--eval-freq", "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard")  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert "backend: mujoco" in (tmp_path / "run" / "config.yaml").read_text()
     drain = Drain(device)
-    dep = sg("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
+    dep = sg_here("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
              "--log", str(tmp_path / "d.csv"))  # fmt: skip
     data = drain.stop()
     assert dep.returncode == 0, dep.stdout + dep.stderr
