@@ -258,12 +258,12 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
     hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n  policy: MlpPolicy\n"
                   "  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
     run = sg_here("train", "--backend", "mujoco", "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
-             "--eval-freq", "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard")  # fmt: skip
+                  "--eval-freq", "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard")  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert "backend: mujoco" in (tmp_path / "run" / "config.yaml").read_text()
     drain = Drain(device)
     dep = sg_here("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
-             "--log", str(tmp_path / "d.csv"))  # fmt: skip
+                  "--log", str(tmp_path / "d.csv"))  # fmt: skip
     data = drain.stop()
     assert dep.returncode == 0, dep.stdout + dep.stderr
     assert "simulated ball" in dep.stdout and len(data) >= 24 * 40  # ~50 Maestro frames of 6 × 4 bytes in 1 s
