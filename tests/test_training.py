@@ -459,9 +459,9 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
 
 
 def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
-    """``train/results.py --from-json``: the paired table gives each difference with its interval and verdict
-    (a shift on every seed is *better*/*worse*, a mixed one a *tie*); rows without per-seed values are left
-    out."""
+    """``train/results.py --from-json``: the tables come first on the page; the paired table gives each
+    difference with its interval and verdict (a shift on every seed is *better*/*worse*, a mixed one a *tie*);
+    rows without per-seed values are left out."""
     import subprocess
     import sys
 
@@ -483,6 +483,10 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     page = (tmp_path / "r.md").read_text()
     assert "paired: row minus row on the same 4 seeds" in page
+    # the tables where train/results_intro.md marks them: after the lead, before the controllers and the findings
+    assert "<!-- tables -->" not in page
+    assert page.index("## The tables") < page.index("paired: row minus row") < page.index("## The controllers") \
+        < page.index("## Findings")
     line = next(x for x in page.splitlines() if x.startswith("| LQR → PID − PID + Kalman |"))
     rms, final, settle = (c.strip() for c in line.split("|")[2:5])
     assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
