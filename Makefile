@@ -55,9 +55,10 @@ train-residual: $(STAMP)
 # The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
 # error integral observed (3 minutes each), the first balance residual, over the PID + Kalman, and the approach
 # residual as one network (5 minutes each), each trained with 3 seeds; the shipped balance residual's recipe
-# (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (about 2 hours); then every evaluation (about
-# 30 minutes). About 3.5 hours on 2 cores.
+# (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (about 2 hours); then every evaluation, with
+# the shipped track residual's 6 networks one by one (about 40 minutes). About 3.5 hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
+TRACK_NETS := stewart_gym/policies/track_residual/members
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
@@ -67,7 +68,7 @@ results: $(STAMP)
 	  for k in 0 1 2 3 4 5; do s=$$((6 * d + k)); $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s$$s --seed $$s --overwrite --no-progress || exit 1; done; \
 	  rm -rf runs/ensemble_d$$d; $(PY) -m stewart_gym ensemble runs/ensemble_d$${d}_s* --out runs/ensemble_d$$d || exit 1; \
 	done
-	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2"
+	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
