@@ -312,6 +312,26 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr
 
 
+def test_make_results_reproduces_every_recipe_column_of_the_page() -> None:
+    """Every recipe column of the committed results.json is one that `make results` evaluates, with the same
+    runs: regenerating the page from scratch keeps its columns."""
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    makefile = (root / "Makefile").read_text()
+    variables = dict(re.findall(r"^(\w+) :?= (.*)$", makefile, flags=re.M))
+    target = makefile.split("\nresults:", 1)[1].split("\n\n", 1)[0]
+    made = {}
+    for label, runs in re.findall(r'--recipe "([^"=]+)=([^"]+)"', target):
+        made[label] = [re.sub(r"\$\((\w+)\)", lambda m: variables[m.group(1)], run) for run in runs.split(",")]
+    rows = json.loads((root / "docs/src/results.json").read_text())
+    on_page: dict[str, list[str]] = {}
+    for r in rows:
+        if r["row"].startswith("seed:") and r["row"][5:] not in on_page.setdefault(r["recipe"], []):
+            on_page[r["recipe"]].append(r["row"][5:])
+    assert on_page and on_page == made
+
+
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
     """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
     trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
