@@ -709,20 +709,33 @@ class ResidualMix:
     Once the observed ball has come within ``inner_mm`` of the target the correction stays off (the base acts
     alone) until the ball is observed farther than ``release_mm`` from it, as the LQR → PID's hand-over does, so
     that sensor noise around the inner radius cannot switch the correction on while the base holds the ball.
-    One latch per row of a batch; :meth:`reset` at the start of an episode.
+    With ``dwell_s`` > 0 the latch also closes once the ball has stayed within ``release_mm`` that long (whole
+    control periods of ``dt`` s) without coming within ``inner_mm``: a correction that keeps the ball circling
+    the target, short of the inner radius, is cut there and the base brings it in. One latch per row of a
+    batch; :meth:`reset` at the start of an episode.
     """
 
     def __init__(self, scale: float, plate_half: tuple[float, float], fade_mm: float = 0.0, inner_mm: float = 0.0,
-                 release_mm: float = 0.0) -> None:  # fmt: skip
+                 release_mm: float = 0.0, dwell_s: float = 0.0, dt: float = 0.02) -> None:  # fmt: skip
         if release_mm > 0 and not release_mm > inner_mm > 0:
             raise ValueError(f"release_mm ({release_mm}) must be 0 (no latch) or more than inner_mm ({inner_mm}) > 0")
+        if not 0 <= dwell_s < math.inf or (dwell_s > 0 and release_mm <= 0):
+            raise ValueError(f"dwell_s ({dwell_s}) must be 0 (none) or, with a latch (release_mm > 0), a finite "
+                             "positive time")  # fmt: skip
+        if not 0 < dt < math.inf:
+            raise ValueError(f"dt must be a positive number of seconds, got {dt}")
         self.scale, self.plate_half = float(scale), (float(plate_half[0]), float(plate_half[1]))
         self.fade_mm, self.inner_mm, self.release_mm = float(fade_mm), float(inner_mm), float(release_mm)
+        self.dwell_s, self.dt = float(dwell_s), float(dt)
+        #: periods within release_mm after which the latch closes (0: never by time)
+        self._dwell_periods = math.ceil(self.dwell_s / self.dt - 1e-9) if self.dwell_s > 0 else 0
         self._off: np.ndarray | None = None
+        self._inside: np.ndarray | None = None
 
     def reset(self) -> None:
         """Start of an episode: the latch is open (the correction acts wherever the fade lets it)."""
         self._off = None
+        self._inside = None
 
     def __call__(self, base_action: np.ndarray, correction: np.ndarray, obs: np.ndarray) -> np.ndarray:
         correction = np.asarray(correction, dtype=np.float64)
@@ -730,8 +743,13 @@ class ResidualMix:
             o = np.asarray(obs, dtype=np.float64)
             error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(self.plate_half, dtype=np.float64)
             distance_mm = np.linalg.norm(error, axis=-1) * 1e3
-            off = self._off if self._off is not None and self._off.shape == distance_mm.shape else \
-                np.zeros(distance_mm.shape, dtype=bool)  # fmt: skip
-            self._off = (off | (distance_mm < self.inner_mm)) & ~(distance_mm > self.release_mm)
+            fresh = self._off is None or self._off.shape != distance_mm.shape
+            off = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._off
+            close = distance_mm < self.inner_mm
+            if self._dwell_periods:
+                inside = np.zeros(distance_mm.shape, dtype=int) if fresh or self._inside is None else self._inside
+                self._inside = inside = np.where(distance_mm <= self.release_mm, inside + 1, 0)
+                close = close | (inside >= self._dwell_periods)
+            self._off = (off | close) & ~(distance_mm > self.release_mm)
             correction = np.where(self._off[..., None], 0.0, correction)
         return residual_action(base_action, correction, obs, self.scale, self.plate_half, self.fade_mm, self.inner_mm)

@@ -6,7 +6,8 @@ predicts. Needs the ``[train]`` extra (torch, Stable-Baselines3).
 
 A *residual* policy learns a correction on top of a classical controller: the action sent is
 ``clip(base(obs) + scale · w · learned(obs), −1, 1)``, where the weight w may fade the correction out near
-the target (``inner_mm``, ``fade_mm``) and keep it out once the ball has come in (``release_mm``). Training
+the target (``inner_mm``, ``fade_mm``) and keep it out once the ball has come in (``release_mm``), or has stayed
+near it for ``dwell_s``. Training
 wraps the env in :class:`ResidualAction` (the hyperparameter ``residual: {base: lqr, scale: 0.5}``);
 :class:`ResidualPolicy` runs a trained one. The run's
 ``config.yaml`` records the base's gains or design as they were (``design``), so a later retune of the shipped
@@ -200,27 +201,29 @@ def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:
 
 def check_residual(spec: Any) -> dict[str, Any]:
     """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r, release_mm: q,
-    design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and over the next
-    f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the default, never
-    fades) and q 0 (the default) or more than r > 0 (once within r, the correction stays off until the ball is
-    farther than q: :class:`~stewart_gym.classical.ResidualMix`). NAME is a shipped classical controller
+    dwell_s: t, design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and
+    over the next f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the
+    default, never fades) and q 0 (the default) or more than r > 0 (once within r, the correction stays off until
+    the ball is farther than q: :class:`~stewart_gym.classical.ResidualMix`), and t 0 (the default) or, with that
+    latch, the seconds within q after which it closes anyway. NAME is a shipped classical controller
     (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
     is the shipped one's with any fields that ``design`` gives replaced (all of them, or a few, e.g.
     ``{handover_dwell_s: 3}``); training records the whole design."""
-    keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "design"}
+    keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "dwell_s", "design"}
     if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R, "
-                          f"release_mm: Q}}, got {spec!r}")  # fmt: skip
+                          f"release_mm: Q, dwell_s: T}}, got {spec!r}")  # fmt: skip
     scale = spec.get("scale", 0.5)
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not 0 < scale <= 2:
         raise ConfigError(f"residual scale must be a number in (0, 2], got {scale!r}")
-    for key in ("fade_mm", "inner_mm", "release_mm"):
+    for key in ("fade_mm", "inner_mm", "release_mm", "dwell_s"):
         value = spec.get(key, 0.0)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < 1000:
             raise ConfigError(f"residual {key} must be a number in [0, 1000), got {value!r}")
     release, inner = float(spec.get("release_mm", 0.0)), float(spec.get("inner_mm", 0.0))
-    try:  # the latch's own check (release beyond inner), once
-        ResidualMix(float(scale), (1.0, 1.0), float(spec.get("fade_mm", 0.0)), inner, release)
+    dwell = float(spec.get("dwell_s", 0.0))
+    try:  # the latch's own checks (release beyond inner, a dwell only with the latch), once
+        ResidualMix(float(scale), (1.0, 1.0), float(spec.get("fade_mm", 0.0)), inner, release, dwell)
     except ValueError as exc:
         raise ConfigError(f"residual {exc}") from None
     kind = CLASSICAL[spec["base"]][0]
@@ -231,13 +234,18 @@ def check_residual(spec: Any) -> dict[str, Any]:
         design = checked_design({**asdict(shipped_design(spec["base"])), **changes}, kind)
     except ValueError as exc:
         raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
-    return {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),
-            "inner_mm": inner, "release_mm": release, "design": asdict(design)}  # fmt: skip
+    checked = {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),
+               "inner_mm": inner, "release_mm": release, "design": asdict(design)}  # fmt: skip
+    if dwell > 0:  # recorded only when set: runs trained before the dwell existed read the same
+        checked["dwell_s"] = dwell
+    return checked
 
 
-def residual_mix(spec: dict[str, Any], plate_half: tuple[float, float]) -> ResidualMix:
-    """How a checked residual ``spec`` adds its correction to its base's action on a plate of ``plate_half`` (m)."""
-    return ResidualMix(spec["scale"], plate_half, spec["fade_mm"], spec["inner_mm"], spec["release_mm"])
+def residual_mix(spec: dict[str, Any], plate_half: tuple[float, float], dt: float = 0.02) -> ResidualMix:
+    """How a checked residual ``spec`` adds its correction to its base's action on a plate of ``plate_half`` (m),
+    every ``dt`` s."""
+    return ResidualMix(spec["scale"], plate_half, spec["fade_mm"], spec["inner_mm"], spec["release_mm"],
+                       spec.get("dwell_s", 0.0), dt)  # fmt: skip
 
 
 def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_half: tuple[float, float] | None = None,
@@ -262,7 +270,7 @@ class ResidualAction(gym.Wrapper):
         super().__init__(env)
         spec = check_residual(residual)
         u = env.unwrapped
-        self.mix = residual_mix(spec, u.plate_half_extent)
+        self.mix = residual_mix(spec, u.plate_half_extent, 1.0 / u.sim.control_hz)
         self.base = residual_base(spec, u.sim.geometry, u.plate_half_extent, 1.0 / u.sim.control_hz)
         self._obs: np.ndarray | None = None
 

@@ -52,6 +52,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "ppo_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: normal\n  noise_std: 0.1\n")
     (d / "bad_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: pink\n  noise_std: 0.1\n")
     (d / "ppo_keys.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_epochs: 5\n")
+    (d / "dwell_no_latch.yml").write_text("StewartBallTrack-v0:\n  n_envs: 1\n"
+                                          "  residual: {base: lqr, inner_mm: 2, fade_mm: 15, dwell_s: 3}\n")
     (d / "notes.txt").write_text("hello\n")
     (d / "notazip.zip").write_text("not a zip archive\n")
     (d / "bad.json").write_text("{not json")
@@ -214,6 +216,7 @@ BAD = [
     ["train", "--hyperparams", "{files}/ppo_noise.yml", "--run-dir", "{tmp}/r"],  # action noise is for off-policy
     ["train", "--algo", "td3", "--hyperparams", "{files}/bad_noise.yml", "--run-dir", "{tmp}/r"],
     ["train", "--algo", "sac", "--hyperparams", "{files}/ppo_keys.yml", "--run-dir", "{tmp}/r"],  # PPO's keywords
+    ["train", "--env", "StewartBallTrack-v0", "--hyperparams", "{files}/dwell_no_latch.yml", "--run-dir", "{tmp}/r"],
     ["train", "--run-dir", "{files}/notes.txt"],
     ["train", "--run-dir", "{files}/run_done"],
     ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],

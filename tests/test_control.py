@@ -597,6 +597,79 @@ def test_the_latch_keeps_the_correction_off_from_the_inner_radius_until_the_rele
         ResidualMix(0.5, (0.15, 0.15), inner_mm=5.0, release_mm=3.0)
 
 
+def test_the_latch_dwell_closes_the_latch_after_that_long_within_the_release_distance() -> None:
+    """With dwell_s, a ball that stays within release_mm (never within inner_mm) has the correction cut from its
+    ceil(dwell_s / dt)-th period there until it is beyond release_mm; leaving release_mm restarts the count, as
+    does a reset; one count per row; a dwell without a latch, or a negative or non-finite one, is refused."""
+    from stewart_gym.classical import ResidualMix
+
+    def obs_at(distance_mm: float | list[float]) -> np.ndarray:
+        d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
+        o = np.zeros((d.size, 12))
+        o[:, 0] = d / 150.0
+        return o if d.size > 1 else o[0]
+
+    base, correction = np.array([0.1, -0.2]), np.array([0.4, 0.4])
+    mix = ResidualMix(0.5, (0.15, 0.15), fade_mm=10.0, inner_mm=2.0, release_mm=20.0, dwell_s=0.1, dt=0.02)  # 5
+    for episode in range(2):
+        mix.reset()
+        sent = [mix(base, correction, obs_at(d)) for d in [15.0, 12.0, 25.0] + [12.0] * 6 + [15.0, 21.0, 12.0]]
+        on = [not np.allclose(a, base) for a in sent]
+        #   15 12 | 25 (count restarts) | 12 ×4 on, the 5th in a row closes it | 15 still off | 21 reopens | 12 on
+        assert on == [True, True, True, True, True, True, True, False, False, False, True, True], (episode, on)
+    rows = ResidualMix(0.5, (0.15, 0.15), fade_mm=10.0, inner_mm=2.0, release_mm=20.0, dwell_s=0.04, dt=0.02)
+    for d in ([12.0, 30.0], [12.0, 12.0]):
+        out = rows(np.zeros((2, 2)), np.ones((2, 2)), obs_at(d))
+    np.testing.assert_allclose(out, [[0.0, 0.0], [0.5, 0.5]], atol=1e-6)  # row 0 two periods inside: cut
+    without = ResidualMix(0.5, (0.15, 0.15), fade_mm=10.0, inner_mm=2.0, release_mm=20.0)
+    assert all(not np.allclose(without(base, correction, obs_at(12.0)), base) for _ in range(200))
+    for bad in ({"dwell_s": 1.0}, {"release_mm": 20.0, "dwell_s": -1.0}, {"release_mm": 20.0, "dwell_s": math.nan},
+                {"release_mm": 20.0, "dwell_s": math.inf}):  # fmt: skip
+        with pytest.raises(ValueError, match="dwell_s"):
+            ResidualMix(0.5, (0.15, 0.15), inner_mm=2.0, **bad)
+
+
+def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the_latch_dwell(tmp_path: Path) -> None:
+    """Network 5 of the shipped track residual, alone, keeps the ball circling 6–17 mm from the circle's target on
+    seed 17 (its correction never lets the ball within 2 mm, so the latch never closes). Its run folder with
+    ``dwell_s: 3`` added to the residual it records: the LQR alone takes over after 3 s within 20 mm and tracks
+    within 1 mm RMS over the last 5 s, where without it the error stays above 8 mm; the bundle exported from it
+    records the dwell and sends the same actions."""
+    from stewart_gym.evaluation import run_episode
+    from stewart_gym.registry import POLICY_DIR, load_for_evaluation
+    from stewart_gym.sb3_models import check_residual, residual_base
+
+    member = POLICY_DIR / "track_residual" / "members" / "5"
+    run = tmp_path / "run"
+    shutil.copytree(member, run)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    assert "dwell_s" not in config["hyperparams"]["residual"]
+    config["hyperparams"]["residual"]["dwell_s"] = 3.0
+    (run / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    tails = {}
+    for label, folder in (("alone", member), ("dwell", run)):
+        source, policy, env_kwargs = load_for_evaluation(str(folder), "StewartBallTrack-v0")
+        env = gym.make("StewartBallTrack-v0", randomize=True, **{**env_kwargs, "trajectory": "circle"})
+        log = run_episode(env, policy, 17)
+        tails[label] = float(np.sqrt(np.mean(np.square(log.distance_mm[-250:]))))
+        env.close()
+    assert tails["alone"] > 8.0 and tails["dwell"] < 1.0, tails
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
+                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads((tmp_path / "bundle" / "bundle.json").read_text())["residual"]["dwell_s"] == 3.0
+    policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(tmp_path / "bundle")))
+    lqr = residual_base(check_residual(config["hyperparams"]["residual"]))  # the base, stepped alongside
+    obs = np.zeros(12, dtype=np.float32)
+    obs[4] = 0.1  # a still target 15 mm from the ball
+    for k in range(160):  # inside 20 mm from the first period: the 150th closes the latch
+        start = np.array([k == 0])
+        action = policy.predict(obs, episode_start=start)[0]
+        by_lqr = lqr.predict(obs, episode_start=start)[0]
+        np.testing.assert_allclose(bundle.predict(obs, episode_start=start)[0], action, atol=1e-4)
+        assert (np.abs(action - by_lqr).max() > 1e-3) == (k < 149), k
+
+
 def test_the_shipped_balance_residual_latches_its_correction_off_in_evaluation_and_in_its_bundle() -> None:
     """The shipped balance residual (release_mm 20): after the ball has been within 5 mm, at 8 mm its action is
     the LQR → PID's exactly (the fade alone would add 0.3 of the correction), until it is beyond 20 mm; its
@@ -629,6 +702,9 @@ def test_the_shipped_balance_residual_latches_its_correction_off_in_evaluation_a
                                              ({"base": "lqr", "release_mm": 20}, "release_mm"),
                                              ({"base": "lqr", "inner_mm": 5, "release_mm": -1}, "release_mm"),
                                              ({"base": "lqr", "inner_mm": 5, "release_mm": float("inf")}, "release_mm"),
+                                             ({"base": "lqr", "inner_mm": 5, "dwell_s": 3}, "dwell_s"),
+                                             ({"base": "lqr", "inner_mm": 2, "release_mm": 20, "dwell_s": -3}, "dwell_s"),
+                                             ({"base": "lqr", "inner_mm": 2, "release_mm": 20, "dwell_s": "3 s"}, "dwell_s"),
                                              ({"base": "pid", "design": {"kp_pos": float("nan")}}, "design.*finite"),
                                              ({"base": "lqr", "design": {"kp_pos": 2.0}}, "design.*LQRDesign"),
                                              ({"base": "lqr", "design": {"tilt": -0.1}}, "design.*positive")])  # fmt: skip

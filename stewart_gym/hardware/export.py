@@ -90,7 +90,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         geometry = env_kwargs.get("geometry", "servo-hexapod")
         base = residual_base(spec, geometry)
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
-                            "release_mm": spec["release_mm"],
+                            "release_mm": spec["release_mm"], "dwell_s": spec.get("dwell_s", 0.0),
                             "base": classical_meta(CLASSICAL[spec["base"]][0], asdict(base.gains), env_id, geometry,
                                                    meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -255,8 +255,9 @@ class BundlePolicy:
             try:
                 self._mix = ResidualMix(float(residual["scale"]), (width / 2, depth / 2),
                                         float(residual.get("fade_mm", 0.0)), float(residual.get("inner_mm", 0.0)),
-                                        float(residual.get("release_mm", 0.0)))  # fmt: skip
-            except (TypeError, ValueError) as exc:
+                                        float(residual.get("release_mm", 0.0)), float(residual.get("dwell_s", 0.0)),
+                                        1.0 / self.control_hz)  # fmt: skip
+            except (TypeError, ValueError, ZeroDivisionError) as exc:
                 raise PolicyError(f"{meta_path}: malformed residual ({exc}); re-export the policy") from None
 
     @staticmethod
