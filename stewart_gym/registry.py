@@ -312,7 +312,9 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.presets import load_geometry
 
         width, depth = load_geometry(source.geometry).plate_extent
-        policy = ResidualPolicy(policy, residual_base(spec, source.geometry), residual_mix(spec, (width / 2, depth / 2)))
+        half = (width / 2, depth / 2)
+        dt = 1.0 / float(source.env_kwargs.get("control_hz", 50))  # the period it was trained at, as training ran it
+        policy = ResidualPolicy(policy, residual_base(spec, source.geometry, half, dt), residual_mix(spec, half, dt))
     if "action_mode" in source.env_kwargs and policy.action_size != ACTION_SIZES[source.action_mode]:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip

@@ -670,6 +670,35 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
         assert (np.abs(action - by_lqr).max() > 1e-3) == (k < 149), k
 
 
+def test_a_residual_run_at_another_control_rate_runs_its_base_and_latch_at_that_rate(tmp_path: Path) -> None:
+    """A residual run recorded at 25 Hz (control_hz in its env keywords): evaluation designs its LQR base for
+    0.04 s and times its latch dwell in 0.04 s periods, as training did, and so does its exported bundle."""
+    from stewart_gym.registry import POLICY_DIR
+
+    run = tmp_path / "run"
+    shutil.copytree(POLICY_DIR / "track_residual" / "members" / "0", run)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    config["hyperparams"]["env_kwargs"] = {**config["hyperparams"]["env_kwargs"], "control_hz": 25}
+    config["hyperparams"]["residual"]["dwell_s"] = 3.0
+    (run / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    source = resolve_policy(str(run))
+    assert source.env_kwargs["control_hz"] == 25
+    policy = load_policy(source)
+    assert policy.base.gains.dt == pytest.approx(0.04) and policy.mix.dt == pytest.approx(0.04)
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
+                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
+    assert meta["control_hz"] == 25 and meta["residual"]["base"]["gains"]["dt"] == pytest.approx(0.04)
+    bundle = deployable_policy(resolve_policy(str(tmp_path / "bundle")))
+    rng = np.random.default_rng(3)
+    for k in range(20):
+        obs = rng.uniform(-0.3, 0.3, 12).astype(np.float32)
+        start = np.array([k == 0])
+        np.testing.assert_allclose(bundle.predict(obs, episode_start=start)[0],
+                                   policy.predict(obs, episode_start=start)[0], atol=1e-4)  # fmt: skip
+
+
 def test_the_shipped_balance_residual_latches_its_correction_off_in_evaluation_and_in_its_bundle() -> None:
     """The shipped balance residual (release_mm 20): after the ball has been within 5 mm, at 8 mm its action is
     the LQR → PID's exactly (the fade alone would add 0.3 of the correction), until it is beyond 20 mm; its

@@ -88,7 +88,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
 
         spec = check_residual(env_kwargs["residual"])
         geometry = env_kwargs.get("geometry", "servo-hexapod")
-        base = residual_base(spec, geometry)
+        base = residual_base(spec, geometry, dt=1.0 / meta["control_hz"])  # designed for the period it runs at
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
                             "release_mm": spec["release_mm"], "dwell_s": spec.get("dwell_s", 0.0),
                             "base": classical_meta(CLASSICAL[spec["base"]][0], asdict(base.gains), env_id, geometry,
