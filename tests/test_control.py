@@ -633,8 +633,9 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
     """Network 5 of the shipped track residual, alone, keeps the ball circling 6–17 mm from the circle's target on
     seed 17 (its correction never lets the ball within 2 mm, so the latch never closes). Its run folder with
     ``dwell_s: 3`` added to the residual it records: the LQR alone takes over after 3 s within 20 mm and tracks
-    within 1 mm RMS over the last 5 s, where without it the error stays above 8 mm; the bundle exported from it
-    records the dwell and sends the same actions."""
+    within 2 mm RMS over the last 5 s, where without it the error stays above 5 mm (the circling is an
+    attractor: observations perturbed by 1e-6 end in it too); the bundle exported from it records the dwell and
+    sends the same actions."""
     from stewart_gym.evaluation import run_episode
     from stewart_gym.registry import POLICY_DIR, load_for_evaluation
     from stewart_gym.sb3_models import check_residual, residual_base
@@ -653,7 +654,7 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
         log = run_episode(env, policy, 17)
         tails[label] = float(np.sqrt(np.mean(np.square(log.distance_mm[-250:]))))
         env.close()
-    assert tails["alone"] > 8.0 and tails["dwell"] < 1.0, tails
+    assert tails["alone"] > 5.0 and tails["dwell"] < 2.0, tails  # here 12.0 and 0.8 (10.4 and 0.8 with 1e-6 noise)
     proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
                            str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
