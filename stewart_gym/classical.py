@@ -459,8 +459,10 @@ class LQRController(EpisodicController):
 
 
 # -------------------------------------------------------------------------------------------------- hand-over
-#: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the dwell 0 (off) or more.
-HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s")
+#: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the dwells 0 (off) or more.
+HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s")
+#: The sizes that may be 0 (off).
+HANDOVER_DWELLS = ("handover_dwell_s", "release_dwell_s")
 
 
 @dataclass(frozen=True)
@@ -474,7 +476,10 @@ class HandoverDesign:
     ``handover_mm_s`` (then the LQR again). Under heavy panel noise the observed speed seldom falls below
     ``handover_mm_s`` (8 mm of noise leaves about 20 mm/s in the estimate), so once the ball has stayed within
     ``release_mm`` of the still target for ``handover_dwell_s``, the PID takes over within ``handover_mm``
-    whatever the observed speed (0: never). The PID takes over with its own integral, which it has kept within
+    whatever the observed speed (0: never). Under the same noise the filtered position strays beyond
+    ``release_mm`` now and then while the ball itself is held; with ``release_dwell_s`` the LQR takes the ball
+    back only once it has been observed beyond ``release_mm`` that long (0: at once; a moving target still takes
+    it back at once). The PID takes over with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
@@ -485,6 +490,7 @@ class HandoverDesign:
             (the ball's relative to the target, and the target's).
         release_mm: the LQR takes back beyond this distance (more than ``handover_mm``).
         handover_dwell_s: after this long within ``release_mm`` the speed no longer matters (0: it always does).
+        release_dwell_s: the LQR takes back after this long beyond ``release_mm`` (0: at once).
     """
 
     lqr: LQRDesign
@@ -493,6 +499,7 @@ class HandoverDesign:
     handover_mm_s: float = 10.0
     release_mm: float = 20.0
     handover_dwell_s: float = 0.0
+    release_dwell_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -508,6 +515,7 @@ class HandoverGains:
     release_mm: float
     dt: float
     handover_dwell_s: float = 0.0  # after the others: bundles written before it load without it
+    release_dwell_s: float = 0.0  # likewise
 
 
 class HandoverController(EpisodicController):
@@ -529,6 +537,7 @@ class HandoverController(EpisodicController):
         self.pid.reset()
         self._near: np.ndarray | None = None
         self._inside: np.ndarray | None = None  # periods each ball has been within release_mm of a still target
+        self._beyond: np.ndarray | None = None  # periods each ball has been observed beyond release_mm
 
     @property
     def pid_in_control(self) -> np.ndarray | None:
@@ -551,7 +560,10 @@ class HandoverController(EpisodicController):
         if g.handover_dwell_s > 0:  # whole periods: 3 s at 50 Hz is the 150th
             slow |= inside >= math.ceil(g.handover_dwell_s / g.dt - 1e-9)
         enter = ~near & still & (distance_mm < g.handover_mm) & slow
-        self._near = (near | enter) & still & ~(distance_mm > g.release_mm)
+        beyond = np.zeros(distance_mm.shape, dtype=int) if fresh or self._beyond is None else self._beyond
+        self._beyond = beyond = np.where(distance_mm > g.release_mm, beyond + 1, 0)
+        gone = beyond >= max(1, math.ceil(g.release_dwell_s / g.dt - 1e-9))  # whole periods; 0 s: the first
+        self._near = (near | enter) & still & ~gone
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
 
@@ -629,9 +641,9 @@ def checked_handover(values: Any) -> HandoverDesign:
     assert isinstance(lqr, LQRDesign) and isinstance(pid, PIDGains)
     sizes = {k: values.get(k, getattr(HandoverDesign, k)) for k in HANDOVER_SIZES}
     bad = [k for k, v in sizes.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-           or v < 0 or (v == 0 and k != "handover_dwell_s")]  # fmt: skip
+           or v < 0 or (v == 0 and k not in HANDOVER_DWELLS)]  # fmt: skip
     if bad:
-        raise ValueError(f"{bad} must be positive numbers (handover_dwell_s may be 0: off)")
+        raise ValueError(f"{bad} must be positive numbers ({' and '.join(HANDOVER_DWELLS)} may be 0: off)")
     if sizes["release_mm"] <= sizes["handover_mm"]:
         raise ValueError(f"release_mm ({sizes['release_mm']}) must be more than handover_mm ({sizes['handover_mm']})")
     return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
@@ -656,7 +668,8 @@ def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesig
         pid = gains_for_geometry(design.pid, geo)
         return HandoverController(HandoverGains(lqr=lqr, pid=pid, max_tilt=pid.max_tilt, handover_mm=design.handover_mm,
                                                 handover_mm_s=design.handover_mm_s, release_mm=design.release_mm,
-                                                dt=dt, handover_dwell_s=design.handover_dwell_s),
+                                                dt=dt, handover_dwell_s=design.handover_dwell_s,
+                                                release_dwell_s=design.release_dwell_s),
                                   plate_half=half)  # fmt: skip
     if kind == "lqr":
         assert isinstance(design, LQRDesign)
