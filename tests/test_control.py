@@ -344,6 +344,12 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
         return [d for v in node for d in dwells(v)] if isinstance(node, list) else []
 
     assert dwells(bundle) == [3.0, 3.0]
+    # and its release dwell (0.5 s), in every network's run configuration and in the bundle's base
+    for member in SHIPPED_RESIDUAL_RUN.parent.iterdir():
+        design = yaml.safe_load((member / "config.yaml").read_text())["hyperparams"]["residual"]["design"]
+        assert design["release_dwell_s"] == 0.5, member
+    assert bundle["residual"]["base"]["gains"]["release_dwell_s"] == 0.5
+    assert load_policy("shipped-residual").base.gains.release_dwell_s == 0.5
 
 
 def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_the_release_distance() -> None:
