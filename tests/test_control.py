@@ -565,7 +565,10 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     from stewart_gym.classical import checked_design
 
     recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
-    assert recorded == replace(shipped_design("lqr-pid"), handover_dwell_s=3.0)  # the recipe's one change
+    recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
+                            .read_text())["StewartBallBalance-v0"]["residual"]["design"]  # fmt: skip
+    assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5}
+    assert recorded == replace(shipped_design("lqr-pid"), **recipe)  # the recipe's changes, and only those
     cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     assert load_policy(str(run)).base.gains.pid.kp_pos == 1.25
