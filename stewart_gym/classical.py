@@ -34,7 +34,8 @@ __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", 
            "HandoverDesign", "HandoverGains", "LQRController", "LQRDesign", "LQRGains", "PIDGains", "ResidualMix",
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
            "design_estimator", "design_kind", "design_lqr", "fastest_settling", "gains_for_geometry", "grown_zone",
-           "integrate_error", "residual_action", "shipped_design", "trim_tilt", "SquareWaveDither"]  # fmt: skip
+           "integrate_error", "periods_in_a_row", "residual_action", "shipped_design", "trim_tilt", "whole_periods",
+           "SquareWaveDither"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -120,6 +121,19 @@ def grown_zone(zone: float, rest: float) -> float:
     """A conditional-integration ``zone`` (m; 0: off, kept off) grown, if needed, to :data:`ZONE_MARGIN` × the
     offset ``rest`` (m) at which a controller's other terms alone hold the build's worst trim tilt."""
     return max(zone, ZONE_MARGIN * rest) if zone > 0 else zone
+
+
+def whole_periods(seconds: float, dt: float) -> int:
+    """The control periods of ``dt`` s that make ``seconds``, rounded up (3 s at 50 Hz: 150; a float's last bit
+    does not add one)."""
+    return math.ceil(seconds / dt - 1e-9)
+
+
+def periods_in_a_row(count: np.ndarray | None, condition: np.ndarray) -> np.ndarray:
+    """How many periods in a row each row's ``condition`` has held, one period on from ``count`` (None, or a
+    count of another shape: from the start)."""
+    start = count if count is not None and count.shape == condition.shape else np.zeros(condition.shape, dtype=int)
+    return np.where(condition, start + 1, 0)
 
 
 def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: float, zone: float) -> np.ndarray:
@@ -553,16 +567,14 @@ class HandoverController(EpisodicController):
         speed_mm_s = np.linalg.norm(vel - target_vel, axis=-1) * 1e3
         fresh = self._near is None or self._near.shape != distance_mm.shape
         near = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._near
-        inside = np.zeros(distance_mm.shape, dtype=int) if fresh or self._inside is None else self._inside
         still = np.linalg.norm(target_vel, axis=-1) * 1e3 < g.handover_mm_s
-        self._inside = inside = np.where(still & (distance_mm <= g.release_mm), inside + 1, 0)
+        self._inside = periods_in_a_row(None if fresh else self._inside, still & (distance_mm <= g.release_mm))
         slow = speed_mm_s < g.handover_mm_s
         if g.handover_dwell_s > 0:  # whole periods: 3 s at 50 Hz is the 150th
-            slow |= inside >= math.ceil(g.handover_dwell_s / g.dt - 1e-9)
+            slow |= self._inside >= whole_periods(g.handover_dwell_s, g.dt)
         enter = ~near & still & (distance_mm < g.handover_mm) & slow
-        beyond = np.zeros(distance_mm.shape, dtype=int) if fresh or self._beyond is None else self._beyond
-        self._beyond = beyond = np.where(distance_mm > g.release_mm, beyond + 1, 0)
-        gone = beyond >= max(1, math.ceil(g.release_dwell_s / g.dt - 1e-9))  # whole periods; 0 s: the first
+        self._beyond = periods_in_a_row(None if fresh else self._beyond, distance_mm > g.release_mm)
+        gone = self._beyond >= max(1, whole_periods(g.release_dwell_s, g.dt))  # 0 s: the first period beyond
         self._near = (near | enter) & still & ~gone
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
@@ -742,7 +754,7 @@ class ResidualMix:
         self.fade_mm, self.inner_mm, self.release_mm = float(fade_mm), float(inner_mm), float(release_mm)
         self.dwell_s, self.dt = float(dwell_s), float(dt)
         #: periods within release_mm after which the latch closes (0: never by time)
-        self._dwell_periods = math.ceil(self.dwell_s / self.dt - 1e-9) if self.dwell_s > 0 else 0
+        self._dwell_periods = whole_periods(self.dwell_s, self.dt) if self.dwell_s > 0 else 0
         self._off: np.ndarray | None = None
         self._inside: np.ndarray | None = None
 
@@ -761,9 +773,8 @@ class ResidualMix:
             off = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._off
             close = distance_mm < self.inner_mm
             if self._dwell_periods:
-                inside = np.zeros(distance_mm.shape, dtype=int) if fresh or self._inside is None else self._inside
-                self._inside = inside = np.where(distance_mm <= self.release_mm, inside + 1, 0)
-                close = close | (inside >= self._dwell_periods)
+                self._inside = periods_in_a_row(None if fresh else self._inside, distance_mm <= self.release_mm)
+                close = close | (self._inside >= self._dwell_periods)
             self._off = (off | close) & ~(distance_mm > self.release_mm)
             correction = np.where(self._off[..., None], 0.0, correction)
         return residual_action(base_action, correction, obs, self.scale, self.plate_half, self.fade_mm, self.inner_mm)
