@@ -148,6 +148,11 @@ def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: flo
 class CascadedPID:
     """A policy: observation (…, 12) → tilt action (…, 2) in [-1, 1] (reads indices 0–7; keeps its own integral).
 
+    The outer loop turns the position error into a velocity set-point about the target's velocity, the inner
+    loop the velocity error (and the integral) into the ball's acceleration, and the target's acceleration (the
+    change of its velocity over a period) is fed forward, as :class:`LQRController` does: a moving target is
+    followed without the lag an error would have to build up; a still one adds nothing.
+
     Args:
         gains: The gains.
         dt: s, control period (integration step).
@@ -163,11 +168,14 @@ class CascadedPID:
         self._position_scale = np.array(scales.position_scale)
         self._velocity_scale = np.array(scales.velocity_scale)
         self._integral = np.zeros(2)
+        self._target_vel: np.ndarray | None = None  # last period's (NaN in a row: none yet)
         self._dither = SquareWaveDither(self.gains.dither, self.gains.max_tilt)
 
     def reset(self) -> None:
-        """Clear the integrator and restart the dither (call at the start of an episode)."""
+        """Clear the integrator and the target's last velocity, restart the dither (call at the start of an
+        episode)."""
         self._integral = np.zeros(2)
+        self._target_vel = None
         self._dither.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -178,18 +186,25 @@ class CascadedPID:
         if self._integral.shape != err.shape:
             self._integral = np.zeros(err.shape)
         self._integral = integrate_error(self._integral, err, self.dt, g.integral_limit, g.integral_zone)
+        last = self._target_vel if self._target_vel is not None and self._target_vel.shape == err.shape else target_vel
+        feed = (target_vel - np.where(np.isnan(last), target_vel, last)) / self.dt  # the target's acceleration
+        self._target_vel = np.array(target_vel)
         vel_sp = target_vel + g.kp_pos * err
-        accel = g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
+        accel = feed + g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
         s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
         return self._dither(np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0))
 
     def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
-        """Stable-Baselines3-style ``predict``: resets the integrator where an episode starts."""
+        """Stable-Baselines3-style ``predict``: resets the integrator and the target's last velocity where an
+        episode starts."""
         if episode_start is not None and np.any(episode_start):
             if self._integral.ndim == 2:
-                self._integral[np.asarray(episode_start, dtype=bool)] = 0.0
+                rows = np.asarray(episode_start, dtype=bool)
+                self._integral[rows] = 0.0
+                if self._target_vel is not None and self._target_vel.shape == self._integral.shape:
+                    self._target_vel[rows] = np.nan
             else:
                 self.reset()
         return self(obs), None
@@ -483,17 +498,16 @@ HANDOVER_DWELLS = ("handover_dwell_s", "release_dwell_s")
 class HandoverDesign:
     """The LQR bringing the ball in, the PID holding it (``policies/lqr_pid.json``, ``--policy lqr-pid``).
 
-    The LQR settles fastest (and tracks a moving target best: it feeds the target's acceleration forward) and
-    the PID behind the Kalman observer holds a still ball tightest and quietest; this controller runs the LQR
-    until the ball is within ``handover_mm`` of a target that stands still and slower than ``handover_mm_s``
-    relative to it, then the PID, until the ball is farther than ``release_mm`` or the target moves faster than
-    ``handover_mm_s`` (then the LQR again). Under heavy panel noise the observed speed seldom falls below
-    ``handover_mm_s`` (8 mm of noise leaves about 20 mm/s in the estimate), so once the ball has stayed within
-    ``release_mm`` of the still target for ``handover_dwell_s``, the PID takes over within ``handover_mm``
-    whatever the observed speed (0: never). Under the same noise the filtered position strays beyond
-    ``release_mm`` now and then while the ball itself is held; with ``release_dwell_s`` the LQR takes the ball
-    back only once it has been observed beyond ``release_mm`` that long (0: at once; a moving target still takes
-    it back at once). The PID takes over with its own integral, which it has kept within
+    The LQR settles fastest and the PID behind the Kalman observer holds the ball tightest and quietest, on a
+    still target and, as both feed the target's acceleration forward, on a moving one; this controller runs the
+    LQR until the ball is within ``handover_mm`` of the target and slower than ``handover_mm_s`` relative to it,
+    then the PID, until the ball is farther than ``release_mm`` (then the LQR again). Under heavy panel noise
+    the observed speed seldom falls below ``handover_mm_s`` (8 mm of noise leaves about 20 mm/s in the
+    estimate), so once the ball has stayed within ``release_mm`` of the target for ``handover_dwell_s``, the
+    PID takes over within ``handover_mm`` whatever the observed speed (0: never). Under the same noise the
+    filtered position strays beyond ``release_mm`` now and then while the ball itself is held; with
+    ``release_dwell_s`` the LQR takes the ball back only once it has been observed beyond ``release_mm`` that
+    long (0: at once). The PID takes over with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
@@ -501,7 +515,7 @@ class HandoverDesign:
         lqr: the LQR's design.
         pid: the PID's gains.
         handover_mm, handover_mm_s: the PID takes over within this distance of the target and below this speed
-            (the ball's relative to the target, and the target's).
+            relative to it.
         release_mm: the LQR takes back beyond this distance (more than ``handover_mm``).
         handover_dwell_s: after this long within ``release_mm`` the speed no longer matters (0: it always does).
         release_dwell_s: the LQR takes back after this long beyond ``release_mm`` (0: at once).
@@ -550,7 +564,7 @@ class HandoverController(EpisodicController):
         self.lqr.reset()
         self.pid.reset()
         self._near: np.ndarray | None = None
-        self._inside: np.ndarray | None = None  # periods each ball has been within release_mm of a still target
+        self._inside: np.ndarray | None = None  # periods each ball has been within release_mm of the target
         self._beyond: np.ndarray | None = None  # periods each ball has been observed beyond release_mm
 
     @property
@@ -567,15 +581,14 @@ class HandoverController(EpisodicController):
         speed_mm_s = np.linalg.norm(vel - target_vel, axis=-1) * 1e3
         fresh = self._near is None or self._near.shape != distance_mm.shape
         near = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._near
-        still = np.linalg.norm(target_vel, axis=-1) * 1e3 < g.handover_mm_s
-        self._inside = periods_in_a_row(None if fresh else self._inside, still & (distance_mm <= g.release_mm))
+        self._inside = periods_in_a_row(None if fresh else self._inside, distance_mm <= g.release_mm)
         slow = speed_mm_s < g.handover_mm_s
         if g.handover_dwell_s > 0:  # whole periods: 3 s at 50 Hz is the 150th
             slow |= self._inside >= whole_periods(g.handover_dwell_s, g.dt)
-        enter = ~near & still & (distance_mm < g.handover_mm) & slow
+        enter = ~near & (distance_mm < g.handover_mm) & slow
         self._beyond = periods_in_a_row(None if fresh else self._beyond, distance_mm > g.release_mm)
         gone = self._beyond >= max(1, whole_periods(g.release_dwell_s, g.dt))  # 0 s: the first period beyond
-        self._near = (near | enter) & still & ~gone
+        self._near = (near | enter) & ~gone
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
 

@@ -266,7 +266,8 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
     """``lqr-pid``: the LQR alone while the ball is far; within 2 mm and slow the PID takes over with the
     integral it kept all along (its action is that of the PID + Kalman run alone on the same observations, and
     the integral of 100 periods at 5 mm shows in it); beyond 20 mm the LQR again, as if it had run alone
-    throughout; a moving target stays with the LQR; rows independent."""
+    throughout; near a moving target the PID takes over as near a still one if the ball moves with it, the
+    LQR keeps a ball that does not; rows independent."""
     from stewart_gym.classical import HandoverController
 
     handover, lqr, pid = load_policy("lqr-pid"), load_policy("lqr"), load_policy("pid-kalman")
@@ -291,10 +292,62 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
     assert not handover.pid_in_control
     handover.reset()
     moving = lqr_obs((1.0, 0.0))
-    moving[6] = 0.2  # the target moves (a tracking task): the LQR keeps it
-    batch = np.stack([lqr_obs((1.0, 0.0)), lqr_obs((0.0, 40.0)), moving])
+    moving[6] = 0.2  # the target moves (a tracking task) past a ball at rest: too fast relative to it
+    riding = moving.copy()
+    riding[2] = riding[6]  # the ball moves with the target (the scales of both velocities are the same)
+    batch = np.stack([lqr_obs((1.0, 0.0)), lqr_obs((0.0, 40.0)), moving, riding])
     handover(batch)
-    assert handover.pid_in_control.tolist() == [True, False, False]
+    assert handover.pid_in_control.tolist() == [True, False, False, True]
+
+
+def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_of_each_episode() -> None:
+    """The PID adds the change of the target's velocity over a period divided by the period (the target's
+    acceleration) to the ball's acceleration it asks for; nothing on an episode's first period (nothing to
+    difference yet), after ``reset``, or in a row of a batch where ``predict`` starts an episode; a still target
+    adds nothing."""
+    from stewart_gym.classical import CascadedPID, PIDGains
+    from stewart_gym.sensing import ObservationBuilder
+
+    gains = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=0.0)
+    pid, dt = CascadedPID(gains, dt=0.02), 0.02
+    v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
+
+    def obs(target_vel_x: float) -> np.ndarray:
+        o = lqr_obs((0.0, 0.0))
+        o[6] = o[2] = target_vel_x / v_scale  # the ball moves with the target: no error, no velocity error
+        return o
+
+    def tilt_x(action: np.ndarray) -> float:  # sin(pitch) the action commands (pitch tilts along x)
+        return math.sin(float(action[..., 1]) * gains.max_tilt)
+
+    assert tilt_x(pid(obs(0.05))) == pytest.approx(0.0, abs=1e-9)  # first period: no feed
+    accel = (0.06 - 0.05) / dt
+    assert tilt_x(pid(obs(0.06))) == pytest.approx(accel / (gains.rolling_factor * 9.80665), rel=1e-6)
+    assert tilt_x(pid(obs(0.06))) == pytest.approx(0.0, abs=1e-9)  # a steady velocity: no acceleration
+    pid.reset()
+    assert tilt_x(pid(obs(0.07))) == pytest.approx(0.0, abs=1e-9)  # a new episode: no feed from the last one
+    batch = np.stack([obs(0.05), obs(0.05)])
+    pid.predict(batch, episode_start=np.array([True, True]))
+    action, _ = pid.predict(np.stack([obs(0.06), obs(0.06)]), episode_start=np.array([False, True]))
+    assert tilt_x(action[0]) == pytest.approx(accel / (gains.rolling_factor * 9.80665), rel=1e-6)
+    assert tilt_x(action[1]) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_with_the_feedforward_the_pid_kalman_and_the_handover_track_a_circle_closer_than_the_lqr() -> None:
+    """On the circle (60 mm, 8 s a turn: 47 mm/s) the PID + Kalman, which used to lag the target by 6 mm,
+    follows it closer than the LQR (whose hold is looser), and the LQR → PID, which now hands a ball that moves
+    with the target to its PID, as close as the PID + Kalman (3 seeds, RMS over the last 5 s)."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    rms = {}
+    for spec in ("pid-kalman", "lqr", "lqr-pid"):
+        _, policy, env_kwargs = load_for_evaluation(spec, "StewartBallTrack-v0")
+        rms[spec] = evaluate("StewartBallTrack-v0", policy, episodes=3, seed=0,
+                             env_kwargs={**env_kwargs, "trajectory": "circle"})["per_episode"]["rms_mm"]  # fmt: skip
+    assert max(rms["pid-kalman"]) < 1.5
+    assert all(p < q for p, q in zip(rms["pid-kalman"], rms["lqr"]))
+    np.testing.assert_allclose(rms["lqr-pid"], rms["pid-kalman"], atol=0.3)
 
 
 def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whatever_its_observed_speed() -> None:
@@ -355,8 +408,8 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
 def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_the_release_distance() -> None:
     """Heavy panel noise throws the filtered position beyond ``release_mm`` now and then while the PID holds the
     ball: with ``release_dwell_s`` (0.5 s, 25 periods) the LQR takes it back only after 25 periods in a row beyond
-    it (a period back inside restarts the count); with none (the shipped ``lqr-pid``'s) at the first; a moving
-    target still takes it back at once; the field is kept by a bundle's gains."""
+    it (a period back inside restarts the count); with none (the shipped ``lqr-pid``'s) at the first; a target
+    that starts moving does not take it back (the PID follows it); the field is kept by a bundle's gains."""
     from dataclasses import asdict, replace
 
     from stewart_gym.classical import HandoverController, controller_from_gains
@@ -381,7 +434,8 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
     assert held(shipped, [near, far, near]) == [True, False, True]  # at once (and back: at rest within 2 mm)
     moving = lqr_obs((1.0, 0.0))
     moving[6] = 0.030 / ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]  # the target moves at 30 mm/s
-    assert held(handover, [near, moving]) == [True, False]
+    assert held(handover, [near, moving]) == [True, True]
+    assert held(handover, [moving]) == [False]  # …but 30 mm/s relative to the ball is too fast to take it over
     gains = {k: v for k, v in asdict(handover.gains).items()}
     rebuilt = controller_from_gains("handover", gains)
     assert rebuilt.gains.release_dwell_s == 0.5
@@ -829,6 +883,8 @@ def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(name: 
     step = dither / math.radians(10)
     rng = np.random.default_rng(2)
     observations = [rng.uniform(-0.05, 0.05, 12).astype(np.float32) for _ in range(12)]
+    for obs in observations:
+        obs[6:8] = 0.01  # a target moving steadily: its acceleration fed forward would saturate the action
     for k, obs in enumerate(observations):
         if k == 7:  # a new episode: the wave starts again with +
             plain.reset()
