@@ -731,17 +731,18 @@ def test_the_latch_dwell_closes_the_latch_after_that_long_within_the_release_dis
 
 
 def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the_latch_dwell(tmp_path: Path) -> None:
-    """Network 5 of the shipped track residual, alone, keeps the ball circling 6–17 mm from the circle's target on
-    seed 17 (its correction never lets the ball within 2 mm, so the latch never closes). Its run folder with
+    """A track network trained over the LQR (``tests/data/circling_tracker``: network 5 of the track residual
+    shipped until 2026-11-25), alone, keeps the ball circling 6–17 mm from the circle's target on seed 17 (its
+    correction never lets the ball within 2 mm, so the latch never closes). Its run folder with
     ``dwell_s: 3`` added to the residual it records: the LQR alone takes over after 3 s within 20 mm and tracks
     within 2 mm RMS over the last 5 s, where without it the error stays above 5 mm (the circling is an
     attractor: observations perturbed by 1e-6 end in it too); the bundle exported from it records the dwell and
     sends the same actions."""
     from stewart_gym.evaluation import run_episode
-    from stewart_gym.registry import POLICY_DIR, load_for_evaluation
+    from stewart_gym.registry import load_for_evaluation
     from stewart_gym.sb3_models import check_residual, residual_base
 
-    member = POLICY_DIR / "track_residual" / "members" / "5"
+    member = Path(__file__).resolve().parent / "data" / "circling_tracker"
     run = tmp_path / "run"
     shutil.copytree(member, run)
     config = yaml.safe_load((run / "config.yaml").read_text())

@@ -32,7 +32,7 @@ def observations(n: int, seed: int) -> np.ndarray:
 
 @pytest.mark.parametrize(("env_id", "folder", "base", "gamma"), [
     ("StewartBallBalance-v0", RESIDUAL, "lqr-pid", 0.995),
-    ("StewartBallTrack-v0", POLICY_DIR / "track_residual", "lqr", 0.98),
+    ("StewartBallTrack-v0", POLICY_DIR / "track_residual", "lqr-pid", 0.98),
 ])  # fmt: skip
 def test_the_shipped_residuals_are_six_networks_of_the_shipped_recipe_averaged(env_id: str, folder: Path, base: str,
                                                                                 gamma: float) -> None:  # fmt: skip
