@@ -544,11 +544,12 @@ def test_pid_kalman_is_the_pid_retuned_behind_the_kalman_observer(tmp_path: Path
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
 
 
-def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
+def test_a_residual_policy_adds_its_correction_to_the_lqr_pid_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
     """Train a residual PPO (the track settings) for a moment (CLI), then: the evaluated policy is
-    clip(LQR + 0.5 · w · network), with w = clip((distance − 2 mm) / 15 mm, 0, 1) and 0 from the first step
-    within 2 mm until the ball is beyond 20 mm, the bundle gives the same actions with numpy + onnxruntime, and
-    records the LQR, the fade, the latch and the Kalman observer."""
+    clip(LQR → PID + 0.5 · w · network), with w = clip((distance − 2 mm) / 15 mm, 0, 1) and 0 from the first
+    step within 2 mm until the ball is beyond 20 mm (the LQR → PID stepped alongside on the same observations),
+    the bundle gives the same actions with numpy + onnxruntime, and records the LQR → PID, the fade, the latch
+    and the Kalman observer."""
     from stewart_gym.sb3_models import load_sb3
 
     run, bundle_dir = tmp_path / "run", tmp_path / "bundle"
@@ -564,10 +565,10 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
     assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5 and meta["residual"]["fade_mm"] == 15
     assert meta["residual"]["inner_mm"] == 2 and meta["residual"]["release_mm"] == 20
     recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]["residual"]["design"]
-    assert recorded == asdict(shipped_design("lqr"))  # the base as it was trained over
-    assert meta["residual"]["base"]["kind"] == "lqr"
+    assert recorded == asdict(shipped_design("lqr-pid"))  # the base as it was trained over
+    assert meta["residual"]["base"]["kind"] == "handover"
     policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(bundle_dir)))
-    network, lqr = load_sb3(run), load_policy("lqr")
+    network, base = load_sb3(run), load_policy("lqr-pid")
     rng = np.random.default_rng(1)
     latched, weights = False, []
     for k in range(60):
@@ -580,7 +581,8 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_in_evaluation_and_in_i
         distance_mm = 150 * np.hypot(*(obs[0:2] - obs[4:6]))  # observations are in plate half-widths (150 mm)
         latched = (latched or distance_mm < 2) and not distance_mm > 20
         weights.append(0.0 if latched else float(np.clip((distance_mm - 2) / 15, 0, 1)))
-        expected = np.clip(lqr(obs) + 0.5 * weights[-1] * network.predict(obs)[0], -1, 1)
+        by_base = base.predict(obs, episode_start=np.array([k == 0]))[0]
+        expected = np.clip(by_base + 0.5 * weights[-1] * network.predict(obs)[0], -1, 1)
         np.testing.assert_allclose(action, expected, atol=1e-5)
         np.testing.assert_allclose(bundle.predict(obs, episode_start=np.array([k == 0]))[0], action, atol=1e-4)
     assert sum(w == 0 for w in weights) >= 3 and sum(0 < w < 1 for w in weights) >= 3  # both the latch and the fade

@@ -11,7 +11,7 @@ episodes (seeds 0…N−1). Rows:
 
 * ``shipped PPO``: the shipped learned policy of the task (behind the low-pass observer it was trained with);
 * ``residual PPO``: the shipped residual policy (``--policy shipped-residual``: a learned correction of the
-  LQR → PID's approach for balance, of the LQR for track);
+  LQR → PID's approach, for balance and for track);
 * ``PID``: the tuned cascaded PID behind the low-pass observer (its tuning), and ``PID + Kalman``, the PID
   retuned behind the Kalman observer (``--policy pid-kalman``);
 * ``LQR``: the LQR behind the Kalman observer;
