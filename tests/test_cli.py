@@ -224,6 +224,8 @@ BAD = [
     ["train", "--geometry", "nope", "--run-dir", "{tmp}/r"],
     # evaluate
     ["evaluate", "--policy", "nope"],
+    ["evaluate", "--policy", "pid-kalman", "--trajectory", "figure8"],  # the balance env's target does not move
+    ["evaluate", "--env", "StewartBallTrack-v0", "--trajectory", "spiral"],
     ["evaluate", "--episodes", "0"],
     ["evaluate", "--episodes", "-3"],
     ["evaluate", "--seed", "x"],
@@ -432,6 +434,22 @@ def test_deploy_with_the_panel_on_the_line_protocol(device: FakeDevice, tmp_path
     # policy tilts the plate (the filter's bias state learns that the ball does not roll)
     assert abs(float(rows[-1]["obs0"]) * 0.15 - 0.040) < 1e-4
     assert data.count(b"W ") >= 50
+
+
+def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
+    """``evaluate --trajectory``: the figures printed are those of the Python evaluation on that trajectory (one
+    seed, the PID + Kalman), not of the circle the PID gets by default."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    _, policy, env_kwargs = load_for_evaluation("pid-kalman", "StewartBallTrack-v0")
+    direct = {t: evaluate("StewartBallTrack-v0", policy, episodes=1, seed=3, env_kwargs={**env_kwargs,
+                          "trajectory": t})["rms_error_mm"] for t in ("circle", "waypoints")}  # fmt: skip
+    assert abs(direct["circle"] - direct["waypoints"]) > 0.05
+    proc = sg("evaluate", "--policy", "pid-kalman", "--env", "StewartBallTrack-v0", "--trajectory", "waypoints",
+              "--episodes", "1", "--seed", "3", "--json")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(proc.stdout)["rms_error_mm"] == pytest.approx(direct["waypoints"], abs=1e-6)
 
 
 def test_evaluate_writes_gif_and_plot(tmp_path: Path) -> None:

@@ -29,6 +29,10 @@ ENV_CHOICES = tuple(ENV_IDS)
 #: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
+#: The env whose target moves, and the trajectories ``evaluate --trajectory`` gives it ("mixed": one drawn per
+#: episode, as the track residual was trained).
+TRACK_ENV = "StewartBallTrack-v0"
+TRAJECTORY_CHOICES = ("circle", "figure8", "waypoints", "mixed")
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -66,6 +70,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if sensor is not None:
         env_kwargs["sensor"] = sensor
     env_id = args.env or source.env_id
+    if args.trajectory is not None:
+        if env_id != TRACK_ENV:
+            raise ConfigError(f"--trajectory sets the moving target of {TRACK_ENV}, and {env_id} has a fixed one: "
+                              f"add --env {TRACK_ENV}, or leave out --trajectory")  # fmt: skip
+        env_kwargs["trajectory"] = args.trajectory
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
     if gif or plot:
@@ -243,6 +252,9 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
+    p.add_argument("--trajectory", choices=TRAJECTORY_CHOICES,
+                   help=f"the moving target of {TRACK_ENV} (default: the one the policy was trained on, else circle; "
+                        "mixed draws one per episode)")  # fmt: skip
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
