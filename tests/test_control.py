@@ -303,8 +303,8 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
 def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_of_each_episode() -> None:
     """The PID adds the change of the target's velocity over a period divided by the period (the target's
     acceleration) to the ball's acceleration it asks for; nothing on an episode's first period (nothing to
-    difference yet), after ``reset``, or in a row of a batch where ``predict`` starts an episode; a still target
-    adds nothing."""
+    difference yet), after ``reset``, or in a row of a batch where ``predict`` starts an episode; a target at a
+    steady velocity (a still one among them) adds nothing."""
     from stewart_gym.classical import CascadedPID, PIDGains
     from stewart_gym.sensing import ObservationBuilder
 
