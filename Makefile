@@ -40,8 +40,8 @@ train-camera: $(STAMP)
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera --sensor $$s --episodes 100; done
 
 # The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach, for
-# track 6 corrections of the LQR (seeds 0-5, about 6.5 minutes each on 2 cores), each 6 averaged into one policy
-# (`stewart-gym ensemble`). About 80 minutes in all.
+# track 6 corrections of the LQR -> PID's catching up with the moving target (seeds 0-5, about 6.5 minutes each
+# on 2 cores), each 6 averaged into one policy (`stewart-gym ensemble`). About 80 minutes in all.
 train-residual: $(STAMP)
 	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
 	rm -rf runs/residual_balance
