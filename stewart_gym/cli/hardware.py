@@ -23,6 +23,7 @@ from stewart_gym.cli.common import (
     positive_float,
 )
 from stewart_gym.cli.learning import ENV_CHOICES
+from stewart_gym.envs.targets import TRAJECTORIES
 from stewart_gym.errors import ConfigError
 
 __all__ = ["register"]
@@ -304,7 +305,7 @@ def register(sub: Any) -> None:
     p.add_argument("--max-step-us", type=bounded_float(0.0, 1000.0, lo_open=True),
                    help="rate limit per channel per tick, µs (default 3000 µs/s ÷ rate: 60 at 50 Hz, just under "
                         "the reference servos' own speed)")  # fmt: skip
-    p.add_argument("--trajectory", choices=["circle", "figure8", "waypoints"],
+    p.add_argument("--trajectory", choices=TRAJECTORIES,
                    help="moving target of a track policy (default: the one it was trained on)")  # fmt: skip
     p.add_argument("--log", help="CSV log (default deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")

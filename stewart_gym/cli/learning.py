@@ -21,6 +21,7 @@ from stewart_gym.cli.common import (
     positive_float,
 )
 from stewart_gym.envs import ENV_IDS
+from stewart_gym.envs.targets import TRACK_TRAJECTORIES
 from stewart_gym.errors import ConfigError
 
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
@@ -29,10 +30,8 @@ ENV_CHOICES = tuple(ENV_IDS)
 #: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
-#: The env whose target moves, and the trajectories ``evaluate --trajectory`` gives it ("mixed": one drawn per
-#: episode, as the track residual was trained).
+#: The env whose target moves (``evaluate --trajectory`` sets it: one of ``TRACK_TRAJECTORIES``).
 TRACK_ENV = "StewartBallTrack-v0"
-TRAJECTORY_CHOICES = ("circle", "figure8", "waypoints", "mixed")
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -252,7 +251,7 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
-    p.add_argument("--trajectory", choices=TRAJECTORY_CHOICES,
+    p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
                    help=f"the moving target of {TRACK_ENV} (default: the one the policy was trained on, else circle; "
                         "mixed draws one per episode)")  # fmt: skip
     p.add_argument("--episodes", type=int_at_least(1), default=100)

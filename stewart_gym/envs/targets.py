@@ -12,7 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
-__all__ = ["TRAJECTORIES", "Circle", "FigureEight", "Fixed", "Target", "Waypoints", "make_trajectory"]
+__all__ = ["TRACK_TRAJECTORIES", "TRAJECTORIES", "Circle", "FigureEight", "Fixed", "Target", "Waypoints", "make_trajectory"]
 
 
 XY = tuple[float, float]
@@ -80,6 +80,8 @@ class Waypoints:
 
 
 TRAJECTORIES = ("circle", "figure8", "waypoints")
+#: What the track task takes: one of :data:`TRAJECTORIES`, or "mixed" (one of them drawn per episode).
+TRACK_TRAJECTORIES = (*TRAJECTORIES, "mixed")
 
 
 def make_trajectory(name: str, rng: np.random.Generator) -> Target:

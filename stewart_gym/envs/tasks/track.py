@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stewart_gym.envs.targets import TRAJECTORIES, Fixed, Target, make_trajectory
+from stewart_gym.envs.targets import TRACK_TRAJECTORIES, TRAJECTORIES, Fixed, Target, make_trajectory
 from stewart_gym.envs.task import XY, BallTask
 from stewart_gym.errors import ConfigError
 
@@ -32,8 +32,8 @@ class TrackTask(BallTask):
     default_success_radius = 0.020
 
     def __init__(self, trajectory: str = "circle", **kwargs: Any) -> None:
-        if trajectory not in (*TRAJECTORIES, "mixed"):
-            raise ConfigError(f"trajectory must be one of {(*TRAJECTORIES, 'mixed')}, got {trajectory!r}")
+        if trajectory not in TRACK_TRAJECTORIES:
+            raise ConfigError(f"trajectory must be one of {TRACK_TRAJECTORIES}, got {trajectory!r}")
         super().__init__(**kwargs)
         self.trajectory = trajectory
         #: The trajectory of the current episode (one of the three; "mixed" draws it at each reset).
