@@ -270,7 +270,7 @@ def register(sub: Any) -> None:
     add_estimator(p, ESTIMATOR_HELP + "; the bundle records it and deploy uses it")
     p.set_defaults(func=cmd_export)
 
-    p = sub.add_parser("ensemble", help=cmd_ensemble.__doc__.split(":")[0], description=cmd_ensemble.__doc__)
+    p = sub.add_parser("ensemble", help=cmd_ensemble.__doc__.split(":")[0] + ".", description=cmd_ensemble.__doc__)
     p.add_argument("runs", nargs="+", metavar="RUN", help="run folders or model .zip files, trained alike (2 or more)")
     p.add_argument("--out", required=True, help="the ensemble folder to write (new, or empty)")
     p.add_argument("--note", default="", help="free text stored in ensemble.json (e.g. the recipe)")
