@@ -163,7 +163,13 @@ class IKResult:
         acts = self.actuators[index]
         unit = "°" if self.servo_angles is not None else " mm"
         scale = 180.0 / math.pi if self.servo_angles is not None else 1e3
-        parts = [f"leg {i}: {_STATUS_TEXT[LegStatus(int(status[i]))]} ({acts[i] * scale:.3f}{unit})" for i in bad]
+        parts = []
+        for code in dict.fromkeys(LegStatus(int(status[i])) for i in bad):  # each reason once, legs in order
+            legs = [i for i in bad if status[i] == code]
+            names = f"leg {legs[0]}" if len(legs) == 1 else "legs " + ", ".join(map(str, legs))
+            values = [acts[i] * scale for i in legs]
+            shown = f" ({', '.join(f'{v:.3f}{unit}' for v in values)})" if all(map(math.isfinite, values)) else ""
+            parts.append(f"{names}: {_STATUS_TEXT[code]}{shown}")
         return head + ": unreachable; " + "; ".join(parts)
 
 

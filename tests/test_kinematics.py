@@ -85,7 +85,10 @@ def test_seed_001_example_exceeds_stroke() -> None:
     assert over.any() and not over.all()
     assert np.array_equal(ik.status == LegStatus.ABOVE_LIMIT, over)
     text = ik.explain()
-    assert "unreachable" in text and all(f"leg {i}" in text for i in np.flatnonzero(over))
+    legs = np.flatnonzero(over)
+    named = f"leg {legs[0]}" if len(legs) == 1 else "legs " + ", ".join(map(str, legs))
+    assert "unreachable" in text and f"{named}: above the upper actuator limit (" in text  # the lengths follow
+    assert text.count("above the upper") == 1  # one reason, said once for its legs
 
 
 # ------------------------------------------------------------------- seed 000
@@ -175,6 +178,9 @@ def test_unreachable_is_flagged_not_clipped() -> None:
     assert np.all(ik.status[1] == LegStatus.ABOVE_LIMIT) and np.all(ik.servo_angles[1] > hi)  # not clipped
     assert np.all(ik.status[2] != LegStatus.OK)
     assert "no horn angle" in ik.explain(0) and "above the upper" in ik.explain(1) and "reachable" in ik.explain(3)
+    # no solution on every leg: said once, for legs 0-5, with no angle (there is none to show)
+    assert "legs 0, 1, 2, 3, 4, 5: no horn angle" in ik.explain(0) and "nan" not in ik.explain(0)
+    assert ik.explain(1).count("above the upper") == 1 and ik.explain(1).count("°") == 6 + 3  # 6 angles, the pose's 3
     with pytest.raises(ValueError, match="shape"):
         inverse_kinematics(g, np.zeros(5))
 
