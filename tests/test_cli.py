@@ -353,6 +353,17 @@ def test_bad_input_is_one_error_line(args: list[str], files: Path, tmp_path: Pat
     assert not list(tmp_path.glob("deploy_log*.csv")), "a refused deploy left a log behind"
 
 
+@pytest.mark.parametrize("args", [["ik", "0", "0", "0", "0", "0", "0"], ["evaluate", "--policy", "pid"],
+                                  ["deploy", "--policy", "pid"]])  # fmt: skip
+def test_an_unknown_option_is_named_by_its_subcommand(args: list[str]) -> None:
+    """An option the subcommand does not take points at that subcommand's help, not the top-level one."""
+    proc = sg(*args, "--no-such-option", "7")
+    lines = error_lines(proc)
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr
+    assert lines[0] == (f"error: stewart-gym {args[0]}: unrecognized arguments: --no-such-option 7 "
+                        f"(see stewart-gym {args[0]} --help)")  # fmt: skip
+
+
 def test_bad_input_table_is_large() -> None:
     assert len(BAD) >= 60 and {a[0] for a in BAD if a} >= set(SUBCOMMANDS)
 

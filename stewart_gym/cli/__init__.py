@@ -36,11 +36,14 @@ def build_parser() -> argparse.ArgumentParser:
         group.register(sub)
     for sp in sub.choices.values():  # --debug is accepted after the subcommand too
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of any error")
+    parser.set_defaults(subcommand_parsers=sub.choices)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args, unknown = build_parser().parse_known_args(argv)
+    if unknown:  # named by the subcommand that was given them, which lists what it takes
+        args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     return run(args.func, args)
 
 
