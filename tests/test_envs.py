@@ -282,3 +282,21 @@ def test_mixed_trajectory_draws_each_kind_and_is_seeded() -> None:
         assert _trajectory_kind(single) == name
     with pytest.raises(ValueError, match="mixed"):
         gym.make("StewartBallTrack-v0", trajectory="spiral")
+
+
+def test_the_envs_that_take_a_trajectory_are_those_whose_task_follows_a_moving_target() -> None:
+    """``trajectory_env_ids`` (what ``evaluate --trajectory`` accepts) is read from the registered tasks: the
+    track env's target moves along what it is given; the others refuse a trajectory."""
+    from stewart_gym.envs import ENV_IDS, trajectory_env_ids
+    from stewart_gym.envs.targets import Fixed
+    from stewart_gym.envs.task import load_task
+    from stewart_gym.errors import ConfigError
+
+    moving = trajectory_env_ids()
+    assert moving == ("StewartBallTrack-v0",)
+    for env_id, (path, _) in ENV_IDS.items():
+        if env_id in moving:
+            assert not isinstance(load_task(path, trajectory="waypoints").target, Fixed)
+        else:
+            with pytest.raises(ConfigError):
+                load_task(path, trajectory="waypoints")

@@ -20,7 +20,7 @@ from stewart_gym.cli.common import (
     output_file,
     positive_float,
 )
-from stewart_gym.envs import ENV_IDS
+from stewart_gym.envs import ENV_IDS, trajectory_env_ids
 from stewart_gym.envs.targets import TRACK_TRAJECTORIES
 from stewart_gym.errors import ConfigError
 
@@ -30,8 +30,6 @@ ENV_CHOICES = tuple(ENV_IDS)
 #: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
-#: The env whose target moves (``evaluate --trajectory`` sets it: one of ``TRACK_TRAJECTORIES``).
-TRACK_ENV = "StewartBallTrack-v0"
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -70,9 +68,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         env_kwargs["sensor"] = sensor
     env_id = args.env or source.env_id
     if args.trajectory is not None:
-        if env_id != TRACK_ENV:
-            raise ConfigError(f"--trajectory sets the moving target of {TRACK_ENV}, and {env_id} has a fixed one: "
-                              f"add --env {TRACK_ENV}, or leave out --trajectory")  # fmt: skip
+        moving = trajectory_env_ids()
+        if env_id not in moving:
+            raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
+                              f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
         env_kwargs["trajectory"] = args.trajectory
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
@@ -252,8 +251,8 @@ def register(sub: Any) -> None:
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
     p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
-                   help=f"the moving target of {TRACK_ENV} (default: the one the policy was trained on, else circle; "
-                        "mixed draws one per episode)")  # fmt: skip
+                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default: the one the policy was "
+                        "trained on, else circle; mixed draws one per episode)")  # fmt: skip
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")

@@ -7,7 +7,7 @@ a task is a task file (see :mod:`stewart_gym.envs.task`) and one line in
 
 from __future__ import annotations
 
-__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "env_table", "register_envs"]
+__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "env_table", "register_envs", "trajectory_env_ids"]
 
 ENV_ENTRY_POINT = "stewart_gym.envs.ball_env:StewartBallEnv"
 
@@ -26,6 +26,20 @@ def register_envs() -> None:
     for env_id, (task, steps) in ENV_IDS.items():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=ENV_ENTRY_POINT, max_episode_steps=steps, kwargs={"task": task})
+
+
+def trajectory_env_ids() -> tuple[str, ...]:
+    """The ids whose task follows a moving target: its constructor takes ``trajectory`` (one of
+    :data:`~stewart_gym.envs.targets.TRACK_TRAJECTORIES`)."""
+    import importlib
+    import inspect
+
+    def takes_trajectory(path: str) -> bool:
+        module_name, _, class_name = path.partition(":")
+        cls = getattr(importlib.import_module(module_name), class_name)
+        return "trajectory" in inspect.signature(cls).parameters
+
+    return tuple(env_id for env_id, (path, _) in ENV_IDS.items() if takes_trajectory(path))
 
 
 def env_table() -> str:
