@@ -18,20 +18,16 @@ from typing import Any, Protocol
 import gymnasium as gym
 import numpy as np
 
+from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
 __all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "paired_difference",
-           "plot_episode", "run_episode", "write_gif"]  # fmt: skip
-
-#: The standard offset for the settling-time test, m.
-SETTLING_OFFSET = 0.100
-#: The settling test starts this fraction of the plate's half size from the centre (0.100 m on the 300 mm plate).
-SETTLING_FRACTION = 2.0 / 3.0
-
+           "plot_episode", "run_episode", "settling_offset", "write_gif"]  # fmt: skip
 
 def settling_offset(env: gym.Env) -> float:
-    """m: where the settling test starts on this env's plate: 100 mm on the reference plate, less on a smaller one."""
-    return min(SETTLING_OFFSET, SETTLING_FRACTION * min(env.unwrapped.plate_half_extent))
+    """m: where the settling test starts on this env's plate: 100 mm on the reference plate, less on a smaller one
+    (:func:`~stewart_gym.envs.ball_env.settling_start`)."""
+    return settling_start(env.unwrapped.plate_half_extent)
 
 
 class Policy(Protocol):

@@ -118,6 +118,44 @@ def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
     return hp
 
 
+#: The build a hyperparameter file's distances are written for when its ``env_kwargs`` name no ``geometry``.
+RECIPE_GEOMETRY = "servo-hexapod"
+
+
+def run_env_kwargs(config: TrainConfig, hp: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
+    """The YAML's ``env_kwargs`` on the build the run trains on (``--geometry``, else the YAML's), and a note of what
+    that changed, or None.
+
+    A recipe's ``start_distance`` (m) is written for its own build: its ``geometry``, else
+    :data:`RECIPE_GEOMETRY`. On another build it is scaled by the ratio of the two builds' settling-test starts
+    (:func:`~stewart_gym.envs.ball_env.settling_start`: 100 mm on the 300 mm plate, 67 mm on a 200 mm one) and
+    rounded to 0.1 mm, so that the training episodes start as far out, for that plate, as the recipe meant.
+    """
+    from stewart_gym.envs.ball_env import settling_start
+    from stewart_gym.presets import load_geometry
+
+    env_kwargs = dict(hp.get("env_kwargs") or {})
+    recipe_build = env_kwargs.get("geometry", RECIPE_GEOMETRY)
+    if config.geometry is None:
+        return env_kwargs, None
+    env_kwargs["geometry"] = config.geometry
+    start = env_kwargs.get("start_distance")
+    if start is None:
+        return env_kwargs, None
+    offsets = [settling_start([v / 2 for v in load_geometry(g).plate_extent])
+               for g in (recipe_build, config.geometry)]  # fmt: skip
+    try:
+        scaled = [round(float(v) * offsets[1] / offsets[0], 4) for v in start]
+    except (TypeError, ValueError):  # not numbers: the env refuses it in one line
+        return env_kwargs, None
+    if scaled == [float(v) for v in start]:  # the same start on both plates (to 0.1 mm): left as written
+        return env_kwargs, None
+    env_kwargs["start_distance"] = scaled
+    return env_kwargs, (f"start_distance scaled to {config.geometry}'s plate: {scaled} m (the recipe's {list(start)} "
+                        f"m is for {recipe_build}; settling tests start {offsets[1] * 1e3:.0f} mm out here, "
+                        f"{offsets[0] * 1e3:.0f} mm there)")  # fmt: skip
+
+
 #: Constructor keywords that :func:`train` sets itself (from the run's options, or ``noise_type``/``noise_std``).
 SET_BY_TRAIN = frozenset({"self", "policy", "env", "seed", "device", "tensorboard_log", "verbose", "_init_setup_model",
                           "action_noise"})  # fmt: skip
@@ -317,9 +355,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     n_envs = option(config.n_envs, "n_envs", 1)
     n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
     normalize = hp.get("normalize", False)
-    env_kwargs = dict(hp.get("env_kwargs") or {})
-    if config.geometry is not None:
-        env_kwargs["geometry"] = config.geometry
+    env_kwargs, _ = run_env_kwargs(config, hp)
     if config.backend is not None:
         env_kwargs["backend"] = config.backend
     if config.sensor is not None:

@@ -333,3 +333,38 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
         proc = sg("evaluate", "--policy", str(tmp_path / "bad.json"), "--episodes", "1", cwd=tmp_path)
         assert proc.returncode != 0 and proc.stderr.startswith("error: ") and says in proc.stderr, proc.stderr
         assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
+    """The shipped residual recipe's training starts (50–110 mm out, for the 300 mm plate) are scaled to the
+    user's plate, with a note: through the CLI, and the run records what it trained with."""
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    recipe = str(root / "stewart_gym/hyperparams/ppo_residual.yml")
+    run = sg("train", "--hyperparams", recipe, "--geometry", str(my_build(tmp_path)), "--run-dir",
+             str(tmp_path / "run"), "--timesteps", "64", "--n-envs", "1", "--eval-freq", "64", "--eval-episodes", "1",
+             "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    # the 250 mm depth: the settling test starts 83.3 mm out, not 100 mm, so 0.8333 of the recipe's distances
+    assert "note: start_distance scaled to" in run.stderr and "[0.0417, 0.0917] m" in run.stderr
+    config = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
+    assert config["hyperparams"]["env_kwargs"]["start_distance"] == [0.0417, 0.0917]
+
+
+def test_recipe_distances_are_scaled_only_across_builds() -> None:
+    from stewart_gym.training import TrainConfig, run_env_kwargs, run_hyperparams
+
+    root = Path(__file__).resolve().parents[1]
+    cfg = TrainConfig(hyperparams=str(root / "stewart_gym/hyperparams/ppo_residual.yml"), run_dir="unused")
+    for geometry in (None, "servo-hexapod", "senilov2018"):  # the reference plate, and one whose test also starts 100 mm out
+        kwargs, note = run_env_kwargs(TrainConfig(**{**vars(cfg), "geometry": geometry}), run_hyperparams(cfg))
+        assert kwargs["start_distance"] == [0.05, 0.11] and note is None  # the very numbers: make train-residual's bits
+    kwargs, note = run_env_kwargs(TrainConfig(**{**vars(cfg), "geometry": "memememe-liverpool"}), run_hyperparams(cfg))
+    assert kwargs["start_distance"] == [0.0333, 0.0733] and "67 mm out here, 100 mm there" in note
+    hp = run_hyperparams(cfg)  # a recipe written for the build it trains on is left as written
+    hp["env_kwargs"] = {**hp["env_kwargs"], "geometry": "memememe-liverpool", "start_distance": [0.02, 0.07]}
+    kwargs, note = run_env_kwargs(TrainConfig(**{**vars(cfg), "geometry": "memememe-liverpool"}), hp)
+    assert kwargs["start_distance"] == [0.02, 0.07] and note is None
+    kwargs, note = run_env_kwargs(TrainConfig(**{**vars(cfg), "geometry": "servo-hexapod"}), hp)  # and back again
+    assert kwargs["start_distance"] == [0.03, 0.105] and "memememe-liverpool" in note

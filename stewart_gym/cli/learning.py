@@ -38,7 +38,7 @@ ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or ka
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train PPO, SAC, TD3 (Stable-Baselines3) or TQC (sb3-contrib); hyperparameters: stewart_gym/hyperparams/<algo>.yml."""
-    from stewart_gym.training import TrainConfig, check_run_dir, train
+    from stewart_gym.training import TrainConfig, check_run_dir, run_env_kwargs, run_hyperparams, train
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
@@ -46,6 +46,9 @@ def cmd_train(args: argparse.Namespace) -> int:
                       eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
+    _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
+    if note:
+        print(f"note: {note}", file=sys.stderr)
     metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60)
     print(json.dumps(metrics, indent=2))
     return EXIT_OK

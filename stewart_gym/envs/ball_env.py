@@ -22,7 +22,17 @@ from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 
-__all__ = ["StewartBallEnv", "check_ball_geometry"]
+__all__ = ["StewartBallEnv", "check_ball_geometry", "settling_start"]
+
+#: m: where the settling-time test starts (:mod:`stewart_gym.evaluation`) on a plate large enough.
+SETTLING_OFFSET = 0.100
+#: On a smaller plate it starts this fraction of the plate's smaller half size out (0.100 m on the 300 mm plate).
+SETTLING_FRACTION = 2.0 / 3.0
+
+
+def settling_start(plate_half_extent: Sequence[float]) -> float:
+    """m: how far from the target the settling test starts on a plate of this half size (m, along x and y)."""
+    return min(SETTLING_OFFSET, SETTLING_FRACTION * min(plate_half_extent))
 
 #: A plate must be at least this many ball diameters a side to carry the ball task.
 MIN_PLATE_BALLS = 4
