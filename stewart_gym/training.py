@@ -88,9 +88,25 @@ def resume_statistics(resume: Path) -> Path | None:
     return next((c for c in candidates if c.is_file()), None)
 
 
+def shipped_recipes() -> list[str]:
+    """The names of the hyperparameter files that ship with the package (``ppo``, ``ppo_residual``, …)."""
+    return sorted(p.stem for p in HYPERPARAM_DIR.glob("*.yml"))
+
+
+def hyperparams_path(spec: str | Path) -> Path:
+    """A YAML file's path, or a shipped recipe's name (``ppo_residual``: wherever the package is installed)."""
+    path = Path(spec)
+    if path.exists() or path.suffix:
+        return path
+    if str(spec) in shipped_recipes():
+        return HYPERPARAM_DIR / f"{spec}.yml"
+    raise ConfigError(f"--hyperparams {spec}: neither a file nor a shipped recipe ({', '.join(shipped_recipes())})")
+
+
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong."""
-    path = Path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
+    """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong.
+    ``path``: a YAML file or a shipped recipe's name (:func:`hyperparams_path`); default the algorithm's own."""
+    path = hyperparams_path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:

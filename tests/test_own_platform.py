@@ -336,13 +336,12 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
 
 
 def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
-    """The shipped residual recipe's training starts (50–110 mm out, for the 300 mm plate) are scaled to the
-    user's plate, with a note: through the CLI, and the run records what it trained with."""
+    """The shipped residual recipe, named as a user would, on the user's plate: its training starts (50–110 mm
+    out, for the 300 mm plate) are scaled to that plate, with a note, and the run records what it trained with;
+    a misspelt recipe is one error line naming the shipped ones."""
     import yaml
 
-    root = Path(__file__).resolve().parents[1]
-    recipe = str(root / "stewart_gym/hyperparams/ppo_residual.yml")
-    run = sg("train", "--hyperparams", recipe, "--geometry", str(my_build(tmp_path)), "--run-dir",
+    run = sg("train", "--hyperparams", "ppo_residual", "--geometry", str(my_build(tmp_path)), "--run-dir",
              str(tmp_path / "run"), "--timesteps", "64", "--n-envs", "1", "--eval-freq", "64", "--eval-episodes", "1",
              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
     assert run.returncode == 0, run.stderr
@@ -350,6 +349,9 @@ def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
     assert "note: start_distance scaled to" in run.stderr and "[0.0417, 0.0917] m" in run.stderr
     config = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
     assert config["hyperparams"]["env_kwargs"]["start_distance"] == [0.0417, 0.0917]
+    bad = sg("train", "--hyperparams", "ppo_residul", "--run-dir", str(tmp_path / "bad"), cwd=tmp_path)
+    assert bad.returncode == 1 and bad.stderr.count("\n") == 1 and not (tmp_path / "bad").exists()
+    assert bad.stderr.startswith("error: --hyperparams ppo_residul: neither a file nor a shipped recipe (ppo, ")
 
 
 def test_recipe_distances_are_scaled_only_across_builds() -> None:

@@ -112,6 +112,19 @@ def test_hyperparameter_files_have_every_env() -> None:
         load_hyperparams("ppo", "CartPole-v1")
 
 
+def test_shipped_recipes_load_by_name_and_the_docs_list_them() -> None:
+    from stewart_gym.training import hyperparams_path, shipped_recipes
+
+    names = shipped_recipes()
+    assert {"ppo", "ppo_residual"} <= set(names)
+    for name in names:
+        assert hyperparams_path(name).is_file() and load_hyperparams("ppo", "StewartBallBalance-v0", name)
+    docs = (Path(__file__).resolve().parents[1] / "docs/src/training.md").read_text()
+    assert "(" + ", ".join(f"`{n}`" for n in names) + ")" in docs  # the list in the docs is the package's
+    with pytest.raises(ConfigError, match="neither a file nor a shipped recipe"):
+        hyperparams_path("ppo_residul")
+
+
 @pytest.mark.parametrize("field,value", [("n_timesteps", 0), ("n_envs", 0), ("eval_freq", -5), ("eval_episodes", 0),
                                          ("algo", "a2c")])  # fmt: skip
 def test_train_refuses_bad_options_before_starting(field: str, value: object, tmp_path: Path) -> None:

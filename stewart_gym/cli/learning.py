@@ -231,7 +231,8 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
     add_sensor(p, "ball sensor model to train with (default: the YAML's, else panel)")
     add_estimator(p, "the observer to train behind (default: the YAML's, else lowpass)")
-    p.add_argument("--hyperparams", help="YAML file (default stewart_gym/hyperparams/<algo>.yml)")
+    p.add_argument("--hyperparams", help="YAML file, or the name of a shipped one, such as ppo_residual (default "
+                                         "stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
     p.add_argument("--seed", type=int_at_least(0), default=0)
