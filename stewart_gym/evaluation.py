@@ -24,6 +24,7 @@ from stewart_gym.errors import PolicyError
 __all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "paired_difference",
            "plot_episode", "run_episode", "settling_offset", "write_gif"]  # fmt: skip
 
+
 def settling_offset(env: gym.Env) -> float:
     """m: where the settling test starts on this env's plate: 100 mm on the reference plate, less on a smaller one
     (:func:`~stewart_gym.envs.ball_env.settling_start`)."""
