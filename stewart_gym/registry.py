@@ -62,6 +62,8 @@ SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
 #: their config.yaml names): folder under ``policies/``.
 SHIPPED_RESIDUAL = {("StewartBallBalance-v0", "servo-hexapod"): "balance_residual",
                     ("StewartBallTrack-v0", "servo-hexapod"): "track_residual"}
+#: What ``stewart-gym train`` needs, beyond ``--env`` and ``--geometry``, to train the like of each shipped kind.
+TRAIN_OPTIONS = {"shipped": "", "shipped-camera": " --sensor camera", "shipped-residual": " --hyperparams ppo_residual"}
 SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped-residual": SHIPPED_RESIDUAL}
 DEFAULT_ENV = "StewartBallBalance-v0"
 #: Env keywords that change what a policy sees or what its action means: a policy keeps them wherever it runs.
@@ -141,7 +143,8 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
         table = SHIPPED_TABLES[spec]
         if (env_id, geo) not in table:
             have = ", ".join(f"{e} on {g}" for e, g in table)
-            raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}")
+            raise PolicyError(f"no {spec} policy for {env_id} on {geo}; {spec} policies: {have}; train one for it: "
+                              f"stewart-gym train --env {env_id} --geometry {geo}{TRAIN_OPTIONS[spec]}")  # fmt: skip
         folder = POLICY_DIR / table[(env_id, geo)]
         extra = {"geometry": geo, **({"sensor": "camera"} if spec == "shipped-camera" else {})}
         ensemble = (folder / ENSEMBLE_FILE).is_file()

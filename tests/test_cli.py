@@ -372,7 +372,12 @@ def test_demo_on_a_build_without_a_shipped_policy_is_one_error_line_and_writes_n
     proc = sg("demo", "--geometry", "senilov2018", "--out", str(tmp_path / "demo"), cwd=tmp_path)
     lines = error_lines(proc)
     assert proc.returncode == 1 and len(lines) == 1 and "no shipped policy" in lines[0] and "senilov2018" in lines[0]
+    assert lines[0].endswith("train one for it: stewart-gym train --env StewartBallBalance-v0 --geometry senilov2018")
     assert not (tmp_path / "demo").exists()
+    proc = sg("evaluate", "--policy", "shipped-residual", "--geometry", "memememe-liverpool", cwd=tmp_path)
+    lines = error_lines(proc)  # the residual: the recipe that trains one, by the name train takes
+    assert proc.returncode == 1 and len(lines) == 1 and lines[0].endswith(
+        "stewart-gym train --env StewartBallBalance-v0 --geometry memememe-liverpool --hyperparams ppo_residual")
 
 
 def test_a_missing_port_is_a_device_failure(tmp_path: Path) -> None:
