@@ -31,15 +31,12 @@ def register_envs() -> None:
 def trajectory_env_ids() -> tuple[str, ...]:
     """The ids whose task follows a moving target: its constructor takes ``trajectory`` (one of
     :data:`~stewart_gym.envs.targets.TRACK_TRAJECTORIES`)."""
-    import importlib
     import inspect
 
-    def takes_trajectory(path: str) -> bool:
-        module_name, _, class_name = path.partition(":")
-        cls = getattr(importlib.import_module(module_name), class_name)
-        return "trajectory" in inspect.signature(cls).parameters
+    from stewart_gym.envs.task import task_class
 
-    return tuple(env_id for env_id, (path, _) in ENV_IDS.items() if takes_trajectory(path))
+    return tuple(env_id for env_id, (path, _) in ENV_IDS.items()
+                 if "trajectory" in inspect.signature(task_class(path)).parameters)  # fmt: skip
 
 
 def env_table() -> str:

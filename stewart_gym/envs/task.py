@@ -27,7 +27,7 @@ from stewart_gym.errors import ConfigError
 if TYPE_CHECKING:
     from stewart_gym.sim.backend import PhysicsBackend
 
-__all__ = ["BallTask", "Task", "XY", "load_task", "TASK_NAMES"]
+__all__ = ["BallTask", "Task", "XY", "load_task", "task_class", "TASK_NAMES"]
 
 XY = tuple[float, float]
 
@@ -151,16 +151,21 @@ class BallTask:
         return {}
 
 
+def task_class(spec: str) -> type:
+    """The task class that a short name (:data:`TASK_NAMES`) or a ``"module:Class"`` path names."""
+    path = TASK_NAMES.get(spec, spec)
+    module_name, _, class_name = path.partition(":")
+    try:
+        return getattr(importlib.import_module(module_name), class_name)
+    except (ImportError, AttributeError, ValueError):
+        raise ConfigError(f"unknown task {spec!r}; use one of {sorted(TASK_NAMES)} or 'module:Class'") from None
+
+
 def load_task(spec: str | Task, **kwargs: Any) -> Task:
     """A task from a short name (:data:`TASK_NAMES`), a ``"module:Class"`` path, or a task (returned as is)."""
     if not isinstance(spec, str):
         return spec
-    path = TASK_NAMES.get(spec, spec)
-    module_name, _, class_name = path.partition(":")
-    try:
-        cls = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError, ValueError):
-        raise ConfigError(f"unknown task {spec!r}; use one of {sorted(TASK_NAMES)} or 'module:Class'") from None
+    cls = task_class(spec)
     try:
         return cls(**kwargs)
     except TypeError as exc:
