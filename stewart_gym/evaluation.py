@@ -21,8 +21,9 @@ import numpy as np
 from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
-__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_table", "paired_difference",
-           "plot_episode", "run_episode", "settling_offset", "write_gif"]  # fmt: skip
+__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_paired", "format_table",
+           "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "run_episode", "settling_offset",
+           "write_gif"]  # fmt: skip
 
 
 def settling_offset(env: gym.Env) -> float:
@@ -211,6 +212,58 @@ def paired_difference(a: dict[str, Any], b: dict[str, Any], metric: str, resampl
     boot = boot[np.isfinite(boot)]
     low, high = np.quantile(boot, [(1 - level) / 2, (1 + level) / 2]) if boot.size else (math.nan, math.nan)
     return diff, float(low), float(high)
+
+
+def paired_verdict(metric: str, low: float, high: float) -> str:
+    """What a paired interval of ``metric`` (row a minus row b, :func:`paired_difference`) says of a: ``better``
+    or ``worse`` when it excludes 0 (a higher success rate is better; a lower error or settling time), ``tie``
+    when it holds 0, ``–`` when it could not be computed (no seed where both settled)."""
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return "–"
+    if low <= 0 <= high:
+        return "tie"
+    lower_is_better = metric != "success_rate"
+    return "better" if (high < 0) == lower_is_better else "worse"
+
+
+def paired_rows(results: dict[str, dict[str, Any]], reference: str) -> list[dict[str, Any]]:
+    """``reference`` paired with each other result of ``results`` (name → an ``evaluate`` result, all on the same
+    seeds): one row per other result and metric of :data:`PAIRED_METRICS` that both measured, with ``a``, ``b``,
+    ``metric``, ``difference`` (a − b), ``low``, ``high`` (the 95 % bootstrap interval) and ``verdict``
+    (:func:`paired_verdict`). Settling time only where both ran the settling test."""
+    rows = []
+    for other in results:
+        if other == reference:
+            continue
+        for metric in PAIRED_METRICS:
+            if metric == "settling_time_s" and not all(results[n]["per_episode"].get("settling_s") is not None
+                                                       for n in (reference, other)):  # fmt: skip
+                continue
+            diff, low, high = paired_difference(results[reference], results[other], metric)
+            rows.append({"a": reference, "b": other, "metric": metric, "difference": diff, "low": low, "high": high,
+                         "verdict": paired_verdict(metric, low, high)})  # fmt: skip
+    return rows
+
+
+#: How :func:`format_paired` writes each metric's difference: a label, a scale, a number format and a unit.
+PAIRED_FORMATS = {"success_rate": ("success rate", 100.0, "{:+.0f}", "% points"),
+                  "rms_error_mm": ("RMS error (last 5 s)", 1.0, "{:+.2f}", "mm"),
+                  "final_error_mm": ("final error", 1.0, "{:+.2f}", "mm"),
+                  "settling_time_s": ("settling time", 1.0, "{:+.2f}", "s")}  # fmt: skip
+
+
+def format_paired(rows: list[dict[str, Any]]) -> str:
+    """:func:`paired_rows` as text: per pair, each metric's difference, its interval and the verdict."""
+    lines = []
+    for pair in dict.fromkeys((r["a"], r["b"]) for r in rows):
+        lines.append(f"{pair[0]} − {pair[1]}, seed by seed: difference [95 % bootstrap interval], verdict")
+        for r in (r for r in rows if (r["a"], r["b"]) == pair):
+            label, scale, pattern, unit = PAIRED_FORMATS[r["metric"]]
+            diff, low, high = (pattern.format(v * scale) if math.isfinite(v) else "–"
+                               for v in (r["difference"], r["low"], r["high"]))  # fmt: skip
+            interval = f"[{low}, {high}]"
+            lines.append(f"  {label:24s}{diff:>7s} {interval:18s} {unit:8s} {r['verdict']}")
+    return "\n".join(lines)
 
 
 def format_table(results: dict[str, dict[str, Any]]) -> str:

@@ -71,6 +71,9 @@ POLICY_ENV_KEYS = ("action_mode", "max_tilt", "control_hz", "geometry", "estimat
 DEFAULT_GEOMETRY = "servo-hexapod"
 #: Env keywords of the track task that deploy uses for its moving target.
 TASK_ENV_KEYS = ("trajectory",)
+#: Env keywords of the world a policy was trained in, not of the policy: ``evaluate`` runs it there unless told
+#: otherwise (``--backend``, ``--sensor``), and any policy can be evaluated in another.
+WORLD_ENV_KEYS = ("backend", "sensor")
 _KINDS_TEXT = ("'shipped', 'shipped-camera', 'shipped-residual', 'pid', 'pid-kalman', 'lqr', 'lqr-pid', a run folder, "
                "a model .zip, an ensemble folder, a bundle folder or a gains .json (PID gains, an LQR or hand-over design)")
 
@@ -215,6 +218,7 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
     options, hp = cfg.get("options") or {}, cfg.get("hyperparams") or {}
     env_kwargs = hp.get("env_kwargs") or {}
     kept = {k: env_kwargs[k] for k in POLICY_ENV_KEYS + TASK_ENV_KEYS if k in env_kwargs}
+    kept.update({k: env_kwargs[k] for k in WORLD_ENV_KEYS if env_kwargs.get(k) is not None})
     kept.setdefault("action_mode", "tilt")
     if hp.get("residual"):  # not an env keyword: what the learned correction is added to (see sb3_models)
         kept["residual"] = hp["residual"]

@@ -29,7 +29,7 @@ from conftest import Drain, FakeDevice, sg
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
-               "camera-check", "sweep", "ensemble")  # fmt: skip
+               "camera-check", "sweep", "ensemble", "compare")  # fmt: skip
 
 
 def error_lines(proc: subprocess.CompletedProcess) -> list[str]:
@@ -67,6 +67,10 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "existing.csv").write_text("keep me\n")
     (d / "run_done").mkdir()
     (d / "run_done" / "model.zip").write_text("a finished run\n")
+    (d / "run_webcam").mkdir()  # a run trained with a camera preset (its model is never loaded here)
+    (d / "run_webcam" / "model.zip").write_text("a finished run\n")
+    (d / "run_webcam" / "config.yaml").write_text("options: {env_id: StewartBallBalance-v0}\nhyperparams:\n  "
+                                                  "env_kwargs: {estimator: kalman, sensor: webcam30}\n")  # fmt: skip
     (d / "bad_ensemble").mkdir()
     (d / "bad_ensemble" / "ensemble.json").write_text('{"members": "members/0"}\n')
     bundle = d / "bad_bundle"
@@ -250,6 +254,16 @@ BAD = [
     ["ensemble", "nope1", "nope2", "--out", "{tmp}/e"],
     ["ensemble", "{files}/bad_bundle", "{files}/bad_bundle", "--out", "{tmp}/e"],
     ["ensemble", "{files}/run_done", "{files}/run_done", "--out", "{files}/notes.txt"],
+    ["compare"],
+    ["compare", "pid"],
+    ["compare", "pid", "pid"],
+    ["compare", "pid", "nope"],
+    ["compare", "pid", "{files}/bad_bundle"],
+    ["compare", "pid", "lqr", "--episodes", "1"],
+    ["compare", "pid", "lqr", "--workers", "0"],
+    ["compare", "pid", "lqr", "--trajectory", "figure8"],
+    ["compare", "pid", "lqr", "--geometry", "mathcad-micro"],
+    ["compare", "shipped-camera", "{files}/run_webcam"],  # trained with different sensors: --sensor says which
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
     # deploy: the arguments are checked before the port is opened
@@ -466,6 +480,49 @@ def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
               "--episodes", "1", "--seed", "3", "--json")  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout)["rms_error_mm"] == pytest.approx(direct["waypoints"], abs=1e-6)
+
+
+def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None:
+    """``compare A B C``: each policy's figures are those ``evaluate`` prints for it on the same seeds (here two
+    at a time, in worker processes), and A is paired with B and with C, each verdict agreeing with its interval
+    (a lower error is better, a higher success rate is better). The text output names each pair's verdicts."""
+    policies = ("pid-kalman", "lqr", "pid")
+    proc = sg("compare", *policies, "--episodes", "4", "--seed", "2", "--workers", "2", "--json")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    got = json.loads(proc.stdout)
+    assert list(got["policies"]) == list(policies) and (got["episodes"], got["seed"]) == (4, 2)
+    assert (got["env_id"], got["geometry"], got["backend"], got["sensor"]) == (
+        "StewartBallBalance-v0", "servo-hexapod", "pybullet", "panel")
+    alone = sg("evaluate", "--policy", "lqr", "--episodes", "4", "--seed", "2", "--json")
+    assert alone.returncode == 0, alone.stderr[-2000:]
+    for key in ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_p2p_us"):
+        assert got["policies"]["lqr"][key] == pytest.approx(json.loads(alone.stdout)[key], rel=1e-9)
+    rows = got["paired"]
+    assert {(r["a"], r["b"]) for r in rows} == {("pid-kalman", "lqr"), ("pid-kalman", "pid")}
+    assert {r["metric"] for r in rows} == {"success_rate", "rms_error_mm", "final_error_mm", "settling_time_s"}
+    for r in rows:
+        lower_is_better = r["metric"] != "success_rate"
+        expected = ("tie" if r["low"] <= 0 <= r["high"] else
+                    "better" if (r["high"] < 0) == lower_is_better else "worse")  # fmt: skip
+        assert r["verdict"] == expected and r["low"] <= r["difference"] <= r["high"]
+    # the PID + Kalman holds the ball closer than the plain PID on every seed of this draw, so better
+    rms = {r["b"]: r for r in rows if r["metric"] == "rms_error_mm"}
+    assert rms["pid"]["verdict"] == "better"
+    text = sg("compare", "pid-kalman", "pid", "--episodes", "3", "--workers", "1")
+    assert text.returncode == 0, text.stderr[-2000:]
+    assert "pid-kalman − pid, seed by seed" in text.stdout and "RMS error (last 5 s)" in text.stdout
+    assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
+
+
+def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
+    from stewart_gym.evaluation import paired_verdict
+
+    assert paired_verdict("rms_error_mm", -0.3, -0.1) == "better"
+    assert paired_verdict("settling_time_s", 0.1, 0.3) == "worse"
+    assert paired_verdict("success_rate", 0.02, 0.1) == "better"  # more successes
+    assert paired_verdict("success_rate", -0.1, -0.02) == "worse"
+    assert paired_verdict("final_error_mm", -0.1, 0.1) == paired_verdict("success_rate", 0.0, 0.0) == "tie"
+    assert paired_verdict("settling_time_s", float("nan"), float("nan")) == "–"
 
 
 def test_evaluate_writes_gif_and_plot(tmp_path: Path) -> None:

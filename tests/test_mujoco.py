@@ -244,8 +244,9 @@ def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -
 
 
 def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, device: FakeDevice) -> None:
-    """Through the CLI: a shipped policy evaluated in MuJoCo, a short run trained in MuJoCo (its config records the
-    engine), and ``deploy --sensor sim --backend mujoco`` on a fake Maestro."""
+    """Through the CLI: a shipped policy evaluated in MuJoCo, a short run trained in MuJoCo with a camera (its config
+    records both, and ``evaluate`` runs it in that engine with that sensor unless told otherwise), and ``deploy
+    --sensor sim --backend mujoco`` on a fake Maestro."""
     import json
 
     def sg_here(*args: str) -> subprocess.CompletedProcess:
@@ -257,10 +258,17 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
     hp = tmp_path / "hp.yml"
     hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n  policy: MlpPolicy\n"
                   "  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
-    run = sg_here("train", "--backend", "mujoco", "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
-                  "--eval-freq", "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard")  # fmt: skip
+    run = sg_here("train", "--backend", "mujoco", "--sensor", "webcam30", "--hyperparams", str(hp), "--run-dir",
+                  str(tmp_path / "run"), "--eval-freq", "32", "--eval-episodes", "1", "--no-progress",
+                  "--no-tensorboard")  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert "backend: mujoco" in (tmp_path / "run" / "config.yaml").read_text()
+    for extra, world in (((), ("mujoco", "webcam30")), (("--backend", "pybullet", "--sensor", "panel"),
+                                                         ("pybullet", "panel"))):  # fmt: skip
+        ev = sg_here("evaluate", "--policy", "run", "--episodes", "1", "--json", *extra)
+        assert ev.returncode == 0, ev.stderr
+        got = json.loads(ev.stdout.strip().splitlines()[-1])
+        assert (got["backend"], got["sensor"]) == world and got["episodes"] == 1
     drain = Drain(device)
     dep = sg_here("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
                   "--log", str(tmp_path / "d.csv"))  # fmt: skip

@@ -244,6 +244,8 @@ def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFi
     names = ["shipped-residual", "shipped", "pid-kalman", "lqr"]
     assert list(metrics) == names and all(metrics[n]["episodes"] == 2 for n in names)
     assert any(all(n in line for n in names) for line in out.splitlines())  # the table's header
+    for other in names[1:]:  # the residual paired with each of the others on the same seeds
+        assert f"shipped-residual − {other}, seed by seed" in out
     # each ran as itself: the end-to-end PPO, which sees no error integral, holds the ball looser than the residual,
     # whose PID holds it (seeds 0 and 1: about 2.0 against 0.6-0.7 mm RMS)
     assert metrics["shipped"]["rms_error_mm"] > 1.5 * metrics["shipped-residual"]["rms_error_mm"]

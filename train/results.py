@@ -256,13 +256,12 @@ def paired_cells(a: dict[str, Any], b: dict[str, Any],
                  metrics: tuple[tuple[str, str], ...] = PAIRED) -> list[str]:  # fmt: skip
     """Row ``a`` minus row ``b`` (their metrics with ``per_episode``) on each of ``metrics`` (:data:`PAIRED`): the
     difference, its 95 % bootstrap interval and the verdict (better, worse, or tie when the interval holds 0)."""
-    from stewart_gym.evaluation import paired_difference
+    from stewart_gym.evaluation import paired_difference, paired_verdict
 
     cells = []
     for key, _ in metrics:
         diff, low, high = paired_difference(a, b, key)
-        verdict = "better" if high < 0 else "worse" if low > 0 else "tie"
-        cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {verdict}")
+        cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {paired_verdict(key, low, high)}")
     return cells
 
 

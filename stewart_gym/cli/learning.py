@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from stewart_gym.cli.common import (
     add_estimator,
     add_sensor,
     int_at_least,
+    json_safe,
     output_dir,
     output_file,
     positive_float,
@@ -56,19 +58,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate a policy (shipped, pid, a run folder, a model .zip, a bundle) on N seeded episodes."""
-    from stewart_gym.cli.analysis import json_safe
     from stewart_gym.evaluation import evaluate, format_table
     from stewart_gym.registry import load_for_evaluation
 
     gif = None if args.gif is None else output_file(args.gif, suffixes=(".gif",))
     plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
-    if gif:
-        check_can_render(args.backend)
     source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry, args.estimator)
-    env_kwargs = with_backend(env_kwargs, args.backend)
-    sensor = args.sensor or source.env_kwargs.get("sensor")  # by default the sensor the policy was trained with
-    if sensor is not None:
-        env_kwargs["sensor"] = sensor
+    env_kwargs = in_world(env_kwargs, source, args.backend, args.sensor)
+    if gif:
+        check_can_render(env_kwargs.get("backend"))
     env_id = args.env or source.env_id
     if args.trajectory is not None:
         moving = trajectory_env_ids()
@@ -81,10 +79,95 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if gif or plot:
         _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
     if args.json:
-        print(json.dumps(json_safe(metrics)))
+        print(json.dumps(json_safe({**world(env_id, env_kwargs), **metrics})))
     else:
         print(format_table({source.label: metrics}))
     return EXIT_OK
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Evaluate several policies on the same seeded episodes and pair the first with each of the others, seed by
+    seed: the difference in success, RMS error, final error and settling time, with a 95 % bootstrap interval and
+    a verdict (better, worse, or a tie the episodes cannot tell apart)."""
+    from stewart_gym.evaluation import format_paired, format_table, paired_rows
+
+    policies = args.policies
+    if len(policies) < 2:
+        raise ConfigError(f"compare needs 2 or more policies, got {len(policies)}: add the one to compare with, "
+                          "e.g. stewart-gym compare shipped-residual pid-kalman lqr")  # fmt: skip
+    twice = sorted({p for p in policies if policies.count(p) > 1})
+    if twice:
+        raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
+    env_id, geometry, env_kwargs = compare_setup(args)
+    workers = min(args.workers or os.cpu_count() or 1, len(policies))
+    world_line = world(env_id, next(iter(env_kwargs.values())))
+    print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
+          f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
+          f"{world_line['backend']}, sensor {world_line['sensor']}; {workers} at a time…", flush=True,
+          file=sys.stderr if args.json else sys.stdout)  # fmt: skip
+    jobs = [(spec, env_id, geometry, env_kwargs[spec], args.episodes, args.seed, not args.no_randomize)
+            for spec in policies]  # fmt: skip
+    if workers == 1:
+        metrics = [evaluate_job(job) for job in jobs]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            metrics = list(pool.map(evaluate_job, jobs))
+    results = dict(zip(policies, metrics))
+    rows = paired_rows(results, policies[0])
+    if args.json:
+        print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
+                                    "randomize": not args.no_randomize, "policies": results, "paired": rows})))  # fmt: skip
+    else:
+        print()
+        print(format_table(results))
+        print()
+        print(format_paired(rows))
+    return EXIT_OK
+
+
+def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
+    """Before any episode: the env id, the build and each policy's env keywords for ``compare``, every policy
+    loaded once (a bad one is an ``error:`` line). The build is ``--geometry``, else the one a trained policy
+    given by path was trained for (the named ones adapt to it); the physics engine and the sensor are
+    ``--backend`` and ``--sensor``, else the ones the policies were trained with, which must then agree."""
+    from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
+
+    sources = {spec: resolve_policy(spec, args.env) for spec in args.policies}
+    env_id = args.env or sources[args.policies[0]].env_id
+    own = [s for s in sources.values() if s.spec not in (*SHIPPED_TABLES, *CLASSICAL) and s.kind in ("sb3", "ensemble",
+                                                                                                     "bundle")]
+    geometry = args.geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
+    chosen = {"backend": args.backend, "sensor": args.sensor}
+    for key in chosen:
+        trained = {spec: s.env_kwargs[key] for spec, s in sources.items() if s.env_kwargs.get(key) is not None}
+        if chosen[key] is None and len(set(trained.values())) > 1:
+            named = ", ".join(f"{spec} with {value}" for spec, value in trained.items())
+            raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "
+                              f"them with, e.g. --{key} {next(iter(trained.values()))}")  # fmt: skip
+        chosen[key] = chosen[key] or next(iter(trained.values()), None)
+    if args.trajectory is not None and env_id not in trajectory_env_ids():
+        raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
+                          f"{' or '.join(trajectory_env_ids())}, or leave out --trajectory")  # fmt: skip
+    env_kwargs = {}
+    for spec in args.policies:
+        source, _, kwargs = load_for_evaluation(spec, env_id, geometry)
+        env_kwargs[spec] = in_world(kwargs, source, chosen["backend"], chosen["sensor"])
+        if args.trajectory is not None:
+            env_kwargs[spec]["trajectory"] = args.trajectory
+    return env_id, geometry, env_kwargs
+
+
+def evaluate_job(job: tuple) -> dict[str, Any]:
+    """One policy of ``compare`` evaluated (in a worker process: the policy is loaded there)."""
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    spec, env_id, geometry, env_kwargs, episodes, seed, randomize = job
+    _, policy, _ = load_for_evaluation(spec, env_id, geometry)
+    return evaluate(env_id, policy, episodes=episodes, seed=seed, randomize=randomize, env_kwargs=env_kwargs)
 
 
 #: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
@@ -105,9 +188,8 @@ def demo_policies(env_id: str, geometry: str | None) -> list[str]:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: evaluate the shipped learned policies next to the PID + Kalman and the LQR on the same seeded
-    episodes; write a GIF and a pulse-width plot of the best learned one."""
-    from stewart_gym.cli.analysis import json_safe
-    from stewart_gym.evaluation import evaluate, format_table
+    episodes, pair the best learned one with each, seed by seed; write a GIF and a pulse-width plot of it."""
+    from stewart_gym.evaluation import evaluate, format_paired, format_table, paired_rows
     from stewart_gym.registry import load_for_evaluation
 
     out = output_dir(args.out)
@@ -116,8 +198,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     names = demo_policies(env_id, args.geometry)
     loaded = {}
     for name in names:  # every policy loaded before the output folder and the first evaluation
-        _, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
-        loaded[name] = (policy, with_backend(env_kwargs, args.backend))
+        source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
+        loaded[name] = (policy, in_world(env_kwargs, source, args.backend, None))
     out.mkdir(parents=True, exist_ok=True)
     results = {}
     for name, (policy, env_kwargs) in loaded.items():
@@ -126,6 +208,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
     print()
     print(format_table(results))
+    print()
+    print(format_paired(paired_rows(results, names[0])))
     (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     policy, env_kwargs = loaded[names[0]]
     _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", names[0])
@@ -133,9 +217,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def with_backend(env_kwargs: dict, backend: str | None) -> dict:
-    """``env_kwargs`` with the physics engine asked for (else the one the policy was trained in, else PyBullet)."""
-    return env_kwargs if backend is None else {**env_kwargs, "backend": backend}
+def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | None) -> dict:
+    """``env_kwargs`` with the physics engine and the ball sensor asked for, else the ones ``source`` (a resolved
+    policy) was trained with, else the env's defaults (PyBullet, the touch panel)."""
+    trained = source.env_kwargs
+    chosen = {"backend": backend or trained.get("backend"), "sensor": sensor or trained.get("sensor")}
+    return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
+
+
+def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
+    """Where an evaluation ran: the env id, the physics engine and the ball sensor (for ``--json``)."""
+    return {"env_id": env_id, "backend": str(env_kwargs.get("backend", "pybullet")),
+            "sensor": str(env_kwargs.get("sensor", "panel"))}  # fmt: skip
 
 
 def check_can_render(backend: str | None) -> None:
@@ -255,8 +348,8 @@ def register(sub: Any) -> None:
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
     p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
-                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default: the one the policy was "
-                        "trained on, else circle; mixed draws one per episode)")  # fmt: skip
+                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle, whatever the "
+                        "policy was trained on; mixed draws one per episode)")  # fmt: skip
     p.add_argument("--episodes", type=int_at_least(1), default=100)
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
@@ -264,6 +357,25 @@ def register(sub: Any) -> None:
     p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
     p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("compare", help=cmd_compare.__doc__.split(":")[0] + ".", description=cmd_compare.__doc__)
+    p.add_argument("policies", nargs="+", metavar="POLICY", help=f"2 or more, the first paired with each other: "
+                                                                  f"{POLICY_HELP}")  # fmt: skip
+    p.add_argument("--env", choices=ENV_CHOICES, help="default: the env the first policy was trained for")
+    p.add_argument("--geometry", help="the platform (default: the one a trained policy given by path was trained for, "
+                                      "else servo-hexapod); named policies adapt to it")  # fmt: skip
+    add_backend(p, "physics engine (default: the one the policies were trained in, else pybullet)")
+    add_sensor(p, "ball sensor model (default: the one the policies were trained with, else panel)")
+    p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
+                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle; mixed draws one "
+                        "per episode)")  # fmt: skip
+    p.add_argument("--episodes", type=int_at_least(2), default=100)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+    p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
+                                                           "one per core)")  # fmt: skip
+    p.add_argument("--json", action="store_true", help="print one JSON object: each policy's metrics and the pairs")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("export", help=cmd_export.__doc__, description=cmd_export.__doc__)
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
