@@ -314,6 +314,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return EXIT_OK if counts["finished"] else EXIT_FAILED
 
 
+def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
+    """The episodes ``evaluate`` and ``compare`` run: the track's trajectory, how many, the first seed, and whether
+    the physics is randomised."""
+    p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
+                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle, whatever the "
+                        "policy was trained on; mixed draws one per episode)")  # fmt: skip
+    p.add_argument("--episodes", type=int_at_least(at_least), default=100)
+    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+
+
 def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
@@ -347,12 +358,7 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
-    p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
-                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle, whatever the "
-                        "policy was trained on; mixed draws one per episode)")  # fmt: skip
-    p.add_argument("--episodes", type=int_at_least(1), default=100)
-    p.add_argument("--seed", type=int_at_least(0), default=0)
-    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+    add_episodes(p, at_least=1)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
     p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
@@ -366,12 +372,7 @@ def register(sub: Any) -> None:
                                       "else servo-hexapod); named policies adapt to it")  # fmt: skip
     add_backend(p, "physics engine (default: the one the policies were trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policies were trained with, else panel)")
-    p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
-                   help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle; mixed draws one "
-                        "per episode)")  # fmt: skip
-    p.add_argument("--episodes", type=int_at_least(2), default=100)
-    p.add_argument("--seed", type=int_at_least(0), default=0)
-    p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
+    add_episodes(p, at_least=2)
     p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
                                                            "one per core)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object: each policy's metrics and the pairs")
