@@ -107,15 +107,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
     jobs = [(spec, env_id, geometry, env_kwargs[spec], args.episodes, args.seed, not args.no_randomize)
             for spec in policies]  # fmt: skip
-    if workers == 1:
-        metrics = [evaluate_job(job) for job in jobs]
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            metrics = list(pool.map(evaluate_job, jobs))
-    results = dict(zip(policies, metrics))
+    results = dict(zip(policies, evaluate_all(jobs, workers)))
     rows = paired_rows(results, policies[0])
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
@@ -160,6 +152,18 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
     return env_id, geometry, env_kwargs
 
 
+def evaluate_all(jobs: list[tuple], workers: int) -> list[dict[str, Any]]:
+    """:func:`evaluate_job` of each job, in order: ``workers`` at a time, each in its own process (started afresh:
+    the policies are loaded there), or here when ``workers`` is 1."""
+    if workers == 1:
+        return [evaluate_job(job) for job in jobs]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(evaluate_job, jobs))
+
+
 def evaluate_job(job: tuple) -> dict[str, Any]:
     """One policy of ``compare`` evaluated (in a worker process: the policy is loaded there)."""
     from stewart_gym.evaluation import evaluate
@@ -189,7 +193,7 @@ def demo_policies(env_id: str, geometry: str | None) -> list[str]:
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: evaluate the shipped learned policies next to the PID + Kalman and the LQR on the same seeded
     episodes, pair the best learned one with each, seed by seed; write a GIF and a pulse-width plot of it."""
-    from stewart_gym.evaluation import evaluate, format_paired, format_table, paired_rows
+    from stewart_gym.evaluation import format_paired, format_table, paired_rows
     from stewart_gym.registry import load_for_evaluation
 
     out = output_dir(args.out)
@@ -201,11 +205,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
         source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
         loaded[name] = (policy, in_world(env_kwargs, source, args.backend, None))
     out.mkdir(parents=True, exist_ok=True)
-    results = {}
-    for name, (policy, env_kwargs) in loaded.items():
-        engine = env_kwargs.get("backend", "pybullet")
-        print(f"evaluating {name} on {args.episodes} seeded episodes with domain randomisation ({engine})…", flush=True)
-        results[name] = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, env_kwargs=env_kwargs)
+    workers = min(args.workers or os.cpu_count() or 1, len(names))
+    engine = loaded[names[0]][1].get("backend", "pybullet")
+    print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes with domain randomisation "
+          f"({engine}), {workers} at a time…", flush=True)  # fmt: skip
+    jobs = [(name, env_id, args.geometry, env_kwargs, args.episodes, args.seed, True)
+            for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
+    results = dict(zip(names, evaluate_all(jobs, workers)))
     print()
     print(format_table(results))
     print()
@@ -325,6 +331,11 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
 
 
+def add_workers(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
+                                                           "one per core)")  # fmt: skip
+
+
 def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
@@ -373,8 +384,7 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine (default: the one the policies were trained in, else pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policies were trained with, else panel)")
     add_episodes(p, at_least=2)
-    p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
-                                                           "one per core)")  # fmt: skip
+    add_workers(p)
     p.add_argument("--json", action="store_true", help="print one JSON object: each policy's metrics and the pairs")
     p.set_defaults(func=cmd_compare)
 
@@ -411,4 +421,5 @@ def register(sub: Any) -> None:
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
+    add_workers(p)
     p.set_defaults(func=cmd_demo)
