@@ -14,7 +14,7 @@ from typing import Any
 
 from stewart_gym.errors import ConfigError, PolicyError
 
-__all__ = ["ENSEMBLE_FILE", "ensemble_members", "output_dir", "output_file", "run_config"]
+__all__ = ["ENSEMBLE_FILE", "ensemble_members", "model_statistics", "output_dir", "output_file", "run_config"]
 
 #: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
 #: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
@@ -73,6 +73,15 @@ def run_config(model_zip: Path) -> dict[str, Any] | None:
                 raise ValueError(f"{cfg}: not a readable run configuration ({exc})") from None
             return data if isinstance(data, dict) else None
     return None
+
+
+def model_statistics(model_zip: Path) -> Path | None:
+    """The observation-normalisation statistics (VecNormalize) saved with a model ``.zip``: ``vecnormalize.pkl``
+    beside it (a run folder's ``model.zip``, ``best/best_model.zip``), or a checkpoint's own
+    ``rl_model_vecnormalize_<n>_steps.pkl`` beside ``rl_model_<n>_steps.zip``; None where there are none."""
+    own = model_zip.with_name(model_zip.name.replace("model_", "model_vecnormalize_", 1)).with_suffix(".pkl")
+    candidates = [own] if own.name != model_zip.with_suffix(".pkl").name else []
+    return next((c for c in (*candidates, model_zip.with_name("vecnormalize.pkl")) if c.is_file()), None)
 
 
 def ensemble_members(folder: str | Path) -> list[Path]:

@@ -44,7 +44,7 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
-from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, run_config
+from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
            "export_policy", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
@@ -216,6 +216,10 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
     if cfg is None:
         return PolicySource(spec, "sb3", model_zip, DEFAULT_ENV, {})  # action mode inferred when loaded
     options, hp = cfg.get("options") or {}, cfg.get("hyperparams") or {}
+    if hp.get("normalize") and model_statistics(model_zip) is None:  # it would see raw observations: nonsense
+        raise PolicyError(f"policy {spec!r}: {model_zip} was trained on normalised observations, and their "
+                          "statistics are not beside it (vecnormalize.pkl, or a checkpoint's "
+                          "rl_model_vecnormalize_<steps>_steps.pkl); keep the run folder together")  # fmt: skip
     env_kwargs = hp.get("env_kwargs") or {}
     kept = {k: env_kwargs[k] for k in POLICY_ENV_KEYS + TASK_ENV_KEYS if k in env_kwargs}
     kept.update({k: env_kwargs[k] for k in WORLD_ENV_KEYS if env_kwargs.get(k) is not None})
@@ -273,8 +277,8 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
         member = out / "members" / str(k)
         member.mkdir(parents=True)
         shutil.copyfile(source.path, member / "model.zip")
-        stats = source.path.parent / "vecnormalize.pkl"
-        if stats.is_file():
+        stats = model_statistics(source.path)
+        if stats is not None:
             shutil.copyfile(stats, member / "vecnormalize.pkl")
         for name in ("config.yaml", "metrics.json"):  # beside the model, or one folder up (best/, checkpoints/)
             found = next((f / name for f in (source.path.parent, source.path.parent.parent) if (f / name).is_file()),

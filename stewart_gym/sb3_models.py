@@ -30,7 +30,7 @@ import numpy as np
 
 from stewart_gym.classical import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
 from stewart_gym.errors import ConfigError, PolicyError
-from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members
+from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics
 
 __all__ = ["EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "deterministic_module",
            "load_learned", "load_sb3", "mean_module", "residual_base", "residual_mix"]  # fmt: skip
@@ -70,7 +70,8 @@ def _policy_module(zip_path: Path) -> str:
 
 def load_sb3(path: str | Path) -> SB3Policy:
     """Load a PPO, SAC, TD3 or TQC model (a ``.zip``, or a folder with ``model.zip`` or ``best_model.zip``)
-    and the ``vecnormalize.pkl`` beside it if present."""
+    and the normalisation statistics saved with it, if any (:func:`~stewart_gym.outputs.model_statistics`:
+    ``vecnormalize.pkl`` beside it, or a checkpoint's own)."""
     import pickle
     import zipfile
 
@@ -96,8 +97,8 @@ def load_sb3(path: str | Path) -> SB3Policy:
     else:
         raise PolicyError(f"{zip_path} is not a PPO, SAC, TD3 or TQC model")
     obs_rms, clip_obs = None, 10.0
-    stats = zip_path.parent / "vecnormalize.pkl"
-    if stats.exists():
+    stats = model_statistics(zip_path)
+    if stats is not None:
         try:
             with stats.open("rb") as fh:
                 vec = pickle.load(fh)

@@ -37,7 +37,7 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
-from stewart_gym.outputs import run_config
+from stewart_gym.outputs import model_statistics, run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
 __all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "algo_keywords", "check_action_noise",
@@ -81,11 +81,8 @@ def resume_statistics(resume: Path) -> Path | None:
     """The VecNormalize statistics of a model to resume: ``vecnormalize.pkl`` in a run folder or beside a model
     (``best/best_model.zip``), ``model_vecnormalize_<n>_steps.pkl`` beside a checkpoint; None if there are none."""
     if resume.is_dir():
-        candidates = [resume / "vecnormalize.pkl"]
-    else:
-        candidates = [resume.with_name(resume.name.replace("model_", "model_vecnormalize_").replace(".zip", ".pkl")),
-                      resume.with_name("vecnormalize.pkl")]  # fmt: skip
-    return next((c for c in candidates if c.is_file()), None)
+        return resume / "vecnormalize.pkl" if (resume / "vecnormalize.pkl").is_file() else None
+    return model_statistics(resume)
 
 
 def shipped_recipes() -> list[str]:

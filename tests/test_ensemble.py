@@ -133,3 +133,33 @@ def test_a_sampling_ensemble_averages_the_networks_samples() -> None:
     assert np.all(many >= low) and np.all(many <= high) and np.ptp(many, axis=0).min() > 0
     assert np.all(many.std(axis=0) < 0.7 * one.std(axis=0))
     np.testing.assert_allclose(many.mean(axis=0), ensemble.predict(obs)[0], atol=0.03)  # one network: 0.15 off
+
+
+def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path) -> None:
+    """A checkpoint (``checkpoints/rl_model_<n>_steps.zip`` with ``rl_model_vecnormalize_<n>_steps.pkl`` beside it,
+    as training writes them) evaluates as the same network in a run folder does, and ``ensemble`` takes
+    checkpoints (a snapshot ensemble of one run). Without its statistics it is one ``error:`` line: the network
+    would see raw observations. Before 2026-11-25 a checkpoint loaded without its statistics, silently."""
+    member = ensemble_members(RESIDUAL)[0]
+    folder = tmp_path / "run" / "checkpoints"
+    folder.mkdir(parents=True)
+    (tmp_path / "run" / "config.yaml").write_text((member / "config.yaml").read_text())
+    for steps in (250_000, 300_000):
+        (folder / f"rl_model_{steps}_steps.zip").write_bytes((member / "model.zip").read_bytes())
+        (folder / f"rl_model_vecnormalize_{steps}_steps.pkl").write_bytes((member / "vecnormalize.pkl").read_bytes())
+    checkpoint = folder / "rl_model_300000_steps.zip"
+    figures = {}
+    for name, policy in (("run folder", str(member)), ("checkpoint", str(checkpoint))):
+        proc = sg("evaluate", "--policy", policy, "--episodes", "2", "--json", cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        figures[name] = json.loads(proc.stdout)
+    for key in ("rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s"):
+        assert figures["checkpoint"][key] == pytest.approx(figures["run folder"][key], rel=1e-9)
+    made = sg("ensemble", str(folder / "rl_model_250000_steps.zip"), str(checkpoint), "--out", "snap", cwd=tmp_path)
+    assert made.returncode == 0, made.stderr[-2000:]
+    assert all((m / "vecnormalize.pkl").is_file() for m in ensemble_members(tmp_path / "snap"))
+    (folder / "rl_model_vecnormalize_300000_steps.pkl").unlink()
+    lost = sg("evaluate", "--policy", str(checkpoint), "--episodes", "1", cwd=tmp_path)
+    errors = [ln for ln in lost.stderr.splitlines() if ln.startswith("error:")]
+    assert lost.returncode == 1 and len(errors) == 1 and "statistics are not beside it" in errors[0]
+    assert "Traceback" not in lost.stderr
