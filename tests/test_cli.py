@@ -254,6 +254,7 @@ BAD = [
     ["ensemble", "nope1", "nope2", "--out", "{tmp}/e"],
     ["ensemble", "{files}/bad_bundle", "{files}/bad_bundle", "--out", "{tmp}/e"],
     ["ensemble", "{files}/run_done", "{files}/run_done", "--out", "{files}/notes.txt"],
+    ["train", "--checkpoint-freq", "0"],
     ["compare"],
     ["compare", "pid"],
     ["compare", "pid", "pid"],

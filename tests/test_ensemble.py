@@ -163,3 +163,24 @@ def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path)
     errors = [ln for ln in lost.stderr.splitlines() if ln.startswith("error:")]
     assert lost.returncode == 1 and len(errors) == 1 and "statistics are not beside it" in errors[0]
     assert "Traceback" not in lost.stderr
+
+
+def test_train_checkpoints_make_a_snapshot_ensemble_of_one_run(tmp_path: Path) -> None:
+    """``train --checkpoint-freq N`` saves a checkpoint with its statistics every N steps; ``ensemble`` averages
+    checkpoints of that one run, and the result evaluates (the snapshot ensemble of the Control page)."""
+    (tmp_path / "hp.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n"
+                                     "  policy: MlpPolicy\n  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n"
+                                     "  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
+    run = sg("train", "--hyperparams", "hp.yml", "--run-dir", "run", "--checkpoint-freq", "32", "--eval-freq", "32",
+             "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-2000:]
+    folder = tmp_path / "run" / "checkpoints"
+    for steps in (32, 64):
+        assert (folder / f"rl_model_{steps}_steps.zip").is_file()
+        assert (folder / f"rl_model_vecnormalize_{steps}_steps.pkl").is_file()
+    made = sg("ensemble", str(folder / "rl_model_32_steps.zip"), str(folder / "rl_model_64_steps.zip"), "--out",
+              "snap", cwd=tmp_path)  # fmt: skip
+    assert made.returncode == 0, made.stderr[-2000:]
+    evaluated = sg("evaluate", "--policy", "snap", "--episodes", "1", "--json", cwd=tmp_path)
+    assert evaluated.returncode == 0, evaluated.stderr[-2000:]
+    assert json.loads(evaluated.stdout)["episodes"] == 1

@@ -45,7 +45,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
-                      eval_episodes=args.eval_episodes, resume=args.resume, progress_bar=not args.no_progress,
+                      eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq, resume=args.resume,
+                      progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
@@ -355,6 +356,9 @@ def register(sub: Any) -> None:
     p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
     p.add_argument("--eval-freq", type=int_at_least(1), help="env steps between evaluations")
     p.add_argument("--eval-episodes", type=int_at_least(1))
+    p.add_argument("--checkpoint-freq", type=int_at_least(1), default=100_000,
+                   help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
+                        "default 100000)")  # fmt: skip
     p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
     p.add_argument("--max-minutes", type=positive_float, help="stop after this much wall time")
     p.add_argument("--no-progress", action="store_true")
