@@ -166,7 +166,8 @@ def evaluate_all(jobs: list[tuple], workers: int) -> list[dict[str, Any]]:
 
 
 def evaluate_job(job: tuple) -> dict[str, Any]:
-    """One policy of ``compare`` evaluated (in a worker process: the policy is loaded there)."""
+    """One policy of ``compare`` or ``demo`` evaluated: (name, env id, build, env keywords, episodes, first seed,
+    randomise); in a worker process the policy is loaded there."""
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
 
@@ -333,6 +334,7 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
 
 
 def add_workers(p: argparse.ArgumentParser) -> None:
+    """``--workers`` of ``compare`` and ``demo`` (:func:`evaluate_all`)."""
     p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
                                                            "one per core)")  # fmt: skip
 
