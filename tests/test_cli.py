@@ -265,6 +265,7 @@ BAD = [
     ["compare", "pid", "lqr", "--trajectory", "figure8"],
     ["compare", "pid", "lqr", "--geometry", "mathcad-micro"],
     ["compare", "shipped-camera", "{files}/run_webcam"],  # trained with different sensors: --sensor says which
+    ["compare", "shipped", "shipped-camera"],  # the touch panel (the default) against a camera
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
     # deploy: the arguments are checked before the port is opened

@@ -126,6 +126,7 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
     loaded once (a bad one is an ``error:`` line). The build is ``--geometry``, else the one a trained policy
     given by path was trained for (the named ones adapt to it); the physics engine and the sensor are
     ``--backend`` and ``--sensor``, else the ones the policies were trained with, which must then agree."""
+    from stewart_gym.classical import CLASSICAL_KINDS
     from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
 
     sources = {spec: resolve_policy(spec, args.env) for spec in args.policies}
@@ -134,8 +135,9 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
                                                                                                      "bundle")]
     geometry = args.geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
     chosen = {"backend": args.backend, "sensor": args.sensor}
-    for key in chosen:
-        trained = {spec: s.env_kwargs[key] for spec, s in sources.items() if s.env_kwargs.get(key) is not None}
+    for key in chosen:  # a trained network's world, else the env's default; a classical controller has none
+        trained = {spec: s.env_kwargs.get(key) or WORLD_DEFAULTS[key] for spec, s in sources.items()
+                   if s.env_kwargs.get(key) is not None or s.kind not in CLASSICAL_KINDS}  # fmt: skip
         if chosen[key] is None and len(set(trained.values())) > 1:
             named = ", ".join(f"{spec} with {value}" for spec, value in trained.items())
             raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "
@@ -233,10 +235,13 @@ def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | N
     return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
 
 
+#: The env's physics engine and ball sensor where none is asked for.
+WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
+
+
 def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
     """Where an evaluation ran: the env id, the physics engine and the ball sensor (for ``--json``)."""
-    return {"env_id": env_id, "backend": str(env_kwargs.get("backend", "pybullet")),
-            "sensor": str(env_kwargs.get("sensor", "panel"))}  # fmt: skip
+    return {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
 
 
 def check_can_render(backend: str | None) -> None:
