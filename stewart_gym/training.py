@@ -80,9 +80,7 @@ class TrainConfig:
 def resume_statistics(resume: Path) -> Path | None:
     """The VecNormalize statistics of a model to resume: ``vecnormalize.pkl`` in a run folder or beside a model
     (``best/best_model.zip``), ``model_vecnormalize_<n>_steps.pkl`` beside a checkpoint; None if there are none."""
-    if resume.is_dir():
-        return resume / "vecnormalize.pkl" if (resume / "vecnormalize.pkl").is_file() else None
-    return model_statistics(resume)
+    return model_statistics(resume / "model.zip" if resume.is_dir() else resume)
 
 
 def shipped_recipes() -> list[str]:

@@ -69,11 +69,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if gif:
         check_can_render(env_kwargs.get("backend"))
     env_id = args.env or source.env_id
+    check_trajectory(env_id, args.trajectory)
     if args.trajectory is not None:
-        moving = trajectory_env_ids()
-        if env_id not in moving:
-            raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
-                              f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
         env_kwargs["trajectory"] = args.trajectory
     metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                        env_kwargs=env_kwargs)  # fmt: skip
@@ -143,9 +140,7 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
             raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "
                               f"them with, e.g. --{key} {next(iter(trained.values()))}")  # fmt: skip
         chosen[key] = chosen[key] or next(iter(trained.values()), None)
-    if args.trajectory is not None and env_id not in trajectory_env_ids():
-        raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
-                          f"{' or '.join(trajectory_env_ids())}, or leave out --trajectory")  # fmt: skip
+    check_trajectory(env_id, args.trajectory)
     env_kwargs = {}
     for spec in args.policies:
         source, _, kwargs = load_for_evaluation(spec, env_id, geometry)
@@ -153,6 +148,14 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
         if args.trajectory is not None:
             env_kwargs[spec]["trajectory"] = args.trajectory
     return env_id, geometry, env_kwargs
+
+
+def check_trajectory(env_id: str, trajectory: str | None) -> None:
+    """``--trajectory`` only where the target moves: else one ``error:`` line naming the envs that take it."""
+    moving = trajectory_env_ids()
+    if trajectory is not None and env_id not in moving:
+        raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
+                          f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
 
 
 def evaluate_all(jobs: list[tuple], workers: int) -> list[dict[str, Any]]:
