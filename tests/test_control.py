@@ -67,6 +67,28 @@ def test_the_filter_uses_the_commanded_tilt_as_its_input() -> None:
     assert accel == pytest.approx(G_ROLL * math.sin(pitch), rel=0.02) and abs(v2[1]) < 1e-12
 
 
+def test_each_command_acts_on_the_filters_prediction_from_a_dead_time_after_it_was_issued() -> None:
+    """Three commands 20 ms apart and no reading: the prediction 70 ms on is the model's transition taken piece
+    by piece, each piece with the command acting then (none for the first dead time), on both axes."""
+    spec = KalmanSpec()
+    kf = BallKalmanFilter(spec)
+    kf.reset(0.0, (0.01, -0.02))
+    tilts = [(0.0, 0.05), (0.03, -0.02), (-0.04, 0.01)]  # (roll, pitch) rad at 0, 20 and 40 ms
+    for k, roll_pitch in enumerate(tilts):
+        kf.command(0.02 * k, roll_pitch)
+    d = spec.dead_time_s
+    starts = [0.0, d, 0.02 + d, 0.04 + d, 0.07]
+    state = np.zeros((4, 2))
+    state[0] = (0.01, -0.02)
+    for k, (a, b) in enumerate(zip(starts[:-1], starts[1:])):
+        phi, gamma = kf.transition(b - a)
+        roll, pitch = tilts[k - 1] if k else (0.0, 0.0)
+        state = phi @ state + np.outer(gamma, (math.sin(pitch), -math.sin(roll)))
+    pos, vel = kf.estimate(0.07)
+    assert np.allclose(pos, state[0], rtol=0, atol=1e-12) and np.allclose(vel, state[1], rtol=0, atol=1e-12)
+    assert abs(vel[0]) > 1e-3  # the commands moved it
+
+
 @given(h=st.floats(1e-6, 0.5), tau=st.floats(0.002, 0.2), rolling=st.floats(0.4, 1.0))
 @settings(max_examples=60, deadline=None)
 def test_the_filters_closed_form_transition_is_the_matrix_exponential(h: float, tau: float, rolling: float) -> None:
