@@ -56,9 +56,11 @@ def default_max_tilt(geometry: PlatformGeometry | str) -> float:
     return float(min(DEFAULT_MAX_TILT, TILT_REACH_MARGIN * float(np.min(np.abs(reach[3:5])))))
 
 
-#: Fractions of the ray tried at once, then refined once more between the bracketing pair.
 #: The ray search: scan steps from home, then bisections (1/16 / 2⁸ = 1/4096 of the pose).
 _RAY_SCAN, _RAY_BISECT = 16, 8
+#: Unreachable poses whose ray search :meth:`ActionMapper.reachable_pose` remembers (a saturated action repeats
+#: one of a few, such as a diagonal tilt's corner): the answer is the same, without its 25 IK passes.
+_RAY_ENDS_KEPT = 256
 
 
 class MappedAction(NamedTuple):
@@ -110,6 +112,7 @@ class ActionMapper:
         self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
         self._pose_scale = self.pose_scale.tolist()
         self.size = ACTION_SIZES[mode]
+        self._ray_ends: dict[tuple[float, ...], tuple[float, list[float]]] = {}  # unreachable pose → (scale, pulses)
 
     def pose(self, action: np.ndarray) -> np.ndarray:
         """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""
@@ -129,9 +132,14 @@ class ActionMapper:
         Feasible means reachable by the IK and within the calibration's pulse
         limits. The ray is scanned at 1/16 steps from home to the first
         infeasible fraction, then bisected 8 times (resolution 1/4096 of the
-        pose), each test one scalar IK pass (:func:`servo_pulses_one`, ~6 µs).
+        pose), each test one scalar IK pass (:func:`servo_pulses_one`, ~6 µs). The
+        last 256 unreachable poses' answers are kept: a saturated action repeats
+        a few poses (a diagonal tilt's corner), each then found without a search.
         """
         target = [float(v) for v in np.asarray(pose, dtype=np.float64).reshape(6)]
+        known = self._ray_ends.get(tuple(target))
+        if known is not None:  # searched before: the same answer
+            return known[0] * np.array(target), np.array(known[1]), known[0]
 
         def pulses_at(frac: float) -> list[float] | None:
             return servo_pulses_one(self.geometry, self.calibration, [frac * v for v in target])
@@ -157,6 +165,9 @@ class ActionMapper:
                 hi = mid
             else:
                 lo, best = mid, got
+        if len(self._ray_ends) >= _RAY_ENDS_KEPT:
+            self._ray_ends.clear()
+        self._ray_ends[tuple(target)] = (float(lo), best)
         return lo * np.array(target), np.array(best), float(lo)
 
     def __call__(self, action: np.ndarray) -> MappedAction:

@@ -47,6 +47,28 @@ def test_unreachable_pose_goes_to_the_nearest_reachable_on_the_ray() -> None:
         pulse(np.array([0, 0, np.nan, 0, 0, 0]))
 
 
+def test_a_repeated_unreachable_pose_is_answered_alike_without_a_second_search(monkeypatch) -> None:
+    """A saturated diagonal tilt (the corner is out of reach) searches its ray once; sent again, it gets the
+    same pose, pulses and scale as the first time and as a fresh mapper's search, with one IK pass (the direct
+    try), and changing an answer's arrays does not change the next one."""
+    import stewart_gym.actions as actions
+
+    passes: list[int] = []
+    ik = actions.servo_pulses_one
+    monkeypatch.setattr(actions, "servo_pulses_one", lambda *args: passes.append(1) or ik(*args))
+    mapper, corner = ActionMapper(mode="tilt"), np.array([1.0, 1.0])
+    first = mapper(corner)
+    searched = len(passes)
+    again = mapper(corner)
+    assert first.scaled and 0.5 < first.scale < 1.0 and searched > 20 and len(passes) == searched + 1
+    fresh = ActionMapper(mode="tilt")(corner)
+    for other in (again, fresh):
+        assert np.array_equal(other.pose, first.pose) and np.array_equal(other.pulses, first.pulses)
+        assert other.scale == first.scale and other.scaled
+    again.pulses[:] = 0.0
+    assert np.array_equal(mapper(corner).pulses, first.pulses)
+
+
 POSE_MAPPER = ActionMapper(mode="pose")
 
 
