@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -514,6 +515,21 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
     assert text.returncode == 0, text.stderr[-2000:]
     assert "pid-kalman − pid, seed by seed" in text.stdout and "RMS error (last 5 s)" in text.stdout
     assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
+
+
+def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path) -> None:
+    """``compare``'s table labels a policy given by path with the path's last part, more of it where two would
+    read alike, and says which path each label stands for; ``--json`` keeps the paths as given."""
+    gains = [tmp_path / "a" / "deep" / "folder" / "gains.json", tmp_path / "b" / "gains.json"]
+    for path in gains:
+        path.parent.mkdir(parents=True)
+        shutil.copyfile(ROOT / "stewart_gym" / "policies" / "pid_kalman_gains.json", path)
+    proc = sg("compare", "pid-kalman", *map(str, gains), "--episodes", "2", "--workers", "1")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    header = next(line for line in proc.stdout.splitlines() if "pid-kalman" in line and "gains" in line)
+    assert header.split() == ["pid-kalman", "folder/gains.json", "b/gains.json"], header
+    assert f"folder/gains.json: {gains[0]}" in proc.stdout and f"b/gains.json: {gains[1]}" in proc.stdout
+    assert "pid-kalman − folder/gains.json, seed by seed" in proc.stdout and str(tmp_path) not in header
 
 
 def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:

@@ -111,11 +111,26 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
                                     "randomize": not args.no_randomize, "policies": results, "paired": rows})))  # fmt: skip
     else:
+        labels = column_labels(policies)
         print()
-        print(format_table(results))
+        for spec, label in labels.items():
+            if label != spec:
+                print(f"{label}: {spec}")
+        print(format_table({labels[spec]: result for spec, result in results.items()}))
         print()
-        print(format_paired(rows))
+        print(format_paired([{**r, "a": labels[r["a"]], "b": labels[r["b"]]} for r in rows]))
     return EXIT_OK
+
+
+def column_labels(specs: list[str]) -> dict[str, str]:
+    """A short column label per policy for ``compare``'s table: a name as given, a path by its last part (more
+    of it where two would read alike), so that a long path does not widen every column."""
+    parts = {spec: Path(spec).parts or (spec,) for spec in specs}
+    for n in range(1, max(len(p) for p in parts.values()) + 1):
+        labels = {spec: "/".join(p[-n:]) for spec, p in parts.items()}
+        if len(set(labels.values())) == len(labels):
+            return labels
+    return {spec: spec for spec in specs}
 
 
 def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
