@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -21,9 +22,9 @@ import numpy as np
 from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
-__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "format_paired", "format_table",
-           "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "run_episode", "settling_offset",
-           "write_gif"]  # fmt: skip
+__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
+           "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "run_episode",
+           "settling_offset", "summarise", "write_gif"]  # fmt: skip
 
 
 def settling_offset(env: gym.Env) -> float:
@@ -117,57 +118,89 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
       over its last 5 s and how many steps that was: the pooled RMS weighs them so), ``final_mm`` and
       ``settling_s`` (None where the ball did not settle): for paired comparisons on the same seeds
       (:func:`paired_difference`).
+
+    It runs here, one episode after another; :func:`evaluation_part` and :func:`summarise` split the same
+    evaluation over processes (``stewart-gym evaluate --workers``) with the same figures.
     """
+    return summarise(env_id, episodes, seed, randomize,
+                     [evaluation_part(env_id, policy, range(episodes), episodes, seed, randomize, settling, env_kwargs)])
+
+
+def evaluation_part(env_id: str, policy: Policy, indices: Sequence[int], episodes: int, seed: int = 0,
+                    randomize: bool = True, settling: bool = True, env_kwargs: dict | None = None) -> dict[str, Any]:
+    """Episodes ``indices`` (of ``range(episodes)``) of :func:`evaluate`'s evaluation, each reduced to what its
+    figures need; :func:`summarise` of the parts, in order, gives those figures. Episode k is seeded
+    ``seed + k`` and its settling run starts at the angle 2πk/episodes, and an episode does not depend on the
+    ones run before it in the same env, so the parts can run anywhere (one per process) and give the figures of
+    one :func:`evaluate`, to the last bit."""
     env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
     check_fits(policy, env)
     try:
-        logs = [run_episode(env, policy, seed + k) for k in range(episodes)]
         dt = env.unwrapped.sim.dt
         tail = int(round(5.0 / dt))
-        pooled = np.concatenate([np.asarray(lg.distance_mm[-tail:]) for lg in logs])
-        pulses = [np.abs(np.diff(np.asarray(lg.pulses), axis=0)).mean() / dt for lg in logs if len(lg.pulses) > 1]
-        settled = [np.asarray(lg.pulses[-tail:]) for lg in logs if not lg.fell and len(lg.pulses) > 1]
-        out: dict[str, Any] = {
-            "env_id": env_id,
-            "episodes": episodes,
-            "seed": seed,
-            "randomize": randomize,
-            "success_rate": float(np.mean([lg.success for lg in logs])),
-            "fell_rate": float(np.mean([lg.fell for lg in logs])),
-            "rms_error_mm": float(np.sqrt(np.mean(pooled**2))),
-            "final_error_mm": float(np.mean([lg.distance_mm[-1] for lg in logs])),
-            "max_tilt_deg": float(max(max(lg.tilt_deg) for lg in logs)),
-            "pulse_rate_us_per_s": float(np.mean(pulses)),
-            "settled_pulse_rate_us_per_s": (float(np.mean([np.abs(np.diff(w, axis=0)).mean() / dt for w in settled]))
-                                            if settled else None),
-            "settled_pulse_p2p_us": float(np.mean([np.ptp(w, axis=0).max() for w in settled])) if settled else None,
-            "settling_time_s": None,
-            "settled_fraction": None,
-            "per_episode": {
-                "success": [bool(lg.success) for lg in logs],
-                "rms_mm": [float(np.sqrt(np.mean(np.square(lg.distance_mm[-tail:])))) for lg in logs],
-                "tail_steps": [len(lg.distance_mm[-tail:]) for lg in logs],
-                "final_mm": [float(lg.distance_mm[-1]) for lg in logs],
-                "settling_s": None,
-            },
-        }
+        records = []
+        for k in indices:
+            lg = run_episode(env, policy, seed + k)
+            moved = len(lg.pulses) > 1
+            records.append({"tail_mm": np.asarray(lg.distance_mm[-tail:]), "final_mm": lg.distance_mm[-1],
+                            "success": lg.success, "fell": lg.fell, "max_tilt_deg": max(lg.tilt_deg),
+                            "pulse_rate": np.abs(np.diff(np.asarray(lg.pulses), axis=0)).mean() / dt if moved else None,
+                            "settled_pulses": np.asarray(lg.pulses[-tail:]) if moved and not lg.fell else None})  # fmt: skip
+        offset = None
         if settling and not env.unwrapped.task.moving_target:
             radius_mm = env.unwrapped.success_radius * 1e3
-            times = []
-            for k in range(episodes):
+            offset = settling_offset(env)
+            for k, record in zip(indices, records):
                 ang = 2 * math.pi * k / episodes
-                r = settling_offset(env)
-                opts = {"ball_position": (r * math.cos(ang), r * math.sin(ang)),
+                opts = {"ball_position": (offset * math.cos(ang), offset * math.sin(ang)),
                         "ball_velocity": (0.0, 0.0)}  # fmt: skip
-                times.append(run_episode(env, policy, seed + k, opts).settling_time(radius_mm))
-            t = np.asarray(times)
-            out["settled_fraction"] = float(np.mean(np.isfinite(t)))
-            out["settling_offset_mm"] = round(settling_offset(env) * 1e3, 1)
-            out["settling_time_s"] = float(np.nanmean(t)) if np.isfinite(t).any() else None
-            out["per_episode"]["settling_s"] = [float(v) if math.isfinite(v) else None for v in t]
-        return out
+                record["settling_s"] = run_episode(env, policy, seed + k, opts).settling_time(radius_mm)
+        return {"dt": dt, "settling_offset": offset, "records": records}
     finally:
         env.close()
+
+
+def summarise(env_id: str, episodes: int, seed: int, randomize: bool, parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """:func:`evaluate`'s figures from :func:`evaluation_part`'s parts, which together hold its ``episodes``
+    episodes in order."""
+    records = [r for part in parts for r in part["records"]]
+    if len(records) != episodes:
+        raise ValueError(f"the parts hold {len(records)} episodes, not {episodes}")
+    dt, offset = parts[0]["dt"], parts[0]["settling_offset"]
+    pooled = np.concatenate([r["tail_mm"] for r in records])
+    pulses = [r["pulse_rate"] for r in records if r["pulse_rate"] is not None]
+    settled = [r["settled_pulses"] for r in records if r["settled_pulses"] is not None]
+    out: dict[str, Any] = {
+        "env_id": env_id,
+        "episodes": episodes,
+        "seed": seed,
+        "randomize": randomize,
+        "success_rate": float(np.mean([r["success"] for r in records])),
+        "fell_rate": float(np.mean([r["fell"] for r in records])),
+        "rms_error_mm": float(np.sqrt(np.mean(pooled**2))),
+        "final_error_mm": float(np.mean([r["final_mm"] for r in records])),
+        "max_tilt_deg": float(max(r["max_tilt_deg"] for r in records)),
+        "pulse_rate_us_per_s": float(np.mean(pulses)),
+        "settled_pulse_rate_us_per_s": (float(np.mean([np.abs(np.diff(w, axis=0)).mean() / dt for w in settled]))
+                                        if settled else None),
+        "settled_pulse_p2p_us": float(np.mean([np.ptp(w, axis=0).max() for w in settled])) if settled else None,
+        "settling_time_s": None,
+        "settled_fraction": None,
+        "per_episode": {
+            "success": [bool(r["success"]) for r in records],
+            "rms_mm": [float(np.sqrt(np.mean(np.square(r["tail_mm"])))) for r in records],
+            "tail_steps": [len(r["tail_mm"]) for r in records],
+            "final_mm": [float(r["final_mm"]) for r in records],
+            "settling_s": None,
+        },
+    }
+    if offset is not None:
+        t = np.asarray([r["settling_s"] for r in records])
+        out["settled_fraction"] = float(np.mean(np.isfinite(t)))
+        out["settling_offset_mm"] = round(offset * 1e3, 1)
+        out["settling_time_s"] = float(np.nanmean(t)) if np.isfinite(t).any() else None
+        out["per_episode"]["settling_s"] = [float(v) if math.isfinite(v) else None for v in t]
+    return out
 
 
 #: What :func:`paired_difference` compares: the metrics whose per-episode values ``per_episode`` keeps.

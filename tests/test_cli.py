@@ -263,6 +263,7 @@ BAD = [
     ["compare", "pid", "{files}/bad_bundle"],
     ["compare", "pid", "lqr", "--episodes", "1"],
     ["compare", "pid", "lqr", "--workers", "0"],
+    ["evaluate", "--policy", "pid", "--workers", "0"],
     ["compare", "pid", "lqr", "--trajectory", "figure8"],
     ["compare", "pid", "lqr", "--geometry", "mathcad-micro"],
     ["compare", "shipped-camera", "{files}/run_webcam"],  # trained with different sensors: --sensor says which
@@ -515,6 +516,20 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
     assert text.returncode == 0, text.stderr[-2000:]
     assert "pid-kalman − pid, seed by seed" in text.stdout and "RMS error (last 5 s)" in text.stdout
     assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
+
+
+@pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0"])
+def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id: str) -> None:
+    """``evaluate --workers 2`` runs the episodes in two processes (the first two in one, the third in the other) and prints
+    the same JSON, every figure and per-episode value alike, as ``--workers 1``: each episode depends only on
+    its seed (and, in the settling test, on its index among all the episodes)."""
+    runs = [sg("evaluate", "--policy", "pid-kalman", "--env", env_id, "--episodes", "3", "--seed", "5",
+               "--workers", str(w), "--json") for w in (1, 2)]  # fmt: skip
+    for proc in runs:
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    one, split = (json.loads(proc.stdout) for proc in runs)
+    assert split == one and len(one["per_episode"]["final_mm"]) == 3
+    assert (one["settling_time_s"] is None) == (env_id == "StewartBallTrack-v0")
 
 
 def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path) -> None:

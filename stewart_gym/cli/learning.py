@@ -7,7 +7,9 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
+
+import numpy as np
 
 from stewart_gym.cli.common import (
     EXIT_FAILED,
@@ -72,8 +74,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     check_trajectory(env_id, args.trajectory)
     if args.trajectory is not None:
         env_kwargs["trajectory"] = args.trajectory
-    metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
-                       env_kwargs=env_kwargs)  # fmt: skip
+    workers = min(args.workers or os.cpu_count() or 1, args.episodes)
+    if workers == 1:
+        metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
+                           env_kwargs=env_kwargs)  # fmt: skip
+    else:  # the episodes split over processes: the same figures
+        job = EvaluationJob(args.policy, env_id, args.geometry, args.estimator, env_kwargs, args.episodes, args.seed,
+                            not args.no_randomize)  # fmt: skip
+        metrics = evaluate_all([job], workers)[0]
     if gif or plot:
         _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
     if args.json:
@@ -103,8 +111,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
           f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
           f"{world_line['backend']}, sensor {world_line['sensor']}; {workers} at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
-    jobs = [(spec, env_id, geometry, env_kwargs[spec], args.episodes, args.seed, not args.no_randomize)
-            for spec in policies]  # fmt: skip
+    jobs = [EvaluationJob(spec, env_id, geometry, None, env_kwargs[spec], args.episodes, args.seed,
+                          not args.no_randomize) for spec in policies]  # fmt: skip
     results = dict(zip(policies, evaluate_all(jobs, workers)))
     rows = paired_rows(results, policies[0])
     if args.json:
@@ -173,27 +181,52 @@ def check_trajectory(env_id: str, trajectory: str | None) -> None:
                           f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
 
 
-def evaluate_all(jobs: list[tuple], workers: int) -> list[dict[str, Any]]:
-    """:func:`evaluate_job` of each job, in order: ``workers`` at a time, each in its own process (started afresh:
-    the policies are loaded there), or here when ``workers`` is 1."""
+class EvaluationJob(NamedTuple):
+    """One policy's evaluation for :func:`evaluate_all`: what :func:`~stewart_gym.registry.load_for_evaluation`
+    loads it from (in a worker process too) and the arguments of :func:`~stewart_gym.evaluation.evaluate`."""
+
+    spec: str
+    env_id: str
+    geometry: str | None
+    estimator: str | None
+    env_kwargs: dict
+    episodes: int
+    seed: int
+    randomize: bool
+
+
+def evaluate_all(jobs: list[EvaluationJob], workers: int) -> list[dict[str, Any]]:
+    """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order, ``workers`` processes at a time
+    (started afresh: each loads its policy), or here when ``workers`` is 1. Where there are more workers than
+    jobs, each job's episodes are split into contiguous parts, one per process: an episode depends only on its
+    seed, so the figures are those of one process, to the last bit."""
+    from stewart_gym.evaluation import summarise
+
+    per_job = max(1, workers // len(jobs))
+    tasks = [(job, [int(k) for k in chunk]) for job in jobs
+             for chunk in np.array_split(np.arange(job.episodes), min(per_job, job.episodes))]  # fmt: skip
     if workers == 1:
-        return [evaluate_job(job) for job in jobs]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+        parts = [evaluate_part(task) for task in tasks]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(evaluate_job, jobs))
+        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            parts = list(pool.map(evaluate_part, tasks))
+    return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
+                      [part for (owner, _), part in zip(tasks, parts) if owner is job]) for job in jobs]  # fmt: skip
 
 
-def evaluate_job(job: tuple) -> dict[str, Any]:
-    """One policy of ``compare`` or ``demo`` evaluated: (name, env id, build, env keywords, episodes, first seed,
-    randomise); in a worker process the policy is loaded there."""
-    from stewart_gym.evaluation import evaluate
+def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:
+    """Some episodes of one job of :func:`evaluate_all` (:func:`~stewart_gym.evaluation.evaluation_part`); in a
+    worker process the policy is loaded there."""
+    from stewart_gym.evaluation import evaluation_part
     from stewart_gym.registry import load_for_evaluation
 
-    spec, env_id, geometry, env_kwargs, episodes, seed, randomize = job
-    _, policy, _ = load_for_evaluation(spec, env_id, geometry)
-    return evaluate(env_id, policy, episodes=episodes, seed=seed, randomize=randomize, env_kwargs=env_kwargs)
+    job, indices = task
+    _, policy, _ = load_for_evaluation(job.spec, job.env_id, job.geometry, job.estimator)
+    return evaluation_part(job.env_id, policy, indices, job.episodes, job.seed, job.randomize,
+                           env_kwargs=job.env_kwargs)  # fmt: skip
 
 
 #: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
@@ -231,7 +264,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     engine = loaded[names[0]][1].get("backend", "pybullet")
     print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes with domain randomisation "
           f"({engine}), {workers} at a time…", flush=True)  # fmt: skip
-    jobs = [(name, env_id, args.geometry, env_kwargs, args.episodes, args.seed, True)
+    jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, True)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
     results = dict(zip(names, evaluate_all(jobs, workers)))
     print()
@@ -357,9 +390,9 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
 
 
 def add_workers(p: argparse.ArgumentParser) -> None:
-    """``--workers`` of ``compare`` and ``demo`` (:func:`evaluate_all`)."""
-    p.add_argument("--workers", type=int_at_least(1), help="policies evaluated at once, one process each (default: "
-                                                           "one per core)")  # fmt: skip
+    """``--workers`` of ``evaluate``, ``compare`` and ``demo`` (:func:`evaluate_all`)."""
+    p.add_argument("--workers", type=int_at_least(1), help="processes at once (default: one per core): one per "
+                   "policy, and a policy's episodes split between them where there are more (the same figures)")
 
 
 def register(sub: Any) -> None:
@@ -399,6 +432,7 @@ def register(sub: Any) -> None:
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
     add_episodes(p, at_least=1)
+    add_workers(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
     p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
