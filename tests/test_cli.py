@@ -530,6 +530,13 @@ def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id:
     one, split = (json.loads(proc.stdout) for proc in runs)
     assert split == one and len(one["per_episode"]["final_mm"]) == 3
     assert (one["settling_time_s"] is None) == (env_id == "StewartBallTrack-v0")
+    if env_id == "StewartBallBalance-v0":  # compare splits each policy's episodes too: 4 processes, 2 per policy
+        proc = sg("compare", "pid-kalman", "lqr", "--episodes", "3", "--seed", "5", "--workers", "4", "--json")
+        assert proc.returncode == 0 and "4 processes at a time" in proc.stderr, proc.stderr[-2000:]
+        both = json.loads(proc.stdout)["policies"]
+        assert {k: v for k, v in both["pid-kalman"].items() if k in one} == {k: v for k, v in one.items()
+                                                                             if k in both["pid-kalman"]}  # fmt: skip
+        assert both["lqr"]["per_episode"] != both["pid-kalman"]["per_episode"]
 
 
 def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path) -> None:

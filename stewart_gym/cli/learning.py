@@ -74,14 +74,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     check_trajectory(env_id, args.trajectory)
     if args.trajectory is not None:
         env_kwargs["trajectory"] = args.trajectory
-    workers = min(args.workers or os.cpu_count() or 1, args.episodes)
-    if workers == 1:
+    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
+    if part_count(workers, 1, args.episodes, least) == 1:
         metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                            env_kwargs=env_kwargs)  # fmt: skip
     else:  # the episodes split over processes: the same figures
         job = EvaluationJob(args.policy, env_id, args.geometry, args.estimator, env_kwargs, args.episodes, args.seed,
                             not args.no_randomize)  # fmt: skip
-        metrics = evaluate_all([job], workers)[0]
+        metrics = evaluate_all([job], workers, least)[0]
     if gif or plot:
         _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
     if args.json:
@@ -105,15 +105,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if twice:
         raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
     env_id, geometry, env_kwargs = compare_setup(args)
-    workers = min(args.workers or os.cpu_count() or 1, len(policies))
+    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
+    at_once = min(workers, len(policies) * part_count(workers, len(policies), args.episodes, least))
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
           f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
-          f"{world_line['backend']}, sensor {world_line['sensor']}; {workers} at a time…", flush=True,
+          f"{world_line['backend']}, sensor {world_line['sensor']}; {at_once} processes at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
     jobs = [EvaluationJob(spec, env_id, geometry, None, env_kwargs[spec], args.episodes, args.seed,
                           not args.no_randomize) for spec in policies]  # fmt: skip
-    results = dict(zip(policies, evaluate_all(jobs, workers)))
+    results = dict(zip(policies, evaluate_all(jobs, workers, least)))
     rows = paired_rows(results, policies[0])
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
@@ -195,17 +196,35 @@ class EvaluationJob(NamedTuple):
     randomize: bool
 
 
-def evaluate_all(jobs: list[EvaluationJob], workers: int) -> list[dict[str, Any]]:
+#: Episodes a process gets at least when the episodes are split without ``--workers``: starting one (Python,
+#: torch, the policy) costs seconds, about what 2–5 episodes take.
+EPISODES_PER_PROCESS = 10
+
+
+def episodes_per_process(workers: int | None) -> int:
+    """The fewest episodes a process is given: :data:`EPISODES_PER_PROCESS` by default, 1 where ``--workers``
+    was given (the split asked for)."""
+    return 1 if workers else EPISODES_PER_PROCESS
+
+
+def part_count(workers: int, jobs: int, episodes: int, least: int) -> int:
+    """Into how many contiguous parts :func:`evaluate_all` splits each of ``jobs`` evaluations of ``episodes``
+    episodes with ``workers`` processes, each part at least ``least`` episodes long (one part at least)."""
+    return max(1, min(workers // jobs, episodes // least))
+
+
+def evaluate_all(jobs: list[EvaluationJob], workers: int, least: int = 1) -> list[dict[str, Any]]:
     """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order, ``workers`` processes at a time
-    (started afresh: each loads its policy), or here when ``workers`` is 1. Where there are more workers than
-    jobs, each job's episodes are split into contiguous parts, one per process: an episode depends only on its
-    seed, so the figures are those of one process, to the last bit."""
+    (started afresh: each loads its policy), or here when that makes one. Where there are more workers than
+    jobs, each job's episodes are split into contiguous parts of at least ``least`` episodes, one per process
+    (:func:`part_count`): an episode depends only on its seed, so the figures are those of one process, to the
+    last bit."""
     from stewart_gym.evaluation import summarise
 
-    per_job = max(1, workers // len(jobs))
     tasks = [(job, [int(k) for k in chunk]) for job in jobs
-             for chunk in np.array_split(np.arange(job.episodes), min(per_job, job.episodes))]  # fmt: skip
-    if workers == 1:
+             for chunk in np.array_split(np.arange(job.episodes), part_count(workers, len(jobs), job.episodes,
+                                                                             least))]  # fmt: skip
+    if workers == 1 or len(tasks) == 1:
         parts = [evaluate_part(task) for task in tasks]
     else:
         import multiprocessing
@@ -260,13 +279,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
         source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
         loaded[name] = (policy, in_world(env_kwargs, source, args.backend, None))
     out.mkdir(parents=True, exist_ok=True)
-    workers = min(args.workers or os.cpu_count() or 1, len(names))
+    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
+    at_once = min(workers, len(names) * part_count(workers, len(names), args.episodes, least))
     engine = loaded[names[0]][1].get("backend", "pybullet")
     print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes with domain randomisation "
-          f"({engine}), {workers} at a time…", flush=True)  # fmt: skip
+          f"({engine}), {at_once} processes at a time…", flush=True)  # fmt: skip
     jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, True)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
-    results = dict(zip(names, evaluate_all(jobs, workers)))
+    results = dict(zip(names, evaluate_all(jobs, workers, least)))
     print()
     print(format_table(results))
     print()
@@ -392,7 +412,8 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
 def add_workers(p: argparse.ArgumentParser) -> None:
     """``--workers`` of ``evaluate``, ``compare`` and ``demo`` (:func:`evaluate_all`)."""
     p.add_argument("--workers", type=int_at_least(1), help="processes at once (default: one per core): one per "
-                   "policy, and a policy's episodes split between them where there are more (the same figures)")
+                   "policy, and a policy's episodes split between them where there are more (the same figures; "
+                   f"by default only where each gets {EPISODES_PER_PROCESS} episodes or more)")
 
 
 def register(sub: Any) -> None:
