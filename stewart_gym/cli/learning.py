@@ -215,10 +215,10 @@ def part_count(workers: int, jobs: int, episodes: int, least: int) -> int:
 
 def evaluate_all(jobs: list[EvaluationJob], workers: int, least: int = 1) -> list[dict[str, Any]]:
     """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order, ``workers`` processes at a time
-    (started afresh: each loads its policy), or here when that makes one. Where there are more workers than
-    jobs, each job's episodes are split into contiguous parts of at least ``least`` episodes, one per process
-    (:func:`part_count`): an episode depends only on its seed, so the figures are those of one process, to the
-    last bit."""
+    (started afresh: each loads its policy), or in this process when there is one worker or one part. Where
+    there are more workers than jobs, each job's episodes are split into contiguous parts of at least ``least``
+    episodes, one per process (:func:`part_count`): an episode depends only on its seed, so the figures are
+    those of one process, to the last bit."""
     from stewart_gym.evaluation import summarise
 
     tasks = [(job, [int(k) for k in chunk]) for job in jobs
