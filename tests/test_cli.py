@@ -520,9 +520,9 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
 
 @pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0"])
 def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id: str) -> None:
-    """``evaluate --workers 2`` runs the episodes in two processes (the first two in one, the third in the other) and prints
-    the same JSON, every figure and per-episode value alike, as ``--workers 1``: each episode depends only on
-    its seed (and, in the settling test, on its index among all the episodes)."""
+    """``evaluate --workers 2`` runs the episodes in two processes (the first two in one, the third in the
+    other) and prints the same JSON, every figure and per-episode value alike, as ``--workers 1``: each episode
+    depends only on its seed (and, in the settling test, on its index among all the episodes)."""
     runs = [sg("evaluate", "--policy", "pid-kalman", "--env", env_id, "--episodes", "3", "--seed", "5",
                "--workers", str(w), "--json") for w in (1, 2)]  # fmt: skip
     for proc in runs:
