@@ -13,7 +13,8 @@ same points the same ``reset`` (episode parameters) and ball placement, so the
 ball rolls on the plate in both. The env's cost is reported as a multiple of
 the replay's: what IK, sensing, observation, reward and bookkeeping add to the
 physics. Last, each engine's worst loop gap in the env under random ±10°
-bang-bang tilts: the speed is only worth quoting at that fidelity.
+bang-bang tilts: the speed is only worth quoting at that fidelity, and the Kalman
+observer's filter alone, per control step.
 """
 
 from __future__ import annotations
@@ -127,6 +128,25 @@ def env_loop_gap(backend: str = "pybullet", steps: int = 2000) -> float:
     return worst
 
 
+def kalman_step_us(steps: int = 5000, rounds: int = 7) -> float:
+    """µs per control step of the Kalman observer's filter alone (a command, a reading 11 ms old and the
+    prediction for now, at 50 Hz): the median of ``rounds`` rounds of ``steps`` steps."""
+    from stewart_gym.sensing import BallKalmanFilter
+
+    times = []
+    for _ in range(rounds):
+        kf = BallKalmanFilter()
+        kf.reset(0.0, (0.01, 0.02))
+        t0 = time.perf_counter()
+        for k in range(1, steps + 1):
+            now = 0.02 * k
+            kf.command(now, (0.01 * np.sin(k * 0.01), 0.02 * np.cos(k * 0.013)))
+            kf.update(now - 0.011, (0.01 + 1e-3 * np.sin(k * 0.7), 0.02 + 1e-3 * np.cos(k * 1.1)))
+            kf.estimate(now)
+        times.append((time.perf_counter() - t0) / steps)
+    return float(np.median(times)) * 1e6
+
+
 def main() -> None:
     from stewart_gym.sim.engines import BACKEND_NAMES
 
@@ -144,7 +164,7 @@ def main() -> None:
                  for mode in ("tilt", "pose", "pulse")]  # fmt: skip
         rows.append(measure("StewartBallBalance-v0", True, args.steps, args.rounds, backend, "tilt", 1.0, "kalman"))
         gaps[backend] = round(env_loop_gap(backend) * 1e3, 4)
-    res = {"envs": rows, "loop_gap_full_tilt_mm": gaps}
+    res = {"envs": rows, "loop_gap_full_tilt_mm": gaps, "kalman_filter_step_us": round(kalman_step_us(), 1)}
     speed = {(r["backend"], r["id"], r["mode"], r["actions"], r["randomize"]): r["steps_per_s"] for r in rows
              if r["estimator"] == "lowpass"}  # fmt: skip
     if len(args.backends) == 2:
@@ -161,6 +181,8 @@ def main() -> None:
               f"{r['steps_per_s']:>6,} steps/s   sim replay {r['sim_steps_per_s']:>6,}/s   env cost "
               f"{r['cost_vs_sim']:.2f}× ({lo:.2f}–{hi:.2f})   ({r['physics_hz']} Hz physics, {r['episodes']} episodes)"
               + ("   Kalman observer" if r["estimator"] == "kalman" else ""))
+    print(f"the Kalman observer's filter alone: {res['kalman_filter_step_us']:.1f} µs a control step (a command, a "
+          "reading and the prediction for now)")
     print("targets: ≥ 3,000 env steps/s in every action mode; env cost ≤ 1.3× the sim's; MuJoCo ≥ 2× PyBullet")
     for name, ratio in res.get("mujoco_vs_pybullet", {}).items():
         print(f"  MuJoCo / PyBullet, {name}: {ratio:.2f}×")

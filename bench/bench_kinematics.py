@@ -1,4 +1,5 @@
-"""Kinematics throughput on one core: batched servo IK, a per-pose loop, single-pose latency, FK.
+"""Kinematics throughput on one core: batched servo IK, a per-pose loop, single-pose latency, an
+out-of-reach action's ray search, FK.
 
 Run: ``.venv/bin/python bench/bench_kinematics.py`` (or ``make bench``). BLAS is
 limited to one thread so the figures are for one core. Prints a table and, with
@@ -20,6 +21,7 @@ from collections.abc import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from stewart_gym.actions import ActionMapper  # noqa: E402
 from stewart_gym.calibration import ServoCalibration, servo_pulses_one  # noqa: E402
 from stewart_gym.geometry import PlatformGeometry  # noqa: E402
 from stewart_gym.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
@@ -98,6 +100,16 @@ def main() -> None:
     reachable_one = poses[:100][inverse_kinematics(geo, poses[:100]).reachable][0].tolist()
     control_us = median_latency_us(lambda: servo_pulses_one(geo, cal, reachable_one))
 
+    corner = np.array([1.0, 1.0])  # a diagonal tilt at the action's limit: out of reach, so the ray search
+    fresh = [ActionMapper(geo, cal, "tilt") for _ in range(200)]
+    first = []
+    for mapper in fresh:
+        t0 = time.perf_counter()
+        mapper(corner)
+        first.append(time.perf_counter() - t0)
+    corner_first_us = float(np.median(first)) * 1e6
+    corner_again_us = median_latency_us(lambda: fresh[0](corner))
+
     ik = inverse_kinematics(geo, poses[:100_000])
     angles = ik.servo_angles[ik.reachable]
     t_fk = best_of(lambda: forward_kinematics(geo, servo_angles=angles), 3)
@@ -114,6 +126,8 @@ def main() -> None:
         "speedup_vs_api_loop": round(batch_rate / api_rate, 1),
         "single_pose_latency_us": round(latency_us, 2),
         "control_path_latency_us": round(control_us, 2),
+        "unreachable_corner_first_us": round(corner_first_us, 1),
+        "unreachable_corner_again_us": round(corner_again_us, 1),
         "fk_solves_per_s": round(len(angles) / t_fk),
         "fk_mean_iterations": round(float(fk.iterations.mean()), 2),
         "fk_max_error": fk_err,
@@ -127,6 +141,8 @@ def main() -> None:
     print(f"  loop over single-pose API {api_rate:>14,.0f} poses/s   → batched is {batch_rate / api_rate:.0f}×")
     print(f"  single-pose latency       {latency_us:>14.1f} µs        (target ≤ 30)")
     print(f"  one pose → pulses, scalar {control_us:>14.1f} µs        (servo_pulses_one)")
+    print(f"  out-of-reach tilt → pulses{corner_first_us:>14.1f} µs        (ActionMapper: the ray search; "
+          f"{corner_again_us:.1f} µs when the same pose comes again)")
     print(f"  batched FK (Newton)       {len(angles) / t_fk:>14,.0f} solves/s  "
           f"({fk.iterations.mean():.1f} iterations, max error {fk_err:.1e})")  # fmt: skip
 
