@@ -74,14 +74,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     check_trajectory(env_id, args.trajectory)
     if args.trajectory is not None:
         env_kwargs["trajectory"] = args.trajectory
-    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
-    if part_count(workers, 1, args.episodes, least) == 1:
+    processes, parts = process_plan(args.workers, 1, args.episodes)
+    if parts == 1:
         metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
                            env_kwargs=env_kwargs)  # fmt: skip
     else:  # the episodes split over processes: the same figures
         job = EvaluationJob(args.policy, env_id, args.geometry, args.estimator, env_kwargs, args.episodes, args.seed,
                             not args.no_randomize)  # fmt: skip
-        metrics = evaluate_all([job], workers, least)[0]
+        metrics = evaluate_all([job], parts, processes)[0]
     if gif or plot:
         _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
     if args.json:
@@ -105,16 +105,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if twice:
         raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
     env_id, geometry, env_kwargs = compare_setup(args)
-    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
-    at_once = min(workers, len(policies) * part_count(workers, len(policies), args.episodes, least))
+    processes, parts = process_plan(args.workers, len(policies), args.episodes)
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
           f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
-          f"{world_line['backend']}, sensor {world_line['sensor']}; {at_once} processes at a time…", flush=True,
+          f"{world_line['backend']}, sensor {world_line['sensor']}; {processes} processes at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
     jobs = [EvaluationJob(spec, env_id, geometry, None, env_kwargs[spec], args.episodes, args.seed,
                           not args.no_randomize) for spec in policies]  # fmt: skip
-    results = dict(zip(policies, evaluate_all(jobs, workers, least)))
+    results = dict(zip(policies, evaluate_all(jobs, parts, processes)))
     rows = paired_rows(results, policies[0])
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
@@ -201,39 +200,37 @@ class EvaluationJob(NamedTuple):
 EPISODES_PER_PROCESS = 10
 
 
-def episodes_per_process(workers: int | None) -> int:
-    """The fewest episodes a process is given: :data:`EPISODES_PER_PROCESS` by default, 1 where ``--workers``
-    was given (the split asked for)."""
-    return 1 if workers else EPISODES_PER_PROCESS
+def process_plan(requested: int | None, jobs: int, episodes: int) -> tuple[int, int]:
+    """(processes, parts) for :func:`evaluate_all`: ``jobs`` evaluations of ``episodes`` episodes each, on
+    ``requested`` processes (``--workers``), else one per core. Each job's episodes are split into ``parts``
+    contiguous parts where there are more processes than jobs: as many as ``--workers`` asks for, and by
+    default only as many as give each part :data:`EPISODES_PER_PROCESS` episodes or more."""
+    workers = requested or os.cpu_count() or 1
+    least = 1 if requested else EPISODES_PER_PROCESS
+    parts = max(1, min(workers // jobs, episodes // least))
+    return min(workers, jobs * parts), parts
 
 
-def part_count(workers: int, jobs: int, episodes: int, least: int) -> int:
-    """Into how many contiguous parts :func:`evaluate_all` splits each of ``jobs`` evaluations of ``episodes``
-    episodes with ``workers`` processes, each part at least ``least`` episodes long (one part at least)."""
-    return max(1, min(workers // jobs, episodes // least))
-
-
-def evaluate_all(jobs: list[EvaluationJob], workers: int, least: int = 1) -> list[dict[str, Any]]:
-    """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order, ``workers`` processes at a time
-    (started afresh: each loads its policy), or in this process when there is one worker or one part. Where
-    there are more workers than jobs, each job's episodes are split into contiguous parts of at least ``least``
-    episodes, one per process (:func:`part_count`): an episode depends only on its seed, so the figures are
-    those of one process, to the last bit."""
+def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int) -> list[dict[str, Any]]:
+    """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order (:func:`process_plan` gives
+    ``parts`` and ``processes``): each job's episodes split into ``parts`` contiguous parts, run ``processes``
+    at a time, each in a process started afresh that loads its policy, or in this process when there is one
+    process or one part in all. An episode depends only on its seed, so the figures are those of one process,
+    to the last bit."""
     from stewart_gym.evaluation import summarise
 
     tasks = [(job, [int(k) for k in chunk]) for job in jobs
-             for chunk in np.array_split(np.arange(job.episodes), part_count(workers, len(jobs), job.episodes,
-                                                                             least))]  # fmt: skip
-    if workers == 1 or len(tasks) == 1:
-        parts = [evaluate_part(task) for task in tasks]
+             for chunk in np.array_split(np.arange(job.episodes), parts)]  # fmt: skip
+    if processes == 1 or len(tasks) == 1:
+        results = [evaluate_part(task) for task in tasks]
     else:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            parts = list(pool.map(evaluate_part, tasks))
+        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(evaluate_part, tasks))
     return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
-                      [part for (owner, _), part in zip(tasks, parts) if owner is job]) for job in jobs]  # fmt: skip
+                      [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
 
 
 def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:
@@ -279,14 +276,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
         source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
         loaded[name] = (policy, in_world(env_kwargs, source, args.backend, None))
     out.mkdir(parents=True, exist_ok=True)
-    workers, least = args.workers or os.cpu_count() or 1, episodes_per_process(args.workers)
-    at_once = min(workers, len(names) * part_count(workers, len(names), args.episodes, least))
+    processes, parts = process_plan(args.workers, len(names), args.episodes)
     engine = loaded[names[0]][1].get("backend", "pybullet")
     print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes with domain randomisation "
-          f"({engine}), {at_once} processes at a time…", flush=True)  # fmt: skip
+          f"({engine}), {processes} processes at a time…", flush=True)  # fmt: skip
     jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, True)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
-    results = dict(zip(names, evaluate_all(jobs, workers, least)))
+    results = dict(zip(names, evaluate_all(jobs, parts, processes)))
     print()
     print(format_table(results))
     print()
