@@ -288,7 +288,8 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
     cfg = TrainConfig(env_id=sweep.env, algo=sweep.algo, hyperparams=sweep.hyperparams_file, run_dir=str(run_dir),
                       geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
                       n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
-                      overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False)  # fmt: skip
+                      overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
+                      vec_env="subproc")  # fmt: skip  (a trial's n_envs are worker processes: the CPUs Ray reserves)
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:

@@ -42,12 +42,15 @@ from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
 
 __all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "algo_keywords", "check_action_noise",
            "check_algo_keywords", "check_resumed_observer", "check_run_dir", "action_noise", "load_hyperparams",
-           "make_env", "run_hyperparams", "train"]
+           "make_env", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
 ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual",
             "noise_type", "noise_std")
+#: The evaluations during training draw their episodes from seed ``seed + EVAL_SEED_OFFSET``: apart from the
+#: training envs' (``seed`` … ``seed + n_envs - 1``), and the same in each run of a seed.
+EVAL_SEED_OFFSET = 10_000
 #: RL-Zoo's ``noise_type``: Gaussian or Ornstein-Uhlenbeck exploration noise on the actions of SAC, TD3 or TQC
 NOISE_TYPES = ("normal", "ornstein-uhlenbeck")
 
@@ -67,6 +70,7 @@ class TrainConfig:
     seed: int = 0
     n_timesteps: int | None = None  # overrides the YAML
     n_envs: int | None = None  # overrides the YAML
+    vec_env: str = "dummy"  # where the n_envs copies step: "dummy" (this process) or "subproc" (one process each)
     eval_freq: int | None = None  # env steps between evaluations (total over all envs)
     eval_episodes: int | None = None
     checkpoint_freq: int = 100_000
@@ -225,6 +229,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         value = getattr(config, key)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
+    check_vec_env(config.vec_env)
     hp = run_hyperparams(config)
     check_algo_keywords(config.algo, hp)
     check_action_noise(config.algo, hp)
@@ -274,15 +279,39 @@ def check_resumed_observer(config: TrainConfig, hp: dict[str, Any], model: Path)
                           f"observer (or --estimator {now} to change it on purpose)")  # fmt: skip
 
 
+class InProcessVecEnv(DummyVecEnv):
+    """SB3's :class:`DummyVecEnv` (the copies step one after another in this process) with the rewards kept as
+    float64, as :class:`SubprocVecEnv` returns them: DummyVecEnv's float32 buffer would round them, so the same
+    run would learn differently in and out of process. With it a run is the same to the last bit either way."""
+
+    def __init__(self, env_fns: list[Callable[[], Any]]) -> None:
+        super().__init__(env_fns)
+        self.buf_rews = np.zeros((self.num_envs,), dtype=np.float64)
+
+
+#: ``--vec-env`` (RL-Zoo's names): where a run's ``n_envs`` env copies step. In this process is the default: an
+#: env step (about 0.5 ms) is cheap next to a round trip to a worker process, and on a 2-core virtual machine
+#: (bench/bench_train.py) PPO trains about 1.5 times faster in process than with 2 worker processes.
+VEC_ENVS: dict[str, type[VecEnv]] = {"dummy": InProcessVecEnv, "subproc": SubprocVecEnv}
+
+
+def check_vec_env(vec_env: str) -> None:
+    """A :data:`VEC_ENVS` name, else :class:`ConfigError`."""
+    if vec_env not in VEC_ENVS:
+        raise ConfigError(f"vec_env must be one of {', '.join(VEC_ENVS)}, got {vec_env!r}")
+
+
 def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None,
-             residual: dict | None = None) -> VecEnv:  # fmt: skip
-    """``n_envs`` monitored copies; worker processes (forkserver) when ``n_envs > 1``; with ``residual``
-    (``{base, scale}``) the agent's action corrects a classical controller's (:class:`ResidualAction`).
+             residual: dict | None = None, vec_env: str = "dummy") -> VecEnv:  # fmt: skip
+    """``n_envs`` monitored copies, stepped as ``vec_env`` says (:data:`VEC_ENVS`; in this process whatever it
+    says when ``n_envs`` is 1); with ``residual`` (``{base, scale}``) the agent's action corrects a classical
+    controller's (:class:`ResidualAction`).
 
     The id is passed as ``stewart_gym:<id>`` so that a worker process, which has
     not imported the package, imports it (and so registers the ids) first.
     """
-    vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
+    check_vec_env(vec_env)
+    vec_cls = VEC_ENVS[vec_env] if n_envs > 1 else InProcessVecEnv
     full_id = env_id if ":" in env_id else f"stewart_gym:{env_id}"
     wrapper = {"wrapper_class": ResidualAction, "wrapper_kwargs": {"residual": residual}} if residual else {}
     return make_vec_env(full_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls,
@@ -357,7 +386,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     """
     check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]
-    torch.set_num_threads(1)  # small MLPs: extra threads only fight the env workers for the cores
+    torch.set_num_threads(1)  # small MLPs: extra threads only fight the envs (or other runs) for the cores
     hp = run_hyperparams(config)
 
     def option(value: int | None, key: str, default: int) -> int:  # an explicit option wins, even a small one
@@ -383,12 +412,13 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         hp["residual"] = residual  # with the base's design as it is now: a later retune leaves this run alone
     # built here first: a bad env keyword is one error line, before the run folder and the worker processes
     eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
+    eval_env.seed(config.seed + EVAL_SEED_OFFSET)  # the same evaluation episodes, so learning curve and best/, each run
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
     (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
     (run / "git.txt").write_text(_git_revision() + "\n")
 
-    env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual)
+    env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual, config.vec_env)
     resume = Path(config.resume) if config.resume else None
     stats = None
     if resume is not None:

@@ -209,6 +209,7 @@ BAD = [
     ["train", "--backend", "ode"],
     ["train", "--timesteps", "0"],
     ["train", "--n-envs", "0"],
+    ["train", "--vec-env", "threads"],
     ["train", "--max-minutes", "0"],
     ["train", "--max-minutes", "nan"],
     ["train", "--algo", "foo"],
@@ -728,6 +729,36 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     assert "action5" in rows[0]  # six actions logged
     proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), cwd=tmp_path)
     assert proc.returncode == 1 and "--overwrite" in proc.stderr  # a finished run is not overwritten
+
+
+def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_processes(tmp_path: Path) -> None:
+    """``train --vec-env subproc`` and the default (``dummy``) give the same weights and statistics, bit for
+    bit: the choice is one of speed only (bench/bench_train.py). The evaluations during training are the same
+    episodes in each run of a seed, so the learning curves agree too."""
+    import csv
+    import hashlib
+    import pickle
+    import zipfile
+
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 2\n  n_timesteps: 512\n  normalize: true\n  policy: MlpPolicy\n"
+                  "  env_kwargs: {randomize: true, estimator: kalman}\n  n_steps: 128\n  batch_size: 64\n"
+                  "  n_epochs: 2\n  policy_kwargs: {net_arch: [16, 16]}\n")  # fmt: skip
+    found = {}
+    for vec_env in ("dummy", "subproc"):
+        run = tmp_path / vec_env
+        proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--vec-env", vec_env, "--seed", "4",
+                  "--eval-freq", "256", "--eval-episodes", "2", "--no-progress", "--no-tensorboard",
+                  cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr
+        with zipfile.ZipFile(run / "model.zip") as z:
+            weights = hashlib.sha256(z.read("policy.pth")).hexdigest()
+        stats = pickle.loads((run / "vecnormalize.pkl").read_bytes())
+        curve = [(row["timesteps"], row["mean_reward"]) for row in csv.DictReader((run / "eval.csv").open())]
+        found[vec_env] = weights, stats.obs_rms.mean, stats.ret_rms.var, curve
+        assert json.loads((run / "metrics.json").read_text())["timesteps"] == 512 and len(curve) == 2
+    (w_a, mean_a, var_a, curve_a), (w_b, mean_b, var_b, curve_b) = found["dummy"], found["subproc"]
+    assert w_a == w_b and np.array_equal(mean_a, mean_b) and np.array_equal(var_a, var_b) and curve_a == curve_b
 
 
 def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_deploy(device: FakeDevice,

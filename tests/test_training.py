@@ -126,7 +126,7 @@ def test_shipped_recipes_load_by_name_and_the_docs_list_them() -> None:
 
 
 @pytest.mark.parametrize("field,value", [("n_timesteps", 0), ("n_envs", 0), ("eval_freq", -5), ("eval_episodes", 0),
-                                         ("algo", "a2c")])  # fmt: skip
+                                         ("algo", "a2c"), ("vec_env", "threads")])  # fmt: skip
 def test_train_refuses_bad_options_before_starting(field: str, value: object, tmp_path: Path) -> None:
     """A zero is an error, not "use the YAML's value"; nothing is written."""
     from stewart_gym.training import TrainConfig, train
@@ -612,3 +612,24 @@ def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None
         bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
         assert "Traceback" not in bad.stderr
+
+
+def test_env_copies_step_alike_in_this_process_and_in_worker_processes() -> None:
+    """``--vec-env dummy`` and ``subproc`` see the same transitions to the last bit, episode ends included, and
+    both give float64 rewards (SB3's DummyVecEnv would round them to float32, and so train another network)."""
+    from stewart_gym.training import VEC_ENVS, make_env
+
+    seen = {}
+    for name in VEC_ENVS:
+        venv = make_env("StewartBallBalance-v0", 2, 3, {"randomize": True, "estimator": "kalman"}, vec_env=name)
+        rng = np.random.default_rng(0)
+        obs, rewards, dones = [venv.reset()], [], []
+        for _ in range(400):  # random tilts drop the ball: episodes end and reset on their own
+            o, r, d, _ = venv.step(rng.uniform(-1, 1, (2, *venv.action_space.shape)).astype(np.float32))
+            obs.append(o), rewards.append(r), dones.append(d)
+        venv.close()
+        seen[name] = np.array(obs), np.array(rewards), np.array(dones)
+    (obs_a, rew_a, done_a), (obs_b, rew_b, done_b) = seen["dummy"], seen["subproc"]
+    assert done_a.any() and rew_a.dtype == rew_b.dtype == np.float64
+    assert np.array_equal(obs_a, obs_b) and np.array_equal(rew_a, rew_b) and np.array_equal(done_a, done_b)
+    assert not np.array_equal(rew_a, rew_a.astype(np.float32))  # float32 would have rounded these rewards

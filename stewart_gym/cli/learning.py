@@ -46,9 +46,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
-                      seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, eval_freq=args.eval_freq,
-                      eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq, resume=args.resume,
-                      progress_bar=not args.no_progress,
+                      seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, vec_env=args.vec_env,
+                      eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
+                      resume=args.resume, progress_bar=not args.no_progress,
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
@@ -429,6 +429,10 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--timesteps", type=int_at_least(1), help="override n_timesteps")
     p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
+    p.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+                   help="where the n_envs env copies step: dummy, one after another in this process (default: an "
+                        "env step is cheaper than a round trip to another process), or subproc, a worker process "
+                        "each (bench/bench_train.py measures both); the same run either way, to the last bit")
     p.add_argument("--eval-freq", type=int_at_least(1), help="env steps between evaluations")
     p.add_argument("--eval-episodes", type=int_at_least(1))
     p.add_argument("--checkpoint-freq", type=int_at_least(1), default=100_000,
