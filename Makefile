@@ -40,32 +40,39 @@ train-camera: $(STAMP)
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera --sensor $$s --episodes 100; done
 
 # The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach, for
-# track 6 corrections of the LQR -> PID's catching up with the moving target (seeds 0-5, about 6.5 minutes each
-# on 2 cores), each 6 averaged into one policy (`stewart-gym ensemble`). About 80 minutes in all.
+# track 6 corrections of the LQR -> PID's catching up with the moving target (seeds 0-5, 300k steps each), each 6
+# averaged into one policy (`stewart-gym ensemble`). The 12 trainings run TRAIN_JOBS at a time (2 by default), each
+# stepping its envs in its own process: a core each. bench/bench_train.py: two side by side train 3.1 times the
+# steps per second of one run in worker processes, as they ran before (about 80 minutes then, about 30 now). A run
+# depends only on its seed, so the networks are the same at any TRAIN_JOBS.
+TRAIN_JOBS ?= 2
+RESIDUAL_SEEDS := 0 1 2 3 4 5
 train-residual: $(STAMP)
-	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s$$s --seed $$s --overwrite --no-progress; done
+	printf '%s\n' $(RESIDUAL_SEEDS) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_balance_s{} --seed {} --overwrite --no-progress
 	rm -rf runs/residual_balance
-	$(PY) -m stewart_gym ensemble runs/residual_balance_s0 runs/residual_balance_s1 runs/residual_balance_s2 runs/residual_balance_s3 runs/residual_balance_s4 runs/residual_balance_s5 --out runs/residual_balance --note "ppo_residual.yml, seeds 0-5"
-	for s in 0 1 2 3 4 5; do $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track_s$$s --seed $$s --overwrite --no-progress; done
+	$(PY) -m stewart_gym ensemble $(patsubst %,runs/residual_balance_s%,$(RESIDUAL_SEEDS)) --out runs/residual_balance --note "ppo_residual.yml, seeds 0-5"
+	printf '%s\n' $(RESIDUAL_SEEDS) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/residual_track_s{} --seed {} --overwrite --no-progress
 	rm -rf runs/residual_track
-	$(PY) -m stewart_gym ensemble runs/residual_track_s0 runs/residual_track_s1 runs/residual_track_s2 runs/residual_track_s3 runs/residual_track_s4 runs/residual_track_s5 --out runs/residual_track --note "ppo_residual.yml track, seeds 0-5"
+	$(PY) -m stewart_gym ensemble $(patsubst %,runs/residual_track_s%,$(RESIDUAL_SEEDS)) --out runs/residual_track --note "ppo_residual.yml track, seeds 0-5"
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
 # The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
-# error integral observed (3 minutes each), the first balance residual, over the PID + Kalman, and the approach
-# residual as one network (5 minutes each), each trained with 3 seeds; the shipped balance residual's recipe
-# (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (about 2 hours); then every evaluation, with
-# the shipped track residual's 6 networks one by one (about 40 minutes). About 3.5 hours on 2 cores.
+# error integral observed (3 minutes each, one at a time: side by side each would get fewer steps in its 3
+# minutes), the first balance residual, over the PID + Kalman, and the approach residual as one network, each
+# trained with 3 seeds; the shipped balance residual's recipe (6 networks averaged) drawn 3 times, seeds 0-5, 6-11
+# and 12-17 (these TRAIN_JOBS at a time, as in train-residual: about 45 minutes, 2.5 hours one after another in
+# worker processes); then every evaluation, with the shipped track residual's 6 networks one by one (about 40
+# minutes). About 1.75 hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
 TRACK_NETS := stewart_gym/policies/track_residual/members
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s$$s --seed $$s --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_single.yml --run-dir runs/approach_s$$s --seed $$s --overwrite --no-progress; done
+	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s{} --seed {} --overwrite --no-progress
+	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_single.yml --run-dir runs/approach_s{} --seed {} --overwrite --no-progress
 	for d in $(ENSEMBLE_DRAWS); do \
-	  for k in 0 1 2 3 4 5; do s=$$((6 * d + k)); $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s$$s --seed $$s --overwrite --no-progress || exit 1; done; \
+	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
 	  rm -rf runs/ensemble_d$$d; $(PY) -m stewart_gym ensemble runs/ensemble_d$${d}_s* --out runs/ensemble_d$$d || exit 1; \
 	done
 	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5"
