@@ -291,7 +291,7 @@ class InProcessVecEnv(DummyVecEnv):
 
 #: ``--vec-env`` (RL-Zoo's names): where a run's ``n_envs`` env copies step. In this process is the default: an
 #: env step (about 0.5 ms) is cheap next to a round trip to a worker process, and on a 2-core virtual machine
-#: (bench/bench_train.py) PPO trains about 1.5 times faster in process than with 2 worker processes.
+#: (bench/bench_train.py) PPO trains about 1.3 times faster in process than with 2 worker processes.
 VEC_ENVS: dict[str, type[VecEnv]] = {"dummy": InProcessVecEnv, "subproc": SubprocVecEnv}
 
 
