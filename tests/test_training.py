@@ -626,7 +626,9 @@ def test_env_copies_step_alike_in_this_process_and_in_worker_processes() -> None
         obs, rewards, dones = [venv.reset()], [], []
         for _ in range(400):  # random tilts drop the ball: episodes end and reset on their own
             o, r, d, _ = venv.step(rng.uniform(-1, 1, (2, *venv.action_space.shape)).astype(np.float32))
-            obs.append(o), rewards.append(r), dones.append(d)
+            obs.append(o)
+            rewards.append(r)
+            dones.append(d)
         venv.close()
         seen[name] = np.array(obs), np.array(rewards), np.array(dones)
     (obs_a, rew_a, done_a), (obs_b, rew_b, done_b) = seen["dummy"], seen["subproc"]
