@@ -98,12 +98,13 @@ def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
 
 
 def test_hyperparameter_files_have_every_env() -> None:
-    """Every algorithm the command line offers (the same as training's) has a file with every env."""
+    """Every algorithm the command line offers (the same as training's) has a file with every env; the command
+    line's --vec-env names are training's too."""
     import stewart_gym
-    from stewart_gym.cli.learning import ALGO_CHOICES
-    from stewart_gym.training import ALGOS
+    from stewart_gym.cli.learning import ALGO_CHOICES, VEC_ENV_CHOICES
+    from stewart_gym.training import ALGOS, VEC_ENVS
 
-    assert sorted(ALGO_CHOICES) == sorted(ALGOS)
+    assert sorted(ALGO_CHOICES) == sorted(ALGOS) and sorted(VEC_ENV_CHOICES) == sorted(VEC_ENVS)
     for algo in ALGO_CHOICES:
         for env_id in stewart_gym.ENV_IDS:
             hp = load_hyperparams(algo, env_id)

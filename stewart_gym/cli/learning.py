@@ -34,6 +34,8 @@ ENV_CHOICES = tuple(ENV_IDS)
 #: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
+#: ``--vec-env``: the keys of :data:`stewart_gym.training.VEC_ENVS`, for the same reason (a test keeps them equal)
+VEC_ENV_CHOICES = ("dummy", "subproc")
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -429,7 +431,7 @@ def register(sub: Any) -> None:
     p.add_argument("--seed", type=int_at_least(0), default=0)
     p.add_argument("--timesteps", type=int_at_least(1), help="override n_timesteps")
     p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
-    p.add_argument("--vec-env", choices=("dummy", "subproc"), default="dummy",
+    p.add_argument("--vec-env", choices=VEC_ENV_CHOICES, default="dummy",
                    help="where the n_envs env copies step: dummy, one after another in this process (default: an "
                         "env step is cheaper than a round trip to another process), or subproc, a worker process "
                         "each (bench/bench_train.py measures both); the same run either way, to the last bit")
