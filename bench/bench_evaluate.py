@@ -30,7 +30,7 @@ def run_evaluate(policy: str, episodes: int, workers: int, env: str | None) -> t
     done = subprocess.run(cmd, capture_output=True, text=True)
     wall = time.perf_counter() - start
     if done.returncode != 0:
-        sys.exit(f"error: {' '.join(cmd[1:])} failed: {done.stderr.strip().splitlines()[-1:]}")
+        sys.exit(f"error: {' '.join(cmd[1:])} failed: {(done.stderr.strip().splitlines() or ['no message'])[-1]}")
     return wall, json.loads(done.stdout)
 
 

@@ -41,7 +41,7 @@ def run_together(commands: list[list[str]]) -> float:
     for cmd, proc in zip(commands, procs):
         _, err = proc.communicate()
         if proc.returncode != 0:
-            sys.exit(f"error: {' '.join(cmd[1:])} failed: {err.strip().splitlines()[-1:]}")
+            sys.exit(f"error: {' '.join(cmd[1:])} failed: {(err.strip().splitlines() or ['no message'])[-1]}")
     return time.perf_counter() - start
 
 
