@@ -5,7 +5,8 @@
 * ``shipped``: the committed policy for the env id (:data:`SHIPPED`);
 * ``shipped-camera``: the committed policy trained with the camera sensor model (:data:`SHIPPED_CAMERA`);
 * ``shipped-residual``: the committed residual PPO policy, a learned correction on top of a classical
-  controller (balance: the LQR → PID's approach; track: the LQR) behind the Kalman observer (:data:`SHIPPED_RESIDUAL`);
+  controller (balance: the LQR → PID's approach; track: the LQR → PID's catching up with the moving target)
+  behind the Kalman observer (:data:`SHIPPED_RESIDUAL`);
 * ``pid``: the tuned cascaded PID baseline behind the low-pass observer (``policies/pid_gains.json``);
 * ``pid-kalman``: the cascaded PID retuned behind the Kalman observer (``policies/pid_kalman_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see

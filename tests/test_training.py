@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -92,9 +93,9 @@ def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
                                   run_dir=str(tmp_path / estimator), resume=str(shipped), estimator=estimator))
     check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"), run_dir=str(tmp_path / "c"),
                               resume=str(shipped / "model.zip")))  # the camera recipe keeps the Kalman observer
-    with pytest.raises(ConfigError, match="lowpass observer"):  # and the other way round (the track PPO: low-pass)
+    with pytest.raises(ConfigError, match="lowpass observer"):  # and the other way round (desk-rect's: low-pass)
         check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"),
-                                  run_dir=str(tmp_path / "d"), resume=str(root / "stewart_gym/policies/track")))
+                                  run_dir=str(tmp_path / "d"), resume=str(root / "stewart_gym/policies/balance_desk_rect")))
 
 
 def test_hyperparameter_files_have_every_env() -> None:
@@ -293,6 +294,35 @@ def test_settled_servo_activity_is_reported() -> None:
     assert m["settled_pulse_p2p_us"] == pytest.approx(np.ptp(tail, axis=0).max())
     assert m["settled_pulse_rate_us_per_s"] == pytest.approx(np.abs(np.diff(tail, axis=0)).mean() / 0.02)
     assert 0 < m["settled_pulse_rate_us_per_s"] < 5000 and 0 < m["settled_pulse_p2p_us"] < 400
+
+
+def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touching_the_package(tmp_path: Path) -> None:
+    """``train/ship_policy.py --eval FILE`` reads the evaluation first: a file with no JSON object is one error line
+    and nothing is written or removed under ``stewart_gym/policies``; an indented JSON object is read as it is."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "train"))
+    try:
+        import ship_policy
+    finally:
+        sys.path.remove(str(root / "train"))
+    (tmp_path / "indented.json").write_text('{\n "success_rate": 1.0,\n "per_episode": {"success": [true]}\n}\n')
+    assert ship_policy.read_evaluation(tmp_path / "indented.json") == {"success_rate": 1.0}
+    (tmp_path / "logged.json").write_text('loading\n{"success_rate": 0.5}\n')  # evaluate's output with a log line
+    assert ship_policy.read_evaluation(tmp_path / "logged.json") == {"success_rate": 0.5}
+    (tmp_path / "bad.json").write_text("Traceback (most recent call last):\n")
+    policies = root / "stewart_gym/policies"
+    before = sorted(p.name for p in policies.iterdir())
+    try:
+        proc = subprocess.run([sys.executable, str(root / "train/ship_policy.py"), str(tmp_path / "run"), "--name",
+                               "never_shipped", "--eval", str(tmp_path / "bad.json")], capture_output=True, text=True,
+                              timeout=120)  # fmt: skip
+        assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
+        assert proc.stderr.startswith("error: --eval") and sorted(p.name for p in policies.iterdir()) == before
+    finally:
+        shutil.rmtree(policies / "never_shipped", ignore_errors=True)
 
 
 def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -> None:

@@ -30,6 +30,7 @@ def main() -> None:
     run = Path(args.run)
     src = run / "best" if args.model == "best" else run
     out = POLICY_DIR / args.name
+    evaluation = read_evaluation(Path(args.eval)) if args.eval else None  # before the shipped folder is replaced
     if out.exists():
         shutil.rmtree(out)
     if (run / ENSEMBLE_FILE).is_file():
@@ -41,13 +42,29 @@ def main() -> None:
     else:
         metrics = ship_run(run, src, out, args.model)
     metrics["note"] = args.note
-    if args.eval:
-        evaluation = json.loads(Path(args.eval).read_text().strip().splitlines()[-1])
-        evaluation.pop("per_episode", None)  # the summary only: each seed's values belong to the results page
+    if evaluation is not None:
         metrics["evaluation_100_seeds"] = evaluation
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     export_policy(resolve_policy(str(out)), out / "bundle")  # env id, action mode and geometry from config.yaml
     print(f"shipped {src} as {out}")
+
+
+def read_evaluation(path: Path) -> dict:
+    """The evaluation summary in ``path``: ``evaluate --json``'s object, the file's last line (after any log lines)
+    or the whole file (indented); each seed's values are left out (they belong to the results page)."""
+    text = path.read_text().strip()
+    try:
+        evaluation = json.loads(text)
+    except json.JSONDecodeError:
+        try:
+            evaluation = json.loads(text.splitlines()[-1] if text else "")
+        except json.JSONDecodeError:
+            raise SystemExit(f"error: --eval {path}: no JSON object in it (write it with `stewart-gym evaluate "
+                             "--json > FILE`)") from None  # fmt: skip
+    if not isinstance(evaluation, dict):
+        raise SystemExit(f"error: --eval {path}: expected a JSON object, got {type(evaluation).__name__}")
+    evaluation.pop("per_episode", None)
+    return evaluation
 
 
 def ship_run(run: Path, src: Path, out: Path, model: str) -> dict:
