@@ -316,11 +316,12 @@ def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touchi
     policies = root / "stewart_gym/policies"
     before = sorted(p.name for p in policies.iterdir())
     try:
-        proc = subprocess.run([sys.executable, str(root / "train/ship_policy.py"), str(tmp_path / "run"), "--name",
-                               "never_shipped", "--eval", str(tmp_path / "bad.json")], capture_output=True, text=True,
-                              timeout=120)  # fmt: skip
-        assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
-        assert proc.stderr.startswith("error: --eval") and sorted(p.name for p in policies.iterdir()) == before
+        for bad in ("bad.json", "missing.json"):  # no JSON in it; no such file
+            proc = subprocess.run([sys.executable, str(root / "train/ship_policy.py"), str(tmp_path / "run"), "--name",
+                                   "never_shipped", "--eval", str(tmp_path / bad)], capture_output=True, text=True,
+                                  timeout=120)  # fmt: skip
+            assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
+            assert proc.stderr.startswith("error: --eval") and sorted(p.name for p in policies.iterdir()) == before
     finally:
         shutil.rmtree(policies / "never_shipped", ignore_errors=True)
 

@@ -52,7 +52,10 @@ def main() -> None:
 def read_evaluation(path: Path) -> dict:
     """The evaluation summary in ``path``: ``evaluate --json``'s object, the file's last line (after any log lines)
     or the whole file (indented); each seed's values are left out (they belong to the results page)."""
-    text = path.read_text().strip()
+    try:
+        text = path.read_text().strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SystemExit(f"error: --eval {path}: cannot read it ({exc.__class__.__name__})") from None
     try:
         evaluation = json.loads(text)
     except json.JSONDecodeError:
