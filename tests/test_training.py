@@ -604,6 +604,23 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
     assert [c.strip() for c in noise.split("|")[1:6]] == ["LQR", "–", "82 (173)", "–", "–"]
 
 
+def test_results_page_is_what_the_script_makes_of_results_json_and_the_intro() -> None:
+    """docs/src/results.md is ``train/results.py``'s page for ``docs/src/results.json`` and
+    ``train/results_intro.md`` as they are: an edit of the intro, or of the results, not regenerated
+    (``--from-json``) fails here."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("results_script", root / "train" / "results.py")
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    page = script.results_page(json.loads((root / "docs" / "src" / "results.json").read_text()))
+    assert page == (root / "docs" / "src" / "results.md").read_text(), \
+        "docs/src/results.md is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+    assert "| metric | shipped PPO | residual PPO | PID | PID + Kalman | LQR | LQR → PID |" in page
+
+
 def test_readme_headline_is_the_results_json_table() -> None:
     """The README's headline table (between its markers) is what ``train/results.py`` makes of
     ``docs/src/results.json``: no figure there goes stale when the results are regenerated; it names the
