@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -604,17 +605,24 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
     assert [c.strip() for c in noise.split("|")[1:6]] == ["LQR", "–", "82 (173)", "–", "–"]
 
 
+def results_script() -> Any:
+    """``train/results.py`` as a module (a script, not part of the package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("results_script", Path(__file__).resolve().parents[1] / "train"
+                                                  / "results.py")  # fmt: skip
+    assert spec is not None and spec.loader is not None
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    return script
+
+
 def test_results_page_is_what_the_script_makes_of_results_json_and_the_intro() -> None:
     """docs/src/results.md is ``train/results.py``'s page for ``docs/src/results.json`` and
     ``train/results_intro.md`` as they are: an edit of the intro, or of the results, not regenerated
     (``--from-json``) fails here."""
-    import importlib.util
-
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("results_script", root / "train" / "results.py")
-    assert spec is not None and spec.loader is not None
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = results_script()
     page = script.results_page(json.loads((root / "docs" / "src" / "results.json").read_text()))
     assert page == (root / "docs" / "src" / "results.md").read_text(), \
         "docs/src/results.md is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
@@ -625,13 +633,8 @@ def test_readme_headline_is_the_results_json_table() -> None:
     """The README's headline table (between its markers) is what ``train/results.py`` makes of
     ``docs/src/results.json``: no figure there goes stale when the results are regenerated; it names the
     shipped residual, the PID + Kalman and the LQR, and pairs the residual with both."""
-    import importlib.util
-
     root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location("results_script", root / "train" / "results.py")
-    assert spec is not None and spec.loader is not None
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = results_script()
     table = script.headline(json.loads((root / "docs" / "src" / "results.json").read_text()))
     start, end = script.README_MARKERS
     readme = (root / "README.md").read_text()
