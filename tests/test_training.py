@@ -317,12 +317,13 @@ def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touchi
     policies = root / "stewart_gym/policies"
     before = sorted(p.name for p in policies.iterdir())
     try:
-        for bad in ("bad.json", "missing.json"):  # no JSON in it; no such file
+        for bad, says in (("bad.json", "error: --eval"), ("missing.json", "error: --eval"),  # no JSON; no file
+                          ("indented.json", f"error: {tmp_path / 'run'}: no model.zip")):  # a good file, no run
             proc = subprocess.run([sys.executable, str(root / "train/ship_policy.py"), str(tmp_path / "run"), "--name",
                                    "never_shipped", "--eval", str(tmp_path / bad)], capture_output=True, text=True,
                                   timeout=120)  # fmt: skip
             assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
-            assert proc.stderr.startswith("error: --eval") and sorted(p.name for p in policies.iterdir()) == before
+            assert proc.stderr.startswith(says) and sorted(p.name for p in policies.iterdir()) == before
     finally:
         shutil.rmtree(policies / "never_shipped", ignore_errors=True)
 

@@ -31,6 +31,10 @@ def main() -> None:
     src = run / "best" if args.model == "best" else run
     out = POLICY_DIR / args.name
     evaluation = read_evaluation(Path(args.eval)) if args.eval else None  # before the shipped folder is replaced
+    model = src / ("best_model.zip" if args.model == "best" else "model.zip")
+    if not ((run / ENSEMBLE_FILE).is_file() or (model.is_file() and (src / "vecnormalize.pkl").is_file())):
+        raise SystemExit(f"error: {run}: no {model.name} with its vecnormalize.pkl and no {ENSEMBLE_FILE}; give a "
+                         "finished run folder (stewart-gym train) or an ensemble folder (stewart-gym ensemble)")
     if out.exists():
         shutil.rmtree(out)
     if (run / ENSEMBLE_FILE).is_file():
