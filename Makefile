@@ -62,11 +62,13 @@ train-residual: $(STAMP)
 # minutes), the first balance residual, over the PID + Kalman, and the approach residual as one network, each
 # trained with 3 seeds; the shipped balance residual's recipe (6 networks averaged) drawn 3 times, seeds 0-5, 6-11
 # and 12-17 (these TRAIN_JOBS at a time, as in train-residual: about 45 minutes, 2.5 hours one after another in
-# worker processes); the PPO tracker (make train-track's recipe) with seeds 0-2, TRAIN_JOBS at a time (about 15
-# minutes); then every evaluation, with the shipped track residual's 6 networks one by one (about 50 minutes).
-# About 2 hours on 2 cores.
+# worker processes); the shipped track residual's recipe drawn twice more, seeds 6-11 and 12-17 (TRAIN_JOBS at a
+# time: 77 minutes on a slow day), its shipped draw being the first; the PPO tracker (make train-track's recipe)
+# with seeds 0-2, TRAIN_JOBS at a time (about 15 minutes); then every evaluation, with the shipped track
+# residual's 6 networks one by one (about 1 hour). About 3 hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
 TRACK_NETS := stewart_gym/policies/track_residual/members
+TRACK_DRAWS := 1 2
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
@@ -76,8 +78,12 @@ results: $(STAMP)
 	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
 	  rm -rf runs/ensemble_d$$d; $(PY) -m stewart_gym ensemble runs/ensemble_d$${d}_s* --out runs/ensemble_d$$d || exit 1; \
 	done
+	for d in $(TRACK_DRAWS); do \
+	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/track_ens_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
+	  rm -rf runs/track_ens_d$$d; $(PY) -m stewart_gym ensemble runs/track_ens_d$${d}_s* --out runs/track_ens_d$$d || exit 1; \
+	done
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/track_s{} --seed {} --overwrite --no-progress
-	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
+	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
