@@ -31,13 +31,14 @@ def main() -> None:
     src = run / "best" if args.model == "best" else run
     out = POLICY_DIR / args.name
     evaluation = read_evaluation(Path(args.eval)) if args.eval else None  # before the shipped folder is replaced
-    model = src / ("best_model.zip" if args.model == "best" else "model.zip")
-    if not ((run / ENSEMBLE_FILE).is_file() or (model.is_file() and (src / "vecnormalize.pkl").is_file())):
-        raise SystemExit(f"error: {run}: no {model.name} with its vecnormalize.pkl and no {ENSEMBLE_FILE}; give a "
-                         "finished run folder (stewart-gym train) or an ensemble folder (stewart-gym ensemble)")
+    ensemble = (run / ENSEMBLE_FILE).is_file()
+    missing = [] if ensemble else [p for p in run_files(run, src, args.model).values() if not p.is_file()]
+    if missing:  # checked before the shipped folder is replaced
+        raise SystemExit(f"error: {run}: no {', '.join(p.name for p in missing)} (nor {ENSEMBLE_FILE}); give a "
+                         "finished run folder (stewart-gym train) or an ensemble folder (stewart-gym ensemble)")  # fmt: skip
     if out.exists():
         shutil.rmtree(out)
-    if (run / ENSEMBLE_FILE).is_file():
+    if ensemble:
         top = run.resolve()  # its own bundle and metrics are written below; the members' files are kept
         shutil.copytree(run, out, ignore=lambda d, names: [n for n in names if Path(d).resolve() == top
                                                            and n in ("bundle", "metrics.json")])  # fmt: skip
@@ -74,14 +75,22 @@ def read_evaluation(path: Path) -> dict:
     return evaluation
 
 
+def run_files(run: Path, src: Path, model: str) -> dict[str, Path]:
+    """What :func:`ship_run` takes from a run, by the name it ships under: the model (``final`` or ``best``, in
+    ``src``), its statistics, the configuration, the learning curve and the training metrics."""
+    return {"model.zip": src / ("best_model.zip" if model == "best" else "model.zip"),
+            "vecnormalize.pkl": src / "vecnormalize.pkl", "config.yaml": run / "config.yaml",
+            "eval.csv": run / "eval.csv", "metrics.json": run / "metrics.json"}  # fmt: skip
+
+
 def ship_run(run: Path, src: Path, out: Path, model: str) -> dict:
-    """Copy one run's model (``final`` or ``best``), statistics, configuration and curve; its training metrics."""
+    """Copy one run's files (:func:`run_files`) into ``out``; its training metrics."""
     out.mkdir(parents=True)
-    shutil.copy(src / ("best_model.zip" if model == "best" else "model.zip"), out / "model.zip")
-    shutil.copy(src / "vecnormalize.pkl", out / "vecnormalize.pkl")
-    for name in ("config.yaml", "eval.csv"):
-        shutil.copy(run / name, out / name)
-    metrics = json.loads((run / "metrics.json").read_text())
+    files = run_files(run, src, model)
+    for name, path in files.items():
+        if name != "metrics.json":
+            shutil.copy(path, out / name)
+    metrics = json.loads(files["metrics.json"].read_text())
     metrics["shipped_model"] = model
     return metrics
 
