@@ -384,8 +384,8 @@ def test_make_results_reproduces_every_recipe_column_of_the_page() -> None:
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
     """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
     trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
-    re-evaluated row takes its old row's place; an unknown label, or no results.json to keep rows from, is
-    refused with one error line and exit 2."""
+    re-evaluated row takes its old row's place; an unknown label, a --recipe run that does not exist, or no
+    results.json to keep rows from, is refused with one error line and exit 2."""
     import subprocess
     import sys
 
@@ -422,6 +422,11 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "unknown controller" in bad.stderr
+    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
+                          f"X={tmp_path / 'no_run'}", "--out", str(tmp_path / "r.md")], capture_output=True, text=True,
+                         timeout=60)  # fmt: skip  (a mistyped run: refused before any evaluation, results.json kept)
+    assert bad.returncode == 2 and "error: --recipe: policy" in bad.stderr and "Traceback" not in bad.stderr
+    assert json.loads((tmp_path / "results.json").read_text()) == rows
     (tmp_path / "empty").mkdir()  # no results.json to keep rows from: one error line, exit 2, nothing written
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
                           str(tmp_path / "empty" / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip

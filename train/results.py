@@ -380,10 +380,15 @@ def main() -> None:
     if (args.from_json or args.rows or args.recipes_only) and not saved.is_file():
         ap.error(f"{saved} not found: --from-json, --rows and --recipes-only keep the rows of an earlier run's "
                  "results.json beside the page; run without them first")  # fmt: skip
-    jobs = jobs_for(args)
     if args.from_json:
         results = json.loads(saved.read_text())
     else:
+        from stewart_gym.errors import PolicyError
+
+        try:
+            jobs = jobs_for(args)  # resolves every --recipe run before the first evaluation starts
+        except PolicyError as exc:
+            ap.error(f"--recipe: {exc}")
         before: list[dict[str, Any]] = []  # the rows kept from results.json (--rows, --recipes-only)
         kept: list[dict[str, Any]] = []
         if args.rows:
