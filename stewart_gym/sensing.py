@@ -317,9 +317,8 @@ class BallKalmanFilter:
         self._qc = np.diag([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])
         self.noise = ReadingNoise(c.measurement_noise_mm, c.noise_window) if c.noise_window else None
         self._r = (c.measurement_noise_mm * 1e-3) ** 2
-        self._cache: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # by µs of interval
-        self._seen: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # by interval, as given
-        self._no_input = np.zeros(2)
+        self._cache: dict[float, tuple[Any, ...]] = {}  # by µs of interval
+        self._seen: dict[float, tuple[Any, ...]] = {}  # by interval, as given
         self.reset(0.0, (0.0, 0.0))
 
     def reset(self, t: float, xy: Sequence[float]) -> None:
@@ -327,21 +326,34 @@ class BallKalmanFilter:
         if self.noise is not None:
             self.noise.reset()
             self._r = self.noise.variance
-        self.x = np.zeros((4, 2))
-        self.x[0] = (float(xy[0]), float(xy[1]))
-        self.P = np.diag([self._r, 0.1**2, 0.5**2, 0.5**2])
+        self._state = (float(xy[0]), float(xy[1]), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self._cov = (self._r, 0.0, 0.0, 0.0, 0.1**2, 0.0, 0.0, 0.5**2, 0.0, 0.5**2)
         self.t = float(t)  # the time of the estimate self.x
-        self._commands: list[tuple[float, np.ndarray]] = []  # (when issued, sin of the tilt along x and y)
+        # (when it acts: issued + the dead time, sin of the tilt along x, y), in time order
+        self._commands: list[tuple[float, tuple[float, float]]] = []
+        self._last_issued = -math.inf
+
+    @property
+    def x(self) -> np.ndarray:
+        """The estimate at :attr:`t`, 4×2: rows position, velocity, plate acceleration, bias; columns x, y."""
+        return np.array(self._state).reshape(4, 2)
+
+    @property
+    def P(self) -> np.ndarray:  # noqa: N802 (the covariance's usual name)
+        """The estimate's covariance at :attr:`t`, 4×4 (the same for both axes): position, velocity, plate
+        acceleration, bias."""
+        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = self._cov
+        return np.array([[pp, pv, pa, pb], [pv, vv, va, vb], [pa, va, aa, ab], [pb, vb, ab, bb]])
 
     def command(self, t: float, roll_pitch: Sequence[float]) -> None:
         """The plate was commanded to (roll, pitch) rad at ``t`` (s)."""
-        u = np.array([math.sin(roll_pitch[1]), -math.sin(roll_pitch[0])])  # x rolls with pitch, y against roll
-        if self._commands and t <= self._commands[-1][0]:
+        u = (math.sin(roll_pitch[1]), -math.sin(roll_pitch[0]))  # x rolls with pitch, y against roll
+        if self._commands and t <= self._last_issued:
             self._commands[-1] = (self._commands[-1][0], u)
         else:
-            self._commands.append((float(t), u))
-        horizon = self.t - self.spec.dead_time_s  # commands that act before the estimate's time are spent
-        while len(self._commands) > 1 and self._commands[1][0] <= horizon:
+            self._last_issued = float(t)
+            self._commands.append((self._last_issued + self.spec.dead_time_s, u))
+        while len(self._commands) > 1 and self._commands[1][0] <= self.t:  # spent before the estimate's time
             self._commands.pop(0)
 
     def update(self, ts: float, xy: Sequence[float]) -> None:
@@ -350,46 +362,76 @@ class BallKalmanFilter:
             return
         if self.noise is not None:
             self._r = max(self.noise.update(ts, xy), self.MIN_NOISE_M**2)
-        self.x, self.P = self._propagate(self.x, self.P, self.t, ts)
+        self._state, self._cov = self._propagate(self._state, self._cov, self.t, ts)
         self.t = float(ts)
-        gain = self.P[:, 0:1] / (self.P[0, 0] + self._r)  # a column: the products below are np.outer's
-        self.x = self.x + gain * (np.asarray(xy, dtype=float) - self.x[0])
-        self.P = self.P - gain * self.P[0]
+        # The gain is P's first column over (P₀₀ + r); P loses gain_i · P₀ⱼ. Written out on the ten entries of
+        # the symmetric P (upper triangle, row by row) and the eight of the state (rows as above, x then y).
+        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = self._cov
+        s = pp + self._r
+        k0, k1, k2, k3 = pp / s, pv / s, pa / s, pb / s
+        px, py, vx, vy, ax, ay, bx, by = self._state
+        ex, ey = float(xy[0]) - px, float(xy[1]) - py
+        self._state = (px + k0 * ex, py + k0 * ey, vx + k1 * ex, vy + k1 * ey,
+                       ax + k2 * ex, ay + k2 * ey, bx + k3 * ex, by + k3 * ey)  # fmt: skip
+        self._cov = (pp - k0 * pp, pv - k0 * pv, pa - k0 * pa, pb - k0 * pb, vv - k1 * pv, va - k1 * pa,
+                     vb - k1 * pb, aa - k2 * pa, ab - k2 * pb, bb - k3 * pb)  # fmt: skip
 
-    def estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def estimate(self, t: float) -> tuple[tuple[float, float], tuple[float, float]]:
         """Predicted (x, y) position (m) and velocity (m/s) at ``t`` (s)."""
-        x, _ = self._propagate(self.x, None, self.t, max(t, self.t))
-        return x[0], x[1]
+        px, py, vx, vy = self._propagate(self._state, None, self.t, max(t, self.t))[0][:4]
+        return (px, py), (vx, vy)
 
-    def _propagate(self, x: np.ndarray, P: np.ndarray | None, t0: float, t1: float) -> tuple[np.ndarray, Any]:
-        """x (and P, unless None) carried from ``t0`` to ``t1`` through the commands acting in between: one exact
-        step per interval of constant input (a command acts a dead time after it was issued)."""
-        d = self.spec.dead_time_s
-        acting = [(issued + d, u) for issued, u in self._commands]
-        edges = sorted({t0, t1, *(s for s, _ in acting if t0 < s < t1)})
-        u, k = self._no_input, 0
+    def _propagate(self, state: tuple[float, ...], cov: tuple[float, ...] | None, t0: float,
+                   t1: float) -> tuple[tuple[float, ...], Any]:  # fmt: skip
+        """The state (and covariance, unless None) carried from ``t0`` to ``t1`` through the commands acting in
+        between: one exact step per interval of constant input (a command acts a dead time after it was
+        issued). Φ x + Γ u and Φ P Φᵀ + Q are written out on Φ's non-zero entries (:meth:`transition`): on a
+        4×4 matrix numpy's per-call overhead is most of the work (49 against 19 µs a control step in
+        ``bench/bench_env.py``)."""
+        if t1 <= t0:
+            return state, cov
+        acting = self._commands
+        edges = [t0, *(s for s, _ in acting if t0 < s < t1), t1]
+        (ux, uy), k = (0.0, 0.0), 0
         for a, b in zip(edges[:-1], edges[1:]):
             while k < len(acting) and acting[k][0] <= a + 1e-9:  # the last command acting at a
-                u, k = acting[k][1], k + 1
-            phi, gamma, q = self._discrete(b - a)
-            x = phi @ x + gamma * u
-            if P is not None:
-                P = phi @ P @ phi.T + q
-        return x, P
+                (ux, uy), k = acting[k][1], k + 1
+            h, c, lag, half_h2, e, gp, gv, ga, q = self._discrete(b - a)
+            px, py, vx, vy, ax, ay, bx, by = state
+            state = (px + h * vx + c * ax + half_h2 * bx + gp * ux, py + h * vy + c * ay + half_h2 * by + gp * uy,
+                     vx + lag * ax + h * bx + gv * ux, vy + lag * ay + h * by + gv * uy,
+                     e * ax + ga * ux, e * ay + ga * uy, bx, by)  # fmt: skip
+            if cov is not None:
+                pp, pv, pa, pb, vv, va, vb, aa, ab, bb = cov
+                # M = Φ P, rows 0 and 1 (rows 2 and 3 are e·P₂ⱼ and P₃ⱼ); then Φ P Φᵀ = M Φᵀ, upper triangle
+                m00 = pp + h * pv + c * pa + half_h2 * pb
+                m01 = pv + h * vv + c * va + half_h2 * vb
+                m02 = pa + h * va + c * aa + half_h2 * ab
+                m03 = pb + h * vb + c * ab + half_h2 * bb
+                m11, m12, m13 = vv + lag * va + h * vb, va + lag * aa + h * ab, vb + lag * ab + h * bb
+                cov = (m00 + h * m01 + c * m02 + half_h2 * m03 + q[0], m01 + lag * m02 + h * m03 + q[1],
+                       e * m02, m03 + q[2], m11 + lag * m12 + h * m13 + q[3], e * m12, m13 + q[4],
+                       e * e * aa, e * ab, bb + q[5])  # fmt: skip
+        return state, cov
 
-    def _discrete(self, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(Φ, Γ, Q) of an interval of ``h`` s: the model's exact transition and input matrices in closed form
-        (:meth:`transition`; Γ as a column), and the process noise ``Φ Qc Φᵀ h``. Cached per µs of interval: the simulator's
-        intervals repeat; a real clock's seldom do. The closed form costs microseconds; ``scipy.linalg.expm``, once
-        used here, made the observer 2.4× slower a tick on a real clock (0.14 against 0.06 ms median), with a
-        99th percentile of 5–18 ms on a machine busy with another process (0.2–0.4 ms now)."""
+    def _discrete(self, h: float) -> tuple[Any, ...]:
+        """Φ's non-zero entries over an interval of ``h`` s (h, Φ₀₂, Φ₁₂, Φ₀₃, Φ₂₂), Γ's (Γ₀, Γ₁, Γ₂), and the
+        process noise ``Q = Φ Qc Φᵀ h``'s (Q₀₀, Q₀₁, Q₀₃, Q₁₁, Q₁₃, Q₃₃; its row and column 2 are zero, as Qc's
+        are and Φ keeps them): the model's exact transition in closed form (:meth:`transition`). Cached per µs
+        of interval: the simulator's intervals repeat; a real clock's seldom do. The closed form costs
+        microseconds; ``scipy.linalg.expm``, once used here, made the observer 2.4× slower a tick on a real
+        clock (0.14 against 0.06 ms median), with a 99th percentile of 5–18 ms on a machine busy with another
+        process (0.2–0.4 ms now)."""
         found = self._seen.get(h)  # the interval as given: skips the rounding when it repeats exactly
         if found is None:
             key = round(h, 6)
             found = self._cache.get(key)
             if found is None:
                 phi, gamma = self.transition(key)
-                found = self._cache[key] = (phi, gamma[:, None], phi @ self._qc @ phi.T * key)
+                q = phi @ self._qc @ phi.T * key
+                entries = (phi[0, 2], phi[1, 2], phi[0, 3], phi[2, 2], gamma[0], gamma[1], gamma[2])  # fmt: skip
+                noise = tuple(float(q[i, j]) for i, j in ((0, 0), (0, 1), (0, 3), (1, 1), (1, 3), (3, 3)))
+                found = self._cache[key] = (key, *(float(v) for v in entries), noise)
             for table in (self._seen, self._cache):
                 if len(table) > 512:
                     table.clear()
@@ -543,11 +585,10 @@ class BallObserver:
         """
         if reading is not None:
             self.reading = reading[0]
-            vel = self.velocity.update(reading[1], reading[0])
-        else:
-            vel = (self.velocity.vx, self.velocity.vy)
         pos: Sequence[float] = self.reading
-        if self.kalman is not None:
+        if self.kalman is None:
+            vel = (self.velocity.vx, self.velocity.vy) if reading is None else self.velocity.update(reading[1], pos)
+        else:
             if now is None:
                 now = reading[1] if reading is not None else self.t
             self.kalman.command(self.t, roll_pitch)

@@ -89,6 +89,54 @@ def test_each_command_acts_on_the_filters_prediction_from_a_dead_time_after_it_w
     assert abs(vel[0]) > 1e-3  # the commands moved it
 
 
+@given(steps=st.lists(st.tuples(st.integers(1_000, 40_000), st.integers(0, 30_000), st.booleans(),
+                                 st.floats(-0.2, 0.2), st.floats(-0.2, 0.2)), min_size=2, max_size=25),
+       dead_us=st.integers(0, 40_000), tau=st.floats(0.005, 0.1))
+@settings(max_examples=40, deadline=None)
+def test_the_filter_is_the_kalman_filter_of_its_model_in_matrix_form(
+        steps: list[tuple[int, int, bool, float, float]], dead_us: int, tau: float) -> None:  # fmt: skip
+    """The filter's written-out algebra against the textbook matrix form of the same filter, computed here
+    with numpy from :meth:`BallKalmanFilter.transition` (itself checked against ``expm`` below): irregular
+    control periods, latencies and dropped readings, commands acting a dead time after they are issued
+    (times on a whole microsecond, the filter's step). Per piece of constant input x ← Φ x + Γ u and
+    P ← Φ P Φᵀ + Φ Qc Φᵀ h; per reading the gain P₀ / (P₀₀ + r). After each step the estimate now, the state
+    and the covariance agree to rounding."""
+    spec = KalmanSpec(dead_time_s=dead_us * 1e-6, tilt_lag_s=tau, noise_window=0)
+    kf = BallKalmanFilter(spec)
+    kf.reset(0.0, (0.01, -0.02))
+    r = (spec.measurement_noise_mm * 1e-3) ** 2
+    qc = np.diag([0.0, spec.accel_noise**2, 0.0, spec.bias_noise**2])
+    x, p = np.array([[0.01, -0.02], [0, 0], [0, 0], [0, 0]], dtype=float), np.diag([r, 0.01, 0.25, 0.25])
+    acting: list[tuple[int, np.ndarray]] = []  # (µs when it acts, sin of the tilt along x, y)
+
+    def carried(x: np.ndarray, p: np.ndarray, t0_us: int, t1_us: int) -> tuple[np.ndarray, np.ndarray]:
+        edges = sorted({t0_us, t1_us, *(s for s, _ in acting if t0_us < s < t1_us)})
+        for a, b in zip(edges[:-1], edges[1:]):
+            u = next((v for s, v in reversed(acting) if s <= a), np.zeros(2))
+            phi, gamma = kf.transition((b - a) * 1e-6)
+            x = phi @ x + np.outer(gamma, u)
+            p = phi @ p @ phi.T + phi @ qc @ phi.T * (b - a) * 1e-6
+        return x, p
+
+    now_us, t_us = 0, 0
+    for period_us, latency_us, read, roll, pitch in steps:
+        kf.command(now_us * 1e-6, (roll, pitch))
+        acting.append((now_us + dead_us, np.array([math.sin(pitch), -math.sin(roll)])))
+        now_us += period_us
+        ts_us = now_us - latency_us
+        z = np.array([0.01 + 1e-3 * math.sin(ts_us * 1e-4), -0.02 + 1e-3 * math.cos(ts_us * 3e-4)])
+        if read and ts_us > t_us:
+            kf.update(ts_us * 1e-6, z)
+            x, p = carried(x, p, t_us, ts_us)
+            t_us = ts_us
+            gain = p[:, 0] / (p[0, 0] + r)
+            x, p = x + np.outer(gain, z - x[0]), p - np.outer(gain, p[0])
+        pos, vel = kf.estimate(now_us * 1e-6)
+        x_now, _ = carried(x, p, t_us, max(now_us, t_us))
+        assert np.allclose(pos, x_now[0], rtol=1e-9, atol=1e-12) and np.allclose(vel, x_now[1], rtol=1e-9, atol=1e-10)
+        assert np.allclose(kf.x, x, rtol=1e-9, atol=1e-10) and np.allclose(kf.P, p, rtol=1e-9, atol=1e-14)
+
+
 @given(h=st.floats(1e-6, 0.5), tau=st.floats(0.002, 0.2), rolling=st.floats(0.4, 1.0))
 @settings(max_examples=60, deadline=None)
 def test_the_filters_closed_form_transition_is_the_matrix_exponential(h: float, tau: float, rolling: float) -> None:
