@@ -67,6 +67,14 @@ train-residual: $(STAMP)
 # with seeds 0-2, TRAIN_JOBS at a time (about 15 minutes); then every evaluation, with the shipped track
 # residual's 6 networks one by one (about 1 hour). About 3 hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
+# $(call residual_draws,DRAWS,NAME,TRAIN_ARGS): the shipped residual recipe drawn once per d in DRAWS, its 6 networks
+# (seeds 6d to 6d + 5, TRAIN_JOBS at a time) in runs/NAME_d<d>_s<seed>, averaged into runs/NAME_d<d>.
+define residual_draws
+for d in $(1); do \
+	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train $(3) --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/$(2)_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
+	  rm -rf runs/$(2)_d$$d; $(PY) -m stewart_gym ensemble runs/$(2)_d$${d}_s* --out runs/$(2)_d$$d || exit 1; \
+	done
+endef
 TRACK_NETS := stewart_gym/policies/track_residual/members
 TRACK_DRAWS := 1 2
 results: $(STAMP)
@@ -74,14 +82,8 @@ results: $(STAMP)
 	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s{} --seed {} --overwrite --no-progress
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_single.yml --run-dir runs/approach_s{} --seed {} --overwrite --no-progress
-	for d in $(ENSEMBLE_DRAWS); do \
-	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/ensemble_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
-	  rm -rf runs/ensemble_d$$d; $(PY) -m stewart_gym ensemble runs/ensemble_d$${d}_s* --out runs/ensemble_d$$d || exit 1; \
-	done
-	for d in $(TRACK_DRAWS); do \
-	  seq $$((6 * d)) $$((6 * d + 5)) | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams stewart_gym/hyperparams/ppo_residual.yml --run-dir runs/track_ens_d$${d}_s{} --seed {} --overwrite --no-progress || exit 1; \
-	  rm -rf runs/track_ens_d$$d; $(PY) -m stewart_gym ensemble runs/track_ens_d$${d}_s* --out runs/track_ens_d$$d || exit 1; \
-	done
+	$(call residual_draws,$(ENSEMBLE_DRAWS),ensemble,)
+	$(call residual_draws,$(TRACK_DRAWS),track_ens,--env StewartBallTrack-v0)
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/track_s{} --seed {} --overwrite --no-progress
 	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
 
