@@ -561,13 +561,15 @@ class BallObserver:
         bound = ObservationBuilder.INTEGRAL_FIELD[3]
         self.integral_limit = tuple(bound * k for k in self.builder.integral_scale)
         self.integral_zone = self.INTEGRAL_ZONE * min(float(v) for v in plate_half)
-        self.velocity = VelocityEstimator(velocity_cutoff_hz)
+        # one estimator of the velocity: the low-pass finite difference, or the Kalman filter
         self.kalman = BallKalmanFilter(kalman) if estimator == "kalman" else None
+        self.velocity = VelocityEstimator(velocity_cutoff_hz) if self.kalman is None else None
         self.reset(0.0, (0.0, 0.0))
 
     def reset(self, t: float, xy: tuple[float, float] | np.ndarray) -> None:
         """Start at time ``t`` (s) with the ball believed at rest at ``xy`` (m)."""
-        self.velocity.reset(t, xy)
+        if self.velocity is not None:
+            self.velocity.reset(t, xy)
         self.reading = (float(xy[0]), float(xy[1]))
         self.t = float(t)
         self.error_integral = [0.0, 0.0]
@@ -586,9 +588,9 @@ class BallObserver:
         if reading is not None:
             self.reading = reading[0]
         pos: Sequence[float] = self.reading
-        if self.kalman is None:
+        if self.velocity is not None:
             vel = (self.velocity.vx, self.velocity.vy) if reading is None else self.velocity.update(reading[1], pos)
-        else:
+        else:  # the Kalman filter
             if now is None:
                 now = reading[1] if reading is not None else self.t
             self.kalman.command(self.t, roll_pitch)
