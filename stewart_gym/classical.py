@@ -35,7 +35,7 @@ __all__ = ["CLASSICAL", "CLASSICAL_KINDS", "CascadedPID", "EpisodicController", 
            "TRIM_TOLERANCE_US", "ZONE_MARGIN", "checked_design", "classical_controller", "controller_from_gains",
            "design_estimator", "design_kind", "design_lqr", "fastest_settling", "gains_for_geometry", "grown_zone",
            "integrate_error", "periods_in_a_row", "residual_action", "shipped_design", "trim_tilt", "whole_periods",
-           "SquareWaveDither"]  # fmt: skip
+           "SquareWaveDither", "bounded", "paired", "planar_length"]  # fmt: skip
 
 GRAVITY = 9.80665
 
@@ -47,6 +47,31 @@ INTEGRAL_MARGIN = 1.5
 #: A conditional-integration zone covers this multiple of the offset at which the proportional terms alone hold
 #: the worst trim tilt (:func:`gains_for_geometry`, :func:`design_lqr`): the ball must come to rest inside it.
 ZONE_MARGIN = 1.2
+
+
+# Small-array arithmetic. A control step works on 2-vectors, where numpy's ``clip``, ``linalg.norm`` and ``stack``
+# wrappers cost several times the arithmetic they wrap. These three give numpy's values bit for bit (but for the
+# sign of a zero: −0 clipped at a bound of 0 comes out +0) at a ufunc's cost.
+def bounded(x: Any, low: Any, high: Any) -> Any:
+    """``np.clip(x, low, high)``'s values (NaN stays NaN) without its wrapper: ``min(max(x, low), high)``."""
+    return np.minimum(np.maximum(x, low), high)
+
+
+def planar_length(v: np.ndarray, keepdims: bool = False) -> np.ndarray:
+    """``np.linalg.norm(v, axis=-1, keepdims=keepdims)`` of 2-vectors (…, 2), the same values: √(x·x + y·y)."""
+    x, y = v[..., 0], v[..., 1]
+    length = np.sqrt(x * x + y * y)
+    return length[..., None] if keepdims else length
+
+
+def paired(x: Any, y: Any) -> np.ndarray:
+    """``np.stack([x, y], axis=-1)`` of two float arrays of one shape: (…, 2), float64."""
+    out = np.empty(np.shape(x) + (2,))
+    out[..., 0] = x
+    out[..., 1] = y
+    return out
+
+
 #: The shipped classical controllers by name (``--policy NAME``, a residual policy's ``base``): their kind
 #: ("pid", "lqr" or "handover"), their file under ``stewart_gym/policies/`` and the observer they run behind.
 CLASSICAL = {"pid": ("pid", "pid_gains.json", "lowpass"), "pid-kalman": ("pid", "pid_kalman_gains.json", "kalman"),
@@ -112,7 +137,7 @@ class SquareWaveDither:
         """``action`` (…, 2) in [−1, 1] plus this period's ± step, clipped to [−1, 1] (float32)."""
         if self.step <= 0:
             return np.asarray(action, dtype=np.float32)
-        out = np.clip(np.asarray(action, dtype=np.float64) + self.sign * self.step, -1.0, 1.0)
+        out = bounded(np.asarray(action, dtype=np.float64) + self.sign * self.step, -1.0, 1.0)
         self.sign = -self.sign
         return out.astype(np.float32)
 
@@ -141,8 +166,8 @@ def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: flo
     only rows whose error is at most ``zone`` (m) long integrate (conditional integration)."""
     step = err * dt
     if zone > 0:
-        step = np.where(np.linalg.norm(err, axis=-1, keepdims=True) <= zone, step, 0.0)
-    return np.clip(integral + step, -limit, limit)
+        step = np.where(planar_length(err, keepdims=True) <= zone, step, 0.0)
+    return bounded(integral + step, -limit, limit)
 
 
 class CascadedPID:
@@ -191,9 +216,9 @@ class CascadedPID:
         self._target_vel = np.array(target_vel)
         vel_sp = target_vel + g.kp_pos * err
         accel = feed + g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
-        s = np.clip(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
+        s = bounded(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
         pitch, roll = np.arcsin(s[..., 0]), -np.arcsin(s[..., 1])
-        return self._dither(np.clip(np.stack([roll, pitch], axis=-1) / g.max_tilt, -1.0, 1.0))
+        return self._dither(bounded(paired(roll, pitch) / g.max_tilt, -1.0, 1.0))
 
     def predict(self, obs: np.ndarray, state: object = None, episode_start: np.ndarray | None = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
@@ -468,7 +493,7 @@ class LQRController(EpisodicController):
         o = np.asarray(obs, dtype=np.float64)
         pos, vel, target, target_vel = observed_motion(o, self._position_scale, self._velocity_scale)
         roll, pitch = o[..., 8] * ObservationBuilder.TILT_SCALE, o[..., 9] * ObservationBuilder.TILT_SCALE
-        in_force = np.stack([np.sin(pitch), -np.sin(roll)], axis=-1)  # sin(tilt) along x and y
+        in_force = paired(np.sin(pitch), -np.sin(roll))  # sin(tilt) along x and y
         err = pos - target
         st = self._state
         if st is None or st["integral"].shape != err.shape:
@@ -482,9 +507,8 @@ class LQRController(EpisodicController):
         k = self._k
         u = feed - (k[0] * err + k[1] * (vel - target_vel) + k[2] * (st["accel"] - feed) + k[3] * (in_force - feed)
                     + k[4] * st["integral"])  # fmt: skip
-        s = np.clip(u, -1.0, 1.0)
-        return self._dither(np.clip(np.stack([-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])], axis=-1) / g.max_tilt,
-                                    -1.0, 1.0))  # fmt: skip
+        s = bounded(u, -1.0, 1.0)
+        return self._dither(bounded(paired(-np.arcsin(s[..., 1]), np.arcsin(s[..., 0])) / g.max_tilt, -1.0, 1.0))
 
 
 # -------------------------------------------------------------------------------------------------- hand-over
@@ -577,8 +601,8 @@ class HandoverController(EpisodicController):
         o = np.asarray(obs, dtype=np.float64)
         by_lqr = self.lqr(o)
         pos, vel, target, target_vel = observed_motion(o, self._position_scale, self._velocity_scale)
-        distance_mm = np.linalg.norm(target - pos, axis=-1) * 1e3
-        speed_mm_s = np.linalg.norm(vel - target_vel, axis=-1) * 1e3
+        distance_mm = planar_length(target - pos) * 1e3
+        speed_mm_s = planar_length(vel - target_vel) * 1e3
         fresh = self._near is None or self._near.shape != distance_mm.shape
         near = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._near
         self._inside = periods_in_a_row(None if fresh else self._inside, distance_mm <= g.release_mm)
@@ -736,10 +760,10 @@ def residual_action(base_action: np.ndarray, correction: np.ndarray, obs: np.nda
     weight: Any = 1.0
     if fade_mm > 0 or inner_mm > 0:
         error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(plate_half, dtype=np.float64)
-        outside = np.linalg.norm(error, axis=-1, keepdims=True) * 1e3 - inner_mm  # mm beyond the inner radius
-        weight = np.clip(outside / fade_mm, 0.0, 1.0) if fade_mm > 0 else (outside > 0).astype(np.float64)
+        outside = planar_length(error, keepdims=True) * 1e3 - inner_mm  # mm beyond the inner radius
+        weight = bounded(outside / fade_mm, 0.0, 1.0) if fade_mm > 0 else (outside > 0).astype(np.float64)
     total = np.asarray(base_action, dtype=np.float64) + scale * weight * np.asarray(correction, dtype=np.float64)
-    return np.clip(total, -1.0, 1.0).astype(np.float32)
+    return bounded(total, -1.0, 1.0).astype(np.float32)
 
 
 class ResidualMix:
@@ -781,7 +805,7 @@ class ResidualMix:
         if self.release_mm > 0:
             o = np.asarray(obs, dtype=np.float64)
             error = (o[..., 0:2] - o[..., 4:6]) * np.asarray(self.plate_half, dtype=np.float64)
-            distance_mm = np.linalg.norm(error, axis=-1) * 1e3
+            distance_mm = planar_length(error) * 1e3
             fresh = self._off is None or self._off.shape != distance_mm.shape
             off = np.zeros(distance_mm.shape, dtype=bool) if fresh else self._off
             close = distance_mm < self.inner_mm

@@ -22,7 +22,14 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
-from stewart_gym.classical import CLASSICAL_KINDS, ResidualMix, checked_design, controller_from_gains, design_estimator
+from stewart_gym.classical import (
+    CLASSICAL_KINDS,
+    ResidualMix,
+    bounded,
+    checked_design,
+    controller_from_gains,
+    design_estimator,
+)
 from stewart_gym.errors import PolicyError
 from stewart_gym.sensing import ESTIMATORS
 
@@ -289,10 +296,10 @@ class BundlePolicy:
             return self._classical(obs)
         o = np.asarray(obs, dtype=np.float64)
         if self._mean is not None:
-            o = np.clip((o - self._mean) / self._std, -self._clip, self._clip)
+            o = bounded((o - self._mean) / self._std, -self._clip, self._clip)
         x = o.astype(np.float32).reshape(-1, o.shape[-1])
         action = self._session.run(None, {"obs": x})[0]
-        action = np.clip(action, self._low, self._high).reshape(*o.shape[:-1], -1)
+        action = bounded(action, self._low, self._high).reshape(*o.shape[:-1], -1)
         if self._base is not None and self._mix is not None:
             return self._mix(self._base(obs), action, obs)
         return action
