@@ -314,7 +314,7 @@ class BallKalmanFilter:
     def __init__(self, spec: KalmanSpec | None = None) -> None:
         self.spec = spec or KalmanSpec()
         c = self.spec
-        self._qc = np.diag([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])
+        self._qc_diagonal = np.array([0.0, c.accel_noise**2, 0.0, c.bias_noise**2])  # Qc is diagonal
         self.noise = ReadingNoise(c.measurement_noise_mm, c.noise_window) if c.noise_window else None
         self._r = (c.measurement_noise_mm * 1e-3) ** 2
         self._cache: dict[float, tuple[Any, ...]] = {}  # by µs of interval
@@ -418,40 +418,50 @@ class BallKalmanFilter:
         """Φ's non-zero entries over an interval of ``h`` s (h, Φ₀₂, Φ₁₂, Φ₀₃, Φ₂₂), Γ's (Γ₀, Γ₁, Γ₂), and the
         process noise ``Q = Φ Qc Φᵀ h``'s (Q₀₀, Q₀₁, Q₀₃, Q₁₁, Q₁₃, Q₃₃; its row and column 2 are zero, as Qc's
         are and Φ keeps them): the model's exact transition in closed form (:meth:`transition`). Cached per µs
-        of interval: the simulator's intervals repeat; a real clock's seldom do. The closed form costs
-        microseconds; ``scipy.linalg.expm``, once used here, made the observer 2.4× slower a tick on a real
-        clock (0.14 against 0.06 ms median), with a 99th percentile of 5–18 ms on a machine busy with another
-        process (0.2–0.4 ms now)."""
+        of interval: the simulator's intervals repeat; a real clock's seldom do, and there each interval is
+        computed afresh (a few ufunc calls and one 4×4 product: bench/bench_deploy.py). ``scipy.linalg.expm``, once
+        used here, made the observer 2.4× slower a tick on a real clock (0.14 against 0.06 ms median), with a
+        99th percentile of 5–18 ms on a machine busy with another process (0.2–0.4 ms now)."""
         found = self._seen.get(h)  # the interval as given: skips the rounding when it repeats exactly
         if found is None:
             key = round(h, 6)
             found = self._cache.get(key)
             if found is None:
-                phi, gamma = self.transition(key)
-                q = phi @ self._qc @ phi.T * key
-                entries = (phi[0, 2], phi[1, 2], phi[0, 3], phi[2, 2], gamma[0], gamma[1], gamma[2])  # fmt: skip
-                noise = tuple(float(q[i, j]) for i, j in ((0, 0), (0, 1), (0, 3), (1, 1), (1, 3), (3, 3)))
-                found = self._cache[key] = (key, *(float(v) for v in entries), noise)
+                e, lag, phi02, gammas = self._closed_form(key)
+                phi = self._phi(key, e, lag, phi02)
+                # Φ Qc is Φ's columns scaled by Qc's diagonal (the same values as the product with the diagonal
+                # matrix); (Φ Qc) Φᵀ stays one matrix product, whose rounding the published figures were made with.
+                q = ((phi * self._qc_diagonal) @ phi.T * key).tolist()
+                noise = (q[0][0], q[0][1], q[0][3], q[1][1], q[1][3], q[3][3])
+                found = self._cache[key] = (key, phi02, lag, 0.5 * key * key, e, *gammas, noise)
             for table in (self._seen, self._cache):
                 if len(table) > 512:
                     table.clear()
             self._seen[h] = found
         return found
 
+    def _closed_form(self, h: float) -> tuple[float, float, float, tuple[float, float, float]]:
+        """E = exp(−h/τ), the lag τ(1 − E), Φ₀₂ and (Γ₀, Γ₁, Γ₂) over ``h`` s (:meth:`transition`)."""
+        tau, k = self.spec.tilt_lag_s, self.spec.rolling_factor * GRAVITY
+        e = math.exp(-h / tau)
+        lag = tau * (1.0 - e)  # ∫ e^(−s/τ) ds over the interval
+        gammas = (k * (0.5 * h * h - tau * h + tau * lag), k * (h - lag), k * (1.0 - e))
+        return e, lag, tau * h - tau * lag, gammas
+
+    @staticmethod
+    def _phi(h: float, e: float, lag: float, phi02: float) -> np.ndarray:
+        return np.array([[1.0, h, phi02, 0.5 * h * h],
+                         [0.0, 1.0, lag, h],
+                         [0.0, 0.0, e, 0.0],
+                         [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
+
     def transition(self, h: float) -> tuple[np.ndarray, np.ndarray]:
         """Φ (4×4) and Γ (4,) of the model over ``h`` s, so that x(t + h) = Φ x(t) + Γ u for a constant input u
         (the sine of the commanded tilt): ``expm([[A, B], [0, 0]] h)`` in closed form. With E = exp(−h/τ), the
         plate's acceleration a relaxes to c·g·u as a + (c·g·u − a)(1 − E); velocity and position integrate it
         and the bias."""
-        tau, k = self.spec.tilt_lag_s, self.spec.rolling_factor * GRAVITY
-        e = math.exp(-h / tau)
-        lag = tau * (1.0 - e)  # ∫ e^(−s/τ) ds over the interval
-        phi = np.array([[1.0, h, tau * h - tau * lag, 0.5 * h * h],
-                        [0.0, 1.0, lag, h],
-                        [0.0, 0.0, e, 0.0],
-                        [0.0, 0.0, 0.0, 1.0]])  # fmt: skip
-        gamma = k * np.array([0.5 * h * h - tau * h + tau * lag, h - lag, 1.0 - e, 0.0])
-        return phi, gamma
+        e, lag, phi02, gammas = self._closed_form(h)
+        return self._phi(h, e, lag, phi02), np.array([*gammas, 0.0])
 
 
 class ObservationBuilder:
