@@ -390,13 +390,13 @@ class BallKalmanFilter:
         ``bench/bench_env.py``)."""
         if t1 <= t0:
             return state, cov
-        acting = self._commands
-        edges = [t0, *(s for s, _ in acting if t0 < s < t1), t1]
-        (ux, uy), k = (0.0, 0.0), 0
+        acting, seen = self._commands, self._seen
+        edges = [t0, *[s for s, _ in acting if t0 < s < t1], t1]
+        (ux, uy), k, n = (0.0, 0.0), 0, len(acting)
         for a, b in zip(edges[:-1], edges[1:]):
-            while k < len(acting) and acting[k][0] <= a + 1e-9:  # the last command acting at a
+            while k < n and acting[k][0] <= a + 1e-9:  # the last command acting at a
                 (ux, uy), k = acting[k][1], k + 1
-            h, c, lag, half_h2, e, gp, gv, ga, q = self._discrete(b - a)
+            h, c, lag, half_h2, e, gp, gv, ga, q = seen.get(b - a) or self._discrete(b - a)
             px, py, vx, vy, ax, ay, bx, by = state
             state = (px + h * vx + c * ax + half_h2 * bx + gp * ux, py + h * vy + c * ay + half_h2 * by + gp * uy,
                      vx + lag * ax + h * bx + gv * ux, vy + lag * ay + h * by + gv * uy,
