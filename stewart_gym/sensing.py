@@ -421,23 +421,23 @@ class BallKalmanFilter:
         of interval: the simulator's intervals repeat; a real clock's seldom do, and there each interval is
         computed afresh (a few ufunc calls and one 4×4 product: bench/bench_deploy.py). ``scipy.linalg.expm``, once
         used here, made the observer 2.4× slower a tick on a real clock (0.14 against 0.06 ms median), with a
-        99th percentile of 5–18 ms on a machine busy with another process (0.2–0.4 ms now)."""
-        found = self._seen.get(h)  # the interval as given: skips the rounding when it repeats exactly
+        99th percentile of 5–18 ms on a machine busy with another process (0.2–0.4 ms now). Called for an
+        interval not yet in ``self._seen`` (the intervals as given, which :meth:`_propagate` looks up first, so
+        that a repeat skips the rounding); it records it there."""
+        key = round(h, 6)
+        found = self._cache.get(key)
         if found is None:
-            key = round(h, 6)
-            found = self._cache.get(key)
-            if found is None:
-                e, lag, phi02, gammas = self._closed_form(key)
-                phi = self._phi(key, e, lag, phi02)
-                # Φ Qc is Φ's columns scaled by Qc's diagonal (the same values as the product with the diagonal
-                # matrix); (Φ Qc) Φᵀ stays one matrix product, whose rounding the published figures were made with.
-                q = ((phi * self._qc_diagonal) @ phi.T * key).tolist()
-                noise = (q[0][0], q[0][1], q[0][3], q[1][1], q[1][3], q[3][3])
-                found = self._cache[key] = (key, phi02, lag, 0.5 * key * key, e, *gammas, noise)
-            for table in (self._seen, self._cache):
-                if len(table) > 512:
-                    table.clear()
-            self._seen[h] = found
+            e, lag, phi02, gammas = self._closed_form(key)
+            phi = self._phi(key, e, lag, phi02)
+            # Φ Qc is Φ's columns scaled by Qc's diagonal (the same values as the product with the diagonal
+            # matrix); (Φ Qc) Φᵀ stays one matrix product, whose rounding the published figures were made with.
+            q = ((phi * self._qc_diagonal) @ phi.T * key).tolist()
+            noise = (q[0][0], q[0][1], q[0][3], q[1][1], q[1][3], q[3][3])
+            found = self._cache[key] = (key, phi02, lag, 0.5 * key * key, e, *gammas, noise)
+        for table in (self._seen, self._cache):
+            if len(table) > 512:
+                table.clear()
+        self._seen[h] = found
         return found
 
     def _closed_form(self, h: float) -> tuple[float, float, float, tuple[float, float, float]]:
