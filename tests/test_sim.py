@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 import multiprocessing
 import pickle
+import subprocess
+import sys
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -357,3 +359,14 @@ def test_a_linear_platform_carries_the_ball_env() -> None:
         assert np.all((info["pulse_widths_us"] > 1000) & (info["pulse_widths_us"] < 2000))
     finally:
         env.close()
+
+
+def test_importing_the_simulator_prints_nothing_and_gives_stderr_back() -> None:
+    """PyBullet prints its build time on stderr when imported; the simulator keeps it off, so a command's
+    output (and a mistake's one `error: …` line) is the user's alone, and what is written after the import
+    (through Python or straight to file descriptor 2) still reaches stderr."""
+    code = ("import os, sys; import stewart_gym.sim.stewart_sim; sys.stderr.write('after\\n'); sys.stderr.flush(); "
+            "os.write(2, b'fd2\\n'); print('out')")  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert (proc.stdout, proc.stderr) == ("out\n", "after\nfd2\n")

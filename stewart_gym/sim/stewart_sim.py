@@ -29,8 +29,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-import pybullet as pb
-from pybullet_utils.bullet_client import BulletClient
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.camera import CameraSpec
@@ -74,21 +72,27 @@ class PhysicsSpec:
 
 
 @contextlib.contextmanager
-def _quiet_stdout() -> Iterator[None]:
-    """Send file descriptor 1 to /dev/null for the block (C-level prints included)."""
-    sys.stdout.flush()
+def _quiet_fd(fd: int) -> Iterator[None]:
+    """Send file descriptor ``fd`` (1 stdout, 2 stderr) to /dev/null for the block (C-level prints included)."""
+    (sys.stdout if fd == 1 else sys.stderr).flush()
     try:
-        saved = os.dup(1)
-    except OSError:  # no usable stdout: nothing to protect
+        saved = os.dup(fd)
+    except OSError:  # no usable descriptor: nothing to protect
         yield
         return
     try:
         with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), fd)
             yield
     finally:
-        os.dup2(saved, 1)
+        os.dup2(saved, fd)
         os.close(saved)
+
+
+# Importing PyBullet prints its build time on stderr: on every command, and above a mistake's `error: …` line.
+with _quiet_fd(2):
+    import pybullet as pb
+    from pybullet_utils.bullet_client import BulletClient
 
 
 class StewartSim(SimulatorBase):
@@ -159,7 +163,7 @@ class StewartSim(SimulatorBase):
         if self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet's GUI ends the whole process when it cannot open a window.
             raise RuntimeError("render_mode='human' needs a display (DISPLAY is not set); use 'rgb_array' headless")
-        with _quiet_stdout():  # PyBullet's C code prints banners on stdout; keep it clean (e.g. for --json)
+        with _quiet_fd(1):  # PyBullet's C code prints banners on stdout; keep it clean (e.g. for --json)
             c = BulletClient(connection_mode=pb.GUI if self.render_mode == "human" else pb.DIRECT)
         self._client = c
         # Hot-path calls bound once: BulletClient builds a new partial on every attribute access.
@@ -173,7 +177,7 @@ class StewartSim(SimulatorBase):
         c.setGravity(0, 0, -GRAVITY)
         c.setTimeStep(1.0 / self.physics_hz)
         solver = pb.CONSTRAINT_SOLVER_LCP_DANTZIG if self.physics.solver == "dantzig" else pb.CONSTRAINT_SOLVER_LCP_SI
-        with _quiet_stdout():
+        with _quiet_fd(1):
             c.setPhysicsEngineParameter(
                 constraintSolverType=solver, numSolverIterations=self.physics.solver_iterations,
                 erp=self.physics.erp, deterministicOverlappingPairs=1,
