@@ -11,6 +11,7 @@ SEED ?= 0
 .PHONY: demo test bench train train-track train-camera train-residual results sweep lint docs clean
 
 $(STAMP): pyproject.toml constraints.txt
+	$(PYTHON) .ci/check_python.py
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip
 	$(PY) -m pip install $(PIP_EXTRA) -c constraints.txt -e ".[dev]"

@@ -1,6 +1,7 @@
-"""Install extras: a fresh virtual environment with only ``.[deploy]`` runs an exported bundle on a fake device.
+"""Installing: the check `make` runs on the Python it is given before it creates .venv, and the extras: a fresh
+virtual environment with only ``.[deploy]`` runs an exported bundle on a fake device.
 
-This is what a Raspberry Pi next to the platform gets: numpy, scipy, matplotlib, onnxruntime and pyserial;
+That is what a Raspberry Pi next to the platform gets: numpy, scipy, matplotlib, onnxruntime and pyserial;
 no torch, no Stable-Baselines3, no PyBullet, no Gymnasium. Slow (it builds a venv and installs into it).
 """
 
@@ -59,3 +60,45 @@ def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice) -
                           "--sensor", "sim", "--duration", "1"], capture_output=True, text=True, cwd=tmp_path, env=env,
                          timeout=120)  # fmt: skip
     assert sim.returncode == 1 and "stewart_gym[sim]" in sim.stderr and "Traceback" not in sim.stderr
+
+
+def load_check_python():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("check_python", ROOT / ".ci" / "check_python.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_make_checks_the_python_before_it_creates_the_venv(tmp_path: Path) -> None:
+    """`make demo` and `make test` first run `.ci/check_python.py` with the Python given to make (PYTHON=…): on
+    this machine's Python it says nothing and exits 0."""
+    dry = subprocess.run(["make", "-n", "-B", f"VENV={tmp_path / 'venv'}", "PYTHON=python3.11",
+                          str(tmp_path / "venv" / ".installed")], capture_output=True, text=True, cwd=ROOT,
+                         timeout=60)  # fmt: skip
+    assert dry.returncode == 0, dry.stderr
+    assert dry.stdout.splitlines()[0] == "python3.11 .ci/check_python.py", dry.stdout
+    ran = subprocess.run([sys.executable, str(ROOT / ".ci" / "check_python.py")], capture_output=True, text=True,
+                         timeout=60)  # fmt: skip
+    assert (ran.returncode, ran.stdout, ran.stderr) == (0, "", ""), ran.stderr
+
+
+@pytest.mark.parametrize(("version", "system", "machine", "headers", "compiler", "says"), [
+    ((3, 9), "Linux", "x86_64", True, True, "needs Python 3.10 or newer, and this is Python 3.9"),
+    ((3, 10), "Linux", "x86_64", False, False, None),  # PyBullet's wheel: nothing to compile
+    ((3, 11), "Linux", "x86_64", False, False, None),
+    ((3, 12), "Linux", "x86_64", True, True, None),  # compiles, and can
+    ((3, 12), "Linux", "x86_64", False, True, "lacks the Python headers: install them (Debian/Ubuntu: sudo apt "
+                                              "install g++ python3.12-dev), or run make with PYTHON=python3.11"),
+    ((3, 13), "Linux", "x86_64", True, False, "lacks a C++ compiler"),
+    ((3, 12), "Linux", "x86_64", False, False, "lacks the Python headers and a C++ compiler"),
+    ((3, 11), "Linux", "aarch64", False, True, "no wheel for Python 3.11 on Linux aarch64"),
+    ((3, 11), "Darwin", "arm64", True, True, None),
+])  # fmt: skip
+def test_the_python_check_names_what_is_missing(version, system, machine, headers, compiler, says) -> None:
+    message = load_check_python().problem(version, system, machine, headers, compiler)
+    if says is None:
+        assert message is None
+    else:
+        assert message.startswith("error: ") and says in message and "\n" not in message, message
