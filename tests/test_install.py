@@ -74,9 +74,10 @@ def load_check_python():
 def test_make_checks_the_python_before_it_creates_the_venv(tmp_path: Path) -> None:
     """`make demo` and `make test` first run `.ci/check_python.py` with the Python given to make (PYTHON=…): on
     this machine's Python it says nothing and exits 0."""
-    dry = subprocess.run(["make", "-n", "-B", f"VENV={tmp_path / 'venv'}", "PYTHON=python3.11",
-                          str(tmp_path / "venv" / ".installed")], capture_output=True, text=True, cwd=ROOT,
-                         timeout=60)  # fmt: skip
+    outer = ("MAKEFLAGS", "MAKELEVEL", "MFLAGS")  # set when the suite itself runs under `make test`
+    dry = subprocess.run(["make", "--no-print-directory", "-n", "-B", f"VENV={tmp_path / 'venv'}",
+                          "PYTHON=python3.11", str(tmp_path / "venv" / ".installed")], capture_output=True, text=True,
+                         cwd=ROOT, timeout=60, env={k: v for k, v in os.environ.items() if k not in outer})  # fmt: skip
     assert dry.returncode == 0, dry.stderr
     assert dry.stdout.splitlines()[0] == "python3.11 .ci/check_python.py", dry.stdout
     ran = subprocess.run([sys.executable, str(ROOT / ".ci" / "check_python.py")], capture_output=True, text=True,
