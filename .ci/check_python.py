@@ -24,7 +24,7 @@ def problem(version: tuple[int, int], system: str, machine: str, has_headers: bo
     here = f"Python {version[0]}.{version[1]}"
     if version < (3, 10):
         return f"error: stewart_gym needs Python 3.10 or newer, and this is {here}: run make with PYTHON=python3.11"
-    wheel = system == "Linux" and machine in ("x86_64", "AMD64") and version <= NEWEST_PYBULLET_WHEEL
+    wheel = system == "Linux" and machine == "x86_64" and version <= NEWEST_PYBULLET_WHEEL
     if wheel or (has_headers and has_compiler):
         return None
     missing = " and ".join(what for what, ok in (("the Python headers", has_headers), ("a C++ compiler", has_compiler))
