@@ -30,7 +30,6 @@ from stewart_gym.hardware.deploy import DeployLoop  # noqa: E402
 from stewart_gym.hardware.export import BundlePolicy  # noqa: E402
 from stewart_gym.hardware.serial_controllers import MaestroController  # noqa: E402
 from stewart_gym.registry import POLICY_DIR  # noqa: E402
-from stewart_gym.sensing import BallObserver  # noqa: E402
 
 
 class _NullSerial:
@@ -82,9 +81,7 @@ def main() -> None:
         policy_times[k] = time.perf_counter() - t0
     policy_times *= 1e3
     # the observer alone (for the Kalman observer: the filter's command, update and prediction), fed as the loop's
-    width, depth = loop.mapper.geometry.plate_extent
-    observer = BallObserver(loop.mapper.size, plate_half=(width / 2, depth / 2), estimator=policy.estimator,
-                            integral=policy.integral)  # fmt: skip
+    observer = loop.observer  # the loop's own, started afresh
     observer.reset(float(ticks[0] - ages[0]), (float(readings[0, 0]), float(readings[0, 1])))
     tilts = rng.uniform(-0.1, 0.1, (args.ticks, 2))
     observer_times = np.empty(args.ticks)
