@@ -104,6 +104,8 @@ class PIDGains:
         dither: rad; if positive, ± this tilt is added on both axes, the sign alternating every control
             period (:class:`SquareWaveDither`): it carries small corrections through the actuators' dead band.
             0 (off) in the shipped gains.
+        feed_lead: s; if positive, the target's acceleration is fed forward this far ahead on a smooth path
+            (:class:`TargetFeed`): it makes up for the servos' delay. 0 feeds the acceleration as measured.
     """
 
     kp_pos: float = 2.0
@@ -114,6 +116,7 @@ class PIDGains:
     integral_limit: float = 0.05
     integral_zone: float = 0.0
     dither: float = 0.0
+    feed_lead: float = 0.0
 
 
 class SquareWaveDither:
@@ -170,13 +173,69 @@ def integrate_error(integral: np.ndarray, err: np.ndarray, dt: float, limit: flo
     return bounded(integral + step, -limit, limit)
 
 
+class TargetFeed:
+    """The target's acceleration (m/s², …, 2) a controller feeds forward, from the target's velocity each period;
+    one row per ball in a batch.
+
+    The acceleration is the change of the target's velocity over the last period (0 in a row's first period).
+    That backward difference is half a period late, and the servos take about two more periods to tilt the
+    plate, so on a moving target the ball lags its path. With ``lead`` > 0 the acceleration is carried ``lead``
+    s ahead along its rate of change (the velocity's second difference), but only once that rate has held
+    steady, changing by at most :attr:`STEADY_CHANGE` of its size a period, for :attr:`STEADY_S`: on a smooth
+    path (the circle, the figure-8) the extrapolation is right, while where the acceleration jumps (the start
+    and end of a waypoint move) it would kick the ball the wrong way for the whole move.
+
+    Args:
+        dt: s, control period.
+        lead: s, how far ahead (0: the acceleration as measured).
+    """
+
+    STEADY_CHANGE = 0.3
+    STEADY_S = 1.5
+
+    def __init__(self, dt: float, lead: float = 0.0) -> None:
+        self.dt, self.lead = dt, lead
+        self._steady_periods = whole_periods(self.STEADY_S, dt)
+        self.reset()
+
+    def reset(self, rows: np.ndarray | None = None) -> None:
+        """Forget the target's past velocities: all of them, or those of the batch's ``rows`` (a boolean mask)."""
+        if rows is None or self._vel is None or self._vel.shape[:-1] != np.shape(rows):
+            self._vel: np.ndarray | None = None  # last period's velocity (NaN in a row: none yet)
+            self._prev: np.ndarray | None = None  # the one before
+            self._change: np.ndarray | None = None  # last period's second difference
+            self._steady: np.ndarray | None = None  # periods in a row that it held steady
+            return
+        for past in (self._vel, self._prev, self._change):
+            past[rows] = np.nan
+        self._steady[rows] = 0
+
+    def __call__(self, target_vel: np.ndarray) -> np.ndarray:
+        v = np.asarray(target_vel, dtype=np.float64)
+        if self._vel is None or self._vel.shape != v.shape:
+            self._vel, self._prev, self._change = (np.full(v.shape, np.nan) for _ in range(3))
+            self._steady = np.zeros(v.shape[:-1], dtype=int)
+        accel = (v - np.where(np.isnan(self._vel), v, self._vel)) / self.dt
+        if self.lead > 0:
+            change = v - 2 * self._vel + self._prev  # NaN until three velocities are in
+            size = np.maximum(planar_length(change), planar_length(self._change))
+            steady = planar_length(change - self._change) <= self.STEADY_CHANGE * size  # False where NaN
+            self._steady = periods_in_a_row(self._steady, steady)
+            ahead = change * (self.lead / (self.dt * self.dt))
+            accel = np.where((self._steady >= self._steady_periods)[..., None], accel + ahead, accel)
+            self._change = change
+        self._prev, self._vel = self._vel, v.copy()
+        return accel
+
+
 class CascadedPID:
     """A policy: observation (…, 12) → tilt action (…, 2) in [-1, 1] (reads indices 0–7; keeps its own integral).
 
     The outer loop turns the position error into a velocity set-point about the target's velocity, the inner
     loop the velocity error (and the integral) into the ball's acceleration, and the target's acceleration (the
     change of its velocity over a period) is fed forward, as :class:`LQRController` does: a moving target is
-    followed without the lag an error would have to build up; a still one adds nothing.
+    followed without the lag an error would have to build up; a still one adds nothing. With
+    ``gains.feed_lead`` the acceleration fed forward is that far ahead on a smooth path (:class:`TargetFeed`).
 
     Args:
         gains: The gains.
@@ -193,14 +252,14 @@ class CascadedPID:
         self._position_scale = np.array(scales.position_scale)
         self._velocity_scale = np.array(scales.velocity_scale)
         self._integral = np.zeros(2)
-        self._target_vel: np.ndarray | None = None  # last period's (NaN in a row: none yet)
+        self._feed = TargetFeed(dt, self.gains.feed_lead)
         self._dither = SquareWaveDither(self.gains.dither, self.gains.max_tilt)
 
     def reset(self) -> None:
-        """Clear the integrator and the target's last velocity, restart the dither (call at the start of an
+        """Clear the integrator and the target's past velocities, restart the dither (call at the start of an
         episode)."""
         self._integral = np.zeros(2)
-        self._target_vel = None
+        self._feed.reset()
         self._dither.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -211,9 +270,7 @@ class CascadedPID:
         if self._integral.shape != err.shape:
             self._integral = np.zeros(err.shape)
         self._integral = integrate_error(self._integral, err, self.dt, g.integral_limit, g.integral_zone)
-        last = self._target_vel if self._target_vel is not None and self._target_vel.shape == err.shape else target_vel
-        feed = (target_vel - np.where(np.isnan(last), target_vel, last)) / self.dt  # the target's acceleration
-        self._target_vel = np.array(target_vel)
+        feed = self._feed(target_vel)  # the target's acceleration
         vel_sp = target_vel + g.kp_pos * err
         accel = feed + g.kp_vel * (vel_sp - vel) + g.ki_vel * self._integral  # desired ball acceleration, m/s²
         s = bounded(accel / (g.rolling_factor * GRAVITY), -1.0, 1.0)
@@ -228,8 +285,7 @@ class CascadedPID:
             if self._integral.ndim == 2:
                 rows = np.asarray(episode_start, dtype=bool)
                 self._integral[rows] = 0.0
-                if self._target_vel is not None and self._target_vel.shape == self._integral.shape:
-                    self._target_vel[rows] = np.nan
+                self._feed.reset(rows)
             else:
                 self.reset()
         return self(obs), None
@@ -617,9 +673,9 @@ class HandoverController(EpisodicController):
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
 
 
-#: Design fields that are bounds, zones or dither (0 turns them off; a negative one is refused) and the LQR design's
-#: acceptable sizes and servo lag (must be positive).
-NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm", "dither")
+#: Design fields that are bounds, zones, dither or the feed-forward's lead (0 turns them off; a negative one is
+#: refused) and the LQR design's acceptable sizes and servo lag (must be positive).
+NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm", "dither", "feed_lead")
 POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
 
 

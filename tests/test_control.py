@@ -403,6 +403,126 @@ def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_o
     assert tilt_x(action[1]) == pytest.approx(0.0, abs=1e-9)
 
 
+def _circle_velocities(periods: int, dt: float = 0.02, radius: float = 0.06, period_s: float = 8.0) -> np.ndarray:
+    """The circle target's velocity (m/s) at each control period (as :class:`~stewart_gym.envs.targets.Circle`)."""
+    w = 2 * math.pi / period_s
+    t = np.arange(periods) * dt
+    return np.stack([-radius * w * np.sin(w * t), radius * w * np.cos(w * t)], axis=-1)
+
+
+def test_the_feed_leads_the_targets_acceleration_on_a_smooth_path_once_it_has_held_steady() -> None:
+    """On the circle the feed is the backward difference (the acceleration half a period ago) until the
+    velocity's second difference has held steady for 1.5 s; from then on it is the acceleration ``lead`` s
+    ahead of that (within 1 % of its size: a linear extrapolation), where the backward difference alone is
+    about 5 % off it. Without a lead it stays the backward difference."""
+    from stewart_gym.classical import TargetFeed
+
+    dt, lead, w, radius = 0.02, 0.06, 2 * math.pi / 8.0, 0.06
+    vel = _circle_velocities(200, dt)
+    feed, plain = TargetFeed(dt, lead), TargetFeed(dt)
+    steady = round(TargetFeed.STEADY_S / dt)
+    for k, v in enumerate(vel):
+        ahead, measured = feed(v), plain(v)
+        backward = (v - vel[k - 1]) / dt if k else np.zeros(2)
+        np.testing.assert_allclose(measured, backward, rtol=0, atol=1e-12)
+        if k < steady:
+            np.testing.assert_allclose(ahead, backward, rtol=0, atol=1e-12)
+        elif k > steady + 3:
+            t = (k - 0.5) * dt + lead  # the backward difference is the acceleration half a period ago
+            exact = -radius * w * w * np.array([math.cos(w * t), math.sin(w * t)])
+            size = radius * w * w
+            assert np.linalg.norm(ahead - exact) < 0.01 * size
+            assert np.linalg.norm(backward - exact) > 0.04 * size
+
+
+def test_the_feed_adds_no_lead_where_the_targets_acceleration_jumps() -> None:
+    """A waypoint move (hold, then a smooth step whose acceleration jumps at its start and end, then hold):
+    the feed with a lead is the backward difference at every period, because the jumps keep the second
+    difference from holding steady for 1.5 s; constant jerk held longer than that is led, by exactly
+    jerk · lead (the second difference of a quadratic velocity is the jerk times dt²)."""
+    from stewart_gym.classical import TargetFeed
+    from stewart_gym.envs.targets import Waypoints
+
+    dt, lead = 0.02, 0.06
+    path = Waypoints(np.random.default_rng(3))
+    vel = np.array([path(k * dt)[1] for k in range(600)])  # 12 s: four holds and four moves
+    assert np.abs(vel).max() > 0.05
+    feed = TargetFeed(dt, lead)
+    for k, v in enumerate(vel):
+        backward = (v - vel[k - 1]) / dt if k else np.zeros(2)
+        np.testing.assert_allclose(feed(v), backward, rtol=0, atol=1e-12)
+    jerk = np.array([0.5, -0.2])  # m/s³, from rest: v = ½ j t²
+    feed = TargetFeed(dt, lead)
+    steady = round(TargetFeed.STEADY_S / dt)
+    for k in range(steady + 10):
+        v, last = 0.5 * jerk * (k * dt) ** 2, 0.5 * jerk * ((k - 1) * dt) ** 2
+        got = feed(v)
+        if k > steady + 3:
+            np.testing.assert_allclose(got, (v - last) / dt + jerk * lead, rtol=1e-6)
+
+
+def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_single_feeds() -> None:
+    """In a batch each row keeps its own history: a row reset mid-path feeds nothing in its first period and
+    the backward difference until it has held steady again, while the other row keeps its lead; every row
+    gives what a feed of its own gives."""
+    from stewart_gym.classical import TargetFeed
+
+    dt, lead = 0.02, 0.06
+    vel = _circle_velocities(300, dt)
+    batch, first, second = TargetFeed(dt, lead), TargetFeed(dt, lead), TargetFeed(dt, lead)
+    restart = 120
+    for k, v in enumerate(vel):
+        if k == restart:
+            batch.reset(np.array([False, True]))
+            second.reset()
+        both = batch(np.stack([v, v]))
+        np.testing.assert_array_equal(both[0], first(v))
+        np.testing.assert_array_equal(both[1], second(v))
+        if k == restart:
+            np.testing.assert_array_equal(both[1], [0.0, 0.0])
+        if k == restart + 10:
+            assert not np.allclose(both[0], both[1])  # the first row is led, the restarted one is not yet
+
+
+def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoints_as_they_were(
+        tmp_path: Path) -> None:  # fmt: skip
+    """The shipped PID + Kalman (``feed_lead`` 0.06 s) against the same gains without the lead (2 seeds each):
+    closer on every figure-8 episode, the same waypoint episodes to the last bit; its bundle, exported through
+    the CLI, carries the lead and acts as the controller does along a circle; a negative lead is refused."""
+    from dataclasses import replace
+
+    from stewart_gym.classical import CascadedPID, checked_design
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+
+    _, led, env_kwargs = load_for_evaluation("pid-kalman", "StewartBallTrack-v0")
+    assert isinstance(led, CascadedPID) and led.gains.feed_lead == pytest.approx(0.06)
+    unled = CascadedPID(replace(led.gains, feed_lead=0.0), led.dt)
+    rms = {}
+    for trajectory in ("figure8", "waypoints"):
+        for name, policy in (("led", led), ("unled", unled)):
+            metrics = evaluate("StewartBallTrack-v0", policy, episodes=2, seed=0, settling=False,
+                               env_kwargs={**env_kwargs, "trajectory": trajectory})  # fmt: skip
+            rms[trajectory, name] = metrics["per_episode"]["rms_mm"]
+    assert all(a < b for a, b in zip(rms["figure8", "led"], rms["figure8", "unled"]))
+    assert rms["waypoints", "led"] == rms["waypoints", "unled"]
+    out = tmp_path / "bundle"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "pid-kalman", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("pid-kalman")
+    from stewart_gym.sensing import ObservationBuilder
+
+    v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
+    for v in _circle_velocities(120):
+        obs = lqr_obs((1.0, -1.0))
+        obs[6:8] = v / v_scale
+        np.testing.assert_allclose(bundle(obs), direct(obs), atol=1e-6)
+    values = json.loads((Path(__file__).resolve().parents[1] / "stewart_gym/policies/pid_kalman_gains.json").read_text())
+    with pytest.raises(ValueError, match="feed_lead must be 0"):
+        checked_design({**values, "feed_lead": -0.01}, "pid")
+
+
 def test_with_the_feedforward_the_pid_kalman_and_the_handover_track_a_circle_closer_than_the_lqr() -> None:
     """On the circle (60 mm, 8 s a turn: 47 mm/s) the PID + Kalman, which used to lag the target by 6 mm,
     follows it closer than the LQR (whose hold is looser), and the LQR → PID, which now hands a ball that moves
