@@ -181,9 +181,10 @@ class TargetFeed:
     That backward difference is half a period late, and the servos take about two more periods to tilt the
     plate, so on a moving target the ball lags its path. With ``lead`` > 0 the acceleration is carried ``lead``
     s ahead along its rate of change (the velocity's second difference), but only once that rate has held
-    steady, changing by at most :attr:`STEADY_CHANGE` of its size a period, for :attr:`STEADY_S`: on a smooth
-    path (the circle, the figure-8) the extrapolation is right, while where the acceleration jumps (the start
-    and end of a waypoint move) it would kick the ball the wrong way for the whole move.
+    steady, changing by at most :attr:`STEADY_CHANGE` of its size a period, for :attr:`STEADY_S`. On a smooth
+    path (the circle, the figure-8) the extrapolation is right. Where the acceleration jumps (a waypoint move
+    starts and ends with a jump) no extrapolation sees the jump coming, the ball starts behind, and leading
+    the falling acceleration through the move would take feed away while it catches up.
 
     Args:
         dt: s, control period.
