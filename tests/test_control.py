@@ -487,7 +487,8 @@ def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_si
 def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoints_as_they_were(
         tmp_path: Path) -> None:  # fmt: skip
     """The shipped PID + Kalman (``feed_lead`` 0.06 s) against the same gains without the lead (2 seeds each):
-    closer on every figure-8 episode, the same waypoint episodes to the last bit; its bundle, exported through
+    on the figure-8 at least 10 % closer over both episodes (about 25 % here), the same waypoint episodes to
+    the last bit; its bundle, exported through
     the CLI, carries the lead and acts as the controller does along a circle; a negative lead is refused."""
     from dataclasses import replace
 
@@ -504,7 +505,7 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
             metrics = evaluate("StewartBallTrack-v0", policy, episodes=2, seed=0, settling=False,
                                env_kwargs={**env_kwargs, "trajectory": trajectory})  # fmt: skip
             rms[trajectory, name] = metrics["per_episode"]["rms_mm"]
-    assert all(a < b for a, b in zip(rms["figure8", "led"], rms["figure8", "unled"]))
+    assert np.mean(rms["figure8", "led"]) < 0.9 * np.mean(rms["figure8", "unled"])
     assert rms["waypoints", "led"] == rms["waypoints", "unled"]
     out = tmp_path / "bundle"
     proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "pid-kalman", "--out", str(out)],
