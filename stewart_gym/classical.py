@@ -189,13 +189,16 @@ class TargetFeed:
     Args:
         dt: s, control period.
         lead: s, how far ahead (0: the acceleration as measured).
+        divisor: what the velocity's change over a period is divided by: ``dt`` (the default) gives m/s²; the
+            LQR passes ``dt·c·g`` for the ``sin(tilt)`` that rolls the ball so.
     """
 
     STEADY_CHANGE = 0.3
     STEADY_S = 1.5
 
-    def __init__(self, dt: float, lead: float = 0.0) -> None:
+    def __init__(self, dt: float, lead: float = 0.0, divisor: float | None = None) -> None:
         self.dt, self.lead = dt, lead
+        self.divisor = dt if divisor is None else divisor
         self._steady_periods = whole_periods(self.STEADY_S, dt)
         self.reset()
 
@@ -216,13 +219,13 @@ class TargetFeed:
         if self._vel is None or self._vel.shape != v.shape:
             self._vel, self._prev, self._change = (np.full(v.shape, np.nan) for _ in range(3))
             self._steady = np.zeros(v.shape[:-1], dtype=int)
-        accel = (v - np.where(np.isnan(self._vel), v, self._vel)) / self.dt
+        accel = (v - np.where(np.isnan(self._vel), v, self._vel)) / self.divisor
         if self.lead > 0:
             change = v - 2 * self._vel + self._prev  # NaN until three velocities are in
             size = np.maximum(planar_length(change), planar_length(self._change))
             steady = planar_length(change - self._change) <= self.STEADY_CHANGE * size  # False where NaN
             self._steady = periods_in_a_row(self._steady, steady)
-            ahead = change * (self.lead / (self.dt * self.dt))
+            ahead = change * (self.lead / (self.dt * self.divisor))
             accel = np.where((self._steady >= self._steady_periods)[..., None], accel + ahead, accel)
             self._change = change
         self._prev, self._vel = self._vel, v.copy()
@@ -368,6 +371,8 @@ class LQRDesign:
         integral_zone_mm: if positive, the error is integrated only while it is this small (as
             :attr:`PIDGains.integral_zone`); 0 integrates always.
         dither: rad, as :attr:`PIDGains.dither` (0: off).
+        feed_lead: s, as :attr:`PIDGains.feed_lead`: on a moving target the acceleration fed forward leads by
+            this much on a smooth path (0: as measured).
 
     The tilt at action ±1 is the geometry's default ``max_tilt`` (:func:`design_lqr`).
     """
@@ -381,6 +386,7 @@ class LQRDesign:
     tilt_lag_s: float = 0.019
     integral_zone_mm: float = 0.0
     dither: float = 0.0
+    feed_lead: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -395,6 +401,7 @@ class LQRGains:
         integral_limit: m·s, anti-windup bound on the integral.
         integral_zone: m, integrate only within it (0: always).
         dither: rad, as :attr:`PIDGains.dither` (0: off).
+        feed_lead: s, as :attr:`LQRDesign.feed_lead` (0: off).
     """
 
     k: tuple[float, float, float, float, float]
@@ -405,6 +412,7 @@ class LQRGains:
     integral_limit: float
     integral_zone: float = 0.0
     dither: float = 0.0
+    feed_lead: float = 0.0  # after the others: bundles written before it load without it
 
 
 def lqr_model(design: LQRDesign, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -500,7 +508,7 @@ def design_lqr(design: LQRDesign | None = None, dt: float = 0.02, geometry: Any 
     zone = grown_zone(d.integral_zone_mm * 1e-3, math.sin(min(worst, math.pi / 2)) * abs(1 + k[2] + k[3]) / abs(k[0]))
     return LQRGains(k=tuple(float(v) for v in k), rolling_factor=d.rolling_factor, tilt_lag_s=d.tilt_lag_s, dt=dt,
                     max_tilt=default_max_tilt(geo), integral_limit=float(needed / abs(k[4])),
-                    integral_zone=float(zone), dither=d.dither)  # fmt: skip
+                    integral_zone=float(zone), dither=d.dither, feed_lead=d.feed_lead)  # fmt: skip
 
 
 class EpisodicController:
@@ -526,8 +534,8 @@ class LQRController(EpisodicController):
 
     It reads the ball's position and velocity (indices 0–3: best from the Kalman observer, which predicts them
     for now), the target's (4–7) and the tilt in force (8–9). It keeps the model's plate acceleration (driven
-    by the commands it sees in force), the integral of the position error and the last target velocity (the
-    target's acceleration is fed forward).
+    by the commands it sees in force) and the integral of the position error, and feeds the target's
+    acceleration forward (:class:`TargetFeed`, leading by ``gains.feed_lead`` on a smooth path).
     """
 
     def __init__(self, gains: LQRGains, plate_half: tuple[float, float] = (0.15, 0.15)) -> None:
@@ -538,11 +546,14 @@ class LQRController(EpisodicController):
         self._k = np.asarray(gains.k, dtype=float)
         self._phi = math.exp(-gains.dt / gains.tilt_lag_s)
         self._dither = SquareWaveDither(gains.dither, gains.max_tilt)
+        # the target's acceleration as the sin(tilt) that rolls the ball so
+        self._feed = TargetFeed(gains.dt, gains.feed_lead, divisor=gains.dt * gains.rolling_factor * GRAVITY)
         self.reset()
 
     def reset(self) -> None:
         """Start of an episode."""
         self._state: dict[str, np.ndarray] | None = None
+        self._feed.reset()
         self._dither.reset()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -555,12 +566,12 @@ class LQRController(EpisodicController):
         st = self._state
         if st is None or st["integral"].shape != err.shape:
             st = self._state = {"accel": in_force.copy(), "integral": np.zeros_like(err),
-                                "target_vel": target_vel.copy(), "in_force": in_force.copy()}  # fmt: skip
+                                "in_force": in_force.copy()}  # fmt: skip
+            self._feed.reset()
         st["accel"] = self._phi * st["accel"] + (1 - self._phi) * st["in_force"]  # driven by last period's command
         st["in_force"] = in_force
         st["integral"] = integrate_error(st["integral"], err, g.dt, g.integral_limit, g.integral_zone)
-        feed = (target_vel - st["target_vel"]) / (g.dt * g.rolling_factor * GRAVITY)  # the target's acceleration
-        st["target_vel"] = target_vel
+        feed = self._feed(target_vel)  # the target's acceleration, as a sin(tilt)
         k = self._k
         u = feed - (k[0] * err + k[1] * (vel - target_vel) + k[2] * (st["accel"] - feed) + k[3] * (in_force - feed)
                     + k[4] * st["integral"])  # fmt: skip
