@@ -320,7 +320,7 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
 
     policy = load_learned(source.path)
     if source.env_kwargs.get("residual"):
-        spec = check_residual(source.env_kwargs["residual"])
+        spec = check_residual(source.env_kwargs["residual"], recorded=True)
         from stewart_gym.presets import load_geometry
 
         width, depth = load_geometry(source.geometry).plate_extent

@@ -200,7 +200,7 @@ def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:
     return load_sb3(path)
 
 
-def check_residual(spec: Any) -> dict[str, Any]:
+def check_residual(spec: Any, recorded: bool = False) -> dict[str, Any]:
     """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r, release_mm: q,
     dwell_s: t, design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and
     over the next f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the
@@ -209,7 +209,10 @@ def check_residual(spec: Any) -> dict[str, Any]:
     latch, the seconds within q after which it closes anyway. NAME is a shipped classical controller
     (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
     is the shipped one's with any fields that ``design`` gives replaced (all of them, or a few, e.g.
-    ``{handover_dwell_s: 3}``); training records the whole design."""
+    ``{handover_dwell_s: 3}``); training records the whole design. ``recorded``: ``spec`` is what a run recorded,
+    its design whole as the run trained with it, so a field the design has gained since (a lead, a dwell) is off,
+    its default, not the shipped design's: a later retune of the shipped controller leaves the run as it was
+    trained. (A recorded spec without a design, from before runs recorded it, still takes the shipped one.)"""
     keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "dwell_s", "design"}
     if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R, "
@@ -232,7 +235,8 @@ def check_residual(spec: Any) -> dict[str, Any]:
         changes = spec.get("design", {})
         if not isinstance(changes, dict):
             raise ValueError(f"design must be a mapping of the design's fields, got {changes!r}")
-        design = checked_design({**asdict(shipped_design(spec["base"])), **changes}, kind)
+        whole = recorded and "design" in spec
+        design = checked_design({**({} if whole else asdict(shipped_design(spec["base"]))), **changes}, kind)
     except ValueError as exc:
         raise ConfigError(f"residual design (the {spec['base']} base's): {exc}") from None
     checked = {"base": spec["base"], "scale": float(scale), "fade_mm": float(spec.get("fade_mm", 0.0)),

@@ -524,6 +524,61 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
         checked_design({**values, "feed_lead": -0.01}, "pid")
 
 
+def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_the_waypoints_as_they_were(
+        tmp_path: Path) -> None:  # fmt: skip
+    """The shipped LQR (``feed_lead`` 0.08 s) against the same gains without the lead, on the same observations
+    along a circle: the same commands until the target's path has held steady for 1.5 s, then commands that
+    differ by the lead's part of the feed times the gains that act on it (command = feed − k·(…, a − feed,
+    u − feed, …)). Closed loop, the same waypoint episodes to the last bit (2 seeds); the bundle exported
+    through the CLI carries the lead and acts as the controller does along the circle. Where the lead acts
+    the measured gain is small (50 tuning seeds, RMS: circle −0.02 mm, figure-8 −0.07 mm), too small for a
+    test of a few episodes; the docs quote it."""
+    from dataclasses import replace
+
+    from stewart_gym.classical import GRAVITY, TargetFeed
+    from stewart_gym.evaluation import evaluate
+    from stewart_gym.registry import load_for_evaluation
+    from stewart_gym.sensing import ObservationBuilder
+
+    _, led, env_kwargs = load_for_evaluation("lqr", "StewartBallTrack-v0")
+    assert isinstance(led, LQRController) and led.gains.feed_lead == pytest.approx(0.08)
+    g = led.gains
+    unled = LQRController(replace(g, feed_lead=0.0))
+    v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
+    vel = _circle_velocities(150, g.dt)
+    steady = round(TargetFeed.STEADY_S / g.dt)
+    per_feed = 1.0 + g.k[2] + g.k[3]  # how much of the feed reaches the command (sin(tilt))
+    for k, v in enumerate(vel):
+        obs = lqr_obs((1.0, -1.0))
+        obs[6:8] = v / v_scale
+        a, b = led(obs), unled(obs)
+        if k < steady:
+            np.testing.assert_array_equal(a, b)
+        elif k > steady + 3:
+            change = v - 2 * vel[k - 1] + vel[k - 2]
+            extra = change * g.feed_lead / (g.dt * g.dt * g.rolling_factor * GRAVITY) * per_feed
+            # the action is the tilt (roll, pitch) over max_tilt: pitch follows x, roll −y; small angles
+            got = np.array([math.sin(a[1] * g.max_tilt) - math.sin(b[1] * g.max_tilt),
+                            -(math.sin(a[0] * g.max_tilt) - math.sin(b[0] * g.max_tilt))])  # fmt: skip
+            np.testing.assert_allclose(got, extra, rtol=1e-3, atol=1e-9)
+            assert np.linalg.norm(extra) > 3e-5  # far above the float32 action's rounding (about 1e-9 here)
+    rms = {}
+    for name, policy in (("led", led), ("unled", unled)):
+        metrics = evaluate("StewartBallTrack-v0", policy, episodes=2, seed=0, settling=False,
+                           env_kwargs={**env_kwargs, "trajectory": "waypoints"})  # fmt: skip
+        rms[name] = metrics["per_episode"]["rms_mm"]
+    assert rms["led"] == rms["unled"]
+    out = tmp_path / "bundle"
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "lqr", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("lqr")
+    for v in vel:
+        obs = lqr_obs((1.0, -1.0))
+        obs[6:8] = v / v_scale
+        np.testing.assert_allclose(bundle(obs), direct(obs), atol=1e-6)
+
+
 def test_with_the_feedforward_the_pid_kalman_and_the_handover_track_a_circle_closer_than_the_lqr() -> None:
     """On the circle (60 mm, 8 s a turn: 47 mm/s) the PID + Kalman, which used to lag the target by 6 mm,
     follows it closer than the LQR (whose hold is looser), and the LQR → PID, which now hands a ball that moves
@@ -634,13 +689,16 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
 
 
 def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() -> None:
-    """``policies/lqr_pid.json`` holds today's ``lqr.json`` and ``pid_kalman_gains.json`` (no stale copy), and
-    a malformed hand-over design is refused saying what is wrong."""
+    """``policies/lqr_pid.json`` holds today's ``lqr.json`` and ``pid_kalman_gains.json`` (no stale copy), but
+    for the LQR's feed-forward lead, which it leaves off (there the PID follows a moving target; with the
+    LQR's lead the LQR → PID tracked the same: 50 tuning seeds, a tie), and a malformed hand-over design is
+    refused saying what is wrong."""
     from stewart_gym.classical import checked_design
 
     policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
     design = json.loads((policies / "lqr_pid.json").read_text())
-    assert design["lqr"] == json.loads((policies / "lqr.json").read_text())
+    lqr = json.loads((policies / "lqr.json").read_text())
+    assert lqr.pop("feed_lead") > 0 and design["lqr"] == lqr
     pid_kalman = json.loads((policies / "pid_kalman_gains.json").read_text())
     assert pid_kalman.pop("estimator") == "kalman" and design["pid"] == pid_kalman
     assert checked_design({**design, "handover_dwell_s": 0}, "handover").handover_dwell_s == 0.0  # 0: off
@@ -955,7 +1013,7 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads((tmp_path / "bundle" / "bundle.json").read_text())["residual"]["dwell_s"] == 3.0
     policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(tmp_path / "bundle")))
-    lqr = residual_base(check_residual(config["hyperparams"]["residual"]))  # the base, stepped alongside
+    lqr = residual_base(check_residual(config["hyperparams"]["residual"], recorded=True))  # the base alongside
     obs = np.zeros(12, dtype=np.float32)
     obs[4] = 0.1  # a still target 15 mm from the ball
     for k in range(160):  # inside 20 mm from the first period: the 150th closes the latch
@@ -1044,7 +1102,8 @@ def test_a_malformed_residual_is_refused_naming_the_key(spec: dict, match: str) 
 
 def test_a_residual_design_replaces_only_the_fields_it_gives() -> None:
     """``design: {handover_dwell_s: 3}`` (the balance recipe's) is the shipped LQR → PID with that one field
-    changed; a bad value in it, or a design that is not a mapping, is refused naming the base."""
+    changed; a run's recorded design is taken whole (a field added since is off); a bad value in it, or a design
+    that is not a mapping, is refused naming the base."""
     from dataclasses import asdict, replace
 
     from stewart_gym.errors import ConfigError
@@ -1055,6 +1114,12 @@ def test_a_residual_design_replaces_only_the_fields_it_gives() -> None:
     recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
                             .read_text())["StewartBallBalance-v0"]["residual"]  # fmt: skip
     assert check_residual(recipe)["design"]["handover_dwell_s"] == 3.0
+    # a run's recorded design is whole as it trained: a field added since stays off, not the shipped value
+    run = yaml.safe_load((Path(__file__).resolve().parent / "data/circling_tracker/config.yaml").read_text())
+    recorded = run["hyperparams"]["residual"]
+    assert recorded["base"] == "lqr" and "feed_lead" not in recorded["design"]
+    assert check_residual(recorded, recorded=True)["design"] == {**recorded["design"], "feed_lead": 0.0}
+    assert check_residual(recorded)["design"]["feed_lead"] == shipped_design("lqr").feed_lead > 0
     for bad in ({"handover_dwell_s": -1}, [3.0]):
         with pytest.raises(ConfigError, match="lqr-pid base"):
             check_residual({"base": "lqr-pid", "design": bad})

@@ -93,7 +93,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
         from stewart_gym.classical import CLASSICAL
         from stewart_gym.sb3_models import check_residual, residual_base
 
-        spec = check_residual(env_kwargs["residual"])
+        spec = check_residual(env_kwargs["residual"], recorded=True)
         geometry = env_kwargs.get("geometry", "servo-hexapod")
         base = residual_base(spec, geometry, dt=1.0 / meta["control_hz"])  # designed for the period it runs at
         meta["residual"] = {"scale": spec["scale"], "fade_mm": spec["fade_mm"], "inner_mm": spec["inner_mm"],
