@@ -567,7 +567,6 @@ class LQRController(EpisodicController):
         if st is None or st["integral"].shape != err.shape:
             st = self._state = {"accel": in_force.copy(), "integral": np.zeros_like(err),
                                 "in_force": in_force.copy()}  # fmt: skip
-            self._feed.reset()
         st["accel"] = self._phi * st["accel"] + (1 - self._phi) * st["in_force"]  # driven by last period's command
         st["in_force"] = in_force
         st["integral"] = integrate_error(st["integral"], err, g.dt, g.integral_limit, g.integral_zone)
