@@ -461,6 +461,22 @@ def test_the_feed_adds_no_lead_where_the_targets_acceleration_jumps() -> None:
             np.testing.assert_allclose(got, (v - last) / dt + jerk * lead, rtol=1e-6)
 
 
+@given(scale=st.floats(0.01, 100.0), lead=st.sampled_from([0.0, 0.03, 0.08]), radius=st.floats(0.01, 0.1),
+       period_s=st.floats(3.0, 12.0))  # fmt: skip
+@settings(max_examples=25, deadline=None)
+def test_a_feed_with_another_divisor_is_the_same_feed_in_other_units(scale: float, lead: float, radius: float,
+                                                                       period_s: float) -> None:  # fmt: skip
+    """``divisor`` only changes the units (the LQR's ``sin(tilt)`` instead of m/s²): divided by ``dt·scale``, the
+    feed, its lead included and whenever it starts, is the m/s² feed over ``scale``."""
+    from stewart_gym.classical import TargetFeed
+
+    dt = 0.02
+    vel = _circle_velocities(120, dt, radius, period_s)
+    plain, other = TargetFeed(dt, lead), TargetFeed(dt, lead, divisor=dt * scale)
+    for v in vel:
+        np.testing.assert_allclose(other(v), plain(v) / scale, rtol=1e-9, atol=1e-15)
+
+
 def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_single_feeds() -> None:
     """In a batch each row keeps its own history: a row reset mid-path feeds nothing in its first period and
     the backward difference until it has held steady again, while the other row keeps its lead; every row
