@@ -45,9 +45,8 @@ train-camera: $(STAMP)
 # averaged into one policy (`stewart-gym ensemble`). The 12 trainings run TRAIN_JOBS at a time (2 by default), each
 # stepping its envs in its own process: a core each. bench/bench_train.py: two side by side train 3.1 times the
 # steps per second of one run in worker processes, as they ran before (about 80 minutes then, about 30 now). A run
-# depends only on its seed, so the networks are the same at any TRAIN_JOBS. The shipped track networks were trained
-# before the PID's feed-forward lead (2026-11-26), over a base without it: trained now, over the base with it,
-# they come out other networks (two such draws of 6 tie the shipped one: docs, Control).
+# depends only on its seed, so the networks are the same at any TRAIN_JOBS. The shipped track networks were
+# trained by this target on 2026-11-26 (351-423 s each, two side by side).
 TRAIN_JOBS ?= 2
 RESIDUAL_SEEDS := 0 1 2 3 4 5
 train-residual: $(STAMP)
