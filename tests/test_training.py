@@ -672,6 +672,38 @@ def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None
         assert "Traceback" not in bad.stderr
 
 
+def test_hold_headroom_scales_one_gain_and_bounds_what_adapting_it_buys() -> None:
+    """``train/hold_headroom.py``: a row per gain scale, the shipped row equal to ``stewart-gym evaluate --policy
+    pid-kalman`` on the same seeds, every episode in one noise bin and one dead-band bin, and the hindsight pick
+    (each episode's best scale) no looser than the shipped gains; bad scales are refused with one ``error:`` line."""
+    import subprocess
+    import sys
+
+    script = [sys.executable, str(Path(__file__).resolve().parents[1] / "train" / "hold_headroom.py")]
+    proc = subprocess.run([*script, "--episodes", "3", "--scales", "1.0", "1.3"], capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in proc.stdout.splitlines()
+            if line.startswith("| ×")}  # fmt: skip
+    assert set(rows) == {"×1", "×1.3"}, proc.stdout
+    cli = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--policy", "pid-kalman", "--episodes", "3",
+                          "--json"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert cli.returncode == 0, cli.stderr[-2000:]
+    shipped = json.loads(cli.stdout)
+    assert float(rows["×1"][1]) == pytest.approx(shipped["rms_error_mm"], abs=6e-4), (rows, shipped)
+    assert float(rows["×1"][2]) == pytest.approx(shipped["final_error_mm"], abs=6e-4), (rows, shipped)
+    bins = [line.split("|") for line in proc.stdout.splitlines() if line.startswith("| ") and line[2].isdigit()]
+    assert sum(int(b[2]) for b in bins) == 6, proc.stdout  # 3 episodes in the noise bins, 3 in the dead-band bins
+    reference = float(rows["×1"][1])
+    hindsight = float(proc.stdout.split("hindsight (each episode's lowest RMS over the scales): RMS ")[1].split(" mm")[0])
+    assert hindsight <= reference + 1e-3, proc.stdout
+    for args, says in ((["--scales", "1.2", "1.4"], "1.0"), (["--scales", "nan", "1.0"], "--scales"),
+                       (["--episodes", "0"], "--episodes")):  # fmt: skip
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
+        assert "Traceback" not in bad.stderr
+
+
 def test_env_copies_step_alike_in_this_process_and_in_worker_processes() -> None:
     """``--vec-env dummy`` and ``subproc`` see the same transitions to the last bit, episode ends included, and
     both give float64 rewards (SB3's DummyVecEnv would round them to float32, and so train another network)."""
