@@ -72,6 +72,11 @@ def pooled(rms: list[float], steps: list[int]) -> float:
     return math.sqrt(sum(n * r * r for r, n in zip(rms, steps)) / total) if total else float("nan")
 
 
+def in_bin(value: float, lo: float, hi: float, edges: tuple[float, ...]) -> bool:
+    """Whether ``value`` falls in the bin [lo, hi) (the last bin includes its upper edge)."""
+    return lo <= value < hi or (hi == edges[-1] and value == hi)
+
+
 def binned(label: str, unit: str, values: list[float], edges: tuple[float, ...], rms: dict[float, list[float]],
            steps: list[int]) -> tuple[list[str], dict[tuple[float, float], float]]:  # fmt: skip
     """Table rows of the pooled RMS per gain set within each bin of ``values``; the best scale per bin."""
@@ -80,7 +85,7 @@ def binned(label: str, unit: str, values: list[float], edges: tuple[float, ...],
              "|---" * (len(scales) + 2) + "|"]  # fmt: skip
     best = {}
     for lo, hi in zip(edges, edges[1:]):
-        idx = [i for i, v in enumerate(values) if lo <= v < hi or (hi == edges[-1] and v == hi)]
+        idx = [i for i, v in enumerate(values) if in_bin(v, lo, hi, edges)]
         if not idx:
             continue
         per = {s: pooled([rms[s][i] for i in idx], [steps[i] for i in idx]) for s in scales}
@@ -135,7 +140,7 @@ def main() -> None:
         lines, best = binned(label, unit, values, edges, rms, steps)
         print("\n" + "\n".join(lines))
         if label == "panel noise":
-            pick = [next((b for (lo, hi), b in best.items() if lo <= v <= hi), 1.0) for v in values]
+            pick = [next((b for (lo, hi), b in best.items() if in_bin(v, lo, hi, edges)), 1.0) for v in values]
             chosen = [rms[p][i] for i, p in enumerate(pick)]
             print("\nnoise oracle (the best scale per noise bin, picked on these episodes): "
                   f"RMS {pooled(chosen, steps):.3f} mm against {reference:.3f} mm with the shipped gains "
