@@ -580,9 +580,9 @@ class LQRController(EpisodicController):
 
 # -------------------------------------------------------------------------------------------------- hand-over
 #: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the dwells 0 (off) or more.
-HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s")
+HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s", "release_mm_s")
 #: The sizes that may be 0 (off).
-HANDOVER_DWELLS = ("handover_dwell_s", "release_dwell_s")
+HANDOVER_OPTIONAL = ("handover_dwell_s", "release_dwell_s", "release_mm_s")
 
 
 @dataclass(frozen=True)
@@ -598,7 +598,9 @@ class HandoverDesign:
     PID takes over within ``handover_mm`` whatever the observed speed (0: never). Under the same noise the
     filtered position strays beyond ``release_mm`` now and then while the ball itself is held; with
     ``release_dwell_s`` the LQR takes the ball back only once it has been observed beyond ``release_mm`` that
-    long (0: at once). The PID takes over with its own integral, which it has kept within
+    long (0: at once), unless it is also faster than ``release_mm_s`` relative to the target: a push, which the
+    LQR brings back sooner, not noise (the filtered speed under 8 mm of noise stays well below 60 mm/s; 0: no
+    exception). The PID takes over with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
@@ -610,6 +612,8 @@ class HandoverDesign:
         release_mm: the LQR takes back beyond this distance (more than ``handover_mm``).
         handover_dwell_s: after this long within ``release_mm`` the speed no longer matters (0: it always does).
         release_dwell_s: the LQR takes back after this long beyond ``release_mm`` (0: at once).
+        release_mm_s: with a release dwell, the LQR takes back at once a ball beyond ``release_mm`` that moves
+            faster than this relative to the target (0: never).
     """
 
     lqr: LQRDesign
@@ -619,6 +623,7 @@ class HandoverDesign:
     release_mm: float = 20.0
     handover_dwell_s: float = 0.0
     release_dwell_s: float = 0.0
+    release_mm_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -635,6 +640,7 @@ class HandoverGains:
     dt: float
     handover_dwell_s: float = 0.0  # after the others: bundles written before it load without it
     release_dwell_s: float = 0.0  # likewise
+    release_mm_s: float = 0.0  # likewise
 
 
 class HandoverController(EpisodicController):
@@ -679,6 +685,8 @@ class HandoverController(EpisodicController):
         enter = ~near & (distance_mm < g.handover_mm) & slow
         self._beyond = periods_in_a_row(None if fresh else self._beyond, distance_mm > g.release_mm)
         gone = self._beyond >= max(1, whole_periods(g.release_dwell_s, g.dt))  # 0 s: the first period beyond
+        if g.release_mm_s > 0:  # a push, not noise: the LQR takes back at once
+            gone |= (distance_mm > g.release_mm) & (speed_mm_s > g.release_mm_s)
         self._near = (near | enter) & ~gone
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
@@ -757,9 +765,9 @@ def checked_handover(values: Any) -> HandoverDesign:
     assert isinstance(lqr, LQRDesign) and isinstance(pid, PIDGains)
     sizes = {k: values.get(k, getattr(HandoverDesign, k)) for k in HANDOVER_SIZES}
     bad = [k for k, v in sizes.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)
-           or v < 0 or (v == 0 and k not in HANDOVER_DWELLS)]  # fmt: skip
+           or v < 0 or (v == 0 and k not in HANDOVER_OPTIONAL)]  # fmt: skip
     if bad:
-        raise ValueError(f"{bad} must be positive numbers ({' and '.join(HANDOVER_DWELLS)} may be 0: off)")
+        raise ValueError(f"{bad} must be positive numbers ({', '.join(HANDOVER_OPTIONAL)} may be 0: off)")
     if sizes["release_mm"] <= sizes["handover_mm"]:
         raise ValueError(f"release_mm ({sizes['release_mm']}) must be more than handover_mm ({sizes['handover_mm']})")
     return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
@@ -785,7 +793,8 @@ def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesig
         return HandoverController(HandoverGains(lqr=lqr, pid=pid, max_tilt=pid.max_tilt, handover_mm=design.handover_mm,
                                                 handover_mm_s=design.handover_mm_s, release_mm=design.release_mm,
                                                 dt=dt, handover_dwell_s=design.handover_dwell_s,
-                                                release_dwell_s=design.release_dwell_s),
+                                                release_dwell_s=design.release_dwell_s,
+                                                release_mm_s=design.release_mm_s),
                                   plate_half=half)  # fmt: skip
     if kind == "lqr":
         assert isinstance(design, LQRDesign)

@@ -62,7 +62,9 @@ SHIPPED_CAMERA = {("StewartBallBalance-v0", "servo-hexapod"): "balance_camera"}
 #: The shipped residual policies (``--policy shipped-residual``: PPO corrections of a classical controller, the base
 #: their config.yaml names): folder under ``policies/``.
 SHIPPED_RESIDUAL = {("StewartBallBalance-v0", "servo-hexapod"): "balance_residual",
-                    ("StewartBallTrack-v0", "servo-hexapod"): "track_residual"}
+                    ("StewartBallTrack-v0", "servo-hexapod"): "track_residual",
+                    # as SHIPPED's: the balance residual, trained without pushes (docs: Environments)
+                    ("StewartBallDisturbance-v0", "servo-hexapod"): "balance_residual"}
 #: What ``stewart-gym train`` needs, beyond ``--env`` and ``--geometry``, to train the like of each shipped kind.
 TRAIN_OPTIONS = {"shipped": "", "shipped-camera": " --sensor camera", "shipped-residual": " --hyperparams ppo_residual"}
 SHIPPED_TABLES = {"shipped": SHIPPED, "shipped-camera": SHIPPED_CAMERA, "shipped-residual": SHIPPED_RESIDUAL}

@@ -665,6 +665,13 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
         assert design["release_dwell_s"] == 0.5, member
     assert bundle["residual"]["base"]["gains"]["release_dwell_s"] == 0.5
     assert load_policy("shipped-residual").base.gains.release_dwell_s == 0.5
+    # and its fast release (60 mm/s: a pushed ball goes back to the LQR at once), likewise
+    for member in SHIPPED_RESIDUAL_RUN.parent.iterdir():
+        design = yaml.safe_load((member / "config.yaml").read_text())["hyperparams"]["residual"]["design"]
+        assert design["release_mm_s"] == 60.0, member
+    assert bundle["residual"]["base"]["gains"]["release_mm_s"] == 60.0
+    assert load_policy("shipped-residual").base.gains.release_mm_s == 60.0
+    assert load_policy("shipped-residual", "StewartBallDisturbance-v0").base.gains.release_mm_s == 60.0
 
 
 def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_the_release_distance() -> None:
@@ -704,6 +711,52 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
     assert held(rebuilt, [near] + [far] * (periods - 1)) == [True] * periods
 
 
+def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_once() -> None:
+    """A push, unlike the noise a release dwell waits out, sends the ball beyond ``release_mm`` fast: with
+    ``release_mm_s`` (60 mm/s) the LQR takes back at once a ball beyond 20 mm moving faster than that relative to
+    the target, whatever the dwell; a slower one, or a fast one still within 20 mm, waits as before; 0 turns the
+    exception off; a bundle's gains keep the field, and a bundle written before it loads with it off."""
+    from dataclasses import asdict, replace
+
+    from stewart_gym.classical import HandoverController, controller_from_gains
+    from stewart_gym.sensing import ObservationBuilder
+
+    shipped = load_policy("lqr-pid")
+    assert isinstance(shipped, HandoverController) and shipped.gains.release_mm_s == 0.0
+    dwell = replace(shipped.gains, release_dwell_s=0.5)
+    fast_release = HandoverController(replace(dwell, release_mm_s=60.0))
+    scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
+
+    def moving(ball_mm: float, mm_s: float) -> np.ndarray:
+        obs = lqr_obs((ball_mm, 0.0))
+        obs[2] = mm_s / 1e3 / scale  # the ball's velocity along x (the target at rest)
+        return obs
+
+    def held(policy: HandoverController, sequence: list[np.ndarray]) -> list[bool]:
+        policy.reset()
+        out = []
+        for obs in sequence:
+            policy(obs)
+            out.append(bool(policy.pid_in_control))
+        return out
+
+    near = lqr_obs((1.0, 0.0))
+    assert held(fast_release, [near, moving(25.0, 80.0)]) == [True, False]  # a push: back to the LQR at once
+    assert held(fast_release, [near, moving(25.0, -80.0)]) == [True, False]  # coming back fast counts too
+    assert held(fast_release, [near, moving(25.0, 40.0)]) == [True, True]  # slower: the dwell holds it
+    assert held(fast_release, [near, moving(15.0, 80.0)]) == [True, True]  # fast but within 20 mm: the PID's
+    assert held(HandoverController(dwell), [near, moving(25.0, 80.0)]) == [True, True]  # 0: no exception
+    rows = np.stack([moving(25.0, 80.0), moving(25.0, 40.0)])
+    fast_release.reset()
+    fast_release(np.stack([near, near]))
+    fast_release(rows)
+    assert fast_release.pid_in_control.tolist() == [False, True]  # per row
+    gains = asdict(fast_release.gains)
+    assert held(controller_from_gains("handover", gains), [near, moving(25.0, 80.0)]) == [True, False]
+    del gains["release_mm_s"]  # a bundle written before the field
+    assert controller_from_gains("handover", gains).gains.release_mm_s == 0.0
+
+
 def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() -> None:
     """``policies/lqr_pid.json`` holds today's ``lqr.json`` and ``pid_kalman_gains.json`` (no stale copy), but
     for the LQR's feed-forward lead, which it leaves off (there the PID follows a moving target; with the
@@ -719,10 +772,13 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
     assert pid_kalman.pop("estimator") == "kalman" and design["pid"] == pid_kalman
     assert checked_design({**design, "handover_dwell_s": 0}, "handover").handover_dwell_s == 0.0  # 0: off
     assert checked_design({**design, "release_dwell_s": 0.5}, "handover").release_dwell_s == 0.5
+    assert checked_design({**design, "release_mm_s": 60}, "handover").release_mm_s == 60.0
+    assert checked_design(design, "handover").release_mm_s == 0.0  # off unless given
     for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "HandoverDesign"),
                        ({**design, "handover_mm_s": -1}, "positive"), ({**design, "handover_dwell_s": -0.5}, "positive"),
                        ({**design, "handover_dwell_s": float("nan")}, "positive"),
                        ({**design, "release_dwell_s": -0.5}, "positive"), ({**design, "release_dwell_s": True}, "positive"),
+                       ({**design, "release_mm_s": -60}, "positive"), ({**design, "release_mm_s": float("inf")}, "positive"),
                        ({**design, "pid": {**design["pid"], "kp_pos": "x"}}, "handover: gains must be finite")):
         with pytest.raises(ValueError, match=match):
             checked_design(bad, "handover")
@@ -888,7 +944,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
     recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
                             .read_text())["StewartBallBalance-v0"]["residual"]["design"]  # fmt: skip
-    assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5}
+    assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5, "release_mm_s": 60.0}
     assert recorded == replace(shipped_design("lqr-pid"), **recipe)  # the recipe's changes, and only those
     cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
