@@ -579,7 +579,7 @@ class LQRController(EpisodicController):
 
 
 # -------------------------------------------------------------------------------------------------- hand-over
-#: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the dwells 0 (off) or more.
+#: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the rest 0 (off) or more.
 HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s", "release_mm_s")
 #: The sizes that may be 0 (off).
 HANDOVER_OPTIONAL = ("handover_dwell_s", "release_dwell_s", "release_mm_s")
@@ -599,8 +599,8 @@ class HandoverDesign:
     filtered position strays beyond ``release_mm`` now and then while the ball itself is held; with
     ``release_dwell_s`` the LQR takes the ball back only once it has been observed beyond ``release_mm`` that
     long (0: at once), unless it is also faster than ``release_mm_s`` relative to the target: a push, which the
-    LQR brings back sooner, not noise (the filtered speed under 8 mm of noise stays well below 60 mm/s; 0: no
-    exception). The PID takes over with its own integral, which it has kept within
+    LQR brings back sooner, more than noise (8 mm of it leaves about 20 mm/s of error in the filtered speed; 0:
+    no exception). The PID takes over with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
