@@ -11,6 +11,7 @@ import subprocess
 import sys
 from dataclasses import asdict
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -330,6 +331,16 @@ def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
     obs = np.zeros(12, dtype=np.float32)
     obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
     return np.tile(obs, (rows, 1)) if rows else obs
+
+
+def held_by_pid(policy: Any, sequence: list[np.ndarray]) -> list[bool]:
+    """From a reset, whether the hand-over's PID holds the ball after each observation of ``sequence``."""
+    policy.reset()
+    out = []
+    for obs in sequence:
+        policy(obs)
+        out.append(bool(policy.pid_in_control))
+    return out
 
 
 def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_back_far_away() -> None:
@@ -690,25 +701,17 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
     periods = round(handover.gains.release_dwell_s / handover.gains.dt)
     near, far = lqr_obs((1.0, 0.0)), lqr_obs((25.0, 0.0))
 
-    def held(policy: HandoverController, sequence: list[np.ndarray]) -> list[bool]:
-        policy.reset()
-        out = []
-        for obs in sequence:
-            policy(obs)
-            out.append(bool(policy.pid_in_control))
-        return out
-
-    assert held(handover, [near] + [far] * (periods - 1) + [near] + [far] * periods) == \
+    assert held_by_pid(handover, [near] + [far] * (periods - 1) + [near] + [far] * periods) == \
         [True] * (1 + periods - 1 + 1 + periods - 1) + [False]  # fmt: skip
-    assert held(shipped, [near, far, near]) == [True, False, True]  # at once (and back: at rest within 2 mm)
+    assert held_by_pid(shipped, [near, far, near]) == [True, False, True]  # at once (and back: at rest within 2 mm)
     moving = lqr_obs((1.0, 0.0))
     moving[6] = 0.030 / ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]  # the target moves at 30 mm/s
-    assert held(handover, [near, moving]) == [True, True]
-    assert held(handover, [moving]) == [False]  # …but 30 mm/s relative to the ball is too fast to take it over
+    assert held_by_pid(handover, [near, moving]) == [True, True]
+    assert held_by_pid(handover, [moving]) == [False]  # …but 30 mm/s relative to the ball is too fast to take it over
     gains = {k: v for k, v in asdict(handover.gains).items()}
     rebuilt = controller_from_gains("handover", gains)
     assert rebuilt.gains.release_dwell_s == 0.5
-    assert held(rebuilt, [near] + [far] * (periods - 1)) == [True] * periods
+    assert held_by_pid(rebuilt, [near] + [far] * (periods - 1)) == [True] * periods
 
 
 def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_once() -> None:
@@ -732,27 +735,19 @@ def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_o
         obs[2] = mm_s / 1e3 / scale  # the ball's velocity along x (the target at rest)
         return obs
 
-    def held(policy: HandoverController, sequence: list[np.ndarray]) -> list[bool]:
-        policy.reset()
-        out = []
-        for obs in sequence:
-            policy(obs)
-            out.append(bool(policy.pid_in_control))
-        return out
-
     near = lqr_obs((1.0, 0.0))
-    assert held(fast_release, [near, moving(25.0, 80.0)]) == [True, False]  # a push: back to the LQR at once
-    assert held(fast_release, [near, moving(25.0, -80.0)]) == [True, False]  # coming back fast counts too
-    assert held(fast_release, [near, moving(25.0, 40.0)]) == [True, True]  # slower: the dwell holds it
-    assert held(fast_release, [near, moving(15.0, 80.0)]) == [True, True]  # fast but within 20 mm: the PID's
-    assert held(HandoverController(dwell), [near, moving(25.0, 80.0)]) == [True, True]  # 0: no exception
+    assert held_by_pid(fast_release, [near, moving(25.0, 80.0)]) == [True, False]  # a push: back to the LQR at once
+    assert held_by_pid(fast_release, [near, moving(25.0, -80.0)]) == [True, False]  # coming back fast counts too
+    assert held_by_pid(fast_release, [near, moving(25.0, 40.0)]) == [True, True]  # slower: the dwell holds it
+    assert held_by_pid(fast_release, [near, moving(15.0, 80.0)]) == [True, True]  # fast but within 20 mm: the PID's
+    assert held_by_pid(HandoverController(dwell), [near, moving(25.0, 80.0)]) == [True, True]  # 0: no exception
     rows = np.stack([moving(25.0, 80.0), moving(25.0, 40.0)])
     fast_release.reset()
     fast_release(np.stack([near, near]))
     fast_release(rows)
     assert fast_release.pid_in_control.tolist() == [False, True]  # per row
     gains = asdict(fast_release.gains)
-    assert held(controller_from_gains("handover", gains), [near, moving(25.0, 80.0)]) == [True, False]
+    assert held_by_pid(controller_from_gains("handover", gains), [near, moving(25.0, 80.0)]) == [True, False]
     del gains["release_mm_s"]  # a bundle written before the field
     assert controller_from_gains("handover", gains).gains.release_mm_s == 0.0
 
