@@ -50,13 +50,14 @@ def evaluate_gains(job: tuple[str, int, int]) -> dict[str, Any]:
     return evaluate(ENV, policy, episodes=episodes, seed=seed, env_kwargs=env_kwargs, settling=False)
 
 
-def episode_parameters(episodes: int, seed: int) -> tuple[list[float], list[float]]:
-    """Each seeded episode's panel noise (mm) and servo dead band (µs), as the evaluation draws them."""
+def episode_parameters(episodes: int, seed: int, env_kwargs: dict[str, Any]) -> tuple[list[float], list[float]]:
+    """Each seeded episode's panel noise (mm) and servo dead band (µs), as the evaluation draws them (the same env
+    settings, randomised, the same seeds)."""
     import gymnasium as gym
 
     import stewart_gym  # noqa: F401 (registers the envs)
 
-    env = gym.make(ENV, randomize=True)
+    env = gym.make(ENV, **{**env_kwargs, "randomize": True})
     noise, deadband = [], []
     for i in range(episodes):
         env.reset(seed=seed + i)
@@ -121,7 +122,10 @@ def main() -> None:
             jobs.append((str(path), args.episodes, args.seed))
         with ProcessPoolExecutor(min(args.workers, len(jobs))) as pool:
             results = dict(zip(args.scales, pool.map(evaluate_gains, jobs)))
-    noise, deadband = episode_parameters(args.episodes, args.seed)
+        from stewart_gym.registry import load_for_evaluation
+
+        env_kwargs = load_for_evaluation(jobs[0][0], ENV, None, None)[2]
+    noise, deadband = episode_parameters(args.episodes, args.seed, env_kwargs)
 
     print(f"PID + Kalman, {args.gain} × each scale ({args.gain} = {shipped[args.gain]:g} shipped), {args.episodes} "
           f"randomised balance episodes (seeds {args.seed}…{args.seed + args.episodes - 1})\n")  # fmt: skip
