@@ -23,7 +23,7 @@ from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
 __all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
-           "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "run_episode",
+           "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "pooled_rms", "run_episode",
            "settling_offset", "summarise", "write_gif"]  # fmt: skip
 
 
@@ -207,13 +207,20 @@ def summarise(env_id: str, episodes: int, seed: int, randomize: bool, parts: lis
 PAIRED_METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s")
 
 
+def pooled_rms(rms_mm: Any, tail_steps: Any) -> Any:
+    """The RMS over several episodes' last 5 s together, as ``evaluate``'s ``rms_error_mm``: each episode's RMS
+    (``per_episode["rms_mm"]``) weighed by its steps (``tail_steps``), over the last axis."""
+    rms, n = np.asarray(rms_mm, dtype=float), np.asarray(tail_steps, dtype=float)
+    return np.sqrt((n * rms**2).sum(axis=-1) / n.sum(axis=-1))
+
+
 def _paired_statistic(per_episode: dict[str, Any], metric: str, index: np.ndarray) -> np.ndarray:
     """The metric of ``evaluate`` recomputed from its per-episode values, for each row of episode indices."""
     if metric == "success_rate":
         return np.asarray(per_episode["success"], dtype=float)[index].mean(axis=-1)
     if metric == "rms_error_mm":
         rms, n = np.asarray(per_episode["rms_mm"], dtype=float), np.asarray(per_episode["tail_steps"], dtype=float)
-        return np.sqrt((n[index] * rms[index] ** 2).sum(axis=-1) / n[index].sum(axis=-1))
+        return pooled_rms(rms[index], n[index])
     if metric == "final_error_mm":
         return np.asarray(per_episode["final_mm"], dtype=float)[index].mean(axis=-1)
     if metric == "settling_time_s":

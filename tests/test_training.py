@@ -200,7 +200,7 @@ def test_evaluate_cli_json(capsys: pytest.CaptureFixture[str]) -> None:
 def test_per_episode_values_give_back_every_pooled_metric(capsys: pytest.CaptureFixture[str]) -> None:
     """``evaluate --json`` keeps each seed's values; recomputed from them (as the paired comparison does), every
     pooled metric is the one it reports; a result compared with itself differs by exactly 0."""
-    from stewart_gym.evaluation import PAIRED_METRICS, paired_difference
+    from stewart_gym.evaluation import PAIRED_METRICS, paired_difference, pooled_rms
 
     assert main(["evaluate", "--policy", "pid", "--episodes", "3", "--seed", "5", "--json"]) == 0
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -209,6 +209,7 @@ def test_per_episode_values_give_back_every_pooled_metric(capsys: pytest.Capture
     assert per["tail_steps"] == [250, 250, 250]
     pooled = np.sqrt(np.average(np.square(per["rms_mm"]), weights=per["tail_steps"]))
     assert pooled == pytest.approx(out["rms_error_mm"], rel=1e-9)
+    assert float(pooled_rms(per["rms_mm"], per["tail_steps"])) == pytest.approx(out["rms_error_mm"], rel=1e-9)
     assert np.mean(per["final_mm"]) == pytest.approx(out["final_error_mm"], rel=1e-9)
     assert np.mean(per["success"]) == out["success_rate"]
     assert np.mean([t for t in per["settling_s"] if t is not None]) == pytest.approx(out["settling_time_s"], rel=1e-9)

@@ -68,9 +68,10 @@ def episode_parameters(episodes: int, seed: int, env_kwargs: dict[str, Any]) -> 
 
 
 def pooled(rms: list[float], steps: list[int]) -> float:
-    """The RMS over all the episodes' last 5 s together (each episode's RMS weighed by its steps)."""
-    total = sum(steps)
-    return math.sqrt(sum(n * r * r for r, n in zip(rms, steps)) / total) if total else float("nan")
+    """The RMS over all the episodes' last 5 s together, as ``evaluate`` pools it."""
+    from stewart_gym.evaluation import pooled_rms
+
+    return float(pooled_rms(rms, steps))
 
 
 def in_bin(value: float, lo: float, hi: float, edges: tuple[float, ...]) -> bool:
