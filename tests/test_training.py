@@ -406,13 +406,14 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     rows = json.loads((tmp_path / "results.json").read_text())
     assert kept[0] in rows and kept[2] in rows and kept[1] not in rows
     new = [r for r in rows if r["row"] == "LQR → PID"]
-    assert sorted({r["table"] for r in new}) == ["balance", "latency", "noise", "track circle", "track figure8",
-                                                  "track waypoints"]  # fmt: skip
-    assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 13
+    assert sorted({r["table"] for r in new}) == ["balance", "latency", "noise", "pushes", "track circle",
+                                                  "track figure8", "track waypoints"]  # fmt: skip
+    assert all(r["episodes"] == 1 and r["policy"] == "lqr-pid" for r in new) and len(new) == 14
+    assert [r["env"] for r in new if r["table"] == "pushes"] == ["StewartBallDisturbance-v0"]
     assert rows[0] == kept[0] and rows[1]["row"] == "LQR → PID" and rows[1]["table"] == "balance"  # in its old place
     assert rows[2] == kept[2]  # the rows it had no place for (the tracks, the robustness) come after the kept ones
     page = (tmp_path / "r.md").read_text()
-    assert "old, 1 training seeds" in page
+    assert "old, 1 training seeds" in page and "| pushes, 1 seeds | LQR → PID |" in page
     noise = [r for r in new if r["table"] == "noise" and r["value"] == 8.0][0]["metrics"]
     assert f"{noise['success_rate']:.0%} ({noise['rms_error_mm']:.2f} mm)" in page  # success and RMS in each cell
     per = [r for r in new if r["table"] == "balance"][0]["metrics"]["per_episode"]  # kept for paired comparisons
@@ -420,9 +421,21 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     track = [r for r in new if r["table"].startswith("track")][0]["metrics"]["per_episode"]  # paired on the tracks
     assert len(track["rms_mm"]) == 1 and "settling_s" not in track
     assert all("per_episode" not in r["metrics"] for r in new if r["table"] in ("latency", "noise"))
-    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "MPC", "--out",
-                          str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
-    assert bad.returncode == 2 and "unknown controller" in bad.stderr
+    # --tables with --rows: only that controller's pushes row is evaluated again, in its place; the rest is kept
+    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--tables", "pushes", "--rows", "LQR",
+                           "--episodes", "2", "--workers", "1", "--out", str(tmp_path / "r.md")],
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    again = json.loads((tmp_path / "results.json").read_text())
+    fresh = [r for r in again if r not in rows]
+    assert [(r["table"], r["row"], r["episodes"]) for r in fresh] == [("pushes", "LQR", 2)]
+    assert len(again) == len(rows) + 1 and [r for r in again if r in rows] == rows
+    assert "| pushes | LQR | LQR → PID |" in (tmp_path / "r.md").read_text()  # 2 and 1 seeds: no one count
+    rows = again
+    for args, says in ((["--rows", "MPC"], "unknown controller"), (["--tables", "pushes,wind"], "unknown table")):
+        bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), *args, "--out",
+                              str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert bad.returncode == 2 and says in bad.stderr and "Traceback" not in bad.stderr
     bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
                           f"X={tmp_path / 'no_run'}", "--out", str(tmp_path / "r.md")], capture_output=True, text=True,
                          timeout=60)  # fmt: skip  (a mistyped run: refused before any evaluation, results.json kept)
@@ -649,6 +662,26 @@ def test_readme_headline_is_the_results_json_table() -> None:
         "README headline is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
     assert "| residual PPO | PID + Kalman | LQR |" in table
     assert "| residual PPO − PID + Kalman |" in table and "| residual PPO − LQR |" in table
+
+
+def test_environments_pushes_table_is_the_results_json_table() -> None:
+    """The Environments page's pushes table (between its markers) is what ``train/results.py`` makes of
+    ``docs/src/results.json``, as the Control page's is: every controller on ``StewartBallDisturbance-v0`` on the
+    same seeds, and the residual paired with the PID + Kalman, the LQR and the LQR → PID."""
+    root = Path(__file__).resolve().parents[1]
+    script = results_script()
+    results = json.loads((root / "docs" / "src" / "results.json").read_text())
+    table = script.pushes(results)
+    start, end = script.PUSHES_MARKERS
+    page = (root / "docs" / "src" / "environments.md").read_text()
+    assert page.split(start, 1)[1].split(end, 1)[0].strip() == table.strip(), \
+        "the Environments page's pushes table is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+    assert "| pushes, 100 seeds | shipped PPO | residual PPO | PID | PID + Kalman | LQR | LQR → PID |" in table
+    for other in ("PID + Kalman", "LQR", "LQR → PID"):
+        assert f"| residual PPO − {other} |" in table
+    pushed = [r for r in results if r["table"] == "pushes"]
+    assert {r["env"] for r in pushed} == {"StewartBallDisturbance-v0"} and len(pushed) == 6
+    assert table in (root / "docs" / "src" / "results.md").read_text()
 
 
 def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None:

@@ -1,10 +1,12 @@
 """Regenerate the docs' results page: learned vs PID vs LQR on every task and metric, with robustness.
 
 Run: ``.venv/bin/python train/results.py [--recipe "LABEL=runs/s0,runs/s1,runs/s2" ...] [--episodes 100]
-[--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --rows LABELS | --from-json]``
+[--robust-episodes 50] [--workers 2] [--out docs/src/results.md] [--recipes-only | --rows LABELS | --from-json]
+[--tables KINDS]``
 (``--recipes-only``: evaluate only the given recipes' runs and keep the rest of ``results.json``, the other
 recipes included;
-``--rows "LQR → PID"``: evaluate only those controllers and keep the rest.)
+``--rows "LQR → PID"``: evaluate only those controllers and keep the rest; ``--tables pushes``: evaluate only
+those tables (:data:`TABLE_KINDS`) and keep the rest; both together: those controllers in those tables.)
 
 Every controller goes through :func:`stewart_gym.evaluation.evaluate` on the same seeded, domain-randomised
 episodes (seeds 0…N−1). Rows:
@@ -20,14 +22,19 @@ episodes (seeds 0…N−1). Rows:
   evaluated on its task (a tracker on every trajectory), and the page gives a column per recipe with their
   mean and range (the spread over training seeds, not the best run).
 
+Pushes: every controller on ``StewartBallDisturbance-v0`` (impulses on the ball and a load on the plate; the
+balance policies, none trained or tuned with pushes), with the residual paired against the classical controllers.
+The same table goes into the Environments page between :data:`PUSHES_MARKERS`.
+
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
 (the rest of the randomisation as usual), and the settled servo motion against the noise. results.json keeps
 each seed's values for every balance and track row: the paired comparisons (row minus row, seed by seed, on
 balance and on each trajectory) and the balance table's median settling time come from them.
 
 Writes the page (Markdown: train/results_intro.md with the tables where it says :data:`TABLES_MARKER`),
-``results.json`` beside it and ``images/robustness.png``; for the docs' own page
-also the README's headline table (:func:`headline`, between :data:`README_MARKERS`).
+``results.json`` beside it and ``images/robustness.png``; for the docs' own page also the README's headline
+table (:func:`headline`, between :data:`README_MARKERS`) and the Environments page's pushes table
+(:func:`pushes`, between :data:`PUSHES_MARKERS`).
 """
 
 from __future__ import annotations
@@ -44,7 +51,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 ROOT = Path(__file__).resolve().parents[1]
-BALANCE, TRACK = "StewartBallBalance-v0", "StewartBallTrack-v0"
+BALANCE, TRACK, PUSHED = "StewartBallBalance-v0", "StewartBallTrack-v0", "StewartBallDisturbance-v0"
 TRAJECTORIES = ("circle", "figure8", "waypoints")
 #: label → (policy, estimator or None for the policy's own)
 CONTROLLERS = {"shipped PPO": ("shipped", None), "residual PPO": ("shipped-residual", None), "PID": ("pid", None),
@@ -79,6 +86,20 @@ TABLES_MARKER = "<!-- tables -->"
 LATENCIES_MS = (5, 25, 50, 75, 100)
 NOISES_MM = (0.5, 2.0, 4.0, 8.0)
 ROBUSTNESS = ("latency", "noise")
+#: What ``--tables`` can name: a table's first word (``track`` is the three trajectories).
+TABLE_KINDS = ("balance", "track", "pushes", "latency", "noise")
+#: The pushes table's rows (``StewartBallDisturbance-v0``): the pushes go on until 7.5 s, into the last 5 s, so
+#: the pulse rate is the whole episode's and the settling time is when the ball stays within 10 mm for good.
+PUSH_METRICS = [("success_rate", "success", "{:.0%}"), ("fell_rate", "ball fell off", "{:.0%}"),
+                ("rms_error_mm", "RMS error, last 5 s (pushes until 7.5 s; mm)", "{:.2f}"),
+                ("final_error_mm", "final error (mm)", "{:.2f}"),
+                ("settling_time_s", "time until it stays within 10 mm (100 mm start; pushes until 7.5 s; s)",
+                 "{:.2f}"),
+                ("max_tilt_deg", "largest tilt (°)", "{:.1f}"),
+                ("pulse_rate_us_per_s", "pulse rate, whole episode (µs/s per servo)", "{:.0f}")]  # fmt: skip
+#: The pushes table's paired comparisons: the shipped residual against the classical controllers.
+PUSH_PAIRS = (("residual PPO", "PID + Kalman"), ("residual PPO", "LQR"), ("residual PPO", "LQR → PID"))
+PUSHES_MARKERS = ("<!-- pushes:start -->", "<!-- pushes:end -->")
 
 
 def run_job(job: dict[str, Any]) -> dict[str, Any]:
@@ -104,6 +125,8 @@ def jobs_for(args: argparse.Namespace) -> list[dict[str, Any]]:
         for trajectory in TRAJECTORIES:
             jobs.append({"table": f"track {trajectory}", "row": label, "policy": policy, "estimator": estimator,
                          "env": TRACK, "episodes": args.episodes, "env_kwargs": {"trajectory": trajectory}})  # fmt: skip
+        jobs.append({"table": "pushes", "row": label, "policy": policy, "estimator": estimator, "env": PUSHED,
+                     "episodes": args.episodes})  # fmt: skip
     from stewart_gym.registry import resolve_policy
 
     for label, runs in args.recipes.items():
@@ -164,7 +187,7 @@ def tables(results: list[dict[str, Any]], recipes: dict[str, list[str]]) -> str:
                 cells.append(spread([v for m in got if (v := metric(m, key)) is not None], pattern))
             out.append(f"| {name} | " + " | ".join(cells) + " |")
         out.append("")
-    out += paired(results) + paired_track(results)
+    out += paired(results) + paired_track(results) + pushes_section(results)
     for table, unit, values in (("latency", "ms", LATENCIES_MS), ("noise", "mm", NOISES_MM)):
         rows = {(r["row"], r["value"]): r["metrics"] for r in results if r["table"] == table}
         out += [f"### Success against the panel's {table} (balance, {unit}; in brackets the RMS error over the "
@@ -265,6 +288,36 @@ def paired_cells(a: dict[str, Any], b: dict[str, Any],
     return cells
 
 
+def pushes(results: list[dict[str, Any]]) -> str:
+    """The pushes table (every controller on ``StewartBallDisturbance-v0``, :data:`PUSH_METRICS`) and the
+    residual's paired comparisons (:data:`PUSH_PAIRS`); "" without pushes rows."""
+    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "pushes"}
+    if not rows:
+        return ""
+    columns = [c for c in CONTROLLERS if c in rows]
+    episodes = {rows[c].get("episodes") for c in columns}
+    title = f"pushes, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else "pushes"
+    out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    out += [f"| {name} | " + " | ".join(fmt(rows[c].get(key), pattern) for c in columns) + " |"
+            for key, name, pattern in PUSH_METRICS]  # fmt: skip
+    pairs = [(a, b) for a, b in PUSH_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
+    if pairs:
+        out += ["", "| pushes, paired seed by seed (95 % interval) | " + " | ".join(name for _, name in PAIRED)
+                + " |", "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
+        out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
+    return "\n".join(out)
+
+
+def pushes_section(results: list[dict[str, Any]]) -> list[str]:
+    """The Control page's pushes section: :func:`pushes` under its heading (nothing without pushes rows)."""
+    table = pushes(results)
+    if not table:
+        return []
+    return [f"### Pushes (`{PUSHED}`; the balance policies, none trained or tuned with pushes)", "",
+            "Impulses on the ball and a load on the plate (the Environments page). The paired rows: as for balance; "
+            "settling compares the seeds where both settled.", "", table, ""]  # fmt: skip
+
+
 def headline(results: list[dict[str, Any]]) -> str:
     """The README's headline table (:data:`HEADLINE` on the balance task) and the shipped residual's paired
     comparisons (:data:`HEADLINE_PAIRS`), from the results."""
@@ -283,14 +336,15 @@ def headline(results: list[dict[str, Any]]) -> str:
     return "\n".join(out)
 
 
-def write_headline(readme: Path, results: list[dict[str, Any]]) -> None:
-    """Replace the text between :data:`README_MARKERS` in ``readme`` with :func:`headline`."""
-    text = readme.read_text()
-    start, end = README_MARKERS
+def write_between(path: Path, markers: tuple[str, str], table: str) -> None:
+    """Replace the text between ``markers`` in the file ``path`` with ``table`` (the README's headline, the
+    Environments page's pushes table)."""
+    text = path.read_text()
+    start, end = markers
     if start not in text or end not in text:
-        raise SystemExit(f"error: {readme} has no {start} … {end} section for the headline table")
+        raise SystemExit(f"error: {path} has no {start} … {end} section for its table")
     head, rest = text.split(start, 1)
-    readme.write_text(head + start + "\n" + headline(results) + "\n" + end + rest.split(end, 1)[1])
+    path.write_text(head + start + "\n" + table + "\n" + end + rest.split(end, 1)[1])
 
 
 def plot(results: list[dict[str, Any]], path: Path) -> None:
@@ -368,18 +422,24 @@ def main() -> None:
     ap.add_argument("--rows", type=lambda t: [v.strip() for v in t.split(",") if v.strip()],
                     help="evaluate only these controllers (labels, comma-separated, e.g. 'LQR → PID') and keep the "
                          "rest of results.json beside the page")  # fmt: skip
+    ap.add_argument("--tables", type=lambda t: [v.strip() for v in t.split(",") if v.strip()],
+                    help=f"evaluate only these tables (comma-separated, of {', '.join(TABLE_KINDS)}) and keep the "
+                         "rest of results.json beside the page; with --rows, those controllers in those tables")  # fmt: skip
     args = ap.parse_args()
     out = Path(args.out)
     args.recipes = dict(args.recipe)
     unknown = [r for r in args.rows or [] if r not in CONTROLLERS]
     if unknown:
         ap.error(f"--rows: unknown controller(s) {unknown}; known: {list(CONTROLLERS)}")
+    unknown = [t for t in args.tables or [] if t not in TABLE_KINDS]
+    if unknown:
+        ap.error(f"--tables: unknown table(s) {unknown}; known: {list(TABLE_KINDS)}")
     if args.recipes_only and not args.recipes:
         ap.error("--recipes-only needs at least one --recipe")
     saved = out.parent / "results.json"
-    if (args.from_json or args.rows or args.recipes_only) and not saved.is_file():
-        ap.error(f"{saved} not found: --from-json, --rows and --recipes-only keep the rows of an earlier run's "
-                 "results.json beside the page; run without them first")  # fmt: skip
+    if (args.from_json or args.rows or args.tables or args.recipes_only) and not saved.is_file():
+        ap.error(f"{saved} not found: --from-json, --rows, --tables and --recipes-only keep the rows of an earlier "
+                 "run's results.json beside the page; run without them first")  # fmt: skip
     if args.from_json:
         results = json.loads(saved.read_text())
     else:
@@ -391,10 +451,15 @@ def main() -> None:
             ap.error(f"--recipe: {exc}")
         before: list[dict[str, Any]] = []  # the rows kept from results.json (--rows, --recipes-only)
         kept: list[dict[str, Any]] = []
-        if args.rows:
+        if args.rows or args.tables:
+
+            def chosen(r: dict[str, Any]) -> bool:  # a controller's row (not a recipe's) of those rows and tables
+                return (not r["row"].startswith("seed:") and (not args.rows or r["row"] in args.rows)
+                        and (not args.tables or r["table"].split()[0] in args.tables))
+
             before = json.loads(saved.read_text())
-            kept = [r for r in before if r["row"] not in args.rows]
-            jobs = [j for j in jobs if j["row"] in args.rows]
+            kept = [r for r in before if not chosen(r)]
+            jobs = [j for j in jobs if chosen(j)]
         elif args.recipes_only:
             before = json.loads(saved.read_text())
             kept = [r for r in before if not r["row"].startswith("seed:") or r["recipe"] not in args.recipes]
@@ -406,8 +471,11 @@ def main() -> None:
     out.write_text(results_page(results))
     written = [out, out.parent / "images" / "robustness.png"] + ([] if args.from_json else [saved])
     if out.resolve() == (ROOT / "docs/src/results.md").resolve():  # the docs' page: the README's headline too
-        write_headline(ROOT / "README.md", results)
+        write_between(ROOT / "README.md", README_MARKERS, headline(results))
         written.append(ROOT / "README.md")
+        if pushes(results):
+            write_between(ROOT / "docs/src/environments.md", PUSHES_MARKERS, pushes(results))
+            written.append(ROOT / "docs/src/environments.md")
     print("wrote " + ", ".join(str(path) for path in written))
 
 
