@@ -28,8 +28,8 @@ The same table goes into the Environments page between :data:`PUSHES_MARKERS`.
 
 Robustness: success on the balance task with the touch panel's latency, then its noise, fixed at each value
 (the rest of the randomisation as usual), and the settled servo motion against the noise. results.json keeps
-each seed's values for every balance and track row: the paired comparisons (row minus row, seed by seed, on
-balance and on each trajectory) and the balance table's median settling time come from them.
+each seed's values for every balance, track and pushes row: the paired comparisons (row minus row, seed by
+seed, on balance, on each trajectory and under pushes) and the balance table's median settling time come from them.
 
 Writes the page (Markdown: train/results_intro.md with the tables where it says :data:`TABLES_MARKER`),
 ``results.json`` beside it and ``images/robustness.png``; for the docs' own page also the README's headline
@@ -437,6 +437,11 @@ def main() -> None:
     if args.recipes_only and not args.recipes:
         ap.error("--recipes-only needs at least one --recipe")
     saved = out.parent / "results.json"
+    docs_page = out.resolve() == (ROOT / "docs/src/results.md").resolve()  # the README's and Environments' tables too
+    for path, (start, end) in ((ROOT / "README.md", README_MARKERS),
+                               (ROOT / "docs/src/environments.md", PUSHES_MARKERS)) if docs_page else ():  # fmt: skip
+        if start not in path.read_text() or end not in path.read_text():  # before the evaluations, not after
+            ap.error(f"{path} has no {start} … {end} section for its table")
     if (args.from_json or args.rows or args.tables or args.recipes_only) and not saved.is_file():
         ap.error(f"{saved} not found: --from-json, --rows, --tables and --recipes-only keep the rows of an earlier "
                  "run's results.json beside the page; run without them first")  # fmt: skip
@@ -470,7 +475,7 @@ def main() -> None:
     plot(results, out.parent / "images" / "robustness.png")
     out.write_text(results_page(results))
     written = [out, out.parent / "images" / "robustness.png"] + ([] if args.from_json else [saved])
-    if out.resolve() == (ROOT / "docs/src/results.md").resolve():  # the docs' page: the README's headline too
+    if docs_page:  # the docs' page: the README's headline and the Environments page's pushes table too
         write_between(ROOT / "README.md", README_MARKERS, headline(results))
         written.append(ROOT / "README.md")
         if pushes(results):
