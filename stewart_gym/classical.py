@@ -580,9 +580,10 @@ class LQRController(EpisodicController):
 
 # -------------------------------------------------------------------------------------------------- hand-over
 #: The hand-over's own sizes (:class:`HandoverDesign`): the first three positive, the rest 0 (off) or more.
-HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s", "release_mm_s")
+HANDOVER_SIZES = ("handover_mm", "handover_mm_s", "release_mm", "handover_dwell_s", "release_dwell_s", "release_mm_s",
+                  "push_release_mm")
 #: The sizes that may be 0 (off).
-HANDOVER_OPTIONAL = ("handover_dwell_s", "release_dwell_s", "release_mm_s")
+HANDOVER_OPTIONAL = ("handover_dwell_s", "release_dwell_s", "release_mm_s", "push_release_mm")
 
 
 @dataclass(frozen=True)
@@ -600,7 +601,11 @@ class HandoverDesign:
     ``release_dwell_s`` the LQR takes the ball back only once it has been observed beyond ``release_mm`` that
     long (0: at once), unless it is also faster than ``release_mm_s`` relative to the target: a push, which the
     LQR brings back sooner, more than noise (8 mm of it leaves about 20 mm/s of error in the filtered speed; 0:
-    no exception). The PID takes over with its own integral, which it has kept within
+    no exception). A push that leaves the ball within ``release_mm`` is caught by ``push_release_mm``: while the
+    PID holds, a ball beyond it that moves faster than ``release_mm_s`` and than :data:`PUSH_SPEED_SIGMAS` times
+    the RMS speed observed during the hold (over about :data:`PUSH_NOISE_WINDOW_S`; what the panel's noise
+    leaves in the estimate, so a noisy panel needs a harder push) goes back to the LQR at once. The PID takes over
+    with its own integral, which it has kept within
     its integration zone all along (loading it with the LQR's integral term instead carried over a transient:
     after a fast approach the ball could drift out of the success radius for seconds).
 
@@ -614,6 +619,8 @@ class HandoverDesign:
         release_dwell_s: the LQR takes back after this long beyond ``release_mm`` (0: at once).
         release_mm_s: with a release dwell, the LQR takes back at once a ball beyond ``release_mm`` that moves
             faster than this relative to the target (0: never).
+        push_release_mm: within ``release_mm``, the LQR takes back at once a ball beyond this distance that moves
+            faster than ``release_mm_s`` and than the noise allows (above; 0: never; less than ``release_mm``).
     """
 
     lqr: LQRDesign
@@ -624,6 +631,7 @@ class HandoverDesign:
     handover_dwell_s: float = 0.0
     release_dwell_s: float = 0.0
     release_mm_s: float = 0.0
+    push_release_mm: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -641,6 +649,14 @@ class HandoverGains:
     handover_dwell_s: float = 0.0  # after the others: bundles written before it load without it
     release_dwell_s: float = 0.0  # likewise
     release_mm_s: float = 0.0  # likewise
+    push_release_mm: float = 0.0  # likewise
+
+
+#: :attr:`HandoverDesign.push_release_mm`: a push is faster than this many times the RMS speed observed while the
+#: PID holds, which is averaged over about this many seconds of holding (from ``handover_mm_s``, the speed the PID
+#: takes over below, at the start of an episode; kept while the LQR has the ball, as the noise is the same).
+PUSH_SPEED_SIGMAS = 3.0
+PUSH_NOISE_WINDOW_S = 1.0
 
 
 class HandoverController(EpisodicController):
@@ -663,6 +679,7 @@ class HandoverController(EpisodicController):
         self._near: np.ndarray | None = None
         self._inside: np.ndarray | None = None  # periods each ball has been within release_mm of the target
         self._beyond: np.ndarray | None = None  # periods each ball has been observed beyond release_mm
+        self._held_speed2: np.ndarray | None = None  # (mm/s)²: mean square speed observed while the PID holds
 
     @property
     def pid_in_control(self) -> np.ndarray | None:
@@ -687,6 +704,14 @@ class HandoverController(EpisodicController):
         gone = self._beyond >= max(1, whole_periods(g.release_dwell_s, g.dt))  # 0 s: the first period beyond
         if g.release_mm_s > 0:  # a push, not noise: the LQR takes back at once
             gone |= (distance_mm > g.release_mm) & (speed_mm_s > g.release_mm_s)
+        if g.push_release_mm > 0:  # a push within release_mm: faster than the noise lets the held ball seem
+            held2 = self._held_speed2
+            if fresh or held2 is None:
+                held2 = np.full(distance_mm.shape, g.handover_mm_s**2)
+            limit = np.maximum(g.release_mm_s, PUSH_SPEED_SIGMAS * np.sqrt(held2))
+            gone |= near & (distance_mm > g.push_release_mm) & (speed_mm_s > limit)
+            weight = min(1.0, g.dt / PUSH_NOISE_WINDOW_S)
+            self._held_speed2 = np.where(near, held2 + weight * (speed_mm_s * speed_mm_s - held2), held2)
         self._near = (near | enter) & ~gone
         by_pid = self.pid(o)
         return np.where(self._near[..., None], by_pid, by_lqr).astype(np.float32)
@@ -770,6 +795,9 @@ def checked_handover(values: Any) -> HandoverDesign:
         raise ValueError(f"{bad} must be positive numbers ({', '.join(HANDOVER_OPTIONAL)} may be 0: off)")
     if sizes["release_mm"] <= sizes["handover_mm"]:
         raise ValueError(f"release_mm ({sizes['release_mm']}) must be more than handover_mm ({sizes['handover_mm']})")
+    if sizes["push_release_mm"] >= sizes["release_mm"]:
+        raise ValueError(f"push_release_mm ({sizes['push_release_mm']}) must be less than release_mm "
+                         f"({sizes['release_mm']}), or 0 (off)")  # fmt: skip
     return HandoverDesign(lqr=lqr, pid=pid, **{k: float(v) for k, v in sizes.items()})
 
 
@@ -794,7 +822,8 @@ def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesig
                                                 handover_mm_s=design.handover_mm_s, release_mm=design.release_mm,
                                                 dt=dt, handover_dwell_s=design.handover_dwell_s,
                                                 release_dwell_s=design.release_dwell_s,
-                                                release_mm_s=design.release_mm_s),
+                                                release_mm_s=design.release_mm_s,
+                                                push_release_mm=design.push_release_mm),
                                   plate_half=half)  # fmt: skip
     if kind == "lqr":
         assert isinstance(design, LQRDesign)

@@ -490,17 +490,17 @@ def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
 
 def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: Path) -> None:
     """``compare shipped-residual COPY --env StewartBallDisturbance-v0``: ``shipped-residual`` names the balance
-    residual on the pushes env too, and its base gives a pushed ball back to the LQR at once (``release_mm_s``):
-    on seed 0 it holds the pushed ball over a millimetre closer than the same networks whose run configurations
-    lack the field (off, as before it)."""
+    residual on the pushes env too, and its base gives a pushed ball back to the LQR at once (``release_mm_s``,
+    ``push_release_mm``): on seed 0 it holds the pushed ball over a millimetre closer than the same networks whose
+    run configurations lack the two fields (off, as before them)."""
     from stewart_gym.registry import POLICY_DIR
 
     old = tmp_path / "without_fast_release"
     shutil.copytree(POLICY_DIR / "balance_residual", old, ignore=shutil.ignore_patterns("bundle"))
     for config in old.glob("members/*/config.yaml"):
         text = config.read_text()
-        assert "release_mm_s: 60.0\n" in text
-        config.write_text(text.replace("      release_mm_s: 60.0\n", ""))
+        assert "release_mm_s: 60.0\n      push_release_mm: 5.0\n" in text
+        config.write_text(text.replace("      release_mm_s: 60.0\n      push_release_mm: 5.0\n", ""))
     proc = sg("compare", "shipped-residual", str(old), "--env", "StewartBallDisturbance-v0", "--episodes", "2",
               "--json")  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]

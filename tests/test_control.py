@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from stewart_gym.classical import LQRController, LQRDesign, design_lqr, lqr_model, shipped_design
 from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
-from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec, ReadingNoise
+from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec, ObservationBuilder, ReadingNoise
 
 #: The run folder of one of the shipped balance residual's six networks (seed 0)
 SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance_residual/members/0"
@@ -331,6 +331,14 @@ def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
     obs = np.zeros(12, dtype=np.float32)
     obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
     return np.tile(obs, (rows, 1)) if rows else obs
+
+
+def moving(ball_mm: float, mm_s: float) -> np.ndarray:
+    """:func:`lqr_obs` of a ball ``ball_mm`` from the target along x, moving along x at ``mm_s`` (the target at
+    rest; velocities in the observation's scale on the reference plate)."""
+    obs = lqr_obs((ball_mm, 0.0))
+    obs[2] = mm_s / 1e3 / ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
+    return obs
 
 
 def held_by_pid(policy: Any, sequence: list[np.ndarray]) -> list[bool]:
@@ -683,6 +691,12 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
     assert bundle["residual"]["base"]["gains"]["release_mm_s"] == 60.0
     assert load_policy("shipped-residual").base.gains.release_mm_s == 60.0
     assert load_policy("shipped-residual", "StewartBallDisturbance-v0").base.gains.release_mm_s == 60.0
+    # and its release of a ball pushed within 20 mm (beyond 5 mm, faster than the noise lets it seem), likewise
+    for member in SHIPPED_RESIDUAL_RUN.parent.iterdir():
+        design = yaml.safe_load((member / "config.yaml").read_text())["hyperparams"]["residual"]["design"]
+        assert design["push_release_mm"] == 5.0, member
+    assert bundle["residual"]["base"]["gains"]["push_release_mm"] == 5.0
+    assert load_policy("shipped-residual", "StewartBallDisturbance-v0").base.gains.push_release_mm == 5.0
 
 
 def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_the_release_distance() -> None:
@@ -722,19 +736,11 @@ def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_o
     from dataclasses import asdict, replace
 
     from stewart_gym.classical import HandoverController, controller_from_gains
-    from stewart_gym.sensing import ObservationBuilder
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.release_mm_s == 0.0
     dwell = replace(shipped.gains, release_dwell_s=0.5)
     fast_release = HandoverController(replace(dwell, release_mm_s=60.0))
-    scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
-
-    def moving(ball_mm: float, mm_s: float) -> np.ndarray:
-        obs = lqr_obs((ball_mm, 0.0))
-        obs[2] = mm_s / 1e3 / scale  # the ball's velocity along x (the target at rest)
-        return obs
-
     near = lqr_obs((1.0, 0.0))
     assert held_by_pid(fast_release, [near, moving(25.0, 80.0)]) == [True, False]  # a push: back to the LQR at once
     assert held_by_pid(fast_release, [near, moving(25.0, -80.0)]) == [True, False]  # coming back fast counts too
@@ -750,6 +756,51 @@ def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_o
     assert held_by_pid(controller_from_gains("handover", gains), [near, moving(25.0, 80.0)]) == [True, False]
     del gains["release_mm_s"]  # a bundle written before the field
     assert controller_from_gains("handover", gains).gains.release_mm_s == 0.0
+
+
+def test_with_push_release_mm_the_handover_gives_a_ball_pushed_within_the_release_distance_back_to_the_lqr() -> None:
+    """A push that leaves the ball within ``release_mm`` (20 mm): with ``push_release_mm`` (8 mm) the LQR takes
+    back at once a held ball beyond 8 mm moving faster than ``release_mm_s`` (60 mm/s) and than 3 times the RMS
+    speed observed while the PID held it (averaged over about 1 s). A quiet hold (10 mm/s of observed speed):
+    80 mm/s is a push; a noisy one (±30 mm/s for 2 s: 28 mm/s RMS so far): 80 mm/s is not, 100 mm/s is.
+    Within 8 mm, or slower than 60 mm/s, the PID keeps it; the speed it remembers survives the LQR's turn and
+    starts over each episode; 0 turns the rule off; a bundle's gains keep the field, and one written before it
+    loads with it off; the design refuses a value not below ``release_mm``."""
+    from dataclasses import asdict, replace
+
+    from stewart_gym.classical import PUSH_SPEED_SIGMAS, HandoverController, checked_design, controller_from_gains
+
+    shipped = load_policy("lqr-pid")
+    assert isinstance(shipped, HandoverController) and shipped.gains.push_release_mm == 0.0
+    base = replace(shipped.gains, release_dwell_s=0.5, release_mm_s=60.0)
+    push_release = HandoverController(replace(base, push_release_mm=8.0))
+    near = lqr_obs((1.0, 0.0))
+    quiet = [near] + [moving(1.0, v) for v in (10.0, -10.0) * 50]  # 2 s held at ±10 mm/s: an RMS of 10
+    noisy = [near] + [moving(1.0, v) for v in (30.0, -30.0) * 50]  # ±30 mm/s for 2 s: 28 mm/s (limit 85 mm/s)
+    assert PUSH_SPEED_SIGMAS == 3.0
+    assert held_by_pid(push_release, [*quiet, moving(12.0, 80.0)])[-1] is False  # a push: back to the LQR at once
+    assert held_by_pid(push_release, [*quiet, moving(12.0, -80.0)])[-1] is False  # either way
+    assert held_by_pid(push_release, [*quiet, moving(12.0, 50.0)])[-1] is True  # below release_mm_s
+    assert held_by_pid(push_release, [*quiet, moving(6.0, 80.0)])[-1] is True  # within 8 mm
+    assert held_by_pid(push_release, [*noisy, moving(12.0, 80.0)])[-1] is True  # what this noise lets it seem
+    assert held_by_pid(push_release, [*noisy, moving(12.0, 100.0)])[-1] is False
+    assert held_by_pid(HandoverController(base), [*quiet, moving(12.0, 80.0)])[-1] is True  # 0: off
+    # the noisy hold's speed is remembered through the LQR's turn (the ball pushed beyond 20 mm and brought back)
+    turn = [moving(25.0, 100.0), near, near]
+    assert held_by_pid(push_release, [*noisy, *turn, moving(12.0, 80.0)])[-4:] == [False, True, True, True]
+    push_release.reset()  # …and starts over from handover_mm_s (10 mm/s) each episode: 60 mm/s is the limit then
+    assert held_by_pid(push_release, [near, moving(12.0, 70.0)]) == [True, False]
+    gains = asdict(push_release.gains)
+    assert held_by_pid(controller_from_gains("handover", gains), [*quiet, moving(12.0, 80.0)])[-1] is False
+    del gains["push_release_mm"]  # a bundle written before the field
+    assert controller_from_gains("handover", gains).gains.push_release_mm == 0.0
+    design = json.loads((Path(__file__).resolve().parents[1] / "stewart_gym/policies/lqr_pid.json").read_text())
+    assert checked_design({**design, "push_release_mm": 8}, "handover").push_release_mm == 8.0
+    assert checked_design(design, "handover").push_release_mm == 0.0  # off unless given
+    for bad, match in (({**design, "push_release_mm": 20.0}, "less than release_mm"),
+                       ({**design, "push_release_mm": -8}, "positive"), ({**design, "push_release_mm": "8"}, "positive")):
+        with pytest.raises(ValueError, match=match):
+            checked_design(bad, "handover")
 
 
 def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() -> None:
@@ -939,7 +990,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
     recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
                             .read_text())["StewartBallBalance-v0"]["residual"]["design"]  # fmt: skip
-    assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5, "release_mm_s": 60.0}
+    assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5, "release_mm_s": 60.0, "push_release_mm": 5.0}
     assert recorded == replace(shipped_design("lqr-pid"), **recipe)  # the recipe's changes, and only those
     cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
