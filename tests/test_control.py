@@ -395,7 +395,6 @@ def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_o
     difference yet), after ``reset``, or in a row of a batch where ``predict`` starts an episode; a target at a
     steady velocity (a still one among them) adds nothing."""
     from stewart_gym.classical import CascadedPID, PIDGains
-    from stewart_gym.sensing import ObservationBuilder
 
     gains = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=0.0)
     pid, dt = CascadedPID(gains, dt=0.02), 0.02
@@ -547,7 +546,6 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
                           capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("pid-kalman")
-    from stewart_gym.sensing import ObservationBuilder
 
     v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
     for v in _circle_velocities(120):
@@ -573,7 +571,6 @@ def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_th
     from stewart_gym.classical import GRAVITY, TargetFeed
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
-    from stewart_gym.sensing import ObservationBuilder
 
     _, led, env_kwargs = load_for_evaluation("lqr", "StewartBallTrack-v0")
     assert isinstance(led, LQRController) and led.gains.feed_lead == pytest.approx(0.08)
@@ -640,7 +637,6 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
     from dataclasses import replace
 
     from stewart_gym.classical import HandoverController
-    from stewart_gym.sensing import ObservationBuilder
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.handover_dwell_s == 0.0
@@ -707,7 +703,6 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
     from dataclasses import asdict, replace
 
     from stewart_gym.classical import HandoverController, controller_from_gains
-    from stewart_gym.sensing import ObservationBuilder
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.release_dwell_s == 0.0

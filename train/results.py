@@ -288,24 +288,33 @@ def paired_cells(a: dict[str, Any], b: dict[str, Any],
     return cells
 
 
+def compared_table(results: list[dict[str, Any]], table: str, columns: Any, metrics: list[tuple[str, str, str]],
+                   pairs: tuple[tuple[str, str], ...], pairs_heading: str) -> str:
+    """One table's ``columns`` (controller labels, those it has) on ``metrics``, titled with the seed count, and
+    the ``pairs`` whose rows kept their seeds' values, each with its difference, interval and verdict on
+    :data:`PAIRED` (the README's headline, the pushes table); "" where the table has no rows."""
+    rows = {r["row"]: r["metrics"] for r in results if r["table"] == table}
+    if not rows:
+        return ""
+    columns = [c for c in columns if c in rows]
+    episodes = {rows[c].get("episodes") for c in columns}
+    title = f"{table}, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else table
+    out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    out += [f"| {name} | " + " | ".join(fmt(metric(rows[c], key), pattern) for c in columns) + " |"
+            for key, name, pattern in metrics]  # fmt: skip
+    pairs = [(a, b) for a, b in pairs if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
+    if pairs:
+        out += ["", f"| {pairs_heading} | " + " | ".join(name for _, name in PAIRED) + " |",
+                "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
+        out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
+    return "\n".join(out)
+
+
 def pushes(results: list[dict[str, Any]]) -> str:
     """The pushes table (every controller on ``StewartBallDisturbance-v0``, :data:`PUSH_METRICS`) and the
     residual's paired comparisons (:data:`PUSH_PAIRS`); "" without pushes rows."""
-    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "pushes"}
-    if not rows:
-        return ""
-    columns = [c for c in CONTROLLERS if c in rows]
-    episodes = {rows[c].get("episodes") for c in columns}
-    title = f"pushes, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else "pushes"
-    out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
-    out += [f"| {name} | " + " | ".join(fmt(rows[c].get(key), pattern) for c in columns) + " |"
-            for key, name, pattern in PUSH_METRICS]  # fmt: skip
-    pairs = [(a, b) for a, b in PUSH_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
-    if pairs:
-        out += ["", "| pushes, paired seed by seed (95 % interval) | " + " | ".join(name for _, name in PAIRED)
-                + " |", "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
-        out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
-    return "\n".join(out)
+    return compared_table(results, "pushes", CONTROLLERS, PUSH_METRICS, PUSH_PAIRS,
+                          "pushes, paired seed by seed (95 % interval)")
 
 
 def pushes_section(results: list[dict[str, Any]]) -> list[str]:
@@ -321,19 +330,8 @@ def pushes_section(results: list[dict[str, Any]]) -> list[str]:
 def headline(results: list[dict[str, Any]]) -> str:
     """The README's headline table (:data:`HEADLINE` on the balance task) and the shipped residual's paired
     comparisons (:data:`HEADLINE_PAIRS`), from the results."""
-    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance"}
-    columns = [c for c in HEADLINE if c in rows]
-    episodes = {rows[c].get("episodes") for c in columns}
-    title = f"balance, {episodes.pop()} seeds" if len(episodes) == 1 and None not in episodes else "balance"
-    out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
-    for key, name, pattern in balance_metrics():
-        out.append(f"| {name} | " + " | ".join(fmt(metric(rows[c], key), pattern) for c in columns) + " |")
-    pairs = [(a, b) for a, b in HEADLINE_PAIRS if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
-    if pairs:
-        out += ["", "| paired, seed by seed (95 % interval) | " + " | ".join(name for _, name in PAIRED) + " |",
-                "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
-        out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
-    return "\n".join(out)
+    return compared_table(results, "balance", HEADLINE, balance_metrics(), HEADLINE_PAIRS,
+                          "paired, seed by seed (95 % interval)")
 
 
 def write_between(path: Path, markers: tuple[str, str], table: str) -> None:
