@@ -24,7 +24,7 @@ from stewart_gym.errors import PolicyError
 
 __all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
            "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "pooled_rms", "run_episode",
-           "settling_offset", "summarise", "write_gif"]  # fmt: skip
+           "same_seeds", "settling_offset", "summarise", "write_gif"]  # fmt: skip
 
 
 def settling_offset(env: gym.Env) -> float:
@@ -231,15 +231,23 @@ def _paired_statistic(per_episode: dict[str, Any], metric: str, index: np.ndarra
     raise ValueError(f"metric must be one of {PAIRED_METRICS}, got {metric!r}")
 
 
+def same_seeds(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
+    """Whether two ``evaluate`` results kept each seed's values on the same seeds, so that
+    :func:`paired_difference` can pair them."""
+    if not (a and b and "per_episode" in a and "per_episode" in b):
+        return False
+    return len(a["per_episode"]["success"]) == len(b["per_episode"]["success"]) and a.get("seed") == b.get("seed")
+
+
 def paired_difference(a: dict[str, Any], b: dict[str, Any], metric: str, resamples: int = 2000,
                       level: float = 0.95, seed: int = 0) -> tuple[float, float, float]:  # fmt: skip
     """``metric`` of ``a`` minus that of ``b`` — two ``evaluate`` results on the same seeds — with a paired
     bootstrap interval: (difference, low, high). Episodes are resampled together (seed k of ``a`` with seed
     k of ``b``), so what the seeds share (start, trims, noise) cancels; an interval that holds 0 is a tie at
     this many episodes. Settling time is each resample's mean over the episodes where both settled."""
-    pa, pb = a["per_episode"], b["per_episode"]
-    if len(pa["success"]) != len(pb["success"]) or a.get("seed") != b.get("seed"):
+    if not same_seeds(a, b):
         raise ValueError("paired comparison needs two evaluations on the same seeds")
+    pa, pb = a["per_episode"], b["per_episode"]
     if metric == "settling_time_s":
         both = [x is not None and y is not None for x, y in zip(pa["settling_s"], pb["settling_s"])]
         pa = {**pa, "settling_s": [x if ok else None for x, ok in zip(pa["settling_s"], both)]}

@@ -549,7 +549,7 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
 def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     """``train/results.py --from-json``: the tables come first on the page; the paired table gives each
     difference with its interval and verdict (a shift on every seed is *better*/*worse*, a mixed one a *tie*);
-    rows without per-seed values are left out."""
+    rows without per-seed values, or with them on other seeds (a row re-evaluated on fewer), are left out."""
     import subprocess
     import sys
 
@@ -565,6 +565,9 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
                row("PID + Kalman", [1.0, 1.0, 1.0, 1.0], [0.6, 0.6, 0.6, 0.6], [1.4, 1.5, 1.5, 1.4]),
                row("LQR", [2.0, 2.1, 1.9, 2.0], [1.0, 1.1, 0.9, 1.0], [0.6, 0.6, 0.7, 0.5])]  # fmt: skip
     del results[2]["metrics"]["per_episode"]  # an old results.json row: no paired comparison with it
+    fewer = row("residual PPO", [0.9, 1.0, 1.1], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5])  # 3 seeds: not paired with 4
+    fewer["metrics"]["per_episode"].update(success=[True] * 3, tail_steps=[250] * 3)
+    results.append(fewer)
     (tmp_path / "results.json").write_text(json.dumps(results))
     proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
                            str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip

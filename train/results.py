@@ -244,8 +244,10 @@ def robust_cell(metrics: dict[str, Any] | None) -> str:
 def paired(results: list[dict[str, Any]]) -> list[str]:
     """The balance table's paired comparisons (:data:`PAIRS`): the difference on the same seeds with its 95 %
     bootstrap interval, and whether it is better, worse or a tie (the interval holds 0) at this many seeds."""
-    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance" and "per_episode" in r["metrics"]}
-    pairs = [(a, b) for a, b in PAIRS if a in rows and b in rows]
+    from stewart_gym.evaluation import same_seeds
+
+    rows = {r["row"]: r["metrics"] for r in results if r["table"] == "balance"}
+    pairs = [(a, b) for a, b in PAIRS if same_seeds(rows.get(a), rows.get(b))]
     if not pairs:
         return []
     episodes = len(rows[pairs[0][0]]["per_episode"]["success"])
@@ -261,12 +263,13 @@ def paired(results: list[dict[str, Any]]) -> list[str]:
 def paired_track(results: list[dict[str, Any]]) -> list[str]:
     """The track tables' paired comparisons (:data:`TRACK_PAIRS`, RMS and final error), one line per trajectory
     and pair where both rows kept their seeds' values."""
+    from stewart_gym.evaluation import same_seeds
+
     lines = []
     for trajectory in TRAJECTORIES:
-        rows = {r["row"]: r["metrics"] for r in results
-                if r["table"] == f"track {trajectory}" and "per_episode" in r["metrics"]}  # fmt: skip
+        rows = {r["row"]: r["metrics"] for r in results if r["table"] == f"track {trajectory}"}
         lines += [f"| {trajectory}: {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b], PAIRED[:2])) + " |"
-                  for a, b in TRACK_PAIRS if a in rows and b in rows]  # fmt: skip
+                  for a, b in TRACK_PAIRS if same_seeds(rows.get(a), rows.get(b))]  # fmt: skip
     if not lines:
         return []
     return ["### Track, paired: row minus row on the same seeds", "",
@@ -291,8 +294,10 @@ def paired_cells(a: dict[str, Any], b: dict[str, Any],
 def compared_table(results: list[dict[str, Any]], table: str, columns: Any, metrics: list[tuple[str, str, str]],
                    pairs: tuple[tuple[str, str], ...], pairs_heading: str) -> str:
     """One table's ``columns`` (controller labels, those it has) on ``metrics``, titled with the seed count, and
-    the ``pairs`` whose rows kept their seeds' values, each with its difference, interval and verdict on
+    the ``pairs`` whose rows kept their values on the same seeds, each with its difference, interval and verdict on
     :data:`PAIRED` (the README's headline, the pushes table); "" where the table has no rows."""
+    from stewart_gym.evaluation import same_seeds
+
     rows = {r["row"]: r["metrics"] for r in results if r["table"] == table}
     if not rows:
         return ""
@@ -302,7 +307,7 @@ def compared_table(results: list[dict[str, Any]], table: str, columns: Any, metr
     out = [f"| {title} | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
     out += [f"| {name} | " + " | ".join(fmt(metric(rows[c], key), pattern) for c in columns) + " |"
             for key, name, pattern in metrics]  # fmt: skip
-    pairs = [(a, b) for a, b in pairs if "per_episode" in rows.get(a, {}) and "per_episode" in rows.get(b, {})]
+    pairs = [(a, b) for a, b in pairs if same_seeds(rows.get(a), rows.get(b))]
     if pairs:
         out += ["", f"| {pairs_heading} | " + " | ".join(name for _, name in PAIRED) + " |",
                 "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
