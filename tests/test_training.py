@@ -628,6 +628,39 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
     assert [c.strip() for c in noise.split("|")[1:6]] == ["LQR", "–", "82 (173)", "–", "–"]
 
 
+def test_results_scorecard_gives_every_verdict_against_each_classical_controller() -> None:
+    """The Control page's "at a glance" lines: per table, the residual against the PID + Kalman and the LQR, the
+    paired verdict and difference of each metric ("worse" shows as plainly as "better"), the settled servo motion
+    against the other's as the tables round it, "–" for what a table does not measure, and the tally."""
+    script = results_script()
+
+    def row(table: str, label: str, rms: float, final: list[float], settle: float | None, rate: float | None,
+            p2p: float | None) -> dict:  # fmt: skip
+        per = {"success": [True] * 4, "rms_mm": [rms] * 4, "tail_steps": [250] * 4, "final_mm": final}
+        metrics = {"seed": 0, "success_rate": 1.0, "rms_error_mm": rms, "final_error_mm": sum(final) / 4,
+                   "per_episode": per, "settled_pulse_rate_us_per_s": rate, "settled_pulse_p2p_us": p2p}
+        if settle is not None:
+            per["settling_s"], metrics["settling_time_s"] = [settle] * 4, settle
+        return {"table": table, "row": label, "metrics": metrics}
+
+    results = [row("balance", "residual PPO", 1.0, [0.5, 0.7, 0.5, 0.7], 0.5, 232.4, 42.0),
+               row("balance", "PID + Kalman", 0.9, [0.7, 0.5, 0.7, 0.5], 1.5, 232.0, 41.6),
+               row("balance", "LQR", 1.1, [0.9, 0.9, 0.9, 0.9], 0.6, 140.0, 56.0),
+               row("track circle", "residual PPO", 0.8, [0.6] * 4, None, None, None),
+               row("track circle", "PID + Kalman", 0.8, [0.6] * 4, None, None, None)]  # fmt: skip
+    lines = script.scorecard(results)
+    cells = {x.split("|")[1].strip(): [c.strip() for c in x.split("|")[2:-1]] for x in lines if x.startswith("| ")
+             and ":" in x.split("|")[1]}  # fmt: skip
+    assert cells["balance: PID + Kalman"] == ["tie (+0%)", "worse (+0.10 mm)", "tie (+0.00 mm)", "better (-1.00 s)",
+                                              "≤ (232 / 232 µs/s)", "≤ (42 / 42 µs)"]  # fmt: skip
+    assert cells["balance: LQR"] == ["tie (+0%)", "better (-0.10 mm)", "better (-0.30 mm)", "better (-0.10 s)",
+                                     "more (232 / 140 µs/s)", "≤ (42 / 56 µs)"]  # fmt: skip
+    assert cells["track circle: PID + Kalman"] == ["tie (+0%)", "tie (+0.00 mm)", "tie (+0.00 mm)", "–", "–", "–"]
+    assert "track circle: LQR" not in cells  # no LQR row on that table
+    assert "In all: 4 better, 6 tie, 1 worse; the servo motion at most the other's in 3 of 4." in "\n".join(lines)
+    assert script.scorecard([r for r in results if r["row"] != "residual PPO"]) == []
+
+
 def results_script() -> Any:
     """``train/results.py`` as a module (a script, not part of the package)."""
     import importlib.util
