@@ -629,7 +629,7 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
 
 
 def test_results_scorecard_gives_every_verdict_against_each_classical_controller() -> None:
-    """The Control page's "at a glance" lines: per table, the residual against the PID + Kalman and the LQR, the
+    """The Control page's "at a glance" lines: per table, the residual against each classical controller there, the
     paired verdict and difference of each metric ("worse" shows as plainly as "better"), the settled servo motion
     against the other's as the tables round it, "–" for what a table does not measure, and the tally."""
     script = results_script()
@@ -649,6 +649,7 @@ def test_results_scorecard_gives_every_verdict_against_each_classical_controller
                row("track circle", "residual PPO", 0.8, [0.6] * 4, None, None, None),
                row("track circle", "PID + Kalman", 0.8, [0.6] * 4, None, None, None)]  # fmt: skip
     lines = script.scorecard(results)
+    assert lines[0] == "### At a glance: the residual PPO against the PID + Kalman, the LQR and the LQR → PID"
     cells = {x.split("|")[1].strip(): [c.strip() for c in x.split("|")[2:-1]] for x in lines if x.startswith("| ")
              and ":" in x.split("|")[1]}  # fmt: skip
     assert cells["balance: PID + Kalman"] == ["tie (+0%)", "worse (+0.10 mm)", "tie (+0.00 mm)", "better (-1.00 s)",

@@ -278,9 +278,10 @@ def paired_track(results: list[dict[str, Any]]) -> list[str]:
             *lines, ""]  # fmt: skip
 
 
-#: The scorecard (:func:`scorecard`): the shipped learned controller against the classical controllers the bar
-#: names (the retuned PID, behind the Kalman observer, and the LQR), on the balance and track tables.
-SCORE_ROW, SCORE_AGAINST = "residual PPO", ("PID + Kalman", "LQR")
+#: The scorecard (:func:`scorecard`): the shipped learned controller against the best classical controllers (the
+#: retuned PID, behind the Kalman observer, and the LQR) and the classical base it corrects (the LQR → PID), on
+#: the balance and track tables.
+SCORE_ROW, SCORE_AGAINST = "residual PPO", ("PID + Kalman", "LQR", "LQR → PID")
 SCORE_PAIRED = (("success_rate", "success", "{:+.0%}"), ("rms_error_mm", "RMS error, last 5 s", "{:+.2f} mm"),
                 ("final_error_mm", "final error", "{:+.2f} mm"), ("settling_time_s", "settling time", "{:+.2f} s"))
 SCORE_SERVO = (("settled_pulse_rate_us_per_s", "settled pulse rate", "µs/s"),
@@ -329,13 +330,14 @@ def scorecard(results: list[dict[str, Any]]) -> list[str]:
                  if r["table"] == "balance" and r["row"] == SCORE_ROW), None)  # fmt: skip
     marks = (f" Holding the ball (balance) its settled peak-to-peak is {held:.0f} µs, against a mark of 30 µs: what "
              "the panel's noise demands is the finding \"Servos\" below." if held is not None else "")
-    return [f"### At a glance: the {SCORE_ROW} against the {' and the '.join(SCORE_AGAINST)}", "",
-            f"What this page measures: whether the learned controller is at least as good as the best classical "
+    against = ", the ".join(SCORE_AGAINST[:-1]) + " and the " + SCORE_AGAINST[-1]
+    return [f"### At a glance: the {SCORE_ROW} against the {against}", "",
+            "What this page measures: whether the learned controller is at least as good as the best classical "
             "ones on success, RMS error, final error and settling, while moving the servos no more than the PID "
-            f"(here the PID + Kalman). Each line pairs the {SCORE_ROW} with one of them on one table's seeds: the "
-            "verdict of the paired comparison with the difference (the paired tables below give the "
-            "intervals), and for the settled servo motion whether it is at most the other's (its figure / the "
-            f"other's). In all: {tally}.{marks}", "",
+            "(here the PID + Kalman); the LQR → PID is the classical controller it corrects. Each line pairs the "
+            f"{SCORE_ROW} with one of them on one table's seeds: the verdict of the paired comparison with the "
+            "difference (the paired tables below give the intervals), and for the settled servo motion whether it "
+            f"is at most the other's (its figure / the other's). In all: {tally}.{marks}", "",
             "| table: against | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|", *lines, ""]  # fmt: skip
 
 
