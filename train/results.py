@@ -336,8 +336,9 @@ def scorecard(results: list[dict[str, Any]]) -> list[str]:
             "ones on success, RMS error, final error and settling, while moving the servos no more than the PID "
             "(here the PID + Kalman); the LQR → PID is the classical controller it corrects. Each line pairs the "
             f"{SCORE_ROW} with one of them on one table's seeds: the verdict of the paired comparison with the "
-            "difference (the paired tables below give the intervals), and for the settled servo motion whether it "
-            f"is at most the other's (its figure / the other's). In all: {tally}.{marks}", "",
+            "difference (the paired tables below give the intervals of the errors and settling), and for the "
+            f"settled servo motion whether it is at most the other's (its figure / the other's). In all: "
+            f"{tally}.{marks}", "",
             "| table: against | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|", *lines, ""]  # fmt: skip
 
 
