@@ -18,7 +18,7 @@ import inspect
 import json
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -378,11 +378,13 @@ def _git_revision() -> str:
 
 
 def train(config: TrainConfig, max_wall_s: float | None = None,
-          on_eval: Callable[[dict[str, float]], None] | None = None) -> dict[str, Any]:
+          on_eval: Callable[[dict[str, float]], None] | None = None,
+          callbacks: Sequence[BaseCallback] = ()) -> dict[str, Any]:  # fmt: skip
     """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``).
 
     ``on_eval`` is called after each evaluation with that row of the learning curve (``timesteps``,
-    ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler.
+    ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler. ``callbacks`` (SB3
+    callbacks) run after the run's own, e.g. a curriculum (``train/curriculum_experiment.py``).
     """
     check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]
@@ -453,6 +455,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
                            save_vecnormalize=bool(normalize)),
         _Deadline(max_wall_s),
+        *callbacks,
     ])  # fmt: skip
     model.learn(n_timesteps, callback=callbacks, progress_bar=config.progress_bar,
                 reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip

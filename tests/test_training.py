@@ -490,6 +490,30 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr
 
 
+def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_path: Path) -> None:
+    """``train/curriculum_experiment.py`` for two PPO rollouts (2 × 2,048 steps): exits 0, reports the Control
+    page's metrics, and the curriculum set the training envs before each rollout (``train(callbacks=...)``):
+    the start box at 10 % of its 2/3 of the half plate, then, half-way, at 85 %; the reward's near-target scale
+    from the task's 15 mm to 10 mm. Bad options are one ``error:`` line, exit 2."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "train" / "curriculum_experiment.py"
+    expected = {"start": [2 / 3 * 0.1, 2 / 3 * 0.85], "precision": [0.015, 0.010], "none": []}
+    for kind, seen in expected.items():
+        out = tmp_path / f"{kind}.json"
+        proc = subprocess.run([sys.executable, str(script), "--curriculum", kind, "--steps", "4096", "--episodes", "1",
+                               "--out", str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        result = json.loads(out.read_text())
+        assert result["curriculum"] == kind and result["steps"] == 4096 and 0.0 <= result["success_rate"] <= 1.0
+        assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
+        assert result["difficulty_first_last"] == pytest.approx(seen, abs=1e-4), kind
+    for bad in (["--curriculum", "wind"], ["--curriculum", "start", "--steps", "0"]):
+        proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
+
+
 def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_path: Path) -> None:
     """``train/distill_experiment.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
     Control page's metrics for the network, with every step of the teacher's 3 full episodes and of the DAgger
