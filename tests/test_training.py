@@ -514,6 +514,55 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
         assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
 
 
+def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path: Path) -> None:
+    """``train/action_filter_experiment.py``: the wrapper (training) and the evaluation policy apply the same
+    low-pass y ← y + α (a − y), starting from 0 each episode; one PPO rollout exits 0 with the Control page's
+    metrics; a bad ``--alpha`` is one ``error:`` line, exit 2."""
+    import importlib.util
+    import subprocess
+    import sys
+
+    import gymnasium as gym
+
+    script = Path(__file__).resolve().parents[1] / "train" / "action_filter_experiment.py"
+    spec = importlib.util.spec_from_file_location("action_filter_experiment", script)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+
+    class Constant:  # a model whose action is always 1 (or 2: clipped to the action space)
+        def __init__(self, value: float) -> None:
+            self.value = value
+
+        def predict(self, x: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+            return np.full((1, 2), self.value, dtype=np.float32), None
+
+    class Stats:
+        mean, var = np.zeros(12), np.ones(12)
+
+    policy = module.FilteredPolicy(Constant(2.0), Stats(), 0.5)
+    got = [float(policy.predict(np.zeros(12), None, np.array([i == 0 or i == 3]))[0][0, 0]) for i in range(5)]
+    assert got == pytest.approx([0.5, 0.75, 0.875, 0.5, 0.75])
+    env = module.ActionLowPass(gym.make("StewartBallBalance-v0"), 0.5)
+    env.reset(seed=0)
+    sent = [env.action(np.ones(2, dtype=np.float32))[0] for _ in range(3)]
+    env.reset(seed=1)
+    assert sent == pytest.approx([0.5, 0.75, 0.875]) and env.action(np.ones(2, dtype=np.float32))[0] == 0.5
+    _, _, _, _, info = env.step(np.ones(2, dtype=np.float32))  # the env is sent the filtered tilt
+    assert info["commanded_tilt_rad"] == pytest.approx(env.unwrapped.mapper(np.full(2, 0.75, np.float32)).pose[3:5])
+    env.close()
+    out = tmp_path / "f.json"
+    proc = subprocess.run([sys.executable, str(script), "--alpha", "0.5", "--steps", "256", "--episodes", "1", "--out",
+                           str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(out.read_text())
+    assert result["alpha"] == 0.5 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
+    assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result
+    for bad in ("0", "1.5", "nan"):
+        proc = subprocess.run([sys.executable, str(script), "--alpha", bad], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 2 and "error:" in proc.stderr and "--alpha" in proc.stderr, bad
+
+
 def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_path: Path) -> None:
     """``train/distill_experiment.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
     Control page's metrics for the network, with every step of the teacher's 3 full episodes and of the DAgger
