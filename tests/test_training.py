@@ -514,7 +514,8 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
         assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
 
 
-def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path: Path) -> None:
+def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
     """``train/action_filter_experiment.py``: the wrapper (training) and the evaluation policy apply the same
     low-pass y ← y + α (a − y), starting from 0 each episode; one PPO rollout exits 0 with the Control page's
     metrics; a bad ``--alpha`` is one ``error:`` line, exit 2."""
@@ -525,6 +526,7 @@ def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path
     import gymnasium as gym
 
     script = Path(__file__).resolve().parents[1] / "train" / "action_filter_experiment.py"
+    monkeypatch.syspath_prepend(str(script.parent))  # as `python train/…` has it: its sibling train/experiment.py
     spec = importlib.util.spec_from_file_location("action_filter_experiment", script)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
@@ -537,10 +539,11 @@ def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path
         def predict(self, x: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
             return np.full((1, 2), self.value, dtype=np.float32), None
 
-    class Stats:
-        mean, var = np.zeros(12), np.ones(12)
+    class Unnormalized:
+        def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+            return obs
 
-    policy = module.FilteredPolicy(Constant(2.0), Stats(), 0.5)
+    policy = module.FilteredPolicy(Constant(2.0), Unnormalized(), 0.5)
     got = [float(policy.predict(np.zeros(12), None, np.array([i == 0 or i == 3]))[0][0, 0]) for i in range(5)]
     assert got == pytest.approx([0.5, 0.75, 0.875, 0.5, 0.75])
     env = module.ActionLowPass(gym.make("StewartBallBalance-v0"), 0.5)

@@ -17,7 +17,6 @@ Run: ``.venv/bin/python train/action_filter_experiment.py --alpha 0.5 [--seed 0]
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -26,10 +25,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
+from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
 
 ROOT = Path(__file__).resolve().parents[1]
-METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
-           "settled_pulse_p2p_us")  # fmt: skip
 
 
 class ActionLowPass(gym.ActionWrapper):
@@ -51,16 +49,17 @@ class ActionLowPass(gym.ActionWrapper):
 
 
 class FilteredPolicy:
-    """The trained model as an evaluation policy: normalises as in training, then filters as the wrapper did."""
+    """The trained model as an evaluation policy: normalises as in training (``normalizer``: the run's
+    VecNormalize), then filters as the wrapper did."""
 
-    def __init__(self, model: Any, obs_rms: Any, alpha: float) -> None:
-        self.model, self.obs_rms, self.alpha = model, obs_rms, alpha
+    def __init__(self, model: Any, normalizer: Any, alpha: float) -> None:
+        self.model, self.normalizer, self.alpha = model, normalizer, alpha
         self.y: np.ndarray | None = None
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, None]:  # fmt: skip
         o = np.asarray(obs, dtype=np.float32).reshape(1, -1)
-        x = np.clip((o - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + 1e-8), -10, 10).astype(np.float32)
+        x = np.asarray(self.normalizer.normalize_obs(o), dtype=np.float32)  # VecNormalize's, as in training
         action, _ = self.model.predict(x, deterministic=True)
         a = np.clip(np.asarray(action, dtype=np.float32).reshape(1, -1), -1.0, 1.0)
         if self.y is None or (episode_start is not None and bool(np.any(episode_start))):
@@ -104,14 +103,10 @@ def main() -> None:
     model.learn(args.steps)
     wall = time.time() - started
     env.close()
-    metrics = evaluate("StewartBallBalance-v0", FilteredPolicy(model, env.obs_rms, args.alpha), episodes=args.episodes,
+    metrics = evaluate("StewartBallBalance-v0", FilteredPolicy(model, env, args.alpha), episodes=args.episodes,
                        env_kwargs={"estimator": hp["env_kwargs"]["estimator"]})  # fmt: skip
-    result = {"alpha": args.alpha, "seed": args.seed, "steps": args.steps, "train_wall_s": round(wall, 1),
-              **{k: metrics[k] for k in METRICS}}  # fmt: skip
-    line = json.dumps(result)
-    print(line)
-    if args.out:
-        Path(args.out).write_text(line + "\n")
+    report({"alpha": args.alpha, "seed": args.seed, "steps": args.steps, "train_wall_s": round(wall, 1)}, metrics,
+           args.out)  # fmt: skip
 
 
 if __name__ == "__main__":

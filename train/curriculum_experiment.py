@@ -23,14 +23,13 @@ Run: ``.venv/bin/python train/curriculum_experiment.py --curriculum start [--see
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from pathlib import Path
 from typing import Any
 
+from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
+
 CURRICULA = ("none", "start", "precision")
-METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
-           "settled_pulse_p2p_us")  # fmt: skip
 START_FROM, START_OVER = 0.1, 0.6  # the start box: from 10 % of its size, all of it after 60 % of the steps
 NEAR_TO = 0.005  # m, the reward's near-target scale at the end (from the task's own)
 
@@ -104,13 +103,9 @@ def main() -> None:
                      callbacks=[callback])  # fmt: skip
         _, policy, env_kwargs = load_for_evaluation(str(run), "StewartBallBalance-v0", None, None)
         metrics = evaluate("StewartBallBalance-v0", policy, episodes=args.episodes, env_kwargs=env_kwargs)
-    result = {"curriculum": args.curriculum, "seed": args.seed, "steps": done["timesteps"],
-              "train_wall_s": done["wall_time_s"], "difficulty_first_last": [round(v, 4) for v in callback.seen],
-              **{k: metrics[k] for k in METRICS}}  # fmt: skip
-    line = json.dumps(result)
-    print(line)
-    if args.out:
-        Path(args.out).write_text(line + "\n")
+    report({"curriculum": args.curriculum, "seed": args.seed, "steps": done["timesteps"],
+            "train_wall_s": done["wall_time_s"], "difficulty_first_last": [round(v, 4) for v in callback.seen]},
+           metrics, args.out)  # fmt: skip
 
 
 if __name__ == "__main__":

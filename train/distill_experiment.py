@@ -17,16 +17,14 @@ Run: ``.venv/bin/python train/distill_experiment.py [--bc-episodes 100] [--dagge
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
 
-METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
-           "settled_pulse_p2p_us")  # fmt: skip
 ENV_ID = "StewartBallBalance-v0"
 
 
@@ -125,11 +123,7 @@ def main() -> None:
     row: dict[str, Any] = {"bc_episodes": args.bc_episodes, "dagger": betas, "samples": int(len(x)),
                            "train_s": round(train_s, 1), "final_loss": round(losses[-1], 6),
                            "episodes": args.episodes}  # fmt: skip
-    row.update({k: None if metrics[k] is None else round(float(metrics[k]), 3) for k in METRICS})
-    line = json.dumps(row)
-    print(line)
-    if args.out:
-        args.out.write_text(line + "\n")
+    report(row, metrics, args.out, digits=3)
 
 
 if __name__ == "__main__":

@@ -15,7 +15,6 @@ Run: ``.venv/bin/python train/memory_experiment.py --stack 4 [--seed 0] [--steps
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -23,10 +22,9 @@ from typing import Any
 
 import numpy as np
 import yaml
+from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
 
 ROOT = Path(__file__).resolve().parents[1]
-METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
-           "settled_pulse_p2p_us")  # fmt: skip
 
 
 class MemoryPolicy:
@@ -102,12 +100,8 @@ def main() -> None:
     policy = MemoryPolicy(model, env.obs_rms, args.stack, args.lstm)
     metrics = evaluate("StewartBallBalance-v0", policy, episodes=args.episodes,
                        env_kwargs={"estimator": hp["env_kwargs"]["estimator"]})  # fmt: skip
-    result = {"stack": args.stack, "lstm": args.lstm, "seed": args.seed, "steps": args.steps,
-              "train_wall_s": round(wall, 1), **{k: metrics[k] for k in METRICS}}  # fmt: skip
-    line = json.dumps(result)
-    print(line)
-    if args.out:
-        Path(args.out).write_text(line + "\n")
+    report({"stack": args.stack, "lstm": args.lstm, "seed": args.seed, "steps": args.steps,
+            "train_wall_s": round(wall, 1)}, metrics, args.out)  # fmt: skip
 
 
 if __name__ == "__main__":
