@@ -18,16 +18,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import time
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-import yaml
-from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
-
-ROOT = Path(__file__).resolve().parents[1]
+from experiment import balance_recipe, learn, report  # train/experiment.py, a sibling (train/ is on the path)
 
 
 class ActionLowPass(gym.ActionWrapper):
@@ -83,25 +78,19 @@ def main() -> None:
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     from stewart_gym.evaluation import evaluate
     from stewart_gym.training import InProcessVecEnv
 
     torch.set_num_threads(1)  # as `train` does: small MLPs
-    hp = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo.yml").read_text())["StewartBallBalance-v0"]
+    hp, kwargs = balance_recipe()
     env = make_vec_env("StewartBallBalance-v0", n_envs=hp["n_envs"], seed=args.seed, env_kwargs=hp["env_kwargs"],
                        vec_env_cls=InProcessVecEnv, wrapper_class=ActionLowPass,
                        wrapper_kwargs={"alpha": args.alpha})  # fmt: skip
     env = VecNormalize(env, norm_obs=True, norm_reward=True)
-    kwargs = {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate",
-                                 "ent_coef", "clip_range")}  # fmt: skip
     model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", policy_kwargs=hp["policy_kwargs"], **kwargs)
-    model.set_logger(Logger(folder=None, output_formats=[]))  # else SB3 leaves an empty tempdir/SB3-<time> folder
-    started = time.time()
-    model.learn(args.steps)
-    wall = time.time() - started
+    wall = learn(model, args.steps)
     env.close()
     metrics = evaluate("StewartBallBalance-v0", FilteredPolicy(model, env, args.alpha), episodes=args.episodes,
                        env_kwargs={"estimator": hp["env_kwargs"]["estimator"]})  # fmt: skip

@@ -1,4 +1,5 @@
-"""What the experiment scripts of ``train/`` share: the Control page's metrics, reported as one JSON line.
+"""What the experiment scripts of ``train/`` share: the `make train` recipe as PPO keywords, a quiet training run,
+and the Control page's metrics reported as one JSON line.
 
 They import it as a sibling module (``python train/<script>.py`` puts ``train/`` first on the path).
 """
@@ -6,8 +7,13 @@ They import it as a sibling module (``python train/<script>.py`` puts ``train/``
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: The Control page's metrics of one evaluation (``stewart_gym.evaluation.evaluate``), as every script reports them.
 METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
@@ -25,3 +31,21 @@ def report(row: dict[str, Any], metrics: dict[str, Any], out: str | Path | None,
     if out:
         Path(out).write_text(line + "\n")
     return line
+
+
+def balance_recipe() -> tuple[dict[str, Any], dict[str, Any]]:
+    """The balance section of ``stewart_gym/hyperparams/ppo.yml`` (what `make train` trains) and, of it, the PPO
+    keywords the scripts pass on (rollout and update sizes, discount, learning rate, entropy, clipping)."""
+    hp = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo.yml").read_text())["StewartBallBalance-v0"]
+    keys = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate", "ent_coef", "clip_range")
+    return hp, {k: hp[k] for k in keys}
+
+
+def learn(model: Any, steps: int) -> float:
+    """Train ``model`` (an SB3 algorithm) for ``steps`` env steps without logging; the wall time in s."""
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))  # else SB3 leaves an empty tempdir/SB3-<time> folder
+    started = time.time()
+    model.learn(steps)
+    return time.time() - started

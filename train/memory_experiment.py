@@ -16,15 +16,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
-
-ROOT = Path(__file__).resolve().parents[1]
+from experiment import balance_recipe, learn, report  # train/experiment.py, a sibling (train/ is on the path)
 
 
 class MemoryPolicy:
@@ -72,7 +67,6 @@ def main() -> None:
             sys.exit(2)
     import torch
     from stable_baselines3 import PPO
-    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecFrameStack, VecNormalize
 
     torch.set_num_threads(1)  # as `train` does: extra threads only fight the env workers for the cores
@@ -80,22 +74,17 @@ def main() -> None:
     from stewart_gym.evaluation import evaluate
     from stewart_gym.training import make_env
 
-    hp = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo.yml").read_text())["StewartBallBalance-v0"]
+    hp, kwargs = balance_recipe()
     env = make_env("StewartBallBalance-v0", hp["n_envs"], args.seed, hp["env_kwargs"])
     if args.stack > 1:
         env = VecFrameStack(env, args.stack)
     env = VecNormalize(env, norm_obs=True, norm_reward=True)
-    kwargs = {k: hp[k] for k in ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate",
-                                 "ent_coef", "clip_range")}  # fmt: skip
     if args.lstm:
         model = RecurrentPPO("MlpLstmPolicy", env, seed=args.seed, device="cpu",
                              policy_kwargs={**hp["policy_kwargs"], "lstm_hidden_size": 64}, **kwargs)  # fmt: skip
     else:
         model = PPO("MlpPolicy", env, seed=args.seed, device="cpu", policy_kwargs=hp["policy_kwargs"], **kwargs)
-    model.set_logger(Logger(folder=None, output_formats=[]))  # else SB3 leaves an empty tempdir/SB3-<time> folder
-    started = time.time()
-    model.learn(args.steps)
-    wall = time.time() - started
+    wall = learn(model, args.steps)
     env.close()
     policy = MemoryPolicy(model, env.obs_rms, args.stack, args.lstm)
     metrics = evaluate("StewartBallBalance-v0", policy, episodes=args.episodes,
