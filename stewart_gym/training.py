@@ -448,7 +448,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     if tb is None:  # else SB3 makes an empty tempdir/SB3-<time> folder for its logger on every run
         model.set_logger(make_sb3_logger(str(run), ["stdout"] if config.verbose else []))
     started = time.time()
-    callbacks = CallbackList([
+    every_callback = CallbackList([
         _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
                  best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
                  csv_path=run / "eval.csv", started=started, on_eval=on_eval, verbose=0),
@@ -457,7 +457,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         _Deadline(max_wall_s),
         *callbacks,
     ])  # fmt: skip
-    model.learn(n_timesteps, callback=callbacks, progress_bar=config.progress_bar,
+    model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
                 reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
     wall = time.time() - started
     model.save(run / "model.zip")

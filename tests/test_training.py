@@ -472,6 +472,18 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     assert "Traceback" not in bad.stderr and not (tmp_path / "bad.json").exists()  # refused before any work
 
 
+def run_experiment(name: str, args: list[str], out: Path) -> dict:
+    """``train/<name>.py ARGS --out OUT`` as a user runs it: exit 0, and the JSON line it wrote."""
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "train" / f"{name}.py"
+    proc = subprocess.run([sys.executable, str(script), *args, "--out", str(out)], capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return json.loads(out.read_text())
+
+
 def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path) -> None:
     """``train/memory_experiment.py --stack 2`` for one PPO rollout: exits 0 and reports the Control page's
     metrics for the stacked policy (evaluated through the shared evaluation code); a bad size is refused."""
@@ -479,11 +491,8 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     import sys
 
     script = Path(__file__).resolve().parents[1] / "train" / "memory_experiment.py"
-    out = tmp_path / "m.json"
-    proc = subprocess.run([sys.executable, str(script), "--stack", "2", "--steps", "256", "--episodes", "1", "--out",
-                           str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    result = json.loads(out.read_text())
+    result = run_experiment("memory_experiment", ["--stack", "2", "--steps", "256", "--episodes", "1"],
+                            tmp_path / "m.json")  # fmt: skip
     assert result["stack"] == 2 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
     bad = subprocess.run([sys.executable, str(script), "--stack", "0"], capture_output=True, text=True, timeout=60)
@@ -501,11 +510,8 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
     script = Path(__file__).resolve().parents[1] / "train" / "curriculum_experiment.py"
     expected = {"start": [2 / 3 * 0.1, 2 / 3 * 0.85], "precision": [0.015, 0.010], "none": []}
     for kind, seen in expected.items():
-        out = tmp_path / f"{kind}.json"
-        proc = subprocess.run([sys.executable, str(script), "--curriculum", kind, "--steps", "4096", "--episodes", "1",
-                               "--out", str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        result = json.loads(out.read_text())
+        result = run_experiment("curriculum_experiment", ["--curriculum", kind, "--steps", "4096", "--episodes", "1"],
+                                tmp_path / f"{kind}.json")  # fmt: skip
         assert result["curriculum"] == kind and result["steps"] == 4096 and 0.0 <= result["success_rate"] <= 1.0
         assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
         assert result["difficulty_first_last"] == pytest.approx(seen, abs=1e-4), kind
@@ -554,11 +560,8 @@ def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path
     _, _, _, _, info = env.step(np.ones(2, dtype=np.float32))  # the env is sent the filtered tilt
     assert info["commanded_tilt_rad"] == pytest.approx(env.unwrapped.mapper(np.full(2, 0.75, np.float32)).pose[3:5])
     env.close()
-    out = tmp_path / "f.json"
-    proc = subprocess.run([sys.executable, str(script), "--alpha", "0.5", "--steps", "256", "--episodes", "1", "--out",
-                           str(out)], capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    result = json.loads(out.read_text())
+    result = run_experiment("action_filter_experiment", ["--alpha", "0.5", "--steps", "256", "--episodes", "1"],
+                            tmp_path / "f.json")  # fmt: skip
     assert result["alpha"] == 0.5 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result
     for bad in ("0", "1.5", "nan"):
@@ -574,12 +577,8 @@ def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_pat
     import sys
 
     script = Path(__file__).resolve().parents[1] / "train" / "distill_experiment.py"
-    out = tmp_path / "d.json"
-    proc = subprocess.run([sys.executable, str(script), "--bc-episodes", "3", "--dagger", "0", "--dagger-episodes",
-                           "1", "--episodes", "2", "--out", str(out)], capture_output=True, text=True,
-                          timeout=600)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    result = json.loads(out.read_text())
+    result = run_experiment("distill_experiment", ["--bc-episodes", "3", "--dagger", "0", "--dagger-episodes", "1",
+                                                   "--episodes", "2"], tmp_path / "d.json")  # fmt: skip
     assert result["bc_episodes"] == 3 and result["dagger"] == [0.0] and 1500 < result["samples"] <= 2000
     assert 0.0 <= result["success_rate"] <= 1.0 and result["rms_error_mm"] > 0 and result["final_loss"] >= 0
     assert "settled_pulse_p2p_us" in result and "settling_time_s" in result
