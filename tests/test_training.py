@@ -503,7 +503,8 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
     """``train/curriculum_experiment.py`` for two PPO rollouts (2 × 2,048 steps): exits 0, reports the Control
     page's metrics, and the curriculum set the training envs before each rollout (``train(callbacks=...)``):
     the start box at 10 % of its 2/3 of the half plate, then, half-way, at 85 %; the reward's near-target scale
-    from the task's 15 mm to 10 mm. Bad options are one ``error:`` line, exit 2."""
+    from the task's 15 mm to 10 mm. Bad options, a run folder it cannot make and an ``--out`` with no folder are
+    one ``error:`` line, exit 2, before any training."""
     import subprocess
     import sys
 
@@ -515,7 +516,10 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
         assert result["curriculum"] == kind and result["steps"] == 4096 and 0.0 <= result["success_rate"] <= 1.0
         assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
         assert result["difficulty_first_last"] == pytest.approx(seen, abs=1e-4), kind
-    for bad in (["--curriculum", "wind"], ["--curriculum", "start", "--steps", "0"]):
+    (tmp_path / "a_file").write_text("")
+    for bad in (["--curriculum", "wind"], ["--curriculum", "start", "--steps", "0"],  # refused before training:
+                ["--curriculum", "start", "--run-dir", str(tmp_path / "a_file" / "run")],  # a run folder it can't make
+                ["--curriculum", "start", "--out", str(tmp_path / "missing" / "c.json")]):  # nowhere to write  # fmt: skip
         proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=60)
         assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from experiment import balance_recipe, learn, report  # train/experiment.py, a sibling (train/ is on the path)
+from experiment import balance_recipe, check_paths, learn, report  # train/experiment.py, a sibling (train/ is on the path)
 
 
 class ActionLowPass(gym.ActionWrapper):
@@ -75,6 +75,7 @@ def main() -> None:
         ap.error(f"--alpha must be in (0, 1], got {args.alpha}")
     if args.steps < 1 or args.episodes < 1 or args.seed < 0:
         ap.error("--steps and --episodes must be at least 1, --seed at least 0")
+    check_paths(ap, args.out)
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.env_util import make_vec_env

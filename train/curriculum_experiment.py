@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
+from experiment import check_paths, report  # train/experiment.py, a sibling (train/ is on the path)
 
 CURRICULA = ("none", "start", "precision")
 START_FROM, START_OVER = 0.1, 0.6  # the start box: from 10 % of its size, all of it after 60 % of the steps
@@ -90,6 +90,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.steps < 1 or args.episodes < 1 or args.seed < 0:
         ap.error("--steps and --episodes must be at least 1, --seed at least 0")
+    check_paths(ap, args.out, args.run_dir)
 
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from experiment import report  # train/experiment.py, a sibling (train/ is on the path)
+from experiment import check_paths, report  # train/experiment.py, a sibling (train/ is on the path)
 
 ENV_ID = "StewartBallBalance-v0"
 
@@ -47,6 +47,7 @@ def main() -> None:
         if getattr(args, name) < 1:
             print(f"error: --{name.replace('_', '-')} must be at least 1", file=sys.stderr)
             sys.exit(2)
+    check_paths(ap, args.out)
 
     import gymnasium as gym
     import torch

@@ -6,6 +6,7 @@ They import it as a sibling module (``python train/<script>.py`` puts ``train/``
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -18,6 +19,18 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The Control page's metrics of one evaluation (``stewart_gym.evaluation.evaluate``), as every script reports them.
 METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",
            "settled_pulse_p2p_us")  # fmt: skip
+
+
+def check_paths(ap: argparse.ArgumentParser, out: str | Path | None, run_dir: str | Path | None = None) -> None:
+    """Before any training: ``out``'s folder must exist, and ``run_dir`` (made here) must be a folder that can be
+    made; else one ``error:`` line (``ap.error``, exit 2) instead of a traceback after the run."""
+    if out and not Path(out).resolve().parent.is_dir():
+        ap.error(f"--out {out}: no folder {Path(out).resolve().parent}")
+    if run_dir:
+        try:
+            Path(run_dir).mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            ap.error(f"--run-dir {run_dir}: cannot make it ({exc.strerror or exc})")
 
 
 def report(row: dict[str, Any], metrics: dict[str, Any], out: str | Path | None, digits: int | None = None) -> str:

@@ -19,7 +19,7 @@ import sys
 from typing import Any
 
 import numpy as np
-from experiment import balance_recipe, learn, report  # train/experiment.py, a sibling (train/ is on the path)
+from experiment import balance_recipe, check_paths, learn, report  # train/experiment.py, a sibling (train/ is on the path)
 
 
 class MemoryPolicy:
@@ -59,6 +59,7 @@ def main() -> None:
         ap.error("--stack, --steps and --episodes must be at least 1")
     if args.lstm and args.stack != 1:
         ap.error("--lstm carries its own memory: leave --stack at 1")
+    check_paths(ap, args.out)
     if args.lstm:
         try:
             from sb3_contrib import RecurrentPPO
