@@ -262,7 +262,7 @@ class ServoCalibration:
     @classmethod
     def from_toml(cls, path: str | Path, geometry: PlatformGeometry | str | None = None) -> ServoCalibration:
         """Load a calibration TOML file (layout in :meth:`from_dict`)."""
-        return cls.from_dict(read_toml(path, CalibrationError), geometry, source=str(path))
+        return cls.from_dict(read_toml(path, CalibrationError, "calibration file"), geometry, source=str(path))
 
     def to_toml(self, geometry: PlatformGeometry | str | None = None) -> str:
         """TOML text that :meth:`from_toml` reads back to an equal calibration.
@@ -402,7 +402,7 @@ def _us(v: float) -> float:
 
 def hardware_settings(path: str | Path) -> dict[str, Any]:
     """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
-    table = read_toml(path, CalibrationError).get("hardware", {})
+    table = read_toml(path, CalibrationError, "calibration file").get("hardware", {})
     unknown = sorted(set(table) - {"port", "protocol", "baudrate"})
     if unknown:
         raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")

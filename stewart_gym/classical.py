@@ -26,6 +26,7 @@ import numpy as np
 
 from stewart_gym.actions import DEFAULT_MAX_TILT, default_max_tilt
 from stewart_gym.calibration import ServoCalibration
+from stewart_gym.inputs import read_text
 from stewart_gym.kinematics import actuator_jacobian
 from stewart_gym.presets import load_geometry
 from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
@@ -301,7 +302,7 @@ class CascadedPID:
     @classmethod
     def load(cls, path: str | Path, dt: float = 0.02) -> CascadedPID:
         """Read gains written by :meth:`save`."""
-        return cls(PIDGains(**json.loads(Path(path).read_text())), dt)
+        return cls(PIDGains(**json.loads(read_text(path, "gains file"))), dt)
 
 
 def trim_tilt(geometry: Any, tolerance_us: float = TRIM_TOLERANCE_US) -> float:

@@ -10,7 +10,7 @@ traceback. Each class also derives from the built-in exception it refines, so
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "DeviceFailure", "PolicyError", "StewartGymError", "UnreachableError"]
+__all__ = ["ConfigError", "DeviceFailure", "PolicyError", "Stopped", "StewartGymError", "UnreachableError"]
 
 
 class StewartGymError(Exception):
@@ -31,3 +31,13 @@ class UnreachableError(StewartGymError, ValueError):
 
 class DeviceFailure(StewartGymError, RuntimeError):
     """A serial device failed: unplugged, not answering, or answering wrongly (exit code 2)."""
+
+
+class Stopped(KeyboardInterrupt):
+    """A stop signal (SIGTERM, SIGHUP) raised as Ctrl-C is (SIGINT raises :class:`KeyboardInterrupt` itself), so that
+    every ``except KeyboardInterrupt`` that cleans up (the deploy loop's drive home among them) runs for it too.
+    The command line exits with 128 + :attr:`signum`."""
+
+    def __init__(self, signum: int, name: str) -> None:
+        super().__init__(name)
+        self.signum, self.name = int(signum), name

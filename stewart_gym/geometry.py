@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -43,6 +44,11 @@ __all__ = [
 
 #: Relative tolerance with which the six legs must agree on eq. 10's home height.
 HOME_HEIGHT_RTOL = 1e-6
+#: m: no length of a build (an anchor's distance, a horn, a rod, the plate) may exceed this; a larger number is
+#: a unit mistake (metres given as millimetres) or nonsense, and would make every later figure NaN.
+MAX_LENGTH_M = 10.0
+#: The longest geometry name, characters.
+MAX_NAME_LENGTH = 100
 
 
 class GeometryError(ConfigError):
@@ -202,8 +208,12 @@ class PlatformGeometry:
             return data[key]
 
         rotary = "horn_length" in data
+        name = data.get("name", Path(source).stem)
+        if (not isinstance(name, str) or not name.strip() or len(name) > MAX_NAME_LENGTH
+                or any(ord(c) < 32 or ord(c) == 127 for c in name)):  # fmt: skip
+            raise GeometryError(f"name: a name of 1…{MAX_NAME_LENGTH} printable characters, got {name!r}")
         kw: dict[str, Any] = {
-            "name": str(data.get("name", Path(source).stem)),
+            "name": name,
             "description": str(data.get("description", "")),
             "base_anchors": _shape("base_anchors", need("base_anchors"), (6, 3)) * ls,
             "platform_anchors": _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls,
@@ -243,12 +253,23 @@ class PlatformGeometry:
             kw["home_height"] = float(np.mean(h))
         else:
             raise GeometryError(f"home_height: missing field in {source} (required for a linear platform)")
+        for key in ("base_anchors", "platform_anchors", "rod_length", "horn_length", "plate_size", "leg_length_range",
+                    "home_height"):  # fmt: skip
+            if key in kw and not np.max(np.abs(np.asarray(kw[key], dtype=float))) <= MAX_LENGTH_M:
+                raise GeometryError(f"{key}: {np.max(np.abs(np.asarray(kw[key], dtype=float))):g} m is larger than "
+                                    f"any build ({MAX_LENGTH_M:g} m); check length_unit")  # fmt: skip
         return cls(**kw)
+
+    @property
+    def file_stem(self) -> str:
+        """The name made safe as a file name: letters, digits, ``_`` and ``.`` only (never a path)."""
+        stem = re.sub(r"[^A-Za-z0-9._]+", "_", self.name).strip("._")
+        return stem or "geometry"
 
     @classmethod
     def from_toml(cls, path: str | Path) -> PlatformGeometry:
         """Load a geometry from a TOML file (see :meth:`from_dict` for the fields)."""
-        return cls.from_dict(read_toml(path, GeometryError), source=str(path))
+        return cls.from_dict(read_toml(path, GeometryError, "geometry file"), source=str(path))
 
     def to_toml(self) -> str:
         """This geometry as TOML text in SI units, loadable by :meth:`from_toml`."""

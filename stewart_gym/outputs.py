@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError, PolicyError
+from stewart_gym.inputs import read_text, read_yaml
 
 __all__ = ["ENSEMBLE_FILE", "ensemble_members", "model_statistics", "output_dir", "output_file", "run_config"]
 
@@ -24,6 +25,8 @@ ENSEMBLE_FILE = "ensemble.json"
 def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
     """Check that ``path`` can be written, before any long work: its folder exists or can be created, it is
     not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`."""
+    if not str(path).strip():
+        raise ConfigError("an empty output path was given; name the file to write")
     p = Path(path)
     if suffixes and p.suffix.lower() not in suffixes:
         raise ConfigError(f"{p}: expected a file name ending in {' or '.join(suffixes)}")
@@ -39,6 +42,8 @@ def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: 
 
 def output_dir(path: str | Path) -> Path:
     """Check that ``path`` is, or can be created as, a writable folder. Raises :class:`ConfigError`."""
+    if not str(path).strip():
+        raise ConfigError("an empty output folder was given; name the folder to write into")
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise ConfigError(f"{p} exists and is not a folder")
@@ -60,17 +65,12 @@ def _writable_dir(folder: Path) -> None:
 
 def run_config(model_zip: Path) -> dict[str, Any] | None:
     """The ``config.yaml`` of the training run a model belongs to: beside it, or one folder up (``best/``,
-    ``checkpoints/``); None where there is none. Raises ``ValueError`` if it cannot be read, ``ImportError``
-    without pyyaml."""
-    import yaml
-
+    ``checkpoints/``); None where there is none. Raises :class:`PolicyError` (a ``ValueError``) if it cannot be
+    read, ``ImportError`` without pyyaml."""
     for folder in (model_zip.parent, model_zip.parent.parent):
         cfg = folder / "config.yaml"
         if cfg.is_file():
-            try:
-                data = yaml.safe_load(cfg.read_text())
-            except (yaml.YAMLError, UnicodeDecodeError) as exc:
-                raise ValueError(f"{cfg}: not a readable run configuration ({exc})") from None
+            data = read_yaml(cfg, "run configuration", error=PolicyError)
             return data if isinstance(data, dict) else None
     return None
 
@@ -91,8 +91,10 @@ def ensemble_members(folder: str | Path) -> list[Path]:
     folder = Path(folder)
     index = folder / ENSEMBLE_FILE
     try:
-        listed = json.loads(index.read_text())["members"]
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        listed = json.loads(read_text(index, "ensemble index", error=PolicyError))["members"]
+    except PolicyError:
+        raise
+    except (ValueError, KeyError, TypeError) as exc:
         raise PolicyError(f"{index}: not a readable ensemble index ({type(exc).__name__}: {exc}); write it with "
                           "stewart-gym ensemble") from None  # fmt: skip
     if not isinstance(listed, list) or not listed or not all(isinstance(m, str) for m in listed):

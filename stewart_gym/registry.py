@@ -45,6 +45,7 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
+from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
@@ -192,9 +193,7 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
-    except UnicodeDecodeError:
-        raise PolicyError(f"{path}: not a text file (expected JSON)") from None
+        data = json.loads(read_text(path, "JSON file", error=PolicyError))
     except json.JSONDecodeError as exc:
         raise PolicyError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(data, dict):
@@ -266,7 +265,12 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     if len(runs) < 2:
         raise PolicyError(f"an ensemble averages 2 or more trained networks; got {len(runs)}")
     sources = [resolve_policy(r) for r in runs]
+    seen: dict[Path, str] = {}
     for source in sources:
+        if source.path.resolve() in seen:
+            raise PolicyError(f"{source.spec!r} and {seen[source.path.resolve()]!r} are the same network; an ensemble "
+                              "averages different ones (the same recipe, other seeds)")  # fmt: skip
+        seen[source.path.resolve()] = source.spec
         if source.kind != "sb3":
             raise PolicyError(f"{source.spec!r} is not a trained network (a run folder or a model .zip), so it "
                               "cannot be an ensemble's member")  # fmt: skip
@@ -362,8 +366,10 @@ def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY
     ``path``, for ``geometry`` (:func:`~stewart_gym.classical.classical_controller`: the PID's gains adapted,
     the LQR designed); its observation scales follow the plate."""
     from stewart_gym.classical import classical_controller
+    from stewart_gym.presets import load_geometry
 
     design = read_design(path, kind)
+    geometry = load_geometry(geometry)  # a bad geometry is the geometry's error, not the gains file's
     try:  # what only the build can tell (a dither against its max tilt)
         return classical_controller(kind, design, geometry)
     except ValueError as exc:

@@ -68,6 +68,16 @@ def _policy_module(zip_path: Path) -> str:
         return ""
 
 
+#: The algorithm of a saved model, by the module of its policy class (PPO's is the shared actor-critic one).
+ALGO_OF_POLICY_MODULE = {"stable_baselines3.common.policies": "ppo", "stable_baselines3.sac.policies": "sac",
+                         "stable_baselines3.td3.policies": "td3", "sb3_contrib.tqc.policies": "tqc"}
+
+
+def saved_algo(zip_path: str | Path) -> str | None:
+    """``"ppo"``, ``"sac"``, ``"td3"`` or ``"tqc"``: the algorithm a model archive was saved by (None if unknown)."""
+    return ALGO_OF_POLICY_MODULE.get(_policy_module(Path(zip_path)))
+
+
 def load_sb3(path: str | Path) -> SB3Policy:
     """Load a PPO, SAC, TD3 or TQC model (a ``.zip``, or a folder with ``model.zip`` or ``best_model.zip``)
     and the normalisation statistics saved with it, if any (:func:`~stewart_gym.outputs.model_statistics`:

@@ -29,7 +29,7 @@ import numpy as np
 
 __all__ = ["ESTIMATORS", "BallKalmanFilter", "BallObserver", "BallSensor", "KalmanSpec", "ObservationBuilder", "Reading",
            "SimulatedSensor", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator", "ball_contact",
-           "observation_table"]  # fmt: skip
+           "observation_table", "READING_MARGIN", "reading_is_valid"]  # fmt: skip
 
 GRAVITY = 9.80665
 #: How the observer estimates the ball's state from the readings (:class:`BallObserver`).
@@ -37,6 +37,27 @@ ESTIMATORS = ("lowpass", "kalman")
 
 #: A sensor reading: ((x, y) m in the plate frame, the time the sample was taken, s, on the reader's clock).
 Reading = tuple[tuple[float, float], float]
+#: Fraction of the plate's half size that a reading may lie beyond the plate's edge (a noisy reading of a ball
+#: on the rim) and still count. Further out, the sensor is wrong: no ball can be there.
+READING_MARGIN = 0.1
+
+
+def reading_is_valid(reading: Reading, plate_half: Sequence[float]) -> bool:
+    """Whether a sensor reading can be a ball on the plate: (x, y) and its time finite numbers, and (x, y) within
+    the plate's half size ``plate_half`` (m) plus :data:`READING_MARGIN`.
+
+    A reading that fails is *no reading*: the environments' observer, the camera sensor and the deploy loop
+    treat it exactly as a sample that never arrived (so the deploy watchdog sees the sensor go stale).
+    """
+    try:
+        (x, y), ts = reading
+        x, y, ts = float(x), float(y), float(ts)
+    except (TypeError, ValueError):
+        return False
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(ts)):
+        return False
+    reach = 1.0 + READING_MARGIN
+    return abs(x) <= plate_half[0] * reach and abs(y) <= plate_half[1] * reach
 
 
 @runtime_checkable
@@ -568,6 +589,9 @@ class BallObserver:
             raise ValueError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
         self.estimator = estimator
         self.builder = ObservationBuilder(action_size, plate_half, integral=integral)
+        self.plate_half = self.builder.position_scale
+        #: readings refused by :func:`reading_is_valid` since the observer was made (each observed as no reading)
+        self.invalid_readings = 0
         bound = ObservationBuilder.INTEGRAL_FIELD[3]
         self.integral_limit = tuple(bound * k for k in self.builder.integral_scale)
         self.integral_zone = self.INTEGRAL_ZONE * min(float(v) for v in plate_half)
@@ -593,8 +617,12 @@ class BallObserver:
         """One observation from a ``reading`` ((x, y) m, sample time s) or None (no reading).
 
         ``roll_pitch`` is the tilt commanded at the previous observation (in force since), ``now`` the time of
-        this one (s; default the reading's time): the Kalman filter uses both.
+        this one (s; default the reading's time): the Kalman filter uses both. A reading that is not
+        :func:`valid <reading_is_valid>` (NaN, infinite, off the plate) is observed as no reading.
         """
+        if reading is not None and not reading_is_valid(reading, self.plate_half):
+            self.invalid_readings += 1
+            reading = None
         if reading is not None:
             self.reading = reading[0]
         pos: Sequence[float] = self.reading

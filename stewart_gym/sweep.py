@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.inputs import read_yaml
 
 __all__ = ["DOMAINS", "SweepSpec", "load_sweep", "rank_trials", "run_sweep", "summarise_configs"]
 
@@ -161,18 +162,12 @@ def _check_domain(name: str, entry: Any) -> tuple[str, list]:
 
 def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurrent: int | None = None) -> SweepSpec:
     """Read and check a sweep file; raises :class:`ConfigError` naming the key or range that is wrong."""
-    import yaml
 
     from stewart_gym.envs import ENV_IDS
-    from stewart_gym.training import ALGOS, load_hyperparams
+    from stewart_gym.training import ALGOS, check_hyperparameter_values, load_hyperparams
 
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such sweep file") from None
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+    data = read_yaml(path, "sweep file")
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: expected a mapping of keys (env, algo, n_timesteps, search, ...)")
     for key in ("env", "algo", "n_timesteps"):
@@ -215,7 +210,6 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
         spec.geometry = str(data["geometry"])
     if data.get("hyperparams") is not None:
         spec.hyperparams_file = str(data["hyperparams"])
-    load_hyperparams(spec.algo, spec.env, spec.hyperparams_file)  # the base section exists
     spec.fixed = {k: v for k, v in data.items() if k in known_hp}
     if "env_kwargs" in spec.fixed:
         if not isinstance(spec.fixed["env_kwargs"], dict):
@@ -230,6 +224,12 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
         if name == "env_kwargs":
             raise ConfigError(f"{path}: search: sweep env keywords one by one, as env_kwargs.NAME")
         spec.search[str(name)] = _check_domain(str(name), entry)
+    base = load_hyperparams(spec.algo, spec.env, spec.hyperparams_file)
+    check_hyperparameter_values({**base, **{k: v for k, v in spec.fixed.items() if k != "env_kwargs"}}, str(path))
+    for name, (kind, values) in spec.search.items():  # every value a trial may be given (a range: its ends)
+        if "." not in name:
+            for value in values:
+                check_hyperparameter_values({name: value}, f"{path}: search.{name} ({kind})")
     if spec.searcher == "optuna" and any(kind == "grid" for kind, _ in spec.search.values()):
         grids = [n for n, (kind, _) in spec.search.items() if kind == "grid"]
         raise ConfigError(f"{path}: searcher optuna samples; it cannot expand grid entries {grids}: use choice, "

@@ -1,4 +1,5 @@
-"""Reading TOML files with errors that name the file (tomllib, or tomli on Python 3.10)."""
+"""Reading TOML files with errors that name the file (tomllib, or tomli on Python 3.10), through
+:mod:`stewart_gym.inputs`' checks (a regular file of bounded size)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.inputs import read_bytes
 
 try:
     import tomllib
@@ -15,15 +17,12 @@ except ModuleNotFoundError:  # Python 3.10
 __all__ = ["read_toml", "tomllib"]
 
 
-def read_toml(path: str | Path, error: type[Exception] = ConfigError) -> dict[str, Any]:
-    """The parsed file; a syntax error or a missing file raises ``error`` naming the file."""
-    path = Path(path)
+def read_toml(path: str | Path, error: type[Exception] = ConfigError, what: str = "TOML file") -> dict[str, Any]:
+    """The parsed file; a missing, oversized or non-regular file, or a syntax error, raises ``error`` naming it."""
+    data = read_bytes(path, what, error=error)
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
+        return tomllib.loads(data.decode("utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError:
         raise error(f"{path}: not a text file (TOML must be UTF-8 text)") from None
-    except OSError as exc:
-        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import inspect
 import json
+import math
 import subprocess
 import time
 from collections.abc import Callable, Sequence
@@ -37,12 +38,14 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.inputs import read_yaml
 from stewart_gym.outputs import model_statistics, run_config
-from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base
+from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 
 __all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "algo_keywords", "check_action_noise",
-           "check_algo_keywords", "check_resumed_observer", "check_run_dir", "action_noise", "load_hyperparams",
-           "make_env", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+           "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer", "check_run_dir",
+           "action_noise", "load_hyperparams", "make_env", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS",
+           "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -106,15 +109,15 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong.
     ``path``: a YAML file or a shipped recipe's name (:func:`hyperparams_path`); default the algorithm's own."""
     path = hyperparams_path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file (expected YAML hyperparameters)") from None
-    if not isinstance(data, dict) or env_id not in data or not isinstance(data[env_id], dict):
-        sections = sorted(data) if isinstance(data, dict) else []
-        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sections})")
+    data = read_yaml(path, "hyperparameter file") or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: expected a mapping of env ids to hyperparameter sections, got "
+                          f"{type(data).__name__}")  # fmt: skip
+    if env_id not in data:
+        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sorted(map(str, data))})")
+    if not isinstance(data[env_id], dict):
+        raise ConfigError(f"{path}: the section {env_id!r} must be a mapping of hyperparameters (key: value), got "
+                          f"{data[env_id]!r}")  # fmt: skip
     hp = dict(data[env_id])
     for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
         if key in hp and (isinstance(hp[key], bool) or not isinstance(hp[key], (int, float)) or not hp[key] >= 1):
@@ -190,6 +193,81 @@ def check_algo_keywords(algo: str, hp: dict[str, Any]) -> None:
                           f"stewart_gym/hyperparams/{algo}.yml is {algo.upper()}'s)")
 
 
+def _is_number(v: Any) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def _is_whole(v: Any) -> bool:
+    return not isinstance(v, bool) and isinstance(v, int)
+
+
+#: What each common constructor keyword of the algorithms must be: (test, what to give). Checked before any
+#: training or Ray starts (:func:`check_hyperparameter_values`), so a mistake is one line, not a traceback 25 s in.
+VALUE_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "learning_rate": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "batch_size": (lambda v: _is_whole(v) and 1 <= v <= 10_000_000, "a whole number ≥ 1"),
+    "n_steps": (lambda v: _is_whole(v) and 1 <= v <= 10_000_000, "a whole number ≥ 1"),
+    "n_epochs": (lambda v: _is_whole(v) and 1 <= v <= 10_000, "a whole number ≥ 1"),
+    "gamma": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "gae_lambda": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "clip_range": (lambda v: _is_number(v) and 0 < v <= 10, "a positive number"),
+    "clip_range_vf": (lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
+    "ent_coef": (lambda v: (_is_number(v) and v >= 0) or (isinstance(v, str) and v.startswith("auto")),
+                 "a number ≥ 0 (or 'auto' for SAC and TQC)"),
+    "vf_coef": (lambda v: _is_number(v) and v >= 0, "a number ≥ 0"),
+    "max_grad_norm": (lambda v: _is_number(v) and v > 0, "a positive number"),
+    "target_kl": (lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
+    "buffer_size": (lambda v: _is_whole(v) and 1 <= v <= 100_000_000, "a whole number ≥ 1"),
+    "learning_starts": (lambda v: _is_whole(v) and 0 <= v <= 100_000_000, "a whole number ≥ 0"),
+    "tau": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "train_freq": (lambda v: (_is_whole(v) and v >= 1) or (isinstance(v, (list, tuple)) and len(v) == 2
+                                                           and _is_whole(v[0]) and v[0] >= 1
+                                                           and v[1] in ("step", "episode")),
+                   "a whole number ≥ 1, or [n, 'step' | 'episode']"),
+    "gradient_steps": (lambda v: _is_whole(v) and (v >= 1 or v == -1), "a whole number ≥ 1, or -1"),
+    "policy_delay": (lambda v: _is_whole(v) and v >= 1, "a whole number ≥ 1"),
+    "target_policy_noise": (lambda v: _is_number(v) and v >= 0, "a number ≥ 0"),
+    "target_noise_clip": (lambda v: _is_number(v) and v >= 0, "a number ≥ 0"),
+    "top_quantiles_to_drop_per_net": (lambda v: _is_whole(v) and v >= 0, "a whole number ≥ 0"),
+    "use_sde": (lambda v: isinstance(v, bool), "true or false"),
+    "sde_sample_freq": (lambda v: _is_whole(v) and v >= -1, "a whole number ≥ -1"),
+    "normalize_advantage": (lambda v: isinstance(v, bool), "true or false"),
+    "normalize": (lambda v: isinstance(v, (bool, dict)), "true, false or a mapping of VecNormalize keywords"),
+    "policy": (lambda v: v in ("MlpPolicy", "MultiInputPolicy"), "MlpPolicy"),
+    "env_kwargs": (lambda v: isinstance(v, dict), "a mapping of env keywords"),
+}
+
+
+def _check_net_arch(arch: Any) -> bool:
+    def layers(v: Any) -> bool:
+        return isinstance(v, list) and all(_is_whole(n) and 1 <= n <= 100_000 for n in v)
+
+    if isinstance(arch, dict):
+        return bool(arch) and set(arch) <= {"pi", "vf", "qf"} and all(layers(v) for v in arch.values())
+    return layers(arch)
+
+
+def check_hyperparameter_values(hp: dict[str, Any], where: str = "hyperparameters") -> None:
+    """Each value of a hyperparameter section that the algorithm's constructor would trip on, checked first
+    (:data:`VALUE_RULES`; ``policy_kwargs``: ``net_arch`` layer sizes ≥ 1, ``log_std_init`` finite). Raises
+    :class:`ConfigError` naming ``where``, the key and what it must be."""
+    for key, value in hp.items():
+        rule = VALUE_RULES.get(key)
+        if rule is not None and not rule[0](value):
+            raise ConfigError(f"{where}: {key} must be {rule[1]}, got {value!r}")
+    kwargs = hp.get("policy_kwargs")
+    if kwargs is None:
+        return
+    if not isinstance(kwargs, dict):
+        raise ConfigError(f"{where}: policy_kwargs must be a mapping (net_arch, log_std_init, …), got {kwargs!r}")
+    if "net_arch" in kwargs and not _check_net_arch(kwargs["net_arch"]):
+        raise ConfigError(f"{where}: policy_kwargs.net_arch must be a list of layer sizes ≥ 1 (or pi/vf/qf lists), "
+                          f"got {kwargs['net_arch']!r}")  # fmt: skip
+    if "log_std_init" in kwargs and not (_is_number(kwargs["log_std_init"]) and abs(kwargs["log_std_init"]) <= 20):
+        raise ConfigError(f"{where}: policy_kwargs.log_std_init must be a number in [-20, 20], got "
+                          f"{kwargs['log_std_init']!r}")  # fmt: skip
+
+
 def check_action_noise(algo: str, hp: dict[str, Any]) -> None:
     """RL-Zoo's ``noise_type`` and ``noise_std`` (std of the noise, in action units, 0–1) are given together, to
     an off-policy algorithm. Without them TD3 explores only through its first ``learning_starts`` random steps
@@ -232,6 +310,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     check_vec_env(config.vec_env)
     hp = run_hyperparams(config)
     check_algo_keywords(config.algo, hp)
+    check_hyperparameter_values(hp, str(config.hyperparams or f"{config.algo}.yml"))
     check_action_noise(config.algo, hp)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
@@ -251,9 +330,23 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
             raise ConfigError(f"--resume {config.resume}: no normalisation statistics beside the model "
                               "(vecnormalize.pkl); resume from a run folder, its best/best_model.zip or a "
                               "checkpoint")  # fmt: skip
+        was = saved_algo(model)
+        if was is not None and was != config.algo:
+            raise ConfigError(f"--resume {config.resume} is a {was.upper()} model and continues as one: give --algo "
+                              f"{was} (or train a {config.algo.upper()} policy from scratch)")  # fmt: skip
         check_resumed_observer(config, hp, model)
-    elif not overwrite and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
-        raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it, or --overwrite")
+    in_place = config.resume is not None and _run_folder(Path(config.resume)).resolve() == run.resolve()
+    if not overwrite and not in_place and ((run / "model.zip").exists() or (run / "metrics.json").exists()):
+        raise ConfigError(f"{run} already holds a trained run; give another --run-dir, --resume it in place, or "
+                          "--overwrite")  # fmt: skip
+
+
+def _run_folder(resume: Path) -> Path:
+    """The run folder a model to resume belongs to: a run folder itself, or the folder of its ``model.zip``,
+    ``best/best_model.zip`` or ``checkpoints/…zip``."""
+    if resume.is_dir():
+        return resume
+    return resume.parent.parent if resume.parent.name in ("best", "checkpoints") else resume.parent
 
 
 def check_resumed_observer(config: TrainConfig, hp: dict[str, Any], model: Path) -> None:

@@ -30,8 +30,11 @@ import numpy as np
 from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers", "locate_ball",
-           "marker_corners_mm"]
+__all__ = ["MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers",
+           "locate_ball", "marker_corners_mm", "read_image"]
+
+#: The most pixels an image file may declare (a 8K frame is 33 M): more is refused before it is decoded.
+MAX_IMAGE_PIXELS = 50_000_000
 
 
 def _cv2() -> Any:
@@ -60,16 +63,29 @@ class MarkerLayout:
 
     def __post_init__(self) -> None:
         cv2 = _cv2()
-        if not hasattr(cv2.aruco, self.dictionary) or not self.dictionary.startswith("DICT_"):
+        if not self.dictionary.startswith("DICT_") or not hasattr(cv2.aruco, self.dictionary):
             raise ConfigError(f"markers.dictionary: not an OpenCV ArUco dictionary: {self.dictionary!r} "
                               "(for example DICT_4X4_50)")  # fmt: skip
-        if len(self.ids) != 4 or len(set(self.ids)) != 4 or any(int(i) < 0 for i in self.ids):
-            raise ConfigError(f"markers.ids: four distinct marker ids, got {list(self.ids)}")
-        if len(self.centres_mm) != 4 or any(len(c) != 2 or not all(math.isfinite(v) for v in c)
+        n_ids = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary)).bytesList.shape[0]
+        if (len(self.ids) != 4 or len(set(self.ids)) != 4
+                or not all(isinstance(i, int) and not isinstance(i, bool) and 0 <= i < n_ids for i in self.ids)):
+            raise ConfigError(f"markers.ids: four distinct whole numbers in 0…{n_ids - 1} (the ids of "
+                              f"{self.dictionary}), got {list(self.ids)}")  # fmt: skip
+        if len(self.centres_mm) != 4 or any(len(c) != 2 or not all(math.isfinite(v) and abs(v) < 1e4 for v in c)
                                             for c in self.centres_mm):  # fmt: skip
-            raise ConfigError(f"markers.centres_mm: four [x, y] pairs in mm, got {self.centres_mm}")
-        if not (math.isfinite(self.size_mm) and self.size_mm > 0):
+            raise ConfigError(f"markers.centres_mm: four [x, y] pairs in mm (each within ±10 m), got "
+                              f"{[list(c) for c in self.centres_mm]}")  # fmt: skip
+        if not (math.isfinite(self.size_mm) and 0 < self.size_mm < 1e4):
             raise ConfigError(f"markers.size_mm: a positive size in mm, got {self.size_mm!r}")
+        centres = np.array(self.centres_mm, dtype=np.float64)
+        gaps = np.linalg.norm(centres[:, None] - centres[None], axis=2)[np.triu_indices(4, 1)]
+        if gaps.min() < self.size_mm:
+            raise ConfigError(f"markers.centres_mm: two markers' centres are {gaps.min():g} mm apart, less than "
+                              f"a marker's side ({self.size_mm:g} mm): each marker needs its own place")  # fmt: skip
+        spread = np.linalg.svd(centres - centres.mean(axis=0), compute_uv=False)
+        if spread[-1] < 0.1 * self.size_mm:
+            raise ConfigError("markers.centres_mm: the four markers lie on one line; put them at the plate's corners, "
+                              "where they fix its plane")  # fmt: skip
 
 
 def marker_corners_mm(layout: MarkerLayout, index: int) -> np.ndarray:
@@ -91,10 +107,15 @@ class BallColour:
     def __post_init__(self) -> None:
         for key in ("hsv_low", "hsv_high"):
             v = getattr(self, key)
-            if len(v) != 3 or not all(0 <= int(c) <= (179 if i == 0 else 255) for i, c in enumerate(v)):
-                raise ConfigError(f"ball.{key}: three ints, H 0–179, S and V 0–255; got {list(v)}")
-        if not (math.isfinite(self.radius_mm) and self.radius_mm >= 0):
-            raise ConfigError(f"ball.radius_mm: ≥ 0 mm, got {self.radius_mm!r}")
+            if len(v) != 3 or not all(isinstance(c, int) and not isinstance(c, bool)
+                                      and 0 <= c <= (179 if i == 0 else 255) for i, c in enumerate(v)):  # fmt: skip
+                raise ConfigError(f"ball.{key}: three whole numbers, H 0–179, S and V 0–255; got {list(v)}")
+        if any(lo > hi for lo, hi in zip(self.hsv_low, self.hsv_high)):
+            names = [n for n, lo, hi in zip("HSV", self.hsv_low, self.hsv_high) if lo > hi]
+            raise ConfigError(f"ball.hsv_low must not exceed ball.hsv_high in any channel; {', '.join(names)} does "
+                              f"({list(self.hsv_low)} > {list(self.hsv_high)}): no pixel could match")  # fmt: skip
+        if not (math.isfinite(self.radius_mm) and 0 <= self.radius_mm < 1000):
+            raise ConfigError(f"ball.radius_mm: ≥ 0 mm (and below 1 m), got {self.radius_mm!r}")
 
 
 @dataclass(frozen=True)
@@ -138,7 +159,7 @@ class CameraConfig:
             hsv_high = [25, 255, 255]
             radius_mm = 12.7
         """
-        data = read_toml(path, ConfigError)
+        data = read_toml(path, ConfigError, "camera config")
         unknown = sorted(set(data) - {"camera", "markers", "ball"})
         if unknown:
             raise ConfigError(f"{path}: unknown table(s) {unknown}; known: camera, markers, ball")
@@ -151,31 +172,101 @@ class CameraConfig:
                 raise ConfigError(f"{path}: unknown field(s) {extra} in [{name}]; known: {sorted(known)}")
         if "markers" not in data:
             raise ConfigError(f"{path}: needs a [markers] table (dictionary, ids, centres_mm, size_mm)")
+        for key in ("ids", "centres_mm", "size_mm"):
+            if key not in mk:
+                raise ConfigError(f"{path}: markers.{key} is missing")
         try:
-            markers = MarkerLayout(str(mk.get("dictionary", "DICT_4X4_50")), tuple(int(i) for i in mk["ids"]),
-                                   tuple((float(c[0]), float(c[1])) for c in mk["centres_mm"]),
-                                   float(mk["size_mm"]))  # fmt: skip
-            colour = BallColour(tuple(int(v) for v in ball.get("hsv_low", BallColour.hsv_low)),
-                                tuple(int(v) for v in ball.get("hsv_high", BallColour.hsv_high)),
-                                float(ball.get("radius_mm", BallColour.radius_mm)))  # fmt: skip
-            source = cam.get("source", 0)
-            if isinstance(source, bool) or not isinstance(source, (int, str)):
-                raise ConfigError(f"camera.source: a camera index, a device path or a video file, got {source!r}")
-            width, height = (int(v) for v in cam.get("resolution", (640, 480)))
-            fps, fov = float(cam.get("fps", 30.0)), float(cam.get("fov_deg", 60.0))
-        except KeyError as exc:
-            raise ConfigError(f"{path}: markers.{exc.args[0]} is missing") from None
-        except (TypeError, ValueError, IndexError) as exc:
-            raise ConfigError(f"{path}: a field has the wrong type ({exc})") from None
-        if not (32 <= width <= 10000 and 32 <= height <= 10000 and 0 < fps <= 1000 and 10 <= fov <= 150):
-            raise ConfigError(f"{path}: camera resolution, fps or fov_deg out of range")
+            markers = MarkerLayout(_text(mk.get("dictionary", "DICT_4X4_50"), "markers.dictionary"),
+                                   tuple(_whole(i, "markers.ids") for i in _list(mk["ids"], "markers.ids")),
+                                   tuple((_number(c[0], "markers.centres_mm"), _number(c[1], "markers.centres_mm"))
+                                         for c in _list(mk["centres_mm"], "markers.centres_mm")),
+                                   _number(mk["size_mm"], "markers.size_mm"))  # fmt: skip
+            colour = BallColour(tuple(_whole(v, "ball.hsv_low") for v in _list(ball.get("hsv_low", BallColour.hsv_low),
+                                                                               "ball.hsv_low")),
+                                tuple(_whole(v, "ball.hsv_high") for v in _list(ball.get("hsv_high", BallColour.hsv_high),
+                                                                                "ball.hsv_high")),
+                                _number(ball.get("radius_mm", BallColour.radius_mm), "ball.radius_mm"))  # fmt: skip
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+        except (TypeError, IndexError) as exc:
+            raise ConfigError(f"{path}: markers.centres_mm must be four [x, y] pairs ({exc})") from None
+        source = cam.get("source", 0)
+        if isinstance(source, bool) or not isinstance(source, (int, str)) or source == "":
+            raise ConfigError(f"{path}: camera.source: a camera index, a device path or a video file, got {source!r}")
+        if isinstance(source, int) and not 0 <= source < 100:
+            raise ConfigError(f"{path}: camera.source: a camera index is 0…99, got {source}")
+        try:
+            width, height = (_whole(v, "camera.resolution") for v in _list(cam.get("resolution", (640, 480)),
+                                                                           "camera.resolution", 2))
+            fps, fov = _number(cam.get("fps", 30.0), "camera.fps"), _number(cam.get("fov_deg", 60.0), "camera.fov_deg")
+            min_ball_px = _whole(cam.get("min_ball_px", 12), "camera.min_ball_px")
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+        for key, value, lo, hi in (("resolution (width)", width, 32, 10000), ("resolution (height)", height, 32, 10000),
+                                   ("fps", fps, 0.1, 1000), ("fov_deg", fov, 10, 150),
+                                   ("min_ball_px", min_ball_px, 1, width * height)):  # fmt: skip
+            if not lo <= value <= hi:
+                raise ConfigError(f"{path}: camera.{key} must be in {lo:g}…{hi:g}, got {value:g}")
         if isinstance(source, str) and not source.startswith("/dev/"):
             found = Path(path).parent / source  # a relative video path is read from the config's folder
             if not found.exists():
                 raise ConfigError(f"camera.source: {found} does not exist (give a camera index, a device or a video "
                                   "file; a relative path is taken from the config's folder)")  # fmt: skip
             source = str(found)
-        return cls(source, (width, height), fps, fov, markers, colour, int(cam.get("min_ball_px", 12)))
+        return cls(source, (width, height), fps, fov, markers, colour, min_ball_px)
+
+
+def _list(value: Any, key: str, length: int | None = None) -> list[Any]:
+    if not isinstance(value, (list, tuple)) or (length is not None and len(value) != length):
+        raise ConfigError(f"{key} must be a list{f' of {length}' if length else ''}, got {value!r}")
+    return list(value)
+
+
+def _whole(value: Any, key: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"{key}: whole numbers only, got {value!r}")
+    return value
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ConfigError(f"{key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _text(value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        raise ConfigError(f"{key} must be text, got {value!r}")
+    return value
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """A BGR image from a file, checked first: a regular file of bounded size whose header declares at most
+    :data:`MAX_IMAGE_PIXELS` (read by Pillow without decoding), then decoded by OpenCV."""
+    import io
+
+    from PIL import Image
+
+    from stewart_gym.inputs import DATA_LIMIT, read_bytes
+
+    data = read_bytes(path, "image", DATA_LIMIT)
+    try:
+        with Image.open(io.BytesIO(data)) as header:
+            width, height = header.size
+    except Image.DecompressionBombError:
+        width, height = MAX_IMAGE_PIXELS, 2  # Pillow's own limit is stricter still: too large
+    except Exception:  # noqa: BLE001  (Pillow raises many kinds for a file it cannot read)
+        width = height = 0  # not an image Pillow knows: OpenCV may still read it
+    if width * height > MAX_IMAGE_PIXELS:
+        raise ConfigError(f"{path}: the image declares {width} × {height} px, more than {MAX_IMAGE_PIXELS:,} px")
+    cv2 = _cv2()
+    try:
+        image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    except cv2.error:
+        image = None
+    if image is None:
+        raise ConfigError(f"{path}: not an image OpenCV can read")
+    return image
 
 
 @dataclass(frozen=True)

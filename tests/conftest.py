@@ -165,6 +165,100 @@ class Drain:
         return bytes(self.data)
 
 
+class Board:
+    """A servo board on a :class:`FakeDevice`, as the code under test meets it: a thread reads what it writes,
+    parses it with the virtual device's parsers (the board's own protocol), keeps every frame, answers position
+    queries with the pulses last received, and with the line protocol says ``ready`` until the first frame and
+    sends the panel's lines from ``lines(t)`` (t: seconds since the first frame, 0 before it) every 10 ms.
+
+    Faults: ``answer=False`` (a board whose replies are not wired), ``stop_reading_after`` (s after the first
+    frame: it reads nothing more; the pty fills), ``read_rate`` (bytes a second it reads at most).
+    """
+
+    def __init__(self, device: FakeDevice, protocol: str = "maestro", lines=None, answer: bool = True,
+                 stop_reading_after: float | None = None, read_rate: float | None = None) -> None:  # fmt: skip
+        from stewart_gym.hardware.virtual_device import LineParser, MaestroParser, Parsed, SSC32Parser
+
+        self.device, self.protocol, self.lines, self.answer = device, protocol, lines, answer
+        self.stop_reading_after, self.read_rate = stop_reading_after, read_rate
+        self.held: dict[int, float] = {}
+        self._targets: list[float] = []  # targets of the frame being received
+        self.frames: list[np.ndarray] = []  # each complete frame's six pulses, µs
+        self.data = bytearray()
+        self.queries = 0
+        self.first_frame: float | None = None
+        self._parsed_type = Parsed
+        position = self._position
+        self.parser = {"maestro": lambda: MaestroParser(position, lambda: None), "ssc32": lambda: SSC32Parser(position),
+                       "line": lambda: LineParser(range(6), position)}[protocol]()  # fmt: skip
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _position(self, channel: int, pending: float | None = None) -> float:
+        return float(pending if pending is not None else self.held.get(channel, 0.0))
+
+    def _run(self) -> None:
+        budget, last_ready, start = 0.0, -1.0, time.monotonic()
+        while not self._stop.is_set():
+            now = time.monotonic()
+            since = None if self.first_frame is None else now - self.first_frame
+            reading = not (self.stop_reading_after is not None and since is not None and since >= self.stop_reading_after)
+            size = 4096
+            if self.read_rate is not None:
+                budget = min(budget + self.read_rate * 0.01, max(1.0, self.read_rate))
+                size = int(budget)
+            chunk = b""
+            if reading and size >= 1:
+                try:
+                    if select.select([self.device.master], [], [], 0)[0]:
+                        chunk = os.read(self.device.master, size)
+                except (BlockingIOError, OSError):
+                    chunk = b""
+                budget -= len(chunk)
+            if chunk:
+                self.data.extend(chunk)
+                parsed = self._parsed_type()
+                self.parser.feed(chunk, parsed)
+                for channel, us in parsed.targets:
+                    self.held[channel] = us
+                    self._targets.append(us)
+                    if len(self._targets) == 6:
+                        self.frames.append(np.array(self._targets))
+                        self._targets = []
+                        if self.first_frame is None:
+                            self.first_frame = time.monotonic()
+                self.queries += len(parsed.replies)
+                if self.answer:
+                    for reply in parsed.replies:
+                        self._write(reply)
+            if self.protocol == "line":
+                if self.first_frame is None and now - last_ready >= 0.2:
+                    self._write(b"ready\n")
+                    last_ready = now
+                if self.lines is not None and now - start >= 0.0:
+                    line = self.lines(0.0 if since is None else since)
+                    if line:
+                        self._write(line)
+            self._stop.wait(0.01)
+
+    def _write(self, data: bytes) -> None:
+        try:
+            self.device.write(data)
+        except OSError:  # unplugged
+            pass
+
+    def stop(self, quiet: float = 0.2, timeout: float = 10.0) -> bytes:
+        """Everything received, once nothing more has come for ``quiet`` seconds."""
+        begin, seen = time.monotonic(), -1
+        while len(self.data) != seen and time.monotonic() - begin < timeout:
+            seen = len(self.data)
+            time.sleep(quiet)
+        self._stop.set()
+        self._thread.join(1.0)
+        return bytes(self.data)
+
+
 class StaticSensor:
     """A BallSensor whose readings are 5 ms old, or half a second old once it stalls."""
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice, sg
+from conftest import Board, Drain, FakeDevice, sg
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
@@ -414,22 +414,13 @@ def test_debug_shows_the_traceback() -> None:
 
 
 # ------------------------------------------------------- deploy, end to end
-def deploy(device: FakeDevice, *args: str, cwd: Path, reply: bytes | None = None,
-           every_s: float = 0.2) -> tuple[subprocess.CompletedProcess, bytes]:  # fmt: skip
-    import threading
-
-    drain = Drain(device)
-    done = threading.Event()
-
-    def say_ready() -> None:  # the line protocol's sketch says "ready" after the reset that opening the port causes
-        while not done.wait(every_s):
-            device.write(reply)
-
-    if reply is not None:
-        threading.Thread(target=say_ready, daemon=True).start()
+def deploy(device: FakeDevice, *args: str, cwd: Path, lines=None, **faults) -> tuple[subprocess.CompletedProcess, bytes]:
+    """``stewart-gym deploy --port DEVICE ARGS`` against a :class:`~conftest.Board` of the protocol the arguments
+    name (maestro by default), which answers position queries and, on the line protocol, sends ``lines(t)``."""
+    protocol = args[args.index("--protocol") + 1] if "--protocol" in args else "maestro"
+    board = Board(device, protocol, lines=lines, **faults)
     proc = sg("deploy", "--port", device.path, *args, cwd=cwd, timeout=120)
-    done.set()
-    return proc, drain.stop()
+    return proc, board.stop()
 
 
 def maestro_frames(data: bytes) -> np.ndarray:
@@ -443,11 +434,10 @@ def maestro_frames(data: bytes) -> np.ndarray:
 @pytest.mark.parametrize("protocol", ["maestro", "ssc32", "line"])
 def test_deploy_dry_run_prints_its_summary(protocol: str, device: FakeDevice, tmp_path: Path) -> None:
     """The documented dry run: exits 0 and prints the summary with the simulated ball's final error."""
-    reply = b"ready\n" if protocol == "line" else None
     proc, data = deploy(device, "--protocol", protocol, "--sensor", "sim", "--duration", "2", "--log",
-                        str(tmp_path / "log.csv"), cwd=tmp_path, reply=reply)  # fmt: skip
+                        str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert "completed; simulated ball" in proc.stdout and "servos homed: True" in proc.stdout
+    assert "completed; simulated ball" in proc.stdout and "servos homed: confirmed by the board" in proc.stdout
     assert "Traceback" not in proc.stderr
     rows = (tmp_path / "log.csv").read_text().splitlines()
     assert 95 <= len(rows) - 1 <= 105
@@ -459,7 +449,7 @@ def test_deploy_dry_run_prints_its_summary(protocol: str, device: FakeDevice, tm
 def test_deploy_with_the_panel_on_the_line_protocol(device: FakeDevice, tmp_path: Path) -> None:
     """The documented hardware run: the sketch reports the panel (B x,y in mm) and the policy acts on it."""
     proc, data = deploy(device, "--protocol", "line", "--sensor", "panel", "--duration", "1", "--log",
-                        str(tmp_path / "l.csv"), cwd=tmp_path, reply=b"ready\nB 40.0,-20.0\n", every_s=0.01)  # fmt: skip
+                        str(tmp_path / "l.csv"), cwd=tmp_path, lines=lambda t: b"B 40.0,-20.0\n")  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
     import csv
 

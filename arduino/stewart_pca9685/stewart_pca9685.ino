@@ -1,7 +1,11 @@
 // stewart_gym line protocol for an Arduino Uno/Nano + PCA9685 servo board + 4-wire resistive touch panel.
 //
 // Host → board:  "W w0,w1,w2,w3,w4,w5\n"   six pulse widths in µs for servos 0…5 (PCA9685 channels 0…5)
+//                "?\n"                      which pulses are the servos held at now?
 // Board → host:  "ready\n"                  once after reset (opening the port resets an Uno through DTR)
+//                "P w0,w1,w2,w3,w4,w5\n"   the answer to "?": the pulses last written (µs); deploy asks a few
+//                                           times a second (a board that stops answering is a device failure)
+//                                           and at the end, to confirm that the servos were sent home
 //                "B x,y\n"                  ball position in mm, plate frame, at ~100 Hz ("B -" when not touched)
 //                "E <message>\n"            a rejected line
 //
@@ -16,6 +20,7 @@ Adafruit_PWMServoDriver pwm = Adafruit_PWMServoDriver(0x40);
 const int SERVO_MIN_US = 900;    // hard fence, µs (the host calibration is narrower: 1100…1900 by default)
 const int SERVO_MAX_US = 2100;
 const int HOME_US[6] = {1500, 1500, 1500, 1500, 1500, 1500};
+int heldUs[6] = {1500, 1500, 1500, 1500, 1500, 1500};  // what the servos were last sent
 
 // 4-wire resistive panel: X+ X- Y+ Y- on analog-capable pins.
 const int XP = A0, XM = A1, YP = A2, YM = A3;
@@ -30,7 +35,18 @@ byte lineLen = 0;
 unsigned long lastPanel = 0;
 
 void writeServos(const int us[6]) {
-  for (int i = 0; i < 6; i++) pwm.writeMicroseconds(i, us[i]);
+  for (int i = 0; i < 6; i++) {
+    pwm.writeMicroseconds(i, us[i]);
+    heldUs[i] = us[i];
+  }
+}
+
+void reportHeld() {
+  Serial.print("P ");
+  for (int i = 0; i < 6; i++) {
+    Serial.print(heldUs[i]);
+    Serial.print(i < 5 ? "," : "\n");
+  }
 }
 
 int readAxis(int drivePlus, int driveMinus, int sense, int float_) {
@@ -59,6 +75,10 @@ void reportPanel() {
 
 void handleLine() {
   line[lineLen] = 0;
+  if (line[0] == '?' && line[1] == 0) {
+    reportHeld();
+    return;
+  }
   if (line[0] != 'W' || line[1] != ' ') {
     Serial.println("E expected W w0,...,w5");
     return;

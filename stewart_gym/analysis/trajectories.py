@@ -10,6 +10,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.inputs import DATA_LIMIT, read_text
 from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 
 __all__ = ["aggressive_moves", "circle", "load_pose_csv", "trajectory_check"]
@@ -63,12 +64,11 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
     or a time column that goes backwards raises :class:`ConfigError` naming it.
     """
     import csv
+    import io
 
+    text = read_text(path, "CSV of poses", DATA_LIMIT)
     try:
-        with open(path, newline="") as fh:
-            rows = list(csv.DictReader(fh))
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a text file (expected a CSV of poses)") from None
+        rows = list(csv.DictReader(io.StringIO(text, newline="")))
     except csv.Error as exc:
         raise ConfigError(f"{path}: not a valid CSV file ({exc})") from None
     if not rows:

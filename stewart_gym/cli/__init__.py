@@ -15,8 +15,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from stewart_gym.cli import analysis, hardware, kinematics, learning
-from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, run
+from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_signals
 
 __all__ = ["build_parser", "main"]
 
@@ -28,6 +27,8 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from stewart_gym.cli import analysis, hardware, kinematics, learning  # here: main() handles Ctrl-C meanwhile
+
     parser = Parser(prog="stewart-gym", description="Servo Stewart platform toolkit", epilog=EXIT_CODES_HELP)
     parser.add_argument("--version", action="version", version=f"stewart-gym {_version()}")
     parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
@@ -41,10 +42,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args, unknown = build_parser().parse_known_args(argv)
-    if unknown:  # named by the subcommand that was given them, which lists what it takes
-        args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
-    return run(args.func, args)
+    """Run one command; its exit code. A stop signal at any moment (Ctrl-C, SIGTERM, SIGHUP), while the parser and
+    the commands' modules load too, is one ``error:`` line and exit code 128 + its number."""
+    with stop_signals():
+        try:
+            args, unknown = build_parser().parse_known_args(argv)
+            if unknown:  # named by the subcommand that was given them, which lists what it takes
+                args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
+            return run(args.func, args)
+        except KeyboardInterrupt as exc:
+            if "--debug" in (sys.argv[1:] if argv is None else argv):
+                raise
+            return interrupted(exc)
 
 
 if __name__ == "__main__":

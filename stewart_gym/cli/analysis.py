@@ -189,7 +189,10 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
     if args.geometry in PLANAR_PRESETS:
         params = dict(PLANAR_PRESETS[args.geometry])
     else:
-        data = read_toml(args.geometry)
+        data = read_toml(args.geometry, what="planar geometry file")
+        unknown = sorted(set(data) - set(PLANAR_KEYS) - {"name", "description"})
+        if unknown:
+            raise ConfigError(f"{args.geometry}: unknown key(s) {unknown}; a planar geometry gives {list(PLANAR_KEYS)}")
         missing = [k for k in PLANAR_KEYS if k not in data]
         if missing:
             raise ConfigError(f"{args.geometry}: missing planar parameter(s) {missing}")
@@ -278,7 +281,7 @@ def _common(p: Any, geometry: str, plot: bool = True) -> None:
 
 def register(sub: Any) -> None:
     """Add the analysis subcommands to the ``stewart-gym`` parser."""
-    angles = dict(nargs=3, type=finite_float, metavar=("ROLL", "PITCH", "YAW"))
+    angles = dict(nargs=3, type=bounded_float(-180.0, 180.0), metavar=("ROLL", "PITCH", "YAW"))
     p = sub.add_parser("workspace", help=cmd_workspace.__doc__, description=cmd_workspace.__doc__)
     _common(p, "servo-hexapod")
     p.add_argument("--orientation", default=(0.0, 0.0, 0.0), help="degrees", **angles)

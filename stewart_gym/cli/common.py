@@ -8,28 +8,35 @@ Exit codes (:data:`EXIT_CODES`; the docs and ``stewart-gym --help`` show them):
 * 1: a user mistake (bad option, missing or malformed file), or a result that failed: an unreachable pose,
   a trajectory with unreachable samples, a deploy run that could not keep its rate;
 * 2: a device failure (serial port missing, unplugged, not answering);
-* 130: interrupted by Ctrl-C before the command could finish.
+* 128 + N: stopped by signal N: 130 Ctrl-C (SIGINT), 143 SIGTERM, 129 SIGHUP. A deploy run stopped so drives the
+  servos home and prints its summary first.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
+import signal
 import sys
+import threading
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, NoReturn
 
 import numpy as np
 
-from stewart_gym.errors import DeviceFailure, StewartGymError
+from stewart_gym.errors import DeviceFailure, StewartGymError, Stopped
 from stewart_gym.outputs import output_dir, output_file
 
-__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "Parser", "bounded_float", "finite_float",
-           "int_at_least", "json_safe", "output_dir", "output_file", "positive_float", "run"]  # fmt: skip
+__all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "MAX_SEED", "Parser", "bounded_float",
+           "finite_float", "int_at_least", "interrupted", "json_safe", "output_dir", "output_file", "positive_float", "run",
+           "stop_signals"]  # fmt: skip
 
 EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
+#: The largest seed a command takes (NumPy's legacy seeding, which Stable-Baselines3 calls, takes 32 bits).
+MAX_SEED = 2**31 - 1
 #: Optional dependencies and the install extra that brings each (pyproject.toml).
 EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
                    "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
@@ -40,10 +47,14 @@ EXIT_CODES = {
     EXIT_OK: "the command did what was asked",
     EXIT_FAILED: "a user error (bad option, missing or malformed file, missing optional dependency) or a failed "
                  "result: an unreachable pose (`ik`, `render`), a trajectory with an unreachable sample, a deploy run "
-                 "that missed more than 5 % of its deadlines or never got a usable action from its policy",
-    EXIT_DEVICE: "a device failure: the serial port is missing, unplugged or not answering",
-    EXIT_INTERRUPTED: "interrupted (Ctrl-C) before the command finished",
+                 "that missed more than 5 % of its deadlines, never got a usable action from its policy, or had no "
+                 "fresh valid sensor reading on most of its ticks",
+    EXIT_DEVICE: "a device failure: the serial port is missing, unplugged, not answering or not reading",
+    EXIT_INTERRUPTED: "stopped by Ctrl-C (SIGINT); in general 128 + N for signal N: 143 SIGTERM, 129 SIGHUP (deploy "
+                      "drives the servos home and prints its summary first)",
 }  # fmt: skip
+#: The signals that stop a command as Ctrl-C does (:func:`stop_signals`), by name.
+STOP_SIGNALS = {name: getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)}
 EXIT_CODES_HELP = "exit codes: " + "; ".join(f"{code} {text.replace('`', '')}" for code, text in EXIT_CODES.items())
 
 
@@ -110,20 +121,49 @@ def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
 
 
 # -------------------------------------------------------------------- run
+@contextlib.contextmanager
+def stop_signals() -> Iterator[None]:
+    """While in the block, SIGTERM and SIGHUP raise :class:`~stewart_gym.errors.Stopped` (a
+    ``KeyboardInterrupt``) in the main thread, as Ctrl-C raises ``KeyboardInterrupt``: whatever cleans up after
+    Ctrl-C (deploy's drive home) cleans up after them too. The handlers before are restored after. Outside the
+    main thread (where Python allows no handlers) it does nothing."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_stopped(signum: int, frame: object) -> None:
+        raise Stopped(signum, signal.Signals(signum).name)
+
+    before = {num: signal.signal(num, raise_stopped) for num in STOP_SIGNALS.values()}
+    try:
+        yield
+    finally:
+        for num, handler in before.items():
+            signal.signal(num, handler)
+
+
+def interrupted(exc: KeyboardInterrupt) -> int:
+    """Say that a command was stopped by a signal (one ``error:`` line); its exit code, 128 + the signal's number."""
+    signum = int(getattr(exc, "signum", signal.SIGINT))
+    name = getattr(exc, "name", "Ctrl-C (SIGINT)")
+    print(f"error: stopped by {name} before the command finished", file=sys.stderr)
+    return 128 + signum
+
+
 def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
     """Call a subcommand; a user's mistake or a device failure becomes one ``error:`` line and an exit code.
 
     With ``--debug`` every error keeps its traceback. Errors that are not the
-    user's (bugs) always do.
+    user's (bugs) always do. A stop signal (Ctrl-C, SIGTERM, SIGHUP: :func:`stop_signals`) is one line and exit
+    code 128 + its number.
     """
     debug = bool(getattr(args, "debug", False))
     try:
         return int(func(args))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         if debug:
             raise
-        print("error: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return interrupted(exc)
     except BrokenPipeError:  # the output was piped into a program that stopped reading (head): not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_FAILED

@@ -4,16 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.cli.common import (
     EXIT_CODES_HELP,
     EXIT_FAILED,
     EXIT_OK,
+    MAX_SEED,
     add_backend,
     add_estimator,
     add_geometry,
@@ -31,151 +29,46 @@ __all__ = ["register"]
 PROTOCOL_CHOICES = ("maestro", "ssc32", "line")
 
 
-def _load_calibration(path: str | None, geometry: Any) -> tuple[ServoCalibration, dict]:
-    """The calibration for ``geometry`` (trims, directions, limits from ``path`` if given) and its [hardware].
-
-    A calibration file that names another geometry is refused, naming both.
-    """
-    from stewart_gym.calibration import CalibrationError, hardware_settings
-    from stewart_gym.presets import load_geometry
-    from stewart_gym.registry import same_geometry
-    from stewart_gym.tomlio import read_toml
-
-    geo = load_geometry(geometry)
-    if not path:
-        return ServoCalibration.default(geo), {}
-    declared = read_toml(path, CalibrationError).get("geometry")
-    if declared is not None and not same_geometry(declared, geo):
-        raise ConfigError(f"{path} is a calibration for geometry {declared!r}, but the policy was made for "
-                          f"{geo.name!r}: calibrate this build with --geometry, or deploy a policy made for it")  # fmt: skip
-    return ServoCalibration.from_toml(path, geo), hardware_settings(path)
-
-
-def _port_settings(args: argparse.Namespace, hw: dict) -> tuple[str, str, int | None]:
-    port = args.port or hw.get("port")
-    if not port:
-        raise ConfigError("no serial port: give --port, or a calibration file with [hardware] port")
-    return str(port), args.protocol or hw.get("protocol", "maestro"), args.baudrate or hw.get("baudrate")
-
-
-def _new_log_name() -> str:
-    """deploy_log_<date>-<time>.csv in the current folder, with -2, -3, … if that exists: never an old log."""
-    import time
-
-    stem = f"deploy_log_{time.strftime('%Y%m%d-%H%M%S')}"
-    name, k = f"{stem}.csv", 1
-    while Path(name).exists():
-        k += 1
-        name = f"{stem}-{k}.csv"
-    return name
-
-
 def cmd_deploy(args: argparse.Namespace) -> int:
-    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial)."""
-    from stewart_gym.actions import ActionMapper
-    from stewart_gym.envs import ENV_IDS
-    from stewart_gym.envs.task import load_task
-    from stewart_gym.hardware.deploy import DEFAULT_SLEW_US_PER_S, DeployConfig, DeployLoop, PanelSensor, SimulatedPlant
-    from stewart_gym.hardware.serial_controllers import LineController, open_controller
+    """Run a policy on servos at a fixed rate (sensor → policy → IK → safety → serial). Every input is checked
+    before the port opens. Every way the run ends (its --duration, Ctrl-C, SIGTERM, SIGHUP, an error, a device
+    failure) drives the servos home and prints the summary, which says whether the board confirmed the home
+    pulses; a stop signal N exits 128 + N (Ctrl-C 130, SIGTERM 143, SIGHUP 129)."""
+    from stewart_gym.hardware.deploy_setup import DeployOptions, DeploySetup
     from stewart_gym.registry import deployable_policy, resolve_policy, same_geometry
-    from stewart_gym.sensing import ObservationBuilder
 
-    # everything the user gave is checked before the port opens
     source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
     policy = deployable_policy(source)
-    env_id, geometry = policy.env_id, policy.geometry
-    if args.env and env_id != args.env:
-        raise ConfigError(f"{args.policy} was exported for {env_id}, not {args.env}; leave out --env")
-    if args.geometry and not same_geometry(args.geometry, geometry):
-        raise ConfigError(f"{args.policy} was made for geometry {geometry.name!r}, not {args.geometry!r}")
-    if policy.observation_layout != ObservationBuilder.LAYOUT_VERSION:
-        raise ConfigError(f"{args.policy} was exported for observation layout {policy.observation_layout}; this "
-                          f"version builds layout {ObservationBuilder.LAYOUT_VERSION}: re-export it")  # fmt: skip
+    if args.env and policy.env_id != args.env:
+        raise ConfigError(f"{args.policy} was exported for {policy.env_id}, not {args.env}; leave out --env")
+    if args.geometry and not same_geometry(args.geometry, policy.geometry):
+        raise ConfigError(f"{args.policy} was made for geometry {policy.geometry.name!r}, not {args.geometry!r}")
     if policy.control_hz != round(args.rate):
         print(f"note: the policy was trained at {policy.control_hz} Hz and runs at {args.rate:g} Hz", flush=True)
-    calibration, hw = _load_calibration(args.calibration, geometry)
-    port, protocol, baudrate = _port_settings(args, hw)
-    if args.sensor == "sim":
-        import importlib.util
-
-        if importlib.util.find_spec("pybullet") is None or importlib.util.find_spec("gymnasium") is None:
-            raise ConfigError("--sensor sim needs the simulator: pip install 'stewart_gym[sim]' (or use --sensor panel)")
-        if args.backend == "mujoco" and importlib.util.find_spec("mujoco") is None:
-            raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
-    elif args.backend:
-        raise ConfigError("--backend chooses the simulated plant's engine: it needs --sensor sim")
-    camera_config = None
-    if args.sensor == "camera":
-        if not args.camera_config:
-            raise ConfigError("--sensor camera needs --camera-config FILE (see stewart-gym camera-check)")
-        from stewart_gym.vision import CameraConfig
-
-        camera_config = CameraConfig.from_toml(args.camera_config)
-    elif args.camera_config:
-        raise ConfigError("--camera-config goes with --sensor camera")
-    if args.sensor == "panel" and protocol != "line":
-        raise ConfigError("--sensor panel needs --protocol line (the Arduino sketch reports the panel)")
-    task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
-    if args.trajectory:
-        task_kwargs["trajectory"] = args.trajectory
-    if env_id not in ENV_IDS:
-        raise ConfigError(f"{args.policy} was exported for {env_id!r}, which is not an env of this version")
-    task = load_task(ENV_IDS[env_id][0], **task_kwargs)
-    if args.trajectory and not task.moving_target:
-        raise ConfigError(f"--trajectory needs a track policy; {args.policy} balances ({env_id})")
-    log = args.log or _new_log_name()
-    output_file(log, suffixes=(".csv",), overwrite=args.overwrite)
-    mapper = ActionMapper(geometry, calibration, policy.action_mode, max_tilt=policy.max_tilt)
-    config = DeployConfig(rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
-                          max_step_us=args.max_step_us or DEFAULT_SLEW_US_PER_S / args.rate, log_path=log)  # fmt: skip
-    task.reset(np.random.default_rng(args.seed), None)  # the target only: no disturbances on real hardware
-
-    controller = open_controller(protocol, port, calibration.channels, baudrate)
-    if args.sensor == "panel":
-        assert isinstance(controller, LineController)
-        sensor = PanelSensor(controller)
-    elif args.sensor == "camera":
-        from stewart_gym.hardware.camera_sensor import CameraSensor
-
-        try:
-            sensor = CameraSensor(camera_config)  # type: ignore[arg-type]
-        except BaseException:
-            controller.close()
-            raise
-    else:
-        try:
-            sensor = SimulatedPlant(env_id, seed=args.seed, randomize=not args.no_randomize, geometry=geometry,
-                                    backend=args.backend or "pybullet")  # fmt: skip
-        except BaseException:
-            controller.close()
-            raise
-    if task.moving_target:
-        print(f"tracking a {getattr(task, 'current_trajectory', 'moving')} target ({env_id})", flush=True)
-    plant = sensor if isinstance(sensor, SimulatedPlant) else None
-    try:
-        summary = DeployLoop(policy, mapper, controller, sensor, config, task.target, plant=plant).run()
-    finally:
-        if args.sensor == "camera":
-            sensor.close()  # type: ignore[union-attr]
-    if args.sensor == "camera":
-        summary.message += f"; camera: ball found in {sensor.found} of {sensor.frames} frames"  # type: ignore[union-attr]
-    if isinstance(sensor, SimulatedPlant) and sensor.final_error_mm is not None:
-        summary.message += f"; simulated ball {sensor.final_error_mm:.1f} mm from the centre"
-    print(summary.text())
-    print(f"log: {log}")
+    options = DeployOptions(port=args.port, protocol=args.protocol, baudrate=args.baudrate, sensor=args.sensor,
+                            camera_config=args.camera_config, calibration=args.calibration, backend=args.backend,
+                            rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
+                            max_step_us=args.max_step_us, trajectory=args.trajectory, log=args.log,
+                            overwrite=args.overwrite, seed=args.seed, randomize=not args.no_randomize,
+                            write_only=args.write_only, answer_timeout_s=args.answer_timeout_ms / 1000)  # fmt: skip
+    setup = DeploySetup(policy, options, say=lambda line: print(line, flush=True))
+    summary = setup.run()
+    print(summary.text(), flush=True)
+    print(f"log: {setup.log}", flush=True)
     return summary.exit_code
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Find servo trims: step one servo at a time; keys on stdin: + / - (trim), n (next servo), q (save and quit)."""
+    from stewart_gym.hardware.deploy_setup import load_calibration, port_settings
     from stewart_gym.hardware.serial_controllers import open_controller
     from stewart_gym.hardware.trim import calibration_toml, find_trims
     from stewart_gym.presets import load_geometry
 
     out = output_file(args.out, suffixes=(".toml",))
     geometry = load_geometry(args.geometry)
-    calibration, hw = _load_calibration(args.calibration, geometry)
-    port, protocol, baudrate = _port_settings(args, hw)
+    calibration, hw = load_calibration(args.calibration, geometry, used_for=f"--geometry {args.geometry}")
+    port, protocol, baudrate = port_settings(args.port, args.protocol, args.baudrate, hw)
     nominal = ServoCalibration.default(geometry).neutral_us  # untrimmed: 1500 µs, or the home leg length's pulse
     controller = open_controller(protocol, port, calibration.channels, baudrate)
     try:
@@ -194,14 +87,18 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     to it as to the real board. Runs until Ctrl-C (SIGINT) or SIGTERM, then prints what it saw."""
     import signal
 
+    from stewart_gym.hardware.deploy_setup import load_calibration
     from stewart_gym.hardware.virtual_device import Faults, VirtualDevice
     from stewart_gym.presets import load_geometry
 
     faults = Faults(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate,
                     stall_sensor_after_s=args.stall_sensor_after, latency_ms=args.latency_ms,
-                    unplug_after_s=args.unplug_after)  # fmt: skip
+                    unplug_after_s=args.unplug_after, stop_reading_after_s=args.stop_reading_after,
+                    read_bytes_per_s=args.read_rate)  # fmt: skip
+    if args.link is not None and not args.link.strip():
+        raise ConfigError("--link: give a path for the link (for example /tmp/stewart0), not an empty one")
     geometry = load_geometry(args.geometry)
-    calibration, _ = _load_calibration(args.calibration, geometry)
+    calibration, _ = load_calibration(args.calibration, geometry, used_for=f"--geometry {args.geometry}")
     if args.backend == "mujoco":
         import importlib.util
 
@@ -235,19 +132,14 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     frames from the config's camera or video, writing an annotated image to tune the colour range."""
     import json
 
-    from stewart_gym.vision import CameraConfig, annotate, locate_ball
+    from stewart_gym.vision import CameraConfig, annotate, locate_ball, read_image
 
     config = CameraConfig.from_toml(args.camera_config)
     out = output_file(args.out, suffixes=(".png", ".jpg")) if args.out else None
     import cv2
 
     if args.image:
-        if not Path(args.image).is_file():
-            raise ConfigError(f"--image {args.image}: no such file")
-        frame = cv2.imread(args.image)
-        if frame is None:
-            raise ConfigError(f"--image {args.image}: not an image OpenCV can read")
-        frames = [frame]
+        frames = [read_image(args.image)]
     else:
         cap = cv2.VideoCapture(config.source)
         if not cap.isOpened():
@@ -287,7 +179,9 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
-    p.add_argument("--policy", default="shipped", help="a bundle folder, 'shipped', 'pid', 'pid-kalman' or 'lqr'")
+    p.add_argument("--policy", default="shipped",
+                   help="'shipped' (the default), 'shipped-residual', 'shipped-camera', 'pid', 'pid-kalman', 'lqr', "
+                        "'lqr-pid', a bundle folder, a run folder or a gains .json")  # fmt: skip
     add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for pid-kalman and lqr)")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
@@ -309,8 +203,14 @@ def register(sub: Any) -> None:
                    help="moving target of a track policy (default: the one it was trained on)")  # fmt: skip
     p.add_argument("--log", help="CSV log (default deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")
-    p.add_argument("--seed", type=int_at_least(0), default=0, help="simulated plant's seed (--sensor sim)")
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="simulated plant's seed (--sensor sim)")
     p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")
+    p.add_argument("--write-only", action="store_true",
+                   help="the board's replies are not wired: do not ask it anything (a board that stops reading "
+                        "then goes unnoticed, and homing is 'sent, not confirmed')")  # fmt: skip
+    p.add_argument("--answer-timeout-ms", type=bounded_float(50.0, 60_000.0), default=500.0,
+                   help="a board that leaves a position query unanswered this long has stopped reading, or reads "
+                        "too slowly: a device failure (default 500)")  # fmt: skip
     p.set_defaults(func=cmd_deploy)
 
     p = sub.add_parser("virtual-device", help=cmd_virtual_device.__doc__, description=cmd_virtual_device.__doc__)
@@ -320,7 +220,8 @@ def register(sub: Any) -> None:
     p.add_argument("--calibration", help="calibration TOML: the board's channels and limits")
     p.add_argument("--link", help="make this path a symlink to the pty (e.g. /tmp/stewart0)")
     p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0", help="whose task places the ball")
-    p.add_argument("--seed", type=int_at_least(0), default=0, help="the twin's episode: ball start, physics, noise")
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0,
+                   help="the twin's episode: ball start, physics, noise")  # fmt: skip
     p.add_argument("--no-randomize", action="store_true", help="nominal physics")
     p.add_argument("--drop-rate", type=bounded_float(0.0, 1.0), default=0.0, help="fraction of received bytes lost")
     p.add_argument("--corrupt-rate", type=bounded_float(0.0, 1.0), default=0.0,
@@ -330,6 +231,10 @@ def register(sub: Any) -> None:
     p.add_argument("--latency-ms", type=bounded_float(0.0, 1000.0), default=0.0, help="added latency, both ways")
     p.add_argument("--unplug-after", type=bounded_float(0.0, 1e6), metavar="S",
                    help="disappear S seconds after the first frame")  # fmt: skip
+    p.add_argument("--stop-reading-after", type=bounded_float(0.0, 1e6), metavar="S",
+                   help="stop reading the host's bytes S seconds after the first frame (a hung board)")  # fmt: skip
+    p.add_argument("--read-rate", type=bounded_float(1.0, 1e7), metavar="BYTES_PER_S",
+                   help="read at most this many bytes a second (a board too slow for the frames)")  # fmt: skip
     p.add_argument("--camera-stream", metavar="PIPE",
                    help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
     p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",

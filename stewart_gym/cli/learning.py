@@ -15,6 +15,7 @@ from stewart_gym.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    MAX_SEED,
     add_backend,
     add_estimator,
     add_sensor,
@@ -31,6 +32,10 @@ from stewart_gym.errors import ConfigError
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
 ENV_CHOICES = tuple(ENV_IDS)
+#: The most episodes one evaluate, compare or demo runs (a bigger number is a typo, and would run for days).
+MAX_EPISODES = 100_000
+#: The most env steps one training run is given (about a week on 2 cores; --max-minutes stops earlier).
+MAX_TIMESTEPS = 1_000_000_000
 #: ``--algo``: the keys of :data:`stewart_gym.training.ALGOS`, named here so that ``--help`` needs no torch (a test
 #: keeps them equal)
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
@@ -402,14 +407,15 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
     p.add_argument("--trajectory", choices=TRACK_TRAJECTORIES,
                    help=f"the moving target of {' or '.join(trajectory_env_ids())} (default circle, whatever the "
                         "policy was trained on; mixed draws one per episode)")  # fmt: skip
-    p.add_argument("--episodes", type=int_at_least(at_least), default=100)
-    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--episodes", type=int_at_least(at_least, MAX_EPISODES), default=100,
+                   help=f"how many (at most {MAX_EPISODES:,}; default 100)")  # fmt: skip
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
 
 
 def add_workers(p: argparse.ArgumentParser) -> None:
     """``--workers`` of ``evaluate``, ``compare`` and ``demo`` (:func:`evaluate_all`)."""
-    p.add_argument("--workers", type=int_at_least(1), help="processes at once (default: one per core): one per "
+    p.add_argument("--workers", type=int_at_least(1, 256), help="processes at once (default: one per core): one per "
                    "policy, and a policy's episodes split between them where there are more (the same figures; "
                    f"by default only where each gets {EPISODES_PER_PROCESS} episodes or more)")
 
@@ -428,16 +434,16 @@ def register(sub: Any) -> None:
                                          "stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
-    p.add_argument("--seed", type=int_at_least(0), default=0)
-    p.add_argument("--timesteps", type=int_at_least(1), help="override n_timesteps")
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
+    p.add_argument("--timesteps", type=int_at_least(1, MAX_TIMESTEPS), help="override n_timesteps")
     p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
     p.add_argument("--vec-env", choices=VEC_ENV_CHOICES, default="dummy",
                    help="where the n_envs env copies step: dummy, one after another in this process (default: an "
                         "env step is cheaper than a round trip to another process), or subproc, a worker process "
                         "each (bench/bench_train.py measures both); the same run either way, to the last bit")
-    p.add_argument("--eval-freq", type=int_at_least(1), help="env steps between evaluations")
-    p.add_argument("--eval-episodes", type=int_at_least(1))
-    p.add_argument("--checkpoint-freq", type=int_at_least(1), default=100_000,
+    p.add_argument("--eval-freq", type=int_at_least(1, MAX_TIMESTEPS), help="env steps between evaluations")
+    p.add_argument("--eval-episodes", type=int_at_least(1, 10_000))
+    p.add_argument("--checkpoint-freq", type=int_at_least(1, MAX_TIMESTEPS), default=100_000,
                    help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
                         "default 100000)")  # fmt: skip
     p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
@@ -493,19 +499,19 @@ def register(sub: Any) -> None:
                                   "and search")
     p.add_argument("--address", help="join a running Ray cluster: auto or HOST:PORT (default: start Ray on this "
                                      "machine with all its cores)")
-    p.add_argument("--num-samples", type=int_at_least(1), help="override the file's num_samples")
-    p.add_argument("--max-concurrent", type=int_at_least(1), help="at most this many trials at once")
+    p.add_argument("--num-samples", type=int_at_least(1, 100_000), help="override the file's num_samples")
+    p.add_argument("--max-concurrent", type=int_at_least(1, 1024), help="at most this many trials at once")
     p.add_argument("--out", help="folder for the trials, tables, plot and best bundle (default sweeps/<name>); on a "
                                  "cluster, storage every node mounts at the same path")
     p.add_argument("--resume", action="store_true", help="continue an interrupted sweep in --out")
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
-    p.add_argument("--episodes", type=int_at_least(1), default=20)
+    p.add_argument("--episodes", type=int_at_least(1, MAX_EPISODES), default=20)
     add_backend(p, "physics engine (default pybullet; the GIF needs OpenGL with mujoco)")
     p.add_argument("--geometry", help="the platform (default servo-hexapod; the shipped policy exists for the presets "
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
-    p.add_argument("--seed", type=int_at_least(0), default=0)
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
     p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
     add_workers(p)
     p.set_defaults(func=cmd_demo)

@@ -1,13 +1,18 @@
 """The camera as ``deploy``'s ball sensor: frames read in a background thread, the newest detection taken.
 
 :class:`CameraSensor` is a :class:`~stewart_gym.sensing.BallSensor`. A thread
-grabs frames from a camera (index or device), a named pipe carrying an MJPEG stream
-(``virtual-device --camera-stream``), or a video file (played at its own frame
-rate, as a camera would deliver it), runs
-:func:`~stewart_gym.vision.locate_ball` on each and keeps the newest detection
-with its capture time. ``read(t)`` returns the newest *found* ball: a frame with
-no ball (or no plate) leaves the last one in place, so its age grows and the
-deploy watchdog sends the platform home exactly as for a stale panel reading.
+opens the source (a camera index or device, a named pipe carrying an MJPEG stream
+from ``virtual-device --camera-stream``, or a video file played at its own frame
+rate, as a camera would deliver it), runs :func:`~stewart_gym.vision.locate_ball`
+on each frame and keeps the newest detection with its capture time. The
+constructor waits for the first frame: a source that delivers none within
+``first_frame_timeout_s`` (a pipe nobody writes to, a camera that hangs) is a
+:class:`~stewart_gym.errors.DeviceFailure` before anything moves.
+
+``read(t)`` returns the newest *found* ball: a frame with no ball, no plate, or a
+position that cannot be a ball on the plate (:func:`~stewart_gym.sensing.reading_is_valid`)
+leaves the last one in place, so its age grows and the deploy watchdog sends the
+platform home exactly as for a stale panel reading.
 """
 
 from __future__ import annotations
@@ -16,54 +21,92 @@ import os
 import stat
 import threading
 import time
+from collections.abc import Sequence
 
 from stewart_gym.errors import DeviceFailure
-from stewart_gym.sensing import Reading
+from stewart_gym.sensing import Reading, reading_is_valid
 from stewart_gym.vision import CameraConfig, Detection, locate_ball
 
-__all__ = ["CameraSensor"]
+__all__ = ["FIRST_FRAME_TIMEOUT_S", "CameraSensor"]
+
+#: s: the longest the sensor waits for the source's first frame.
+FIRST_FRAME_TIMEOUT_S = 5.0
 
 
 class CameraSensor:
-    """Ball readings from a camera or a video file (see the module's description)."""
+    """Ball readings from a camera or a video file (see the module's description).
 
-    def __init__(self, config: CameraConfig) -> None:
-        import cv2
+    Args:
+        config: the camera config.
+        plate_half: (h_x, h_y) m, half the plate's size: a position further out (plus the margin of
+            :func:`~stewart_gym.sensing.reading_is_valid`) is no reading. None: not checked here.
+        first_frame_timeout_s: the longest wait for the first frame.
+    """
 
+    def __init__(self, config: CameraConfig, plate_half: Sequence[float] | None = None,
+                 first_frame_timeout_s: float = FIRST_FRAME_TIMEOUT_S) -> None:  # fmt: skip
         self.config = config
         source = config.source
-        live_pipe = isinstance(source, str) and stat.S_ISFIFO(os.stat(source).st_mode)
-        self._is_file = isinstance(source, str) and not source.startswith("/dev/") and not live_pipe
-        if live_pipe:  # an MJPEG stream in a named pipe (the virtual device's camera): decode as it comes
-            os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg")
-            self._cap = cv2.VideoCapture(source, cv2.CAP_FFMPEG)
-        else:
-            self._cap = cv2.VideoCapture(source)
-        if not self._cap.isOpened():
-            raise DeviceFailure(f"camera {source!r} cannot be opened (wrong index or path, or in use?)")
-        if not self._is_file:
-            width, height = config.resolution
-            self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
-            self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
-            self._cap.set(cv2.CAP_PROP_FPS, config.fps)
-        fps = self._cap.get(cv2.CAP_PROP_FPS) if self._is_file else 0.0
-        self._period = 1.0 / (fps if fps and fps > 0 else config.fps)
+        self._live_pipe = isinstance(source, str) and stat.S_ISFIFO(os.stat(source).st_mode)
+        self._is_file = isinstance(source, str) and not source.startswith("/dev/") and not self._live_pipe
+        self._plate_half = None if plate_half is None else (float(plate_half[0]), float(plate_half[1]))
         self._lock = threading.Lock()
         self._latest: tuple[tuple[float, float], float] | None = None
         self.last_detection: Detection | None = None
-        self.frames = self.found = 0
+        self.frames = self.found = self.invalid = 0
         self.ended = False
+        self._cap = None
+        self._opened = threading.Event()  # the first frame came, or opening failed
+        self._failure: str | None = None
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="camera", daemon=True)
         self._thread.start()
+        if not self._opened.wait(first_frame_timeout_s):
+            self.close()
+            raise DeviceFailure(f"camera {source!r} delivered no frame within {first_frame_timeout_s:g} s (nothing "
+                                "writing to the pipe? a camera in use or hung?); nothing was moved")  # fmt: skip
+        if self._failure is not None:
+            self.close()
+            raise DeviceFailure(self._failure)
+
+    def _open(self) -> object:
+        import cv2
+
+        source = self.config.source
+        if self._live_pipe:  # an MJPEG stream in a named pipe (the virtual device's camera): decode as it comes
+            os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg")
+            cap = cv2.VideoCapture(source, cv2.CAP_FFMPEG)
+        else:
+            cap = cv2.VideoCapture(source)
+        if cap.isOpened() and not self._is_file:
+            width, height = self.config.resolution
+            cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)
+            cap.set(cv2.CAP_PROP_FRAME_HEIGHT, height)
+            cap.set(cv2.CAP_PROP_FPS, self.config.fps)
+        return cap
 
     def _run(self) -> None:
+        import cv2
+
+        cap = self._cap = self._open()  # type: ignore[assignment]
+        if self._stop.is_set():
+            cap.release()
+            return
+        if not cap.isOpened():
+            self._failure = f"camera {self.config.source!r} cannot be opened (wrong index or path, or in use?)"
+            self._opened.set()
+            return
+        fps = cap.get(cv2.CAP_PROP_FPS) if self._is_file else 0.0
+        period = 1.0 / (fps if fps and fps > 0 else self.config.fps)
         next_frame = time.monotonic()
         while not self._stop.is_set():
-            ok, frame = self._cap.read()
+            ok, frame = cap.read()
             captured = time.monotonic()
             if not ok:
                 self.ended = True  # end of the video, or the camera went away: readings go stale
+                if not self._opened.is_set():
+                    self._failure = f"camera {self.config.source!r} gave no frame (an empty video, or a dead stream)"
+                    self._opened.set()
                 return
             detection = locate_ball(frame, self.config)
             with self._lock:
@@ -71,9 +114,14 @@ class CameraSensor:
                 self.last_detection = detection
                 if detection.xy_mm is not None:
                     self.found += 1
-                    self._latest = (detection.xy_mm, captured)
+                    reading = ((detection.xy_mm[0] * 1e-3, detection.xy_mm[1] * 1e-3), captured)
+                    if self._plate_half is None or reading_is_valid(reading, self._plate_half):
+                        self._latest = (detection.xy_mm, captured)
+                    else:
+                        self.invalid += 1
+            self._opened.set()
             if self._is_file:  # a file plays at its frame rate, as the camera that recorded it delivered it
-                next_frame += self._period
+                next_frame += period
                 self._stop.wait(max(0.0, next_frame - time.monotonic()))
 
     def read(self, t: float) -> Reading | None:
@@ -86,7 +134,14 @@ class CameraSensor:
         return (x_mm * 1e-3, y_mm * 1e-3), t - (time.monotonic() - captured)
 
     def close(self) -> None:
-        """Stop the thread and release the camera."""
+        """Stop the thread and release the camera. A thread still blocked opening a named pipe that no writer
+        opened is let go: the pipe is opened for writing once, which lets its open return."""
         self._stop.set()
+        if self._live_pipe and self._thread.is_alive() and self._cap is None:
+            try:
+                os.close(os.open(self.config.source, os.O_WRONLY | os.O_NONBLOCK))  # type: ignore[arg-type]
+            except OSError:
+                pass
         self._thread.join(timeout=2.0)
-        self._cap.release()
+        if self._cap is not None and not self._thread.is_alive():
+            self._cap.release()

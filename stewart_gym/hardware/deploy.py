@@ -12,16 +12,25 @@ Every tick (default 50 Hz):
    command* when the action is NaN/inf or the pose is unreachable;
 6. write the protocol's bytes.
 
-Watchdog: sensor data older than ``watchdog_s`` or a missed deadline moves the
-platform home (rate-limited) until fresh data returns. On Ctrl-C, on any
-exception and at the end, the servos are driven home before the port closes.
-Every tick is written to a CSV log flushed line by line, so a crash keeps it.
+A reading that is NaN, infinite or off the plate (:func:`~stewart_gym.sensing.reading_is_valid`) is no
+reading: the last valid one stays in use and ages, exactly as when the sensor sends nothing, and the log marks
+the tick ``invalid``. Watchdog: sensor data older than ``watchdog_s`` or a missed deadline moves the platform
+home (rate-limited) until fresh data returns; control resumes on the first tick with a fresh valid reading.
+
+Every way a run ends (its duration, Ctrl-C, SIGTERM or SIGHUP raised as
+:class:`~stewart_gym.errors.Stopped`, an error, a device failure) drives the servos home at the rate limit
+(at most ``home_timeout_s``; a second stop signal does not cut it short), waits until the bytes have left
+(``tcdrain``), and, where the board answers (:meth:`~stewart_gym.hardware.serial_controllers.ServoController.monitor`),
+asks it which pulses it holds: the summary says "confirmed" only when they are the home pulses. A run that
+ended by itself is judged: too many missed deadlines, no usable action, or no fresh valid reading on most
+ticks fail it. Every tick is written to a CSV log flushed line by line, so a crash keeps it.
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +43,7 @@ from stewart_gym.envs.targets import Fixed, Target
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
-from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact
+from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact, reading_is_valid
 
 __all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant"]
 
@@ -122,6 +131,10 @@ DEFAULT_SLEW_US_PER_S = 3000.0
 MAX_RATE_HZ = 500.0
 #: A run that misses more than this fraction of its deadlines has failed: the machine cannot keep the rate.
 MAX_MISSED_FRACTION = 0.05
+#: A run with no fresh valid reading on more than this fraction of its ticks has failed: the sensor did not work.
+MAX_STALE_FRACTION = 0.5
+#: Per-tick flags, in the log's columns and the summary's counts.
+TICK_FLAGS = ("held", "clamped", "rate_limited", "homing", "stale", "invalid", "unreachable")
 
 
 @dataclass
@@ -147,7 +160,13 @@ class DeployConfig:
 
 @dataclass
 class DeploySummary:
-    """What happened; ``exit_code`` 0 = clean stop, 1 = error, 2 = device failure."""
+    """What happened; ``exit_code`` 0 clean stop, 1 failed run or error, 2 device failure, 128 + N stopped by signal N.
+
+    ``home`` says how the run left the servos: ``"confirmed"`` (the board reports the home pulses),
+    ``"sent"`` (the home frame left the computer; the board cannot confirm), ``"not confirmed"`` (sent, but the
+    board did not answer or reports other pulses) or ``"not sent"`` (the port failed first), with the reason
+    in ``home_note``.
+    """
 
     ticks: int = 0
     frames_sent: int = 0
@@ -157,22 +176,40 @@ class DeploySummary:
     rate_limited: int = 0
     homing: int = 0
     stale: int = 0
+    invalid: int = 0
     missed_deadlines: int = 0
     unreachable: int = 0
     jitter_ms_mean: float = 0.0
     jitter_ms_max: float = 0.0
     compute_ms_p99: float = 0.0
-    homed: bool = False
+    home: str = "not sent"
+    home_note: str = ""
+    board_answers: int | None = None
+    board_wait_ms_max: float = 0.0
     exit_code: int = 0
     message: str = "completed"
     extra: dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def homed(self) -> bool:
+        """The home frame reached the board (confirmed) or at least left the computer (sent)."""
+        return self.home in ("confirmed", "sent")
+
+    def home_text(self) -> str:
+        """One phrase for how the servos were left."""
+        text = {"confirmed": "servos homed: confirmed by the board", "sent": "home frame sent, not confirmed",
+                "not confirmed": "servos NOT confirmed home", "not sent": "servos NOT homed"}[self.home]  # fmt: skip
+        return f"{text} ({self.home_note})" if self.home_note else text
+
     def text(self) -> str:
+        board = ("" if self.board_answers is None else
+                 f"board answered {self.board_answers} questions, longest wait {self.board_wait_ms_max:.0f} ms; ")
         return (f"{self.message}: {self.ticks} ticks in {self.duration_s:.2f} s, {self.frames_sent} frames sent; "
                 f"held {self.held}, clamped {self.clamped}, rate-limited {self.rate_limited}, homing {self.homing}, "
-                f"stale sensor {self.stale}, missed deadlines {self.missed_deadlines}, unreachable {self.unreachable}; "
-                f"jitter mean {self.jitter_ms_mean:.2f} ms, max {self.jitter_ms_max:.2f} ms; "
-                f"compute p99 {self.compute_ms_p99:.3f} ms; servos homed: {self.homed}")  # fmt: skip
+                f"stale sensor {self.stale}, invalid readings {self.invalid}, missed deadlines {self.missed_deadlines}, "
+                f"unreachable {self.unreachable}; jitter mean {self.jitter_ms_mean:.2f} ms, max "
+                f"{self.jitter_ms_max:.2f} ms; compute p99 {self.compute_ms_p99:.3f} ms; "
+                f"{board}{self.home_text()}")  # fmt: skip
 
 
 class DeployLoop:
@@ -194,9 +231,22 @@ class DeployLoop:
         if sizes != (self.observer.builder.size, mapper.size):
             raise PolicyError(f"the policy reads {sizes[0]} observation values and gives {sizes[1]} actions, but "
                               f"{mapper.mode!r} mode needs {self.observer.builder.size} and {mapper.size}")  # fmt: skip
+        self.plate_half = (width / 2, depth / 2)
         self.prev_action: tuple[float, ...] = (0.0,) * mapper.size
         self.roll_pitch = (0.0, 0.0)
         self._observing = False  # the observer starts from the first reading, as the env's does at reset
+        self._last_valid: Reading | None = None  # the newest reading that could be a ball on the plate
+
+    def checked(self, got: Reading | None, t: float) -> tuple[tuple[tuple[float, float], float] | None, bool]:
+        """The sensor's newest reading at ``t`` → ((x, y), age s) to use and whether the newest was invalid.
+
+        An invalid reading (:func:`~stewart_gym.sensing.reading_is_valid`, or one dated in the future) is no
+        reading: the last valid one is used instead, and ages, as when the sensor sends nothing."""
+        invalid = got is not None and not (reading_is_valid(got, self.plate_half) and got[1] <= t + 1e-3)
+        if got is not None and not invalid:
+            self._last_valid = got
+        use = self._last_valid if invalid else got
+        return (None if use is None else (use[0], t - use[1])), invalid
 
     # --------------------------------------------------------------- one tick
     def compute(self, reading: tuple[tuple[float, float], float] | None, t: float) -> tuple[np.ndarray, np.ndarray,
@@ -208,6 +258,8 @@ class DeployLoop:
             self.observer.reset(sample[1], sample[0])
             self._observing = True
         obs = self.observer.observe(sample, target_xy, target_vel, self.roll_pitch, self.prev_action, now=t)
+        if not np.all(np.isfinite(obs)):  # never expected (readings are checked): start the observer afresh
+            self._observing = False
         flags = {"stale": reading is None or reading[1] > self.config.watchdog_s, "unreachable": False}
         action = np.full(self.mapper.size, np.nan)
         usable = False
@@ -237,6 +289,8 @@ class DeployLoop:
         cfg = self.config
         period = 1.0 / cfg.rate_hz
         summary = DeploySummary()
+        if self.controller.monitoring:
+            summary.board_answers = 0
         writer, fh = self._open_log()
         jitters, computes = [], []
         start = time.monotonic()
@@ -247,10 +301,10 @@ class DeployLoop:
                 now = time.monotonic()
                 jitter = (now - next_tick) * 1e3
                 t = now - start
-                got = self.sensor.read(t)
-                reading = None if got is None else (got[0], t - got[1])  # (x, y), age
+                reading, invalid = self.checked(self.sensor.read(t), t)  # (x, y), age
                 c0 = time.perf_counter()
                 obs, action, pulses, flags = self.compute(reading, t)
+                flags["invalid"] = invalid
                 if missed:  # the last tick overran: go home this tick
                     pulses = self.safety.toward_home().pulses
                     flags["homing"] = True
@@ -259,12 +313,11 @@ class DeployLoop:
                 if self.plant is not None:
                     self.plant.apply(pulses)
                 summary.ticks += 1
-                for key in ("held", "clamped", "rate_limited", "homing", "stale", "unreachable"):
+                for key in TICK_FLAGS:
                     setattr(summary, key, getattr(summary, key) + int(bool(flags[key])))
                 jitters.append(jitter)
                 if writer is not None:
-                    bits = [int(bool(flags[k])) for k in ("held", "clamped", "rate_limited", "homing", "stale",
-                                                          "unreachable")]  # fmt: skip
+                    bits = [int(bool(flags[k])) for k in TICK_FLAGS]
                     writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
                                      *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data)])
                     fh.flush()
@@ -276,50 +329,107 @@ class DeployLoop:
                     next_tick = time.monotonic()
                 elif sleep > 0:
                     time.sleep(sleep)
-        except KeyboardInterrupt:
-            summary.message = "stopped by Ctrl-C"
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP raised as errors.Stopped
+            summary.message = f"stopped by {getattr(exc, 'name', 'Ctrl-C (SIGINT)')}"
+            summary.exit_code = 128 + int(getattr(exc, "signum", signal.SIGINT))
         except DeviceError as exc:
             summary.message, summary.exit_code = f"device failure: {exc}", 2
         except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)
             summary.message, summary.exit_code = f"error: {type(exc).__name__}: {exc}", 1
         finally:
-            summary.homed = self._go_home(period) if summary.exit_code != 2 else False
-            self.controller.close()
-            if fh is not None:
-                fh.close()
-            for part in (self.plant, self.sensor):
-                close = getattr(part, "close", None)
-                if close is not None:
-                    close()
+            self._go_home(period, summary)
+            self._close(fh)
         summary.duration_s = time.monotonic() - start
         summary.frames_sent = self.controller.frames_sent
+        if summary.board_answers is not None:
+            summary.board_answers = self.controller.answers
+            summary.board_wait_ms_max = self.controller.longest_wait_s * 1e3
         if jitters:
             summary.jitter_ms_mean = float(np.mean(np.abs(jitters)))
             summary.jitter_ms_max = float(np.max(np.abs(jitters)))
             summary.compute_ms_p99 = float(np.percentile(computes, 99))
         if summary.message == "completed" and summary.ticks:  # a run that ended by itself is judged
-            if summary.missed_deadlines > MAX_MISSED_FRACTION * summary.ticks:
-                summary.message = (f"failed: missed {summary.missed_deadlines} of {summary.ticks} deadlines; this "
-                                   f"machine cannot keep {cfg.rate_hz:g} Hz (lower --rate)")  # fmt: skip
-                summary.exit_code = 1
-            elif summary.held == summary.ticks:
-                summary.message = "failed: the policy gave no usable action on any tick (every tick held the pose)"
-                summary.exit_code = 1
+            self._judge(summary)
+        if summary.exit_code == 0 and not summary.homed:  # the end was clean, the way home was not
+            summary.message += "; device failure on the way home"
+            summary.exit_code = 2
         return summary
 
-    def _go_home(self, period: float) -> bool:
-        """Drive home at the rate limit (at most ``home_timeout_s``); True once the home frame was sent."""
+    def _judge(self, summary: DeploySummary) -> None:
+        cfg = self.config
+        if summary.missed_deadlines > MAX_MISSED_FRACTION * summary.ticks:
+            summary.message = (f"failed: missed {summary.missed_deadlines} of {summary.ticks} deadlines; this "
+                               f"machine cannot keep {cfg.rate_hz:g} Hz (lower --rate)")  # fmt: skip
+            summary.exit_code = 1
+        elif summary.stale > MAX_STALE_FRACTION * summary.ticks:
+            summary.message = (f"failed: no fresh valid reading on {summary.stale} of {summary.ticks} ticks "
+                               f"({summary.invalid} invalid: NaN, infinite or off the plate); the platform was held "
+                               "home meanwhile: check the sensor")  # fmt: skip
+            summary.exit_code = 1
+        elif summary.held == summary.ticks:
+            summary.message = "failed: the policy gave no usable action on any tick (every tick held the pose)"
+            summary.exit_code = 1
+
+    def _go_home(self, period: float, summary: DeploySummary) -> None:
+        """Drive home at the rate limit (at most ``home_timeout_s``; a stop signal meanwhile does not cut it
+        short), drain the port, and ask the board what it holds. Sets ``summary.home`` and ``home_note``."""
         deadline = time.monotonic() + self.config.home_timeout_s
+        failed = summary.exit_code == 2  # the device failed: try all the same, without asking it anything
+        if failed:
+            self.controller.monitoring = False
+        reached = False
+        while not reached:
+            try:
+                while time.monotonic() < deadline:
+                    self.controller.send(self.safety.toward_home().pulses)
+                    if self.safety.at_home():
+                        reached = True
+                        break
+                    time.sleep(period)
+                break
+            except KeyboardInterrupt:  # a second stop signal: the drive home goes on, bounded by its deadline
+                continue
+            except DeviceError as exc:
+                summary.home, summary.home_note = "not sent", "the port failed" if failed else str(exc)
+                return
+        if not reached:
+            summary.home = "not sent"
+            summary.home_note = f"the drive home took longer than {self.config.home_timeout_s:g} s"
+            return
         try:
-            while time.monotonic() < deadline:
-                res = self.safety.toward_home()
-                self.controller.send(res.pulses)
-                if self.safety.at_home():
-                    return True
-                time.sleep(period)
-        except (DeviceError, KeyboardInterrupt):
-            return False
-        return False
+            self.controller.drain()
+            if failed:
+                summary.home, summary.home_note = "not confirmed", "home frames written after the device failure"
+                return
+            if not self.controller.monitoring:
+                summary.home, summary.home_note = "sent", "the board's answers are not read (--write-only)"
+                return
+            confirmed, held = self.controller.confirm(self.safety.home, self.controller.answer_timeout_s)
+        except DeviceError as exc:
+            summary.home, summary.home_note = "not confirmed", str(exc)
+            return
+        except KeyboardInterrupt:
+            summary.home, summary.home_note = "sent", "interrupted while asking the board"
+            return
+        if confirmed:
+            summary.home = "confirmed"
+        elif held is None:
+            summary.home, summary.home_note = "not confirmed", "the board did not answer"
+        else:
+            summary.home = "not confirmed"
+            summary.home_note = (f"the board holds {np.round(held, 1).tolist()} µs, not the home pulses "
+                                 f"{np.round(self.safety.home, 1).tolist()}")  # fmt: skip
+
+    def _close(self, log: Any) -> None:
+        """Close the port, the log, the plant and the sensor; a stop signal meanwhile does not cut this short."""
+        parts = [self.controller.close, *(getattr(x, "close", None) for x in (log, self.plant, self.sensor))]
+        for close in parts:
+            while close is not None:
+                try:
+                    close()
+                    break
+                except KeyboardInterrupt:
+                    continue
 
     def _open_log(self) -> tuple[Any, Any]:
         if not self.config.log_path:
@@ -331,7 +441,6 @@ class DeployLoop:
         n = self.mapper.size
         writer.writerow(["t_s", "jitter_ms", *(f"obs{i}" for i in range(self.observer.builder.size)),
                          *(f"action{i}" for i in range(n)), "x_m", "y_m", "z_m", "roll", "pitch", "yaw",
-                         *(f"pulse{i}_us" for i in range(6)), "held", "clamped", "rate_limited", "homing", "stale",
-                         "unreachable", "missed_deadline", "bytes"])  # fmt: skip
+                         *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS, "missed_deadline", "bytes"])  # fmt: skip
         fh.flush()
         return writer, fh

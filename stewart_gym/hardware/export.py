@@ -15,6 +15,7 @@ Exporting needs torch (training side); loading needs onnxruntime only.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -31,6 +32,7 @@ from stewart_gym.classical import (
     design_estimator,
 )
 from stewart_gym.errors import PolicyError
+from stewart_gym.inputs import read_text
 from stewart_gym.sensing import ESTIMATORS
 
 __all__ = ["BundlePolicy", "classical_meta", "export_bundle_copy", "export_pid", "export_sb3"]
@@ -143,7 +145,13 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
     behind the observer the gains name (``estimator``; the low-pass one if they name none)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    values = gains if isinstance(gains, dict) else json.loads(Path(gains).read_text())
+    if isinstance(gains, dict):
+        values = gains
+    else:
+        try:
+            values = json.loads(read_text(gains, "gains file", error=PolicyError))
+        except json.JSONDecodeError as exc:
+            raise PolicyError(f"{gains}: not valid JSON ({exc})") from None
     estimator = design_estimator(values) or "lowpass"  # the observer the gains name, else the plain PID's
     meta = classical_meta("pid", asdict(checked_design(values, "pid")), env_id, geometry, estimator)
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -163,8 +171,37 @@ def export_bundle_copy(bundle_dir: str | Path, out_dir: str | Path) -> Path:
     return out
 
 
+#: Hz: the highest control rate a bundle may name (the deploy loop's own limit).
+MAX_CONTROL_HZ = 500.0
+
+
+def _number(meta: dict[str, Any], key: str, where: Path, default: float | None, lo: float, hi: float) -> float:
+    """``meta[key]`` (or ``default`` when absent; None: required) as a finite number in [lo, hi]."""
+    if key not in meta and default is not None:
+        return float(default)
+    value = meta.get(key)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and lo <= value <= hi):
+        got = "missing" if key not in meta else repr(value)
+        raise PolicyError(f"{where}: {key} must be a number in {lo:g}…{hi:g}, got {got}; re-export the policy")
+    return float(value)
+
+
+def _vector(meta: dict[str, Any], key: str, where: Path, size: int) -> np.ndarray | None:
+    """``meta[key]``: None, or a list of ``size`` finite numbers."""
+    value = meta[key]
+    if value is None:
+        return None
+    if (not isinstance(value, list) or len(value) != size
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
+        n = len(value) if isinstance(value, list) else type(value).__name__
+        raise PolicyError(f"{where}: {key} must be {size} finite numbers (the observation or action size), got {n}; "
+                          "re-export the policy")  # fmt: skip
+    return np.asarray(value, np.float64)
+
+
 class BundlePolicy:
-    """A policy from a bundle folder, for deployment: onnxruntime + numpy only."""
+    """A policy from a bundle folder, for deployment: onnxruntime + numpy only. Every field of ``bundle.json`` is
+    checked as it loads (sizes, ranges, finite numbers), so a damaged bundle is refused before anything runs."""
 
     def __init__(self, bundle_dir: str | Path) -> None:
         folder = Path(bundle_dir)
@@ -172,8 +209,8 @@ class BundlePolicy:
         if not meta_path.is_file():
             raise PolicyError(f"{folder} is not a policy bundle (no bundle.json); write one with stewart-gym export")
         try:
-            meta = json.loads(meta_path.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            meta = json.loads(read_text(meta_path, "bundle description", error=PolicyError))
+        except json.JSONDecodeError as exc:
             raise PolicyError(f"{meta_path}: not valid JSON ({exc})") from None
         self._setup(meta, folder, meta_path)
 
@@ -191,15 +228,22 @@ class BundlePolicy:
                               "'handover')")  # fmt: skip
         self.meta = meta
         self.kind = meta["kind"]
-        self.env_id = str(meta.get("env_id", "StewartBallBalance-v0"))
+        self.env_id = meta.get("env_id", "StewartBallBalance-v0")
+        if not isinstance(self.env_id, str):
+            raise PolicyError(f"{meta_path}: env_id must be an env id, got {self.env_id!r}; re-export the policy")
         self.action_mode = meta.get("action_mode", "tilt")
         if self.action_mode not in ACTION_SIZES:
             raise PolicyError(f"{meta_path}: action_mode must be one of {sorted(ACTION_SIZES)}, got {self.action_mode!r}")
         self.action_size = ACTION_SIZES[self.action_mode]
-        self.control_hz = int(meta.get("control_hz", 50))
-        self.max_tilt = float(meta.get("max_tilt", meta.get("gains", {}).get("max_tilt", DEFAULT_MAX_TILT)))
+        hz = _number(meta, "control_hz", meta_path, 50, 1.0, MAX_CONTROL_HZ)
+        if hz != int(hz):
+            raise PolicyError(f"{meta_path}: control_hz must be a whole number of Hz, got {hz!r}")
+        self.control_hz = int(hz)
+        gains = meta.get("gains", {})
+        tilt_default = gains.get("max_tilt", DEFAULT_MAX_TILT) if isinstance(gains, dict) else DEFAULT_MAX_TILT
+        self.max_tilt = _number(meta, "max_tilt", meta_path, tilt_default, 1e-3, 1.0)
         #: the observation layout version it was made for (bundles older than the field: version 1)
-        self.observation_layout = int(meta.get("observation_layout", 1))
+        self.observation_layout = int(_number(meta, "observation_layout", meta_path, 1, 1, 1000))
         self.geometry = self._geometry(meta, meta_path)
         #: the observer it runs behind (bundles older than the field: the low-pass one)
         self.estimator = str(meta.get("estimator", "lowpass"))
@@ -209,6 +253,7 @@ class BundlePolicy:
         self.integral = meta.get("integral", False)
         if not isinstance(self.integral, bool):
             raise PolicyError(f"{meta_path}: integral must be true or false, got {self.integral!r}")
+        expected_obs = 10 + self.action_size + (2 if self.integral else 0)  # ObservationBuilder's layout
         if self.kind in CLASSICAL_KINDS:
             if self.action_mode != "tilt":
                 raise PolicyError(f"{meta_path}: the {self.kind.upper()} commands tilt, not {self.action_mode!r}")
@@ -223,10 +268,24 @@ class BundlePolicy:
                    if k not in meta]  # fmt: skip
         if missing:
             raise PolicyError(f"{meta_path}: missing field(s) {missing}; re-export the policy")
-        if len(meta["action_low"]) != self.action_size or len(meta["action_high"]) != self.action_size:
-            raise PolicyError(f"{meta_path}: {len(meta['action_low'])} action bounds, but action_mode "
-                              f"{self.action_mode!r} has {self.action_size}; re-export the policy")  # fmt: skip
-        self.obs_size = int(meta["obs_size"])
+        self.obs_size = int(_number(meta, "obs_size", meta_path, None, 1, 10_000))
+        if self.obs_size != expected_obs:
+            raise PolicyError(f"{meta_path}: obs_size {meta['obs_size']!r}, but action_mode {self.action_mode!r}"
+                              f"{' with the error integral' if self.integral else ''} observes {expected_obs} values; "
+                              "re-export the policy")  # fmt: skip
+        low = _vector(meta, "action_low", meta_path, self.action_size)
+        high = _vector(meta, "action_high", meta_path, self.action_size)
+        if low is None or high is None or not np.all(low < high):
+            raise PolicyError(f"{meta_path}: action_low must be below action_high in every entry; re-export the policy")
+        mean = _vector(meta, "obs_mean", meta_path, self.obs_size)
+        var = _vector(meta, "obs_var", meta_path, self.obs_size)
+        if (mean is None) != (var is None) or (var is not None and np.any(var < 0)):
+            raise PolicyError(f"{meta_path}: obs_mean and obs_var go together, and a variance is ≥ 0; re-export the "
+                              "policy")  # fmt: skip
+        clip = _number(meta, "clip_obs", meta_path, None, 1e-6, 1e6)
+        epsilon = _number(meta, "epsilon", meta_path, None, 0.0, 1.0)
+        if "ensemble" in meta:
+            _number(meta, "ensemble", meta_path, None, 1, 1000)
         assert folder is not None
         onnx_path = folder / "policy.onnx"
         if not onnx_path.is_file():
@@ -244,12 +303,15 @@ class BundlePolicy:
         if isinstance(outputs[-1], int) and outputs[-1] != self.action_size:
             raise PolicyError(f"{onnx_path}: the network has {outputs[-1]} outputs but the bundle says action_mode "
                               f"{self.action_mode!r} ({self.action_size}); re-export the policy")  # fmt: skip
-        self._mean = None if meta["obs_mean"] is None else np.asarray(meta["obs_mean"], np.float64)
-        var = meta["obs_var"]
-        self._std = None if var is None else np.sqrt(np.asarray(var, np.float64) + meta["epsilon"])
-        self._clip = float(meta["clip_obs"])
-        self._low = np.asarray(meta["action_low"], np.float32)
-        self._high = np.asarray(meta["action_high"], np.float32)
+        inputs = self._session.get_inputs()[0].shape
+        if isinstance(inputs[-1], int) and inputs[-1] != self.obs_size:
+            raise PolicyError(f"{onnx_path}: the network reads {inputs[-1]} values but the bundle says obs_size "
+                              f"{self.obs_size}; re-export the policy")  # fmt: skip
+        self._mean = mean
+        self._std = None if var is None else np.sqrt(var + epsilon)
+        self._clip = clip
+        self._low = low.astype(np.float32)
+        self._high = high.astype(np.float32)
         #: a residual policy's classical base and how the correction is added (None: the network acts alone)
         self._base: BundlePolicy | None = None
         self._mix: ResidualMix | None = None

@@ -4,8 +4,8 @@
 * :class:`SSC32`: Lynxmotion SSC-32/SSC-32U ASCII group moves.
 * :class:`LineProtocol`: a plain text protocol for an Arduino with a PCA9685
   board (the sketch is ``arduino/stewart_pca9685/stewart_pca9685.ino`` in the repository): the host sends
-  ``W w0,w1,w2,w3,w4,w5\\n`` (µs); the board answers ``ready`` after its reset
-  and reports the ball as ``B x,y\\n`` (mm, plate frame).
+  ``W w0,w1,w2,w3,w4,w5\\n`` (µs) and asks ``?\\n``; the board answers ``ready`` after its reset,
+  ``P w0,…,w5\\n`` (the pulses it holds) to ``?``, and reports the ball as ``B x,y\\n`` (mm, plate frame).
 """
 
 from __future__ import annotations
@@ -120,6 +120,8 @@ class LineProtocol:
     """Text lines to and from the PCA9685 Arduino sketch."""
 
     READY = "ready"
+    #: Asks the board which pulses it holds; it answers ``P w0,…,w5``.
+    QUERY = b"?\n"
 
     @staticmethod
     def frame(us: Sequence[float]) -> bytes:
@@ -137,3 +139,15 @@ class LineProtocol:
         except ValueError:
             return None
         return (x, y)
+
+    @staticmethod
+    def parse_held(line: str) -> tuple[float, ...] | None:
+        """``P w0,…,w5`` (the answer to :attr:`QUERY`) → the six pulse widths, µs; ``None`` for any other line."""
+        line = line.strip()
+        if not line.startswith("P "):
+            return None
+        try:
+            values = tuple(float(v) for v in line[2:].split(","))
+        except ValueError:
+            return None
+        return values if len(values) == 6 else None

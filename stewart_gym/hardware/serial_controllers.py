@@ -1,12 +1,20 @@
-"""Serial servo controllers (pyserial): send six pulse widths per tick, read the touch panel.
+"""Serial servo controllers (pyserial): send six pulse widths per tick, ask the board what it holds, read the panel.
 
 Each controller maps servo i to ``calibration.channels[i]`` and writes one frame
 per :meth:`ServoController.send`. Writing to an unplugged port raises
 :class:`DeviceError` with a clear message; the control loop stops on it.
+
+Every protocol can ask the board which pulses it holds (Maestro Get Position, SSC-32 ``QP``, the line sketch's
+``?``). ``deploy`` uses that twice: while it runs, a question rides along with a frame every
+:data:`ASK_EVERY_S` (:meth:`ServoController.monitor`); a question unanswered within the answer timeout is missed,
+and :data:`MAX_MISSED_ANSWERS` missed in a row mean the board has stopped reading, reads more slowly than the
+frames arrive, or the line loses bytes: a :class:`DeviceError`. At the end, :meth:`ServoController.confirm`
+asks whether the board holds the home pulses.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -23,13 +31,25 @@ except ImportError:  # Windows
     _TermiosError = OSError
 #: What a port that went away can raise from write, flush, in_waiting or read.
 PORT_ERRORS: tuple[type[Exception], ...] = (serial.SerialException, OSError, _TermiosError)
+#: s between the questions a monitored controller asks the board (:meth:`ServoController.monitor`).
+ASK_EVERY_S = 0.25
+#: s: how long a monitored board may leave a question unanswered before the question counts as missed.
+ANSWER_TIMEOUT_S = 0.5
+#: Missed questions in a row that make a monitored board a device failure (one alone can be a byte lost on the line).
+MAX_MISSED_ANSWERS = 3
 
-__all__ = ["PROTOCOLS", "DeviceError", "LineController", "MaestroController", "ServoController", "SSC32Controller",
-           "open_controller"]  # fmt: skip
+__all__ = ["ANSWER_TIMEOUT_S", "ASK_EVERY_S", "PROTOCOLS", "DeviceError", "LineController", "MaestroController",
+           "MAX_MISSED_ANSWERS", "ServoController", "SSC32Controller", "open_controller", "write_timeout_s"]  # fmt: skip
 
 
 class DeviceError(DeviceFailure):
-    """The serial device failed (unplugged, not answering, protocol error)."""
+    """The serial device failed (unplugged, not answering, not reading, protocol error)."""
+
+
+def write_timeout_s(baudrate: int) -> float:
+    """The longest one write may block, s: 50 ms plus the time the line takes to carry 256 bytes (about ten
+    frames) at ``baudrate`` (10 bits a byte). A write that blocks longer means the board is not taking bytes."""
+    return 0.05 + 256 * 10 / float(baudrate)
 
 
 class ServoController(ABC):
@@ -37,9 +57,9 @@ class ServoController(ABC):
 
     Args:
         port: a device path (opened here) or an open port: a :class:`serial.Serial`
-            or anything with its ``write``, ``flush``, ``read``, ``close`` and ``port``.
+            or anything with its ``write``, ``flush``, ``read``, ``in_waiting``, ``close`` and ``port``.
         channels: controller channel of servo 0…5.
-        baudrate: line speed.
+        baudrate: line speed; the write timeout follows it (:func:`write_timeout_s`).
     """
 
     default_baudrate = 115200
@@ -49,31 +69,157 @@ class ServoController(ABC):
         self.channels = [int(c) for c in channels]
         if len(self.channels) != 6:
             raise ValueError(f"need 6 channels, got {self.channels}")
+        self.baudrate = int(baudrate or self.default_baudrate)
         if not isinstance(port, str):
             self.serial = port
         else:
             try:
-                self.serial = serial.Serial(port, baudrate or self.default_baudrate, timeout=timeout,
-                                            write_timeout=0.5)  # fmt: skip
+                self.serial = serial.Serial(port, self.baudrate, timeout=timeout,
+                                            write_timeout=write_timeout_s(self.baudrate))  # fmt: skip
             except serial.SerialException as exc:
                 raise DeviceError(f"cannot open {port}: {exc}") from None
         self.frames_sent = 0
+        #: whether :meth:`send` asks the board along the way (:meth:`monitor`)
+        self.monitoring = False
+        self.answer_timeout_s = ANSWER_TIMEOUT_S
+        #: answers received, questions missed, and the longest wait for an answer (s), while monitored
+        self.answers = self.missed = 0
+        self.longest_wait_s = 0.0
+        self._missed_in_row = 0
+        self._asked_at: float | None = None  # when the question in flight was asked
+        self._last_asked = -math.inf
+        self._replies = b""  # bytes received and not yet parsed
 
+    # ------------------------------------------------------------ protocol
     @abstractmethod
     def frame(self, pulses_us: np.ndarray) -> bytes:
         """The bytes that command all six servos."""
 
+    @abstractmethod
+    def position_query(self) -> bytes:
+        """The bytes that ask the board which pulses the six servos hold."""
+
+    @abstractmethod
+    def _parse_replies(self) -> list[np.ndarray]:
+        """Complete answers to :meth:`position_query` in ``self._replies`` (six pulses, µs, each); consumes them."""
+
+    #: how close a reported pulse must be to the commanded one, µs (the protocol's resolution)
+    resolution_us = 0.5
+
+    # ----------------------------------------------------------------- I/O
     def send(self, pulses_us: np.ndarray) -> bytes:
-        """Write one frame; return the bytes written. Raises :class:`DeviceError` if the port fails."""
-        data = self.frame(np.asarray(pulses_us, dtype=np.float64).reshape(6))
-        self._write(data)
+        """Write one frame (and, when monitored, the question due); return the frame's bytes.
+
+        Raises :class:`DeviceError` if the port fails or a monitored board has left a question unanswered for
+        longer than :attr:`answer_timeout_s`; ``ValueError`` for a pulse that is not a finite number.
+        """
+        pulses = np.asarray(pulses_us, dtype=np.float64).reshape(6)
+        if not np.all(np.isfinite(pulses)):
+            raise ValueError(f"refusing to send non-finite pulses {pulses.tolist()}")
+        data = self.frame(pulses)
+        out = data
+        if self.monitoring:
+            now = time.monotonic()
+            self._collect(now)
+            if self._asked_at is not None and now - self._asked_at > self.answer_timeout_s:
+                self.missed += 1
+                self._missed_in_row += 1
+                if self._missed_in_row >= MAX_MISSED_ANSWERS:
+                    raise DeviceError(f"the board on {self.serial.port} left {self._missed_in_row} questions in a row "
+                                      f"unanswered for {self.answer_timeout_s:g} s each: it stopped reading, reads "
+                                      "more slowly than the frames arrive, or the line loses bytes")  # fmt: skip
+                self._resync()
+                self._asked_at = None
+            if self._asked_at is None and now - self._last_asked >= ASK_EVERY_S:
+                out = data + self.position_query()
+                self._asked_at = self._last_asked = now
+        self._write(out)
         self.frames_sent += 1
         return data
+
+    def monitor(self, timeout_s: float = ANSWER_TIMEOUT_S) -> None:
+        """From now on, ask the board along with the frames and fail when it stops answering (see :meth:`send`)."""
+        self.answer_timeout_s = float(timeout_s)
+        self.monitoring = True
+
+    def probe(self, timeout_s: float = 1.0, attempts: int = 3) -> bool:
+        """Whether the board answers a position query within ``timeout_s`` (``attempts`` tries): its replies are
+        wired and it reads."""
+        return any(self.held_pulses(timeout_s) is not None for _ in range(attempts))
+
+    def held_pulses(self, timeout_s: float = 0.5) -> np.ndarray | None:
+        """The six pulses (µs) the board says it holds now, or None if it did not answer within ``timeout_s``.
+        A question already in flight is answered first (or given up, and the bytes received so far dropped)."""
+        deadline = time.monotonic() + timeout_s
+        while self._asked_at is not None and time.monotonic() < deadline:
+            self._collect(time.monotonic())
+            time.sleep(0.002)
+        if self._asked_at is not None:
+            self._resync()
+            self._asked_at = None
+        self._write(self.position_query())
+        self._asked_at = self._last_asked = time.monotonic()
+        deadline = self._asked_at + timeout_s
+        while time.monotonic() < deadline:
+            got = self._collect(time.monotonic())
+            if got:
+                return got[-1]
+            time.sleep(0.002)
+        return None
+
+    def confirm(self, pulses_us: np.ndarray, timeout_s: float = 0.5, attempts: int = 3) -> tuple[bool, np.ndarray | None]:
+        """Whether the board holds ``pulses_us`` (within :attr:`resolution_us` + 0.5 µs), asked up to ``attempts``
+        times (an answer garbled on the line is asked again); and the last answer (None: it never answered)."""
+        want = np.asarray(pulses_us, dtype=np.float64).reshape(6)
+        held = None
+        for _ in range(attempts):
+            got = self.held_pulses(timeout_s)
+            held = got if got is not None else held
+            if got is not None and np.all(np.abs(got - want) <= self.resolution_us + 0.5):
+                return True, got
+            self._resync()
+        return False, held
+
+    def _resync(self) -> None:
+        """After a missed answer: forget bytes that may be half an answer (binary protocols; lines resync by
+        themselves)."""
+        self._read_waiting()
+        self._replies = b""
+
+    def drain(self) -> None:
+        """Wait until every byte written has left the computer (``tcdrain``)."""
+        try:
+            self.serial.flush()
+        except PORT_ERRORS as exc:
+            raise DeviceError(f"serial write to {self.serial.port} failed (device unplugged?): {exc}") from None
+
+    def _collect(self, now: float) -> list[np.ndarray]:
+        """Read what has arrived; the answers among it (each settles the question in flight)."""
+        self._read_waiting()
+        got = self._parse_replies()
+        if got and self._asked_at is not None:
+            self.longest_wait_s = max(self.longest_wait_s, now - self._asked_at)
+            self.answers += 1
+            self._missed_in_row = 0
+            self._asked_at = None
+        return got
+
+    def _read_waiting(self) -> None:
+        try:
+            waiting = self.serial.in_waiting
+            if waiting:
+                self._replies += self.serial.read(waiting)
+        except PORT_ERRORS as exc:
+            raise DeviceError(f"serial read from {self.serial.port} failed (device unplugged?): {exc}") from None
 
     def _write(self, data: bytes) -> None:
         try:
             self.serial.write(data)
             self.serial.flush()
+        except serial.SerialTimeoutException:
+            limit = write_timeout_s(self.baudrate)
+            raise DeviceError(f"serial write to {self.serial.port} blocked for more than {limit:.2f} s: the board "
+                              "is not taking bytes") from None  # fmt: skip
         except PORT_ERRORS as exc:
             raise DeviceError(f"serial write to {self.serial.port} failed (device unplugged?): {exc}") from None
 
@@ -87,8 +233,10 @@ class MaestroController(ServoController):
 
     ``multiple_targets=True`` sends one Set Multiple Targets frame (Mini Maestro
     12/18/24, channels must be contiguous); otherwise six Set Target commands in
-    one write (every Maestro).
+    one write (every Maestro). Positions are asked with six Get Position commands (two bytes back each).
     """
+
+    resolution_us = 0.25
 
     def __init__(self, *args: object, multiple_targets: bool = False, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
@@ -100,6 +248,16 @@ class MaestroController(ServoController):
         if self.multiple_targets:
             return Maestro.set_multiple_targets(self.channels[0], pulses_us)
         return b"".join(Maestro.set_target(c, w) for c, w in zip(self.channels, pulses_us))
+
+    def position_query(self) -> bytes:
+        return b"".join(Maestro.get_position(c) for c in self.channels)
+
+    def _parse_replies(self) -> list[np.ndarray]:
+        got = []
+        while len(self._replies) >= 12:
+            reply, self._replies = self._replies[:12], self._replies[12:]
+            got.append(np.array([Maestro.decode_position(reply[k:k + 2]) for k in range(0, 12, 2)]))
+        return got
 
     def errors(self) -> list[str]:
         """Get Errors (clears them on the device); the names of the bits set."""
@@ -117,7 +275,10 @@ class MaestroController(ServoController):
 
 
 class SSC32Controller(ServoController):
-    """Lynxmotion SSC-32/SSC-32U: one ASCII group move per tick, timed to arrive within ``move_ms``."""
+    """Lynxmotion SSC-32/SSC-32U: one ASCII group move per tick, timed to arrive within ``move_ms``. Positions are
+    asked with six ``QP`` queries (one byte back each: µs / 10)."""
+
+    resolution_us = 10.0
 
     def __init__(self, *args: object, move_ms: int = 20, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
@@ -126,24 +287,37 @@ class SSC32Controller(ServoController):
     def frame(self, pulses_us: np.ndarray) -> bytes:
         return SSC32.group_move(self.channels, pulses_us, self.move_ms)
 
+    def position_query(self) -> bytes:
+        return b"".join(SSC32.query_pulse(c) for c in self.channels)
+
+    def _parse_replies(self) -> list[np.ndarray]:
+        got = []
+        while len(self._replies) >= 6:
+            reply, self._replies = self._replies[:6], self._replies[6:]
+            got.append(np.array([10.0 * b for b in reply]))
+        return got
+
 
 class LineController(ServoController):
-    """Arduino + PCA9685 sketch: ``W …`` frames out, ``B x,y`` ball readings in.
+    """Arduino + PCA9685 sketch: ``W …`` frames and ``?`` out, ``B x,y`` ball readings and ``P …`` answers in.
 
     Opening the port resets an Arduino Uno (DTR); the constructor waits up to
     ``ready_timeout`` s for its ``ready`` line before anything is sent.
     """
 
+    resolution_us = 1.0
+
     def __init__(self, *args: object, ready_timeout: float = 3.0, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
-        self._buffer = b""
         self.last_ball_mm: tuple[float, float] | None = None
         self.last_ball_time: float | None = None
+        self._held: list[np.ndarray] = []
+        self._ready = False
         deadline = time.monotonic() + ready_timeout
         while time.monotonic() < deadline:
-            for line in self._lines():
-                if line.strip() == LineProtocol.READY:
-                    return
+            self._pump()
+            if self._ready:
+                return
             time.sleep(0.01)
         self.close()
         raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s "
@@ -152,22 +326,39 @@ class LineController(ServoController):
     def frame(self, pulses_us: np.ndarray) -> bytes:
         return LineProtocol.frame(pulses_us)
 
-    def _lines(self) -> list[str]:
-        try:
-            waiting = self.serial.in_waiting
-            if waiting:
-                self._buffer += self.serial.read(waiting)
-        except PORT_ERRORS as exc:
-            raise DeviceError(f"serial read from {self.serial.port} failed (device unplugged?): {exc}") from None
-        *lines, self._buffer = self._buffer.split(b"\n")
-        return [ln.decode("ascii", "replace") for ln in lines]
+    def position_query(self) -> bytes:
+        return LineProtocol.QUERY
 
-    def poll_ball(self) -> tuple[tuple[float, float], float] | None:
-        """The newest ``B x,y`` reading ((x, y) mm, arrival time s, monotonic) received so far, if any."""
-        for line in self._lines():
+    def _resync(self) -> None:
+        self._pump()  # the lines (ball readings among them) are kept; a broken one is dropped as noise
+
+    def _pump(self) -> None:
+        """Read the lines that have arrived: the ball readings, the answers and ``ready``."""
+        self._read_waiting()
+        *lines, self._replies = self._replies.split(b"\n")
+        if len(self._replies) > 4096:  # no line end for far too long: noise, not a line
+            self._replies = b""
+        for raw in lines:
+            line = raw.decode("ascii", "replace")
             xy = LineProtocol.parse_ball(line)
             if xy is not None:
                 self.last_ball_mm, self.last_ball_time = xy, time.monotonic()
+                continue
+            held = LineProtocol.parse_held(line)
+            if held is not None:
+                self._held.append(np.array(held))
+            elif line.strip() == LineProtocol.READY:
+                self._ready = True
+
+    def _parse_replies(self) -> list[np.ndarray]:
+        self._pump()
+        got, self._held = self._held, []
+        return got
+
+    def poll_ball(self) -> tuple[tuple[float, float], float] | None:
+        """The newest ``B x,y`` reading ((x, y) mm, arrival time s, monotonic) received so far, if any. The values
+        are as received: the deploy loop decides whether they can be a ball on the plate."""
+        self._pump()
         if self.last_ball_mm is None or self.last_ball_time is None:
             return None
         return self.last_ball_mm, self.last_ball_time

@@ -35,6 +35,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.protocols import LineProtocol
+from stewart_gym.sensing import reading_is_valid
 
 __all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary"]
 
@@ -52,6 +53,10 @@ class Faults:
         stall_sensor_after_s: s after the first frame when ``B`` reports stop (line protocol); None: never.
         latency_ms: ms added before a received frame acts and before a report leaves.
         unplug_after_s: s after the first frame when the board disappears (the pty closes); None: never.
+        stop_reading_after_s: s after the first frame when the board stops reading its input (a hung board: the
+            bytes pile up unread); None: never.
+        read_bytes_per_s: the most bytes a second the board reads (a board too slow for the frames); None: no
+            limit.
     """
 
     drop_rate: float = 0.0
@@ -59,6 +64,8 @@ class Faults:
     stall_sensor_after_s: float | None = None
     latency_ms: float = 0.0
     unplug_after_s: float | None = None
+    stop_reading_after_s: float | None = None
+    read_bytes_per_s: float | None = None
 
     def __post_init__(self) -> None:
         for key in ("drop_rate", "corrupt_rate"):
@@ -67,10 +74,13 @@ class Faults:
                 raise ConfigError(f"{key.replace('_', '-')} must be a fraction in [0, 1], got {v!r}")
         if not (math.isfinite(self.latency_ms) and 0.0 <= self.latency_ms <= 1000.0):
             raise ConfigError(f"latency-ms must be in [0, 1000], got {self.latency_ms!r}")
-        for key in ("stall_sensor_after_s", "unplug_after_s"):
+        for key in ("stall_sensor_after_s", "unplug_after_s", "stop_reading_after_s"):
             v = getattr(self, key)
             if v is not None and not (math.isfinite(v) and v >= 0.0):
                 raise ConfigError(f"{key.removesuffix('_s').replace('_', '-')} must be ≥ 0 s, got {v!r}")
+        v = self.read_bytes_per_s
+        if v is not None and not (math.isfinite(v) and v > 0.0):
+            raise ConfigError(f"read-rate must be a positive number of bytes a second, got {v!r}")
 
 
 # ----------------------------------------------------------------- parsers
@@ -83,11 +93,16 @@ class Parsed:
     messages: int = 0
     malformed: int = 0
 
+    def latest(self, channel: int) -> float | None:
+        """The last target for ``channel`` among those parsed so far (a query answers after them), or None."""
+        return next((us for c, us in reversed(self.targets) if c == channel), None)
+
 
 class MaestroParser:
     """Pololu Maestro compact and Pololu protocols: command bytes ≥ 0x80, 7-bit data bytes.
 
-    ``position(channel)`` gives the current target (µs) for Get Position. A data
+    ``position(channel, pending)`` gives what Get Position answers (µs): the target ``pending`` received in the
+    same bytes before the query, if any, else the board's current one. A data
     byte outside a command, an unknown command, or a command cut short by the
     next command byte is malformed and sets the protocol-error bit, as the
     board does.
@@ -149,7 +164,7 @@ class MaestroParser:
             n, first = data[0], data[1]
             out.targets += [(first + k, (data[2 + 2 * k] | data[3 + 2 * k] << 7) / 4.0) for k in range(n)]
         elif cmd == 0x90:
-            q = int(round(self._position(data[0]) * 4))
+            q = int(round(self._position(data[0], out.latest(data[0])) * 4))
             out.replies.append(bytes([q & 0xFF, q >> 8 & 0xFF]))
         elif cmd == 0xA1:
             out.replies.append(bytes([self.errors & 0xFF, self.errors >> 8 & 0xFF]))
@@ -187,16 +202,19 @@ class SSC32Parser:
                 out.replies.append(b".")
             elif re.fullmatch(r"QP\d{1,2}", line):
                 out.messages += 1
-                out.replies.append(bytes([min(255, int(round(self._position(int(line[2:])) / 10)))]))
+                ch = int(line[2:])
+                out.replies.append(bytes([min(255, int(round(self._position(ch, out.latest(ch)) / 10)))]))
             else:
                 out.malformed += 1
 
 
 class LineParser:
-    """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs, channels in order)."""
+    """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs, channels in order), and ``?`` → ``P w0,…,w5``
+    (the pulses held, ``position(channel)``)."""
 
-    def __init__(self, channels: Sequence[int]) -> None:
+    def __init__(self, channels: Sequence[int], position: Callable[[int], float] | None = None) -> None:
         self._channels = list(channels)
+        self._position = position
         self._buffer = b""
 
     def feed(self, data: bytes, out: Parsed) -> None:
@@ -207,6 +225,11 @@ class LineParser:
         for raw in lines:
             line = raw.decode("ascii", "replace").strip()
             if not line:
+                continue
+            if line == "?" and self._position is not None:
+                out.messages += 1
+                held = ",".join(str(int(round(self._position(c, out.latest(c))))) for c in self._channels)
+                out.replies.append(f"P {held}\n".encode())
                 continue
             m = re.fullmatch(r"W (\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4})", line)
             if m is None:
@@ -344,6 +367,9 @@ class VirtualDevice:
             raise ConfigError("--camera-stream renders the twin's camera with PyBullet: use --backend pybullet")
         if link and Path(link).exists() and not Path(link).is_symlink():
             raise ConfigError(f"{link} exists and is not a link: give another --link path")
+        if link and not Path(link).parent.is_dir():
+            raise ConfigError(f"--link {link}: the folder {Path(link).parent} does not exist; create it or link "
+                              "elsewhere")  # fmt: skip
         if camera_stream and Path(camera_stream).exists() and not stat.S_ISFIFO(Path(camera_stream).stat().st_mode):
             raise ConfigError(f"--camera-stream {camera_stream} exists and is not a pipe: give another path")
         self.protocol = protocol
@@ -354,13 +380,14 @@ class VirtualDevice:
         self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize, geometry=geo, backend=backend)
         self._rng = np.random.default_rng(seed + 7919)
         self.held = self.calibration.neutral_us.copy()
+        self.commanded = self.held.copy()  # the last targets received (acting after any injected latency)
         self.summary = VirtualSummary(protocol)
         if protocol == "maestro":
             self.parser: Any = MaestroParser(self._position, self._go_home)
         elif protocol == "ssc32":
             self.parser = SSC32Parser(self._position)
         else:
-            self.parser = LineParser(self.calibration.channels)
+            self.parser = LineParser(self.calibration.channels, self._position)
         self._master, slave = pty.openpty()
         tty.setraw(slave)
         self.path = os.ttyname(slave)
@@ -380,14 +407,22 @@ class VirtualDevice:
         self._incoming: deque[tuple[float, list[tuple[int, float]]]] = deque()
         self._outgoing: deque[tuple[float, bytes]] = deque()
         self._started: float | None = None
+        self._read_budget = 0.0
 
     # ----------------------------------------------------------- board
-    def _position(self, channel: int) -> float:
+    def _position(self, channel: int, pending: float | None = None) -> float:
+        """What the board answers for ``channel``: the last target it received (``pending``: one received in the
+        same read, not yet stored), clamped to the channel's limits as the board clamps it; 0 for no servo."""
         i = self._channel_index.get(channel)
-        return 0.0 if i is None else float(self.held[i])
+        if i is None:
+            return 0.0
+        if pending is None:
+            return float(self.commanded[i])
+        return min(max(pending, float(self.calibration.min_us[i])), float(self.calibration.max_us[i]))
 
     def _go_home(self) -> None:
         self.held = self.calibration.neutral_us.copy()
+        self.commanded = self.held.copy()
 
     def _apply_targets(self, targets: list[tuple[int, float]]) -> None:
         cal = self.calibration
@@ -403,11 +438,22 @@ class VirtualDevice:
             self._started = time.monotonic()
 
     def _receive(self, now: float) -> None:
+        f = self.faults
+        since = None if self._started is None else now - self._started
+        if f.stop_reading_after_s is not None and since is not None and since >= f.stop_reading_after_s:
+            return  # a hung board: what the host writes piles up unread
+        size = 4096
+        if f.read_bytes_per_s is not None:  # a slow board: a budget of bytes that grows with time
+            self._read_budget = min(self._read_budget + f.read_bytes_per_s / TICK_HZ, max(1.0, f.read_bytes_per_s))
+            size = int(self._read_budget)
+            if size < 1:
+                return
         try:
-            data = os.read(self._master, 4096)
+            data = os.read(self._master, size)
         except (BlockingIOError, OSError):  # nothing waiting, or no host has the port open
             return
-        f = self.faults
+        if f.read_bytes_per_s is not None:
+            self._read_budget -= len(data)
         if f.drop_rate or f.corrupt_rate:
             out = bytearray()
             for b in data:
@@ -428,6 +474,10 @@ class VirtualDevice:
             self._send(reply, now)
         if parsed.targets:
             self._incoming.append((now + f.latency_ms / 1e3, parsed.targets))
+            for channel, us in parsed.targets:
+                i = self._channel_index.get(channel)
+                if i is not None:
+                    self.commanded[i] = self._position(channel, us)
 
     def _send(self, data: bytes, now: float) -> None:
         self._outgoing.append((now + self.faults.latency_ms / 1e3, data))
@@ -485,6 +535,8 @@ class VirtualDevice:
 
     def _report(self, now: float, sim_t: float) -> None:
         got = self.plant.sensor.read(sim_t)
+        if got is not None and not reading_is_valid(got, self.plant.env.plate_half_extent):
+            got = None  # the sketch reports what the panel can touch: nothing off the plate
         line = "B -\n" if got is None else f"B {got[0][0] * 1e3:.1f},{got[0][1] * 1e3:.1f}\n"
         self._send(line.encode(), now)
         self.summary.reports += 1
