@@ -8,44 +8,71 @@ Quick start::
     geo = load_preset("servo-hexapod")
     ik = inverse_kinematics(geo, np.array([0.01, 0, 0, 0, np.radians(5), 0]))
     pulses = ServoCalibration.default(geo).pulse_widths(ik.servo_angles)
+
+``import stewart_gym`` registers the environments with Gymnasium (when it is installed) and loads the names
+below when they are first used, so that the command line starts quickly and handles Ctrl-C from its first
+moments.
 """
 
-import importlib.util
+import sys as _sys
 
-from stewart_gym.calibration import CalibrationError, PulseRangeError, ServoCalibration
-from stewart_gym.envs import ENV_IDS, register_envs
-from stewart_gym.geometry import GeometryError, PlatformGeometry
-from stewart_gym.kinematics import (
-    FKResult,
-    IKResult,
-    LegStatus,
-    actuator_jacobian,
-    forward_kinematics,
-    inverse_kinematics,
-    rotation_matrix,
-)
-from stewart_gym.presets import load_geometry, load_preset, preset_names
+
+def _stopped_while_loading(kind: type, value: BaseException, tb: object, _previous=_sys.excepthook) -> None:
+    """Ctrl-C while this package loads (the command line's first half second) is one line, not a traceback."""
+    if issubclass(kind, KeyboardInterrupt):
+        print("error: stopped by Ctrl-C (SIGINT) while loading", file=_sys.stderr)
+        return
+    _previous(kind, value, tb)
+
+
+_sys.excepthook = _stopped_while_loading  # until the end of this file: only this import's own interrupt
+
+import importlib  # noqa: E402
+import importlib.util  # noqa: E402
+from typing import Any  # noqa: E402
 
 __version__ = "0.1.0"
 
-if importlib.util.find_spec("gymnasium") is not None:  # without the [sim] extra: kinematics, analyses, deploy
-    register_envs()
+#: The public names and the module each comes from (loaded on first use: PEP 562).
+_EXPORTS = {
+    "CalibrationError": "stewart_gym.calibration",
+    "PulseRangeError": "stewart_gym.calibration",
+    "ServoCalibration": "stewart_gym.calibration",
+    "ENV_IDS": "stewart_gym.envs",
+    "register_envs": "stewart_gym.envs",
+    "GeometryError": "stewart_gym.geometry",
+    "PlatformGeometry": "stewart_gym.geometry",
+    "FKResult": "stewart_gym.kinematics",
+    "IKResult": "stewart_gym.kinematics",
+    "LegStatus": "stewart_gym.kinematics",
+    "actuator_jacobian": "stewart_gym.kinematics",
+    "forward_kinematics": "stewart_gym.kinematics",
+    "inverse_kinematics": "stewart_gym.kinematics",
+    "rotation_matrix": "stewart_gym.kinematics",
+    "load_geometry": "stewart_gym.presets",
+    "load_preset": "stewart_gym.presets",
+    "preset_names": "stewart_gym.presets",
+}
 
-__all__ = [
-    "ENV_IDS",
-    "CalibrationError",
-    "FKResult",
-    "GeometryError",
-    "IKResult",
-    "LegStatus",
-    "PlatformGeometry",
-    "PulseRangeError",
-    "ServoCalibration",
-    "actuator_jacobian",
-    "forward_kinematics",
-    "inverse_kinematics",
-    "load_geometry",
-    "load_preset",
-    "preset_names",
-    "rotation_matrix",
-]
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'stewart_gym' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_EXPORTS])
+
+
+if importlib.util.find_spec("gymnasium") is not None:  # without the [sim] extra: kinematics, analyses, deploy
+    from stewart_gym.envs import register_envs as _register
+
+    _register()
+
+_sys.excepthook = _stopped_while_loading.__defaults__[0]  # type: ignore[index]

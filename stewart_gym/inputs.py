@@ -85,6 +85,8 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", error: type[Exce
     def mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
         seen: set[Any] = set()
         for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":  # `<<: *anchor`: its keys may be overridden here
+                continue
             key = loader.construct_object(key_node, deep=deep)
             try:
                 if key in seen:

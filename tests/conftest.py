@@ -89,6 +89,27 @@ def sg(*args: str, cwd: str | os.PathLike | None = None, timeout: float = 600, s
                           timeout=timeout, input=stdin, env={**os.environ, **(env or {})})  # fmt: skip
 
 
+def cli(capfd: pytest.CaptureFixture, *args: str, cwd: str | os.PathLike | None = None) -> tuple[int, str, str]:
+    """Run ``stewart-gym ARGS`` in this process, through the command line's ``main([...])``, as fast as a
+    function call: (exit code, stdout, stderr), captured at the file descriptors (what a terminal would show,
+    the engines' own C output included). ``cwd``: the folder it runs in."""
+    from stewart_gym.cli import main
+
+    capfd.readouterr()
+    before = os.getcwd()
+    if cwd is not None:
+        os.chdir(cwd)
+    try:
+        try:
+            code = main(list(args))
+        except SystemExit as exc:  # argparse: --help, or a usage error
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    finally:
+        os.chdir(before)
+    out, err = capfd.readouterr()
+    return int(code), out, err
+
+
 class FakeDevice:
     """A pseudo-terminal: the code under test opens ``path`` with pyserial; the test reads/writes ``master``."""
 
@@ -106,12 +127,15 @@ class FakeDevice:
         start = quiet_since = time.monotonic()
         while time.monotonic() - start < timeout:
             chunk = b""
+            master = self.master
+            if master < 0:  # closed
+                return out
             try:
-                if select.select([self.master], [], [], 0.005)[0]:
-                    chunk = os.read(self.master, 4096)
+                if select.select([master], [], [], 0.005)[0]:
+                    chunk = os.read(master, 4096)
             except BlockingIOError:
                 pass
-            except OSError:  # EIO: the other end is closed and nothing is left; EBADF: unplugged
+            except (OSError, ValueError):  # EIO: the other end is closed and nothing is left; EBADF: unplugged
                 return out
             if chunk:
                 out += chunk
@@ -123,16 +147,24 @@ class FakeDevice:
     def write(self, data: bytes) -> None:
         os.write(self.master, data)
 
+    @property
+    def closed(self) -> bool:
+        return self.master < 0
+
     def unplug(self) -> None:
-        os.close(self.master)
-        os.close(self._slave)
+        self.close()
 
     def close(self) -> None:
-        for fd in (self.master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        """Close both ends. The descriptors are forgotten first, so that a reader thread still running (a test
+        that failed before stopping its :class:`Drain` or :class:`Board`) meets -1 and stops, and never reads
+        a descriptor number that the system has since given to something else (another test's pipe)."""
+        fds, self.master, self._slave = (self.master, self._slave), -1, -1
+        for fd in fds:
+            if fd >= 0:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
 
 
 @pytest.fixture
@@ -151,7 +183,7 @@ class Drain:
         self._thread.start()
 
     def _run(self) -> None:
-        while not self._stop.is_set():
+        while not self._stop.is_set() and not self.device.closed:
             self.data.extend(self.device.read_all(0.01))
 
     def stop(self, quiet: float = 0.2, timeout: float = 10.0) -> bytes:
@@ -172,15 +204,17 @@ class Board:
     sends the panel's lines from ``lines(t)`` (t: seconds since the first frame, 0 before it) every 10 ms.
 
     Faults: ``answer=False`` (a board whose replies are not wired), ``stop_reading_after`` (s after the first
-    frame: it reads nothing more; the pty fills), ``read_rate`` (bytes a second it reads at most).
+    frame: it reads nothing more; the pty fills), ``read_rate`` (bytes a second it reads at most),
+    ``answer_offset_us`` (it reports pulses this far from those it received).
     """
 
     def __init__(self, device: FakeDevice, protocol: str = "maestro", lines=None, answer: bool = True,
-                 stop_reading_after: float | None = None, read_rate: float | None = None) -> None:  # fmt: skip
+                 stop_reading_after: float | None = None, read_rate: float | None = None,
+                 answer_offset_us: float = 0.0) -> None:  # fmt: skip
         from stewart_gym.hardware.virtual_device import LineParser, MaestroParser, Parsed, SSC32Parser
 
         self.device, self.protocol, self.lines, self.answer = device, protocol, lines, answer
-        self.stop_reading_after, self.read_rate = stop_reading_after, read_rate
+        self.stop_reading_after, self.read_rate, self.answer_offset_us = stop_reading_after, read_rate, answer_offset_us
         self.held: dict[int, float] = {}
         self._targets: list[float] = []  # targets of the frame being received
         self.frames: list[np.ndarray] = []  # each complete frame's six pulses, µs
@@ -196,11 +230,11 @@ class Board:
         self._thread.start()
 
     def _position(self, channel: int, pending: float | None = None) -> float:
-        return float(pending if pending is not None else self.held.get(channel, 0.0))
+        return float(pending if pending is not None else self.held.get(channel, 0.0)) + self.answer_offset_us
 
     def _run(self) -> None:
         budget, last_ready, start = 0.0, -1.0, time.monotonic()
-        while not self._stop.is_set():
+        while not self._stop.is_set() and not self.device.closed:
             now = time.monotonic()
             since = None if self.first_frame is None else now - self.first_frame
             reading = not (self.stop_reading_after is not None and since is not None and since >= self.stop_reading_after)
@@ -209,11 +243,12 @@ class Board:
                 budget = min(budget + self.read_rate * 0.01, max(1.0, self.read_rate))
                 size = int(budget)
             chunk = b""
-            if reading and size >= 1:
+            master = self.device.master
+            if reading and size >= 1 and master >= 0:
                 try:
-                    if select.select([self.device.master], [], [], 0)[0]:
-                        chunk = os.read(self.device.master, size)
-                except (BlockingIOError, OSError):
+                    if select.select([master], [], [], 0)[0]:
+                        chunk = os.read(master, size)
+                except (BlockingIOError, OSError, ValueError):
                     chunk = b""
                 budget -= len(chunk)
             if chunk:
@@ -233,7 +268,7 @@ class Board:
                     for reply in parsed.replies:
                         self._write(reply)
             if self.protocol == "line":
-                if self.first_frame is None and now - last_ready >= 0.2:
+                if now - last_ready >= 0.2:  # as after each reset (a host opening the port resets an Uno)
                     self._write(b"ready\n")
                     last_ready = now
                 if self.lines is not None and now - start >= 0.0:
@@ -257,6 +292,23 @@ class Board:
         self._stop.set()
         self._thread.join(1.0)
         return bytes(self.data)
+
+
+def maestro_frames(data: bytes) -> np.ndarray:
+    """The pulse widths (µs) of each Set Target ×6 frame in bytes a Maestro received; the Get Position queries
+    between the frames set aside."""
+    commands, k = [], 0
+    while k < len(data):
+        if data[k] == 0x90:  # Get Position: 90 ch
+            k += 2
+            continue
+        commands.append(data[k:k + 4])
+        k += 4
+    frames = b"".join(commands)
+    frames = frames[: len(frames) - len(frames) % 24]
+    raw = np.frombuffer(frames, dtype=np.uint8).reshape(-1, 6, 4)
+    assert np.all(raw[:, :, 0] == 0x84) and np.all(raw[:, :, 1] == np.arange(6))
+    return (raw[:, :, 2].astype(int) + (raw[:, :, 3].astype(int) << 7)) / 4.0
 
 
 class StaticSensor:

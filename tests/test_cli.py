@@ -14,6 +14,7 @@ through train → evaluate → export → deploy.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Board, Drain, FakeDevice, sg
+from conftest import Board, Drain, FakeDevice, cli, maestro_frames, sg
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
@@ -74,6 +75,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
                                                   "env_kwargs: {estimator: kalman, sensor: webcam30}\n")  # fmt: skip
     (d / "bad_ensemble").mkdir()
     (d / "bad_ensemble" / "ensemble.json").write_text('{"members": "members/0"}\n')
+    _inputs_of_issue_57(d)
     bundle = d / "bad_bundle"
     bundle.mkdir()
     (bundle / "bundle.json").write_text(json.dumps({"kind": "onnx", "env_id": "StewartBallBalance-v0",
@@ -81,6 +83,73 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
                                                     "action_high": [1, 1], "obs_mean": None, "obs_var": None,
                                                     "clip_obs": 10.0, "epsilon": 1e-8}))  # fmt: skip
     return d
+
+
+def _inputs_of_issue_57(d: Path) -> None:
+    """Files that are not what they claim, names that would escape, values the libraries would trip on."""
+    import struct
+    import zlib
+
+    from stewart_gym.presets import load_preset
+    from stewart_gym.registry import POLICY_DIR
+
+    os.mkfifo(d / "fifo.toml")  # a named pipe: reading it would block until someone writes
+    (d / "big.json").write_text(" " * (5 * 2**20) + "{}")  # larger than any configuration file
+    hp = "StewartBallBalance-v0:\n  n_envs: 1\n"
+    for name, text in {"lr_negative.yml": hp + "  learning_rate: -0.5\n", "batch_zero.yml": hp + "  batch_size: 0\n",
+                       "net_arch_bad.yml": hp + "  policy_kwargs: {net_arch: [0, -3]}\n",
+                       "duplicate.yml": hp + "  n_steps: 256\n  n_steps: 512\n",
+                       "section_scalar.yml": "StewartBallBalance-v0: 5\n", "top_list.yml": "- 1\n- 2\n",
+                       "gamma_high.yml": hp + "  gamma: 1.5\n", "epochs_frac.yml": hp + "  n_epochs: 2.5\n",
+                       "lr_text.yml": hp + "  learning_rate: fast\n", "policy_kwargs_num.yml": hp + "  policy_kwargs: 5\n",
+                       "log_std_nan.yml": hp + "  policy_kwargs: {log_std_init: .nan}\n"}.items():  # fmt: skip
+        (d / name).write_text(text)
+    sweep = "env: StewartBallBalance-v0\nalgo: ppo\nn_timesteps: 1000\n"
+    (d / "sweep_lr.yaml").write_text(sweep + "search:\n  learning_rate: {grid: [-0.1, 0.001]}\n")
+    (d / "sweep_batch.yaml").write_text(sweep + "batch_size: 0\n")
+    (d / "sweep_dup.yaml").write_text(sweep + "n_timesteps: 2000\n")
+    (d / "sweep_arch.yaml").write_text(sweep + "policy_kwargs: {net_arch: [0]}\n")
+    camera = ('[camera]\n{camera}[markers]\nids = {ids}\ncentres_mm = {centres}\nsize_mm = {size}\n'
+              '[ball]\n{ball}')  # fmt: skip
+    square = "[[-125, 125], [125, 125], [125, -125], [-125, -125]]"
+    cams = {"cam_ok": {}, "cam_min_text": {"camera": 'min_ball_px = "ten"\n'},
+            "cam_min_negative": {"camera": "min_ball_px = -3\n"},
+            "cam_id_range": {"ids": "[0, 1, 2, 99]"}, "cam_id_fraction": {"ids": "[0, 1.5, 2, 3]"},
+            "cam_one_centre": {"centres": "[[0, 0], [0, 0], [0, 0], [0, 0]]"},
+            "cam_collinear": {"centres": "[[-150, 0], [-50, 0], [50, 0], [150, 0]]"},
+            "cam_hsv": {"ball": "hsv_low = [30, 120, 120]\nhsv_high = [25, 255, 255]\n"},
+            "cam_resolution": {"camera": "resolution = [640.5, 480]\n"}, "cam_source": {"camera": 'source = ""\n'},
+            "cam_fps": {"camera": "fps = 0\n"}, "cam_index": {"camera": "source = 1000\n"},
+            "cam_size": {"size": "-5"}, "cam_radius": {"ball": "radius_mm = 1e9\n"}}  # fmt: skip
+    for name, parts in cams.items():
+        (d / f"{name}.toml").write_text(camera.format(**{"camera": "", "ids": "[0, 1, 2, 3]", "centres": square,
+                                                         "size": "36", "ball": "", **parts}))  # fmt: skip
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    (d / "huge.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 50000, 50000, 8, 2, 0, 0, 0))
+                                + chunk(b"IDAT", zlib.compress(b"\0" * 100)) + chunk(b"IEND", b""))  # fmt: skip
+    geo = load_preset("servo-hexapod").to_toml()
+    (d / "huge_plate.toml").write_text(geo.replace("plate_size = ", "plate_size = [1e300, 1e300]\n# was ", 1)
+                                       if "plate_size = " in geo else geo + "plate_size = [1e300, 1e300]\n")  # fmt: skip
+    (d / "name_control.toml").write_text(geo.replace('name = "servo-hexapod"', 'name = "a\\u0001b"'))
+    (d / "name_long.toml").write_text(geo.replace('name = "servo-hexapod"', f'name = "{"x" * 200}"'))
+    cal = 'geometry = "servo-hexapod"\n' + "[[servo]]\n" * 6
+    (d / "cal_baud_negative.toml").write_text(cal + "[hardware]\nbaudrate = -9600\n")
+    (d / "cal_baud_text.toml").write_text(cal + '[hardware]\nbaudrate = "fast"\n')
+    (d / "cal_protocol.toml").write_text(cal + '[hardware]\nprotocol = "i2c"\n')
+    (d / "cal_other_build.toml").write_text('geometry = "memememe-liverpool"\n' + "[[servo]]\n" * 6)
+    (d / "planar_unknown.toml").write_text("L1 = 1\nL2 = 1\nL3 = 1\ngamma = 1\nx1 = 1\nx2 = 1\ny2 = 1\np1 = 1\n"
+                                           "p2 = 1\np3 = 1\nextra = 2\n")  # fmt: skip
+    shipped = json.loads((POLICY_DIR / "balance" / "bundle" / "bundle.json").read_text())
+    for name, change in {"bundle_obs_mean": {"obs_mean": shipped["obs_mean"][:3]}, "bundle_hz_zero": {"control_hz": 0},
+                         "bundle_hz_text": {"control_hz": "fifty"}, "bundle_action_low": {"action_low": [-1.0]},
+                         "bundle_var_negative": {"obs_var": [-1.0] * 12}, "bundle_clip_nan": {"clip_obs": math.nan},
+                         "bundle_obs_size": {"obs_size": 11}}.items():  # fmt: skip
+        folder = d / name
+        shutil.copytree(POLICY_DIR / "balance" / "bundle", folder)
+        (folder / "bundle.json").write_text(json.dumps({**shipped, **change}))
 
 
 # ------------------------------------------------------------------ good
@@ -360,17 +429,157 @@ BAD = [
     ["export", "--policy", "lqr", "--estimator", "x", "--out", "{tmp}/b"],
     ["evaluate", "--policy", "lqr", "--geometry", "{files}/bad.toml"],
 ]
+# Issue 57's classes: files that are not files, names that escape, hyperparameters only the library checked,
+# resume mistakes, camera configs, numbers that pass the parser and break the work, bundles with a bad field.
+POLICY_BALANCE = str(ROOT / "stewart_gym" / "policies" / "balance")
+BAD_57 = [
+    # files that are not files: devices, pipes, folders, oversized files
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/fifo.toml"],
+    ["trajectory", "--csv", "/dev/zero"],
+    ["trajectory", "--csv", "{files}/emptydir"],
+    ["camera-check", "--camera-config", "/dev/zero"],
+    ["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "{files}/emptydir"],
+    ["deploy", "--port", DEV, "--calibration", "/dev/zero"],
+    ["train", "--hyperparams", "/dev/zero", "--run-dir", "{tmp}/r"],
+    ["sweep", "/dev/zero"],
+    ["planar", "--geometry", "/dev/zero"],
+    ["evaluate", "--policy", "{files}/big.json"],
+    ["calibrate", "--port", DEV, "--calibration", "/dev/zero"],
+    ["virtual-device", "--calibration", "/dev/zero"],
+    # names that escape or break the output
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/name_control.toml"],
+    ["urdf", "--geometry", "{files}/name_long.toml", "--out", "{tmp}/u"],
+    ["export", "--out", ""],
+    ["ensemble", POLICY_BALANCE, POLICY_BALANCE + "_camera", "--out", ""],
+    ["urdf", "--out", ""],
+    ["mjcf", "--out", ""],
+    ["demo", "--out", ""],
+    # hyperparameters checked before training or Ray starts
+    ["train", "--hyperparams", "{files}/lr_negative.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/batch_zero.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/net_arch_bad.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/duplicate.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/section_scalar.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/top_list.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/gamma_high.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/epochs_frac.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/lr_text.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/policy_kwargs_num.yml", "--run-dir", "{tmp}/r"],
+    ["train", "--hyperparams", "{files}/log_std_nan.yml", "--run-dir", "{tmp}/r"],
+    ["sweep", "{files}/sweep_lr.yaml"],
+    ["sweep", "{files}/sweep_batch.yaml"],
+    ["sweep", "{files}/sweep_dup.yaml"],
+    ["sweep", "{files}/sweep_arch.yaml"],
+    # resume mistakes
+    ["train", "--algo", "sac", "--resume", POLICY_BALANCE, "--run-dir", "{tmp}/r"],
+    ["train", "--resume", POLICY_BALANCE, "--run-dir", "{files}/run_done"],
+    # camera configs
+    *[["camera-check", "--camera-config", f"{{files}}/{name}.toml", "--image", "{files}/huge.png"]
+      for name in ("cam_min_text", "cam_min_negative", "cam_id_range", "cam_id_fraction", "cam_one_centre",
+                   "cam_collinear", "cam_hsv", "cam_resolution", "cam_source", "cam_fps", "cam_index", "cam_size",
+                   "cam_radius")],  # fmt: skip
+    ["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "{files}/huge.png"],
+    ["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "{files}/notes.txt"],
+    ["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "/dev/zero"],
+    # numbers that pass the parser and break the work
+    ["evaluate", "--episodes", "10_000_000_000"],
+    ["demo", "--episodes", "1000000"],
+    ["compare", "pid", "lqr", "--episodes", "10000000"],
+    ["evaluate", "--seed", "99999999999"],
+    ["train", "--timesteps", "10_000_000_000"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/huge_plate.toml"],
+    ["evaluate", "--policy", "pid", "--geometry", "{files}/huge_plate.toml"],
+    ["workspace", "--orientation", "1e308", "0", "0"],
+    ["deploy", "--port", DEV, "--calibration", "{files}/cal_baud_negative.toml"],
+    ["deploy", "--port", DEV, "--calibration", "{files}/cal_baud_text.toml"],
+    ["deploy", "--port", DEV, "--calibration", "{files}/cal_protocol.toml"],
+    ["deploy", "--port", DEV, "--answer-timeout-ms", "0"],
+    ["ensemble", POLICY_BALANCE, POLICY_BALANCE, "--out", "{tmp}/e"],
+    ["planar", "--geometry", "{files}/planar_unknown.toml"],
+    ["virtual-device", "--link", ""],
+    ["virtual-device", "--link", "{tmp}/missing_dir/board"],
+    # bundles with a field of the wrong size or type: refused as they load, before the port opens
+    *[["deploy", "--port", DEV, "--policy", f"{{files}}/{name}"]
+      for name in ("bundle_obs_mean", "bundle_hz_zero", "bundle_hz_text", "bundle_action_low", "bundle_var_negative",
+                   "bundle_clip_nan", "bundle_obs_size")],  # fmt: skip
+    ["evaluate", "--policy", "{files}/bundle_obs_mean"],
+    ["calibrate", "--port", DEV, "--calibration", "{files}/cal_other_build.toml"],
+]
 DEVICE_FAILURES = {("deploy", DEV), ("calibrate", DEV)}  # a missing port is a device failure: exit 2
+#: A few cases also run as real processes (the table runs in this process, through main([...]), for speed).
+SUBPROCESS_SAMPLE = [["bogus"], ["ik", "nan", "0", "0", "0", "0", "0"], ["train", "--hyperparams", "{files}/bad.yml",
+                     "--run-dir", "{tmp}/r"], ["deploy", "--policy", "nope", "--port", DEV],
+                     ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"]]  # fmt: skip
 
 
-@pytest.mark.parametrize("args", BAD, ids=[" ".join(a) or "(none)" for a in BAD])
-def test_bad_input_is_one_error_line(args: list[str], files: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("args", BAD + BAD_57, ids=[" ".join(a) or "(none)" for a in BAD + BAD_57])
+def test_bad_input_is_one_error_line(args: list[str], files: Path, tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    code, out, err = cli(capfd, *(a.format(files=files, tmp=tmp_path) for a in args), cwd=tmp_path)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert "Traceback" not in err, err
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert code in (1, 2), code
+    assert not list(tmp_path.glob("deploy_log*.csv")), "a refused deploy left a log behind"
+    assert not (tmp_path / "r" / "config.yaml").exists(), "a refused training wrote its run folder"
+
+
+@pytest.mark.parametrize("args", SUBPROCESS_SAMPLE, ids=[" ".join(a) for a in SUBPROCESS_SAMPLE])
+def test_bad_input_in_a_real_process_is_one_error_line(args: list[str], files: Path, tmp_path: Path) -> None:
     proc = sg(*(a.format(files=files, tmp=tmp_path) for a in args), cwd=tmp_path, timeout=120)
     lines = error_lines(proc)
-    assert "Traceback" not in proc.stderr, proc.stderr
-    assert len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
+    assert "Traceback" not in proc.stderr and len(lines) == 1 and lines[0].startswith("error: "), proc.stderr
     assert proc.returncode in (1, 2), proc.returncode
-    assert not list(tmp_path.glob("deploy_log*.csv")), "a refused deploy left a log behind"
+
+
+WRONG_BLAME = [
+    # (arguments, what the one line must name, what it must not)
+    (["evaluate", "--policy", "pid", "--geometry", "{files}/missing.toml"], "missing.toml", "pid_gains.json"),
+    (["train", "--hyperparams", "{files}/section_scalar.yml", "--run-dir", "{tmp}/r"], "must be a mapping", "no section"),
+    (["virtual-device", "--link", "{tmp}/missing_dir/board"], "missing_dir", "/dev/pts"),
+    (["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "{files}/emptydir"], "is a folder",
+     "no such file"),
+    (["calibrate", "--port", DEV, "--calibration", "{files}/cal_other_build.toml"], "--geometry", "the policy"),
+    (["train", "--hyperparams", "{files}/lr_negative.yml", "--run-dir", "{tmp}/r"], "learning_rate", "Traceback"),
+    (["train", "--hyperparams", "{files}/duplicate.yml", "--run-dir", "{tmp}/r"], "'n_steps' is given twice", "xx"),
+    (["train", "--algo", "sac", "--resume", POLICY_BALANCE, "--run-dir", "{tmp}/r"], "is a PPO model", "xx"),
+    (["camera-check", "--camera-config", "{files}/cam_id_range.toml"], "0…49", "xx"),
+    (["deploy", "--port", DEV, "--policy", "{files}/bundle_obs_mean"], "obs_mean must be 12 finite numbers", "xx"),
+    (["deploy", "--port", DEV, "--calibration", "{files}/cal_baud_text.toml"], "hardware.baudrate", "xx"),
+    (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
+    (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("args,named,not_named", WRONG_BLAME, ids=[" ".join(a[:3]) for a, _, _ in WRONG_BLAME])
+def test_an_error_names_what_is_wrong(args: list[str], named: str, not_named: str, files: Path, tmp_path: Path,
+                                     capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    code, _, err = cli(capfd, *(a.format(files=files, tmp=tmp_path) for a in args), cwd=tmp_path)
+    assert code in (1, 2) and named in err and not_named not in err, err
+
+
+def test_a_geometry_name_never_leaves_the_output_folder_or_breaks_the_xml(tmp_path: Path,
+                                                                         capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """A name with ``../`` writes its URDFs inside ``--out`` (the file name is made safe); one with XML's special
+    characters writes URDF and MJCF that parse, with the name as given."""
+    import xml.etree.ElementTree as ET
+
+    from stewart_gym.presets import load_preset
+
+    toml = load_preset("servo-hexapod").to_toml()
+    for name in ("../escaped", '"<&>--x'):
+        geo = tmp_path / "geo.toml"
+        geo.write_text(toml.replace('name = "servo-hexapod"', f"name = {json.dumps(name)}"))
+        out = tmp_path / "out"
+        code, _, err = cli(capfd, "urdf", "--geometry", str(geo), "--out", str(out), cwd=tmp_path)
+        assert code == 0, err
+        written = sorted(out.glob("*.urdf"))
+        assert len(written) == 2 and not list(tmp_path.glob("*.urdf")) and not (tmp_path / "escaped.urdf").exists()
+        for path in written:
+            assert ET.parse(path).getroot().get("name").startswith(name)
+        code, _, err = cli(capfd, "mjcf", "--geometry", str(geo), "--out", str(tmp_path / "m.xml"), cwd=tmp_path)
+        assert code == 0 and ET.parse(tmp_path / "m.xml").getroot().get("model") == name, err
+        shutil.rmtree(out)
 
 
 @pytest.mark.parametrize("args", [["ik", "0", "0", "0", "0", "0", "0"], ["evaluate", "--policy", "pid"],
@@ -386,6 +595,7 @@ def test_an_unknown_option_is_named_by_its_subcommand(args: list[str]) -> None:
 
 def test_bad_input_table_is_large() -> None:
     assert len(BAD) >= 60 and {a[0] for a in BAD if a} >= set(SUBCOMMANDS)
+    assert len(BAD_57) >= 60
 
 
 def test_demo_on_a_build_without_a_shipped_policy_is_one_error_line_and_writes_nothing(tmp_path: Path) -> None:
@@ -421,14 +631,6 @@ def deploy(device: FakeDevice, *args: str, cwd: Path, lines=None, **faults) -> t
     board = Board(device, protocol, lines=lines, **faults)
     proc = sg("deploy", "--port", device.path, *args, cwd=cwd, timeout=120)
     return proc, board.stop()
-
-
-def maestro_frames(data: bytes) -> np.ndarray:
-    """The pulse widths (µs) of each Set Target ×6 frame."""
-    assert len(data) % 24 == 0
-    raw = np.frombuffer(data, dtype=np.uint8).reshape(-1, 6, 4)
-    assert np.all(raw[:, :, 0] == 0x84) and np.all(raw[:, :, 1] == np.arange(6))
-    return (raw[:, :, 2].astype(int) + (raw[:, :, 3].astype(int) << 7)) / 4.0
 
 
 @pytest.mark.parametrize("protocol", ["maestro", "ssc32", "line"])
@@ -616,7 +818,7 @@ def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> No
 
 
 def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
-    drain = Drain(device)
+    drain = Board(device)
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "deploy", "--port", device.path, "--duration", "30",
                              "--log", str(tmp_path / "l.csv")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=tmp_path)  # fmt: skip
@@ -703,8 +905,10 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
     last = maestro_frames(data)[-1]
     assert np.allclose(last, np.round(cal.neutral_us * 4) / 4)  # left at the new neutral, not the old one
     # the file drives deploy with no more options
+    board = Board(device)
     assert sg("deploy", "--calibration", str(out), "--duration", "0.2", "--log", str(tmp_path / "l.csv"),
               cwd=tmp_path).returncode == 0  # fmt: skip
+    board.stop()
 
 
 # ------------------------------------------- pose- and pulse-mode policies

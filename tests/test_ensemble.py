@@ -102,7 +102,8 @@ def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(
 def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_nothing_is_written(
         tmp_path: Path) -> None:  # fmt: skip
     """The shipped balance network (no residual base) and a residual member cannot be averaged; an
-    ensemble is not written over a folder that holds files; one network is not an ensemble."""
+    ensemble is not written over a folder that holds files; one network, or one network twice, is not an
+    ensemble."""
     member = str(ensemble_members(RESIDUAL)[0])
     bare = tmp_path / "bare"  # a run without its normalisation statistics
     bare.mkdir()
@@ -111,7 +112,8 @@ def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_n
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("keep me\n")
     cases = [([str(POLICY_DIR / "balance"), member, "--out", "e"], "trained with different residual"),
-             ([member, member, "--out", "full"], "already exists"),
+             ([member, str(ensemble_members(RESIDUAL)[1]), "--out", "full"], "already exists"),
+             ([member, member, "--out", "e"], "are the same network"),
              ([member, "--out", "e"], "2 or more"),
              ([member, str(bare), "--out", "e"], "vecnormalize.pkl")]  # fmt: skip
     for args, message in cases:

@@ -10,11 +10,10 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
-from conftest import Drain, FakeDevice
+from conftest import Board, FakeDevice
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,22 +36,14 @@ def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice) -
     absent = subprocess.run([str(py), "-c", probe], capture_output=True, text=True, cwd=tmp_path, env=env)
     assert absent.returncode == 0 and absent.stdout.strip() == "[]", absent.stdout + absent.stderr
 
-    drain = Drain(device)
-    done = threading.Event()
-
-    def sketch() -> None:  # the Arduino: "ready" after its reset, then the panel at 100 Hz
-        while not done.wait(0.01):
-            device.write(b"ready\nB 20.0,-10.0\n")
-
-    threading.Thread(target=sketch, daemon=True).start()
+    drain = Board(device, "line", lines=lambda t: b"B 20.0,-10.0\n")  # the sketch: "ready", answers, the panel
     for policy in (str(bundle), "shipped", "pid"):
         run = subprocess.run([str(venv / "bin" / "stewart-gym"), "deploy", "--policy", policy, "--port", device.path,
                               "--protocol", "line", "--sensor", "panel", "--duration", "1", "--log",
                               str(tmp_path / f"log_{len(policy)}.csv")],
                              capture_output=True, text=True, cwd=tmp_path, env=env, timeout=120)  # fmt: skip
         assert run.returncode == 0, run.stdout + run.stderr
-        assert "completed" in run.stdout
-    done.set()
+        assert "completed" in run.stdout and "servos homed: confirmed by the board" in run.stdout
     data = drain.stop()
     assert data.count(b"W ") >= 150
     # the simulated sensor needs the [sim] extra, and says so in one line

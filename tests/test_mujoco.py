@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 from conftest import (
-    Drain,
+    Board,
     FakeDevice,
     linear_pose_errors,
     random_reachable_poses,
@@ -269,7 +269,7 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
         assert ev.returncode == 0, ev.stderr
         got = json.loads(ev.stdout.strip().splitlines()[-1])
         assert (got["backend"], got["sensor"]) == world and got["episodes"] == 1
-    drain = Drain(device)
+    drain = Board(device)
     dep = sg_here("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
                   "--log", str(tmp_path / "d.csv"))  # fmt: skip
     data = drain.stop()

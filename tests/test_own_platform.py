@@ -10,7 +10,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import Drain, FakeDevice, sg
+from conftest import Board, FakeDevice, maestro_frames, sg
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.kinematics import inverse_kinematics
@@ -24,12 +24,6 @@ def my_build(tmp_path: Path) -> Path:
     path = tmp_path / "my_build.toml"
     path.write_text(text)
     return path
-
-
-def maestro_frames(data: bytes) -> np.ndarray:
-    raw = np.frombuffer(data[: len(data) - len(data) % 24], dtype=np.uint8).reshape(-1, 6, 4)
-    assert np.all(raw[:, :, 0] == 0x84)
-    return (raw[:, :, 2].astype(int) + (raw[:, :, 3].astype(int) << 7)) / 4.0
 
 
 def test_the_env_follows_the_plate_of_the_geometry(tmp_path: Path) -> None:
@@ -67,12 +61,12 @@ def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: F
     assert meta["geometry"]["name"] == "my-build" and "plate_size = [0.35, 0.25]" in meta["geometry"]["toml"]
     assert meta["observation_layout"] >= 2 and meta["control_hz"] == 50
 
-    drain = Drain(device)
+    drain = Board(device)
     cal = sg("calibrate", "--geometry", str(geo_path), "--port", device.path, "--protocol", "maestro", "--out",
              str(tmp_path / "cal.toml"), stdin="+\nq\n", cwd=tmp_path)  # fmt: skip
     assert cal.returncode == 0, cal.stderr
     drain.stop()
-    drain = Drain(device)
+    drain = Board(device)
     dep = sg("deploy", "--policy", str(tmp_path / "b"), "--calibration", str(tmp_path / "cal.toml"), "--sensor", "sim",
              "--duration", "1", "--log", str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
     data = drain.stop()
@@ -100,7 +94,7 @@ def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: F
 def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevice) -> None:
     """senilov2018 (RC linear actuators) through the real CLI: calibrate with scripted keys, export the PID, deploy
     with the calibration; the frames are the trimmed pulses of the IK leg lengths."""
-    drain = Drain(device)
+    drain = Board(device)
     cal = sg("calibrate", "--geometry", "senilov2018", "--port", device.path, "--protocol", "maestro", "--out",
              str(tmp_path / "cal.toml"), "--step", "2", stdin="+\n+\nn\n-\nq\n", cwd=tmp_path)  # fmt: skip
     drain.stop()
@@ -113,7 +107,7 @@ def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevic
     assert np.allclose(calibration.neutral_us - nominal.neutral_us, [4, -2, 0, 0, 0, 0], atol=1e-6)
     assert sg("export", "--policy", "pid", "--geometry", "senilov2018", "--out", str(tmp_path / "pid"),
               cwd=tmp_path).returncode == 0  # fmt: skip
-    drain = Drain(device)
+    drain = Board(device)
     dep = sg("deploy", "--policy", str(tmp_path / "pid"), "--calibration", str(tmp_path / "cal.toml"), "--sensor",
              "sim", "--duration", "1", "--log", str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
     data = drain.stop()
@@ -160,7 +154,7 @@ def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: P
     assert sg("export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
               cwd=tmp_path).returncode == 0  # fmt: skip
     (tmp_path / "cal.toml").write_text('geometry = "servo-hexapod"\n' + ServoCalibration.default("servo-hexapod").to_toml())
-    drain = Drain(device)
+    drain = Board(device)
     dep = sg("deploy", "--policy", str(tmp_path / "pid"), "--calibration", str(tmp_path / "cal.toml"), "--port",
              device.path, "--duration", "1", cwd=tmp_path)  # fmt: skip
     assert dep.returncode == 1 and drain.stop() == b""  # refused before the port opened
@@ -244,7 +238,7 @@ def test_pid_integral_bound_follows_the_build() -> None:
 
 
 def test_deploy_the_pid_on_another_preset(tmp_path: Path, device: FakeDevice) -> None:
-    drain = Drain(device)
+    drain = Board(device)
     proc = sg("deploy", "--policy", "pid", "--geometry", "memememe-liverpool", "--port", device.path, "--duration",
               "1", "--log", str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
     drain.stop()

@@ -7,6 +7,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from stewart_gym.sensing import SimulatedTouchPanel, TouchPanelSpec, VelocityEstimator
 
@@ -85,3 +87,38 @@ def test_env_integral_option() -> None:
         env.close()
     with pytest.raises(ConfigError, match="integral"):
         gym.make("StewartBallBalance-v0", integral="yes")
+
+
+@pytest.mark.parametrize("estimator", ["lowpass", "kalman"])
+@pytest.mark.parametrize("bad", [(math.nan, 0.0), (0.0, math.inf), (-math.inf, math.nan), (1e308, -1e308),
+                                 (0.2, 0.0), (0.0, -0.17)])  # fmt: skip
+def test_an_invalid_reading_is_observed_as_no_reading(estimator: str, bad: tuple[float, float]) -> None:
+    """The observer (the env's and deploy's) takes a NaN, infinite or off-plate reading exactly as no reading:
+    the same observation as None, the count of invalid readings up by one, and the next good reading as usual."""
+    from stewart_gym.sensing import BallObserver
+
+    def observer() -> BallObserver:
+        o = BallObserver(2, plate_half=(0.15, 0.15), estimator=estimator)
+        o.reset(0.0, (0.03, -0.02))
+        for k in range(1, 6):
+            o.observe(((0.03 + 0.001 * k, -0.02), 0.02 * k), (0, 0), (0, 0), (0.01, 0.0), (0.1, 0.0), now=0.02 * k)
+        return o
+
+    with_bad, with_none = observer(), observer()
+    got = with_bad.observe((bad, 0.12), (0, 0), (0, 0), (0.01, 0.0), (0.1, 0.0), now=0.12)
+    want = with_none.observe(None, (0, 0), (0, 0), (0.01, 0.0), (0.1, 0.0), now=0.12)
+    assert np.array_equal(got, want) and np.all(np.isfinite(got))
+    assert with_bad.invalid_readings == 1 and with_none.invalid_readings == 0
+    good = ((0.04, -0.02), 0.14)
+    assert np.array_equal(with_bad.observe(good, (0, 0), (0, 0), (0, 0), (0, 0), now=0.14),
+                          with_none.observe(good, (0, 0), (0, 0), (0, 0), (0, 0), now=0.14))
+
+
+@given(x=st.floats(allow_nan=True, allow_infinity=True), y=st.floats(allow_nan=True, allow_infinity=True),
+       ts=st.floats(allow_nan=True, allow_infinity=True), hx=st.floats(0.01, 1.0), hy=st.floats(0.01, 1.0))
+def test_reading_validity_is_finite_and_on_the_plate(x: float, y: float, ts: float, hx: float, hy: float) -> None:
+    from stewart_gym.sensing import READING_MARGIN, reading_is_valid
+
+    on_plate = abs(x) <= hx * (1 + READING_MARGIN) and abs(y) <= hy * (1 + READING_MARGIN)
+    expected = math.isfinite(x) and math.isfinite(y) and math.isfinite(ts) and on_plate
+    assert reading_is_valid(((x, y), ts), (hx, hy)) == expected

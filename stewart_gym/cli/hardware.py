@@ -84,7 +84,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_virtual_device(args: argparse.Namespace) -> int:
     """A virtual servo board with the simulated platform attached, on a pseudo-terminal: deploy and calibrate talk
-    to it as to the real board. Runs until Ctrl-C (SIGINT) or SIGTERM, then prints what it saw."""
+    to it as to the real board. Runs until Ctrl-C (SIGINT), SIGTERM or SIGHUP, then prints what it saw (exit 0)."""
     import signal
 
     from stewart_gym.hardware.deploy_setup import load_calibration
@@ -104,13 +104,6 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
 
         if importlib.util.find_spec("mujoco") is None:
             raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
-    stop = {"now": False}
-
-    def on_signal(signum: int, frame: object) -> None:
-        stop["now"] = True
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
     camera = None
     if args.camera_stream:
         from stewart_gym.camera import camera_preset
@@ -122,7 +115,18 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     where = device.path + (f" (link {device.link})" if device.link else "")
     print(f"virtual {args.protocol} board with {geometry.name} in {args.backend} on {where}; Ctrl-C to stop",
           flush=True)  # fmt: skip
-    summary = device.run(lambda: stop["now"])
+    stop = {"now": False}
+
+    def on_signal(signum: int, frame: object) -> None:  # the board finishes its tick, then stops
+        stop["now"] = True
+
+    stopping = (signal.SIGINT, signal.SIGTERM, *((signal.SIGHUP,) if hasattr(signal, "SIGHUP") else ()))
+    before = {num: signal.signal(num, on_signal) for num in stopping}
+    try:
+        summary = device.run(lambda: stop["now"])
+    finally:
+        for num, handler in before.items():
+            signal.signal(num, handler)
     print(summary.text(), flush=True)
     return EXIT_OK
 

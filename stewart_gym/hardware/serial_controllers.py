@@ -6,9 +6,9 @@ per :meth:`ServoController.send`. Writing to an unplugged port raises
 
 Every protocol can ask the board which pulses it holds (Maestro Get Position, SSC-32 ``QP``, the line sketch's
 ``?``). ``deploy`` uses that twice: while it runs, a question rides along with a frame every
-:data:`ASK_EVERY_S` (:meth:`ServoController.monitor`); a question unanswered within the answer timeout is missed,
-and :data:`MAX_MISSED_ANSWERS` missed in a row mean the board has stopped reading, reads more slowly than the
-frames arrive, or the line loses bytes: a :class:`DeviceError`. At the end, :meth:`ServoController.confirm`
+:data:`ASK_EVERY_S` (:meth:`ServoController.monitor`); a question not answered within the answer timeout is
+missed, and :data:`MAX_MISSED_ANSWERS` missed in a row mean the board has stopped reading, reads more slowly
+than the frames arrive, or the line loses bytes: a :class:`DeviceError`. At the end, :meth:`ServoController.confirm`
 asks whether the board holds the home pulses.
 """
 
@@ -87,6 +87,7 @@ class ServoController(ABC):
         self.longest_wait_s = 0.0
         self._missed_in_row = 0
         self._asked_at: float | None = None  # when the question in flight was asked
+        self._expired = False  # whether it has already counted as missed
         self._last_asked = -math.inf
         self._replies = b""  # bytes received and not yet parsed
 
@@ -120,22 +121,39 @@ class ServoController(ABC):
         out = data
         if self.monitoring:
             now = time.monotonic()
-            self._collect(now)
-            if self._asked_at is not None and now - self._asked_at > self.answer_timeout_s:
-                self.missed += 1
-                self._missed_in_row += 1
-                if self._missed_in_row >= MAX_MISSED_ANSWERS:
-                    raise DeviceError(f"the board on {self.serial.port} left {self._missed_in_row} questions in a row "
-                                      f"unanswered for {self.answer_timeout_s:g} s each: it stopped reading, reads "
-                                      "more slowly than the frames arrive, or the line loses bytes")  # fmt: skip
-                self._resync()
-                self._asked_at = None
+            self._watch(now)
             if self._asked_at is None and now - self._last_asked >= ASK_EVERY_S:
                 out = data + self.position_query()
                 self._asked_at = self._last_asked = now
         self._write(out)
         self.frames_sent += 1
         return data
+
+    def _watch(self, now: float) -> None:
+        """The question in flight: answered in time (the count of missed questions starts over), answered late or
+        not yet answered after the timeout (missed: :data:`MAX_MISSED_ANSWERS` in a row raise
+        :class:`DeviceError`), or, after twice the timeout with no answer, lost on the way (asked again)."""
+        asked, expired = self._asked_at, self._expired
+        if self._collect(now) and asked is not None:
+            if now - asked <= self.answer_timeout_s:
+                self._missed_in_row = 0
+            elif not expired:
+                self._miss()
+        elif asked is not None:
+            if not self._expired and now - asked > self.answer_timeout_s:
+                self._expired = True
+                self._miss()
+            elif self._expired and now - asked > 2 * self.answer_timeout_s:  # never to be answered: ask again
+                self._resync()
+                self._asked_at, self._expired = None, False
+
+    def _miss(self) -> None:
+        self.missed += 1
+        self._missed_in_row += 1
+        if self._missed_in_row >= MAX_MISSED_ANSWERS:
+            raise DeviceError(f"the board on {self.serial.port} left {self._missed_in_row} questions in a row "
+                              f"unanswered within {self.answer_timeout_s:g} s: it stopped reading, reads more slowly "
+                              "than the frames arrive, or the line loses bytes")  # fmt: skip
 
     def monitor(self, timeout_s: float = ANSWER_TIMEOUT_S) -> None:
         """From now on, ask the board along with the frames and fail when it stops answering (see :meth:`send`)."""
@@ -156,7 +174,7 @@ class ServoController(ABC):
             time.sleep(0.002)
         if self._asked_at is not None:
             self._resync()
-            self._asked_at = None
+            self._asked_at, self._expired = None, False
         self._write(self.position_query())
         self._asked_at = self._last_asked = time.monotonic()
         deadline = self._asked_at + timeout_s
@@ -200,8 +218,8 @@ class ServoController(ABC):
         if got and self._asked_at is not None:
             self.longest_wait_s = max(self.longest_wait_s, now - self._asked_at)
             self.answers += 1
-            self._missed_in_row = 0
             self._asked_at = None
+            self._expired = False
         return got
 
     def _read_waiting(self) -> None:
