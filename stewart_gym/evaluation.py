@@ -1,7 +1,7 @@
 """Evaluate a policy on seeded episodes: success, ball error, settling time, tilt, servo wear.
 
 A *policy* is anything with ``predict(obs, state, episode_start, deterministic)``
-(Stable-Baselines3 models, :class:`~stewart_gym.classical.CascadedPID`, the
+(Stable-Baselines3 models, :class:`~stewart_gym.control.CascadedPID`, the
 ONNX bundle); :func:`stewart_gym.registry.load_policy` builds one from what a
 user names. The same code runs the RL policy and the classical baseline on the same
 seeds.

@@ -10,9 +10,9 @@
 * ``pid``: the tuned cascaded PID baseline behind the low-pass observer (``policies/pid_gains.json``);
 * ``pid-kalman``: the cascaded PID retuned behind the Kalman observer (``policies/pid_kalman_gains.json``);
 * ``lqr``: the LQR baseline behind the Kalman observer (``policies/lqr.json``: its design, see
-  :func:`~stewart_gym.classical.design_lqr`);
+  :func:`~stewart_gym.control.design_lqr`);
 * ``lqr-pid``: the LQR bringing the ball in and the PID + Kalman holding it (``policies/lqr_pid.json``, see
-  :class:`~stewart_gym.classical.HandoverDesign`);
+  :class:`~stewart_gym.control.HandoverDesign`);
 * a **run folder** written by ``stewart-gym train`` (``model.zip`` or
   ``best/best_model.zip``, with ``vecnormalize.pkl`` and ``config.yaml``);
 * a **model** ``.zip`` (a run's ``model.zip``, ``best/best_model.zip`` or a
@@ -43,7 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from stewart_gym.actions import ACTION_SIZES
-from stewart_gym.classical import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
+from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
 from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
@@ -363,9 +363,9 @@ def same_geometry(a: str | Any, b: str | Any) -> bool:
 
 def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY) -> Any:
     """The classical controller of ``kind`` (``pid``, ``lqr`` or ``handover``) whose gains or design are in
-    ``path``, for ``geometry`` (:func:`~stewart_gym.classical.classical_controller`: the PID's gains adapted,
+    ``path``, for ``geometry`` (:func:`~stewart_gym.control.classical_controller`: the PID's gains adapted,
     the LQR designed); its observation scales follow the plate."""
-    from stewart_gym.classical import classical_controller
+    from stewart_gym.control import classical_controller
     from stewart_gym.presets import load_geometry
 
     design = read_design(path, kind)
@@ -379,8 +379,8 @@ def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY
 def read_design(path: Path, kind: str) -> Any:
     """The PID's gains (``kind`` "pid"), the LQR's design ("lqr") or the hand-over's ("handover") in the JSON
     file ``path``, checked
-    (:func:`~stewart_gym.classical.checked_design`): finite numbers, and no negative size."""
-    from stewart_gym.classical import checked_design
+    (:func:`~stewart_gym.control.checked_design`): finite numbers, and no negative size."""
+    from stewart_gym.control import checked_design
 
     try:
         return checked_design(_read_json(path), kind)

@@ -28,7 +28,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from stewart_gym.classical import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
+from stewart_gym.control import CLASSICAL, ResidualMix, checked_design, classical_controller, shipped_design
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics
 
@@ -213,11 +213,11 @@ def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:
 def check_residual(spec: Any, recorded: bool = False) -> dict[str, Any]:
     """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r, release_mm: q,
     dwell_s: t, design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and
-    over the next f mm the correction fades in: :func:`~stewart_gym.classical.residual_action`; both 0, the
+    over the next f mm the correction fades in: :func:`~stewart_gym.control.residual_action`; both 0, the
     default, never fades) and q 0 (the default) or more than r > 0 (once within r, the correction stays off until
-    the ball is farther than q: :class:`~stewart_gym.classical.ResidualMix`), and t 0 (the default) or, with that
+    the ball is farther than q: :class:`~stewart_gym.control.ResidualMix`), and t 0 (the default) or, with that
     latch, the seconds within q after which it closes anyway. NAME is a shipped classical controller
-    (:data:`~stewart_gym.classical.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
+    (:data:`~stewart_gym.control.CLASSICAL`: lqr, lqr-pid, pid, pid-kalman); ``design``, its gains or design,
     is the shipped one's with any fields that ``design`` gives replaced (all of them, or a few, e.g.
     ``{handover_dwell_s: 3}``); training records the whole design. ``recorded``: ``spec`` is what a run recorded,
     its design whole as the run trained with it, so a field the design has gained since (a lead, a dwell) is off,
@@ -277,7 +277,7 @@ def residual_base(spec: dict[str, Any], geometry: Any = "servo-hexapod", plate_h
 class ResidualAction(gym.Wrapper):
     """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
 
-    Sends the :class:`~stewart_gym.classical.ResidualMix` of the base's action and the agent's, for the
+    Sends the :class:`~stewart_gym.control.ResidualMix` of the base's action and the agent's, for the
     observation the agent acted on; resets the base's and the mix's state with each episode.
     """
 
@@ -306,7 +306,7 @@ class ResidualAction(gym.Wrapper):
 
 
 class ResidualPolicy:
-    """A trained residual policy: the :class:`~stewart_gym.classical.ResidualMix` of its base and its network."""
+    """A trained residual policy: the :class:`~stewart_gym.control.ResidualMix` of its base and its network."""
 
     def __init__(self, learned: SB3Policy | EnsemblePolicy, base: Any, mix: ResidualMix) -> None:
         self.learned, self.base, self.mix = learned, base, mix

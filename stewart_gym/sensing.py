@@ -27,11 +27,12 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from stewart_gym.constants import GRAVITY
+
 __all__ = ["ESTIMATORS", "BallKalmanFilter", "BallObserver", "BallSensor", "KalmanSpec", "ObservationBuilder", "Reading",
            "SimulatedSensor", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator", "ball_contact",
            "observation_table", "READING_MARGIN", "reading_is_valid"]  # fmt: skip
 
-GRAVITY = 9.80665
 #: How the observer estimates the ball's state from the readings (:class:`BallObserver`).
 ESTIMATORS = ("lowpass", "kalman")
 
@@ -514,6 +515,9 @@ class ObservationBuilder:
         ("commanded roll, pitch (0 in `pulse` mode)", 2, "0.25 rad", 2.0),
         ("previous action, as applied", None, "1", 1.0),
     )
+    #: The names of :attr:`FIELDS`' groups, in order: what the accessors (:meth:`ball_position`, …) read.
+    FIELD_NAMES = ("ball_position", "ball_velocity", "target_position", "target_velocity", "commanded_tilt",
+                   "previous_action")  # fmt: skip
     #: s: the error integral is divided by h × INTEGRAL_TIME (0.015 m·s on the reference plate).
     INTEGRAL_TIME = 0.1
     #: The optional last group (``integral=True``): the observer's integral of the position error.
@@ -538,6 +542,13 @@ class ObservationBuilder:
         if self.integral:
             scales += list(self.integral_scale)
         self.size = len(high)
+        first, self.slices = 0, {}
+        for name, (_, count, _, _) in zip(self.FIELD_NAMES, self.FIELDS):
+            count = self.action_size if count is None else count
+            self.slices[name] = slice(first, first + count)
+            first += count
+        self._positions = np.array(self.position_scale)
+        self._velocities = np.array(self.velocity_scale)
         high_arr = np.array(high, dtype=np.float32)
         self.low, self.high = -high_arr, high_arr
         self._scales, self._highs = [1.0 / k for k in scales], [float(v) for v in high_arr]
@@ -548,6 +559,38 @@ class ObservationBuilder:
         from gymnasium import spaces
 
         return spaces.Box(self.low, self.high, dtype=np.float32)
+
+    # ------------------------------------------------------------ reading an observation back (…, size)
+    def ball_position(self, obs: np.ndarray) -> np.ndarray:
+        """(…, 2) m: the ball's position in observation(s) ``obs``, unscaled."""
+        return np.asarray(obs, dtype=np.float64)[..., self.slices["ball_position"]] * self._positions
+
+    def ball_velocity(self, obs: np.ndarray) -> np.ndarray:
+        """(…, 2) m/s: the ball's estimated velocity, unscaled."""
+        return np.asarray(obs, dtype=np.float64)[..., self.slices["ball_velocity"]] * self._velocities
+
+    def target_position(self, obs: np.ndarray) -> np.ndarray:
+        """(…, 2) m: the target's position, unscaled."""
+        return np.asarray(obs, dtype=np.float64)[..., self.slices["target_position"]] * self._positions
+
+    def target_velocity(self, obs: np.ndarray) -> np.ndarray:
+        """(…, 2) m/s: the target's velocity, unscaled."""
+        return np.asarray(obs, dtype=np.float64)[..., self.slices["target_velocity"]] * self._velocities
+
+    def motion(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(ball position, ball velocity, target position, target velocity), each (…, 2), m and m/s."""
+        return self.ball_position(obs), self.ball_velocity(obs), self.target_position(obs), self.target_velocity(obs)
+
+    def commanded_tilt(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(roll, pitch), rad, each (…): the tilt commanded at the previous observation, in force since."""
+        o = np.asarray(obs, dtype=np.float64)
+        first = self.slices["commanded_tilt"].start
+        return o[..., first] * self.TILT_SCALE, o[..., first + 1] * self.TILT_SCALE
+
+    def position_error(self, obs: np.ndarray) -> np.ndarray:
+        """(…, 2) m: the ball's position less the target's."""
+        o = np.asarray(obs, dtype=np.float64)
+        return (o[..., self.slices["ball_position"]] - o[..., self.slices["target_position"]]) * self._positions
 
     def build(self, ball_xy: Sequence[float], ball_velocity: Sequence[float], target_xy: Sequence[float],
               target_velocity: Sequence[float], roll_pitch: Sequence[float],

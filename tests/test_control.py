@@ -20,7 +20,7 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stewart_gym.classical import LQRController, LQRDesign, design_lqr, lqr_model, shipped_design
+from stewart_gym.control import LQRController, LQRDesign, design_lqr, lqr_model, shipped_design
 from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import BallKalmanFilter, BallObserver, KalmanSpec, ObservationBuilder, ReadingNoise
@@ -357,7 +357,7 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
     the integral of 100 periods at 5 mm shows in it); beyond 20 mm the LQR again, as if it had run alone
     throughout; near a moving target the PID takes over as near a still one if the ball moves with it, the
     LQR keeps a ball that does not; rows independent."""
-    from stewart_gym.classical import HandoverController
+    from stewart_gym.control import HandoverController
 
     handover, lqr, pid = load_policy("lqr-pid"), load_policy("lqr"), load_policy("pid-kalman")
     assert isinstance(handover, HandoverController) and isinstance(lqr, LQRController)
@@ -394,7 +394,7 @@ def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_o
     acceleration) to the ball's acceleration it asks for; nothing on an episode's first period (nothing to
     difference yet), after ``reset``, or in a row of a batch where ``predict`` starts an episode; a target at a
     steady velocity (a still one among them) adds nothing."""
-    from stewart_gym.classical import CascadedPID, PIDGains
+    from stewart_gym.control import CascadedPID, PIDGains
 
     gains = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=0.0)
     pid, dt = CascadedPID(gains, dt=0.02), 0.02
@@ -433,7 +433,7 @@ def test_the_feed_leads_the_targets_acceleration_on_a_smooth_path_once_it_has_he
     velocity's second difference has held steady for 1.5 s; from then on it is the acceleration ``lead`` s
     ahead of that (within 1 % of its size: a linear extrapolation), where the backward difference alone is
     about 5 % off it. Without a lead it stays the backward difference."""
-    from stewart_gym.classical import TargetFeed
+    from stewart_gym.control import TargetFeed
 
     dt, lead, w, radius = 0.02, 0.06, 2 * math.pi / 8.0, 0.06
     vel = _circle_velocities(200, dt)
@@ -458,7 +458,7 @@ def test_the_feed_adds_no_lead_where_the_targets_acceleration_jumps() -> None:
     the feed with a lead is the backward difference at every period, because the jumps keep the second
     difference from holding steady for 1.5 s; constant jerk held longer than that is led, by exactly
     jerk · lead (the second difference of a quadratic velocity is the jerk times dt²)."""
-    from stewart_gym.classical import TargetFeed
+    from stewart_gym.control import TargetFeed
     from stewart_gym.envs.targets import Waypoints
 
     dt, lead = 0.02, 0.06
@@ -486,7 +486,7 @@ def test_a_feed_with_another_divisor_is_the_same_feed_in_other_units(scale: floa
                                                                        period_s: float) -> None:  # fmt: skip
     """``divisor`` only changes the units (the LQR's ``sin(tilt)`` instead of m/s²): divided by ``dt·scale``, the
     feed, its lead included and whenever it starts, is the m/s² feed over ``scale``."""
-    from stewart_gym.classical import TargetFeed
+    from stewart_gym.control import TargetFeed
 
     dt = 0.02
     vel = _circle_velocities(120, dt, radius, period_s)
@@ -499,7 +499,7 @@ def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_si
     """In a batch each row keeps its own history: a row reset mid-path feeds nothing in its first period and
     the backward difference until it has held steady again, while the other row keeps its lead; every row
     gives what a feed of its own gives."""
-    from stewart_gym.classical import TargetFeed
+    from stewart_gym.control import TargetFeed
 
     dt, lead = 0.02, 0.06
     vel = _circle_velocities(300, dt)
@@ -526,7 +526,7 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
     the CLI, carries the lead and acts as the controller does along a circle; a negative lead is refused."""
     from dataclasses import replace
 
-    from stewart_gym.classical import CascadedPID, checked_design
+    from stewart_gym.control import CascadedPID, checked_design
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
 
@@ -568,7 +568,8 @@ def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_th
     test of a few episodes; the docs quote it."""
     from dataclasses import replace
 
-    from stewart_gym.classical import GRAVITY, TargetFeed
+    from stewart_gym.constants import GRAVITY
+    from stewart_gym.control import TargetFeed
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
 
@@ -636,7 +637,7 @@ def test_after_its_dwell_the_handover_gives_a_noisy_near_ball_to_the_pid_whateve
     has the 3 s dwell, in its bundle and in its run configuration alike."""
     from dataclasses import replace
 
-    from stewart_gym.classical import HandoverController
+    from stewart_gym.control import HandoverController
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.handover_dwell_s == 0.0
@@ -702,7 +703,7 @@ def test_with_a_release_dwell_the_handover_keeps_a_ball_observed_briefly_beyond_
     that starts moving does not take it back (the PID follows it); the field is kept by a bundle's gains."""
     from dataclasses import asdict, replace
 
-    from stewart_gym.classical import HandoverController, controller_from_gains
+    from stewart_gym.control import HandoverController, controller_from_gains
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.release_dwell_s == 0.0
@@ -730,7 +731,7 @@ def test_with_release_mm_s_the_handover_gives_a_pushed_ball_back_to_the_lqr_at_o
     exception off; a bundle's gains keep the field, and a bundle written before it loads with it off."""
     from dataclasses import asdict, replace
 
-    from stewart_gym.classical import HandoverController, controller_from_gains
+    from stewart_gym.control import HandoverController, controller_from_gains
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.release_mm_s == 0.0
@@ -763,7 +764,8 @@ def test_with_push_release_mm_the_handover_gives_a_ball_pushed_within_the_releas
     loads with it off; the design refuses a value not below ``release_mm``."""
     from dataclasses import asdict, replace
 
-    from stewart_gym.classical import PUSH_SPEED_SIGMAS, HandoverController, checked_design, controller_from_gains
+    from stewart_gym.control import HandoverController, checked_design, controller_from_gains
+    from stewart_gym.control.handover import PUSH_SPEED_SIGMAS
 
     shipped = load_policy("lqr-pid")
     assert isinstance(shipped, HandoverController) and shipped.gains.push_release_mm == 0.0
@@ -803,7 +805,7 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
     for the LQR's feed-forward lead, which it leaves off (there the PID follows a moving target; with the
     LQR's lead the LQR → PID tracked the same: 50 tuning seeds, a tie), and a malformed hand-over design is
     refused saying what is wrong."""
-    from stewart_gym.classical import checked_design
+    from stewart_gym.control import checked_design
 
     policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
     design = json.loads((policies / "lqr_pid.json").read_text())
@@ -856,7 +858,7 @@ def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: P
 def test_conditional_integration_sums_only_near_the_target(tmp_path: Path) -> None:
     """With an ``integral_zone`` the PID and the LQR integrate the error only within it (a fast approach from
     far away leaves the integral at zero), hold it within the limit, and their bundles carry the zone."""
-    from stewart_gym.classical import CascadedPID, PIDGains, integrate_error
+    from stewart_gym.control import CascadedPID, PIDGains, integrate_error
     from stewart_gym.hardware.export import BundlePolicy, classical_meta
 
     err = np.array([[0.05, 0.0], [0.003, -0.004], [0.0, 0.0]])  # 50 mm, 5 mm, on target
@@ -980,7 +982,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     run = tmp_path / "run"
     shutil.copytree(SHIPPED_RESIDUAL_RUN, run)
     cfg = yaml.safe_load((run / "config.yaml").read_text())
-    from stewart_gym.classical import checked_design
+    from stewart_gym.control import checked_design
 
     recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
     recipe = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/hyperparams/ppo_residual.yml")
@@ -1025,7 +1027,7 @@ def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_li
                           (4.0, 5.0, 0.0, 0.0), (6.0, 5.0, 0.0, 1.0), (0.1, 0.0, 0.0, 1.0)])  # fmt: skip
 def test_the_residual_weight_is_zero_inside_the_inner_radius_and_fades_in_beyond(distance_mm: float, inner_mm: float,
                                                                                  fade_mm: float, weight: float) -> None:
-    from stewart_gym.classical import residual_action
+    from stewart_gym.control import residual_action
 
     obs = np.zeros(12)
     obs[0] = distance_mm / 150.0  # plate half-widths of 150 mm; the target at the centre
@@ -1037,7 +1039,7 @@ def test_the_residual_weight_is_zero_inside_the_inner_radius_and_fades_in_beyond
 def test_the_latch_keeps_the_correction_off_from_the_inner_radius_until_the_release_distance() -> None:
     """With release_mm, the correction is off from the first step within inner_mm until the ball is farther than
     release_mm (the fade alone would let it back in at inner_mm); a reset reopens it; without, the fade alone."""
-    from stewart_gym.classical import ResidualMix
+    from stewart_gym.control import ResidualMix
 
     base, correction = np.array([0.1, -0.2]), np.array([0.4, 0.4])
     distances = [30.0, 12.0, 4.0, 8.0, 12.0, 19.0, 25.0, 12.0]
@@ -1066,7 +1068,7 @@ def test_the_latch_dwell_closes_the_latch_after_that_long_within_the_release_dis
     """With dwell_s, a ball that stays within release_mm (never within inner_mm) has the correction cut from its
     ceil(dwell_s / dt)-th period there until it is beyond release_mm; leaving release_mm restarts the count, as
     does a reset; one count per row; a dwell without a latch, or a negative or non-finite one, is refused."""
-    from stewart_gym.classical import ResidualMix
+    from stewart_gym.control import ResidualMix
 
     def obs_at(distance_mm: float | list[float]) -> np.ndarray:
         d = np.atleast_1d(np.asarray(distance_mm, dtype=float))
@@ -1243,7 +1245,7 @@ def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(name: 
     """A design with ``dither`` gives, on the same observations, the undithered actions ± dither / max_tilt,
     the sign alternating every period (from + after a reset); a copy of the design file with dither exported
     through the CLI acts the same step by step; a negative dither is refused."""
-    from stewart_gym.classical import CLASSICAL, checked_design, classical_controller
+    from stewart_gym.control import CLASSICAL, checked_design, classical_controller
 
     kind, filename, _ = CLASSICAL[name]
     values = json.loads((Path(__file__).resolve().parents[1] / "stewart_gym" / "policies" / filename).read_text())
@@ -1280,7 +1282,7 @@ def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(name: 
 def test_dither_carries_the_quiet_controllers_through_the_linear_actuators_dead_band() -> None:
     """On the linear build (dead band 3–8 µs ≈ up to 0.7–2° of tilt) the PID + Kalman hunts around the target
     and fails on these seeds; with 0.8° of dither it holds the ball on every one of them."""
-    from stewart_gym.classical import checked_design, classical_controller
+    from stewart_gym.control import checked_design, classical_controller
     from stewart_gym.evaluation import run_episode
     from stewart_gym.presets import load_preset
 
@@ -1302,7 +1304,8 @@ def test_fastest_settling_matches_bang_bang_on_an_ideal_actuator_and_orders_as_i
     derivation: from rest at 100 mm, full tilt towards the target, then full tilt back so that the ball enters
     the 10 mm circle just fast enough to stop at its far edge (a 16-gon inside it), plus the one period of dead
     time. A larger tilt is faster, a farther start slower, and the diagonal (both axes at full tilt) faster."""
-    from stewart_gym.classical import LQRDesign, fastest_settling
+    from stewart_gym.analysis.settling import fastest_settling
+    from stewart_gym.control import LQRDesign
 
     accel = 5 / 7 * 9.80665 * math.sin(math.radians(10))
     inner = 0.010 * math.cos(math.pi / 16)  # the polygon's inscribed radius
@@ -1326,7 +1329,7 @@ def test_the_control_steps_small_array_helpers_give_numpys_values(x: list[float]
     """``bounded``, ``planar_length`` and ``paired`` (the controllers' cheap stand-ins for ``np.clip``,
     ``np.linalg.norm(…, axis=-1)`` and ``np.stack(…, axis=-1)``) give numpy's values, bit for bit apart from a
     zero's sign, NaN and infinities included: the published figures were measured with numpy's."""
-    from stewart_gym.classical import bounded, paired, planar_length
+    from stewart_gym.control import bounded, paired, planar_length
 
     low, high = min(bounds), max(bounds)
     a = np.array(x)

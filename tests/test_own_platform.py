@@ -201,7 +201,7 @@ def test_trim_tilt_agrees_with_forward_kinematics(geometry: str) -> None:
     """The small-signal worst trim tilt against the exact one: forward kinematics of every ±15 µs sign pattern."""
     import itertools
 
-    from stewart_gym.classical import trim_tilt
+    from stewart_gym.control import trim_tilt
     from stewart_gym.kinematics import forward_kinematics, rotation_matrix
 
     geo = load_preset(geometry)
@@ -227,7 +227,7 @@ def test_pid_integral_bound_follows_the_build() -> None:
     reference keeps its tuned bound."""
     import dataclasses
 
-    from stewart_gym.classical import GRAVITY, PIDGains, gains_for_geometry, trim_tilt
+    from stewart_gym.control import GRAVITY, PIDGains, gains_for_geometry, trim_tilt
 
     base = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=3.0)
     assert gains_for_geometry(base, "servo-hexapod").integral_limit == base.integral_limit
@@ -251,7 +251,7 @@ def test_integral_zones_follow_the_build() -> None:
     linear build (3.7°) the proportional terms alone hold it 75 mm (PID + Kalman) and 30 mm (LQR) out, beyond
     the shipped 20 mm zones. Checked on the controllers themselves: at the zone's edge / ZONE_MARGIN, at rest,
     they command that tilt (the ball stays there), and the zone is larger; the reference keeps its 20 mm."""
-    from stewart_gym.classical import (
+    from stewart_gym.control import (
         ZONE_MARGIN,
         CascadedPID,
         LQRController,

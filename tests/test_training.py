@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from stewart_gym.classical import CascadedPID, PIDGains
 from stewart_gym.cli import main
+from stewart_gym.control import CascadedPID, PIDGains
 from stewart_gym.errors import ConfigError
 from stewart_gym.evaluation import evaluate, format_table
 from stewart_gym.registry import load_policy
@@ -454,7 +454,7 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    from stewart_gym.classical import checked_design, shipped_design
+    from stewart_gym.control import checked_design, shipped_design
 
     root, out = Path(__file__).resolve().parents[1], tmp_path / "h.json"
     proc = subprocess.run([sys.executable, str(root / "train" / "tune_handover.py"), "--episodes", "2",

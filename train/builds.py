@@ -4,12 +4,12 @@ Run: ``.venv/bin/python train/builds.py [--episodes 100] [--workers 2] [--builds
 [--dither-deg D] [--section NAME] [--out docs/src/own-platform.md]``
 
 Each controller (``--policy NAME``, its reference gains or design adapted to the build by
-:func:`stewart_gym.classical.classical_controller`) goes through :func:`stewart_gym.evaluation.evaluate` on
+:func:`stewart_gym.control.classical_controller`) goes through :func:`stewart_gym.evaluation.evaluate` on
 seeds 0…N−1 of the randomised balance task on each build, as ``stewart-gym evaluate --policy NAME
 --geometry BUILD --episodes N`` does. The table replaces the text between the ``builds-table`` markers of
 ``--out`` (nothing else of the page changes); without the markers the script stops with one ``error:`` line (exit 2).
 ``--dither-deg D`` runs the controllers with D degrees of dither added to their shipped design
-(:class:`stewart_gym.classical.SquareWaveDither`); ``--section NAME`` picks the markers ``<!-- NAME:start -->`` …
+(:class:`stewart_gym.control.SquareWaveDither`); ``--section NAME`` picks the markers ``<!-- NAME:start -->`` …
 ``<!-- NAME:end -->`` (default ``builds-table``), so that one page can hold several tables.
 """
 
@@ -36,7 +36,7 @@ def with_dither(name: str, dither: float) -> Any:
     """The shipped design of controller ``name`` with ``dither`` rad (both parts of the hand-over)."""
     from dataclasses import replace
 
-    from stewart_gym.classical import HandoverDesign, shipped_design
+    from stewart_gym.control import HandoverDesign, shipped_design
 
     design = shipped_design(name)
     if isinstance(design, HandoverDesign):
@@ -48,7 +48,7 @@ def run_job(job: dict[str, Any]) -> dict[str, Any]:
     """One evaluation (in a worker process)."""
     import math
 
-    from stewart_gym.classical import CLASSICAL, classical_controller
+    from stewart_gym.control import CLASSICAL, classical_controller
     from stewart_gym.evaluation import evaluate
     from stewart_gym.registry import load_for_evaluation
 

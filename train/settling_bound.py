@@ -4,7 +4,7 @@ Run: ``.venv/bin/python train/settling_bound.py [--episodes 100] [--offset-mm 10
 [--max-tilt-deg 10]``
 
 For each start of the settling test of :func:`stewart_gym.evaluation.evaluate` (at rest, ``--offset-mm`` from
-the target, at the angles 2πk/N, k < N = ``--episodes``), :func:`stewart_gym.classical.fastest_settling` gives
+the target, at the angles 2πk/N, k < N = ``--episodes``), :func:`stewart_gym.analysis.settling.fastest_settling` gives
 the fewest control periods after which some command sequence, each plate axis within ±``--max-tilt-deg``,
 keeps the ball within ``--radius-mm`` (the success radius) to the end, under the LQR's linear model (rolling
 ball, one period of dead time, the tilt's 19 ms lag). Prints the bound per start angle and its mean: the
@@ -35,7 +35,7 @@ def main() -> None:
         ap.error(f"need 0 < --radius-mm < --offset-mm ≤ 1000, got {args.radius_mm} and {args.offset_mm}")
     if not (math.isfinite(args.max_tilt_deg) and 0 < args.max_tilt_deg < 45):
         ap.error(f"--max-tilt-deg must be in (0, 45), got {args.max_tilt_deg}")
-    from stewart_gym.classical import fastest_settling
+    from stewart_gym.analysis.settling import fastest_settling
 
     r, tilt = args.offset_mm / 1e3, math.radians(args.max_tilt_deg)
     bounds = {}

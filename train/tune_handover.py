@@ -1,6 +1,6 @@
 """Tune where the LQR hands the ball over to the PID + Kalman (``--policy lqr-pid``), by grid search.
 
-The hand-over (:class:`stewart_gym.classical.HandoverDesign`) keeps today's LQR design and PID + Kalman gains
+The hand-over (:class:`stewart_gym.control.HandoverDesign`) keeps today's LQR design and PID + Kalman gains
 (``policies/lqr.json``, ``policies/pid_kalman_gains.json``) and varies where the PID takes over: within
 ``handover_mm`` of the target and slower than ``handover_mm_s``. Each set runs ``--episodes`` seeded,
 randomised episodes of StewartBallBalance-v0 (seeds 10000…, disjoint from the evaluation seeds 0…99) and as
@@ -20,7 +20,7 @@ import json
 from dataclasses import asdict, replace
 from pathlib import Path
 
-from stewart_gym.classical import checked_design, classical_controller, shipped_design
+from stewart_gym.control import checked_design, classical_controller, shipped_design
 from stewart_gym.evaluation import evaluate
 from stewart_gym.registry import POLICY_DIR
 

@@ -22,7 +22,7 @@ import json
 from dataclasses import asdict
 from pathlib import Path
 
-from stewart_gym.classical import CascadedPID, PIDGains
+from stewart_gym.control import CascadedPID, PIDGains
 from stewart_gym.evaluation import evaluate
 from stewart_gym.registry import POLICY_DIR
 

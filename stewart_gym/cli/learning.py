@@ -153,7 +153,7 @@ def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
     loaded once (a bad one is an ``error:`` line). The build is ``--geometry``, else the one a trained policy
     given by path was trained for (the named ones adapt to it); the physics engine and the sensor are
     ``--backend`` and ``--sensor``, else the ones the policies were trained with, which must then agree."""
-    from stewart_gym.classical import CLASSICAL_KINDS
+    from stewart_gym.control import CLASSICAL_KINDS
     from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
 
     sources = {spec: resolve_policy(spec, args.env) for spec in args.policies}

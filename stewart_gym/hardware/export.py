@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.actions import ACTION_SIZES, DEFAULT_MAX_TILT
-from stewart_gym.classical import (
+from stewart_gym.control import (
     CLASSICAL_KINDS,
     ResidualMix,
     bounded,
@@ -92,7 +92,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     if ensemble:  # the graph normalises each network's input itself
         meta["ensemble"] = len(members)
     if env_kwargs.get("residual"):  # the network's action corrects a classical controller's: record that one
-        from stewart_gym.classical import CLASSICAL
+        from stewart_gym.control import CLASSICAL
         from stewart_gym.sb3_models import check_residual, residual_base
 
         spec = check_residual(env_kwargs["residual"], recorded=True)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import horn_tips, inverse_kinematics
 from stewart_gym.presets import load_geometry
@@ -44,7 +45,6 @@ from stewart_gym.sim.urdf import (
 
 __all__ = ["MujocoPhysics", "mechanism_mjcf", "write_mjcf"]
 
-GRAVITY = 9.80665
 
 
 @dataclass(frozen=True)

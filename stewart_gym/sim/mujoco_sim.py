@@ -20,11 +20,12 @@ from typing import Any, Literal
 import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
+from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim.backend import BallSpec, PlateLoad, SimulatorBase
-from stewart_gym.sim.mjcf import GRAVITY, MujocoPhysics, ball_friction, mechanism_mjcf
+from stewart_gym.sim.mjcf import MujocoPhysics, ball_friction, mechanism_mjcf
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec
 

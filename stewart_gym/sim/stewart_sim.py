@@ -32,6 +32,7 @@ import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.camera import CameraSpec
+from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
 from stewart_gym.presets import load_geometry
@@ -42,7 +43,6 @@ from stewart_gym.vision import MarkerLayout
 
 __all__ = ["PhysicsSpec", "StewartSim"]
 
-GRAVITY = 9.80665
 
 
 @dataclass(frozen=True)
