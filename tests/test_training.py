@@ -257,7 +257,7 @@ def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFi
 
 
 def test_demo_compares_the_learned_policies_shipped_for_the_build_with_the_strongest_classical_ones() -> None:
-    from stewart_gym.cli.learning import demo_policies
+    from stewart_gym.experiments import demo_policies
 
     env = "StewartBallBalance-v0"
     assert demo_policies(env, None) == ["shipped-residual", "shipped", "pid-kalman", "lqr"]

@@ -4,13 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
-import numpy as np
-
+from stewart_gym import experiments
 from stewart_gym.cli.common import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -69,18 +67,23 @@ def cmd_train(args: argparse.Namespace) -> int:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate a policy (shipped, pid, a run folder, a model .zip, a bundle) on N seeded episodes."""
     from stewart_gym.evaluation import evaluate, format_table
+    from stewart_gym.experiments import (
+        EvaluationJob,
+        check_can_render,
+        episode_figures,
+        evaluate_all,
+        process_plan,
+        resolve_world,
+    )
     from stewart_gym.registry import load_for_evaluation
 
     gif = None if args.gif is None else output_file(args.gif, suffixes=(".gif",))
     plot = None if args.plot is None else output_file(args.plot, suffixes=(".png",))
-    source, policy, env_kwargs = load_for_evaluation(args.policy, args.env, args.geometry, args.estimator)
-    env_kwargs = in_world(env_kwargs, source, args.backend, args.sensor)
+    source, policy, trained = load_for_evaluation(args.policy, args.env, args.geometry, args.estimator)
+    where = resolve_world(source, trained, args.env, args.backend, args.sensor, args.trajectory)
+    env_id, env_kwargs = where.env_id, where.env_kwargs
     if gif:
         check_can_render(env_kwargs.get("backend"))
-    env_id = args.env or source.env_id
-    check_trajectory(env_id, args.trajectory)
-    if args.trajectory is not None:
-        env_kwargs["trajectory"] = args.trajectory
     processes, parts = process_plan(args.workers, 1, args.episodes)
     if parts == 1:
         metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
@@ -90,9 +93,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                             not args.no_randomize)  # fmt: skip
         metrics = evaluate_all([job], parts, processes)[0]
     if gif or plot:
-        _episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
+        episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
     if args.json:
-        print(json.dumps(json_safe({**world(env_id, env_kwargs), **metrics})))
+        print(json.dumps(json_safe({**where.describe(), **metrics})))
     else:
         print(format_table({source.label: metrics}))
     return EXIT_OK
@@ -102,7 +105,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """Evaluate several policies on the same seeded episodes and pair the first with each of the others, seed by
     seed: the difference in success, RMS error, final error and settling time, with a 95 % bootstrap interval and
     a verdict (better, worse, or a tie the episodes cannot tell apart)."""
-    from stewart_gym.evaluation import format_paired, format_table, paired_rows
+    from stewart_gym.evaluation import format_paired, format_table
+    from stewart_gym.experiments import compare, compare_setup, process_plan, world
 
     policies = args.policies
     if len(policies) < 2:
@@ -111,17 +115,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
     twice = sorted({p for p in policies if policies.count(p) > 1})
     if twice:
         raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
-    env_id, geometry, env_kwargs = compare_setup(args)
-    processes, parts = process_plan(args.workers, len(policies), args.episodes)
+    env_id, geometry, env_kwargs = compare_setup(policies, args.env, args.geometry, args.backend, args.sensor,
+                                                 args.trajectory)  # fmt: skip
+    processes, _ = process_plan(args.workers, len(policies), args.episodes)
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
           f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
           f"{world_line['backend']}, sensor {world_line['sensor']}; {processes} processes at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
-    jobs = [EvaluationJob(spec, env_id, geometry, None, env_kwargs[spec], args.episodes, args.seed,
-                          not args.no_randomize) for spec in policies]  # fmt: skip
-    results = dict(zip(policies, evaluate_all(jobs, parts, processes)))
-    rows = paired_rows(results, policies[0])
+    results, rows = compare(policies, env_id, args.episodes, args.seed, not args.no_randomize, geometry, args.backend,
+                            args.sensor, args.trajectory, args.workers)  # fmt: skip
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
                                     "randomize": not args.no_randomize, "policies": results, "paired": rows})))  # fmt: skip
@@ -148,130 +151,19 @@ def column_labels(specs: list[str]) -> dict[str, str]:
     return {spec: spec for spec in specs}
 
 
-def compare_setup(args: argparse.Namespace) -> tuple[str, str, dict[str, dict]]:
-    """Before any episode: the env id, the build and each policy's env keywords for ``compare``, every policy
-    loaded once (a bad one is an ``error:`` line). The build is ``--geometry``, else the one a trained policy
-    given by path was trained for (the named ones adapt to it); the physics engine and the sensor are
-    ``--backend`` and ``--sensor``, else the ones the policies were trained with, which must then agree."""
-    from stewart_gym.control import CLASSICAL_KINDS
-    from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
-
-    sources = {spec: resolve_policy(spec, args.env) for spec in args.policies}
-    env_id = args.env or sources[args.policies[0]].env_id
-    own = [s for s in sources.values() if s.spec not in (*SHIPPED_TABLES, *CLASSICAL) and s.kind in ("sb3", "ensemble",
-                                                                                                     "bundle")]
-    geometry = args.geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
-    chosen = {"backend": args.backend, "sensor": args.sensor}
-    for key in chosen:  # a trained network's world, else the env's default; a classical controller has none
-        trained = {spec: s.env_kwargs.get(key) or WORLD_DEFAULTS[key] for spec, s in sources.items()
-                   if s.env_kwargs.get(key) is not None or s.kind not in CLASSICAL_KINDS}  # fmt: skip
-        if chosen[key] is None and len(set(trained.values())) > 1:
-            named = ", ".join(f"{spec} with {value}" for spec, value in trained.items())
-            raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "
-                              f"them with, e.g. --{key} {next(iter(trained.values()))}")  # fmt: skip
-        chosen[key] = chosen[key] or next(iter(trained.values()), None)
-    check_trajectory(env_id, args.trajectory)
-    env_kwargs = {}
-    for spec in args.policies:
-        source, _, kwargs = load_for_evaluation(spec, env_id, geometry)
-        env_kwargs[spec] = in_world(kwargs, source, chosen["backend"], chosen["sensor"])
-        if args.trajectory is not None:
-            env_kwargs[spec]["trajectory"] = args.trajectory
-    return env_id, geometry, env_kwargs
-
-
-def check_trajectory(env_id: str, trajectory: str | None) -> None:
-    """``--trajectory`` only where the target moves: else one ``error:`` line naming the envs that take it."""
-    moving = trajectory_env_ids()
-    if trajectory is not None and env_id not in moving:
-        raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
-                          f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
-
-
-class EvaluationJob(NamedTuple):
-    """One policy's evaluation for :func:`evaluate_all`: what :func:`~stewart_gym.registry.load_for_evaluation`
-    loads it from (in a worker process too) and the arguments of :func:`~stewart_gym.evaluation.evaluate`."""
-
-    spec: str
-    env_id: str
-    geometry: str | None
-    estimator: str | None
-    env_kwargs: dict
-    episodes: int
-    seed: int
-    randomize: bool
-
-
-#: Episodes a process gets at least when the episodes are split without ``--workers``: starting one (Python,
-#: torch, the policy) costs seconds, about what 2–5 episodes take.
-EPISODES_PER_PROCESS = 10
-
-
-def process_plan(requested: int | None, jobs: int, episodes: int) -> tuple[int, int]:
-    """(processes, parts) for :func:`evaluate_all`: ``jobs`` evaluations of ``episodes`` episodes each, on
-    ``requested`` processes (``--workers``), else one per core. Each job's episodes are split into ``parts``
-    contiguous parts where there are more processes than jobs: as many as ``--workers`` asks for, and by
-    default only as many as give each part :data:`EPISODES_PER_PROCESS` episodes or more."""
-    workers = requested or os.cpu_count() or 1
-    least = 1 if requested else EPISODES_PER_PROCESS
-    parts = max(1, min(workers // jobs, episodes // least))
-    return min(workers, jobs * parts), parts
-
-
-def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int) -> list[dict[str, Any]]:
-    """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order (:func:`process_plan` gives
-    ``parts`` and ``processes``): each job's episodes split into ``parts`` contiguous parts, run ``processes``
-    at a time, each in a process started afresh that loads its policy, or in this process when there is one
-    process or one part in all. An episode depends only on its seed, so the figures are those of one process,
-    to the last bit."""
-    from stewart_gym.evaluation import summarise
-
-    tasks = [(job, [int(k) for k in chunk]) for job in jobs
-             for chunk in np.array_split(np.arange(job.episodes), parts)]  # fmt: skip
-    if processes == 1 or len(tasks) == 1:
-        results = [evaluate_part(task) for task in tasks]
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            results = list(pool.map(evaluate_part, tasks))
-    return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
-                      [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
-
-
-def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:
-    """Some episodes of one job of :func:`evaluate_all` (:func:`~stewart_gym.evaluation.evaluation_part`); in a
-    worker process the policy is loaded there."""
-    from stewart_gym.evaluation import evaluation_part
-    from stewart_gym.registry import load_for_evaluation
-
-    job, indices = task
-    _, policy, _ = load_for_evaluation(job.spec, job.env_id, job.geometry, job.estimator)
-    return evaluation_part(job.env_id, policy, indices, job.episodes, job.seed, job.randomize,
-                           env_kwargs=job.env_kwargs)  # fmt: skip
-
-
-#: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
-#: and the two strongest classical controllers, each behind the observer it was tuned behind.
-DEMO_LEARNED = ("shipped-residual", "shipped")
-DEMO_CLASSICAL = ("pid-kalman", "lqr")
-
-
-def demo_policies(env_id: str, geometry: str | None) -> list[str]:
-    """The ``--policy`` names ``demo`` evaluates on ``geometry``: the shipped learned policies that exist for it
-    (``shipped`` always: where none exists, loading it says so), then :data:`DEMO_CLASSICAL`."""
-    from stewart_gym.registry import DEFAULT_GEOMETRY, SHIPPED_TABLES
-
-    key = (env_id, geometry or DEFAULT_GEOMETRY)
-    learned = [name for name in DEMO_LEARNED if name == "shipped" or key in SHIPPED_TABLES[name]]
-    return [*learned, *DEMO_CLASSICAL]
-
-
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: evaluate the shipped learned policies next to the PID + Kalman and the LQR on the same seeded
     episodes, pair the best learned one with each, seed by seed; write a GIF and a pulse-width plot of it."""
     from stewart_gym.evaluation import format_paired, format_table, paired_rows
+    from stewart_gym.experiments import (
+        EvaluationJob,
+        check_can_render,
+        demo_policies,
+        episode_figures,
+        evaluate_all,
+        process_plan,
+        resolve_world,
+    )
     from stewart_gym.registry import load_for_evaluation
 
     out = output_dir(args.out)
@@ -281,7 +173,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     loaded = {}
     for name in names:  # every policy loaded before the output folder and the first evaluation
         source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
-        loaded[name] = (policy, in_world(env_kwargs, source, args.backend, None))
+        loaded[name] = (policy, resolve_world(source, env_kwargs, env_id, args.backend).env_kwargs)
     out.mkdir(parents=True, exist_ok=True)
     processes, parts = process_plan(args.workers, len(names), args.episodes)
     engine = loaded[names[0]][1].get("backend", "pybullet")
@@ -296,53 +188,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(format_paired(paired_rows(results, names[0])))
     (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     policy, env_kwargs = loaded[names[0]]
-    _episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", names[0])
+    episode_figures(env_id, policy, env_kwargs, args.seed, True, out / "demo.gif", out / "demo_pulses.png", names[0])
     print(f"\nwrote {out / 'demo.gif'}, {out / 'demo_pulses.png'} (policy {names[0]}) and {out / 'demo_metrics.json'}")
     return EXIT_OK
-
-
-def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | None) -> dict:
-    """``env_kwargs`` with the physics engine and the ball sensor asked for, else the ones ``source`` (a resolved
-    policy) was trained with, else the env's defaults (PyBullet, the touch panel)."""
-    trained = source.env_kwargs
-    chosen = {"backend": backend or trained.get("backend"), "sensor": sensor or trained.get("sensor")}
-    return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
-
-
-#: The env's physics engine and ball sensor where none is asked for.
-WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
-
-
-def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
-    """Where an evaluation ran: the env id, the physics engine and the ball sensor (for ``--json``)."""
-    return {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
-
-
-def check_can_render(backend: str | None) -> None:
-    """Before long work: MuJoCo renders GIF frames with OpenGL, which a headless machine may lack."""
-    if backend == "mujoco":
-        from stewart_gym.sim.mujoco_sim import check_rendering
-
-        check_rendering()
-
-
-def _episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, randomize: bool, gif: Path | None,
-                     plot: Path | None, title: str) -> None:  # fmt: skip
-    """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
-    import gymnasium as gym
-
-    from stewart_gym.evaluation import plot_episode, run_episode, settling_offset, write_gif
-
-    env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
-    try:
-        opts = {"ball_position": (settling_offset(env), 0.0), "ball_velocity": (0.0, 0.0)}
-        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
-    finally:
-        env.close()
-    if gif:
-        write_gif(log.frames, gif)
-    if plot:
-        plot_episode(log, plot, f"{env_id}, policy {title}")
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -417,7 +265,7 @@ def add_workers(p: argparse.ArgumentParser) -> None:
     """``--workers`` of ``evaluate``, ``compare`` and ``demo`` (:func:`evaluate_all`)."""
     p.add_argument("--workers", type=int_at_least(1, 256), help="processes at once (default: one per core): one per "
                    "policy, and a policy's episodes split between them where there are more (the same figures; "
-                   f"by default only where each gets {EPISODES_PER_PROCESS} episodes or more)")
+                   f"by default only where each gets {experiments.EPISODES_PER_PROCESS} episodes or more)")
 
 
 def register(sub: Any) -> None:

@@ -1,0 +1,235 @@
+"""Evaluations as the commands run them: the world a policy runs in, several policies on the same seeded
+episodes split over processes, what ``compare`` and ``demo`` compare, and the figures of one episode.
+
+The command line parses and prints; this module does the work, and is usable from Python::
+
+    from stewart_gym.experiments import compare
+    results, rows = compare(["shipped-residual", "pid-kalman"], episodes=20)
+
+:func:`resolve_world` is the one place that decides the world of an evaluation: the env id, the build, the
+physics engine and the ball sensor, from the policy and what the user asked for.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from stewart_gym.envs import trajectory_env_ids
+from stewart_gym.errors import ConfigError
+
+__all__ = ["DEMO_CLASSICAL", "DEMO_LEARNED", "EPISODES_PER_PROCESS", "WORLD_DEFAULTS", "EvaluationJob", "World",
+           "check_can_render", "check_trajectory", "compare", "compare_setup", "demo_policies", "episode_figures",
+           "evaluate_all", "evaluate_part", "in_world", "process_plan", "resolve_world", "world"]
+
+#: The env's physics engine and ball sensor where none is asked for.
+WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
+
+
+@dataclass(frozen=True)
+class World:
+    """Where a policy runs: the env id and the env keywords (its build, observation and action as trained, the
+    physics engine and the ball sensor, the track's trajectory)."""
+
+    env_id: str
+    env_kwargs: dict
+
+    def describe(self) -> dict[str, str]:
+        """The env id, physics engine and ball sensor (what ``--json`` reports)."""
+        return world(self.env_id, self.env_kwargs)
+
+
+def resolve_world(source: Any, env_kwargs: dict, env_id: str | None = None, backend: str | None = None,
+                  sensor: str | None = None, trajectory: str | None = None) -> World:  # fmt: skip
+    """The :class:`World` a resolved policy (``source``, with the env keywords it was trained for) runs in: the
+    env id asked for, else its own; the engine and sensor asked for, else the ones it was trained with, else
+    :data:`WORLD_DEFAULTS`; the track's ``trajectory`` where the target moves (else a :class:`ConfigError`)."""
+    env = env_id or source.env_id
+    check_trajectory(env, trajectory)
+    kwargs = in_world(env_kwargs, source, backend, sensor)
+    if trajectory is not None:
+        kwargs["trajectory"] = trajectory
+    return World(env, kwargs)
+
+
+def check_trajectory(env_id: str, trajectory: str | None) -> None:
+    """``--trajectory`` only where the target moves: else one ``error:`` line naming the envs that take it."""
+    moving = trajectory_env_ids()
+    if trajectory is not None and env_id not in moving:
+        raise ConfigError(f"--trajectory sets a moving target, and {env_id} has a fixed one: add --env "
+                          f"{' or '.join(moving)}, or leave out --trajectory")  # fmt: skip
+
+
+class EvaluationJob(NamedTuple):
+    """One policy's evaluation for :func:`evaluate_all`: what :func:`~stewart_gym.registry.load_for_evaluation`
+    loads it from (in a worker process too) and the arguments of :func:`~stewart_gym.evaluation.evaluate`."""
+
+    spec: str
+    env_id: str
+    geometry: str | None
+    estimator: str | None
+    env_kwargs: dict
+    episodes: int
+    seed: int
+    randomize: bool
+
+
+#: Episodes a process gets at least when the episodes are split without ``--workers``: starting one (Python,
+#: torch, the policy) costs seconds, about what 2–5 episodes take.
+EPISODES_PER_PROCESS = 10
+
+
+def process_plan(requested: int | None, jobs: int, episodes: int) -> tuple[int, int]:
+    """(processes, parts) for :func:`evaluate_all`: ``jobs`` evaluations of ``episodes`` episodes each, on
+    ``requested`` processes (``--workers``), else one per core. Each job's episodes are split into ``parts``
+    contiguous parts where there are more processes than jobs: as many as ``--workers`` asks for, and by
+    default only as many as give each part :data:`EPISODES_PER_PROCESS` episodes or more."""
+    workers = requested or os.cpu_count() or 1
+    least = 1 if requested else EPISODES_PER_PROCESS
+    parts = max(1, min(workers // jobs, episodes // least))
+    return min(workers, jobs * parts), parts
+
+
+def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int) -> list[dict[str, Any]]:
+    """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order (:func:`process_plan` gives
+    ``parts`` and ``processes``): each job's episodes split into ``parts`` contiguous parts, run ``processes``
+    at a time, each in a process started afresh that loads its policy, or in this process when there is one
+    process or one part in all. An episode depends only on its seed, so the figures are those of one process,
+    to the last bit."""
+    from stewart_gym.evaluation import summarise
+
+    tasks = [(job, [int(k) for k in chunk]) for job in jobs
+             for chunk in np.array_split(np.arange(job.episodes), parts)]  # fmt: skip
+    if processes == 1 or len(tasks) == 1:
+        results = [evaluate_part(task) for task in tasks]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(evaluate_part, tasks))
+    return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
+                      [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
+
+
+def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:
+    """Some episodes of one job of :func:`evaluate_all` (:func:`~stewart_gym.evaluation.evaluation_part`); in a
+    worker process the policy is loaded there."""
+    from stewart_gym.evaluation import evaluation_part
+    from stewart_gym.registry import load_for_evaluation
+
+    job, indices = task
+    _, policy, _ = load_for_evaluation(job.spec, job.env_id, job.geometry, job.estimator)
+    return evaluation_part(job.env_id, policy, indices, job.episodes, job.seed, job.randomize,
+                           env_kwargs=job.env_kwargs)  # fmt: skip
+
+
+#: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
+#: and the two strongest classical controllers, each behind the observer it was tuned behind.
+DEMO_LEARNED = ("shipped-residual", "shipped")
+DEMO_CLASSICAL = ("pid-kalman", "lqr")
+
+
+def demo_policies(env_id: str, geometry: str | None) -> list[str]:
+    """The ``--policy`` names ``demo`` evaluates on ``geometry``: the shipped learned policies that exist for it
+    (``shipped`` always: where none exists, loading it says so), then :data:`DEMO_CLASSICAL`."""
+    from stewart_gym.registry import DEFAULT_GEOMETRY, SHIPPED_TABLES
+
+    key = (env_id, geometry or DEFAULT_GEOMETRY)
+    learned = [name for name in DEMO_LEARNED if name == "shipped" or key in SHIPPED_TABLES[name]]
+    return [*learned, *DEMO_CLASSICAL]
+
+
+def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | None) -> dict:
+    """``env_kwargs`` with the physics engine and the ball sensor asked for, else the ones ``source`` (a resolved
+    policy) was trained with, else the env's defaults (PyBullet, the touch panel)."""
+    trained = source.env_kwargs
+    chosen = {"backend": backend or trained.get("backend"), "sensor": sensor or trained.get("sensor")}
+    return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
+
+
+def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
+    """Where an evaluation ran: the env id, the physics engine and the ball sensor (for ``--json``)."""
+    return {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
+
+
+def check_can_render(backend: str | None) -> None:
+    """Before long work: MuJoCo renders GIF frames with OpenGL, which a headless machine may lack."""
+    if backend == "mujoco":
+        from stewart_gym.sim.mujoco_sim import check_rendering
+
+        check_rendering()
+
+
+def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, randomize: bool, gif: Path | None,
+                     plot: Path | None, title: str) -> None:  # fmt: skip
+    """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
+    import gymnasium as gym
+
+    from stewart_gym.evaluation import plot_episode, run_episode, settling_offset, write_gif
+
+    env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
+    try:
+        opts = {"ball_position": (settling_offset(env), 0.0), "ball_velocity": (0.0, 0.0)}
+        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
+    finally:
+        env.close()
+    if gif:
+        write_gif(log.frames, gif)
+    if plot:
+        plot_episode(log, plot, f"{env_id}, policy {title}")
+
+
+def compare_setup(policies: list[str], env_id: str | None = None, geometry: str | None = None,
+                  backend: str | None = None, sensor: str | None = None,
+                  trajectory: str | None = None) -> tuple[str, str, dict[str, dict]]:  # fmt: skip
+    """Before any episode: the env id, the build and each policy's env keywords for :func:`compare`, every
+    policy loaded once (a bad one is a :class:`ConfigError` or :class:`~stewart_gym.errors.PolicyError`). The
+    build is ``geometry``, else the one a trained policy given by path was trained for (the named ones adapt to
+    it); the physics engine and the sensor are ``backend`` and ``sensor``, else the ones the policies were trained
+    with, which must then agree."""
+    from stewart_gym.control import CLASSICAL_KINDS
+    from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
+
+    sources = {spec: resolve_policy(spec, env_id) for spec in policies}
+    env_id = env_id or sources[policies[0]].env_id
+    own = [s for s in sources.values() if s.spec not in (*SHIPPED_TABLES, *CLASSICAL) and s.kind in ("sb3", "ensemble",
+                                                                                                     "bundle")]
+    geometry = geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
+    chosen = {"backend": backend, "sensor": sensor}
+    for key in chosen:  # a trained network's world, else the env's default; a classical controller has none
+        trained = {spec: s.env_kwargs.get(key) or WORLD_DEFAULTS[key] for spec, s in sources.items()
+                   if s.env_kwargs.get(key) is not None or s.kind not in CLASSICAL_KINDS}  # fmt: skip
+        if chosen[key] is None and len(set(trained.values())) > 1:
+            named = ", ".join(f"{spec} with {value}" for spec, value in trained.items())
+            raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "
+                              f"them with, e.g. --{key} {next(iter(trained.values()))}")  # fmt: skip
+        chosen[key] = chosen[key] or next(iter(trained.values()), None)
+    check_trajectory(env_id, trajectory)
+    env_kwargs = {}
+    for spec in policies:
+        source, _, kwargs = load_for_evaluation(spec, env_id, geometry)
+        env_kwargs[spec] = resolve_world(source, kwargs, env_id, chosen["backend"], chosen["sensor"],
+                                         trajectory).env_kwargs  # fmt: skip
+    return env_id, geometry, env_kwargs
+
+
+
+
+def compare(policies: list[str], env_id: str | None = None, episodes: int = 100, seed: int = 0, randomize: bool = True,
+            geometry: str | None = None, backend: str | None = None, sensor: str | None = None,
+            trajectory: str | None = None, workers: int | None = None) -> tuple[dict[str, dict], list[dict]]:  # fmt: skip
+    """Evaluate ``policies`` on the same seeded episodes (:func:`compare_setup`, :func:`evaluate_all`) and pair the
+    first with each of the others (:func:`~stewart_gym.evaluation.paired_rows`): (figures by policy, paired
+    rows)."""
+    from stewart_gym.evaluation import paired_rows
+
+    env, build, env_kwargs = compare_setup(policies, env_id, geometry, backend, sensor, trajectory)
+    processes, parts = process_plan(workers, len(policies), episodes)
+    jobs = [EvaluationJob(spec, env, build, None, env_kwargs[spec], episodes, seed, randomize) for spec in policies]
+    results = dict(zip(policies, evaluate_all(jobs, parts, processes)))
+    return results, paired_rows(results, policies[0])
