@@ -27,6 +27,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/bench_kinematics.py
+	$(PY) bench/bench_ik_load.py
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_env.py
 	$(PY) bench/bench_deploy.py

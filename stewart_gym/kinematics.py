@@ -20,6 +20,7 @@ Everything is vectorised over the leading dimensions: no per-pose Python loop.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -47,6 +48,29 @@ __all__ = [
 
 #: Poses are processed in blocks of this many, so temporaries stay in cache.
 _CHUNK = 8192
+#: From this many poses a batch's (3n × 7)·(7 × 6) product is large enough for OpenBLAS to split over threads.
+#: A product this small gains nothing from them, and on a busy machine (the other cores taken) the threads
+#: wait for each other: 3.5× slower under two busy processes. So the batch runs with one BLAS thread, which
+#: computes every element alike (the same results to the last bit).
+_ONE_THREAD_FROM = 512
+
+
+class _OneBlasThread:
+    """numpy's BLAS limited to one thread for the duration of a ``with`` (threadpoolctl; its controller is made
+    once, at first use)."""
+
+    controller = None
+
+    def __enter__(self) -> None:
+        if _OneBlasThread.controller is None:
+            from threadpoolctl import ThreadpoolController
+
+            _OneBlasThread.controller = ThreadpoolController()
+        self._limit = _OneBlasThread.controller.limit(limits=1, user_api="blas")
+        self._limit.__enter__()
+
+    def __exit__(self, *exc: object) -> None:
+        self._limit.__exit__(*exc)
 
 
 class LegStatus(IntEnum):
@@ -424,7 +448,8 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
     alpha = np.empty((n, 6)) if k.rotary else None
     aug = np.zeros((min(n, _CHUNK), 3, 7))
     aug[:, :, 4:] = np.eye(3)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    threads = _OneBlasThread() if n >= _ONE_THREAD_FROM else contextlib.nullcontext()
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"), threads:
         for start in range(0, n, _CHUNK):
             sl = slice(start, start + _CHUNK)
             _ik_block(k, flat[sl], aug, legs[sl], lengths[sl], None if alpha is None else alpha[sl])
