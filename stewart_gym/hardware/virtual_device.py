@@ -363,8 +363,12 @@ class VirtualDevice:
 
         if protocol not in ("maestro", "ssc32", "line"):
             raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
-        if camera_stream and backend != "pybullet":  # the checks first, before anything is built
-            raise ConfigError("--camera-stream renders the twin's camera with PyBullet: use --backend pybullet")
+        if camera_stream:  # the checks first, before anything is built
+            from stewart_gym.sim.engines import backend_class
+
+            if not backend_class(backend).renders_camera:
+                raise ConfigError(f"--camera-stream renders the twin's camera, which the {backend} backend cannot: "
+                                  "use --backend pybullet")  # fmt: skip
         if link and Path(link).exists() and not Path(link).is_symlink():
             raise ConfigError(f"{link} exists and is not a link: give another --link path")
         if link and not Path(link).parent.is_dir():

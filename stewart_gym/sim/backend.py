@@ -119,17 +119,120 @@ class PhysicsBackend(Protocol):
 
 
 class SimulatorBase:
-    """What every engine's simulator derives the same way from its geometry, mechanism and step counter.
+    """What every engine's simulator does the same way, so that each engine holds only its own engine code.
 
-    A subclass sets ``geometry``, ``mechanism`` (a :class:`~stewart_gym.sim.MechanismSpec`),
-    ``physics_hz`` and ``_step_count`` (physics steps since the last reset), and defines ``close()``.
+    * :meth:`_setup`: the constructor's checks (rates, render mode) and the attributes every backend has
+      (geometry, calibration, rates, ball, servo model, mechanism, the hobby-servo model, the step counter);
+    * :meth:`command`, :meth:`held_pulses`: pulses go through :class:`~stewart_gym.sim.servo_model.HobbyServos`;
+    * :meth:`platform_pose` from the engine's :meth:`_plate_frame`;
+    * the ball's rolling maths (:meth:`_rolling_velocity`, :meth:`_push_change`) and :meth:`set_plate_load`;
+    * optional capabilities, declared: :attr:`renders_camera` says whether :meth:`camera_image` works.
+
+    A subclass calls :meth:`_setup`, builds its engine, and defines ``_plate_frame``, ``_apply_targets``,
+    ``step``, ``reset``, the ball's state and ``close``.
     """
 
     geometry: PlatformGeometry
+    calibration: ServoCalibration
     mechanism: Any
     physics_hz: int
+    control_hz: int
     _step_count: int
+    #: whether :meth:`camera_image` renders what a camera above the plate sees (an optional capability)
+    renders_camera = False
 
+    def _setup(self, geometry: Any, calibration: ServoCalibration | None, physics_hz: int, control_hz: int, ball: bool,
+               ball_spec: BallSpec | None, servo_spec: ServoSpec | None, mechanism: Any, render_mode: str | None,
+               render_size: tuple[int, int], render_modes: tuple[str, ...]) -> None:  # fmt: skip
+        """Check the options and set what every backend has; raises ``ValueError`` naming a bad option."""
+        from stewart_gym.calibration import ServoCalibration
+        from stewart_gym.presets import load_geometry
+        from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
+        from stewart_gym.sim.urdf import MechanismSpec
+
+        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
+            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        if render_mode is not None and render_mode not in render_modes:
+            allowed = " or ".join(repr(m) for m in (None, *render_modes))
+            raise ValueError(f"render_mode must be {allowed} for {type(self).__name__}, got {render_mode!r}")
+        self.geometry = load_geometry(geometry)
+        self.calibration = calibration or ServoCalibration.default(self.geometry)
+        self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
+        self.substeps = self.physics_hz // self.control_hz
+        self.dt = 1.0 / self.control_hz
+        self.has_ball = bool(ball)
+        self.ball_spec = ball_spec or BallSpec()
+        self.servo_spec = servo_spec or (ServoSpec() if self.geometry.is_rotary else LINEAR_ACTUATOR)
+        self.mechanism = mechanism or MechanismSpec()
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
+        self._plate_load: tuple[float, np.ndarray] | None = None
+        self._step_count = 0
+        self._closed = False
+
+    # ------------------------------------------------------------ commanding
+    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
+        """Send pulse widths (6,) µs to the servos; they take effect after the servo lag.
+
+        Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse is outside
+        the calibration's channel limits (or not finite); nothing is sent then.
+        Returns the pulses as the servos received them (quantised).
+        """
+        return self._servos.command(pulse_widths_us, self._step_count)
+
+    def held_pulses(self) -> np.ndarray:
+        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
+        return self._servos.held_us
+
+    def _new_servo_model(self, servo_spec: ServoSpec) -> None:
+        """Use ``servo_spec`` from now on (a new episode's servos)."""
+        from stewart_gym.sim.servo_model import HobbyServos
+
+        self.servo_spec = servo_spec
+        self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
+
+    # ------------------------------------------------------------ state
+    def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - every subclass defines it
+        """Platform frame in the world: origin (3,) m and rotation (3, 3)."""
+        raise NotImplementedError
+
+    def platform_pose(self) -> np.ndarray:
+        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
+        from stewart_gym.kinematics import euler_from_matrix
+
+        origin, rot = self._plate_frame()
+        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
+
+    def set_plate_load(self, load: PlateLoad | None) -> None:
+        """Put an extra mass on the plate (or take it off) from the next ``step`` on."""
+        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
+
+    # --------------------------------------------------------------- ball
+    def _require_ball(self) -> None:
+        if not self.has_ball:
+            raise RuntimeError(f"this {type(self).__name__} was built without a ball (ball=False)")
+
+    def _rolling_velocity(self, velocity_xy: Sequence[float], rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World linear (3,) m/s and angular (3,) rad/s velocity of a ball rolling without slipping at
+        ``velocity_xy`` (m/s, plate frame) on a plate turned by ``rot``: ω = n × v / r."""
+        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
+        return vel, np.cross(rot[:, 2], vel) / self.ball_spec.radius
+
+    def _push_change(self, impulse_xy: Sequence[float], rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The change of the ball's world velocity (3,) and angular velocity (3,) from an impulse ``impulse_xy``
+        (N·s, plate frame) at its centre: Δv = J / m, and it keeps rolling, Δω = n × Δv / r."""
+        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
+        return dv, np.cross(rot[:, 2], dv) / self.ball_spec.radius
+
+    # --------------------------------------------------------- capabilities
+    def camera_image(self, camera: Any, markers: Any = None, ball_rgb: tuple[float, float, float] = (1.0, 0.45, 0.0)
+                     ) -> np.ndarray:  # fmt: skip
+        """What a camera above the plate sees (where :attr:`renders_camera`); here: not this engine."""
+        raise NotImplementedError(f"{type(self).__name__} does not render camera images (renders_camera is False); "
+                                  "use the PyBullet backend for a camera")  # fmt: skip
+
+    # ------------------------------------------------------------ geometry
     @property
     def plate_half_extent(self) -> tuple[float, float]:
         """m: half the plate's size along its x and y axes."""

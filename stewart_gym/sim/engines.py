@@ -7,7 +7,7 @@ from typing import Any
 from stewart_gym.errors import ConfigError
 from stewart_gym.sim.backend import PhysicsBackend
 
-__all__ = ["BACKEND_NAMES", "DEFAULT_BACKEND", "make_backend"]
+__all__ = ["BACKEND_NAMES", "DEFAULT_BACKEND", "backend_class", "make_backend"]
 
 #: Engines :func:`make_backend` builds (MuJoCo needs the ``mujoco`` extra).
 BACKEND_NAMES = ("pybullet", "mujoco")
@@ -15,6 +15,20 @@ DEFAULT_BACKEND = "pybullet"
 
 #: Hz: PyBullet's physics rate in the envs (the loop gap stays ≤ 0.042 mm under ±10° bang-bang tilts).
 PYBULLET_ENV_HZ = 150
+
+
+def backend_class(name: str) -> type:
+    """The simulator class of engine ``name`` (to ask its declared capabilities before building one, such as
+    ``renders_camera``)."""
+    if name == "pybullet":
+        from stewart_gym.sim.stewart_sim import StewartSim
+
+        return StewartSim
+    if name == "mujoco":
+        from stewart_gym.sim.mujoco_sim import MujocoSim
+
+        return MujocoSim
+    raise ConfigError(f"backend must be one of {list(BACKEND_NAMES)}, got {name!r}")
 
 
 def make_backend(name: str, geometry: Any, *, physics_hz: int | None = None, **kwargs: Any) -> PhysicsBackend:

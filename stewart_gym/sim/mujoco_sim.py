@@ -22,11 +22,10 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
-from stewart_gym.presets import load_geometry
+from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.sim.backend import BallSpec, PlateLoad, SimulatorBase
 from stewart_gym.sim.mjcf import MujocoPhysics, ball_friction, mechanism_mjcf
-from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
+from stewart_gym.sim.servo_model import ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec
 
 __all__ = ["MOTOR_REFERENCE_HZ", "MujocoSim", "check_rendering"]
@@ -107,22 +106,9 @@ class MujocoSim(SimulatorBase):
         mj = _mujoco()
         physics = physics or MujocoPhysics()
         physics_hz = int(physics_hz or physics.physics_hz)
-        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
-            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array' for MuJoCo, got {render_mode!r}")
-        self.geometry = load_geometry(geometry)
-        self.calibration = calibration or ServoCalibration.default(self.geometry)
-        self.physics_hz, self.control_hz = physics_hz, int(control_hz)
-        self.substeps = physics_hz // self.control_hz
-        self.dt = 1.0 / self.control_hz
-        self.has_ball = bool(ball)
-        self.ball_spec = ball_spec or BallSpec()
-        self.servo_spec = servo_spec or (ServoSpec() if self.geometry.is_rotary else LINEAR_ACTUATOR)
-        self.mechanism = mechanism or MechanismSpec()
+        self._setup(geometry, calibration, physics_hz, control_hz, ball, ball_spec, servo_spec, mechanism, render_mode,
+                    render_size, ("rgb_array",))  # fmt: skip
         self.physics = MujocoPhysics(**{**vars(physics), "physics_hz": physics_hz})
-        self.render_mode = render_mode
-        self.render_size = render_size
         self._mj = mj
         self._plate_friction = 0.6
         self.xml = mechanism_mjcf(self.geometry, self.mechanism, self.servo_spec, self.physics,
@@ -146,19 +132,11 @@ class MujocoSim(SimulatorBase):
             self._ball_v = int(m.jnt_dofadr[joint("ball")])
         self._home = inverse_kinematics(self.geometry, np.zeros(6)).actuators
         self._gain = self.servo_spec.position_gain * MOTOR_REFERENCE_HZ
-        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / physics_hz)
         self._target = np.zeros(6)
-        self._plate_load: tuple[float, np.ndarray] | None = None
-        self._step_count = 0
         self._renderer = None
-        self._closed = False
         self.reset()
 
     # ------------------------------------------------------------ commanding
-    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
-        """Send pulse widths (6,) µs; they take effect after the servo lag (see :class:`HobbyServos`)."""
-        return self._servos.command(pulse_widths_us, self._step_count)
-
     def _apply_targets(self, targets: list[float]) -> None:
         self._target = np.asarray(targets) - self._home
 
@@ -190,9 +168,8 @@ class MujocoSim(SimulatorBase):
         """Home pose (every joint at its home value), servos holding neutral, ball at rest at the plate centre."""
         mj, m, d = self._mj, self.model, self.data
         if servo_spec is not None:
-            self.servo_spec = servo_spec
+            self._new_servo_model(servo_spec)
             self._gain = servo_spec.position_gain * MOTOR_REFERENCE_HZ
-            self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
             m.actuator_forcerange[:] = (-servo_spec.stall_torque, servo_spec.stall_torque)
             m.actuator_ctrlrange[:] = (-servo_spec.max_speed, servo_spec.max_speed)
             m.actuator_gainprm[:, 0] = servo_spec.stall_torque / (self.physics.servo_slip * servo_spec.max_speed)
@@ -224,13 +201,12 @@ class MujocoSim(SimulatorBase):
         """Give the ball an impulse (N·s) along the plate (plate frame); it keeps rolling."""
         self._require_ball()
         _, rot = self._plate_frame()
-        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
-        dw = np.cross(rot[:, 2], dv) / self.ball_spec.radius
+        dv, dw = self._push_change(impulse_xy, rot)
         self._set_ball_velocity(self.data.qvel[self._ball_v:self._ball_v + 3] + dv, self._ball_omega() + dw)
 
     def set_plate_load(self, load: PlateLoad | None) -> None:
         """Put an extra mass on the plate (or take it off) from the next :meth:`step` on."""
-        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
+        super().set_plate_load(load)
         if load is None:
             self.data.xfrc_applied[self._plate_body] = 0.0
 
@@ -240,11 +216,6 @@ class MujocoSim(SimulatorBase):
         q = self.data.qpos[self._plate_q:self._plate_q + 7]
         return q[:3].copy(), _quat_matrix(q[3:7])
 
-    def platform_pose(self) -> np.ndarray:
-        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
-        origin, rot = self._plate_frame()
-        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
-
     def servo_angles(self) -> np.ndarray:
         """(6,) rad: the horn angles α; leg lengths (m) on a linear platform."""
         return self.data.qpos[self._servo_q] + self._home
@@ -253,10 +224,6 @@ class MujocoSim(SimulatorBase):
         """(6,) rad/s (m/s linear)."""
         return self.data.qvel[self._servo_v].copy()
 
-    def held_pulses(self) -> np.ndarray:
-        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
-        return self._servos.held_us
-
     def constraint_error(self) -> float:
         """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
         self._mj.mj_kinematics(self.model, self.data)
@@ -264,10 +231,6 @@ class MujocoSim(SimulatorBase):
         return float(np.max(np.linalg.norm(x[self._rod_top_sites] - x[self._anchor_sites], axis=1)))
 
     # --------------------------------------------------------------- ball
-    def _require_ball(self) -> None:
-        if not self.has_ball:
-            raise RuntimeError("this MujocoSim was built without a ball (ball=False)")
-
     def _ball_omega(self) -> np.ndarray:
         """Ball angular velocity, world frame (a free joint's is in the body frame)."""
         q = self.data.qpos[self._ball_q + 3:self._ball_q + 7]
@@ -285,8 +248,7 @@ class MujocoSim(SimulatorBase):
         local = np.array([xy[0], xy[1], self.plate_top + self.ball_spec.radius])
         self.data.qpos[self._ball_q:self._ball_q + 3] = origin + rot @ local
         self.data.qpos[self._ball_q + 3:self._ball_q + 7] = (1.0, 0.0, 0.0, 0.0)
-        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
-        self._set_ball_velocity(vel, np.cross(rot[:, 2], vel) / self.ball_spec.radius)
+        self._set_ball_velocity(*self._rolling_velocity(velocity_xy, rot))
 
     def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ball position and velocity in the platform frame: ((3,) m, (3,) m/s)."""

@@ -34,10 +34,9 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.camera import CameraSpec
 from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.kinematics import euler_from_matrix, inverse_kinematics
-from stewart_gym.presets import load_geometry
+from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.sim.backend import BallSpec, PlateLoad, SimulatorBase
-from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
+from stewart_gym.sim.servo_model import ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 from stewart_gym.vision import MarkerLayout
 
@@ -96,7 +95,8 @@ with _quiet_fd(2):
 
 
 class StewartSim(SimulatorBase):
-    """A servo Stewart platform in PyBullet, commanded in pulse widths.
+    """A servo Stewart platform in PyBullet, commanded in pulse widths. It renders camera images
+    (:meth:`camera_image`, :attr:`renders_camera`).
 
     Args:
         geometry: Preset name, TOML path or :class:`PlatformGeometry` (rotary).
@@ -130,27 +130,11 @@ class StewartSim(SimulatorBase):
         render_mode: Literal["rgb_array", "human"] | None = None,
         render_size: tuple[int, int] = (480, 360),
     ) -> None:
-        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
-            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
-        if render_mode not in (None, "rgb_array", "human"):
-            raise ValueError(f"render_mode must be None, 'rgb_array' or 'human', got {render_mode!r}")
-        self.geometry = load_geometry(geometry)
-        self.calibration = calibration or ServoCalibration.default(self.geometry)
-        self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
-        self.substeps = self.physics_hz // self.control_hz
-        self.dt = 1.0 / self.control_hz
-        self.has_ball = bool(ball)
-        self.ball_spec = ball_spec or BallSpec()
-        self.servo_spec = servo_spec or (ServoSpec() if self.geometry.is_rotary else LINEAR_ACTUATOR)
-        self.mechanism = mechanism or MechanismSpec()
+        self._setup(geometry, calibration, physics_hz, control_hz, ball, ball_spec, servo_spec, mechanism, render_mode,
+                    render_size, ("rgb_array", "human"))  # fmt: skip
         self.physics = physics or PhysicsSpec()
-        self.render_mode = render_mode
-        self.render_size = render_size
         self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).actuators
         self._home_list: list[float] = self._home_alpha.tolist()
-        self._servos = HobbyServos(self.servo_spec, self.calibration, 1.0 / self.physics_hz)
-        self._step_count = 0
-        self._closed = False
         self._tmp = Path(tempfile.mkdtemp(prefix="stewart_gym_"))
         try:
             self._build()
@@ -159,6 +143,8 @@ class StewartSim(SimulatorBase):
             raise
 
     # ------------------------------------------------------------- building
+    renders_camera = True
+
     def _build(self) -> None:
         if self.render_mode == "human" and sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             # PyBullet's GUI ends the whole process when it cannot open a window.
@@ -246,15 +232,6 @@ class StewartSim(SimulatorBase):
         return ball
 
     # ------------------------------------------------------------ commanding
-    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
-        """Send pulse widths (6,) µs to the servos; they take effect after the servo lag.
-
-        Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse is outside
-        the calibration's channel limits (or not finite); nothing is sent then.
-        Returns the pulses as the servos received them (quantised).
-        """
-        return self._servos.command(pulse_widths_us, self._step_count)
-
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
         step, update = self._pb_step, self._servos.update
@@ -307,8 +284,7 @@ class StewartSim(SimulatorBase):
         self._frame = None
         self._step_count = 0
         if servo_spec is not None:
-            self.servo_spec = servo_spec
-            self._servos = HobbyServos(servo_spec, self.calibration, 1.0 / self.physics_hz)
+            self._new_servo_model(servo_spec)
         if plate_friction is not None:
             c.changeDynamics(self.plate, -1, lateralFriction=float(plate_friction))
         self.set_plate_load(plate_load)
@@ -321,17 +297,11 @@ class StewartSim(SimulatorBase):
     # ------------------------------------------------------- disturbances
     def push_ball(self, impulse_xy: tuple[float, float]) -> None:
         """Give the ball an impulse (N·s) along the plate, in the plate frame: a sudden change of its velocity."""
-        ball, c = self._require_ball(), self._client
+        ball, c = self._ball_body(), self._client
         _, rot = self._plate_frame()
         lin, ang = self._pb_base_velocity(ball)
-        dv = rot @ np.array([impulse_xy[0], impulse_xy[1], 0.0]) / self.ball_spec.mass
-        # a push at the centre changes the velocity; the ball keeps rolling: ω follows v (n × Δv / r)
-        dw = np.cross(rot[:, 2], dv) / self.ball_spec.radius
+        dv, dw = self._push_change(impulse_xy, rot)
         c.resetBaseVelocity(ball, (np.array(lin) + dv).tolist(), (np.array(ang) + dw).tolist())
-
-    def set_plate_load(self, load: PlateLoad | None) -> None:
-        """Put an extra mass on the plate (or take it off) from the next :meth:`step` on."""
-        self._plate_load = None if load is None else (float(load[0]), np.asarray(load[1], float))
 
     # ------------------------------------------------------------ state
     def _plate_frame(self) -> tuple[np.ndarray, np.ndarray]:
@@ -341,11 +311,6 @@ class StewartSim(SimulatorBase):
             rot = np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
             self._frame = (np.array(pos) - rot @ self._plate_com, rot)
         return self._frame
-
-    def platform_pose(self) -> np.ndarray:
-        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
-        origin, rot = self._plate_frame()
-        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
 
     def servo_angles(self) -> np.ndarray:
         """(6,) rad: the horn angles α (from the horizontal, as in eq. 9); leg lengths (m) on a linear platform."""
@@ -359,10 +324,6 @@ class StewartSim(SimulatorBase):
         get, joint = self._client.getJointState, self._servo_joint
         return [get(leg, joint) for leg in self.legs]
 
-    def held_pulses(self) -> np.ndarray:
-        """(6,) µs: the pulses the servos are acting on now (after lag and dead band)."""
-        return self._servos.held_us
-
     def constraint_error(self) -> float:
         """m: the largest gap between a rod top and its plate anchor (loop-closure error)."""
         c, s = self._client, self._rod_top
@@ -375,9 +336,10 @@ class StewartSim(SimulatorBase):
         return float(np.max(np.linalg.norm(tops - anchors, axis=1)))
 
     # --------------------------------------------------------------- ball
-    def _require_ball(self) -> int:
-        if self.ball is None:
-            raise RuntimeError("this StewartSim was built without a ball (ball=False)")
+    def _ball_body(self) -> int:
+        """The ball's PyBullet body (a ``RuntimeError`` without one)."""
+        self._require_ball()
+        assert self.ball is not None
         return self.ball
 
     def _plate_point(self, xy: np.ndarray, lift: float = 0.0) -> np.ndarray:
@@ -388,11 +350,9 @@ class StewartSim(SimulatorBase):
 
     def place_ball(self, xy: np.ndarray, velocity_xy: np.ndarray = (0.0, 0.0)) -> None:
         """Put the ball on the plate at ``xy`` (m, plate frame) rolling with ``velocity_xy`` (m/s, plate frame)."""
-        ball, c = self._require_ball(), self._client
+        ball, c = self._ball_body(), self._client
         _, rot = self._plate_frame()
-        vel = rot @ np.array([velocity_xy[0], velocity_xy[1], 0.0])
-        # rolling without slipping: ω = n × v / r
-        omega = np.cross(rot[:, 2], vel) / self.ball_spec.radius
+        vel, omega = self._rolling_velocity(velocity_xy, rot)
         c.resetBasePositionAndOrientation(ball, self._plate_point(np.asarray(xy)).tolist(), [0, 0, 0, 1])
         c.resetBaseVelocity(ball, vel.tolist(), omega.tolist())
 
@@ -402,13 +362,13 @@ class StewartSim(SimulatorBase):
         x, y lie in the plate; z is the height of the ball centre above the
         platform frame origin (``plate_top + radius`` while it rests on the plate).
         """
-        vel, _ = self._pb_base_velocity(self._require_ball())
+        vel, _ = self._pb_base_velocity(self._ball_body())
         _, rot = self._plate_frame()
         return np.array(self.ball_position()), np.array(vel) @ rot
 
     def ball_position(self) -> tuple[float, float, float]:
         """Ball centre (x, y, z) in the platform frame, m, as Python floats (the cheap part of :meth:`ball_state`)."""
-        (bx, by, bz), _ = self._pb_base_pose(self._require_ball())
+        (bx, by, bz), _ = self._pb_base_pose(self._ball_body())
         (px, py, pz), orn = self._pb_base_pose(self.plate)
         m = pb.getMatrixFromQuaternion(orn)  # R row by row
         dx, dy, dz = bx - px, by - py, bz - pz
@@ -419,7 +379,7 @@ class StewartSim(SimulatorBase):
 
     def ball_world_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ball position (3,) m and velocity (3,) m/s in the world (base) frame."""
-        ball = self._require_ball()
+        ball = self._ball_body()
         return np.array(self._pb_base_pose(ball)[0]), np.array(self._pb_base_velocity(ball)[0])
 
     # -------------------------------------------------------------- render
