@@ -38,7 +38,7 @@ bench: $(STAMP)
 # Reproduce the camera-trained policy (policies/balance_camera): fine-tune the shipped balance policy (make train's
 # run, behind the Kalman observer) with the camera model, a preset per episode (300k steps, about 6 minutes).
 train-camera: $(STAMP)
-	$(PY) -m stewart_gym train --sensor camera --resume stewart_gym/policies/balance --hyperparams train/recipes/ppo_camera.yml --run-dir runs/camera --overwrite --no-progress
+	$(PY) -m stewart_gym train --sensor camera --resume stewart_gym/policies/balance --hyperparams ppo_camera --run-dir runs/camera --overwrite --no-progress
 	for s in webcam30 pixy2 global90; do $(PY) -m stewart_gym evaluate --policy runs/camera --sensor $$s --episodes 100; done
 
 # The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach, for
@@ -84,14 +84,14 @@ endef
 TRACK_NETS := stewart_gym/policies/track_residual/members
 TRACK_DRAWS := 1 2
 results: $(STAMP)
-	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
-	for s in 0 1 2; do $(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --hyperparams train/recipes/ppo_integral.yml --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
-	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_pid_kalman.yml --run-dir runs/residual_bal_s{} --seed {} --overwrite --no-progress
-	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams train/recipes/ppo_residual_single.yml --run-dir runs/approach_s{} --seed {} --overwrite --no-progress
+	for s in 0 1 2; do $(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
+	for s in 0 1 2; do $(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --hyperparams ppo_integral --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
+	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams ppo_residual_pid_kalman --run-dir runs/residual_bal_s{} --seed {} --overwrite --no-progress
+	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams ppo_residual_single --run-dir runs/approach_s{} --seed {} --overwrite --no-progress
 	$(call residual_draws,$(ENSEMBLE_DRAWS),ensemble,)
 	$(call residual_draws,$(TRACK_DRAWS),track_ens,--env StewartBallTrack-v0)
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/track_s{} --seed {} --overwrite --no-progress
-	$(PY) train/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
+	$(PY) train/tools/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
@@ -100,7 +100,7 @@ sweep: $(STAMP)
 # Train a balance policy from scratch: PPO behind the Kalman observer, 3 minutes of wall time on 2 cores
 # (`make train SEED=1` for another training seed), then evaluate it on the 100 seeds.
 train: $(STAMP)
-	$(PY) train/train.py --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite
+	$(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
 
 # Train a tracking policy from scratch, as the shipped one (`--policy shipped --env StewartBallTrack-v0`) was:

@@ -477,7 +477,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
 
     ``on_eval`` is called after each evaluation with that row of the learning curve (``timesteps``,
     ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler. ``callbacks`` (SB3
-    callbacks) run after the run's own, e.g. a curriculum (``train/curriculum_experiment.py``).
+    callbacks) run after the run's own, e.g. a curriculum (``train/experiments/curriculum.py``).
     """
     check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]

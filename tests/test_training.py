@@ -27,6 +27,8 @@ SMOKE = {
     "tqc": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
 }
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 @pytest.mark.parametrize("algo", sorted(SMOKE))
 def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
@@ -92,10 +94,10 @@ def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
     for estimator in ("kalman", "lowpass"):  # an explicit choice is the user's
         check_run_dir(TrainConfig(hyperparams=str(root / "stewart_gym/hyperparams/ppo_finetune.yml"),
                                   run_dir=str(tmp_path / estimator), resume=str(shipped), estimator=estimator))
-    check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"), run_dir=str(tmp_path / "c"),
+    check_run_dir(TrainConfig(hyperparams="ppo_camera", run_dir=str(tmp_path / "c"),
                               resume=str(shipped / "model.zip")))  # the camera recipe keeps the Kalman observer
     with pytest.raises(ConfigError, match="lowpass observer"):  # and the other way round (desk-rect's: low-pass)
-        check_run_dir(TrainConfig(hyperparams=str(root / "train/recipes/ppo_camera.yml"),
+        check_run_dir(TrainConfig(hyperparams="ppo_camera",
                                   run_dir=str(tmp_path / "d"), resume=str(root / "stewart_gym/policies/balance_desk_rect")))
 
 
@@ -299,17 +301,17 @@ def test_settled_servo_activity_is_reported() -> None:
 
 
 def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touching_the_package(tmp_path: Path) -> None:
-    """``train/ship_policy.py --eval FILE`` reads the evaluation first: a file with no JSON object is one error line
+    """``train/tools/ship_policy.py --eval FILE`` reads the evaluation first: a file with no JSON object is one error line
     and nothing is written or removed under ``stewart_gym/policies``; an indented JSON object is read as it is."""
     import subprocess
     import sys
 
     root = Path(__file__).resolve().parents[1]
-    sys.path.insert(0, str(root / "train"))
+    sys.path.insert(0, str(root / "train" / "tools"))
     try:
         import ship_policy
     finally:
-        sys.path.remove(str(root / "train"))
+        sys.path.remove(str(root / "train" / "tools"))
     (tmp_path / "indented.json").write_text('{\n "success_rate": 1.0,\n "per_episode": {"success": [true]}\n}\n')
     assert ship_policy.read_evaluation(tmp_path / "indented.json") == {"success_rate": 1.0}
     (tmp_path / "logged.json").write_text('loading\n{"success_rate": 0.5}\n')  # evaluate's output with a log line
@@ -320,7 +322,7 @@ def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touchi
     try:
         for bad, says in (("bad.json", "error: --eval"), ("missing.json", "error: --eval"),  # no JSON; no file
                           ("indented.json", f"error: {tmp_path / 'run'}: no model.zip")):  # a good file, no run
-            proc = subprocess.run([sys.executable, str(root / "train/ship_policy.py"), str(tmp_path / "run"), "--name",
+            proc = subprocess.run([sys.executable, str(root / "train/tools/ship_policy.py"), str(tmp_path / "run"), "--name",
                                    "never_shipped", "--eval", str(tmp_path / bad)], capture_output=True, text=True,
                                   timeout=120)  # fmt: skip
             assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
@@ -330,7 +332,7 @@ def test_shipping_a_policy_refuses_an_evaluation_file_without_json_before_touchi
 
 
 def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -> None:
-    """``train/results.py --recipes-only``: the recipe's runs are evaluated, the controllers' rows of
+    """``train/tools/results.py --recipes-only``: the recipe's runs are evaluated, the controllers' rows of
     results.json and the other recipes are kept as they were, an earlier run of the same recipe is replaced,
     and the page gets the recipe's column next to the others."""
     import subprocess
@@ -345,7 +347,7 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
             {"table": "balance", "row": "seed:stale", "recipe": "quick PID", "policy": "stale", "estimator": None,
              "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.25}}]  # fmt: skip
     (tmp_path / "results.json").write_text(json.dumps(kept))
-    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--recipes-only", "--recipe",
                            "quick PID=pid", "--episodes", "1", "--workers", "1", "--out", str(tmp_path / "r.md")],
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -357,7 +359,7 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     page = (tmp_path / "r.md").read_text()
     assert "quick PID, 1 training seeds" in page and "old, 1 training seeds" in page
     assert page.index("old, 1 training seeds") < page.index("quick PID, 1 training seeds")  # the columns' order kept
-    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--out",
+    bad = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--recipes-only", "--out",
                           str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr
 
@@ -383,7 +385,7 @@ def test_make_results_reproduces_every_recipe_column_of_the_page() -> None:
 
 
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
-    """``train/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
+    """``train/tools/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
     trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
     re-evaluated row takes its old row's place; an unknown label, a --recipe run that does not exist, or no
     results.json to keep rows from, is refused with one error line and exit 2."""
@@ -399,7 +401,7 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
             {"table": "balance", "row": "seed:old", "recipe": "old", "policy": "old", "estimator": None,
              "env": "StewartBallBalance-v0", "episodes": 3, "metrics": {"success_rate": 0.5}}]  # fmt: skip
     (tmp_path / "results.json").write_text(json.dumps(kept))
-    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--rows", "LQR → PID", "--episodes",
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--rows", "LQR → PID", "--episodes",
                            "1", "--robust-episodes", "1", "--workers", "1", "--out", str(tmp_path / "r.md")],
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -422,8 +424,8 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     assert len(track["rms_mm"]) == 1 and "settling_s" not in track
     assert all("per_episode" not in r["metrics"] for r in new if r["table"] in ("latency", "noise"))
     # --tables with --rows: only that controller's pushes row is evaluated again, in its place; the rest is kept
-    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--tables", "pushes", "--rows", "LQR",
-                           "--episodes", "2", "--workers", "1", "--out", str(tmp_path / "r.md")],
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--tables", "pushes", "--rows",
+                           "LQR", "--episodes", "2", "--workers", "1", "--out", str(tmp_path / "r.md")],
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     again = json.loads((tmp_path / "results.json").read_text())
@@ -433,23 +435,23 @@ def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) ->
     assert "| pushes | LQR | LQR → PID |" in (tmp_path / "r.md").read_text()  # 2 and 1 seeds: no one count
     rows = again
     for args, says in ((["--rows", "MPC"], "unknown controller"), (["--tables", "pushes,wind"], "unknown table")):
-        bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), *args, "--out",
+        bad = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), *args, "--out",
                               str(tmp_path / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
         assert bad.returncode == 2 and says in bad.stderr and "Traceback" not in bad.stderr
-    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--recipes-only", "--recipe",
+    bad = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--recipes-only", "--recipe",
                           f"X={tmp_path / 'no_run'}", "--out", str(tmp_path / "r.md")], capture_output=True, text=True,
                          timeout=60)  # fmt: skip  (a mistyped run: refused before any evaluation, results.json kept)
     assert bad.returncode == 2 and "error: --recipe: policy" in bad.stderr and "Traceback" not in bad.stderr
     assert json.loads((tmp_path / "results.json").read_text()) == rows
     (tmp_path / "empty").mkdir()  # no results.json to keep rows from: one error line, exit 2, nothing written
-    bad = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+    bad = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--from-json", "--out",
                           str(tmp_path / "empty" / "r.md")], capture_output=True, text=True, timeout=60)  # fmt: skip
     assert bad.returncode == 2 and "results.json not found" in bad.stderr and "Traceback" not in bad.stderr
     assert not any((tmp_path / "empty").iterdir())
 
 
 def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
-    """``train/tune_handover.py`` on a 2-set grid: prints a row per set and writes the pick as a hand-over design
+    """``train/tools/tune_handover.py`` on a 2-set grid: prints a row per set and writes the pick as a hand-over design
     that loads (the shipped LQR and PID + Kalman inside, the picked hand-over distance)."""
     import subprocess
     import sys
@@ -457,7 +459,7 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     from stewart_gym.control import checked_design, shipped_design
 
     root, out = Path(__file__).resolve().parents[1], tmp_path / "h.json"
-    proc = subprocess.run([sys.executable, str(root / "train" / "tune_handover.py"), "--episodes", "2",
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "tune_handover.py"), "--episodes", "2",
                            "--handover-mm", "2,4", "--handover-mm-s", "10", "--out", str(out)],
                           capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -465,53 +467,57 @@ def test_tune_handover_writes_the_best_checked_design(tmp_path: Path) -> None:
     design = checked_design(json.loads(out.read_text()), "handover")
     assert design.handover_mm in (2.0, 4.0) and design.handover_mm_s == 10.0
     assert design.lqr == shipped_design("lqr") and design.pid == shipped_design("pid-kalman")
-    bad = subprocess.run([sys.executable, str(root / "train" / "tune_handover.py"), "--handover-mm", "30",
+    bad = subprocess.run([sys.executable, str(root / "train" / "tools" / "tune_handover.py"), "--handover-mm", "30",
                           "--release-mm", "20", "--out", str(tmp_path / "bad.json")],
                          capture_output=True, text=True, timeout=120)  # fmt: skip
     assert bad.returncode == 2 and "error:" in bad.stderr and "release_mm" in bad.stderr
     assert "Traceback" not in bad.stderr and not (tmp_path / "bad.json").exists()  # refused before any work
 
 
-def run_experiment(name: str, args: list[str], out: Path) -> dict:
-    """``train/<name>.py ARGS --out OUT`` as a user runs it: exit 0, and the JSON line it wrote."""
-    import subprocess
+def experiment(name: str) -> list[str]:
+    """The command that runs ``train/experiments/<name>.py`` as a user runs it, from the repository's root (``cwd``
+    :data:`ROOT`): ``python -m train.experiments.<name>``."""
     import sys
 
-    script = Path(__file__).resolve().parents[1] / "train" / f"{name}.py"
-    proc = subprocess.run([sys.executable, str(script), *args, "--out", str(out)], capture_output=True, text=True,
-                          timeout=600)  # fmt: skip
+    return [sys.executable, "-m", f"train.experiments.{name}"]
+
+
+def run_experiment(name: str, args: list[str], out: Path) -> dict:
+    """``python -m train.experiments.<name> ARGS --out OUT`` as a user runs it: exit 0, and the JSON line it wrote."""
+    import subprocess
+
+    proc = subprocess.run([*experiment(name), *args, "--out", str(out)], capture_output=True, text=True, timeout=600,
+                          cwd=ROOT)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(out.read_text())
 
 
 def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path) -> None:
-    """``train/memory_experiment.py --stack 2`` for one PPO rollout: exits 0 and reports the Control page's
+    """``train/experiments/memory.py --stack 2`` for one PPO rollout: exits 0 and reports the Control page's
     metrics for the stacked policy (evaluated through the shared evaluation code); a bad size is refused."""
     import subprocess
-    import sys
 
-    script = Path(__file__).resolve().parents[1] / "train" / "memory_experiment.py"
-    result = run_experiment("memory_experiment", ["--stack", "2", "--steps", "256", "--episodes", "1"],
+    script = experiment("memory")
+    result = run_experiment("memory", ["--stack", "2", "--steps", "256", "--episodes", "1"],
                             tmp_path / "m.json")  # fmt: skip
     assert result["stack"] == 2 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
-    bad = subprocess.run([sys.executable, str(script), "--stack", "0"], capture_output=True, text=True, timeout=60)
+    bad = subprocess.run([*script, "--stack", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr
 
 
 def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_path: Path) -> None:
-    """``train/curriculum_experiment.py`` for two PPO rollouts (2 × 2,048 steps): exits 0, reports the Control
+    """``train/experiments/curriculum.py`` for two PPO rollouts (2 × 2,048 steps): exits 0, reports the Control
     page's metrics, and the curriculum set the training envs before each rollout (``train(callbacks=...)``):
     the start box at 10 % of its 2/3 of the half plate, then, half-way, at 85 %; the reward's near-target scale
     from the task's 15 mm to 10 mm. Bad options, a run folder it cannot make and an ``--out`` with no folder are
     one ``error:`` line, exit 2, before any training."""
     import subprocess
-    import sys
 
-    script = Path(__file__).resolve().parents[1] / "train" / "curriculum_experiment.py"
+    script = experiment("curriculum")
     expected = {"start": [2 / 3 * 0.1, 2 / 3 * 0.85], "precision": [0.015, 0.010], "none": []}
     for kind, seen in expected.items():
-        result = run_experiment("curriculum_experiment", ["--curriculum", kind, "--steps", "4096", "--episodes", "1"],
+        result = run_experiment("curriculum", ["--curriculum", kind, "--steps", "4096", "--episodes", "1"],
                                 tmp_path / f"{kind}.json")  # fmt: skip
         assert result["curriculum"] == kind and result["steps"] == 4096 and 0.0 <= result["success_rate"] <= 1.0
         assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
@@ -520,27 +526,23 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
     for bad in (["--curriculum", "wind"], ["--curriculum", "start", "--steps", "0"],  # refused before training:
                 ["--curriculum", "start", "--run-dir", str(tmp_path / "a_file" / "run")],  # a run folder it can't make
                 ["--curriculum", "start", "--out", str(tmp_path / "missing" / "c.json")]):  # nowhere to write  # fmt: skip
-        proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=60)
+        proc = subprocess.run([*script, *bad], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
 
 
 def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
-    """``train/action_filter_experiment.py``: the wrapper (training) and the evaluation policy apply the same
+    """``train/experiments/action_filter.py``: the wrapper (training) and the evaluation policy apply the same
     low-pass y ← y + α (a − y), starting from 0 each episode; one PPO rollout exits 0 with the Control page's
     metrics; a bad ``--alpha`` is one ``error:`` line, exit 2."""
-    import importlib.util
+    import importlib
     import subprocess
-    import sys
 
     import gymnasium as gym
 
-    script = Path(__file__).resolve().parents[1] / "train" / "action_filter_experiment.py"
-    monkeypatch.syspath_prepend(str(script.parent))  # as `python train/…` has it: its sibling train/experiment.py
-    spec = importlib.util.spec_from_file_location("action_filter_experiment", script)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    script = experiment("action_filter")
+    monkeypatch.syspath_prepend(str(ROOT))  # the repository's root, as `python -m train.experiments.…` has it
+    module = importlib.import_module("train.experiments.action_filter")
 
     class Constant:  # a model whose action is always 1 (or 2: clipped to the action space)
         def __init__(self, value: float) -> None:
@@ -564,35 +566,34 @@ def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path
     _, _, _, _, info = env.step(np.ones(2, dtype=np.float32))  # the env is sent the filtered tilt
     assert info["commanded_tilt_rad"] == pytest.approx(env.unwrapped.mapper(np.full(2, 0.75, np.float32)).pose[3:5])
     env.close()
-    result = run_experiment("action_filter_experiment", ["--alpha", "0.5", "--steps", "256", "--episodes", "1"],
+    result = run_experiment("action_filter", ["--alpha", "0.5", "--steps", "256", "--episodes", "1"],
                             tmp_path / "f.json")  # fmt: skip
     assert result["alpha"] == 0.5 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result
     for bad in ("0", "1.5", "nan"):
-        proc = subprocess.run([sys.executable, str(script), "--alpha", bad], capture_output=True, text=True, timeout=60)
+        proc = subprocess.run([*script, "--alpha", bad], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert proc.returncode == 2 and "error:" in proc.stderr and "--alpha" in proc.stderr, bad
 
 
 def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_path: Path) -> None:
-    """``train/distill_experiment.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
+    """``train/experiments/distill.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
     Control page's metrics for the network, with every step of the teacher's 3 full episodes and of the DAgger
     episode (which the student may end early) as data; bad options are one ``error:`` line, exit 2."""
     import subprocess
-    import sys
 
-    script = Path(__file__).resolve().parents[1] / "train" / "distill_experiment.py"
-    result = run_experiment("distill_experiment", ["--bc-episodes", "3", "--dagger", "0", "--dagger-episodes", "1",
+    script = experiment("distill")
+    result = run_experiment("distill", ["--bc-episodes", "3", "--dagger", "0", "--dagger-episodes", "1",
                                                    "--episodes", "2"], tmp_path / "d.json")  # fmt: skip
     assert result["bc_episodes"] == 3 and result["dagger"] == [0.0] and 1500 < result["samples"] <= 2000
     assert 0.0 <= result["success_rate"] <= 1.0 and result["rms_error_mm"] > 0 and result["final_loss"] >= 0
     assert "settled_pulse_p2p_us" in result and "settling_time_s" in result
     for bad in (["--dagger", "0.5,2"], ["--dagger", "x"], ["--episodes", "0"]):
-        proc = subprocess.run([sys.executable, str(script), *bad], capture_output=True, text=True, timeout=60)
+        proc = subprocess.run([*script, *bad], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert proc.returncode == 2 and proc.stderr.startswith("error:") and "Traceback" not in proc.stderr, bad
 
 
 def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
-    """``train/builds.py`` for one build and one controller, one episode: the table between the markers is
+    """``train/tools/builds.py`` for one build and one controller, one episode: the table between the markers is
     replaced (a row per pair, every column filled) and the rest of the page is kept; with ``--dither-deg`` and
     ``--section`` a second table goes between its own markers; an unknown build, a dither of 20° and a page
     without markers are refused with one ``error:`` line before any evaluation."""
@@ -601,9 +602,9 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
 
     root, page = Path(__file__).resolve().parents[1], tmp_path / "page.md"
     page.write_text("# before\n<!-- builds-table:start -->\nold table\n<!-- builds-table:end -->\nafter\n")
-    script = [sys.executable, str(root / "train" / "builds.py")]
+    script = [sys.executable, str(root / "train" / "tools" / "builds.py")]
     proc = subprocess.run([*script, "--episodes", "1", "--builds", "desk-rect", "--controllers", "lqr", "--out",
-                           str(page)], capture_output=True, text=True, timeout=300)  # fmt: skip
+                           str(page)], capture_output=True, text=True, timeout=300, cwd=ROOT)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     text = page.read_text()
     assert text.startswith("# before\n<!-- builds-table:start -->\n| build (plate) |") and text.endswith("end -->\nafter\n")
@@ -613,20 +614,20 @@ def test_builds_table_replaces_only_its_section(tmp_path: Path) -> None:
     page.write_text(text + "<!-- shaken:start -->\n<!-- shaken:end -->\n")
     proc = subprocess.run([*script, "--episodes", "1", "--builds", "desk-rect", "--controllers", "lqr-pid",
                            "--dither-deg", "0.5", "--section", "shaken", "--out", str(page)],
-                          capture_output=True, text=True, timeout=300)  # fmt: skip
+                          capture_output=True, text=True, timeout=300, cwd=ROOT)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     again = page.read_text()
     assert again.startswith(text) and "| desk-rect (400 × 260 mm) | LQR → PID (`lqr-pid`) + 0.5° dither |" in again
     for args, says in ((["--builds", "my-desk", "--out", str(page)], "unknown build"),
                        (["--dither-deg", "20", "--out", str(page)], "--dither-deg"),
                        (["--out", str(tmp_path / "none.md")], "markers")):  # fmt: skip
-        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
         assert "Traceback" not in bad.stderr
 
 
 def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
-    """``train/results.py --from-json``: the tables come first on the page; the paired table gives each
+    """``train/tools/results.py --from-json``: the tables come first on the page; the paired table gives each
     difference with its interval and verdict (a shift on every seed is *better*/*worse*, a mixed one a *tie*);
     rows without per-seed values, or with them on other seeds (a row re-evaluated on fewer), are left out."""
     import subprocess
@@ -648,12 +649,12 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     fewer["metrics"]["per_episode"].update(success=[True] * 3, tail_steps=[250] * 3)
     results.append(fewer)
     (tmp_path / "results.json").write_text(json.dumps(results))
-    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--from-json", "--out",
                            str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     page = (tmp_path / "r.md").read_text()
     assert "paired: row minus row on the same 4 seeds" in page
-    # the tables where train/results_intro.md marks them: after the lead, before the controllers and the findings
+    # the tables where train/tools/results_intro.md marks them: after the lead, before the controllers and the findings
     assert "<!-- tables -->" not in page
     assert page.index("## The tables") < page.index("paired: row minus row") < page.index("## The controllers") \
         < page.index("## Findings")
@@ -665,7 +666,7 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
 
 
 def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise(tmp_path: Path) -> None:
-    """``train/results.py --from-json``: each track table's residual is paired with the LQR seed by seed; the
+    """``train/tools/results.py --from-json``: each track table's residual is paired with the LQR seed by seed; the
     balance table gives the median settling time beside the mean (from each seed's values; "–" without them);
     the noise rows' settled peak-to-peak and pulse rate make their own table."""
     import subprocess
@@ -691,7 +692,7 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
                 "env": "StewartBallBalance-v0", "episodes": 4,
                 "metrics": {"success_rate": 1.0, "settled_pulse_p2p_us": 81.5, "settled_pulse_rate_us_per_s": 173.2}}]
     (tmp_path / "results.json").write_text(json.dumps(results))
-    proc = subprocess.run([sys.executable, str(root / "train" / "results.py"), "--from-json", "--out",
+    proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--from-json", "--out",
                            str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     lines = (tmp_path / "r.md").read_text().splitlines()
@@ -742,11 +743,11 @@ def test_results_scorecard_gives_every_verdict_against_each_classical_controller
 
 
 def results_script() -> Any:
-    """``train/results.py`` as a module (a script, not part of the package)."""
+    """``train/tools/results.py`` as a module (a script, not part of the package)."""
     import importlib.util
 
     spec = importlib.util.spec_from_file_location("results_script", Path(__file__).resolve().parents[1] / "train"
-                                                  / "results.py")  # fmt: skip
+                                                  / "tools" / "results.py")  # fmt: skip
     assert spec is not None and spec.loader is not None
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
@@ -754,19 +755,19 @@ def results_script() -> Any:
 
 
 def test_results_page_is_what_the_script_makes_of_results_json_and_the_intro() -> None:
-    """docs/src/results.md is ``train/results.py``'s page for ``docs/src/results.json`` and
-    ``train/results_intro.md`` as they are: an edit of the intro, or of the results, not regenerated
+    """docs/src/results.md is ``train/tools/results.py``'s page for ``docs/src/results.json`` and
+    ``train/tools/results_intro.md`` as they are: an edit of the intro, or of the results, not regenerated
     (``--from-json``) fails here."""
     root = Path(__file__).resolve().parents[1]
     script = results_script()
     page = script.results_page(json.loads((root / "docs" / "src" / "results.json").read_text()))
     assert page == (root / "docs" / "src" / "results.md").read_text(), \
-        "docs/src/results.md is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+        "docs/src/results.md is stale: run .venv/bin/python train/tools/results.py --from-json"  # fmt: skip
     assert "| metric | shipped PPO | residual PPO | PID | PID + Kalman | LQR | LQR → PID |" in page
 
 
 def test_readme_headline_is_the_results_json_table() -> None:
-    """The README's headline table (between its markers) is what ``train/results.py`` makes of
+    """The README's headline table (between its markers) is what ``train/tools/results.py`` makes of
     ``docs/src/results.json``: no figure there goes stale when the results are regenerated; it names the
     shipped residual, the PID + Kalman and the LQR, and pairs the residual with both."""
     root = Path(__file__).resolve().parents[1]
@@ -775,13 +776,13 @@ def test_readme_headline_is_the_results_json_table() -> None:
     start, end = script.README_MARKERS
     readme = (root / "README.md").read_text()
     assert readme.split(start, 1)[1].split(end, 1)[0].strip() == table.strip(), \
-        "README headline is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+        "README headline is stale: run .venv/bin/python train/tools/results.py --from-json"  # fmt: skip
     assert "| residual PPO | PID + Kalman | LQR |" in table
     assert "| residual PPO − PID + Kalman |" in table and "| residual PPO − LQR |" in table
 
 
 def test_environments_pushes_table_is_the_results_json_table() -> None:
-    """The Environments page's pushes table (between its markers) is what ``train/results.py`` makes of
+    """The Environments page's pushes table (between its markers) is what ``train/tools/results.py`` makes of
     ``docs/src/results.json``, as the Control page's is: every controller on ``StewartBallDisturbance-v0`` on the
     same seeds, and the residual paired with the PID + Kalman, the LQR and the LQR → PID."""
     root = Path(__file__).resolve().parents[1]
@@ -791,7 +792,7 @@ def test_environments_pushes_table_is_the_results_json_table() -> None:
     start, end = script.PUSHES_MARKERS
     page = (root / "docs" / "src" / "environments.md").read_text()
     assert page.split(start, 1)[1].split(end, 1)[0].strip() == table.strip(), \
-        "the Environments page's pushes table is stale: run .venv/bin/python train/results.py --from-json"  # fmt: skip
+        "the Environments page's pushes table is stale: run .venv/bin/python train/tools/results.py --from-json"  # fmt: skip
     assert "| pushes, 100 seeds | shipped PPO | residual PPO | PID | PID + Kalman | LQR | LQR → PID |" in table
     for other in ("PID + Kalman", "LQR", "LQR → PID"):
         assert f"| residual PPO − {other} |" in table
@@ -801,13 +802,12 @@ def test_environments_pushes_table_is_the_results_json_table() -> None:
 
 
 def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None:
-    """``train/settling_bound.py``: a row per start angle and the mean; the diagonal starts (both axes at full
+    """``train/experiments/settling_bound.py``: a row per start angle and the mean; the diagonal starts (both axes at full
     tilt) settle sooner than the axis-aligned ones; impossible sizes are refused with one ``error:`` line."""
     import subprocess
-    import sys
 
-    script = [sys.executable, str(Path(__file__).resolve().parents[1] / "train" / "settling_bound.py")]
-    proc = subprocess.run([*script, "--episodes", "8"], capture_output=True, text=True, timeout=300)
+    script = experiment("settling_bound")
+    proc = subprocess.run([*script, "--episodes", "8"], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = {float(line.split("|")[1]): float(line.split("|")[2]) for line in proc.stdout.splitlines()
             if line.startswith("| ") and line[2].isdigit()}  # fmt: skip
@@ -817,21 +817,21 @@ def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None
     assert mean == pytest.approx(sum(rows.values()) / 8, abs=0.006), (mean, rows)
     for args, says in ((["--episodes", "0"], "--episodes"), (["--radius-mm", "200"], "--radius-mm"),
                        (["--max-tilt-deg", "nan"], "--max-tilt-deg")):  # fmt: skip
-        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
         assert "Traceback" not in bad.stderr
 
 
 def test_hold_headroom_scales_one_gain_and_bounds_what_adapting_it_buys() -> None:
-    """``train/hold_headroom.py``: a row per gain scale, the shipped row equal to ``stewart-gym evaluate --policy
+    """``train/experiments/hold_headroom.py``: a row per gain scale, the shipped row equal to ``stewart-gym evaluate --policy
     pid-kalman`` on the same seeds, every episode in one noise bin and one dead-band bin, and the hindsight pick
     (each episode's best scale) no looser than the shipped gains; bad scales are refused with one ``error:`` line."""
     import subprocess
     import sys
 
-    script = [sys.executable, str(Path(__file__).resolve().parents[1] / "train" / "hold_headroom.py")]
+    script = experiment("hold_headroom")
     proc = subprocess.run([*script, "--episodes", "3", "--scales", "1.0", "1.3"], capture_output=True, text=True,
-                          timeout=600)  # fmt: skip
+                          timeout=600, cwd=ROOT)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in proc.stdout.splitlines()
             if line.startswith("| ×")}  # fmt: skip
@@ -849,7 +849,7 @@ def test_hold_headroom_scales_one_gain_and_bounds_what_adapting_it_buys() -> Non
     assert hindsight <= reference + 1e-3, proc.stdout
     for args, says in ((["--scales", "1.2", "1.4"], "1.0"), (["--scales", "nan", "1.0"], "--scales"),
                        (["--episodes", "0"], "--episodes")):  # fmt: skip
-        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60)
+        bad = subprocess.run([*script, *args], capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert bad.returncode == 2 and "error:" in bad.stderr and says in bad.stderr, bad.stderr
         assert "Traceback" not in bad.stderr
 

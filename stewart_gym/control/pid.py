@@ -24,7 +24,7 @@ __all__ = ["CascadedPID", "PIDGains"]
 
 @dataclass(frozen=True)
 class PIDGains:
-    """Gains of :class:`CascadedPID` (tuned by ``train/tune_pid.py``; see the docs: Training and results).
+    """Gains of :class:`CascadedPID` (tuned by ``train/tools/tune_pid.py``; see the docs: Training and results).
 
     Attributes:
         kp_pos: 1/s, outer loop: velocity set-point per metre of position error.

@@ -1,6 +1,6 @@
 """Copy a trained run, or an ensemble folder, into the package as a shipped policy, with its ONNX bundle and metrics.
 
-Run: ``python train/ship_policy.py runs/ppo_balance_ft [--model best] [--name balance] [--eval out/eval.json]``,
+Run: ``python train/tools/ship_policy.py runs/ppo_balance_ft [--model best] [--name balance] [--eval out/eval.json]``,
 then add the folder to ``SHIPPED`` in ``stewart_gym/registry.py`` under its env id and geometry.
 Writes ``stewart_gym/policies/<name>/``: model.zip, vecnormalize.pkl, config.yaml, eval.csv, metrics.json
 (training metrics plus the 100-episode evaluation given by --eval) and bundle/ (policy.onnx, bundle.json).

@@ -1,7 +1,7 @@
 """What the experiment scripts of ``train/`` share: the `make train` recipe as PPO keywords, a quiet training run,
 and the Control page's metrics reported as one JSON line.
 
-They import it as a sibling module (``python train/<script>.py`` puts ``train/`` first on the path).
+They run as modules from the repository's root (``python -m train.experiments.<name>``).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: The Control page's metrics of one evaluation (``stewart_gym.evaluation.evaluate``), as every script reports them.
 METRICS = ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s",

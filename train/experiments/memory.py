@@ -9,7 +9,7 @@ randomised seeds with :func:`stewart_gym.evaluation.evaluate` (the same code as 
 Control page), keeping the stack or the LSTM state through each episode, and prints one JSON line (also
 written to ``--out``). The docs' Control page quotes its results.
 
-Run: ``.venv/bin/python train/memory_experiment.py --stack 4 [--seed 0] [--steps 150000] [--episodes 100]``
+Run: ``.venv/bin/python -m train.experiments.memory --stack 4 [--seed 0] [--steps 150000] [--episodes 100]``
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import sys
 from typing import Any
 
 import numpy as np
-from experiment import balance_recipe, check_paths, learn, report  # train/experiment.py, a sibling (train/ is on the path)
+
+from train.experiments.common import balance_recipe, check_paths, learn, report
 
 
 class MemoryPolicy:
@@ -46,7 +47,8 @@ class MemoryPolicy:
         return action, None
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--stack", type=int, default=1, help="observations stacked as the input (default 1: none)")
     ap.add_argument("--lstm", action="store_true", help="an LSTM policy (RecurrentPPO; needs sb3-contrib)")
@@ -54,7 +56,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=150_000)
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--out", help="also write the JSON line here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.stack < 1 or args.steps < 1 or args.episodes < 1:
         ap.error("--stack, --steps and --episodes must be at least 1")
     if args.lstm and args.stack != 1:
@@ -95,4 +97,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run()

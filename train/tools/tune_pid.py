@@ -11,7 +11,7 @@ pid``); ``--out`` writes elsewhere. ``--kp-pos``, ``--kp-vel`` and ``--ki-vel``
 give the grid; ``--integral-zone-mm`` (default 20) the conditional integration zone
 (the error is integrated only this close to the target). Prints the table.
 
-Run: ``.venv/bin/python train/tune_pid.py [--episodes 30] [--estimator kalman]``
+Run: ``.venv/bin/python train/tools/tune_pid.py [--episodes 30] [--estimator kalman]``
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Regenerate the table of the classical controllers on every ball preset (docs: Bring your own platform).
 
-Run: ``.venv/bin/python train/builds.py [--episodes 100] [--workers 2] [--builds NAMES] [--controllers NAMES]
+Run: ``.venv/bin/python train/tools/builds.py [--episodes 100] [--workers 2] [--builds NAMES] [--controllers NAMES]
 [--dither-deg D] [--section NAME] [--out docs/src/own-platform.md]``
 
 Each controller (``--policy NAME``, its reference gains or design adapted to the build by
@@ -25,7 +25,7 @@ from typing import Any
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 BALANCE = "StewartBallBalance-v0"
 BUILDS = ("servo-hexapod", "memememe-liverpool", "desk-rect", "senilov2018")
 CONTROLLERS = {"pid": "PID (`pid`)", "pid-kalman": "PID + Kalman (`pid-kalman`)", "lqr": "LQR (`lqr`)",

@@ -1,6 +1,6 @@
 """How much tighter could a hold be that adapts its gains to each episode? An upper bound for a learned hold.
 
-Run: ``.venv/bin/python train/hold_headroom.py [--episodes 100] [--gain kp_vel] [--scales 1.0 1.2 1.4]``
+Run: ``.venv/bin/python -m train.experiments.hold_headroom [--episodes 100] [--gain kp_vel] [--scales 1.0 1.2 1.4]``
 
 The PID + Kalman (``--policy pid-kalman``) holds the ball on the noise and dead-band floor (the docs' Control
 page). A learned controller sees the same observations; what it could still add to the hold is adaptation:
@@ -96,7 +96,8 @@ def binned(label: str, unit: str, values: list[float], edges: tuple[float, ...],
     return lines, best
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--episodes", type=int, default=100, help="seeded, randomised balance episodes")
     ap.add_argument("--seed", type=int, default=0, help="the first episode's seed")
@@ -104,7 +105,7 @@ def main() -> None:
     ap.add_argument("--scales", type=float, nargs="+", default=[1.0, 1.2, 1.4],
                     help="multipliers of that gain; 1.0 (the shipped gains) must be one of them")  # fmt: skip
     ap.add_argument("--workers", type=int, default=2, help="processes at once")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.episodes < 1 or args.workers < 1 or args.seed < 0:
         ap.error("--episodes and --workers must be at least 1, --seed at least 0")
     if not all(math.isfinite(s) and 0 < s <= 10 for s in args.scales) or len(set(args.scales)) != len(args.scales):
@@ -157,6 +158,6 @@ def main() -> None:
 
 if __name__ == "__main__":
     try:
-        main()
+        run()
     except KeyboardInterrupt:
         sys.exit(130)

@@ -9,7 +9,7 @@ hold); a wide one hands a moving ball to the PID's slow approach. The best set h
 the fastest settling among the sets whose RMS error is within ``--rms-margin`` (default 5 %) of the lowest.
 Writes ``policies/lqr_pid.json`` (``--out`` elsewhere) and prints the table.
 
-Run: ``.venv/bin/python train/tune_handover.py [--episodes 30] [--handover-mm 1,2,3,5] [--handover-mm-s 10,20,50]``
+Run: ``.venv/bin/python train/tools/tune_handover.py [--episodes 30] [--handover-mm 1,2,3,5] [--handover-mm-s 10,20,50]``
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ seeds with ``stewart-gym evaluate``'s code (:func:`stewart_gym.evaluation.evalua
 controller on the Control page) and prints one JSON line (also written to ``--out``), with the difficulty at the
 first and the last rollout. The docs' Control page quotes its results.
 
-Run: ``.venv/bin/python train/curriculum_experiment.py --curriculum start [--seed 0] [--steps 150000]
+Run: ``.venv/bin/python -m train.experiments.curriculum --curriculum start [--seed 0] [--steps 150000]
 [--episodes 100] [--run-dir runs/curriculum_start_s0]``
 """
 
@@ -27,7 +27,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from experiment import check_paths, report  # train/experiment.py, a sibling (train/ is on the path)
+from train.experiments.common import check_paths, report
 
 CURRICULA = ("none", "start", "precision")
 START_FROM, START_OVER = 0.1, 0.6  # the start box: from 10 % of its size, all of it after 60 % of the steps
@@ -79,7 +79,8 @@ def curriculum_callback(kind: str, total_steps: int) -> Any:
     return Curriculum()
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--curriculum", choices=CURRICULA, required=True)
     ap.add_argument("--seed", type=int, default=0)
@@ -87,7 +88,7 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--run-dir", help="keep the run here (default: a temporary folder, removed after)")
     ap.add_argument("--out", help="also write the JSON line here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.steps < 1 or args.episodes < 1 or args.seed < 0:
         ap.error("--steps and --episodes must be at least 1, --seed at least 0")
     check_paths(ap, args.out, args.run_dir)
@@ -110,4 +111,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run()

@@ -1,6 +1,6 @@
 """How fast could the ball settle? A lower bound for the settling test, to set controllers' times against.
 
-Run: ``.venv/bin/python train/settling_bound.py [--episodes 100] [--offset-mm 100] [--radius-mm 10]
+Run: ``.venv/bin/python -m train.experiments.settling_bound [--episodes 100] [--offset-mm 100] [--radius-mm 10]
 [--max-tilt-deg 10]``
 
 For each start of the settling test of :func:`stewart_gym.evaluation.evaluate` (at rest, ``--offset-mm`` from
@@ -21,13 +21,14 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--episodes", type=int, default=100, help="starts on the circle (the evaluation's episodes)")
     ap.add_argument("--offset-mm", type=float, default=100.0, help="the start's distance from the target")
     ap.add_argument("--radius-mm", type=float, default=10.0, help="the success radius")
     ap.add_argument("--max-tilt-deg", type=float, default=10.0, help="each plate axis' largest tilt")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if args.episodes < 1:
         ap.error("--episodes must be at least 1")
     if not (math.isfinite(args.radius_mm) and math.isfinite(args.offset_mm) and 0 < args.radius_mm < args.offset_mm
@@ -52,4 +53,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run()

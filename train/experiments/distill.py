@@ -11,7 +11,7 @@ time. Training seeds start at 1000; the evaluation, with :func:`stewart_gym.eval
 as every controller on the Control page), uses seeds 0…``--episodes``−1. Prints one JSON line (also written to
 ``--out``). The docs' Control page quotes its results.
 
-Run: ``.venv/bin/python train/distill_experiment.py [--bc-episodes 100] [--dagger 0.5,0.2,0,0] [--episodes 100]``
+Run: ``.venv/bin/python -m train.experiments.distill [--bc-episodes 100] [--dagger 0.5,0.2,0,0] [--episodes 100]``
 """
 
 from __future__ import annotations
@@ -23,12 +23,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from experiment import check_paths, report  # train/experiment.py, a sibling (train/ is on the path)
+
+from train.experiments.common import check_paths, report
 
 ENV_ID = "StewartBallBalance-v0"
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--bc-episodes", type=int, default=100, help="teacher-driven episodes (10 s each)")
     ap.add_argument("--dagger", default="0.5,0.2,0,0", help="β of each DAgger round, comma-separated ('' for none)")
@@ -37,7 +39,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--episodes", type=int, default=100, help="evaluation seeds 0…N−1")
     ap.add_argument("--out", type=Path, help="also write the JSON line here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     parts = [b.strip() for b in args.dagger.split(",") if b.strip()]
     betas = [float(b) for b in parts if b.replace(".", "", 1).isdigit()]
     if len(betas) != len(parts) or not all(b <= 1.0 for b in betas):
@@ -128,4 +130,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run()

@@ -1,6 +1,6 @@
 """Plot learning curves (evaluation success rate and mean reward against wall time) of one or more runs.
 
-Run: ``python train/plot_learning_curve.py runs/ppo_balance runs/sac_balance --out docs/images/learning_curve.png``
+Run: ``python train/tools/plot_learning_curve.py runs/ppo_balance runs/sac_balance --out docs/images/learning_curve.png``
 """
 
 from __future__ import annotations

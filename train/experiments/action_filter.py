@@ -11,7 +11,7 @@ filter included, on ``--episodes`` randomised seeds with :func:`stewart_gym.eval
 as every controller on the Control page) and prints one JSON line (also written to ``--out``). The docs'
 Control page quotes its results.
 
-Run: ``.venv/bin/python train/action_filter_experiment.py --alpha 0.5 [--seed 0] [--steps 150000] [--episodes 100]``
+Run: ``.venv/bin/python -m train.experiments.action_filter --alpha 0.5 [--seed 0] [--steps 150000] [--episodes 100]``
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from experiment import balance_recipe, check_paths, learn, report  # train/experiment.py, a sibling (train/ is on the path)
+
+from train.experiments.common import balance_recipe, check_paths, learn, report
 
 
 class ActionLowPass(gym.ActionWrapper):
@@ -63,14 +64,15 @@ class FilteredPolicy:
         return self.y.copy(), None
 
 
-def main() -> None:
+def run(argv: list[str] | None = None) -> None:
+    """Run the experiment with the options of its command line (``argv``; default ``sys.argv[1:]``)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--alpha", type=float, default=1.0, help="the filter's step, in (0, 1] (1: no filter)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=150_000)
     ap.add_argument("--episodes", type=int, default=100)
     ap.add_argument("--out", help="also write the JSON line here")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     if not (math.isfinite(args.alpha) and 0 < args.alpha <= 1):
         ap.error(f"--alpha must be in (0, 1], got {args.alpha}")
     if args.steps < 1 or args.episodes < 1 or args.seed < 0:
@@ -100,4 +102,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run()
