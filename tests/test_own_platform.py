@@ -227,7 +227,8 @@ def test_pid_integral_bound_follows_the_build() -> None:
     reference keeps its tuned bound."""
     import dataclasses
 
-    from stewart_gym.control import GRAVITY, PIDGains, gains_for_geometry, trim_tilt
+    from stewart_gym.constants import GRAVITY
+    from stewart_gym.control import PIDGains, gains_for_geometry, trim_tilt
 
     base = PIDGains(kp_pos=2.0, kp_vel=3.0, ki_vel=3.0)
     assert gains_for_geometry(base, "servo-hexapod").integral_limit == base.integral_limit
