@@ -2,7 +2,7 @@
 
 The Hardware page's "What happens when…" table is :func:`behaviour_table` of :data:`DEPLOY_BEHAVIOUR`, written
 into the page and kept equal by a test; each row's ``key`` names the test that makes it happen through the real
-command line (``tests/test_deploy_faults.py``), so the table and the program cannot drift apart.
+command line (``tests/hardware/test_deploy_faults.py``), so the table and the program cannot drift apart.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 :class:`PhysicsBackend` is a small Protocol; :class:`~stewart_gym.sim.StewartSim`
 (PyBullet) is its implementation today, and a second engine implements the same
-methods (``tests/test_backend_contract.py`` holds the checks every backend must
+methods (``tests/sim/test_backend_contract.py`` holds the checks every backend must
 pass). Everything here is engine-neutral: :class:`BallSpec` describes the ball
 in physical terms, poses and positions are in SI units in the platform frame,
 and the servos are commanded in pulse widths (µs) through the shared

@@ -8,7 +8,7 @@ velocity actuator is commanded ``clip(k·(target − q), ±max_speed)`` with at 
 stall torque, which is what PyBullet's position motor does (``k`` = the servo's
 ``position_gain`` × 150 /s, the gain of PyBullet's motor at the envs' 150 Hz).
 
-Implements :class:`~stewart_gym.sim.PhysicsBackend`; ``tests/test_backend_contract.py``
+Implements :class:`~stewart_gym.sim.PhysicsBackend`; ``tests/sim/test_backend_contract.py``
 runs the same checks on both engines.
 """
 

@@ -29,7 +29,7 @@ from stewart_gym.sim import ServoSpec, StewartSim
 from stewart_gym.sim.mjcf import mechanism_mjcf
 from stewart_gym.sim.mujoco_sim import MujocoSim
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GEO = load_preset("servo-hexapod")
 
 

@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 from conftest import Board, Drain, FakeDevice, cli, maestro_frames, sg
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
                "trajectory", "sensitivity", "conditioning", "planar", "assembly", "demo", "virtual-device",
                "camera-check", "sweep", "ensemble", "compare")  # fmt: skip

@@ -54,7 +54,7 @@ def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    bundle = export_pid(Path(__file__).resolve().parents[1] / "stewart_gym/policies/pid_gains.json", tmp_path / "b")
+    bundle = export_pid(Path(__file__).resolve().parents[2] / "stewart_gym/policies/pid_gains.json", tmp_path / "b")
     code = ("import sys; sys.modules['torch'] = None\n"  # importing torch now fails
             "from stewart_gym.hardware.export import BundlePolicy\n"
             f"import numpy as np; p = BundlePolicy({str(bundle)!r}); print(p(np.zeros(12)).shape)")  # fmt: skip
@@ -66,7 +66,7 @@ def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
 def test_export_pid_keeps_the_observer_its_gains_name(tmp_path: Path) -> None:
     """Gains that name their observer (``pid_kalman_gains.json``: ``kalman``) export behind it; gains that name
     none, behind the low-pass one; the bundle's gains are the checked gains, without the ``estimator`` field."""
-    policies = Path(__file__).resolve().parents[1] / "stewart_gym/policies"
+    policies = Path(__file__).resolve().parents[2] / "stewart_gym/policies"
     kalman = json.loads((export_pid(policies / "pid_kalman_gains.json", tmp_path / "k") / "bundle.json").read_text())
     plain = json.loads((export_pid(policies / "pid_gains.json", tmp_path / "p") / "bundle.json").read_text())
     assert (kalman["estimator"], plain["estimator"]) == ("kalman", "lowpass")

@@ -28,7 +28,7 @@ from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.presets import load_preset
 from stewart_gym.sim import MechanismSpec, ServoSpec, StewartSim, mechanism_urdf, plate_urdf
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 GEO = load_preset("servo-hexapod")
 
 

@@ -26,7 +26,7 @@ from conftest import Board, FakeDevice
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.hardware.behaviour import DEPLOY_BEHAVIOUR, behaviour_table
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = str(Path(sys.executable).parent / "stewart-gym")
 HOME = ServoCalibration.default("servo-hexapod").neutral_us
 COVERED: set[str] = set()
