@@ -8,7 +8,7 @@ PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 SEED ?= 0
 
-.PHONY: demo test bench train train-track train-camera train-residual results sweep lint docs clean
+.PHONY: demo test test-fast bench train train-track train-camera train-residual results sweep lint docs clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) .ci/check_python.py
@@ -24,6 +24,11 @@ demo: $(STAMP)
 # once): about 10 minutes on 2 cores instead of 16. `$(PY) -m pytest` alone runs it in one process.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadgroup
+
+# Every module's fast tests (those not marked slow: training runs, Ray sweeps, long evaluations, the fresh-venv
+# install, the 1,000,000-action fuzz), on two worker processes: a few minutes, for the edit-test loop.
+test-fast: $(STAMP)
+	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not slow"
 
 bench: $(STAMP)
 	$(PY) bench/bench_kinematics.py

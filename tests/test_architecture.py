@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "stewart_gym"
 
@@ -87,6 +89,7 @@ def test_no_private_attribute_is_read_across_modules() -> None:
     assert not found, found
 
 
+@pytest.mark.slow
 def test_the_manual_builds_strictly(tmp_path: Path) -> None:
     """mkdocs build --strict: every page builds, every API page resolves, no broken link, tables generated."""
     exe = Path(sys.executable).with_name("mkdocs")

@@ -126,6 +126,7 @@ def _render_set(n: int, seed: int, ball: bool) -> list[tuple[np.ndarray, np.ndar
     return out
 
 
+@pytest.mark.slow
 def test_detection_on_rendered_frames_is_within_a_millimetre() -> None:
     """200 random ball positions with the plate tilted by up to 10°: RMS ≤ 1 mm, worst ≤ 3 mm; 50 frames without
     a ball: no detection."""
@@ -191,6 +192,7 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
     assert CameraConfig.from_toml(tmp_path / "rel.toml").source == str(tmp_path / "v.avi")
 
 
+@pytest.mark.slow
 def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> None:
     one = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(clip / "frame.png"),
              "--json", cwd=tmp_path)  # fmt: skip

@@ -67,6 +67,7 @@ def test_the_shipped_residuals_are_six_networks_of_the_shipped_recipe_averaged(e
                                    policy.predict(o, episode_start=start)[0], atol=1e-4)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(tmp_path: Path) -> None:
     """``stewart-gym ensemble`` of two run folders: ``evaluate`` and ``export`` take the folder, the bundle's graph
     gives the mean of the two networks' corrections (each normalised with its own statistics), and the policy
@@ -99,6 +100,7 @@ def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(
     assert bundle.meta["ensemble"] == 2
 
 
+@pytest.mark.slow
 def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_nothing_is_written(
         tmp_path: Path) -> None:  # fmt: skip
     """The shipped balance network (no residual base) and a residual member cannot be averaged; an
@@ -141,6 +143,7 @@ def test_a_sampling_ensemble_averages_the_networks_samples() -> None:
     np.testing.assert_allclose(many.mean(axis=0), ensemble.predict(obs)[0], atol=0.03)  # one network: 0.15 off
 
 
+@pytest.mark.slow
 def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path) -> None:
     """A checkpoint (``checkpoints/rl_model_<n>_steps.zip`` with ``rl_model_vecnormalize_<n>_steps.pkl`` beside it,
     as training writes them) evaluates as the same network in a run folder does, and ``ensemble`` takes
@@ -171,6 +174,7 @@ def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path)
     assert "Traceback" not in lost.stderr
 
 
+@pytest.mark.slow
 def test_train_checkpoints_make_a_snapshot_ensemble_of_one_run(tmp_path: Path) -> None:
     """``train --checkpoint-freq N`` saves a checkpoint with its statistics every N steps; ``ensemble`` averages
     checkpoints of that one run, and the result evaluates (the snapshot ensemble of the Control page)."""

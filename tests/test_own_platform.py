@@ -47,6 +47,7 @@ def test_the_env_follows_the_plate_of_the_geometry(tmp_path: Path) -> None:
         env.close()
 
 
+@pytest.mark.slow
 def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: FakeDevice) -> None:
     """Through the real CLI: the frames sent are the IK pulses of the user's geometry, not the reference's."""
     geo_path = my_build(tmp_path)
@@ -91,6 +92,7 @@ def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: F
     assert np.allclose(wire[: len(logged)], np.round(logged * 4) / 4, atol=0.01)  # what was logged went on the wire
 
 
+@pytest.mark.slow
 def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevice) -> None:
     """senilov2018 (RC linear actuators) through the real CLI: calibrate with scripted keys, export the PID, deploy
     with the calibration; the frames are the trimmed pulses of the IK leg lengths."""
@@ -167,6 +169,7 @@ def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: P
     assert old.returncode == 1 and "observation layout" in old.stderr and "re-export" in old.stderr
 
 
+@pytest.mark.slow
 def test_a_geometry_that_cannot_carry_the_task_says_why(tmp_path: Path) -> None:
     proc = sg("evaluate", "--policy", "pid", "--geometry", "mathcad-micro", "--episodes", "1", cwd=tmp_path)
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
@@ -298,6 +301,7 @@ def test_the_pid_kalman_rests_on_target_on_the_linear_build() -> None:
     assert all(lg.success for lg in logs), [round(lg.distance_mm[-1], 1) for lg in logs]
 
 
+@pytest.mark.slow
 def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path) -> None:
     """A user's copy of a gains or design file (``--policy my.json``) is told apart by its fields and runs on
     the build ``--geometry`` names exactly as the named controller does (gains adapted to that build, its
@@ -330,6 +334,7 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
         assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
 
 
+@pytest.mark.slow
 def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
     """The shipped residual recipe, named as a user would, on the user's plate: its training starts (50–110 mm
     out, for the 300 mm plate) are scaled to that plate, with a note, and the run records what it trained with;

@@ -421,6 +421,7 @@ def test_the_lqr_bundle_acts_as_the_lqr_and_records_the_kalman_observer(tmp_path
     assert proc.returncode == 0 and json.loads((copy / "bundle.json").read_text())["estimator"] == "lowpass"
 
 
+@pytest.mark.slow
 def test_pid_kalman_is_the_pid_retuned_behind_the_kalman_observer(tmp_path: Path) -> None:
     """``--policy pid-kalman``: the PID with its own gains file, behind the Kalman observer, in evaluation and in
     its bundle; it balances 10 randomised seeds."""

@@ -106,6 +106,7 @@ def test_trials_rank_finished_first_then_by_the_metric_and_configs_pool_seeds() 
     assert (configs[1]["success_rate_min"], configs[1]["mean_reward_max"]) == (0.5, 20)
 
 
+@pytest.mark.slow
 def test_the_cli_refuses_a_bad_sweep_in_one_line_before_ray_starts(tmp_path: Path) -> None:
     path = write(tmp_path, search={"env_kwargs.max_tlt": {"uniform": [0.1, 0.2]}})
     proc = sg("sweep", str(path), "--out", str(tmp_path / "out"), cwd=tmp_path)
@@ -117,6 +118,7 @@ def test_the_cli_refuses_a_bad_sweep_in_one_line_before_ray_starts(tmp_path: Pat
 
 
 # ----------------------------------------------------------------------------------------- real sweeps
+@pytest.mark.slow
 def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> None:
     """Two trials on a local Ray: one finishes, one's env refuses its max_tilt; the sweep ends normally, the
     table says which failed and why, and the finished trial's bundle is exported and deploys."""
@@ -137,6 +139,7 @@ def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> 
     check_bundle_deploys(out / "best_bundle")
 
 
+@pytest.mark.slow
 def test_a_sweep_runs_on_a_two_node_cluster_with_address(tmp_path: Path) -> None:
     """A head and a worker node (1 CPU each) on this machine; the sweep joins with --address, and its 4 trials
     run on both nodes (each takes 1 CPU: n_envs 1), all results come back, and the best bundle deploys."""
@@ -163,6 +166,7 @@ def test_a_sweep_runs_on_a_two_node_cluster_with_address(tmp_path: Path) -> None
     check_bundle_deploys(out / "best_bundle")
 
 
+@pytest.mark.slow
 def test_an_interrupted_sweep_resumes_without_losing_finished_trials(tmp_path: Path) -> None:
     """Ctrl-C after two of four trials (one at a time): exit 130 and a line saying how to resume; --resume
     runs the rest and keeps the finished trials as they were (not retrained)."""
@@ -196,6 +200,7 @@ def test_an_interrupted_sweep_resumes_without_losing_finished_trials(tmp_path: P
     assert proc.returncode == 1 and "n_timesteps" in proc.stderr and "differ from" in proc.stderr
 
 
+@pytest.mark.slow
 def test_an_optuna_sweep_samples_each_configuration_once_per_seed(tmp_path: Path) -> None:
     """searcher optuna: 2 sampled configurations × 2 seeds = 4 trials; each configuration is trained with both
     seeds (Ray's Repeater), its values inside the ranges."""

@@ -240,6 +240,7 @@ def test_paired_difference_pairs_seeds_and_weighs_tails() -> None:
         paired_difference(a, b, "tilt")
 
 
+@pytest.mark.slow
 def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["demo", "--episodes", "2", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -192,6 +192,7 @@ GOOD = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("args,code,text", GOOD, ids=[" ".join(a[:3]) for a, _, _ in GOOD])
 def test_documented_commands(args: list[str], code: int, text: str, files: Path) -> None:
     proc = sg(*(a.format(files=files) for a in args))
@@ -680,6 +681,7 @@ def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
     assert json.loads(proc.stdout)["rms_error_mm"] == pytest.approx(direct["waypoints"], abs=1e-6)
 
 
+@pytest.mark.slow
 def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: Path) -> None:
     """``compare shipped-residual COPY --env StewartBallDisturbance-v0``: ``shipped-residual`` names the balance
     residual on the pushes env too, and its base gives a pushed ball back to the LQR at once (``release_mm_s``,
@@ -702,6 +704,7 @@ def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: 
     assert rms["shipped-residual"] < rms[str(old)] - 1.0, rms
 
 
+@pytest.mark.slow
 def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None:
     """``compare A B C``: each policy's figures are those ``evaluate`` prints for it on the same seeds (here two
     at a time, in worker processes), and A is paired with B and with C, each verdict agreeing with its interval
@@ -734,6 +737,7 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
     assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0"])
 def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id: str) -> None:
     """``evaluate --workers 2`` runs the episodes in two processes (the first two in one, the third in the
@@ -755,6 +759,7 @@ def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id:
         assert both["lqr"]["per_episode"] != both["pid-kalman"]["per_episode"]
 
 
+@pytest.mark.slow
 def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path) -> None:
     """``compare``'s table labels a policy given by path with the path's last part, more of it where two would
     read alike, and says which path each label stands for; ``--json`` keeps the paths as given."""
@@ -781,6 +786,7 @@ def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
     assert paired_verdict("settling_time_s", float("nan"), float("nan")) == "–"
 
 
+@pytest.mark.slow
 def test_evaluate_writes_gif_and_plot(tmp_path: Path) -> None:
     proc = sg("evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(tmp_path / "pid.gif"), "--plot",
               str(tmp_path / "pid.png"))  # fmt: skip
@@ -807,6 +813,7 @@ def test_deploy_lqr_pid_drives_the_servos_within_their_limits(device: FakeDevice
     assert len(pulses) >= 40 and np.all((pulses >= 500) & (pulses <= 2500)), pulses.min()
 
 
+@pytest.mark.slow
 def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> None:
     proc, _ = deploy(device, "--duration", "0.2", cwd=tmp_path)
     logs = list(tmp_path.glob("deploy_log_*.csv"))
@@ -817,6 +824,7 @@ def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> No
     assert proc.returncode == 0
 
 
+@pytest.mark.slow
 def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
     drain = Board(device)
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "deploy", "--port", device.path, "--duration", "30",
@@ -833,6 +841,7 @@ def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
     assert len((tmp_path / "l.csv").read_text().splitlines()) > 20  # the log is kept
 
 
+@pytest.mark.slow
 def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_path: Path) -> None:
     proc = sg("export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "tb"))
     assert proc.returncode == 0, proc.stderr
@@ -846,6 +855,7 @@ def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_pat
     assert np.ptp(targets, axis=0).max() > 0.01  # the target in the observation moves
 
 
+@pytest.mark.slow
 def test_deploy_of_a_mixed_trajectory_tracker_says_which_trajectory_its_seed_drew(device: FakeDevice,
                                                                                  tmp_path: Path) -> None:
     """The shipped residual tracker was trained on mixed trajectories: deploy follows the one --seed draws."""
@@ -872,6 +882,7 @@ def test_deploy_runs_the_shipped_balance_residual_whose_bundle_averages_six_netw
     assert len((tmp_path / "l.csv").read_text().splitlines()) >= 4 and sent
 
 
+@pytest.mark.slow
 def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path) -> None:
     from stewart_gym.hardware.export import BundlePolicy
     from stewart_gym.registry import POLICY_DIR
@@ -912,6 +923,7 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
 
 
 # ------------------------------------------- pose- and pulse-mode policies
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["pose", "pulse"])
 def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, device: FakeDevice,
                                                                      tmp_path: Path) -> None:  # fmt: skip
@@ -948,6 +960,7 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     assert proc.returncode == 1 and "--overwrite" in proc.stderr  # a finished run is not overwritten
 
 
+@pytest.mark.slow
 def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_processes(tmp_path: Path) -> None:
     """``train --vec-env subproc`` and the default (``dummy``) give the same weights and statistics, bit for
     bit: the choice is one of speed only (bench/bench_train.py). The evaluations during training are the same
@@ -978,6 +991,7 @@ def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_pro
     assert w_a == w_b and np.array_equal(mean_a, mean_b) and np.array_equal(var_a, var_b) and curve_a == curve_b
 
 
+@pytest.mark.slow
 def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_deploy(device: FakeDevice,
                                                                                     tmp_path: Path) -> None:  # fmt: skip
     """``integral: true``: train → evaluate → export → deploy through the command line; the bundle records it,

@@ -85,6 +85,7 @@ def test_the_handover_gives_the_ball_to_the_pid_with_its_own_integral_and_takes_
     assert handover.pid_in_control.tolist() == [True, False, False, True]
 
 
+@pytest.mark.slow
 def test_with_the_feedforward_the_pid_kalman_and_the_handover_track_a_circle_closer_than_the_lqr() -> None:
     """On the circle (60 mm, 8 s a turn: 47 mm/s) the PID + Kalman, which used to lag the target by 6 mm,
     follows it closer than the LQR (whose hold is looser), and the LQR → PID, which now hands a ball that moves
@@ -300,6 +301,7 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
             checked_design(bad, "handover")
 
 
+@pytest.mark.slow
 def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: Path) -> None:
     """10 randomised seeds: all succeed, the ball ends within 3 mm, settles from 100 mm in under 0.75 s (the
     LQR's pace); the exported bundle (CLI) gives the same actions through hand-overs and records the Kalman

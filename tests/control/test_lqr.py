@@ -55,6 +55,7 @@ def test_the_lqr_closed_loop_is_stable_on_every_preset(name: str) -> None:
     assert gains.integral_limit > 0 and 0 < gains.max_tilt < math.pi / 2
 
 
+@pytest.mark.slow
 def test_the_lqr_balances_the_randomised_ball() -> None:
     """10 randomised seeds from the env's random starts: all succeed, and the ball ends within 3 mm."""
     from stewart_gym.evaluation import evaluate

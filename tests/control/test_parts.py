@@ -137,6 +137,7 @@ def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_si
             assert not np.allclose(both[0], both[1])  # the first row is led, the restarted one is not yet
 
 
+@pytest.mark.slow
 def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_line(tmp_path: Path) -> None:
     """A residual's base design with a dither of half the build's max tilt or more is refused with one ``error:``
     line: in a run folder's config.yaml (evaluate, export) and in a hyperparameters file (train, before the run

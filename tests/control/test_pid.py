@@ -61,6 +61,7 @@ def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_o
     assert tilt_x(action[1]) == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoints_as_they_were(
         tmp_path: Path) -> None:  # fmt: skip
     """The shipped PID + Kalman (``feed_lead`` 0.06 s) against the same gains without the lead (2 seeds each):

@@ -22,6 +22,7 @@ from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[2] / "stewart_gym/policies/balance_residual/members/0"
 
 
+@pytest.mark.slow
 def test_a_residual_policy_adds_its_correction_to_the_lqr_pid_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
     """Train a residual PPO (the track settings) for a moment (CLI), then: the evaluated policy is
     clip(LQR → PID + 0.5 · w · network), with w = clip((distance − 2 mm) / 15 mm, 0, 1) and 0 from the first
@@ -88,6 +89,7 @@ def test_the_shipped_balance_residual_is_the_lqr_pid_near_the_target_and_its_bun
         assert (differs == 0.0) if same else (differs > 1e-3), (within_mm, differs)
 
 
+@pytest.mark.slow
 def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Path) -> None:
     """A run folder's residual adds to the base gains its config.yaml recorded, not to whatever the package ships
     now (a later retune of the shipped PID must not change a trained policy); its bundle records the same."""
@@ -188,6 +190,7 @@ def test_the_latch_dwell_closes_the_latch_after_that_long_within_the_release_dis
             ResidualMix(0.5, (0.15, 0.15), inner_mm=2.0, **bad)
 
 
+@pytest.mark.slow
 def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the_latch_dwell(tmp_path: Path) -> None:
     """A track network trained over the LQR (``tests/data/circling_tracker``: network 5 of the track residual
     shipped until 2026-11-25), alone, keeps the ball circling 6–17 mm from the circle's target on seed 17 (its
@@ -231,6 +234,7 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
         assert (np.abs(action - by_lqr).max() > 1e-3) == (k < 149), k
 
 
+@pytest.mark.slow
 def test_a_residual_run_at_another_control_rate_runs_its_base_and_latch_at_that_rate(tmp_path: Path) -> None:
     """A residual run recorded at 25 Hz (control_hz in its env keywords): evaluation designs its LQR base for
     0.04 s and times its latch dwell in 0.04 s periods, as training did, and so does its exported bundle."""

@@ -95,6 +95,7 @@ def test_pickle_and_double_close(env_id: str, backend: str) -> None:
         e.close()
 
 
+@pytest.mark.slow
 def test_make_vec_and_subproc_vec_env() -> None:
     # A process that has used PyBullet must not fork workers: use the spawn context.
     for mode, kwargs in (("sync", {}), ("async", {"context": "spawn"})):

@@ -81,6 +81,7 @@ def test_ctrl_c_sends_home_before_closing(device: FakeDevice, tmp_path: Path) ->
     assert data.endswith(home_frame) and not ctl.serial.is_open
 
 
+@pytest.mark.slow
 def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None:
     """deploy --sensor sim: 10 s at 50 Hz, pulses to a fake Maestro on a pty, the simulated ball stays balanced."""
     from stewart_gym.registry import POLICY_DIR

@@ -121,6 +121,7 @@ def test_a_stop_signal_during_start_up_is_one_line_and_moves_nothing(sig: int, a
 
 
 # -------------------------------------------------------------- the readings
+@pytest.mark.slow
 @covers("invalid_readings")
 @pytest.mark.parametrize("bad", [b"B nan,nan\n", b"B inf,-inf\n", b"B 900.0,0.0\n"])
 def test_invalid_readings_mid_run_are_no_reading_and_control_resumes(bad: bytes, device: FakeDevice,
@@ -155,6 +156,7 @@ def test_nan_readings_at_the_start_hold_home_until_good_ones_come(device: FakeDe
     assert late and all(r["stale"] == "0" and r["invalid"] == "0" and r["homing"] == "0" for r in late)
 
 
+@pytest.mark.slow
 @covers("no_valid_readings")
 @pytest.mark.parametrize("bad", [b"B 1e308,-1e308\n", b"B nan,nan\n", b"B 0.5,\n"])
 def test_a_run_without_valid_readings_fails(bad: bytes, device: FakeDevice, tmp_path: Path) -> None:
@@ -181,6 +183,7 @@ def test_garbage_after_ready_is_ignored(device: FakeDevice, tmp_path: Path) -> N
 
 
 # ----------------------------------------------------------------- the board
+@pytest.mark.slow
 @covers("board_silent")
 def test_a_board_that_never_answers_is_refused_before_anything_moves(device: FakeDevice, tmp_path: Path) -> None:
     board = Board(device, answer=False)
@@ -192,6 +195,7 @@ def test_a_board_that_never_answers_is_refused_before_anything_moves(device: Fak
     assert code == 0 and "home frame sent, not confirmed" in out and board.queries == 0, out + err
 
 
+@pytest.mark.slow
 @covers("board_stops")
 @pytest.mark.parametrize("fault", [{"stop_reading_after": 1.0}, {"read_rate": 600.0}])
 def test_a_board_that_stops_reading_or_reads_too_slowly_is_a_device_failure(fault: dict, device: FakeDevice,
@@ -213,6 +217,7 @@ def test_a_board_that_reports_other_pulses_at_the_end_is_not_confirmed(device: F
     assert code == 2 and "servos NOT confirmed home (the board holds" in out, out + err
 
 
+@pytest.mark.slow
 @covers("unplugged")
 def test_an_unplugged_port_stops_the_run_and_says_it_could_not_home(device: FakeDevice, tmp_path: Path) -> None:
     board = Board(device)
@@ -227,6 +232,7 @@ def test_an_unplugged_port_stops_the_run_and_says_it_could_not_home(device: Fake
     assert "Traceback" not in err and len((tmp_path / "l.csv").read_text().splitlines()) > 10
 
 
+@pytest.mark.slow
 @covers("camera_silent")
 def test_a_camera_that_delivers_no_frame_is_refused_before_the_port_opens(device: FakeDevice, tmp_path: Path) -> None:
     pipe = tmp_path / "camera.mjpeg"

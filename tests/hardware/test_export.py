@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.hardware.export import BundlePolicy, export_pid, export_sb3
@@ -17,6 +18,7 @@ CAL = ServoCalibration.default("servo-hexapod")
 PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
 
 
+@pytest.mark.slow
 def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
     """Bundle (onnxruntime + numpy) vs SB3 predict(deterministic=True) on 1,000 observations, for PPO, SAC, TD3
     and TQC; each model loads back as the algorithm that trained it."""

@@ -134,6 +134,7 @@ def deploy(tmp_path: Path, port: Path, *args: str) -> tuple[subprocess.Completed
     return proc, rows
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["pybullet", "mujoco"])
 def test_deploy_balances_the_ball_on_the_virtual_board_through_the_line_protocol(tmp_path: Path, backend: str) -> None:
     """The shipped policy, the touch panel read over the wire, the twin in real time: the ball stays on the plate
@@ -149,6 +150,7 @@ def test_deploy_balances_the_ball_on_the_virtual_board_through_the_line_protocol
     assert len(rows) >= 280 and sum(int(r["stale"]) for r in rows) <= 3
 
 
+@pytest.mark.slow
 def test_maestro_board_with_the_simulated_sensor(tmp_path: Path) -> None:
     board = Board(tmp_path, "--protocol", "maestro", "--backend", "mujoco")
     dep, rows = deploy(tmp_path, board.link, "--policy", "shipped", "--protocol", "maestro", "--sensor", "sim",
@@ -159,6 +161,7 @@ def test_maestro_board_with_the_simulated_sensor(tmp_path: Path) -> None:
     assert code == 0 and messages >= 6 * 90 and "0 malformed" in out  # 6 Set Target commands per tick
 
 
+@pytest.mark.slow
 def test_corrupted_bytes_are_counted_and_clamped(tmp_path: Path) -> None:
     # the board's answers are not read (--write-only): on a line this noisy a third of the position queries are
     # garbled, and deploy would rightly stop on the missed answers (test_deploy_faults covers that)
@@ -172,6 +175,7 @@ def test_corrupted_bytes_are_counted_and_clamped(tmp_path: Path) -> None:
     assert code == 0 and corrupted > 10 and malformed > 0, out
 
 
+@pytest.mark.slow
 def test_a_stalled_panel_sends_the_platform_home(tmp_path: Path) -> None:
     board = Board(tmp_path, "--protocol", "line", "--stall-sensor-after", "1.5")
     dep, rows = deploy(tmp_path, board.link, "--policy", "shipped", "--protocol", "line", "--sensor", "panel",
@@ -197,6 +201,7 @@ def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> Non
     assert 0.9 <= float(rows[-1]["t_s"]) <= 1.5
 
 
+@pytest.mark.slow
 def test_the_rendered_camera_closes_the_loop_through_the_virtual_board(tmp_path: Path) -> None:
     """The board streams the twin's camera view (MJPEG in a named pipe); deploy reads it as a camera, finds the
     plate's markers and the ball in every frame, and balances the ball it sees."""

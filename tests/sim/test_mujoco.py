@@ -222,6 +222,7 @@ def test_engines_roll_the_ball_alike_under_the_same_tilts() -> None:
     assert travel > 0.03 and diff.max() < 0.05 * travel
 
 
+@pytest.mark.slow
 def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -> None:
     """MuJoCo draws with OpenGL. Where it can start (a GPU with MUJOCO_GL=egl, or OSMesa), ``evaluate --gif`` writes
     the GIF; where it cannot (a headless CPU machine), the command says so in one line before running anything."""
@@ -243,6 +244,7 @@ def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -
         assert "success rate" not in proc.stdout and not gif.exists()
 
 
+@pytest.mark.slow
 def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, device: FakeDevice) -> None:
     """Through the CLI: a shipped policy evaluated in MuJoCo, a short run trained in MuJoCo with a camera (its config
     records both, and ``evaluate`` runs it in that engine with that sensor unless told otherwise), and ``deploy

@@ -38,6 +38,7 @@ def run_experiment(name: str, args: list[str], out: Path) -> dict:
     return json.loads(out.read_text())
 
 
+@pytest.mark.slow
 def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path) -> None:
     """``train/experiments/memory.py --stack 2`` for one PPO rollout: exits 0 and reports the Control page's
     metrics for the stacked policy (evaluated through the shared evaluation code); a bad size is refused."""
@@ -52,6 +53,7 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     assert bad.returncode == 2 and "error:" in bad.stderr and "--stack" in bad.stderr
 
 
+@pytest.mark.slow
 def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_path: Path) -> None:
     """``train/experiments/curriculum.py`` for two PPO rollouts (2 × 2,048 steps): exits 0, reports the Control
     page's metrics, and the curriculum set the training envs before each rollout (``train(callbacks=...)``):
@@ -76,6 +78,7 @@ def test_curriculum_experiment_changes_the_training_envs_between_rollouts(tmp_pa
         assert proc.returncode == 2 and "error:" in proc.stderr and "Traceback" not in proc.stderr, bad
 
 
+@pytest.mark.slow
 def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path: Path,
                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """``train/experiments/action_filter.py``: the wrapper (training) and the evaluation policy apply the same
@@ -121,6 +124,7 @@ def test_action_filter_experiment_filters_in_training_and_in_evaluation(tmp_path
         assert proc.returncode == 2 and "error:" in proc.stderr and "--alpha" in proc.stderr, bad
 
 
+@pytest.mark.slow
 def test_distill_experiment_clones_the_lqr_pid_and_evaluates_the_network(tmp_path: Path) -> None:
     """``train/experiments/distill.py`` with 3 teacher episodes and one DAgger round: exits 0 and reports the
     Control page's metrics for the network, with every step of the teacher's 3 full episodes and of the DAgger
@@ -159,6 +163,7 @@ def test_settling_bound_prints_a_bound_per_start_and_refuses_bad_sizes() -> None
         assert "Traceback" not in bad.stderr
 
 
+@pytest.mark.slow
 def test_hold_headroom_scales_one_gain_and_bounds_what_adapting_it_buys() -> None:
     """``train/experiments/hold_headroom.py``: a row per gain scale, the shipped row equal to ``stewart-gym evaluate --policy
     pid-kalman`` on the same seeds, every episode in one noise bin and one dead-band bin, and the hindsight pick

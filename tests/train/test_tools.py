@@ -9,6 +9,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 SMOKE = {
     "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
     "sac": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
@@ -84,6 +86,7 @@ def test_results_page_re_evaluates_only_the_recipes_when_asked(tmp_path: Path) -
     assert bad.returncode == 2 and "needs at least one --recipe" in bad.stderr
 
 
+@pytest.mark.slow
 def test_results_page_re_evaluates_only_the_named_controllers(tmp_path: Path) -> None:
     """``train/tools/results.py --rows "LQR → PID"``: only that controller's rows are evaluated (balance, the three
     trajectories, latency and noise), every other row of results.json is kept, recipes included, and a
