@@ -408,8 +408,7 @@ class BallKalmanFilter:
         """The state (and covariance, unless None) carried from ``t0`` to ``t1`` through the commands acting in
         between: one exact step per interval of constant input (a command acts a dead time after it was
         issued). Φ x + Γ u and Φ P Φᵀ + Q are written out on Φ's non-zero entries (:meth:`transition`): on a
-        4×4 matrix numpy's per-call overhead is most of the work (49 against 19 µs a control step in
-        ``bench/bench_env.py``)."""
+        4×4 matrix numpy's per-call overhead would be most of the work (``bench/bench_env.py``)."""
         if t1 <= t0:
             return state, cov
         acting, seen = self._commands, self._seen
@@ -440,12 +439,11 @@ class BallKalmanFilter:
         """Φ's non-zero entries over an interval of ``h`` s (h, Φ₀₂, Φ₁₂, Φ₀₃, Φ₂₂), Γ's (Γ₀, Γ₁, Γ₂), and the
         process noise ``Q = Φ Qc Φᵀ h``'s (Q₀₀, Q₀₁, Q₀₃, Q₁₁, Q₁₃, Q₃₃; its row and column 2 are zero, as Qc's
         are and Φ keeps them): the model's exact transition in closed form (:meth:`transition`). Cached per µs
-        of interval: the simulator's intervals repeat; a real clock's seldom do, and there each interval is
-        computed afresh (a few ufunc calls and one 4×4 product: bench/bench_deploy.py). ``scipy.linalg.expm``, once
-        used here, made the observer 2.4× slower a tick on a real clock (0.14 against 0.06 ms median), with a
-        99th percentile of 5–18 ms on a machine busy with another process (0.2–0.4 ms now). Called for an
-        interval not yet in ``self._seen`` (the intervals as given, which :meth:`_propagate` looks up first, so
-        that a repeat skips the rounding); it records it there."""
+        of interval: the simulator's intervals repeat; a real clock's seldom do, and there each interval costs a few
+        ufunc calls and one 4×4 product (``bench/bench_deploy.py``), where a general matrix exponential would cost
+        several times more and stall on a busy machine. Called for an interval not yet in ``self._seen`` (the
+        intervals as given, which :meth:`_propagate` looks up first, so that a repeat skips the rounding); it
+        records it there."""
         key = round(h, 6)
         found = self._cache.get(key)
         if found is None:

@@ -44,8 +44,8 @@ class ResidualMix:
     that sensor noise around the inner radius cannot switch the correction on while the base holds the ball.
     With ``dwell_s`` > 0 the latch also closes once the ball has stayed within ``release_mm`` that long (whole
     control periods of ``dt`` s) without coming within ``inner_mm``: a correction that keeps the ball circling
-    the target, short of the inner radius, is cut there and the base brings it in (a run-time guard: two track
-    networks trained with it learned to circle wider instead, in and out of ``release_mm``; docs: Control).
+    the target, short of the inner radius, is cut there and the base brings it in (a guard at run time, not a
+    training signal: docs, Control).
     One latch per row of a batch; :meth:`reset` at the start of an episode.
     """
 

@@ -62,9 +62,8 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     out.mkdir(parents=True, exist_ok=True)
     net = learned.module if ensemble else deterministic_module(model).eval()
     n_obs = int(model.observation_space.shape[0])
-    # The TorchScript exporter (dynamo=False), deprecated since torch 2.9 but kept in 2.13: the torch.export one
-    # gives the same outputs on the shipped policies, but needs onnxscript, takes 1.7 s instead of 0.1 s and logs
-    # to stderr (checked 2026-11-25 with onnxscript 0.7.2).
+    # The TorchScript exporter (dynamo=False): the torch.export one gives the same outputs on the shipped policies,
+    # but needs onnxscript, takes over ten times as long and logs to stderr.
     with torch.no_grad():
         torch.onnx.export(net, torch.zeros(1, n_obs), str(out / "policy.onnx"), input_names=["obs"],
                           output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
