@@ -31,7 +31,6 @@ resumes from it.
 from __future__ import annotations
 
 import csv
-import inspect
 import json
 import math
 import os
@@ -104,16 +103,11 @@ def hyperparam_names(algo: str) -> set[str]:
 
 
 def env_keyword_names(env_id: str) -> set[str]:
-    """The keywords ``gym.make(env_id, ...)`` takes: the env's own and its task's."""
+    """The keywords ``gym.make(env_id, ...)`` takes: the env's own and its task's (not ``render_mode``)."""
     from stewart_gym.envs import ENV_IDS
-    from stewart_gym.envs.ball_env import StewartBallEnv
-    from stewart_gym.envs.task import load_task
+    from stewart_gym.envs.ball_env import env_keywords
 
-    names = set(inspect.signature(StewartBallEnv.__init__).parameters) - {"self", "task", "render_mode", "task_kwargs"}
-    for cls in type(load_task(ENV_IDS[env_id][0])).__mro__:
-        if "__init__" in vars(cls):
-            names |= set(inspect.signature(cls.__init__).parameters) - {"self", "kwargs", "plate_half"}
-    return names
+    return env_keywords(ENV_IDS[env_id][0]) - {"render_mode"}
 
 
 def _check_name(name: str, spec: SweepSpec, where: str) -> None:

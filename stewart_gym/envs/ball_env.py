@@ -4,6 +4,8 @@ the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
 from __future__ import annotations
 
 import math
+import os
+import sys
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal
 
@@ -15,7 +17,7 @@ from gymnasium.utils import EzPickle
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
-from stewart_gym.envs.task import Task, load_task
+from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
@@ -156,8 +158,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``terminated`` when the ball centre leaves the plate (|x| or |y| beyond half its size)
     or drops below its surface, or when the physics blows up (non-finite or
     absurd state: ``info["physics_error"]`` is True and the last finite
-    observation is returned). Time limits come from ``max_episode_steps``
-    (500 steps = 10 s at 50 Hz; track 1000). ``info["is_success"]`` (every
+    observation is returned). ``truncated`` after ``episode_s`` seconds (balance and the pushes 10 s, track
+    20 s: 500 and 1000 steps at the default 50 Hz, half as many at ``control_hz=25``); ``gym.make(…,
+    max_episode_steps=N)`` adds a shorter limit. ``info["is_success"]`` (every
     step) is true while the ball is on the plate and has stayed within the
     task's ``success_radius`` of the target for the last ``success_window_s``.
     ``info`` also gives ``distance_mm``, ``ball_xy_m``, ``target_xy_m``,
@@ -184,7 +187,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     (``"lowpass"``, the default: the last reading and a filtered finite-difference velocity; or
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
     delay), ``integral`` (append the observer's integral of the position error near the target, what a
-    PID's integral term sees), ``start_distance`` (see Starting State), and any keyword of the task
+    PID's integral term sees), ``start_distance`` (see Starting State), ``episode_s`` (s, the episode's length;
+    each id sets its own), and any keyword of the task
     (``trajectory`` for track; ``near_scale``, ``settled_rate_penalty``, ``outside_penalty`` and
     ``charge_until_settled`` of the reward).
 
@@ -216,6 +220,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         estimator: str = "lowpass",
         integral: bool = False,
         start_distance: Sequence[float] | None = None,
+        episode_s: float = 10.0,
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
@@ -223,7 +228,13 @@ class StewartBallEnv(gym.Env, EzPickle):
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
                           randomization=randomization, rate_penalty=rate_penalty, backend=backend,
                           estimator=estimator, integral=integral, start_distance=start_distance,
-                          **task_kwargs)  # fmt: skip
+                          episode_s=episode_s, **task_kwargs)  # fmt: skip
+        unknown = sorted(set(task_kwargs) - task_keywords(task)) if isinstance(task, str) else sorted(task_kwargs)
+        if unknown:  # a TypeError, as Python's own for a keyword a function does not take (clients probe for it)
+            raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r} "
+                            f"(the env and its task take: {', '.join(sorted(env_keywords(task)))})")  # fmt: skip
+        if not (isinstance(episode_s, (int, float)) and not isinstance(episode_s, bool) and 0 < episode_s <= 3600):
+            raise ConfigError(f"episode_s must be a duration in s, more than 0 and at most 3600, got {episode_s!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         self.randomize = bool(randomize)
@@ -240,13 +251,19 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sim: PhysicsBackend = make_backend(
             backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode) if isinstance(backend, str) else backend  # fmt: skip
-        self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz)}
+        # what this env can render here: "human" is PyBullet's window, which needs a display
+        human = backend == "pybullet" and (not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY")))
+        self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz),
+                         "render_modes": ["human", "rgb_array"] if human else ["rgb_array"]}  # fmt: skip
         self.plate_half_extent = tuple(self.sim.plate_half_extent)
         self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,
                                     rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),
                                     **task_kwargs) if isinstance(task, str) else task  # fmt: skip
         self.success_radius = float(self.task.success_radius)
         self.success_steps = max(1, int(round(self.task.success_window_s * self.sim.control_hz)))
+        #: control steps in an episode: ``episode_s`` at this env's rate (then ``truncated``)
+        self.episode_steps = max(1, int(round(float(episode_s) * self.sim.control_hz)))
+        self._engine = (backend, geometry, physics_hz, control_hz, render_mode) if isinstance(backend, str) else None
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
@@ -260,13 +277,18 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.observation_space = self.observer.builder.space
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
+        self._episode: tuple[dict, Any, list[np.ndarray]] | None = None
         self._reset_episode_state()
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         super().reset(seed=seed)
         rng = self.np_random
+        #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since
+        self._episode = (rng.bit_generator.state, options, [])
         options = self._check_options(options)
+        if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
+            self._reopen()
         if self.randomize:
             params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
         else:
@@ -365,6 +387,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         return out
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        if self._episode is not None:
+            self._episode[2].append(np.array(action, copy=True))
         mapped = self.mapper(action)
         sim, task = self.sim, self.task
         task.before_step(sim.time, sim)
@@ -398,18 +422,45 @@ class StewartBallEnv(gym.Env, EzPickle):
         reward = task.reward(dist, rate, terminated)
         info = self._info(np.array([x, y]), target_xy, dist)
         info["is_success"] = on_plate and self._inside >= self.success_steps
-        return obs, reward, terminated, False, info
+        self._steps += 1
+        return obs, reward, terminated, not terminated and self._steps >= self.episode_steps, info
 
     def render(self) -> np.ndarray | None:
         return self.sim.render()
 
+    def __deepcopy__(self, memo: dict) -> StewartBallEnv:
+        """An independent env in the same state, mid-episode included: a new env made with the same arguments,
+        its own engine, which replays this episode (the same random draws from the reset on, then each action
+        taken since), so that from here both step alike, to the last bit. Before the first reset: a new env."""
+        twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
+        memo[id(self)] = twin
+        if self._episode is not None:
+            draws, options, actions = self._episode
+            twin._np_random = np.random.Generator(type(self.np_random.bit_generator)())
+            twin._np_random.bit_generator.state = draws
+            twin.reset(options=options)
+            for action in actions:
+                twin.step(action)
+        return twin
+
     def close(self) -> None:
+        """Release the engine; :meth:`reset` starts it again (a backend object given by the caller stays closed)."""
         sim = getattr(self, "sim", None)
         if sim is not None:
             sim.close()
 
+    def _reopen(self) -> None:
+        """A closed engine made again as it was built (the episode's physics come with the reset)."""
+        if self._engine is None:
+            raise RuntimeError("this env's backend was given as an object and has been closed; make the env anew")
+        backend, geometry, physics_hz, control_hz, render_mode = self._engine
+        self.sim = make_backend(backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True,
+                                ball_spec=self.nominal_ball, servo_spec=self.nominal_servo,
+                                render_mode=render_mode)  # fmt: skip
+
     # ------------------------------------------------------------- helpers
     def _reset_episode_state(self) -> None:
+        self._steps = 0
         self._prev_action: tuple[float, ...] = (0.0,) * self.mapper.size
         self._roll_pitch = (0.0, 0.0)
         self._inside = 0
@@ -429,12 +480,20 @@ class StewartBallEnv(gym.Env, EzPickle):
             "ball_xy_m": xy,
             "target_xy_m": np.array(target_xy),
             "pulse_widths_us": self._pulses,
-            "commanded_tilt_rad": self._roll_pitch,
+            "commanded_tilt_rad": np.array(self._roll_pitch),
             "action_scaled": self._scaled,
             "unreachable_count": self._unreachable,
             "physics_error": False,
             **self.task.info(),
         }
+
+
+def env_keywords(task: str | Task = "balance") -> set[str]:
+    """The keywords ``gym.make(id, ...)`` takes for an env of ``task``: :class:`StewartBallEnv`'s own and its task's."""
+    import inspect
+
+    own = set(inspect.signature(StewartBallEnv.__init__).parameters) - {"self", "task", "task_kwargs"}
+    return own | (task_keywords(task) if isinstance(task, str) else set())
 
 
 def _tables_into_docstring() -> None:

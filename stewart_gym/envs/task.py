@@ -27,7 +27,7 @@ from stewart_gym.errors import ConfigError
 if TYPE_CHECKING:
     from stewart_gym.sim.backend import PhysicsBackend
 
-__all__ = ["BallTask", "Task", "XY", "load_task", "task_class", "TASK_NAMES"]
+__all__ = ["BallTask", "Task", "XY", "load_task", "task_class", "TASK_NAMES", "task_keywords"]
 
 XY = tuple[float, float]
 
@@ -159,6 +159,18 @@ def task_class(spec: str) -> type:
         return getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError, ValueError):
         raise ConfigError(f"unknown task {spec!r}; use one of {sorted(TASK_NAMES)} or 'module:Class'") from None
+
+
+def task_keywords(spec: str | Task) -> set[str]:
+    """The keywords the constructor of the task ``spec`` names takes (its own and its bases')."""
+    import inspect
+
+    cls = task_class(spec) if isinstance(spec, str) else type(spec)
+    names: set[str] = set()
+    for klass in cls.__mro__:
+        if "__init__" in vars(klass):
+            names |= set(inspect.signature(klass.__init__).parameters) - {"self", "args", "kwargs", "plate_half"}
+    return names
 
 
 def load_task(spec: str | Task, **kwargs: Any) -> Task:

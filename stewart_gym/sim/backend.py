@@ -146,12 +146,13 @@ class SimulatorBase:
                render_size: tuple[int, int], render_modes: tuple[str, ...]) -> None:  # fmt: skip
         """Check the options and set what every backend has; raises ``ValueError`` naming a bad option."""
         from stewart_gym.calibration import ServoCalibration
+        from stewart_gym.errors import ConfigError
         from stewart_gym.presets import load_geometry
         from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
         from stewart_gym.sim.urdf import MechanismSpec
 
         if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
-            raise ValueError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+            raise ConfigError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
         if render_mode is not None and render_mode not in render_modes:
             allowed = " or ".join(repr(m) for m in (None, *render_modes))
             raise ValueError(f"render_mode must be {allowed} for {type(self).__name__}, got {render_mode!r}")
@@ -248,6 +249,11 @@ class SimulatorBase:
     def time(self) -> float:
         """s of simulated time since the last reset."""
         return self._step_count / self.physics_hz
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` has released the engine."""
+        return self._closed
 
     def close(self) -> None:  # pragma: no cover - every subclass defines it
         raise NotImplementedError

@@ -17,6 +17,14 @@ DEFAULT_BACKEND = "pybullet"
 PYBULLET_ENV_HZ = 150
 
 
+def multiple_at_least(rate: int, control_hz: int) -> int:
+    """The smallest multiple of ``control_hz`` that is at least ``rate`` (Hz): the physics steps a whole number of
+    times per control period (150 Hz physics at 50 Hz control, 200 at 100 Hz)."""
+    if control_hz <= 0:
+        raise ConfigError(f"control_hz must be a positive number of Hz, got {control_hz!r}")
+    return -(-int(rate) // int(control_hz)) * int(control_hz)
+
+
 def backend_class(name: str) -> type:
     """The simulator class of engine ``name`` (to ask its declared capabilities before building one, such as
     ``renders_camera``)."""
@@ -35,15 +43,18 @@ def make_backend(name: str, geometry: Any, *, physics_hz: int | None = None, **k
     """A :class:`PhysicsBackend` of engine ``name`` for ``geometry``; ``kwargs`` go to its constructor
     (``control_hz``, ``ball``, ``ball_spec``, ``servo_spec``, ``render_mode``, …). ``physics_hz`` defaults
     to the engine's env rate (PyBullet 150 Hz, MuJoCo :class:`~stewart_gym.sim.mjcf.MujocoPhysics`'s)."""
+    control_hz = int(kwargs.get("control_hz", 50))
     if name == "pybullet":
         from stewart_gym.sim.stewart_sim import StewartSim
 
-        return StewartSim(geometry, physics_hz=physics_hz or PYBULLET_ENV_HZ, **kwargs)
+        return StewartSim(geometry, physics_hz=physics_hz or multiple_at_least(PYBULLET_ENV_HZ, control_hz), **kwargs)
     if name == "mujoco":
+        from stewart_gym.sim.mjcf import MujocoPhysics
         from stewart_gym.sim.mujoco_sim import MujocoSim
 
         if kwargs.get("render_mode") == "human":
             raise ConfigError("render_mode 'human' is PyBullet's window; with MuJoCo use 'rgb_array' or "
                               "python -m mujoco.viewer on the file from stewart-gym mjcf")  # fmt: skip
-        return MujocoSim(geometry, physics_hz=physics_hz, **kwargs)
+        own = (kwargs.get("physics") or MujocoPhysics()).physics_hz
+        return MujocoSim(geometry, physics_hz=physics_hz or multiple_at_least(own, control_hz), **kwargs)
     raise ConfigError(f"backend must be one of {list(BACKEND_NAMES)}, got {name!r}")

@@ -70,7 +70,7 @@ def test_reset_is_deterministic_under_randomization(env_id: str, mode: str, back
 def test_registration_without_import_prefix_and_metadata() -> None:
     env = gym.make("stewart_gym:StewartBallBalance-v0", render_mode="rgb_array")
     try:
-        assert env.spec.max_episode_steps == 500
+        assert env.unwrapped.episode_steps == 500 and env.spec.kwargs["episode_s"] == 10.0
         assert env.metadata["render_fps"] == round(1 / env.unwrapped.sim.dt) == 50
         env.reset(seed=0)
         frame = env.render()

@@ -1,0 +1,149 @@
+"""The conventions Gymnasium's own environments keep, and the clients that rely on them: both env checkers with
+the render check, ``deepcopy`` mid-episode, ``close()`` then ``reset()``, ``TypeError`` for an unknown keyword,
+the episode as a duration, ndarray info values that batch, ``reward_threshold`` and ``RecordVideo``."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import stewart_gym  # noqa: F401  (registers the ids)
+from stewart_gym.envs import ENV_IDS, reward_threshold
+
+BACKENDS = ("pybullet", "mujoco")
+
+
+def test_both_checkers_pass_with_the_render_check() -> None:
+    """Gymnasium's and Stable-Baselines3's checkers, rendering included: SB3's closes the env and resets it
+    again, which a closed PyBullet engine could not do before it learned to start again."""
+    env = gym.make("StewartBallBalance-v0", render_mode="rgb_array")
+    try:
+        check_env(env.unwrapped, skip_render_check=False)
+        sb3_check_env(env.unwrapped, warn=True, skip_render_check=False)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+def test_a_deepcopy_mid_episode_steps_as_the_original(env_id: str, backend: str) -> None:
+    """A copy made 60 steps in is another env (its own engine) in the same state: the same observations,
+    rewards and ends, to the last bit, for the next 80 steps; stepping one does not move the other."""
+    env = gym.make(env_id, randomize=True, backend=backend, estimator="kalman")
+    rng = np.random.default_rng(1)
+    env.reset(seed=5)
+    for _ in range(60):
+        env.step(rng.uniform(-0.4, 0.4, 2).astype(np.float32))
+    twin = copy.deepcopy(env)
+    try:
+        assert twin.unwrapped.sim is not env.unwrapped.sim
+        for action in rng.uniform(-0.4, 0.4, (80, 2)).astype(np.float32):
+            a, b = env.step(action), twin.step(action)
+            assert np.array_equal(a[0], b[0]) and a[1:4] == b[1:4]
+            assert np.array_equal(a[4]["ball_xy_m"], b[4]["ball_xy_m"])
+            if a[2] or a[3]:
+                break
+        before = env.unwrapped.sim.ball_position()
+        twin.step(np.ones(2, dtype=np.float32))
+        assert env.unwrapped.sim.ball_position() == before  # independent
+    finally:
+        env.close()
+        twin.close()
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_close_then_reset_starts_the_engine_again(backend: str) -> None:
+    env = gym.make("StewartBallBalance-v0", backend=backend)
+    first, _ = env.reset(seed=2)
+    env.close()
+    again, _ = env.reset(seed=2)
+    try:
+        assert np.array_equal(first, again)  # the same episode
+        env.step(np.zeros(2, dtype=np.float32))
+    finally:
+        env.close()
+        env.close()  # twice is fine
+
+
+def test_an_unknown_keyword_is_a_type_error_naming_it() -> None:
+    """TorchRL and other clients probe an env's keywords by catching ``TypeError`` (Python's own for a keyword a
+    function does not take); a bad value of a known keyword stays a one-line ``ConfigError``."""
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(TypeError, match="unexpected keyword argument 'frameskip'"):
+        gym.make("StewartBallBalance-v0", frameskip=4)
+    with pytest.raises(TypeError, match="'trajectory'"):  # the balance task has no trajectory
+        gym.make("StewartBallBalance-v0", trajectory="circle")
+    gym.make("StewartBallTrack-v0", trajectory="circle").close()  # the track task has one
+    with pytest.raises(ConfigError):
+        gym.make("StewartBallBalance-v0", estimator="particle")
+
+
+@pytest.mark.parametrize("control_hz,steps", [(50, 500), (25, 250), (100, 1000)])
+def test_an_episode_is_a_duration(control_hz: int, steps: int) -> None:
+    """10 s of balance at any control rate: truncated at the step that completes it, not before."""
+    env = gym.make("StewartBallBalance-v0", control_hz=control_hz)
+    try:
+        env.reset(seed=0, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
+        for k in range(1, steps + 1):
+            _, _, terminated, truncated, _ = env.step(np.zeros(2, dtype=np.float32))
+            assert not terminated and truncated == (k == steps)
+        assert env.unwrapped.episode_steps == steps
+    finally:
+        env.close()
+    short = gym.make("StewartBallBalance-v0", max_episode_steps=5)  # Gymnasium's own limit still applies on top
+    try:
+        short.reset(seed=0)
+        assert [short.step(np.zeros(2, dtype=np.float32))[3] for _ in range(5)] == [False] * 4 + [True]
+    finally:
+        short.close()
+
+
+def test_array_valued_info_batches_as_float_arrays_in_a_vector_env() -> None:
+    envs = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="sync")
+    try:
+        envs.reset(seed=0)
+        _, _, _, _, info = envs.step(np.zeros((2, 2), dtype=np.float32))
+        for key in ("commanded_tilt_rad", "pulse_widths_us", "ball_xy_m", "target_xy_m"):
+            assert info[key].dtype == np.float64 and info[key].shape[0] == 2, key
+    finally:
+        envs.close()
+
+
+def test_reward_threshold_is_the_return_of_a_ball_held_at_the_success_radius() -> None:
+    """Balance and track have one (the return of an episode at the success radius, no servo motion); the pushes
+    do not: a pushed ball costs return while every episode succeeds."""
+    from stewart_gym.envs.task import load_task
+
+    for env_id in ENV_IDS:
+        spec = gym.spec(env_id)
+        assert spec.reward_threshold == reward_threshold(env_id)
+    assert reward_threshold("StewartBallDisturbance-v0") is None
+    task = load_task(ENV_IDS["StewartBallBalance-v0"][0])
+    assert reward_threshold("StewartBallBalance-v0") == pytest.approx(500 * task.reward(0.010, 0.0, False), abs=0.05)
+    track = load_task(ENV_IDS["StewartBallTrack-v0"][0])
+    assert reward_threshold("StewartBallTrack-v0") == pytest.approx(1000 * track.reward(0.020, 0.0, False), abs=0.05)
+
+
+def test_record_video_writes_a_file(tmp_path: Path) -> None:
+    """Gymnasium's RecordVideo with the ``video`` extra (moviepy): one episode's MP4."""
+    from gymnasium.wrappers import RecordVideo
+
+    env = RecordVideo(gym.make("StewartBallBalance-v0", render_mode="rgb_array", max_episode_steps=20),
+                      str(tmp_path / "videos"), episode_trigger=lambda k: k == 0, disable_logger=True)  # fmt: skip
+    try:
+        env.reset(seed=0)
+        done = False
+        while not done:
+            _, _, terminated, truncated, _ = env.step(np.zeros(2, dtype=np.float32))
+            done = terminated or truncated
+    finally:
+        env.close()
+    videos = list((tmp_path / "videos").glob("*.mp4"))
+    assert len(videos) == 1 and videos[0].stat().st_size > 1000
