@@ -168,8 +168,8 @@ def deterministic_module(model: Any) -> Any:
             p = self.policy
             if isinstance(model, PPO):
                 return p.action_net(p.mlp_extractor.forward_actor(p.extract_features(obs, p.pi_features_extractor)))
-            if isinstance(model, (SAC, TQC)):
-                return p(obs, deterministic=True)
+            if isinstance(model, (SAC, TQC)):  # the squashed Gaussian's mode, as predict(deterministic=True) gives it
+                return torch.tanh(p.get_action_dist_params(obs)[0])
             return p(obs)
 
     return Deterministic()

@@ -14,8 +14,11 @@ Exporting needs torch (training side); loading needs onnxruntime only.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
+from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -62,12 +65,12 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     out.mkdir(parents=True, exist_ok=True)
     net = learned.module if ensemble else deterministic_module(model).eval()
     n_obs = int(model.observation_space.shape[0])
-    # The TorchScript exporter (dynamo=False): the torch.export one gives the same outputs on the shipped policies,
-    # but needs onnxscript, takes over ten times as long and logs to stderr.
-    with torch.no_grad():
-        torch.onnx.export(net, torch.zeros(1, n_obs), str(out / "policy.onnx"), input_names=["obs"],
-                          output_names=["action"], dynamic_axes={"obs": {0: "batch"}, "action": {0: "batch"}},
-                          dynamo=False)  # fmt: skip
+    # torch's current exporter (torch.export, with onnxscript): the same outputs, to the last bit, as the
+    # TorchScript one it replaces, for the shipped policies; its progress lines are kept off the user's screen
+    with torch.no_grad(), quiet_exporter():
+        torch.onnx.export(net, (torch.zeros(1, n_obs),), str(out / "policy.onnx"), input_names=["obs"],
+                          output_names=["action"], dynamic_shapes=({0: torch.export.Dim("batch")},), dynamo=True,
+                          verbose=False)  # fmt: skip
     sb3 = members[0]
     env_kwargs = dict(env_kwargs or {})
     action_mode = str(env_kwargs.get("action_mode", "tilt"))
@@ -103,6 +106,28 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
                                                    meta["estimator"])}  # fmt: skip
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
+
+
+@contextlib.contextmanager
+def quiet_exporter() -> Iterator[None]:
+    """torch's ONNX exporter without its log lines and progress prints (to the logging module and stdout), and
+    without the warnings torch raises about its own internals."""
+    import logging
+    import warnings
+
+    loggers = [logging.getLogger(name) for name in ("torch.onnx", "torch.export", "torch._dynamo", "onnxscript")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.ERROR)
+    try:
+        with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):
+            warnings.filterwarnings("ignore", module=r"torch\.|onnxscript")
+            for kind in (FutureWarning, DeprecationWarning):  # torch's notes to itself, from inside the export
+                warnings.simplefilter("ignore", kind)
+            yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
 
 
 def build_meta(geometry: Any, env_kwargs: dict[str, Any]) -> dict[str, Any]:
