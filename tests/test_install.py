@@ -1,5 +1,7 @@
-"""Installing: the check `make` runs on the Python it is given before it creates .venv, and the extras: a fresh
-virtual environment with only ``.[deploy]`` runs an exported bundle on a fake device.
+"""Installing: the check `make` runs on the Python it is given before it creates .venv; the distribution (a wheel
+and an sdist that ``twine check`` passes, carrying the shipped policies, the hyperparameters, the models and the
+sketch); and the extras: a fresh virtual environment with the wheel's ``[deploy]`` only runs an exported bundle on
+a fake device.
 
 That is what a Raspberry Pi next to the platform gets: numpy, scipy, matplotlib, onnxruntime and pyserial;
 no torch, no Stable-Baselines3, no PyBullet, no Gymnasium. Slow (it builds a venv and installs into it).
@@ -18,8 +20,37 @@ from conftest import Board, FakeDevice
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.fixture(scope="module")
+def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``python -m build``: the wheel and the sdist, as a release would publish them."""
+    out = tmp_path_factory.mktemp("dist")
+    proc = subprocess.run([sys.executable, "-m", "build", "--outdir", str(out), str(ROOT)], capture_output=True,
+                          text=True, timeout=900)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    return out
+
+
 @pytest.mark.slow
-def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice) -> None:
+def test_the_distribution_would_publish_as_it_is(dist: Path) -> None:
+    import zipfile
+
+    wheel, sdist = next(dist.glob("*.whl")), next(dist.glob("*.tar.gz"))
+    check = subprocess.run([sys.executable, "-m", "twine", "check", "--strict", str(wheel), str(sdist)],
+                           capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert check.returncode == 0 and check.stdout.count("PASSED") == 2, check.stdout + check.stderr
+    names = zipfile.ZipFile(wheel).namelist()
+    for wanted in ("stewart_gym/policies/balance/bundle/policy.onnx", "stewart_gym/policies/balance/bundle/bundle.json",
+                   "stewart_gym/policies/pid_gains.json", "stewart_gym/policies/lqr_pid.json",
+                   "stewart_gym/hyperparams/ppo.yml", "stewart_gym/hyperparams/ppo_camera.yml",
+                   "stewart_gym/presets.py"):  # fmt: skip
+        assert wanted in names, wanted
+    shared = [n for n in names if ".data/data/share/stewart_gym/" in n]
+    assert {Path(n).name for n in shared} >= {"servo_hexapod.urdf", "servo_hexapod_plate.urdf", "servo_hexapod.xml",
+                                             "stewart_pca9685.ino"}, shared  # fmt: skip
+
+
+@pytest.mark.slow
+def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice, dist: Path) -> None:
     bundle = tmp_path / "bundle"
     made = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "shipped", "--out", str(bundle)],
                           capture_output=True, text=True, timeout=300)  # fmt: skip
@@ -28,7 +59,8 @@ def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice) -
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
     py = venv / "bin" / "python"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
-    install = subprocess.run([str(py), "-m", "pip", "install", "-q", f"{ROOT}[deploy]"], capture_output=True,
+    wheel = next(dist.glob("*.whl"))
+    install = subprocess.run([str(py), "-m", "pip", "install", "-q", f"{wheel}[deploy]"], capture_output=True,
                              text=True, timeout=1200, env=env)  # fmt: skip
     assert install.returncode == 0, install.stdout[-2000:] + install.stderr[-2000:]
     heavy = "('torch', 'stable_baselines3', 'pybullet', 'gymnasium', 'yaml')"
