@@ -153,8 +153,14 @@ def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | N
 
 
 def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
-    """Where an evaluation ran: the env id, the physics engine and the ball sensor (for ``--json``)."""
-    return {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
+    """Where an evaluation ran: the env id, the physics engine (the one ``auto`` picks where none was asked
+    for) and the ball sensor (for ``--json``)."""
+    from stewart_gym.sim.engines import default_backend
+
+    out = {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
+    if "backend" not in env_kwargs or env_kwargs["backend"] == "auto":
+        out["backend"] = default_backend()
+    return out
 
 
 def check_can_render(backend: str | None) -> None:

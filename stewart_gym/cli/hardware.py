@@ -243,7 +243,7 @@ def register(sub: Any) -> None:
                    help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
     p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",
                    help="the streamed camera's preset: resolution, field of view, frame rate (default pixy2)")
-    p.set_defaults(func=cmd_virtual_device, backend="pybullet")
+    p.set_defaults(func=cmd_virtual_device, backend="auto")
 
     p = sub.add_parser("camera-check", help=cmd_camera_check.__doc__, description=cmd_camera_check.__doc__)
     p.add_argument("--camera-config", required=True, help="camera config TOML ([camera], [markers], [ball])")

@@ -182,8 +182,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     :class:`~stewart_gym.sensing.TouchPanelSpec`, a :class:`~stewart_gym.camera.CameraSpec`,
     ``"panel"``, a camera preset ``"pixy2"``, ``"webcam30"``, ``"global90"``, or
     ``"camera"``: a preset per randomised episode), ``geometry``,
-    ``backend`` (``"pybullet"``, the default, or ``"mujoco"``: the same env in
-    either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object), ``estimator``
+    ``backend`` (``"auto"``, the default: PyBullet where it imports, else MuJoCo; ``"pybullet"`` or
+    ``"mujoco"``: the same env in either engine; or a :class:`~stewart_gym.sim.PhysicsBackend` object),
+    ``estimator``
     (``"lowpass"``, the default: the last reading and a filtered finite-difference velocity; or
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
     delay), ``integral`` (append the observer's integral of the position error near the target, what a
@@ -216,7 +217,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         geometry: Any = "servo-hexapod",
         randomization: RandomizationRanges | Mapping[str, Any] | None = None,
         rate_penalty: float = 0.1,
-        backend: PhysicsBackend | str = "pybullet",
+        backend: PhysicsBackend | str = "auto",
         estimator: str = "lowpass",
         integral: bool = False,
         start_distance: Sequence[float] | None = None,
@@ -252,7 +253,8 @@ class StewartBallEnv(gym.Env, EzPickle):
             backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode) if isinstance(backend, str) else backend  # fmt: skip
         # what this env can render here: "human" is PyBullet's window, which needs a display
-        human = backend == "pybullet" and (not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY")))
+        human = type(self.sim).__name__ == "StewartSim" and (not sys.platform.startswith("linux")
+                                                             or bool(os.environ.get("DISPLAY")))  # fmt: skip
         self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz),
                          "render_modes": ["human", "rgb_array"] if human else ["rgb_array"]}  # fmt: skip
         self.plate_half_extent = tuple(self.sim.plate_half_extent)

@@ -84,7 +84,7 @@ class SimulatedPlant:
 
     def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
                  ball_position: tuple[float, float] | None = None, geometry: Any = "servo-hexapod",
-                 backend: str = "pybullet") -> None:  # fmt: skip
+                 backend: str = "auto") -> None:  # fmt: skip
         import gymnasium as gym
 
         self.env = gym.make(env_id, randomize=randomize, geometry=geometry, backend=backend).unwrapped

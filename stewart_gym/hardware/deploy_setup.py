@@ -149,7 +149,8 @@ class DeploySetup:
         if options.sensor == "sim":
             import importlib.util
 
-            if importlib.util.find_spec("pybullet") is None or importlib.util.find_spec("gymnasium") is None:
+            if importlib.util.find_spec("gymnasium") is None or (importlib.util.find_spec("pybullet") is None
+                                                                 and importlib.util.find_spec("mujoco") is None):
                 raise ConfigError("--sensor sim needs the simulator: pip install 'stewart_gym[sim]' (or use --sensor "
                                   "panel)")  # fmt: skip
             if options.backend == "mujoco" and importlib.util.find_spec("mujoco") is None:
@@ -199,7 +200,7 @@ class DeploySetup:
             return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
         if o.sensor == "sim":
             return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize, geometry=self.policy.geometry,
-                                  backend=o.backend or "pybullet")  # fmt: skip
+                                  backend=o.backend or "auto")  # fmt: skip
         return None
 
     def run(self) -> DeploySummary:

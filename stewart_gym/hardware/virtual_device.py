@@ -344,7 +344,7 @@ class VirtualDevice:
 
     Args:
         protocol: ``"maestro"``, ``"ssc32"`` or ``"line"``.
-        backend: ``"pybullet"`` or ``"mujoco"``.
+        backend: ``"pybullet"``, ``"mujoco"`` or ``"auto"`` (PyBullet where it imports).
         geometry: the platform (preset name, TOML path or geometry).
         calibration: the board's channels and limits (default: the geometry's).
         faults: :class:`Faults` to inject.
@@ -354,7 +354,7 @@ class VirtualDevice:
         env_id: the env whose task places the ball.
     """
 
-    def __init__(self, protocol: str, backend: str = "pybullet", geometry: Any = "servo-hexapod",
+    def __init__(self, protocol: str, backend: str = "auto", geometry: Any = "servo-hexapod",
                  calibration: ServoCalibration | None = None, faults: Faults | None = None, seed: int = 0,
                  randomize: bool = True, link: str | None = None, env_id: str = "StewartBallBalance-v0",
                  camera: Any = None, camera_stream: str | None = None) -> None:  # fmt: skip

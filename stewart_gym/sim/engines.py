@@ -7,11 +7,37 @@ from typing import Any
 from stewart_gym.errors import ConfigError
 from stewart_gym.sim.backend import PhysicsBackend
 
-__all__ = ["BACKEND_NAMES", "DEFAULT_BACKEND", "backend_class", "make_backend"]
+__all__ = ["BACKEND_NAMES", "DEFAULT_BACKEND", "backend_class", "default_backend", "make_backend"]
 
 #: Engines :func:`make_backend` builds (MuJoCo needs the ``mujoco`` extra).
 BACKEND_NAMES = ("pybullet", "mujoco")
-DEFAULT_BACKEND = "pybullet"
+#: What ``backend="auto"`` (the envs' default) picks: PyBullet, the reference engine, where it imports, else MuJoCo.
+DEFAULT_BACKEND = "auto"
+_SAID: list[str] = []
+
+
+def default_backend() -> str:
+    """The engine ``"auto"`` means here: ``"pybullet"`` where PyBullet imports, else ``"mujoco"`` (on Python
+    3.12 and newer PyBullet has no wheel, and the ``sim`` extra installs MuJoCo instead), said once on stderr.
+    :class:`ConfigError` where neither imports."""
+    import importlib.util
+    import logging
+
+    try:
+        import stewart_gym.sim.stewart_sim  # noqa: F401  (PyBullet, imported quietly)
+
+        return "pybullet"
+    except ImportError:
+        pass
+    if importlib.util.find_spec("mujoco") is None:
+        raise ConfigError("no physics engine: neither PyBullet nor MuJoCo can be imported; pip install "
+                          "'stewart_gym[sim]'")  # fmt: skip
+    if not _SAID:
+        _SAID.append("mujoco")
+        logging.getLogger("stewart_gym").warning(
+            "note: PyBullet cannot be imported here (it has no wheel for this Python); the simulator runs on "
+            "MuJoCo, whose figures agree with PyBullet's within about 1 mm (docs: The simulator)")  # fmt: skip
+    return "mujoco"
 
 #: Hz: PyBullet's physics rate in the envs (the loop gap stays ≤ 0.042 mm under ±10° bang-bang tilts).
 PYBULLET_ENV_HZ = 150
@@ -36,6 +62,8 @@ def backend_class(name: str) -> type:
         from stewart_gym.sim.mujoco_sim import MujocoSim
 
         return MujocoSim
+    if name == "auto":
+        return backend_class(default_backend())
     raise ConfigError(f"backend must be one of {list(BACKEND_NAMES)}, got {name!r}")
 
 
@@ -44,6 +72,8 @@ def make_backend(name: str, geometry: Any, *, physics_hz: int | None = None, **k
     (``control_hz``, ``ball``, ``ball_spec``, ``servo_spec``, ``render_mode``, …). ``physics_hz`` defaults
     to the engine's env rate (PyBullet 150 Hz, MuJoCo :class:`~stewart_gym.sim.mjcf.MujocoPhysics`'s)."""
     control_hz = int(kwargs.get("control_hz", 50))
+    if name == "auto":
+        name = default_backend()
     if name == "pybullet":
         from stewart_gym.sim.stewart_sim import StewartSim
 
