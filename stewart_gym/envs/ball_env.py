@@ -438,8 +438,9 @@ class StewartBallEnv(gym.Env, EzPickle):
         memo[id(self)] = twin
         if self._episode is not None:
             draws, options, actions = self._episode
-            twin._np_random = np.random.Generator(type(self.np_random.bit_generator)())
-            twin._np_random.bit_generator.state = draws
+            generator = np.random.Generator(type(self.np_random.bit_generator)())
+            generator.bit_generator.state = draws
+            twin.np_random = generator
             twin.reset(options=options)
             for action in actions:
                 twin.step(action)
