@@ -97,9 +97,9 @@ def _whole(value: Any, key: str, least: int = 1) -> int:
 
 def hyperparam_names(algo: str) -> set[str]:
     """What a sweep may set for ``algo``: the algorithm's keywords and the RL-Zoo keys of the YAML files."""
-    from stewart_gym.training import ZOO_KEYS, algo_keywords
+    from stewart_gym.training import RUN_KEYS, algo_keywords
 
-    return (algo_keywords(algo) | set(ZOO_KEYS)) - {"n_envs", "n_timesteps", "eval_freq", "eval_episodes"}
+    return (algo_keywords(algo) | set(RUN_KEYS)) - {"n_envs", "n_timesteps", "eval_freq", "eval_episodes"}
 
 
 def env_keyword_names(env_id: str) -> set[str]:

@@ -42,15 +42,22 @@ from stewart_gym.inputs import read_yaml
 from stewart_gym.outputs import model_statistics, run_config
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 
-__all__ = ["ALGOS", "NOISE_TYPES", "ZOO_KEYS", "TrainConfig", "algo_keywords", "check_action_noise",
-           "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer", "check_run_dir",
-           "action_noise", "load_hyperparams", "make_env", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS",
-           "check_vec_env"]
+__all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
+           "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
+           "check_run_dir", "action_noise", "load_hyperparams", "make_env", "run_hyperparams", "train",
+           "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
-ZOO_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual",
+#: The keys of a loaded section that set up the run rather than the algorithm: RL Zoo's own, and the evaluation
+#: settings and residual spec that :func:`load_hyperparams` brings in from where RL Zoo keeps them apart.
+RUN_KEYS = ("n_envs", "n_timesteps", "normalize", "policy", "env_kwargs", "eval_freq", "eval_episodes", "residual",
             "noise_type", "noise_std")
+#: The ``env_wrapper`` (RL Zoo's key) that makes a recipe residual: ``{RESIDUAL_WRAPPER: {residual: {base, …}}}``.
+RESIDUAL_WRAPPER = "stewart_gym.sb3_models.ResidualAction"
+#: The file-level section, by env id, of the evaluations during training (``eval_freq``, ``eval_episodes``). RL Zoo
+#: reads only the env ids' sections and takes its own evaluation settings from ``--eval-freq``/``--eval-episodes``.
+EVALUATION_SECTION = "evaluation"
 #: The evaluations during training draw their episodes from seed ``seed + EVAL_SEED_OFFSET``: apart from the
 #: training envs' (``seed`` … ``seed + n_envs - 1``), and the same in each run of a seed.
 EVAL_SEED_OFFSET = 10_000
@@ -106,7 +113,9 @@ def hyperparams_path(spec: str | Path) -> Path:
 
 
 def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> dict[str, Any]:
-    """The YAML section for ``env_id`` (a copy); raises :class:`ConfigError` naming the file and what is wrong.
+    """The YAML section for ``env_id`` (a copy), as RL Zoo reads it, with this package's own settings brought in:
+    the residual spec from its ``env_wrapper`` (``residual``) and ``eval_freq``/``eval_episodes`` from the
+    :data:`EVALUATION_SECTION`. Raises :class:`ConfigError` naming the file and what is wrong.
     ``path``: a YAML file or a shipped recipe's name (:func:`hyperparams_path`); default the algorithm's own."""
     path = hyperparams_path(path) if path else HYPERPARAM_DIR / f"{algo}.yml"
     data = read_yaml(path, "hyperparameter file") or {}
@@ -114,15 +123,49 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
         raise ConfigError(f"{path}: expected a mapping of env ids to hyperparameter sections, got "
                           f"{type(data).__name__}")  # fmt: skip
     if env_id not in data:
-        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sorted(map(str, data))})")
+        sections = sorted(str(k) for k in data if k != EVALUATION_SECTION)
+        raise ConfigError(f"{path} has no section for {env_id!r} (sections: {sections})")
     if not isinstance(data[env_id], dict):
         raise ConfigError(f"{path}: the section {env_id!r} must be a mapping of hyperparameters (key: value), got "
                           f"{data[env_id]!r}")  # fmt: skip
     hp = dict(data[env_id])
+    for key in ("eval_freq", "eval_episodes", "residual"):
+        if key in hp:
+            where = (f"the file's {EVALUATION_SECTION}: section ({EVALUATION_SECTION}: {{{env_id}: {{{key}: …}}}})"
+                     if key != "residual" else f"env_wrapper: {{{RESIDUAL_WRAPPER}: {{residual: …}}}}")
+            raise ConfigError(f"{path}: {env_id}.{key}: RL Zoo would pass it to the algorithm; write it as {where}")
+    if "env_wrapper" in hp:
+        hp["residual"] = _residual_from_wrapper(hp.pop("env_wrapper"), f"{path}: {env_id}.env_wrapper")
+    hp.update(_evaluation_settings(data.get(EVALUATION_SECTION), env_id, path))
     for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
         if key in hp and (isinstance(hp[key], bool) or not isinstance(hp[key], (int, float)) or not hp[key] >= 1):
             raise ConfigError(f"{path}: {env_id}.{key} must be a number ≥ 1, got {hp[key]!r}")
     return hp
+
+
+def _residual_from_wrapper(wrapper: Any, where: str) -> dict[str, Any]:
+    """The residual spec of an ``env_wrapper`` entry: ``{RESIDUAL_WRAPPER: {residual: {...}}}`` (or a list of
+    that one entry), the only wrapper a recipe may name."""
+    entry = wrapper[0] if isinstance(wrapper, list) and len(wrapper) == 1 else wrapper
+    if (not isinstance(entry, dict) or list(entry) != [RESIDUAL_WRAPPER] or not isinstance(entry[RESIDUAL_WRAPPER], dict)
+            or list(entry[RESIDUAL_WRAPPER]) != ["residual"] or not isinstance(entry[RESIDUAL_WRAPPER]["residual"], dict)):
+        raise ConfigError(f"{where}: the one wrapper a recipe may name is {{{RESIDUAL_WRAPPER}: {{residual: {{base: …, "
+                          f"scale: …}}}}}}, got {wrapper!r}")  # fmt: skip
+    return dict(entry[RESIDUAL_WRAPPER]["residual"])
+
+
+def _evaluation_settings(section: Any, env_id: str, path: Path) -> dict[str, Any]:
+    """``eval_freq``/``eval_episodes`` for ``env_id`` from the file's :data:`EVALUATION_SECTION` (none if absent)."""
+    if section is None:
+        return {}
+    if not isinstance(section, dict) or not all(isinstance(v, dict) for v in section.values()):
+        raise ConfigError(f"{path}: {EVALUATION_SECTION} must map env ids to {{eval_freq: …, eval_episodes: …}}, got "
+                          f"{section!r}")  # fmt: skip
+    settings = dict(section.get(env_id) or {})
+    unknown = sorted(set(settings) - {"eval_freq", "eval_episodes"})
+    if unknown:
+        raise ConfigError(f"{path}: {EVALUATION_SECTION}.{env_id}: unknown keys {unknown} (eval_freq, eval_episodes)")
+    return settings
 
 
 def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
@@ -180,14 +223,14 @@ SET_BY_TRAIN = frozenset({"self", "policy", "env", "seed", "device", "tensorboar
 
 
 def algo_keywords(algo: str) -> set[str]:
-    """The keywords of ``algo``'s constructor that a hyperparameter file may set (its own, not :data:`ZOO_KEYS`)."""
+    """The keywords of ``algo``'s constructor that a hyperparameter file may set (its own, not :data:`RUN_KEYS`)."""
     return set(inspect.signature(ALGOS[algo].__init__).parameters) - SET_BY_TRAIN
 
 
 def check_algo_keywords(algo: str, hp: dict[str, Any]) -> None:
     """Every key of a hyperparameter section is an RL-Zoo key or a keyword of ``algo`` (raises
     :class:`ConfigError` naming the others: most often a file written for another algorithm)."""
-    unknown = sorted(set(hp) - set(ZOO_KEYS) - algo_keywords(algo))
+    unknown = sorted(set(hp) - set(RUN_KEYS) - algo_keywords(algo))
     if unknown:
         raise ConfigError(f"{unknown} are not {algo.upper()} hyperparameters (a file for another algorithm? "
                           f"stewart_gym/hyperparams/{algo}.yml is {algo.upper()}'s)")
@@ -500,7 +543,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
-    algo_kwargs = {k: v for k, v in hp.items() if k not in ZOO_KEYS}
+    algo_kwargs = {k: v for k, v in hp.items() if k not in RUN_KEYS}
     policy = hp.get("policy", "MlpPolicy")
     residual = check_residual(hp["residual"]) if hp.get("residual") else None
     if residual is not None:

@@ -18,6 +18,7 @@ from stewart_gym.hardware.export import BundlePolicy
 from stewart_gym.outputs import ensemble_members
 from stewart_gym.registry import POLICY_DIR, deployable_policy, load_policy, resolve_policy
 from stewart_gym.sb3_models import check_residual
+from stewart_gym.training import load_hyperparams
 
 ROOT = Path(__file__).resolve().parents[1]
 RESIDUAL = POLICY_DIR / "balance_residual"
@@ -43,7 +44,7 @@ def test_the_shipped_residuals_are_six_networks_of_the_shipped_recipe_averaged(e
     theirs (and differs from every one of them); the bundle sends the same sum."""
     source = resolve_policy("shipped-residual", env_id=env_id)
     assert source.kind == "ensemble" and source.path == folder
-    recipe = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo_residual.yml").read_text())[env_id]
+    recipe = load_hyperparams("ppo", env_id, "ppo_residual")
     configs = [yaml.safe_load((m / "config.yaml").read_text()) for m in ensemble_members(folder)]
     assert sorted(c["options"]["seed"] for c in configs) == [0, 1, 2, 3, 4, 5]
     for config in configs:

@@ -17,6 +17,7 @@ import yaml
 
 from stewart_gym.control import shipped_design
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
+from stewart_gym.training import load_hyperparams
 
 #: The run folder of one of the shipped balance residual's six networks (seed 0)
 SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[2] / "stewart_gym/policies/balance_residual/members/0"
@@ -101,8 +102,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     from stewart_gym.control import checked_design
 
     recorded = checked_design(cfg["hyperparams"]["residual"]["design"], "handover")
-    recipe = yaml.safe_load((Path(__file__).resolve().parents[2] / "stewart_gym/hyperparams/ppo_residual.yml")
-                            .read_text())["StewartBallBalance-v0"]["residual"]["design"]  # fmt: skip
+    recipe = load_hyperparams("ppo", "StewartBallBalance-v0", "ppo_residual")["residual"]["design"]
     assert recipe == {"handover_dwell_s": 3.0, "release_dwell_s": 0.5, "release_mm_s": 60.0, "push_release_mm": 5.0}
     assert recorded == replace(shipped_design("lqr-pid"), **recipe)  # the recipe's changes, and only those
     cfg["hyperparams"]["residual"]["design"]["pid"]["kp_pos"] = 1.25
@@ -322,8 +322,7 @@ def test_a_residual_design_replaces_only_the_fields_it_gives() -> None:
 
     spec = check_residual({"base": "lqr-pid", "design": {"handover_dwell_s": 3}})
     assert spec["design"] == asdict(replace(shipped_design("lqr-pid"), handover_dwell_s=3.0))
-    recipe = yaml.safe_load((Path(__file__).resolve().parents[2] / "stewart_gym/hyperparams/ppo_residual.yml")
-                            .read_text())["StewartBallBalance-v0"]["residual"]  # fmt: skip
+    recipe = load_hyperparams("ppo", "StewartBallBalance-v0", "ppo_residual")["residual"]
     assert check_residual(recipe)["design"]["handover_dwell_s"] == 3.0
     # a run's recorded design is whole as it trained: a field added since stays off, not the shipped value
     run = yaml.safe_load((Path(__file__).resolve().parents[1] / "data/circling_tracker/config.yaml").read_text())

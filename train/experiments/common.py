@@ -12,8 +12,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 ROOT = Path(__file__).resolve().parents[2]
 
 #: The Control page's metrics of one evaluation (``stewart_gym.evaluation.evaluate``), as every script reports them.
@@ -49,7 +47,9 @@ def report(row: dict[str, Any], metrics: dict[str, Any], out: str | Path | None,
 def balance_recipe() -> tuple[dict[str, Any], dict[str, Any]]:
     """The balance section of ``stewart_gym/hyperparams/ppo.yml`` (what `make train` trains) and, of it, the PPO
     keywords the scripts pass on (rollout and update sizes, discount, learning rate, entropy, clipping)."""
-    hp = yaml.safe_load((ROOT / "stewart_gym/hyperparams/ppo.yml").read_text())["StewartBallBalance-v0"]
+    from stewart_gym.training import load_hyperparams
+
+    hp = load_hyperparams("ppo", "StewartBallBalance-v0")
     keys = ("n_steps", "batch_size", "n_epochs", "gamma", "gae_lambda", "learning_rate", "ent_coef", "clip_range")
     return hp, {k: hp[k] for k in keys}
 
