@@ -39,6 +39,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_analysis.py
 	$(PY) bench/bench_mujoco.py
 	$(PY) bench/bench_camera.py
+	$(PY) bench/bench_libraries.py
 
 # Reproduce the camera-trained policy (policies/balance_camera): fine-tune the shipped balance policy (make train's
 # run, behind the Kalman observer) with the camera model, a preset per episode (300k steps, about 6 minutes).

@@ -278,7 +278,9 @@ class ResidualAction(gym.Wrapper):
     """Gymnasium wrapper (for training): the agent's action is a correction to a classical controller's.
 
     Sends the :class:`~stewart_gym.control.ResidualMix` of the base's action and the agent's, for the
-    observation the agent acted on; resets the base's and the mix's state with each episode.
+    observation the agent acted on; resets the base's and the mix's state with each episode. A hyperparameter
+    file names it as RL Zoo's ``env_wrapper`` (``{stewart_gym.sb3_models.ResidualAction: {residual: {…}}}``), so
+    that ``stewart-gym train`` and ``python -m rl_zoo3.train`` build the same wrapper from it.
     """
 
     def __init__(self, env: gym.Env, residual: dict[str, Any]) -> None:

@@ -165,7 +165,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     task's ``success_radius`` of the target for the last ``success_window_s``.
     ``info`` also gives ``distance_mm``, ``ball_xy_m``, ``target_xy_m``,
     ``pulse_widths_us``, ``commanded_tilt_rad`` (roll, pitch), ``action_scaled``,
-    ``unreachable_count``, ``physics_error`` and the task's own entries.
+    ``unreachable_count``, ``physics_error`` and the task's own entries. Every entry is a NumPy value (scalars
+    as ``np.bool_``, ``np.float64``, ``np.int64``), so that clients which read ``info`` by dtype (TorchRL's
+    ``auto_register_info_dict``) take it as it is.
 
     ## Arguments
     ``task`` (a short name, a ``"module:Class"`` path or a task object),
@@ -405,7 +407,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         x, y, z = sim.ball_position()
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
             info = self._info(np.full(2, np.nan), (math.nan, math.nan), math.nan)
-            info["physics_error"] = True
+            info["physics_error"] = np.True_
             return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
         on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
         self.sensor_model.record(t, (x, y), touching)
@@ -423,7 +425,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         terminated = not on_plate
         reward = task.reward(dist, rate, terminated)
         info = self._info(np.array([x, y]), target_xy, dist)
-        info["is_success"] = on_plate and self._inside >= self.success_steps
+        info["is_success"] = np.bool_(on_plate and self._inside >= self.success_steps)
         self._steps += 1
         return obs, reward, terminated, not terminated and self._steps >= self.episode_steps, info
 
@@ -478,15 +480,15 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def _info(self, xy: np.ndarray, target_xy: tuple[float, float], dist: float) -> dict[str, Any]:
         return {
-            "is_success": False,
-            "distance_mm": dist * 1e3,
+            "is_success": np.False_,
+            "distance_mm": np.float64(dist * 1e3),
             "ball_xy_m": xy,
             "target_xy_m": np.array(target_xy),
             "pulse_widths_us": self._pulses,
             "commanded_tilt_rad": np.array(self._roll_pitch),
-            "action_scaled": self._scaled,
-            "unreachable_count": self._unreachable,
-            "physics_error": False,
+            "action_scaled": np.bool_(self._scaled),
+            "unreachable_count": np.int64(self._unreachable),
+            "physics_error": np.False_,
             **self.task.info(),
         }
 
