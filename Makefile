@@ -10,6 +10,9 @@ SEED ?= 0
 
 .PHONY: demo test test-fast bench train train-track train-camera train-residual results sweep lint docs clean
 
+DEMO_STAMP := $(VENV)/.installed-demo
+
+# `make test` (and every target but demo) installs the dev extra: everything, with the test, lint and docs tools.
 $(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) .ci/check_python.py
 	$(PYTHON) -m venv $(VENV)
@@ -17,7 +20,16 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m pip install $(PIP_EXTRA) -c constraints.txt -e ".[dev]"
 	touch $(STAMP)
 
-demo: $(STAMP)
+# `make demo` installs the demo extra only (the envs and onnxruntime, no torch: the shipped policies run as their
+# ONNX bundles); into a venv that has the dev extra already, it adds nothing.
+$(DEMO_STAMP): pyproject.toml constraints.txt
+	$(PYTHON) .ci/check_python.py --demo
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --upgrade pip
+	$(PY) -m pip install $(PIP_EXTRA) -c constraints.txt -e ".[demo]"
+	touch $(DEMO_STAMP)
+
+demo: $(DEMO_STAMP)
 	$(PY) -m stewart_gym demo
 
 # The suite on two worker processes (pytest-xdist; the Ray sweeps share one worker, so no two clusters start at

@@ -24,7 +24,7 @@ from stewart_gym.errors import ConfigError
 
 __all__ = ["DEMO_CLASSICAL", "DEMO_LEARNED", "EPISODES_PER_PROCESS", "WORLD_DEFAULTS", "EvaluationJob", "World",
            "check_can_render", "check_trajectory", "compare", "compare_setup", "demo_policies", "episode_figures",
-           "evaluate_all", "evaluate_part", "in_world", "process_plan", "resolve_world", "world"]
+           "evaluate_all", "evaluate_part", "in_world", "process_plan", "quiet_notes", "resolve_world", "world"]
 
 #: The env's physics engine and ball sensor where none is asked for.
 WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
@@ -110,10 +110,18 @@ def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int) -> list[
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=quiet_notes) as pool:
             results = list(pool.map(evaluate_part, tasks))
     return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
                       [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
+
+
+def quiet_notes() -> None:
+    """In a worker process: no ``note:`` lines (this process has said them when it loaded the policies)."""
+    import logging
+
+    logging.getLogger("stewart_gym").setLevel(logging.ERROR)
 
 
 def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:

@@ -49,7 +49,7 @@ from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
-           "export_policy", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
+           "export_policy", "learned_models_importable", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.
@@ -322,6 +322,12 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         from stewart_gym.hardware.export import BundlePolicy
 
         return BundlePolicy(source.path)
+    if source.bundle is not None and not learned_models_importable():
+        from stewart_gym.hardware.export import BundlePolicy
+
+        _note_once("note: torch is not installed here: the shipped learned policies run as their ONNX bundles (the "
+                   "same networks; pip install 'stewart_gym[train]' to train and to run trained models)")  # fmt: skip
+        return BundlePolicy(source.bundle)
     from stewart_gym.sb3_models import ResidualPolicy, check_residual, load_learned, residual_base, residual_mix
 
     policy = load_learned(source.path)
@@ -337,6 +343,28 @@ def load_policy(spec: str | PolicySource, env_id: str | None = None) -> Any:
         raise PolicyError(f"{source.path}: the model has {policy.action_size} actions but its run configuration says "
                           f"action_mode {source.action_mode!r} ({ACTION_SIZES[source.action_mode]})")  # fmt: skip
     return policy
+
+
+def learned_models_importable() -> bool:
+    """Whether Stable-Baselines3 and torch are installed (the ``train`` extra): without them, a shipped learned
+    policy runs as its ONNX bundle (onnxruntime), and other trained models cannot run."""
+    try:
+        import stable_baselines3  # noqa: F401  (imports torch)
+    except ImportError:
+        return False
+    return True
+
+
+_NOTES_SAID: set[str] = set()
+
+
+def _note_once(text: str) -> None:
+    """``text`` on stderr, the first time in this process (through the package's logger, as its other notes)."""
+    import logging
+
+    if text not in _NOTES_SAID:
+        _NOTES_SAID.add(text)
+        logging.getLogger("stewart_gym").warning(text)
 
 
 def load_for_evaluation(spec: str, env_id: str | None = None, geometry: str | None = None,

@@ -103,25 +103,37 @@ def test_make_checks_the_python_before_it_creates_the_venv(tmp_path: Path) -> No
                          cwd=ROOT, timeout=60, env={k: v for k, v in os.environ.items() if k not in outer})  # fmt: skip
     assert dry.returncode == 0, dry.stderr
     assert dry.stdout.splitlines()[0] == "python3.11 .ci/check_python.py", dry.stdout
+    assert '-e ".[dev]"' in dry.stdout.splitlines()[-2], dry.stdout
+    demo = subprocess.run(["make", "--no-print-directory", "-n", "-B", f"VENV={tmp_path / 'venv'}",
+                           "PYTHON=python3.11", str(tmp_path / "venv" / ".installed-demo")], capture_output=True,
+                          text=True, cwd=ROOT, timeout=60, env={k: v for k, v in os.environ.items() if k not in outer})  # fmt: skip
+    assert demo.returncode == 0, demo.stderr
+    assert demo.stdout.splitlines()[0] == "python3.11 .ci/check_python.py --demo", demo.stdout
+    assert '-e ".[demo]"' in demo.stdout.splitlines()[-2], demo.stdout
     ran = subprocess.run([sys.executable, str(ROOT / ".ci" / "check_python.py")], capture_output=True, text=True,
                          timeout=60)  # fmt: skip
     assert (ran.returncode, ran.stdout, ran.stderr) == (0, "", ""), ran.stderr
 
 
-@pytest.mark.parametrize(("version", "system", "machine", "headers", "compiler", "says"), [
-    ((3, 9), "Linux", "x86_64", True, True, "needs Python 3.10 or newer, and this is Python 3.9"),
-    ((3, 10), "Linux", "x86_64", False, False, None),  # PyBullet's wheel: nothing to compile
-    ((3, 11), "Linux", "x86_64", False, False, None),
-    ((3, 12), "Linux", "x86_64", True, True, None),  # compiles, and can
+@pytest.mark.parametrize(("version", "system", "machine", "headers", "compiler", "says", "demo"), [
+    ((3, 9), "Linux", "x86_64", True, True, "needs Python 3.10 or newer, and this is Python 3.9", False),
+    ((3, 10), "Linux", "x86_64", False, False, None, False),  # PyBullet's wheel: nothing to compile
+    ((3, 11), "Linux", "x86_64", False, False, None, False),
+    ((3, 12), "Linux", "x86_64", True, True, None, False),  # compiles, and can
     ((3, 12), "Linux", "x86_64", False, True, "lacks the Python headers: install them (Debian/Ubuntu: sudo apt "
-                                              "install g++ python3.12-dev), or run make with PYTHON=python3.11"),
-    ((3, 13), "Linux", "x86_64", True, False, "lacks a C++ compiler"),
-    ((3, 12), "Linux", "x86_64", False, False, "lacks the Python headers and a C++ compiler"),
-    ((3, 11), "Linux", "aarch64", False, True, "no wheel for Python 3.11 on Linux aarch64"),
-    ((3, 11), "Darwin", "arm64", True, True, None),
+                                              "install g++ python3.12-dev), or run make with PYTHON=python3.11",
+     False),
+    ((3, 13), "Linux", "x86_64", True, False, "lacks a C++ compiler", False),
+    ((3, 12), "Linux", "x86_64", False, False, "lacks the Python headers and a C++ compiler", False),
+    ((3, 11), "Linux", "aarch64", False, True, "no wheel for Python 3.11 on Linux aarch64", False),
+    ((3, 11), "Darwin", "arm64", True, True, None, False),
+    ((3, 13), "Linux", "x86_64", False, False, "; make demo needs neither (it runs on MuJoCo here)", False),
+    ((3, 13), "Linux", "x86_64", False, False, None, True),  # make demo: MuJoCo, nothing to compile
+    ((3, 9), "Linux", "x86_64", True, True, "needs Python 3.10 or newer", True),
+    ((3, 11), "Linux", "aarch64", False, True, "lacks the Python headers: install", True),  # PyBullet there still
 ])  # fmt: skip
-def test_the_python_check_names_what_is_missing(version, system, machine, headers, compiler, says) -> None:
-    message = load_check_python().problem(version, system, machine, headers, compiler)
+def test_the_python_check_names_what_is_missing(version, system, machine, headers, compiler, says, demo) -> None:
+    message = load_check_python().problem(version, system, machine, headers, compiler, demo)
     if says is None:
         assert message is None
     else:

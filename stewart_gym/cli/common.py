@@ -39,7 +39,8 @@ EXIT_OK, EXIT_FAILED, EXIT_DEVICE, EXIT_INTERRUPTED = 0, 1, 2, 130
 MAX_SEED = 2**31 - 1
 #: Optional dependencies and the install extra that brings each (pyproject.toml).
 EXTRA_OF_MODULE = {"gymnasium": "sim", "pybullet": "sim", "pybullet_utils": "sim", "imageio": "sim", "torch": "train",
-                   "stable_baselines3": "train", "tensorboard": "train", "yaml": "train", "onnx": "train",
+                   "stable_baselines3": "train", "sb3_contrib": "train", "tensorboard": "train", "yaml": "train",
+                   "onnx": "train", "onnxscript": "train", "moviepy": "video",
                    "tqdm": "train", "rich": "train", "onnxruntime": "deploy", "serial": "deploy",
                    "mujoco": "mujoco", "cv2": "camera", "ray": "cluster", "optuna": "cluster"}  # fmt: skip
 #: What each exit code means (the --help epilog and the docs' table are made from it).
