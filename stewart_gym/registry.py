@@ -49,7 +49,8 @@ from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
-           "export_policy", "learned_models_importable", "load_for_evaluation", "load_policy", "resolve_policy", "write_ensemble"]  # fmt: skip
+           "export_policy", "learned_models_importable", "load_for_evaluation", "load_policy", "resolve_policy",
+           "write_ensemble"]  # fmt: skip
 
 POLICY_DIR = Path(__file__).resolve().parent / "policies"
 #: Folder under ``policies/`` of the shipped policy of each env id.

@@ -106,7 +106,8 @@ def test_make_checks_the_python_before_it_creates_the_venv(tmp_path: Path) -> No
     assert '-e ".[dev]"' in dry.stdout.splitlines()[-2], dry.stdout
     demo = subprocess.run(["make", "--no-print-directory", "-n", "-B", f"VENV={tmp_path / 'venv'}",
                            "PYTHON=python3.11", str(tmp_path / "venv" / ".installed-demo")], capture_output=True,
-                          text=True, cwd=ROOT, timeout=60, env={k: v for k, v in os.environ.items() if k not in outer})  # fmt: skip
+                          text=True, cwd=ROOT, timeout=60,
+                          env={k: v for k, v in os.environ.items() if k not in outer})  # fmt: skip
     assert demo.returncode == 0, demo.stderr
     assert demo.stdout.splitlines()[0] == "python3.11 .ci/check_python.py --demo", demo.stdout
     assert '-e ".[demo]"' in demo.stdout.splitlines()[-2], demo.stdout
