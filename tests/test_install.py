@@ -1,7 +1,7 @@
 """Installing: the check `make` runs on the Python it is given before it creates .venv; the distribution (a wheel
 and an sdist that ``twine check`` passes, carrying the shipped policies, the hyperparameters, the models and the
 sketch); and the extras: a fresh virtual environment with the wheel's ``[deploy]`` only runs an exported bundle on
-a fake device.
+a fake device, and one with the wheel's ``[demo]`` only (what ``make demo`` installs) runs the demo.
 
 That is what a Raspberry Pi next to the platform gets: numpy, scipy, matplotlib, onnxruntime and pyserial;
 no torch, no Stable-Baselines3, no PyBullet, no Gymnasium. Slow (it builds a venv and installs into it).
@@ -139,3 +139,39 @@ def test_the_python_check_names_what_is_missing(version, system, machine, header
         assert message is None
     else:
         assert message.startswith("error: ") and says in message and "\n" not in message, message
+
+
+@pytest.mark.slow
+def test_demo_only_install_runs_the_demo_without_torch(tmp_path: Path, dist: Path) -> None:
+    """What ``make demo`` installs (the wheel's ``[demo]``) into a fresh venv: no torch, Stable-Baselines3 or Ray;
+    ``stewart-gym demo`` runs there, the shipped networks as their ONNX bundles; and the envs pass Gymnasium's
+    own checks on the Gymnasium that pip picks there (the dev extra's RLlib pins an older one)."""
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    py = venv / "bin" / "python"
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    wheel = next(dist.glob("*.whl"))
+    install = subprocess.run([str(py), "-m", "pip", "install", "-q", "-c", str(ROOT / "constraints.txt"),
+                              f"{wheel}[demo]"], capture_output=True, text=True, timeout=1200, env=env)  # fmt: skip
+    assert install.returncode == 0, install.stdout[-2000:] + install.stderr[-2000:]
+    probe = ("import importlib.util as u; print([m for m in ('torch', 'stable_baselines3', 'ray', 'cv2', 'pytest') "
+             "if u.find_spec(m)])")  # fmt: skip
+    absent = subprocess.run([str(py), "-c", probe], capture_output=True, text=True, cwd=tmp_path, env=env)
+    assert absent.returncode == 0 and absent.stdout.strip() == "[]", absent.stdout + absent.stderr
+
+    demo = subprocess.run([str(venv / "bin" / "stewart-gym"), "demo", "--episodes", "2", "--out", "out"],
+                          capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)  # fmt: skip
+    assert demo.returncode == 0 and "Traceback" not in demo.stderr, demo.stdout[-2000:] + demo.stderr[-2000:]
+    assert demo.stderr.count("run as their ONNX bundles") == 1, demo.stderr
+    assert (tmp_path / "out" / "demo_metrics.json").exists() and (tmp_path / "out" / "demo_pulses.png").exists()
+
+    check = ("import gymnasium as gym, stewart_gym\n"
+             "from gymnasium.utils.env_checker import check_env\n"
+             "for env_id in ('StewartBallBalance-v0', 'StewartBallTrack-v0', 'StewartBallDisturbance-v0'):\n"
+             "    env = gym.make(env_id, render_mode='rgb_array')\n"
+             "    check_env(env.unwrapped)\n"
+             "    env.close()\n"
+             "print(gym.__version__)\n")  # fmt: skip
+    checked = subprocess.run([str(py), "-c", check], capture_output=True, text=True, cwd=tmp_path, env=env,
+                             timeout=600)  # fmt: skip
+    assert checked.returncode == 0, checked.stderr[-3000:]
