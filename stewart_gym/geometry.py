@@ -40,10 +40,16 @@ __all__ = [
     "GeometryError",
     "PlatformGeometry",
     "home_height_eq10",
+    "symmetric_layout",
 ]
 
-#: Relative tolerance with which the six legs must agree on eq. 10's home height.
-HOME_HEIGHT_RTOL = 1e-6
+#: m: where ``home_height`` is left out, eq. 10 gives one home height per leg and the geometry takes their mean; a
+#: spread beyond this is warned about in one line. Anchors measured to ±0.1 mm (every coordinate) spread the
+#: presets' legs by at most 0.4 mm; one anchor 2 mm too high or low spreads them by 2 mm.
+HOME_HEIGHT_SPREAD_M = 1e-3
+#: Degrees: the centres of the three pairs of a ``[symmetric]`` description, in the presets' anchor order.
+SYMMETRIC_PAIR_CENTRES_DEG = (330.0, 90.0, 210.0)
+SYMMETRIC_FIELDS = ("base_radius", "base_pair_angle", "platform_radius", "platform_pair_angle")
 #: m: no length of a build (an anchor's distance, a horn, a rod, the plate) may exceed this; a larger number is
 #: a unit mistake (metres given as millimetres) or nonsense, and would make every later figure NaN.
 MAX_LENGTH_M = 10.0
@@ -53,6 +59,44 @@ MAX_NAME_LENGTH = 100
 
 class GeometryError(ConfigError):
     """A geometry description is malformed; the message names the field."""
+
+
+def symmetric_layout(base_radius: float, base_pair_angle: float, platform_radius: float,
+                     platform_pair_angle: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """(base anchors, platform anchors, servo β) of a platform built in three pairs, as the presets are: pairs
+    centred at 330°, 90° and 210° (:data:`SYMMETRIC_PAIR_CENTRES_DEG`), the first of a pair at the centre minus
+    half the pair angle; each horn perpendicular to its pair's centre line, pointing away from its partner
+    (β = centre − 90° for the first, centre + 90° for the second). Radii in m, angles in rad; anchors at z = 0."""
+    centres = np.radians(SYMMETRIC_PAIR_CENTRES_DEG)
+
+    def ring(radius: float, pair_angle: float) -> np.ndarray:
+        angles = np.array([c + side * pair_angle / 2 for c in centres for side in (-1.0, 1.0)])
+        return np.stack([radius * np.cos(angles), radius * np.sin(angles), np.zeros(6)], axis=1)
+
+    beta = np.array([c + side * math.pi / 2 for c in centres for side in (-1.0, 1.0)])
+    return ring(base_radius, base_pair_angle), ring(platform_radius, platform_pair_angle), beta
+
+
+def _symmetric(table: Any, ls: float, ang: float, source: str) -> dict[str, float]:
+    """The four fields of a ``[symmetric]`` table in m and rad, checked."""
+    if not isinstance(table, dict):
+        raise GeometryError(f"symmetric: a table of {', '.join(SYMMETRIC_FIELDS)} in {source}, got {table!r}")
+    unknown = sorted(set(table) - set(SYMMETRIC_FIELDS))
+    missing = [k for k in SYMMETRIC_FIELDS if k not in table]
+    if unknown or missing:
+        raise GeometryError(f"symmetric: {'unknown field(s) ' + str(unknown) if unknown else 'missing ' + str(missing)}"
+                            f" in {source}; its fields are {list(SYMMETRIC_FIELDS)}")  # fmt: skip
+    out = {}
+    for key in SYMMETRIC_FIELDS:
+        value = _scalar(f"symmetric.{key}", table[key])
+        if key.endswith("radius"):
+            _positive(f"symmetric.{key}", value)
+            out[key] = value * ls
+        else:
+            out[key] = value * ang
+            if not 0.0 < out[key] < 2 * math.pi / 3:
+                raise GeometryError(f"symmetric.{key}: between 0 and 120° (the pairs may not overlap), got {value}")
+    return out
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -181,14 +225,17 @@ class PlatformGeometry:
         """Build a geometry from a mapping as read from TOML.
 
         Lengths are metres and angles radians unless ``length_unit = "mm"`` or
-        ``angle_unit = "deg"`` say otherwise. ``home_height`` may be left out for a
-        rotary platform: it is then computed by eq. 10, and every leg must agree.
-        Raises :class:`GeometryError` naming the bad field.
+        ``angle_unit = "deg"`` say otherwise. A ``symmetric`` table (``base_radius``, ``base_pair_angle``,
+        ``platform_radius``, ``platform_pair_angle``) may replace ``base_anchors``, ``platform_anchors`` and
+        ``servo_beta``: see :func:`symmetric_layout`. ``home_height`` may be left out for a rotary platform: it
+        is then the mean of eq. 10's height per leg, with a one-line warning where they are more than
+        :data:`HOME_HEIGHT_SPREAD_M` apart (measured anchors agree far better). Raises :class:`GeometryError`
+        naming the bad field.
         """
         known = {
             "name", "description", "length_unit", "angle_unit", "base_anchors", "platform_anchors",
             "rod_length", "home_height", "horn_length", "servo_beta", "servo_angle_range", "leg_length_range",
-            "plate_size",
+            "plate_size", "symmetric",
         }  # fmt: skip
         unknown = sorted(set(data) - known)
         if unknown:
@@ -212,11 +259,19 @@ class PlatformGeometry:
         if (not isinstance(name, str) or not name.strip() or len(name) > MAX_NAME_LENGTH
                 or any(ord(c) < 32 or ord(c) == 127 for c in name)):  # fmt: skip
             raise GeometryError(f"name: a name of 1…{MAX_NAME_LENGTH} printable characters, got {name!r}")
+        layout = None
+        if "symmetric" in data:
+            replaced = [k for k in ("base_anchors", "platform_anchors", "servo_beta") if k in data]
+            if replaced:
+                raise GeometryError(f"symmetric: it gives the anchors and horn directions, so {source} may not give "
+                                    f"{', '.join(replaced)} as well; keep one or the other")  # fmt: skip
+            layout = symmetric_layout(**_symmetric(data["symmetric"], ls, ang, source))
         kw: dict[str, Any] = {
             "name": name,
             "description": str(data.get("description", "")),
-            "base_anchors": _shape("base_anchors", need("base_anchors"), (6, 3)) * ls,
-            "platform_anchors": _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls,
+            "base_anchors": layout[0] if layout else _shape("base_anchors", need("base_anchors"), (6, 3)) * ls,
+            "platform_anchors": (layout[1] if layout
+                                 else _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls),
             "rod_length": _scalar("rod_length", need("rod_length")) * ls,
         }
         if "plate_size" in data:
@@ -226,7 +281,7 @@ class PlatformGeometry:
             kw["horn_length"] = _scalar("horn_length", data["horn_length"]) * ls
             _positive("horn_length", kw["horn_length"])
             _positive("rod_length", kw["rod_length"])
-            kw["servo_beta"] = _shape("servo_beta", need("servo_beta"), (6,)) * ang
+            kw["servo_beta"] = layout[2] if layout else _shape("servo_beta", need("servo_beta"), (6,)) * ang
             kw["servo_angle_range"] = _range("servo_angle_range", need("servo_angle_range"), positive=False)
             kw["servo_angle_range"] = (kw["servo_angle_range"][0] * ang, kw["servo_angle_range"][1] * ang)
             for key in ("leg_length_range",):
@@ -245,11 +300,13 @@ class PlatformGeometry:
             if not np.all(np.isfinite(h)):
                 bad = [int(i) for i in np.flatnonzero(~np.isfinite(h))]
                 raise GeometryError(f"home_height: eq. 10 has no solution for legs {bad} (rods too short)")
-            if np.ptp(h) > HOME_HEIGHT_RTOL * abs(float(np.mean(h))):
-                raise GeometryError(
-                    "home_height: eq. 10 gives different heights per leg "
-                    f"{np.round(h, 6).tolist()} m; the geometry is not symmetric, give home_height explicitly"
-                )
+            if np.ptp(h) > HOME_HEIGHT_SPREAD_M:
+                import logging
+
+                logging.getLogger("stewart_gym").warning(
+                    f"warning: {source}: eq. 10 gives home heights {1e3 * h.min():.2f}–{1e3 * h.max():.2f} mm per leg "
+                    f"(apart by more than {1e3 * HOME_HEIGHT_SPREAD_M:g} mm); using their mean "
+                    f"{1e3 * float(np.mean(h)):.2f} mm: check the anchors, or give home_height")  # fmt: skip
             kw["home_height"] = float(np.mean(h))
         else:
             raise GeometryError(f"home_height: missing field in {source} (required for a linear platform)")

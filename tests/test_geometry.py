@@ -126,7 +126,6 @@ def test_toml_units_and_eq10_home_height(tmp_path: Path) -> None:
         (("platform_anchors = [[80, 0, 0]", "platform_anchors = [[inf, 0, 0]"), "platform_anchors"),
         (("name = \"test\"", "name = \"test\"\nwheels = 4"), "wheels"),
         (("length_unit = \"mm\"", "length_unit = \"inch\""), "length_unit"),
-        (("[48, 64, 0], [-48", "[48, 60, 0], [-48"), "home_height"),  # asymmetric: eq. 10 legs disagree
     ],
 )
 def test_bad_toml_names_the_field(tmp_path: Path, edit: tuple[str, str], field: str) -> None:
@@ -136,6 +135,88 @@ def test_bad_toml_names_the_field(tmp_path: Path, edit: tuple[str, str], field: 
     path.write_text(GOOD.replace(old, new, 1))
     with pytest.raises(GeometryError, match=field):
         PlatformGeometry.from_toml(path)
+
+
+SYMMETRIC = {  # the presets built in three pairs, as [symmetric] describes them (mm, degrees)
+    "servo-hexapod": ({"horn_length": 25, "rod_length": 160},
+                      {"base_radius": 100, "base_pair_angle": 40, "platform_radius": 80, "platform_pair_angle": 16}),
+    "desk-rect": ({"horn_length": 30, "rod_length": 190},
+                  {"base_radius": 120, "base_pair_angle": 36, "platform_radius": 95, "platform_pair_angle": 18}),
+}  # fmt: skip
+
+
+def toml_text(top: dict, symmetric: dict) -> str:
+    """A geometry TOML in mm and degrees: ``top``'s keys, then the ``[symmetric]`` table (values as TOML text)."""
+    lines = ['length_unit = "mm"', 'angle_unit = "deg"', *(f"{k} = {v}" for k, v in top.items()), "[symmetric]",
+             *(f"{k} = {v}" for k, v in symmetric.items())]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("name", sorted(SYMMETRIC))
+def test_a_symmetric_description_gives_the_presets_anchors(name: str, tmp_path: Path) -> None:
+    """``[symmetric]``: four numbers instead of 42, the presets' anchors, horn directions and eq. 10 home height to
+    1e-9 (the presets place each anchor by its own angle list, independently)."""
+    preset = load_preset(name)
+    low, high = (float(v) for v in np.degrees(preset.servo_angle_range))
+    top, table = SYMMETRIC[name]
+    path = tmp_path / f"{name}.toml"
+    path.write_text(toml_text({"name": f'"{name}"', **top, "servo_angle_range": f"[{low!r}, {high!r}]"}, table))
+    geo = load_geometry(path)
+    assert np.max(np.abs(geo.base_anchors - preset.base_anchors)) < 1e-9
+    assert np.max(np.abs(geo.platform_anchors - preset.platform_anchors)) < 1e-9
+    assert np.max(np.abs(np.angle(np.exp(1j * (geo.servo_beta - preset.servo_beta))))) < 1e-9
+    assert abs(geo.home_height - preset.home_height) < 1e-9
+    assert geo.servo_angle_range == pytest.approx(preset.servo_angle_range, abs=1e-9)
+
+
+@pytest.mark.parametrize(("key", "value", "says"), [
+    ("base_pair_angle", "0", r"symmetric\.base_pair_angle: between 0 and 120"),
+    ("base_pair_angle", "130", r"symmetric\.base_pair_angle: between 0 and 120"),
+    ("platform_radius", "-80", r"symmetric\.platform_radius"),
+    ("platform_radius", '"80"', r"symmetric\.platform_radius"),
+    ("platform_radius", "nan", r"symmetric\.platform_radius"),
+    ("wheel_radius", "3", r"symmetric: unknown field\(s\) \['wheel_radius'\]"),
+    ("platform_pair_angle", None, r"symmetric: missing \['platform_pair_angle'\]"),
+])  # fmt: skip
+def test_a_bad_symmetric_description_names_the_field(key: str, value: str | None, says: str, tmp_path: Path) -> None:
+    top, table = SYMMETRIC["servo-hexapod"]
+    table = {k: v for k, v in {**table, key: value}.items() if v is not None}
+    path = tmp_path / "bad.toml"
+    path.write_text(toml_text({**top, "servo_angle_range": "[-30, 60]"}, table))
+    with pytest.raises(GeometryError, match=says):
+        load_geometry(path)
+
+
+def test_symmetric_and_explicit_anchors_are_one_or_the_other(tmp_path: Path) -> None:
+    top, table = SYMMETRIC["servo-hexapod"]
+    path = tmp_path / "both.toml"
+    path.write_text(toml_text({**top, "servo_angle_range": "[-30, 60]", "servo_beta": "[0, 0, 0, 0, 0, 0]"}, table))
+    with pytest.raises(GeometryError, match="symmetric: .* may not give servo_beta as well"):
+        load_geometry(path)
+
+
+def test_measured_anchors_load_and_far_apart_legs_warn(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Anchors measured to 0.1 mm (servo-hexapod's, off by up to 0.05 mm and rounded) load with eq. 10's mean
+    home height, silently; legs that disagree by more than 1 mm load too, with one warning line naming the spread
+    and what to check."""
+    preset = load_preset("servo-hexapod")
+    rng = np.random.default_rng(0)
+    fields = {"horn_length": preset.horn_length, "rod_length": preset.rod_length,
+              "servo_beta": preset.servo_beta.tolist(), "servo_angle_range": list(preset.servo_angle_range)}  # fmt: skip
+    measured = PlatformGeometry.from_dict({
+        **fields,
+        "base_anchors": (np.round(preset.base_anchors * 1e4 + rng.uniform(-0.5, 0.5, (6, 3))) / 1e4).tolist(),
+        "platform_anchors": (np.round(preset.platform_anchors * 1e4 + rng.uniform(-0.5, 0.5, (6, 3))) / 1e4).tolist(),
+    }, source="measured.toml")  # fmt: skip
+    assert not caplog.records
+    assert abs(measured.home_height - preset.home_height) < 0.2 * MM
+    bent = preset.base_anchors.copy()
+    bent[0, 2] += 2 * MM  # one servo shaft 2 mm higher: its leg's home height 2 mm off the others'
+    PlatformGeometry.from_dict({**fields, "base_anchors": bent.tolist(), "platform_anchors":
+                                preset.platform_anchors.tolist()}, source="bent.toml")  # fmt: skip
+    [record] = caplog.records
+    assert record.getMessage().startswith("warning: bent.toml: eq. 10 gives home heights ")
+    assert "using their mean" in record.getMessage() and "\n" not in record.getMessage()
 
 
 def test_invalid_toml_syntax(tmp_path: Path) -> None:
@@ -167,3 +248,17 @@ def test_plate_size_round_trips_and_is_checked(tmp_path: Path) -> None:
     with pytest.raises(GeometryError, match="plate_size"):
         PlatformGeometry.from_toml(path)
     assert load_preset("senilov2018").plate_extent == (0.5, 0.5)
+
+
+def test_the_own_platform_pages_symmetric_file_is_servo_hexapod(tmp_path: Path) -> None:
+    """The first TOML block of docs/src/own-platform.md loads as written and places servo-hexapod's anchors."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "src" / "own-platform.md").read_text()
+    block = page.split("```toml\n", 1)[1].split("```", 1)[0]
+    assert "[symmetric]" in block
+    path = tmp_path / "my.toml"
+    path.write_text(block)
+    geo, preset = load_geometry(path), load_preset("servo-hexapod")
+    assert geo.name == "my-platform" and geo.plate_size == pytest.approx((0.3, 0.3))
+    assert np.max(np.abs(geo.base_anchors - preset.base_anchors)) < 1e-9
+    assert np.max(np.abs(geo.platform_anchors - preset.platform_anchors)) < 1e-9
+    assert np.max(np.abs(np.angle(np.exp(1j * (geo.servo_beta - preset.servo_beta))))) < 1e-9

@@ -105,15 +105,15 @@ def test_rl_zoo_trains_a_shipped_recipe(recipe: str, tmp_path: Path) -> None:
     normalisation statistics, which SB3 loads and steps the env with."""
     proc = subprocess.run(
         [sys.executable, "-m", "rl_zoo3.train", "--algo", "ppo", "--env", "StewartBallBalance-v0",
-         "--gym-packages", "stewart_gym", "-conf", str(HYPERPARAM_DIR / f"{recipe}.yml"), "-n", "2048",
-         "--eval-freq", "1024", "--eval-episodes", "1", "-f", str(tmp_path), "--seed", "0", "--device", "cpu",
+         "--gym-packages", "stewart_gym", "-conf", str(HYPERPARAM_DIR / f"{recipe}.yml"), "-n", "4096",
+         "--eval-freq", "2048", "--eval-episodes", "1", "-f", str(tmp_path), "--seed", "0", "--device", "cpu",
          "--n-eval-envs", "1"],
         capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "ppo" / "StewartBallBalance-v0_1"
     assert (run / "StewartBallBalance-v0.zip").exists() and (run / "StewartBallBalance-v0" / "vecnormalize.pkl").exists()
     model = PPO.load(run / "StewartBallBalance-v0.zip", device="cpu")
-    assert model.num_timesteps >= 2048 and model.observation_space.shape == (12,)
+    assert model.num_timesteps >= 4096 and model.observation_space.shape == (12,)
 
 
 def test_torchrl_gym_env_passes_its_spec_check_with_the_info_entries() -> None:
