@@ -432,3 +432,15 @@ def linear_pose_errors(sim_class: type, name: str) -> tuple[float, float, float]
             worst_pos = max(worst_pos, float(np.linalg.norm(err[:3])))
             worst_ang = max(worst_ang, float(np.max(np.abs(np.degrees(err[3:])))))
     return worst_pos, worst_ang, worst_gap
+
+
+def load_example(name: str):
+    """``examples/NAME.py`` as a module (each offers ``main(argv)``), run as a user would run the script."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"example_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

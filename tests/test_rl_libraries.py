@@ -3,7 +3,6 @@ TorchRL (``GymEnv``, its spec check, the example) and RLlib (the example). Each 
 
 from __future__ import annotations
 
-import importlib.util
 import inspect
 import re
 import subprocess
@@ -15,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from conftest import load_example
 from rl_zoo3.utils import get_wrapper_class
 from sb3_contrib import TQC
 from stable_baselines3 import PPO, SAC, TD3
@@ -134,13 +134,6 @@ def test_torchrl_gym_env_passes_its_spec_check_with_the_info_entries() -> None:
         assert rollout["next", "distance_mm"].shape == (30,) and torch.all(rollout["next", "distance_mm"] >= 0)
     finally:
         env.close()
-
-
-def load_example(name: str):
-    spec = importlib.util.spec_from_file_location(f"example_{name}", ROOT / "examples" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.slow

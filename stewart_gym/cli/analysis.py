@@ -298,21 +298,22 @@ def register(sub: Any) -> None:
     p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
     p.add_argument("--radius", type=positive_float, default=200.0, help="circle radius, mm (seed 001: 200)")
     p.add_argument("--z", type=finite_float, default=0.0, help="circle height from home, mm")
-    p.add_argument("--samples", type=int_at_least(2, 10_000_000), default=1000)
+    p.add_argument("--samples", type=int_at_least(2, 10_000_000), default=1000, help="poses along the circle")
     p.set_defaults(func=cmd_trajectory)
     p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__, description=cmd_sensitivity.__doc__)
     _common(p, "servo-hexapod")
     p.add_argument("--step-deg", type=bounded_float(0.0, 10.0, lo_open=True), default=0.1,
                    help="servo step, degrees (seed 003: 0.1)")  # fmt: skip
-    p.add_argument("--n", type=int_at_least(2, 1000), default=61)
+    p.add_argument("--n", type=int_at_least(2, 1000), default=61, help="grid points per axis of the x–y grid")
     p.add_argument("--fd-samples", type=int_at_least(1, 100_000), default=100,
                    help="poses for the finite-difference check")  # fmt: skip
     p.set_defaults(func=cmd_sensitivity)
     p = sub.add_parser("conditioning", help=cmd_conditioning.__doc__, description=cmd_conditioning.__doc__)
     _common(p, "servo-hexapod")
     p.add_argument("--orientation", default=(0.0, 0.0, 0.0), help="degrees", **angles)
-    p.add_argument("--threshold", type=positive_float, default=1e3)
-    p.add_argument("--n", type=int_at_least(2, 1000), default=61)
+    p.add_argument("--threshold", type=positive_float, default=1e3,
+                   help="condition number above which a pose is flagged near-singular")
+    p.add_argument("--n", type=int_at_least(2, 1000), default=61, help="grid points per axis of the x–y grid")
     p.set_defaults(func=cmd_conditioning)
     p = sub.add_parser("planar", help=cmd_planar.__doc__, description=cmd_planar.__doc__)
     p.add_argument("--geometry", default="sauer", help=f"{', '.join(PLANAR_PRESETS)} or a TOML with {PLANAR_KEYS}")
@@ -329,5 +330,6 @@ def register(sub: Any) -> None:
     p.add_argument("--pose", nargs=6, type=finite_float, default=(10, 0, 0, 3, 1, 6), metavar="V",
                    help="a pose X Y Z (mm, from home) ROLL PITCH YAW (°) whose leg lengths are used; default "
                         "10 0 0 3 1 6; ignored with --legs")  # fmt: skip
-    p.add_argument("--guesses", type=int_at_least(1, 1_000_000), default=4000)
+    p.add_argument("--guesses", type=int_at_least(1, 1_000_000), default=4000,
+                   help="starting guesses for the forward kinematics")
     p.set_defaults(func=cmd_assembly)

@@ -71,6 +71,14 @@ class Parser(argparse.ArgumentParser):
         sys.stderr.write(f"error: {self.prog}: {message} (see {self.prog} --help)\n")
         sys.exit(EXIT_FAILED)
 
+    def arguments(self) -> list[argparse.Action]:
+        """Every argument this parser takes, in the order they were added (``-h`` and the subcommands included)."""
+        return list(self._actions)
+
+    def subcommands(self) -> dict[str, Parser]:
+        """The subcommands' parsers by name, in the order ``--help`` lists them (none for a subcommand's own)."""
+        return next((dict(a.choices) for a in self._actions if a.nargs == argparse.PARSER), {})
+
 
 # ------------------------------------------------------------ argument types
 def finite_float(text: str) -> float:

@@ -190,9 +190,13 @@ def register(sub: Any) -> None:
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
     p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
-    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
-    p.add_argument("--sensor", choices=["sim", "panel", "camera"], default="sim")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
+                   help="the servo board's serial protocol (default: [hardware] protocol of the calibration file)")
+    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
+                   help="serial speed (default: the calibration file's, else the protocol's own)")
+    p.add_argument("--sensor", choices=["sim", "panel", "camera"], default="sim",
+                   help="where the ball position comes from: the simulated plant (a dry run), the board's touch panel "
+                        "or a camera")  # fmt: skip
     p.add_argument("--camera-config", help="camera config TOML (--sensor camera; see stewart-gym camera-check)")
     add_backend(p, "physics engine of the simulated plant (--sensor sim; default pybullet)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
@@ -218,7 +222,7 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_deploy)
 
     p = sub.add_parser("virtual-device", help=cmd_virtual_device.__doc__, description=cmd_virtual_device.__doc__)
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, default="maestro")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, default="maestro", help="the serial protocol to answer")
     add_backend(p, "physics engine of the twin (default pybullet)")
     add_geometry(p)
     p.add_argument("--calibration", help="calibration TOML: the board's channels and limits")
@@ -255,11 +259,12 @@ def register(sub: Any) -> None:
 
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
     add_geometry(p)
-    p.add_argument("--port")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES)
-    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000))
+    p.add_argument("--port", help="serial port of the servo board (default: [hardware] port of --calibration)")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, help="the board's serial protocol (default: as --port)")
+    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
+                   help="serial speed (default: the protocol's own)")
     p.add_argument("--calibration", help="start from this calibration TOML")
     p.add_argument("--step", type=bounded_float(0.0, 100.0, lo_open=True), default=5.0, help="µs per key press")
-    p.add_argument("--out", default="calibration.toml")
+    p.add_argument("--out", default="calibration.toml", help="the calibration TOML to write")
     p.set_defaults(func=cmd_calibrate)
 

@@ -39,6 +39,7 @@ MAX_TIMESTEPS = 1_000_000_000
 ALGO_CHOICES = ("ppo", "sac", "td3", "tqc")
 #: ``--vec-env``: the keys of :data:`stewart_gym.training.VEC_ENVS`, for the same reason (a test keeps them equal)
 VEC_ENV_CHOICES = ("dummy", "subproc")
+SEED_HELP = "the first episode's seed: episode k runs on seed + k, so the same seed gives the same episodes"
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
@@ -265,7 +266,7 @@ def add_episodes(p: argparse.ArgumentParser, at_least: int) -> None:
                         "policy was trained on; mixed draws one per episode)")  # fmt: skip
     p.add_argument("--episodes", type=int_at_least(at_least, MAX_EPISODES), default=100,
                    help=f"how many (at most {MAX_EPISODES:,}; default 100)")  # fmt: skip
-    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help=SEED_HELP)
     p.add_argument("--no-randomize", action="store_true", help="nominal physics instead of domain randomisation")
 
 
@@ -279,8 +280,8 @@ def add_workers(p: argparse.ArgumentParser) -> None:
 def register(sub: Any) -> None:
     """Add the learning subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("train", help=cmd_train.__doc__, description=cmd_train.__doc__)
-    p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0")
-    p.add_argument("--algo", choices=ALGO_CHOICES, default="ppo")
+    p.add_argument("--env", choices=ENV_CHOICES, default="StewartBallBalance-v0", help="the task to train for")
+    p.add_argument("--algo", choices=ALGO_CHOICES, default="ppo", help="the learning algorithm")
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
     add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
@@ -290,7 +291,9 @@ def register(sub: Any) -> None:
                                          "stewart_gym/hyperparams/<algo>.yml)")
     p.add_argument("--run-dir", default="runs/latest", help="folder for the model, statistics, curves and logs")
     p.add_argument("--overwrite", action="store_true", help="train into a run folder that already holds a model")
-    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0,
+                   help="the run's seed: the network's start, the training envs' (seed … seed + n_envs − 1) and the "
+                        "evaluations' episodes (from seed + 10000)")  # fmt: skip
     p.add_argument("--timesteps", type=int_at_least(1, MAX_TIMESTEPS), help="override n_timesteps")
     p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
     p.add_argument("--vec-env", choices=VEC_ENV_CHOICES, default="dummy",
@@ -298,14 +301,15 @@ def register(sub: Any) -> None:
                         "env step is cheaper than a round trip to another process), or subproc, a worker process "
                         "each (bench/bench_train.py measures both); the same run either way, to the last bit")
     p.add_argument("--eval-freq", type=int_at_least(1, MAX_TIMESTEPS), help="env steps between evaluations")
-    p.add_argument("--eval-episodes", type=int_at_least(1, 10_000))
+    p.add_argument("--eval-episodes", type=int_at_least(1, 10_000),
+                   help="episodes per evaluation during training (default: the YAML's evaluation section, else 20)")
     p.add_argument("--checkpoint-freq", type=int_at_least(1, MAX_TIMESTEPS), default=100_000,
                    help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
                         "default 100000)")  # fmt: skip
     p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
     p.add_argument("--max-minutes", type=positive_float, help="stop after this much wall time")
-    p.add_argument("--no-progress", action="store_true")
-    p.add_argument("--no-tensorboard", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar or progress lines")
+    p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard log (tb/ in the run folder)")
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("evaluate", help=cmd_evaluate.__doc__, description=cmd_evaluate.__doc__)
@@ -363,11 +367,12 @@ def register(sub: Any) -> None:
     p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
-    p.add_argument("--episodes", type=int_at_least(1, MAX_EPISODES), default=20)
+    p.add_argument("--episodes", type=int_at_least(1, MAX_EPISODES), default=20,
+                   help="seeded episodes per policy (the same for each)")
     add_backend(p, "physics engine (default pybullet; the GIF needs OpenGL with mujoco)")
     p.add_argument("--geometry", help="the platform (default servo-hexapod; the shipped policy exists for the presets "
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
-    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0)
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help=SEED_HELP)
     p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
     add_workers(p)
     p.set_defaults(func=cmd_demo)
