@@ -195,7 +195,8 @@ class ServoCalibration:
             if geo is None:
                 raise CalibrationError("geometry: a linear-actuator calibration needs the geometry (its stroke)")
             return cls._linear_from_dict(data, geo, source)
-        known_top = {"geometry", "actuator", "neutral_us", "us_per_rad", "us_per_degree", "servo", "hardware"}
+        known_top = {"geometry", "geometry_sha256", "actuator", "neutral_us", "us_per_rad", "us_per_degree", "servo",
+                     "hardware"}
         known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
         servos = _check_keys(data, known_top, known_servo, source)
         if "us_per_rad" in data and "us_per_degree" in data:
@@ -236,7 +237,7 @@ class ServoCalibration:
         moved with the trim) and ``home_length_mm`` (default: the geometry's
         home leg length). ``[hardware]`` as for rotary servos.
         """
-        known_top = {"geometry", "actuator", "retracted_us", "extended_us", "servo", "hardware"}
+        known_top = {"geometry", "geometry_sha256", "actuator", "retracted_us", "extended_us", "servo", "hardware"}
         known_servo = {"channel", "trim_us", "min_us", "max_us", "home_length_mm"}
         servos = _check_keys(data, known_top, known_servo, source)
         retracted = _scalar("retracted_us", data.get("retracted_us", 1000.0))

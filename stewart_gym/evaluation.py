@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -51,6 +51,7 @@ class EpisodeLog:
     frames: list[np.ndarray] = field(default_factory=list)
     success: bool = False
     fell: bool = False
+    plate_half_mm: tuple[float, float] = (150.0, 150.0)  # the plate's half width and depth (its edges), mm
 
     def settling_time(self, radius_mm: float) -> float:
         """s until the ball stays within ``radius_mm`` to the end; NaN if it never does (or fell)."""
@@ -66,7 +67,7 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = 
     """Run one episode to its end; record what the metrics need."""
     obs, info = env.reset(seed=seed, options=options)
     unwrapped = env.unwrapped
-    log = EpisodeLog(dt=unwrapped.sim.dt)
+    log = EpisodeLog(dt=unwrapped.sim.dt, plate_half_mm=tuple(1e3 * float(h) for h in unwrapped.plate_half_extent))
     start = np.array([True])
     while True:
         action, _ = policy.predict(obs[None], None, start, True)
@@ -97,8 +98,10 @@ def check_fits(policy: Policy, env: gym.Env) -> None:
 
 
 def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, randomize: bool = True,
-             settling: bool = True, env_kwargs: dict | None = None) -> dict[str, Any]:  # fmt: skip
-    """Metrics over ``episodes`` seeded episodes (seeds ``seed … seed+episodes−1``).
+             settling: bool = True, env_kwargs: dict | None = None,
+             on_progress: Callable[[float], None] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Metrics over ``episodes`` seeded episodes (seeds ``seed … seed+episodes−1``); ``on_progress(amount)``
+    is told of each part of an episode run (``episodes`` in all).
 
     * ``success_rate``: episodes whose last step reports ``is_success``.
     * ``rms_error_mm``: RMS ball-to-target distance over the last 5 s of every episode, pooled.
@@ -123,31 +126,38 @@ def evaluate(env_id: str, policy: Policy, episodes: int = 100, seed: int = 0, ra
     evaluation over processes (``stewart-gym evaluate --workers``) with the same figures.
     """
     return summarise(env_id, episodes, seed, randomize,
-                     [evaluation_part(env_id, policy, range(episodes), episodes, seed, randomize, settling, env_kwargs)])
+                     [evaluation_part(env_id, policy, range(episodes), episodes, seed, randomize, settling, env_kwargs,
+                                      on_progress)])  # fmt: skip
 
 
 def evaluation_part(env_id: str, policy: Policy, indices: Sequence[int], episodes: int, seed: int = 0,
-                    randomize: bool = True, settling: bool = True, env_kwargs: dict | None = None) -> dict[str, Any]:
+                    randomize: bool = True, settling: bool = True, env_kwargs: dict | None = None,
+                    on_progress: Callable[[float], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Episodes ``indices`` (of ``range(episodes)``) of :func:`evaluate`'s evaluation, each reduced to what its
     figures need; :func:`summarise` of the parts, in order, gives those figures. Episode k is seeded
     ``seed + k`` and its settling run starts at the angle 2πk/episodes, and an episode does not depend on the
     ones run before it in the same env, so the parts can run anywhere (one per process) and give the figures of
-    one :func:`evaluate`, to the last bit."""
+    one :func:`evaluate`, to the last bit. ``on_progress(amount)`` after each run: 1 per episode in all (half
+    for the episode and half for its settling run where there is one)."""
     env = gym.make(env_id, randomize=randomize, **(env_kwargs or {}))
     check_fits(policy, env)
+    report = on_progress or (lambda amount: None)
     try:
         dt = env.unwrapped.sim.dt
         tail = int(round(5.0 / dt))
+        settles = settling and not env.unwrapped.task.moving_target
+        share = 0.5 if settles else 1.0
         records = []
         for k in indices:
             lg = run_episode(env, policy, seed + k)
+            report(share)
             moved = len(lg.pulses) > 1
             records.append({"tail_mm": np.asarray(lg.distance_mm[-tail:]), "final_mm": lg.distance_mm[-1],
                             "success": lg.success, "fell": lg.fell, "max_tilt_deg": max(lg.tilt_deg),
                             "pulse_rate": np.abs(np.diff(np.asarray(lg.pulses), axis=0)).mean() / dt if moved else None,
                             "settled_pulses": np.asarray(lg.pulses[-tail:]) if moved and not lg.fell else None})  # fmt: skip
         offset = None
-        if settling and not env.unwrapped.task.moving_target:
+        if settles:
             radius_mm = env.unwrapped.success_radius * 1e3
             offset = settling_offset(env)
             for k, record in zip(indices, records):
@@ -155,6 +165,7 @@ def evaluation_part(env_id: str, policy: Policy, indices: Sequence[int], episode
                 opts = {"ball_position": (offset * math.cos(ang), offset * math.sin(ang)),
                         "ball_velocity": (0.0, 0.0)}  # fmt: skip
                 record["settling_s"] = run_episode(env, policy, seed + k, opts).settling_time(radius_mm)
+                report(share)
         return {"dt": dt, "settling_offset": offset, "records": records}
     finally:
         env.close()
@@ -316,9 +327,11 @@ def format_paired(rows: list[dict[str, Any]]) -> str:
 
 def format_table(results: dict[str, dict[str, Any]]) -> str:
     """A text table with one column per policy."""
+    offsets = {r.get("settling_offset_mm") for r in results.values()} - {None}
+    start = f"{offsets.pop():g} mm start" if len(offsets) == 1 else "start as listed"
     rows = [("success rate", "success_rate", "{:.0%}"), ("fell off", "fell_rate", "{:.0%}"),
             ("RMS error (last 5 s)", "rms_error_mm", "{:.2f} mm"), ("final error", "final_error_mm", "{:.2f} mm"),
-            ("settling time (100 mm start)", "settling_time_s", "{:.2f} s"), ("settled", "settled_fraction", "{:.0%}"),
+            (f"settling time ({start})", "settling_time_s", "{:.2f} s"), ("settled", "settled_fraction", "{:.0%}"),
             ("largest tilt", "max_tilt_deg", "{:.1f}°"),
             ("pulse rate (servo wear)", "pulse_rate_us_per_s", "{:.0f} µs/s"),
             ("settled pulse rate (last 5 s)", "settled_pulse_rate_us_per_s", "{:.0f} µs/s"),
@@ -346,11 +359,17 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     xy, tgt, w = np.asarray(log.ball_xy) * 1e3, np.asarray(log.target_xy) * 1e3, np.asarray(log.pulses)
     t = np.arange(len(w)) * log.dt
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), gridspec_kw={"width_ratios": [1, 1.5]})
-    ax1.plot(xy[:, 0], xy[:, 1], lw=1.2, label="ball")
-    ax1.plot(tgt[:, 0], tgt[:, 1], "k--", lw=0.8, label="target")
-    ax1.plot(xy[0, 0], xy[0, 1], "go", label="start")
-    ax1.add_patch(plt.Rectangle((-150, -150), 300, 300, fill=False, color="0.6"))
-    ax1.set(xlim=(-160, 160), ylim=(-160, 160), xlabel="x on plate [mm]", ylabel="y on plate [mm]", aspect="equal")
+    hx, hy = log.plate_half_mm
+    ax1.add_patch(plt.Rectangle((-hx, -hy), 2 * hx, 2 * hy, fill=False, color="0.5", lw=1.5, label="plate edge"))
+    ax1.plot(xy[:, 0], xy[:, 1], lw=1.2, label="ball", zorder=2)
+    if np.ptp(tgt, axis=0).max() > 1e-6:  # a moving target: its path
+        ax1.plot(tgt[:, 0], tgt[:, 1], "k--", lw=0.8, label="target", zorder=3)
+    else:  # a fixed one: a cross drawn over the ball's path
+        ax1.plot(tgt[0, 0], tgt[0, 1], "r+", ms=14, mew=2, label="target", zorder=4)
+    ax1.plot(xy[0, 0], xy[0, 1], "go", label="start", zorder=4)
+    margin = 0.08 * max(hx, hy)
+    ax1.set(xlim=(-hx - margin, hx + margin), ylim=(-hy - margin, hy + margin), xlabel="x on plate [mm]",
+            ylabel="y on plate [mm]", aspect="equal")  # fmt: skip
     ax1.legend(loc="upper right", fontsize=8)
     for i in range(6):
         ax2.plot(t, w[:, i], lw=1, label=f"servo {i}")

@@ -13,6 +13,7 @@ physics engine and the ball sensor, from the policy and what the user asked for.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -24,7 +25,8 @@ from stewart_gym.errors import ConfigError
 
 __all__ = ["DEMO_CLASSICAL", "DEMO_LEARNED", "EPISODES_PER_PROCESS", "WORLD_DEFAULTS", "EvaluationJob", "World",
            "check_can_render", "check_trajectory", "compare", "compare_setup", "demo_policies", "episode_figures",
-           "evaluate_all", "evaluate_part", "in_world", "process_plan", "quiet_notes", "resolve_world", "world"]
+           "evaluate_all", "evaluate_part", "in_world", "process_plan", "resolve_world", "worker_setup", "world",
+           "world_line"]
 
 #: The env's physics engine and ball sensor where none is asked for.
 WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
@@ -94,46 +96,68 @@ def process_plan(requested: int | None, jobs: int, episodes: int) -> tuple[int, 
     return min(workers, jobs * parts), parts
 
 
-def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int) -> list[dict[str, Any]]:
+def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int,
+                 on_progress: Callable[[float], None] | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """Each job's :func:`~stewart_gym.evaluation.evaluate` figures, in order (:func:`process_plan` gives
     ``parts`` and ``processes``): each job's episodes split into ``parts`` contiguous parts, run ``processes``
     at a time, each in a process started afresh that loads its policy, or in this process when there is one
     process or one part in all. An episode depends only on its seed, so the figures are those of one process,
-    to the last bit."""
+    to the last bit. ``on_progress(amount)`` is told of the episodes as they are run, in whichever process (the
+    jobs' episodes in all)."""
     from stewart_gym.evaluation import summarise
 
     tasks = [(job, [int(k) for k in chunk]) for job in jobs
              for chunk in np.array_split(np.arange(job.episodes), parts)]  # fmt: skip
     if processes == 1 or len(tasks) == 1:
-        results = [evaluate_part(task) for task in tasks]
+        results = [evaluate_part(task, on_progress) for task in tasks]
     else:
         import multiprocessing
+        import queue as queues
         from concurrent.futures import ProcessPoolExecutor
 
-        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=quiet_notes) as pool:
-            results = list(pool.map(evaluate_part, tasks))
+        context = multiprocessing.get_context("spawn")
+        reports = context.Queue()  # the workers' progress, read here while they run
+        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=context, initializer=worker_setup,
+                                 initargs=(reports,)) as pool:  # fmt: skip
+            futures = [pool.submit(evaluate_part, task) for task in tasks]
+            while not all(f.done() for f in futures):
+                try:
+                    amount = reports.get(timeout=0.2)
+                except queues.Empty:
+                    continue
+                if on_progress is not None:
+                    on_progress(amount)
+            results = [f.result() for f in futures]
     return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
                       [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
 
 
-def quiet_notes() -> None:
-    """In a worker process: no ``note:`` lines (this process has said them when it loaded the policies)."""
+#: In a worker process of :func:`evaluate_all`: where its progress goes (set by :func:`worker_setup`).
+_REPORTS: list[Any] = []
+
+
+def worker_setup(reports: Any) -> None:
+    """In a worker process: no ``note:`` lines (the parent has said them when it loaded the policies), and the
+    queue that carries its progress to the parent."""
     import logging
 
     logging.getLogger("stewart_gym").setLevel(logging.ERROR)
+    _REPORTS[:] = [reports]
 
 
-def evaluate_part(task: tuple[EvaluationJob, list[int]]) -> dict[str, Any]:
+def evaluate_part(task: tuple[EvaluationJob, list[int]],
+                  on_progress: Callable[[float], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Some episodes of one job of :func:`evaluate_all` (:func:`~stewart_gym.evaluation.evaluation_part`); in a
-    worker process the policy is loaded there."""
+    worker process the policy is loaded there, and progress goes to the parent's queue."""
     from stewart_gym.evaluation import evaluation_part
     from stewart_gym.registry import load_for_evaluation
 
     job, indices = task
     _, policy, _ = load_for_evaluation(job.spec, job.env_id, job.geometry, job.estimator)
+    if on_progress is None and _REPORTS:
+        on_progress = _REPORTS[0].put
     return evaluation_part(job.env_id, policy, indices, job.episodes, job.seed, job.randomize,
-                           env_kwargs=job.env_kwargs)  # fmt: skip
+                           env_kwargs=job.env_kwargs, on_progress=on_progress)  # fmt: skip
 
 
 #: What ``demo`` compares: the learned policies shipped for the build (the best first; its episode is the GIF)
@@ -161,14 +185,27 @@ def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | N
 
 
 def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
-    """Where an evaluation ran: the env id, the physics engine (the one ``auto`` picks where none was asked
-    for) and the ball sensor (for ``--json``)."""
+    """Where an evaluation ran: the env id, the build (``geometry``: a preset's name or the TOML file), the
+    physics engine (the one ``auto`` picks where none was asked for), the ball sensor and, where the target
+    moves, its trajectory (for ``--json`` and the line above a table)."""
+    from stewart_gym.presets import load_geometry
     from stewart_gym.sim.engines import default_backend
 
-    out = {"env_id": env_id, **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}
+    geometry = env_kwargs.get("geometry", "servo-hexapod")
+    out = {"env_id": env_id, "geometry": str(geometry), "geometry_name": load_geometry(geometry).name,
+           **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}  # fmt: skip
     if "backend" not in env_kwargs or env_kwargs["backend"] == "auto":
         out["backend"] = default_backend()
+    if env_id in trajectory_env_ids():
+        out["trajectory"] = str(env_kwargs.get("trajectory", "circle"))
     return out
+
+
+def world_line(where: dict[str, str]) -> str:
+    """:func:`world` as words: ``StewartBallBalance-v0 on my-build (runs/a/geometry.toml), pybullet, sensor panel``."""
+    build = where["geometry_name"] + (f" ({where['geometry']})" if where["geometry"] != where["geometry_name"] else "")
+    moving = f", trajectory {where['trajectory']}" if "trajectory" in where else ""
+    return f"{where['env_id']} on {build}, {where['backend']}, sensor {where['sensor']}{moving}"
 
 
 def check_can_render(backend: str | None) -> None:
@@ -181,7 +218,8 @@ def check_can_render(backend: str | None) -> None:
 
 def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, randomize: bool, gif: Path | None,
                      plot: Path | None, title: str) -> None:  # fmt: skip
-    """Run one episode from the standard 100 mm offset; write its GIF and/or its ball-path and pulse-width plot."""
+    """Run one episode from the standard offset (100 mm, less on a small plate); write its GIF and/or its
+    ball-path and pulse-width plot, titled ``title`` (the policy and where it ran)."""
     import gymnasium as gym
 
     from stewart_gym.evaluation import plot_episode, run_episode, settling_offset, write_gif
@@ -195,7 +233,7 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
     if gif:
         write_gif(log.frames, gif)
     if plot:
-        plot_episode(log, plot, f"{env_id}, policy {title}")
+        plot_episode(log, plot, title)
 
 
 def compare_setup(policies: list[str], env_id: str | None = None, geometry: str | None = None,
@@ -236,7 +274,8 @@ def compare_setup(policies: list[str], env_id: str | None = None, geometry: str 
 
 def compare(policies: list[str], env_id: str | None = None, episodes: int = 100, seed: int = 0, randomize: bool = True,
             geometry: str | None = None, backend: str | None = None, sensor: str | None = None,
-            trajectory: str | None = None, workers: int | None = None) -> tuple[dict[str, dict], list[dict]]:  # fmt: skip
+            trajectory: str | None = None, workers: int | None = None,
+            on_progress: Callable[[float], None] | None = None) -> tuple[dict[str, dict], list[dict]]:  # fmt: skip
     """Evaluate ``policies`` on the same seeded episodes (:func:`compare_setup`, :func:`evaluate_all`) and pair the
     first with each of the others (:func:`~stewart_gym.evaluation.paired_rows`): (figures by policy, paired
     rows)."""
@@ -245,5 +284,5 @@ def compare(policies: list[str], env_id: str | None = None, episodes: int = 100,
     env, build, env_kwargs = compare_setup(policies, env_id, geometry, backend, sensor, trajectory)
     processes, parts = process_plan(workers, len(policies), episodes)
     jobs = [EvaluationJob(spec, env, build, None, env_kwargs[spec], episodes, seed, randomize) for spec in policies]
-    results = dict(zip(policies, evaluate_all(jobs, parts, processes)))
+    results = dict(zip(policies, evaluate_all(jobs, parts, processes, on_progress)))
     return results, paired_rows(results, policies[0])

@@ -328,6 +328,12 @@ class PlatformGeometry:
         """Load a geometry from a TOML file (see :meth:`from_dict` for the fields)."""
         return cls.from_dict(read_toml(path, GeometryError, "geometry file"), source=str(path))
 
+    def content_hash(self) -> str:
+        """SHA-256 (hex) of :meth:`to_toml`: the same for the same build however its file is written or named."""
+        import hashlib
+
+        return hashlib.sha256(self.to_toml().encode()).hexdigest()
+
     def to_toml(self) -> str:
         """This geometry as TOML text in SI units, loadable by :meth:`from_toml`."""
 

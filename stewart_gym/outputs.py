@@ -15,7 +15,8 @@ from typing import Any
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.inputs import read_text, read_yaml
 
-__all__ = ["ENSEMBLE_FILE", "ensemble_members", "model_statistics", "output_dir", "output_file", "run_config"]
+__all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "model_statistics", "output_dir", "output_file",
+           "run_config"]
 
 #: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
 #: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
@@ -63,15 +64,29 @@ def _writable_dir(folder: Path) -> None:
         raise ConfigError(f"{folder}: no permission to write in {existing}")
 
 
+#: A run trained on a geometry file keeps a copy of the build here, in its folder, and its config.yaml names it
+#: (relative to the folder): moving or editing the original leaves the trained policy with its own build.
+RUN_GEOMETRY_FILE = "geometry.toml"
+
+
 def run_config(model_zip: Path) -> dict[str, Any] | None:
     """The ``config.yaml`` of the training run a model belongs to: beside it, or one folder up (``best/``,
-    ``checkpoints/``); None where there is none. Raises :class:`PolicyError` (a ``ValueError``) if it cannot be
+    ``checkpoints/``); None where there is none. A geometry file named relative to the run folder (its
+    :data:`RUN_GEOMETRY_FILE`) comes back as its full path. Raises :class:`PolicyError` (a ``ValueError``) if it cannot be
     read, ``ImportError`` without pyyaml."""
     for folder in (model_zip.parent, model_zip.parent.parent):
         cfg = folder / "config.yaml"
         if cfg.is_file():
             data = read_yaml(cfg, "run configuration", error=PolicyError)
-            return data if isinstance(data, dict) else None
+            if not isinstance(data, dict):
+                return None
+            env_kwargs = (data.get("hyperparams") or {}).get("env_kwargs") or {}
+            geometry = env_kwargs.get("geometry")
+            if isinstance(geometry, str) and geometry.endswith(".toml") and not Path(geometry).is_absolute():
+                own = folder / geometry  # the run's copy of its build (a run folder moves as a whole)
+                if own.is_file():
+                    env_kwargs["geometry"] = str(own)
+            return data
     return None
 
 

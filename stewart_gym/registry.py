@@ -46,7 +46,7 @@ from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import PolicyError
 from stewart_gym.inputs import read_text
-from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics, run_config
+from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
            "export_policy", "learned_models_importable", "load_for_evaluation", "load_policy", "resolve_policy",
@@ -116,7 +116,8 @@ class PolicySource:
 
     @property
     def label(self) -> str:
-        return self.spec if self.spec in (*SHIPPED_TABLES, *CLASSICAL) else self.path.name
+        """What to call it in a table or a plot: a name as given, a path as typed (a run folder, not its model)."""
+        return self.spec.rstrip("/") or self.spec
 
     @property
     def estimator(self) -> str:
@@ -288,7 +289,7 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
         stats = model_statistics(source.path)
         if stats is not None:
             shutil.copyfile(stats, member / "vecnormalize.pkl")
-        for name in ("config.yaml", "metrics.json"):  # beside the model, or one folder up (best/, checkpoints/)
+        for name in ("config.yaml", "metrics.json", RUN_GEOMETRY_FILE):  # beside the model, or one folder up
             found = next((f / name for f in (source.path.parent, source.path.parent.parent) if (f / name).is_file()),
                          None)  # fmt: skip
             if found is not None:

@@ -39,13 +39,14 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.inputs import read_yaml
-from stewart_gym.outputs import model_statistics, run_config
+from stewart_gym.outputs import RUN_GEOMETRY_FILE, model_statistics, run_config
+from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 
 __all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
            "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
-           "check_run_dir", "action_noise", "load_hyperparams", "make_env", "run_hyperparams", "train",
-           "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+           "check_run_dir", "action_noise", "load_hyperparams", "make_env", "planned_timesteps", "run_hyperparams",
+           "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -483,14 +484,33 @@ class _EvalLog(EvalCallback):
 
 
 class _Deadline(BaseCallback):
-    """Stop training after ``seconds`` of wall time (keeps results for the time budget)."""
+    """Stop training after ``seconds`` of wall time (keeps results for the time budget); ``reached`` says so."""
 
     def __init__(self, seconds: float | None) -> None:
         super().__init__()
-        self.seconds, self.started = seconds, time.time()
+        self.seconds, self.started, self.reached = seconds, time.time(), False
 
     def _on_step(self) -> bool:
-        return self.seconds is None or time.time() - self.started < self.seconds
+        self.reached = self.seconds is not None and time.time() - self.started >= self.seconds
+        return not self.reached
+
+
+class _Progress(BaseCallback):
+    """``report(n_envs)`` after each vectorised step."""
+
+    def __init__(self, report: Callable[[int], None]) -> None:
+        super().__init__()
+        self.report = report
+
+    def _on_step(self) -> bool:
+        self.report(self.training_env.num_envs)
+        return True
+
+
+def planned_timesteps(config: TrainConfig) -> int:
+    """The env steps ``config`` trains for: ``n_timesteps`` of the options, else of the hyperparameters."""
+    return int(config.n_timesteps if config.n_timesteps is not None
+               else run_hyperparams(config).get("n_timesteps", 100_000))  # fmt: skip
 
 
 def _git_revision() -> str:
@@ -515,12 +535,15 @@ def _git_revision() -> str:
 
 def train(config: TrainConfig, max_wall_s: float | None = None,
           on_eval: Callable[[dict[str, float]], None] | None = None,
-          callbacks: Sequence[BaseCallback] = ()) -> dict[str, Any]:  # fmt: skip
+          callbacks: Sequence[BaseCallback] = (),
+          on_progress: Callable[[int], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``).
 
     ``on_eval`` is called after each evaluation with that row of the learning curve (``timesteps``,
     ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler. ``callbacks`` (SB3
     callbacks) run after the run's own, e.g. a curriculum (``train/experiments/curriculum.py``).
+    ``on_progress(steps)`` is called with the env steps of each vectorised step (of :func:`planned_timesteps`
+    in all). A run that ``max_wall_s`` ends has ``"stopped": "max_wall_s"`` in its metrics.
     """
     check_run_dir(config, overwrite=True)  # the options; the CLI has also refused to overwrite another run
     algo_cls = ALGOS[config.algo]
@@ -553,7 +576,15 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     eval_env.seed(config.seed + EVAL_SEED_OFFSET)  # the same evaluation episodes, so learning curve and best/, each run
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
-    (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": hp}, sort_keys=False))
+    recorded = hp
+    geometry = env_kwargs.get("geometry")
+    if isinstance(geometry, str) and geometry not in PRESETS:  # a file: the run keeps its own copy of the build
+        from stewart_gym.presets import load_geometry
+
+        (run / RUN_GEOMETRY_FILE).write_text(load_geometry(geometry).to_toml())
+        recorded = {**hp, "env_kwargs": {**env_kwargs, "geometry": RUN_GEOMETRY_FILE}}
+    (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": recorded},
+                                                    sort_keys=False))  # fmt: skip
     (run / "git.txt").write_text(_git_revision() + "\n")
 
     env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual, config.vec_env)
@@ -584,13 +615,15 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     if tb is None:  # else SB3 makes an empty tempdir/SB3-<time> folder for its logger on every run
         model.set_logger(make_sb3_logger(str(run), ["stdout"] if config.verbose else []))
     started = time.time()
+    deadline = _Deadline(max_wall_s)
     every_callback = CallbackList([
         _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
                  best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
                  csv_path=run / "eval.csv", started=started, on_eval=on_eval, verbose=0),
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
                            save_vecnormalize=bool(normalize)),
-        _Deadline(max_wall_s),
+        deadline,
+        *([_Progress(on_progress)] if on_progress is not None else []),
         *callbacks,
     ])  # fmt: skip
     model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
@@ -601,6 +634,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         env.save(str(run / "vecnormalize.pkl"))
     metrics = {"env_id": config.env_id, "algo": config.algo, "timesteps": int(model.num_timesteps),
                "wall_time_s": round(wall, 1), "n_envs": n_envs, "seed": config.seed}  # fmt: skip
+    if deadline.reached:
+        metrics["stopped"] = "max_wall_s"
     with (run / "eval.csv").open() as fh:
         rows = [{k: _number(v) for k, v in r.items()} for r in csv.DictReader(fh)]
     if rows:

@@ -10,7 +10,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import Board, FakeDevice, maestro_frames, sg
+from conftest import Board, FakeDevice, cli, maestro_frames, sg
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.kinematics import inverse_kinematics
@@ -370,3 +370,56 @@ def test_recipe_distances_are_scaled_only_across_builds() -> None:
     assert kwargs["start_distance"] == [0.02, 0.07] and note is None
     kwargs, note = run_env_kwargs(TrainConfig(**{**vars(cfg), "geometry": "servo-hexapod"}), hp)  # and back again
     assert kwargs["start_distance"] == [0.03, 0.105] and "memememe-liverpool" in note
+
+
+def test_a_run_keeps_its_build_when_the_geometry_file_moves_or_changes(tmp_path: Path,
+                                                                         capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """A run trained on a TOML keeps a copy in its folder: the run folder and the TOML may move; evaluating it runs
+    on the build it was trained for; an edited TOML given with --geometry is refused, naming both builds."""
+    import shutil
+
+    geo_path = my_build(tmp_path)
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  policy: MlpPolicy\n  n_steps: 64\n"
+                  "  batch_size: 32\n  n_epochs: 1\n  policy_kwargs: {net_arch: [8]}\n")  # fmt: skip
+    code, _, err = cli(capfd, "train", "--geometry", str(geo_path), "--hyperparams", str(hp), "--run-dir",
+                            str(tmp_path / "run"), "--eval-freq", "1000", "--no-progress", "--no-tensorboard")  # fmt: skip
+    assert code == 0, err
+    assert (tmp_path / "run" / "geometry.toml").read_text() == load_preset("desk-rect").to_toml().replace(
+        'name = "desk-rect"', 'name = "my-build"').replace("plate_size = [0.4, 0.26]", "plate_size = [0.35, 0.25]")
+    moved = tmp_path / "elsewhere" / "run"
+    shutil.move(tmp_path / "run", moved)
+    geo_path.rename(tmp_path / "renamed.toml")
+    code, out, err = cli(capfd, "evaluate", "--policy", str(moved), "--episodes", "1", "--no-randomize", "--json")
+    assert code == 0, err
+    assert json.loads(out)["geometry"] == str(moved / "geometry.toml")
+    edited = tmp_path / "renamed.toml"
+    edited.write_text(edited.read_text().replace("rod_length = 0.19", "rod_length = 0.2"))
+    code, _, err = cli(capfd, "evaluate", "--policy", str(moved), "--geometry", str(edited), "--episodes", "1")
+    assert code == 1 and "trained for geometry" in err and str(edited) in err and "Traceback" not in err
+
+
+def test_a_calibration_follows_its_geometry_file_by_content(tmp_path: Path, device: FakeDevice) -> None:
+    """``calibrate`` names the geometry file from the calibration's own folder, with its content's hash: read
+    from another folder it works; with the geometry file moved it still works (same content); with the geometry
+    file edited, deploy refuses, naming both files."""
+    geo_path = my_build(tmp_path)
+    (tmp_path / "cal").mkdir()
+    drain = Board(device)
+    cal = sg("calibrate", "--geometry", str(geo_path), "--port", device.path, "--protocol", "maestro", "--out",
+             str(tmp_path / "cal" / "calibration.toml"), stdin="q\n", cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert cal.returncode == 0, cal.stderr
+    text = (tmp_path / "cal" / "calibration.toml").read_text()
+    assert 'geometry = "../my_build.toml"' in text and "geometry_sha256 = " in text
+    from stewart_gym.hardware.deploy_setup import load_calibration
+
+    load_calibration(str(tmp_path / "cal" / "calibration.toml"), str(geo_path))  # from the calibration's folder
+    moved = geo_path.rename(tmp_path / "cal" / "elsewhere.toml")
+    load_calibration(str(tmp_path / "cal" / "calibration.toml"), str(moved))  # the file moved: same content
+    moved.rename(geo_path)
+    geo_path.write_text(geo_path.read_text().replace("rod_length = 0.19", "rod_length = 0.2"))
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"my_build\.toml has changed since .*calibration\.toml was calibrated"):
+        load_calibration(str(tmp_path / "cal" / "calibration.toml"), str(geo_path))

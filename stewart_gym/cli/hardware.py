@@ -77,7 +77,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     finally:
         controller.close()
     out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate},
-                                    geometry=args.geometry))  # fmt: skip
+                                    geometry=args.geometry, folder=out.parent))  # fmt: skip
     print(f"calibration written to {out} (geometry {geometry.name}, port {port}, protocol {protocol})")
     return EXIT_OK
 

@@ -26,6 +26,7 @@ from stewart_gym.cli.common import (
 from stewart_gym.envs import ENV_IDS, trajectory_env_ids
 from stewart_gym.envs.targets import TRACK_TRAJECTORIES
 from stewart_gym.errors import ConfigError
+from stewart_gym.progress import Progress
 
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
 
@@ -48,19 +49,34 @@ ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or ka
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train PPO, SAC, TD3 (Stable-Baselines3) or TQC (sb3-contrib); hyperparameters: stewart_gym/hyperparams/<algo>.yml."""
-    from stewart_gym.training import TrainConfig, check_run_dir, run_env_kwargs, run_hyperparams, train
+    from stewart_gym.training import (
+        TrainConfig,
+        check_run_dir,
+        planned_timesteps,
+        run_env_kwargs,
+        run_hyperparams,
+        train,
+    )
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, vec_env=args.vec_env,
                       eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                      resume=args.resume, progress_bar=not args.no_progress,
+                      resume=args.resume, progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
     if note:
         print(f"note: {note}", file=sys.stderr)
-    metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60)
+    total = planned_timesteps(cfg)
+    progress = None if args.no_progress else Progress(total, "steps", "train")
+    metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60,
+                    on_progress=None if progress is None else progress.advance)  # fmt: skip
+    if progress is not None:
+        progress.close()
+    if metrics.get("stopped"):
+        print(f"note: stopped by --max-minutes {args.max_minutes:g}: {metrics['timesteps']:,} steps trained "
+              f"({total:,} planned); the model is saved as it stands", file=sys.stderr)  # fmt: skip
     print(json.dumps(metrics, indent=2))
     return EXIT_OK
 
@@ -75,6 +91,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         evaluate_all,
         process_plan,
         resolve_world,
+        world_line,
     )
     from stewart_gym.registry import load_for_evaluation
 
@@ -86,18 +103,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if gif:
         check_can_render(env_kwargs.get("backend"))
     processes, parts = process_plan(args.workers, 1, args.episodes)
+    progress = Progress(args.episodes, "episodes", "evaluate")
     if parts == 1:
         metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
-                           env_kwargs=env_kwargs)  # fmt: skip
+                           env_kwargs=env_kwargs, on_progress=progress.advance)  # fmt: skip
     else:  # the episodes split over processes: the same figures
         job = EvaluationJob(args.policy, env_id, args.geometry, args.estimator, env_kwargs, args.episodes, args.seed,
                             not args.no_randomize)  # fmt: skip
-        metrics = evaluate_all([job], parts, processes)[0]
+        metrics = evaluate_all([job], parts, processes, progress.advance)[0]
+    progress.close()
     if gif or plot:
-        episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot, source.label)
+        episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot,
+                        f"{source.label} on {world_line(where.describe())}")  # fmt: skip
     if args.json:
-        print(json.dumps(json_safe({**where.describe(), **metrics})))
+        print(json.dumps(json_safe({"policy": source.label, **where.describe(), **metrics})))
     else:
+        print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}")
         print(format_table({source.label: metrics}))
     return EXIT_OK
 
@@ -124,8 +145,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
           f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
           f"{world_line['backend']}, sensor {world_line['sensor']}; {processes} processes at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
+    progress = Progress(args.episodes * len(policies), "episodes", "compare")
     results, rows = compare(policies, env_id, args.episodes, args.seed, not args.no_randomize, geometry, args.backend,
-                            args.sensor, args.trajectory, args.workers)  # fmt: skip
+                            args.sensor, args.trajectory, args.workers, progress.advance)  # fmt: skip
+    progress.close()
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
                                     "randomize": not args.no_randomize, "policies": results, "paired": rows})))  # fmt: skip
@@ -164,6 +187,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         evaluate_all,
         process_plan,
         resolve_world,
+        world,
+        world_line,
     )
     from stewart_gym.registry import load_for_evaluation
     from stewart_gym.sim.engines import default_backend
@@ -189,14 +214,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f"({engine}), {processes} processes at a time…", flush=True)  # fmt: skip
     jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, True)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
-    results = dict(zip(names, evaluate_all(jobs, parts, processes)))
+    progress = Progress(args.episodes * len(jobs), "episodes", "demo")
+    results = dict(zip(names, evaluate_all(jobs, parts, processes, progress.advance)))
+    progress.close()
     print()
     print(format_table(results))
     print()
     print(format_paired(paired_rows(results, names[0])))
     (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     policy, env_kwargs = loaded[names[0]]
-    episode_figures(env_id, policy, env_kwargs, args.seed, True, gif, out / "demo_pulses.png", names[0])
+    episode_figures(env_id, policy, env_kwargs, args.seed, True, gif, out / "demo_pulses.png",
+                    f"{names[0]} on {world_line(world(env_id, env_kwargs))}")  # fmt: skip
     wrote = [str(p) for p in (gif, out / "demo_pulses.png") if p is not None]
     print(f"\nwrote {', '.join(wrote)} (policy {names[0]}) and {out / 'demo_metrics.json'}")
     return EXIT_OK

@@ -57,16 +57,29 @@ def load_calibration(path: str | None, geometry: Any, used_for: str = "the polic
     geo = load_geometry(geometry)
     if not path:
         return ServoCalibration.default(geo), {}
-    declared = read_toml(path, CalibrationError, "calibration file").get("geometry")
+    data = read_toml(path, CalibrationError, "calibration file")
+    declared, digest = data.get("geometry"), data.get("geometry_sha256")
+    if digest is not None and (not isinstance(digest, str) or len(digest) != 64):
+        raise CalibrationError(f"{path}: geometry_sha256 must be the 64 hex digits calibrate writes, got {digest!r}")
     if declared is not None:
         if not isinstance(declared, str) or not declared:
             raise CalibrationError(f"{path}: geometry must be a preset name or a TOML path, got {declared!r}")
         if declared.endswith(".toml") and not Path(declared).is_absolute():
             declared = str(Path(path).parent / declared)
+        if digest is not None and not Path(declared).is_file():  # the geometry file moved: its content decides
+            if digest != geo.content_hash():
+                raise ConfigError(f"{path} is a calibration for the geometry in {declared}, which is not there, and "
+                                  f"{used_for} ({geo.name!r}) is another build (its content differs): give the "
+                                  "calibration of this build, or calibrate it")  # fmt: skip
+            declared = None
+    if declared is not None:
         try:
             other = load_geometry(declared)
         except ValueError as exc:
             raise CalibrationError(f"{path}: its geometry {declared!r} cannot be loaded ({exc})") from None
+        if digest is not None and other.content_hash() != digest:
+            raise ConfigError(f"{declared} has changed since {path} was calibrated for it: calibrate the build again "
+                              "(stewart-gym calibrate), or restore the geometry file")  # fmt: skip
         if other != geo:
             raise ConfigError(f"{path} is a calibration for geometry {other.name!r}, but {used_for} is for "
                               f"{geo.name!r}: calibrate this build (stewart-gym calibrate --geometry …), or give "

@@ -12,8 +12,10 @@ with its ``[hardware]`` table (port, protocol, baud rate) so that ``deploy
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -82,10 +84,21 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
     return TrimResult(cal, presses, unknown)
 
 
-def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any], geometry: str | None = None) -> str:
-    """The calibration file: the geometry it is for, the calibration and a ``[hardware]`` table with the entries
-    that are set."""
-    text = (f"geometry = {json.dumps(str(geometry))}\n" if geometry else "") + cal.to_toml(geometry)
+def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any], geometry: str | None = None,
+                     folder: str | Path = ".") -> str:  # fmt: skip
+    """The calibration file, to be written into ``folder``: the geometry it is for, the calibration and a
+    ``[hardware]`` table with the entries that are set. A geometry file is named by its path from ``folder``
+    (so that the pair can move together) with ``geometry_sha256``, its content's hash (so that the file can move
+    alone, and a changed one is noticed)."""
+    from stewart_gym.presets import PRESETS, load_geometry
+
+    head = ""
+    if geometry and geometry not in PRESETS:
+        where = os.path.relpath(Path(geometry).resolve(), Path(folder).resolve())
+        head = f"geometry = {json.dumps(where)}\ngeometry_sha256 = \"{load_geometry(geometry).content_hash()}\"\n"
+    elif geometry:
+        head = f"geometry = {json.dumps(str(geometry))}\n"
+    text = head + cal.to_toml(geometry)
     table = {k: v for k, v in hardware.items() if v is not None}
     if table:
         text += "\n[hardware]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in sorted(table.items()))

@@ -1,0 +1,78 @@
+"""Progress of long runs: a line at least every 10 s where the output is not a terminal (a pipe, a log file), with
+what is done of the total and the time left; and the commands that run long print it before their result."""
+
+from __future__ import annotations
+
+import io
+import subprocess
+import sys
+
+import pytest
+
+from stewart_gym.progress import Progress, duration
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def test_lines_come_every_interval_with_done_total_and_time_left() -> None:
+    clock, out = Clock(), io.StringIO()
+    progress = Progress(200, "episodes", "evaluate", stream=out, interval_s=10.0, clock=clock)
+    for _ in range(39):  # 19.5 episodes in 9.75 s: no line yet
+        clock.now += 0.25
+        progress.advance(0.5)
+    assert out.getvalue() == ""
+    clock.now += 0.25
+    progress.advance(0.5)  # 20 episodes in 10 s
+    assert out.getvalue() == "evaluate: 20/200 episodes (10 %), 0:10 elapsed, about 1:30 left\n"
+    clock.now += 5.0
+    progress.advance(10)
+    assert out.getvalue().count("\n") == 1  # not before another 10 s
+    clock.now += 5.0
+    progress.advance(0.5)
+    assert out.getvalue().splitlines()[-1] == "evaluate: 30/200 episodes (15 %), 0:20 elapsed, about 1:51 left"
+    progress.stopped("--max-minutes 1 reached")
+    assert out.getvalue().splitlines()[-1] == "evaluate: stopped at 30/200 episodes: --max-minutes 1 reached"
+
+
+def test_durations_read_as_clock_times() -> None:
+    assert [duration(s) for s in (0, 9.6, 61, 3599, 3723)] == ["0:00", "0:10", "1:01", "59:59", "1:02:03"]
+    with pytest.raises(ValueError, match="positive"):
+        Progress(0, "steps", "train")
+
+
+@pytest.mark.slow
+def test_a_piped_evaluate_of_200_episodes_prints_progress_before_its_result() -> None:
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--policy", "pid", "--episodes", "200"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:]
+    lines = proc.stdout.splitlines()
+    progress = [i for i, line in enumerate(lines) if line.startswith("evaluate: ") and "/200 episodes (" in line]
+    result = next(i for i, line in enumerate(lines) if line.startswith("success rate"))
+    assert progress and max(progress) < result, lines[:10]
+    assert all("elapsed, about " in lines[i] and lines[i].endswith(" left") for i in progress)
+
+
+def test_train_stopped_by_max_minutes_says_so(tmp_path, capfd: pytest.CaptureFixture) -> None:
+    """``train --max-minutes``: the run ends early, keeps its model, and one ``note:`` line says it stopped and at
+    how many of the planned steps; metrics.json records why."""
+    import json
+
+    from stewart_gym.cli import main
+
+    hp = tmp_path / "hp.yml"
+    hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 1000000\n  policy: MlpPolicy\n"
+                  "  n_steps: 64\n  batch_size: 64\n  n_epochs: 1\n  policy_kwargs: {net_arch: [8]}\n")  # fmt: skip
+    run = tmp_path / "run"
+    code = main(["train", "--hyperparams", str(hp), "--run-dir", str(run), "--max-minutes", "0.05",
+                 "--eval-freq", "100000", "--no-tensorboard"])  # fmt: skip
+    err = capfd.readouterr().err
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert code == 0 and metrics["stopped"] == "max_wall_s" and 0 < metrics["timesteps"] < 1_000_000
+    assert f"note: stopped by --max-minutes 0.05: {metrics['timesteps']:,} steps trained (1,000,000 planned)" in err
+    assert (run / "model.zip").exists()
