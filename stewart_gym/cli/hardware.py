@@ -209,7 +209,7 @@ def register(sub: Any) -> None:
                         "the reference servos' own speed)")  # fmt: skip
     p.add_argument("--trajectory", choices=TRAJECTORIES,
                    help="moving target of a track policy (default: the one it was trained on)")  # fmt: skip
-    p.add_argument("--log", help="CSV log (default deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
+    p.add_argument("--log", help="CSV log (default out/deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")
     p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="simulated plant's seed (--sensor sim)")
     p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")

@@ -37,7 +37,7 @@ from stewart_gym.hardware.serial_controllers import (
     open_controller,
 )
 
-__all__ = ["DeployOptions", "DeploySetup", "load_calibration", "new_log_name", "port_settings"]
+__all__ = ["LOG_FOLDER", "DeployOptions", "DeploySetup", "load_calibration", "new_log_name", "port_settings"]
 
 #: Line speeds a serial port can be given, baud.
 BAUD_RANGE = (300, 4_000_000)
@@ -104,6 +104,10 @@ def port_settings(port: str | None, protocol: str | None, baudrate: int | None,
     if not port:
         raise ConfigError("no serial port: give --port, or a calibration file with [hardware] port")
     return str(port), protocol or hw.get("protocol", "maestro"), baudrate or hw.get("baudrate")
+
+
+#: Where a deploy run's log goes unless ``--log`` says (a folder that git ignores in a checkout).
+LOG_FOLDER = "out"
 
 
 def new_log_name(folder: str | Path = ".") -> str:
@@ -193,8 +197,9 @@ class DeploySetup:
         self.task = load_task(ENV_IDS[env_id][0], **task_kwargs)
         if options.trajectory and not self.task.moving_target:
             raise ConfigError(f"--trajectory needs a track policy; this one balances ({env_id})")
-        self.log = options.log or new_log_name()
+        self.log = options.log or new_log_name(LOG_FOLDER)
         output_file(self.log, suffixes=(".csv",), overwrite=options.overwrite)
+        Path(self.log).parent.mkdir(parents=True, exist_ok=True)
         self.mapper = ActionMapper(policy.geometry, self.calibration, policy.action_mode, max_tilt=policy.max_tilt)
         self.config = DeployConfig(rate_hz=options.rate_hz, duration_s=options.duration_s,
                                    watchdog_s=options.watchdog_s,

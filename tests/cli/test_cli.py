@@ -816,7 +816,7 @@ def test_deploy_lqr_pid_drives_the_servos_within_their_limits(device: FakeDevice
 @pytest.mark.slow
 def test_deploy_never_overwrites_a_log(device: FakeDevice, tmp_path: Path) -> None:
     proc, _ = deploy(device, "--duration", "0.2", cwd=tmp_path)
-    logs = list(tmp_path.glob("deploy_log_*.csv"))
+    logs = list((tmp_path / "out").glob("deploy_log_*.csv"))
     assert proc.returncode == 0 and len(logs) == 1, proc.stderr
     proc, data = deploy(device, "--duration", "0.2", "--log", str(logs[0]), cwd=tmp_path)
     assert proc.returncode == 1 and "--overwrite" in proc.stderr and data == b""  # refused before the port opened
