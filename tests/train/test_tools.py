@@ -239,10 +239,9 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     page = (tmp_path / "r.md").read_text()
     assert "paired: row minus row on the same 4 seeds" in page
-    # the tables where train/tools/results_intro.md marks them: after the lead, before the controllers and the findings
+    # the tables where train/tools/results_intro.md marks them: after what the rows are and how to read them
     assert "<!-- tables -->" not in page
-    assert page.index("## The tables") < page.index("paired: row minus row") < page.index("## The controllers") \
-        < page.index("## Findings")
+    assert page.index("## The controllers") < page.index("## Reading the tables") < page.index("paired: row minus row")
     line = next(x for x in page.splitlines() if x.startswith("| LQR → PID − PID + Kalman |"))
     rms, final, settle = (c.strip() for c in line.split("|")[2:5])
     assert rms.endswith("tie") and final.endswith("tie") and settle.endswith("better")
