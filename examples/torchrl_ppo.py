@@ -10,6 +10,7 @@ Needs ``pip install torchrl`` beside ``stewart_gym[train]``.
 from __future__ import annotations
 
 import argparse
+import logging
 
 import torch
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -36,6 +37,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes at the end")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # its set-up notes; this script prints its own lines
     torch.manual_seed(args.seed)
     # docs: setup start (docs/src/libraries.md shows the lines to the end mark; a test keeps them equal)
     env = GymEnv("StewartBallBalance-v0", estimator="kalman")  # any env keyword, as gym.make takes it
@@ -54,7 +56,8 @@ def main(argv: list[str] | None = None) -> None:
     loss = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.0)
     optimiser = torch.optim.Adam(loss.parameters(), lr=1e-3)
     buffer = ReplayBuffer(storage=LazyTensorStorage(args.batch), sampler=SamplerWithoutReplacement())
-    collector = Collector(env, actor, frames_per_batch=args.batch, total_frames=args.frames)
+    collector = Collector(env, actor, frames_per_batch=args.batch, total_frames=args.frames,
+                          auto_register_policy_transforms=True)
     # docs: setup end
 
     frames = 0

@@ -148,7 +148,9 @@ def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_li
     cfg["hyperparams"]["residual"]["design"]["pid"]["dither"] = 0.1  # 5.7° of the build's 10°
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     hyperparams = tmp_path / "hp.yml"
-    hyperparams.write_text(yaml.safe_dump({"StewartBallBalance-v0": {**cfg["hyperparams"], "n_timesteps": 256}}))
+    section = {k: v for k, v in cfg["hyperparams"].items() if k not in ("residual", "eval_freq", "eval_episodes")}
+    section["env_wrapper"] = {"stewart_gym.sb3_models.ResidualAction": {"residual": cfg["hyperparams"]["residual"]}}
+    hyperparams.write_text(yaml.safe_dump({"StewartBallBalance-v0": {**section, "n_timesteps": 256}}))  # a recipe
     for args in (["evaluate", "--policy", str(run), "--episodes", "1"],
                  ["export", "--policy", str(run), "--out", str(tmp_path / "bundle")],
                  ["train", "--hyperparams", str(hyperparams), "--run-dir", str(tmp_path / "new"), "--no-progress"]):
