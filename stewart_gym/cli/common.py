@@ -134,7 +134,9 @@ def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
 def stop_signals() -> Iterator[None]:
     """While in the block, SIGTERM and SIGHUP raise :class:`~stewart_gym.errors.Stopped` (a
     ``KeyboardInterrupt``) in the main thread, as Ctrl-C raises ``KeyboardInterrupt``: whatever cleans up after
-    Ctrl-C (deploy's drive home) cleans up after them too. The handlers before are restored after. Outside the
+    Ctrl-C (deploy's drive home) cleans up after them too. Ctrl-C (SIGINT) raises ``KeyboardInterrupt`` even
+    where the process was started with it ignored (a background job of a script, a parent that ignores it):
+    a signal to stop is never lost while the servos move. The handlers before are restored after. Outside the
     main thread (where Python allows no handlers) it does nothing."""
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -144,6 +146,7 @@ def stop_signals() -> Iterator[None]:
         raise Stopped(signum, signal.Signals(signum).name)
 
     before = {num: signal.signal(num, raise_stopped) for num in STOP_SIGNALS.values()}
+    before[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield
     finally:

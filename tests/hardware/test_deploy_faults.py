@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -40,10 +41,10 @@ def covers(*keys: str):
     return lambda test: test
 
 
-def start(device: FakeDevice, *args: str, cwd: Path) -> subprocess.Popen:
-    """``stewart-gym deploy --port DEVICE ARGS`` in its own process."""
+def start(device: FakeDevice, *args: str, cwd: Path, preexec_fn: Callable[[], object] | None = None) -> subprocess.Popen:
+    """``stewart-gym deploy --port DEVICE ARGS`` in its own process (``preexec_fn`` runs in it before)."""
     return subprocess.Popen([SCRIPT, "deploy", "--port", device.path, *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=cwd)  # fmt: skip
+                            stderr=subprocess.PIPE, text=True, cwd=cwd, preexec_fn=preexec_fn)  # fmt: skip
 
 
 def run(device: FakeDevice, *args: str, cwd: Path, board: Board | None) -> tuple[int, str, str, list[dict]]:
@@ -101,6 +102,24 @@ def test_a_stop_signal_mid_run_drives_home_and_exits_128_plus_its_number(sig: in
     assert "servos homed: confirmed by the board" in out
     assert np.allclose(board.frames[-1], np.round(HOME * 4) / 4), board.frames[-1]  # the last frame received: home
     assert len(board.frames) > 40
+
+
+@covers("signal")
+def test_ctrl_c_drives_home_even_where_the_process_was_started_with_it_ignored(device: FakeDevice,
+                                                                              tmp_path: Path) -> None:  # fmt: skip
+    """A background job of a script starts with SIGINT ignored; deploy takes it all the same, homes and exits
+    130 (a stop signal is never lost while the servos move)."""
+    board = Board(device)
+    proc = start(device, "--log", str(tmp_path / "l.csv"), cwd=tmp_path,
+                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
+    deadline = time.monotonic() + HANG_S
+    while len(board.frames) < 40 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=HANG_S)
+    board.stop()
+    assert proc.returncode == 130 and "servos homed: confirmed by the board" in out, out + err
+    assert np.allclose(board.frames[-1], np.round(HOME * 4) / 4), board.frames[-1]
 
 
 @covers("startup_signal")
