@@ -59,3 +59,26 @@ def test_the_reference_documents_every_option_of(command: str) -> None:
                 (name is None or re.match(rf"\| `{re.escape(name)}[ ,`]", row))]  # fmt: skip
         assert rows, (command, action.option_strings or action.dest)
         assert all(row.rstrip().split("|")[-2].strip() for row in rows), (command, rows)
+
+
+def test_the_hardware_pages_calibration_example_is_what_calibrate_writes(tmp_path: Path) -> None:
+    """The example on the Hardware page has the keys ``calibrate`` writes, in its order, and loads (its one
+    servo table repeated for the six)."""
+    from stewart_gym.calibration import ServoCalibration
+    from stewart_gym.hardware.trim import calibration_toml
+    from stewart_gym.tomlio import tomllib  # tomli on Python 3.10
+
+    page = (SRC / "hardware.md").read_text()
+    block = page.split("**Calibration file** (TOML)", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    written = calibration_toml(ServoCalibration.default("servo-hexapod"), {"port": "/dev/ttyACM0",
+                               "protocol": "maestro", "baudrate": 115200}, geometry="servo-hexapod")  # fmt: skip
+
+    def keys(text: str) -> list[str]:
+        return [line.split("=")[0].strip() for line in text.splitlines() if "=" in line and not line.startswith("#")]
+
+    servo = block[block.index("[[servo]]"):block.index("# … five more")]
+    assert keys(block) == keys(written[: written.index("[[servo]]")]) + keys(servo) + ["baudrate", "port", "protocol"]
+    assert keys(servo) == keys(written[written.index("[[servo]]"):].split("\n\n")[0])
+    six = block.replace(servo, "".join(servo.replace("channel = 0", f"channel = {i}") for i in range(6)))
+    calibration = ServoCalibration.from_dict(tomllib.loads(six), "servo-hexapod")
+    assert calibration.neutral_us[0] == 1512.0 and calibration.min_us[0] == 1112.0
