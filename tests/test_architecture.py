@@ -101,6 +101,49 @@ def test_the_manual_builds_strictly(tmp_path: Path) -> None:
     envs = (tmp_path / "site" / "environments" / "index.html").read_text()
     assert "{{" not in envs and "StewartBallDisturbance-v0" in envs and "previous action" in envs
     assert "inverse_kinematics" in (tmp_path / "site" / "api" / "kinematics" / "index.html").read_text()
+    assert not broken_links(tmp_path / "site")
+
+
+def broken_links(site: Path) -> list[str]:
+    """Every link and image of the built site that points inside it to a page, file or anchor that is not there
+    (a link checker over the HTML, anchors included)."""
+    import html.parser
+    from urllib.parse import unquote, urlsplit
+
+    class Collect(html.parser.HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.links: list[str] = []
+            self.ids: set[str] = set()
+
+        def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+            a = dict(attrs)
+            self.ids.update(v for k, v in attrs if k in ("id", "name") and v)
+            for key in ("href", "src"):
+                if a.get(key) and (tag != "link" or a.get("rel") == "stylesheet"):
+                    self.links.append(a[key])
+
+    pages: dict[Path, Collect] = {}
+    for page in site.rglob("*.html"):
+        parsed = Collect()
+        parsed.feed(page.read_text())
+        pages[page.resolve()] = parsed
+    broken = []
+    for page, parsed in pages.items():
+        for link in parsed.links:
+            parts = urlsplit(link)
+            if parts.scheme or parts.netloc or link.startswith(("mailto:", "javascript:", "data:")):
+                continue  # outside the site
+            path = unquote(parts.path)
+            base = site.resolve() if path.startswith("/") else page.parent  # the 404 page links from the root
+            target = (base / path.lstrip("/")).resolve() if path else page
+            if target.is_dir():
+                target = target / "index.html"
+            if not target.exists():
+                broken.append(f"{page.relative_to(site.resolve())}: {link}")
+            elif parts.fragment and target in pages and unquote(parts.fragment) not in pages[target].ids:
+                broken.append(f"{page.relative_to(site.resolve())}: {link} (no such anchor)")
+    return broken
 
 
 def test_nothing_cites_documents_that_are_not_shipped() -> None:
@@ -120,3 +163,14 @@ def test_readme_is_a_front_door() -> None:
     assert readme.count("```python") == 1 and readme.count("<!-- headline:start -->") == 1
     links = re.findall(r"\]\((docs/src/[^)#]+)", readme)
     assert len(links) >= 10 and all((ROOT / link).is_file() for link in links), links
+
+
+def test_the_link_checker_finds_a_missing_page_and_a_missing_anchor(tmp_path: Path) -> None:
+    (tmp_path / "a").mkdir()
+    (tmp_path / "a" / "index.html").write_text('<h2 id="here">x</h2><a href="../b/">b</a><a href="#here">h</a>'
+                                               '<a href="../c/">c</a><a href="../b/#gone">g</a>'
+                                               '<a href="https://example.org/x">e</a>')  # fmt: skip
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "index.html").write_text('<p id="there">y</p><img src="../a/pic.png">')
+    assert sorted(broken_links(tmp_path)) == ["a/index.html: ../b/#gone (no such anchor)", "a/index.html: ../c/",
+                                              "b/index.html: ../a/pic.png"]  # fmt: skip
