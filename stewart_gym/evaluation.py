@@ -383,8 +383,23 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     plt.close(fig)
 
 
-def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, every: int = 2) -> None:
-    """Write every ``every``-th frame as an animated GIF at ``fps``."""
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, every: int = 2, dt: float | None = None,
+              caption: str = "") -> None:  # fmt: skip
+    """Write every ``every``-th frame as an animated GIF at ``fps``; with ``dt`` (s between frames) each frame
+    shows its time, after ``caption`` (what the target is, for one)."""
     import imageio.v3 as iio
 
-    iio.imwrite(path, np.stack(frames[::every]), duration=1000 / fps, loop=0)
+    kept = frames[::every]
+    if dt is not None:
+        from PIL import Image, ImageDraw
+
+        stamped = []
+        for k, frame in enumerate(kept):
+            image = Image.fromarray(np.ascontiguousarray(frame[..., :3]))
+            text = f"t = {k * every * dt:4.1f} s" + (f"   {caption}" if caption else "")
+            draw = ImageDraw.Draw(image)
+            draw.rectangle((4, 4, 8 + 6 * len(text), 18), fill=(255, 255, 255))
+            draw.text((6, 5), text, fill=(0, 0, 0))
+            stamped.append(np.asarray(image))
+        kept = stamped
+    iio.imwrite(path, np.stack(kept), duration=1000 / fps, loop=0)

@@ -231,7 +231,8 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
     finally:
         env.close()
     if gif:
-        write_gif(log.frames, gif)
+        target = "target: the plate's centre" if not env.unwrapped.task.moving_target else "target: moving"
+        write_gif(log.frames, gif, dt=log.dt, caption=target)
     if plot:
         plot_episode(log, plot, title)
 
