@@ -61,14 +61,9 @@ train-camera: $(STAMP)
 
 # The residual PPO policies as shipped: for balance, 6 learned corrections of the LQR -> PID's approach, for
 # track 6 corrections of the LQR -> PID's catching up with the moving target (seeds 0-5, 300k steps each), each 6
-# averaged into one policy (`stewart-gym ensemble`). The 12 trainings run TRAIN_JOBS at a time (2 by default), each
-# stepping its envs in its own process: a core each. bench/bench_train.py: two side by side train 3.1 times the
-# steps per second of one run in worker processes, as they ran before (about 80 minutes then; 36 minutes of training
-# now, 16.9 for the balance networks and 19.5 for the track ones, 2026-11-26/27). On one machine a run depends
-# only on its seed, so the networks are the same at any TRAIN_JOBS. The shipped track networks were trained by
-# this target here on 2026-11-26 (351-423 s each, two side by side); seed 0 trained again alone gives the same
-# weights and normalisation, bit for bit. The shipped balance networks were trained on another machine: here
-# they come out other networks (up to 0.19 in a weight) that settle as fast (docs: Control, "a fifth draw").
+# averaged into one policy (`stewart-gym ensemble`). The 12 trainings run TRAIN_JOBS at a time (2 by default), a
+# core each: about 40 minutes on 2 cores. On one machine a run depends only on its seed, so the networks are the
+# same at any TRAIN_JOBS; another machine's torch and BLAS give other networks that settle as fast.
 TRAIN_JOBS ?= 2
 RESIDUAL_SEEDS := 0 1 2 3 4 5
 train-residual: $(STAMP)
