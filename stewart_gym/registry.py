@@ -217,6 +217,11 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
     if not model_zip.is_file():
         raise PolicyError(f"policy {spec!r}: no model at {model_zip}")
     cfg = _run_config(model_zip)
+    if cfg is None and (model_zip.with_suffix("") / "config.yml").is_file():  # RL Zoo's layout: <env id>.zip
+        raise PolicyError(f"policy {spec!r}: {model_zip} is an RL Zoo model (its statistics and settings are in "
+                          f"{model_zip.with_suffix('')}/, which stewart-gym does not read): evaluate it with "
+                          "python -m rl_zoo3.enjoy, or train with stewart-gym train for evaluate, export and "
+                          "deploy")  # fmt: skip
     if cfg is None:
         return PolicySource(spec, "sb3", model_zip, DEFAULT_ENV, {})  # action mode inferred when loaded
     options, hp = cfg.get("options") or {}, cfg.get("hyperparams") or {}

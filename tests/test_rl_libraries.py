@@ -114,6 +114,11 @@ def test_rl_zoo_trains_a_shipped_recipe(recipe: str, tmp_path: Path) -> None:
     assert (run / "StewartBallBalance-v0.zip").exists() and (run / "StewartBallBalance-v0" / "vecnormalize.pkl").exists()
     model = PPO.load(run / "StewartBallBalance-v0.zip", device="cpu")
     assert model.num_timesteps >= 4096 and model.observation_space.shape == (12,)
+    # stewart-gym does not read RL Zoo's settings, and says so rather than run the model without them
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--policy",
+                           str(run / "StewartBallBalance-v0.zip"), "--episodes", "1"],
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 1 and "is an RL Zoo model" in proc.stderr and "rl_zoo3.enjoy" in proc.stderr, proc.stderr
 
 
 def test_torchrl_gym_env_passes_its_spec_check_with_the_info_entries() -> None:
