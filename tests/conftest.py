@@ -444,3 +444,32 @@ def load_example(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def ball_presets() -> list[str]:
+    """The presets that can carry the ball (a plate big enough): the ones the LQR is designed for."""
+    from stewart_gym.envs.ball_env import check_ball_geometry
+    from stewart_gym.errors import ConfigError
+
+    names = []
+    for name in preset_names():
+        try:
+            check_ball_geometry(name)
+            names.append(name)
+        except ConfigError:
+            pass
+    return names
+
+
+def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
+    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
+    obs = np.zeros(12, dtype=np.float32)
+    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
+    return np.tile(obs, (rows, 1)) if rows else obs
+
+
+def circle_velocities(periods: int, dt: float = 0.02, radius: float = 0.06, period_s: float = 8.0) -> np.ndarray:
+    """The circle target's velocity (m/s) at each control period (as :class:`~stewart_gym.envs.targets.Circle`)."""
+    w = 2 * math.pi / period_s
+    t = np.arange(periods) * dt
+    return np.stack([-radius * w * np.sin(w * t), radius * w * np.cos(w * t)], axis=-1)

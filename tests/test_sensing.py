@@ -17,7 +17,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from stewart_gym.control import LQRController
-from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import (
     BallKalmanFilter,
@@ -382,21 +381,6 @@ def test_the_observer_refuses_an_unknown_estimator() -> None:
         BallObserver(2, estimator="particle")
     with pytest.raises(Exception, match="estimator"):
         gym.make("StewartBallBalance-v0", estimator="particle")
-
-
-def ball_presets() -> list[str]:
-    """The presets that can carry the ball (a plate big enough): the ones the LQR is designed for."""
-    from stewart_gym.envs.ball_env import check_ball_geometry
-    from stewart_gym.errors import ConfigError
-
-    names = []
-    for name in preset_names():
-        try:
-            check_ball_geometry(name)
-            names.append(name)
-        except ConfigError:
-            pass
-    return names
 
 
 def test_the_lqr_bundle_acts_as_the_lqr_and_records_the_kalman_observer(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
+from conftest import lqr_obs
 
 from stewart_gym.control import LQRController
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
@@ -20,13 +21,6 @@ from stewart_gym.sensing import ObservationBuilder
 
 #: The run folder of one of the shipped balance residual's six networks (seed 0)
 SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[2] / "stewart_gym/policies/balance_residual/members/0"
-
-
-def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
-    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
-    obs = np.zeros(12, dtype=np.float32)
-    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
-    return np.tile(obs, (rows, 1)) if rows else obs
 
 
 def moving(ball_mm: float, mm_s: float) -> np.ndarray:

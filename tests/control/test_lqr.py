@@ -9,40 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import ball_presets, circle_velocities, lqr_obs
 
 from stewart_gym.control import LQRController, LQRDesign, design_lqr, lqr_model
-from stewart_gym.presets import preset_names
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import ObservationBuilder
-
-
-def ball_presets() -> list[str]:
-    """The presets that can carry the ball (a plate big enough): the ones the LQR is designed for."""
-    from stewart_gym.envs.ball_env import check_ball_geometry
-    from stewart_gym.errors import ConfigError
-
-    names = []
-    for name in preset_names():
-        try:
-            check_ball_geometry(name)
-            names.append(name)
-        except ConfigError:
-            pass
-    return names
-
-
-def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
-    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
-    obs = np.zeros(12, dtype=np.float32)
-    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
-    return np.tile(obs, (rows, 1)) if rows else obs
-
-
-def _circle_velocities(periods: int, dt: float = 0.02, radius: float = 0.06, period_s: float = 8.0) -> np.ndarray:
-    """The circle target's velocity (m/s) at each control period (as :class:`~stewart_gym.envs.targets.Circle`)."""
-    w = 2 * math.pi / period_s
-    t = np.arange(periods) * dt
-    return np.stack([-radius * w * np.sin(w * t), radius * w * np.cos(w * t)], axis=-1)
 
 
 @pytest.mark.parametrize("name", ball_presets())
@@ -86,7 +57,7 @@ def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_th
     g = led.gains
     unled = LQRController(replace(g, feed_lead=0.0))
     v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
-    vel = _circle_velocities(150, g.dt)
+    vel = circle_velocities(150, g.dt)
     steady = round(TargetFeed.STEADY_S / g.dt)
     per_feed = 1.0 + g.k[2] + g.k[3]  # how much of the feed reaches the command (sin(tilt))
     for k, v in enumerate(vel):

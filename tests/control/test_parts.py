@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from conftest import circle_velocities, lqr_obs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -33,20 +34,6 @@ def moving(ball_mm: float, mm_s: float) -> np.ndarray:
     return obs
 
 
-def _circle_velocities(periods: int, dt: float = 0.02, radius: float = 0.06, period_s: float = 8.0) -> np.ndarray:
-    """The circle target's velocity (m/s) at each control period (as :class:`~stewart_gym.envs.targets.Circle`)."""
-    w = 2 * math.pi / period_s
-    t = np.arange(periods) * dt
-    return np.stack([-radius * w * np.sin(w * t), radius * w * np.cos(w * t)], axis=-1)
-
-
-def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
-    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
-    obs = np.zeros(12, dtype=np.float32)
-    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
-    return np.tile(obs, (rows, 1)) if rows else obs
-
-
 def test_the_feed_leads_the_targets_acceleration_on_a_smooth_path_once_it_has_held_steady() -> None:
     """On the circle the feed is the backward difference (the acceleration half a period ago) until the
     velocity's second difference has held steady for 1.5 s; from then on it is the acceleration ``lead`` s
@@ -55,7 +42,7 @@ def test_the_feed_leads_the_targets_acceleration_on_a_smooth_path_once_it_has_he
     from stewart_gym.control import TargetFeed
 
     dt, lead, w, radius = 0.02, 0.06, 2 * math.pi / 8.0, 0.06
-    vel = _circle_velocities(200, dt)
+    vel = circle_velocities(200, dt)
     feed, plain = TargetFeed(dt, lead), TargetFeed(dt)
     steady = round(TargetFeed.STEADY_S / dt)
     for k, v in enumerate(vel):
@@ -108,7 +95,7 @@ def test_a_feed_with_another_divisor_is_the_same_feed_in_other_units(scale: floa
     from stewart_gym.control import TargetFeed
 
     dt = 0.02
-    vel = _circle_velocities(120, dt, radius, period_s)
+    vel = circle_velocities(120, dt, radius, period_s)
     plain, other = TargetFeed(dt, lead), TargetFeed(dt, lead, divisor=dt * scale)
     for v in vel:
         np.testing.assert_allclose(other(v), plain(v) / scale, rtol=1e-9, atol=1e-15)
@@ -121,7 +108,7 @@ def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_si
     from stewart_gym.control import TargetFeed
 
     dt, lead = 0.02, 0.06
-    vel = _circle_velocities(300, dt)
+    vel = circle_velocities(300, dt)
     batch, first, second = TargetFeed(dt, lead), TargetFeed(dt, lead), TargetFeed(dt, lead)
     restart = 120
     for k, v in enumerate(vel):

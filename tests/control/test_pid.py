@@ -10,23 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import circle_velocities, lqr_obs
 
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import ObservationBuilder
-
-
-def lqr_obs(ball_mm: tuple[float, float], rows: int = 0) -> np.ndarray:
-    """An observation with the ball at rest ``ball_mm`` from a target at the centre, the plate level."""
-    obs = np.zeros(12, dtype=np.float32)
-    obs[0:2] = np.asarray(ball_mm) / 150.0  # positions in plate half-widths (150 mm)
-    return np.tile(obs, (rows, 1)) if rows else obs
-
-
-def _circle_velocities(periods: int, dt: float = 0.02, radius: float = 0.06, period_s: float = 8.0) -> np.ndarray:
-    """The circle target's velocity (m/s) at each control period (as :class:`~stewart_gym.envs.targets.Circle`)."""
-    w = 2 * math.pi / period_s
-    t = np.arange(periods) * dt
-    return np.stack([-radius * w * np.sin(w * t), radius * w * np.cos(w * t)], axis=-1)
 
 
 def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_of_each_episode() -> None:
@@ -92,7 +79,7 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("pid-kalman")
 
     v_scale = ObservationBuilder(2, (0.15, 0.15)).velocity_scale[0]
-    for v in _circle_velocities(120):
+    for v in circle_velocities(120):
         obs = lqr_obs((1.0, -1.0))
         obs[6:8] = v / v_scale
         np.testing.assert_allclose(bundle(obs), direct(obs), atol=1e-6)

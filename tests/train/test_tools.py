@@ -11,14 +11,6 @@ from typing import Any
 
 import pytest
 
-SMOKE = {
-    "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
-    "sac": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
-    "td3": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1,
-            "noise_type": "normal", "noise_std": 0.1},
-    "tqc": {"learning_starts": 100, "batch_size": 64, "buffer_size": 2000, "train_freq": 4, "gradient_steps": 1},
-}
-
 ROOT = Path(__file__).resolve().parents[2]
 
 
