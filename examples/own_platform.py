@@ -8,6 +8,7 @@ on it in simulation. Writes the file to ``out/my_platform.toml``; pass it as ``-
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -16,6 +17,7 @@ import numpy as np
 import stewart_gym  # noqa: F401  (registers the env ids)
 from stewart_gym import ServoCalibration, inverse_kinematics, load_geometry
 from stewart_gym.control import classical_controller, shipped_design
+from stewart_gym.errors import ConfigError
 
 TOML = """name = "my-platform"
 length_unit = "mm"
@@ -49,7 +51,10 @@ def main(argv: list[str] | None = None) -> None:
     path = Path(args.out)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(TOML.format(**vars(args)))
-    geometry = load_geometry(path)
+    try:
+        geometry = load_geometry(path)
+    except ConfigError as exc:  # a measurement that describes no platform: say which, in one line
+        sys.exit(f"error: {exc}")
     print(f"{path}: home height {1e3 * geometry.home_height:.2f} mm")
 
     calibration = ServoCalibration.default(geometry)
