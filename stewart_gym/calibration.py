@@ -31,13 +31,23 @@ from stewart_gym.kinematics import pulses_one
 from stewart_gym.presets import load_geometry
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
+__all__ = ["HARDWARE_FIELDS", "LINEAR_FIELDS", "LINEAR_SERVO_FIELDS", "ROTARY_FIELDS", "ROTARY_SERVO_FIELDS",
+           "DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
            "hardware_settings"]
 
 #: 400 µs per 45° (seed 000).
 DEFAULT_US_PER_RAD = 1600.0 / math.pi
 #: Odd servos mounted mirrored (seed 000, eqs 13/14).
 DEFAULT_DIRECTIONS = (1, -1, 1, -1, 1, -1)
+
+#: The keys of a calibration file (TOML): top level and each ``[[servo]]`` table, for rotary servos and for
+#: linear actuators, and its ``[hardware]`` table.
+ROTARY_FIELDS = ("geometry", "geometry_sha256", "actuator", "neutral_us", "us_per_rad", "us_per_degree", "servo",
+                 "hardware")  # fmt: skip
+ROTARY_SERVO_FIELDS = ("channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg")
+LINEAR_FIELDS = ("geometry", "geometry_sha256", "actuator", "retracted_us", "extended_us", "servo", "hardware")
+LINEAR_SERVO_FIELDS = ("channel", "trim_us", "min_us", "max_us", "home_length_mm")
+HARDWARE_FIELDS = ("port", "protocol", "baudrate")
 
 OutOfRange = Literal["raise", "clip", "nan"]
 
@@ -195,10 +205,7 @@ class ServoCalibration:
             if geo is None:
                 raise CalibrationError("geometry: a linear-actuator calibration needs the geometry (its stroke)")
             return cls._linear_from_dict(data, geo, source)
-        known_top = {"geometry", "geometry_sha256", "actuator", "neutral_us", "us_per_rad", "us_per_degree", "servo",
-                     "hardware"}
-        known_servo = {"channel", "trim_us", "direction", "min_us", "max_us", "home_angle_deg"}
-        servos = _check_keys(data, known_top, known_servo, source)
+        servos = _check_keys(data, set(ROTARY_FIELDS), set(ROTARY_SERVO_FIELDS), source)
         if "us_per_rad" in data and "us_per_degree" in data:
             raise CalibrationError("us_per_rad: give us_per_rad or us_per_degree, not both")
         rate = _scalar("us_per_rad", data.get("us_per_rad", DEFAULT_US_PER_RAD))
@@ -237,9 +244,7 @@ class ServoCalibration:
         moved with the trim) and ``home_length_mm`` (default: the geometry's
         home leg length). ``[hardware]`` as for rotary servos.
         """
-        known_top = {"geometry", "geometry_sha256", "actuator", "retracted_us", "extended_us", "servo", "hardware"}
-        known_servo = {"channel", "trim_us", "min_us", "max_us", "home_length_mm"}
-        servos = _check_keys(data, known_top, known_servo, source)
+        servos = _check_keys(data, set(LINEAR_FIELDS), set(LINEAR_SERVO_FIELDS), source)
         retracted = _scalar("retracted_us", data.get("retracted_us", 1000.0))
         extended = _scalar("extended_us", data.get("extended_us", 2000.0))
         if not 0 < retracted < extended:
@@ -404,9 +409,9 @@ def _us(v: float) -> float:
 def hardware_settings(path: str | Path) -> dict[str, Any]:
     """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
     table = read_toml(path, CalibrationError, "calibration file").get("hardware", {})
-    unknown = sorted(set(table) - {"port", "protocol", "baudrate"})
+    unknown = sorted(set(table) - set(HARDWARE_FIELDS))
     if unknown:
-        raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: ['baudrate', 'port', 'protocol']")
+        raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: {sorted(HARDWARE_FIELDS)}")
     return dict(table)
 
 

@@ -37,6 +37,8 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
 __all__ = [
+    "GEOMETRY_FIELDS",
+    "SYMMETRIC_FIELDS",
     "GeometryError",
     "PlatformGeometry",
     "home_height_eq10",
@@ -49,6 +51,10 @@ __all__ = [
 HOME_HEIGHT_SPREAD_M = 1e-3
 #: Degrees: the centres of the three pairs of a ``[symmetric]`` description, in the presets' anchor order.
 SYMMETRIC_PAIR_CENTRES_DEG = (330.0, 90.0, 210.0)
+#: The keys of a geometry file (TOML), top level.
+GEOMETRY_FIELDS = ("name", "description", "length_unit", "angle_unit", "base_anchors", "platform_anchors",
+                   "rod_length", "home_height", "horn_length", "servo_beta", "servo_angle_range", "leg_length_range",
+                   "plate_size", "symmetric")  # fmt: skip
 SYMMETRIC_FIELDS = ("base_radius", "base_pair_angle", "platform_radius", "platform_pair_angle")
 #: m: no length of a build (an anchor's distance, a horn, a rod, the plate) may exceed this; a larger number is
 #: a unit mistake (metres given as millimetres) or nonsense, and would make every later figure NaN.
@@ -232,11 +238,7 @@ class PlatformGeometry:
         :data:`HOME_HEIGHT_SPREAD_M` apart (measured anchors agree far better). Raises :class:`GeometryError`
         naming the bad field.
         """
-        known = {
-            "name", "description", "length_unit", "angle_unit", "base_anchors", "platform_anchors",
-            "rod_length", "home_height", "horn_length", "servo_beta", "servo_angle_range", "leg_length_range",
-            "plate_size", "symmetric",
-        }  # fmt: skip
+        known = set(GEOMETRY_FIELDS)
         unknown = sorted(set(data) - known)
         if unknown:
             raise GeometryError(f"{source}: unknown field(s) {unknown}; known fields are {sorted(known)}")
@@ -325,8 +327,14 @@ class PlatformGeometry:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> PlatformGeometry:
-        """Load a geometry from a TOML file (see :meth:`from_dict` for the fields)."""
-        return cls.from_dict(read_toml(path, GeometryError, "geometry file"), source=str(path))
+        """Load a geometry from a TOML file (see :meth:`from_dict` for the fields); an error names the file."""
+        data = read_toml(path, GeometryError, "geometry file")
+        try:
+            return cls.from_dict(data, source=str(path))
+        except GeometryError as exc:
+            if str(path) in str(exc):
+                raise
+            raise GeometryError(f"{path}: {exc}") from None
 
     def content_hash(self) -> str:
         """SHA-256 (hex) of :meth:`to_toml`: the same for the same build however its file is written or named."""

@@ -210,6 +210,10 @@ def load_learned(path: str | Path) -> SB3Policy | EnsemblePolicy:
     return load_sb3(path)
 
 
+#: The keys of a ``residual`` hyperparameter (:func:`check_residual`).
+RESIDUAL_FIELDS = ("base", "scale", "fade_mm", "inner_mm", "release_mm", "dwell_s", "design")
+
+
 def check_residual(spec: Any, recorded: bool = False) -> dict[str, Any]:
     """A ``residual`` hyperparameter, checked: ``{base: NAME, scale: s, fade_mm: f, inner_mm: r, release_mm: q,
     dwell_s: t, design: {...}}`` with 0 < s ≤ 2, f ≥ 0 and r ≥ 0 (within r of the target the base acts alone and
@@ -223,8 +227,7 @@ def check_residual(spec: Any, recorded: bool = False) -> dict[str, Any]:
     its design whole as the run trained with it, so a field the design has gained since (a lead, a dwell) is off,
     its default, not the shipped design's: a later retune of the shipped controller leaves the run as it was
     trained. (A recorded spec without a design, from before runs recorded it, still takes the shipped one.)"""
-    keys = {"base", "scale", "fade_mm", "inner_mm", "release_mm", "dwell_s", "design"}
-    if not isinstance(spec, dict) or set(spec) - keys or spec.get("base") not in CLASSICAL:
+    if not isinstance(spec, dict) or set(spec) - set(RESIDUAL_FIELDS) or spec.get("base") not in CLASSICAL:
         raise ConfigError(f"residual must be {{base: {'|'.join(sorted(CLASSICAL))}, scale: S, fade_mm: F, inner_mm: R, "
                           f"release_mm: Q, dwell_s: T}}, got {spec!r}")  # fmt: skip
     scale = spec.get("scale", 0.5)

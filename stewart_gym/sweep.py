@@ -43,7 +43,7 @@ from typing import Any
 from stewart_gym.errors import ConfigError
 from stewart_gym.inputs import read_yaml
 
-__all__ = ["DOMAINS", "SweepSpec", "load_sweep", "rank_trials", "run_sweep", "summarise_configs"]
+__all__ = ["DOMAINS", "SPEC_KEYS", "SweepSpec", "load_sweep", "rank_trials", "run_sweep", "summarise_configs"]
 
 #: The range kinds of a ``search:`` entry.
 DOMAINS = ("choice", "grid", "uniform", "loguniform")
@@ -84,7 +84,8 @@ class SweepSpec:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-_SPEC_KEYS = {"env", "algo", "n_timesteps", "n_envs", "seeds", "geometry", "hyperparams", "search", "searcher",
+#: The keys of a sweep file (YAML) besides the algorithm's hyperparameters.
+SPEC_KEYS = {"env", "algo", "n_timesteps", "n_envs", "seeds", "geometry", "hyperparams", "search", "searcher",
               "scheduler", "metric", "num_samples", "max_concurrent", "grace_period", "eval_freq", "eval_episodes",
               "name"}  # fmt: skip
 
@@ -174,9 +175,9 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
     spec = SweepSpec(env=data["env"], algo=data["algo"], n_timesteps=_whole(data["n_timesteps"], "n_timesteps"),
                      name=str(data.get("name", path.stem)))  # fmt: skip
     known_hp = hyperparam_names(spec.algo)
-    unknown = sorted(k for k in data if k not in _SPEC_KEYS and k not in known_hp)
+    unknown = sorted(k for k in data if k not in SPEC_KEYS and k not in known_hp)
     if unknown:
-        raise ConfigError(f"{path}: unknown key(s) {unknown}; sweep keys: {sorted(_SPEC_KEYS)}; hyperparameters of "
+        raise ConfigError(f"{path}: unknown key(s) {unknown}; sweep keys: {sorted(SPEC_KEYS)}; hyperparameters of "
                           f"{spec.algo}: {sorted(known_hp)}")  # fmt: skip
     spec.n_envs = _whole(data.get("n_envs", 1), "n_envs")
     seeds = data.get("seeds", [0])

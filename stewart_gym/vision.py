@@ -30,7 +30,7 @@ import numpy as np
 from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers",
+__all__ = ["CAMERA_CONFIG_FIELDS", "MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers",
            "locate_ball", "marker_corners_mm", "read_image"]
 
 #: The most pixels an image file may declare (a 8K frame is 33 M): more is refused before it is decoded.
@@ -43,6 +43,12 @@ def _cv2() -> Any:
     except ImportError:  # pragma: no cover - depends on the install
         raise ConfigError("camera sensing needs OpenCV: pip install 'stewart_gym[camera]'") from None
     return cv2
+
+
+#: The tables of a camera config (TOML) and the keys of each.
+CAMERA_CONFIG_FIELDS = {"camera": ("source", "resolution", "fps", "fov_deg", "min_ball_px"),
+                        "markers": ("dictionary", "ids", "centres_mm", "size_mm"),
+                        "ball": ("hsv_low", "hsv_high", "radius_mm")}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -160,13 +166,12 @@ class CameraConfig:
             radius_mm = 12.7
         """
         data = read_toml(path, ConfigError, "camera config")
-        unknown = sorted(set(data) - {"camera", "markers", "ball"})
+        unknown = sorted(set(data) - set(CAMERA_CONFIG_FIELDS))
         if unknown:
             raise ConfigError(f"{path}: unknown table(s) {unknown}; known: camera, markers, ball")
         cam, mk, ball = (dict(data.get(k, {})) for k in ("camera", "markers", "ball"))
-        for name, table, known in (("camera", cam, {"source", "resolution", "fps", "fov_deg", "min_ball_px"}),
-                                   ("markers", mk, {"dictionary", "ids", "centres_mm", "size_mm"}),
-                                   ("ball", ball, {"hsv_low", "hsv_high", "radius_mm"})):  # fmt: skip
+        for name, table in (("camera", cam), ("markers", mk), ("ball", ball)):
+            known = set(CAMERA_CONFIG_FIELDS[name])
             extra = sorted(set(table) - known)
             if extra:
                 raise ConfigError(f"{path}: unknown field(s) {extra} in [{name}]; known: {sorted(known)}")

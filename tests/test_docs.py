@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from stewart_gym.cli import build_parser
+from stewart_gym.tomlio import tomllib
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "docs" / "src"
@@ -82,3 +83,74 @@ def test_the_hardware_pages_calibration_example_is_what_calibrate_writes(tmp_pat
     six = block.replace(servo, "".join(servo.replace("channel = 0", f"channel = {i}") for i in range(6)))
     calibration = ServoCalibration.from_dict(tomllib.loads(six), "servo-hexapod")
     assert calibration.neutral_us[0] == 1512.0 and calibration.min_us[0] == 1112.0
+
+
+def config_sections() -> dict[str, str]:
+    """docs/src/config-files.md by section anchor (``## Title {#anchor}``)."""
+    parts = re.split(r"^## .*\{#([a-z-]+)\}\n", (SRC / "config-files.md").read_text(), flags=re.M)
+    return dict(zip(parts[1::2], parts[2::2]))
+
+
+def documented_keys(section: str) -> set[str]:
+    """The keys named in the first cell of a table row: ``| `a`, `b` | …``."""
+    return {key for row in section.splitlines() if row.startswith("| `")
+            for key in re.findall(r"`([^`]+)`", row.split("|")[1])}  # fmt: skip
+
+
+def format_keys() -> dict[str, set[str]]:
+    """Every key each reader of a configuration file knows, from the code (and, for bundles, what export writes)."""
+    import json
+
+    from stewart_gym import calibration, geometry, sb3_models, sweep, training, vision
+    from stewart_gym.hardware.export import classical_meta
+
+    bundles = [json.loads(p.read_text()) for p in (ROOT / "stewart_gym" / "policies").glob("*/bundle/bundle.json")]
+    bundles.append(classical_meta("pid", {"kp": 1.0}))
+    internal = {"eval_freq", "eval_episodes", "residual"}  # a recipe gives them in `evaluation:` and `env_wrapper`
+    return {
+        "geometry": set(geometry.GEOMETRY_FIELDS) | set(geometry.SYMMETRIC_FIELDS),
+        "calibration": set(calibration.ROTARY_FIELDS + calibration.ROTARY_SERVO_FIELDS + calibration.LINEAR_FIELDS
+                           + calibration.LINEAR_SERVO_FIELDS + calibration.HARDWARE_FIELDS),
+        "camera": {f"{table}.{key}" for table, keys in vision.CAMERA_CONFIG_FIELDS.items() for key in keys},
+        "sweep": set(sweep.SPEC_KEYS),
+        "hyperparameters": (set(training.RUN_KEYS) - internal | {"env_wrapper"} | set(sb3_models.RESIDUAL_FIELDS)),
+        "bundle": {key for meta in bundles for key in meta},
+    }
+
+
+@pytest.mark.parametrize("name", sorted(format_keys()))
+def test_the_config_reference_documents_every_key_of(name: str) -> None:
+    """Each format's section has a row for every key its reader accepts (or, for a bundle, export writes)."""
+    missing = format_keys()[name] - documented_keys(config_sections()[name])
+    assert not missing, f"config-files.md#{name} does not document {sorted(missing)}"
+
+
+def test_the_config_references_examples_load(tmp_path: Path) -> None:
+    """The example file of each format user writes is one its reader accepts."""
+    from stewart_gym.calibration import ServoCalibration
+    from stewart_gym.geometry import PlatformGeometry
+    from stewart_gym.sweep import load_sweep
+    from stewart_gym.training import load_hyperparams
+    from stewart_gym.vision import CameraConfig
+
+    sections = config_sections()
+
+    def example(name: str, suffix: str) -> Path:
+        block = re.search(r"```(?:toml|yaml)\n(.*?)```", sections[name], flags=re.S).group(1)
+        path = tmp_path / f"{name}{suffix}"
+        path.write_text(block)
+        return path
+
+    geo = PlatformGeometry.from_toml(example("geometry", ".toml"))
+    assert geo.name == "my-platform" and geo.is_rotary
+    text = example("calibration", ".toml").read_text().replace("# … five more [[servo]] tables", "")
+    servo = text[text.index("[[servo]]"):]
+    others = "".join("\n" + servo.replace("channel = 0", f"channel = {i}") for i in range(1, 6))
+    cal = ServoCalibration.from_dict(tomllib.loads(text + others))
+    assert cal.neutral_us[0] == pytest.approx(1512.0)
+    camera = CameraConfig.from_toml(example("camera", ".toml"))
+    assert camera.markers.size_mm == 36
+    spec = load_sweep(example("sweep", ".yml"))
+    assert spec.search["learning_rate"][0] == "loguniform"
+    hp = load_hyperparams("ppo", "StewartBallBalance-v0", str(example("hyperparameters", ".yml")))
+    assert hp["residual"]["base"] == "lqr-pid" and hp["eval_freq"] == 25000
