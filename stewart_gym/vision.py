@@ -30,8 +30,8 @@ import numpy as np
 from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["CAMERA_CONFIG_FIELDS", "MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout", "annotate", "find_markers",
-           "locate_ball", "marker_corners_mm", "read_image"]
+__all__ = ["CAMERA_CONFIG_FIELDS", "MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout",
+           "annotate", "find_markers", "locate_ball", "marker_corners_mm", "read_image"]
 
 #: The most pixels an image file may declare (a 8K frame is 33 M): more is refused before it is decoded.
 MAX_IMAGE_PIXELS = 50_000_000
