@@ -320,8 +320,13 @@ class LineController(ServoController):
     """Arduino + PCA9685 sketch: ``W …`` frames and ``?`` out, ``B x,y`` ball readings and ``P …`` answers in.
 
     Opening the port resets an Arduino Uno (DTR); the constructor waits up to
-    ``ready_timeout`` s for its ``ready`` line before anything is sent.
+    ``ready_timeout`` s for its ``ready`` line before anything is sent. A board that does not reset on open
+    (native USB, DTR reset disabled, or one still running the sketch from an earlier connection) sends no
+    ``ready``: then it asks ``?`` once, and the sketch's answer within :data:`QUERY_TIMEOUT_S` will do.
     """
+
+    #: s: how long the sketch has to answer the ``?`` asked when no ``ready`` line came.
+    QUERY_TIMEOUT_S = 1.0
 
     resolution_us = 1.0
 
@@ -337,9 +342,18 @@ class LineController(ServoController):
             if self._ready:
                 return
             time.sleep(0.01)
+        self._write(LineProtocol.QUERY)  # no reset on open: a running sketch answers
+        deadline = time.monotonic() + self.QUERY_TIMEOUT_S
+        while time.monotonic() < deadline:
+            self._pump()
+            if self._ready or self._held:
+                self._held.clear()
+                self._ready = True
+                return
+            time.sleep(0.01)
         self.close()
-        raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s "
-                          "(wrong port, wrong sketch or wrong baud rate?)")  # fmt: skip
+        raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s, and no "
+                          "answer to '?' (wrong port, wrong sketch or wrong baud rate?)")  # fmt: skip
 
     def frame(self, pulses_us: np.ndarray) -> bytes:
         return LineProtocol.frame(pulses_us)

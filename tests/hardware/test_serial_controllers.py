@@ -75,8 +75,24 @@ def test_line_controller_waits_for_ready_and_reads_the_panel(device: FakeDevice)
 
 
 def test_line_controller_without_ready_fails_clearly(device: FakeDevice) -> None:
-    with pytest.raises(DeviceError, match="no 'ready' line"):
+    with pytest.raises(DeviceError, match="no 'ready' line .* and no answer to '\\?'"):
         LineController(device.path, ready_timeout=0.2)
+    assert device.read_all(0.05) == b"?\n"  # it asked once, after the wait
+
+
+def test_line_controller_takes_a_board_that_did_not_reset(device: FakeDevice) -> None:
+    """A board still running the sketch (no reset on open) sends no 'ready', but answers '?'."""
+
+    def answer() -> None:
+        assert device.read_all(size=2) == b"?\n"
+        device.write(b"P 1500,1500,1500,1500,1500,1500\n")
+
+    threading.Thread(target=answer, daemon=True).start()
+    ctl = LineController(device.path, ready_timeout=0.2)
+    ctl.send(PULSES)
+    want = b"W 1500,1400,1600,1100,1900,1235\n"
+    assert device.read_all(size=len(want)) == want
+    ctl.close()
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="termios is POSIX-only")

@@ -1,7 +1,7 @@
 """Regenerate the table of the classical controllers on every ball preset (docs: Bring your own platform).
 
 Run: ``.venv/bin/python train/tools/builds.py [--episodes 100] [--workers 2] [--builds NAMES] [--controllers NAMES]
-[--dither-deg D] [--section NAME] [--out docs/src/own-platform.md]``
+[--dither-deg D] [--section NAME] [--out docs/src/builds.md]``
 
 Each controller (``--policy NAME``, its reference gains or design adapted to the build by
 :func:`stewart_gym.control.classical_controller`) goes through :func:`stewart_gym.evaluation.evaluate` on
@@ -104,7 +104,7 @@ def main() -> None:
     ap.add_argument("--controllers", default=",".join(CONTROLLERS))
     ap.add_argument("--dither-deg", type=float, default=0.0, help="degrees of dither added to every design")
     ap.add_argument("--section", default="builds-table", help="the markers' name on the page")
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "src" / "own-platform.md")
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "src" / "builds.md")
     args = ap.parse_args()
     builds = names(ap, args.builds, BUILDS, "build")
     controllers = names(ap, args.controllers, list(CONTROLLERS), "controller")
