@@ -14,6 +14,7 @@ from stewart_gym.sim.backend import BallSpec, PhysicsBackend, PlateLoad
 
 __all__ = [
     "BallSpec",
+    "BatchedSim",
     "HobbyServos",
     "MechanismSpec",
     "PhysicsBackend",
@@ -27,6 +28,7 @@ __all__ = [
 ]
 
 _LAZY = {
+    "BatchedSim": "batched",
     "HobbyServos": "servo_model",
     "ServoSpec": "servo_model",
     "PhysicsSpec": "stewart_sim",

@@ -1,0 +1,112 @@
+"""The batched simulator (:class:`~stewart_gym.sim.batched.BatchedSim`): against PyBullet on open-loop tilt
+sequences that keep the ball on the plate for 3 s, platform by platform independence, and the servo rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stewart_gym.calibration import PulseRangeError, ServoCalibration
+from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.presets import load_geometry
+from stewart_gym.sim.batched import BatchedSim
+from stewart_gym.sim.servo_model import ServoSpec
+
+STEPS = 150  # 3 s at 50 Hz
+START = np.array([0.03, -0.02])
+
+
+def tilt_pulses(seed: int, geometry: str = "servo-hexapod") -> np.ndarray:
+    """(STEPS, 6) µs: roll and pitch sinusoids of 1–3° at 0.7–1.5 Hz, ramped in over 0.5 s."""
+    rng = np.random.default_rng(seed)
+    amplitude, frequency, phase = np.radians(rng.uniform(1.0, 3.0, 2)), rng.uniform(0.7, 1.5, 2), rng.uniform(0, 6.3, 2)
+    t = np.arange(STEPS) / 50
+    poses = np.zeros((STEPS, 6))
+    poses[:, 3:5] = np.minimum(t / 0.5, 1.0)[:, None] * amplitude * np.sin(2 * np.pi * frequency * t[:, None] + phase)
+    geo = load_geometry(geometry)
+    return ServoCalibration.default(geo).pulse_widths(inverse_kinematics(geo, poses).servo_angles)
+
+
+@pytest.mark.parametrize("seed", [1, 3, 5])
+def test_ball_and_plate_follow_pybullet(seed: int) -> None:
+    """Ball within 1 mm RMS and the plate within 0.5 mm / 0.2° of PyBullet over 3 s (the sequences keep the ball
+    on the plate there)."""
+    from stewart_gym.sim.stewart_sim import StewartSim
+
+    pulses = tilt_pulses(seed)
+    reference = StewartSim("servo-hexapod", ball=True)
+    reference.reset()
+    reference.place_ball(START)
+    batched = BatchedSim("servo-hexapod", n=1)
+    batched.place_ball(START[None])
+    ball_a, ball_b, pose_a, pose_b = [], [], [], []
+    try:
+        for w in pulses:
+            reference.command(w)
+            reference.step()
+            batched.command(w[None])
+            batched.step()
+            ball_a.append(reference.ball_state()[0][:2])
+            ball_b.append(batched.ball_state()[0][0, :2])
+            pose_a.append(reference.platform_pose())
+            pose_b.append(batched.platform_pose()[0])
+    finally:
+        reference.close()
+    ball_a, ball_b, pose_a, pose_b = map(np.array, (ball_a, ball_b, pose_a, pose_b))
+    assert np.abs(ball_a).max() < 0.15  # on the 300 mm plate throughout
+    assert np.abs(ball_a - START).max() > 0.02  # and it rolled
+    gap = np.linalg.norm(ball_a - ball_b, axis=1)
+    assert np.sqrt(np.mean(gap**2)) < 1e-3
+    assert np.abs(pose_a[:, :3] - pose_b[:, :3]).max() < 0.5e-3
+    assert np.degrees(np.abs(pose_a[:, 3:] - pose_b[:, 3:]).max()) < 0.2
+
+
+def test_platforms_are_independent() -> None:
+    """Three platforms stepped together move exactly as each does alone."""
+    pulses = np.stack([tilt_pulses(seed)[:40] for seed in (1, 3, 5)], axis=1)  # (40, 3, 6)
+    together = BatchedSim(n=3)
+    together.place_ball(np.array([[0.03, -0.02], [0.0, 0.05], [-0.04, 0.0]]))
+    for w in pulses:
+        together.command(w)
+        together.step()
+    for i, start in enumerate(([0.03, -0.02], [0.0, 0.05], [-0.04, 0.0])):
+        alone = BatchedSim(n=1)
+        alone.place_ball(np.array([start]))
+        for w in pulses[:, i]:
+            alone.command(w[None])
+            alone.step()
+        np.testing.assert_allclose(alone.ball_state()[0][0], together.ball_state()[0][i], atol=1e-12)
+        np.testing.assert_allclose(alone.platform_pose()[0], together.platform_pose()[i], atol=1e-12)
+
+
+def test_a_level_plate_keeps_a_resting_ball_still() -> None:
+    sim = BatchedSim(n=2)
+    sim.place_ball(np.array([[0.05, 0.05], [-0.1, 0.0]]))
+    for _ in range(50):
+        sim.command(np.broadcast_to(sim.calibration.neutral_us, (2, 6)))
+        sim.step()
+    np.testing.assert_allclose(sim.ball_state()[0][:, :2], [[0.05, 0.05], [-0.1, 0.0]], atol=1e-9)
+    np.testing.assert_allclose(sim.platform_pose(), 0.0, atol=1e-9)
+    assert sim.time == pytest.approx(1.0)
+
+
+def test_a_pulse_out_of_range_is_refused_and_nothing_is_sent() -> None:
+    sim = BatchedSim(n=2)
+    bad = np.broadcast_to(sim.calibration.neutral_us, (2, 6)).copy()
+    bad[1, 3] = 5000.0
+    with pytest.raises(PulseRangeError, match="servo 3"):
+        sim.command(bad)
+    sim.step()
+    np.testing.assert_array_equal(sim.held_pulses(), np.broadcast_to(sim.calibration.neutral_us, (2, 6)))
+
+
+def test_each_platform_has_its_own_servos() -> None:
+    """A slower servo is further from a step's target after one period; a wide dead band ignores a small step."""
+    sim = BatchedSim(n=3)
+    sim.reset(servo_specs=[ServoSpec(), ServoSpec(max_speed=1.0), ServoSpec(deadband_us=30.0)])
+    step = np.broadcast_to(sim.calibration.neutral_us + 20.0, (3, 6))
+    sim.command(step)
+    sim.step()
+    moved = np.abs(sim.alpha - sim.calibration.angles(np.broadcast_to(sim.calibration.neutral_us, (3, 6))))
+    assert moved[1].max() < moved[0].min()
+    assert moved[2].max() == 0.0 and np.array_equal(sim.held_pulses()[2], sim.calibration.neutral_us)
