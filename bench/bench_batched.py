@@ -1,8 +1,13 @@
-"""Platform-steps per second (one control step of one platform with its ball), in one run: one PyBullet
-simulator, one MuJoCo simulator, and the batched NumPy simulator at N = 1, 64, 1,024 and 4,096.
+"""Steps per second of the simulators and of the envs on them, in one run.
 
-Run: ``.venv/bin/python bench/bench_batched.py [--json]``. Each figure is the best of three timed runs of
-a tilt command alternating every step; the ratio column is against the PyBullet simulator of the same run.
+* simulators (one control step of one platform with its ball): one PyBullet simulator, one MuJoCo simulator,
+  and the batched NumPy simulator at N = 1, 64, 1,024 and 4,096;
+* envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random actions): one PyBullet env
+  (``gym.make``) and the batched vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at
+  N = 64, 256 and 1,024.
+
+Run: ``.venv/bin/python bench/bench_batched.py [--json]``. Each figure is the best of three timed runs; the
+ratio column is against the PyBullet simulator, or the PyBullet env, of the same run.
 """
 
 from __future__ import annotations
@@ -59,13 +64,44 @@ def main() -> None:
             batched.step()
 
         results[f"batched, N = {n:,}"] = rate(many, n)
+    envs = env_rates()
     if args.json:
-        print(json.dumps({k: round(v) for k, v in results.items()}))
+        print(json.dumps({k: round(v) for k, v in {**results, **envs}.items()}))
         return
-    reference = results["pybullet, one simulator"]
-    print(f"{'simulator':<26}{'platform-steps/s':>18}{'× PyBullet':>12}")
-    for name, value in results.items():
-        print(f"{name:<26}{value:>18,.0f}{value / reference:>12.1f}")
+    for title, table, reference in (("simulator", results, "pybullet, one simulator"),
+                                    ("env", envs, "pybullet, one env")):  # fmt: skip
+        print(f"{title:<30}{'steps/s':>12}{'× PyBullet':>12}")
+        for name, value in table.items():
+            print(f"{name:<30}{value:>12,.0f}{value / table[reference]:>12.1f}")
+        print()
+
+
+def env_rates() -> dict[str, float]:
+    """Env steps per second: one PyBullet env, and the batched vector env at a few sizes."""
+    import gymnasium as gym
+
+    import stewart_gym  # noqa: F401
+
+    kwargs = {"randomize": True, "estimator": "kalman"}
+    out: dict[str, float] = {}
+    env = gym.make("StewartBallBalance-v0", backend="pybullet", **kwargs)
+    env.reset(seed=0)
+    actions = np.random.default_rng(0).uniform(-1, 1, (1000, 2)).astype(np.float32)
+
+    def single(i: int) -> None:
+        _, _, terminated, truncated, _ = env.step(actions[i % 1000])
+        if terminated or truncated:
+            env.reset()
+
+    out["pybullet, one env"] = rate(single, 1)
+    env.close()
+    for n in (64, 256, 1024):
+        vector = gym.make_vec("StewartBallBalance-v0", num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+        vector.reset(seed=0)
+        batch = np.random.default_rng(1).uniform(-1, 1, (8, n, 2)).astype(np.float32)
+        out[f"batched vector env, N = {n:,}"] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
+        vector.close()
+    return out
 
 
 if __name__ == "__main__":

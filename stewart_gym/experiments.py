@@ -30,6 +30,9 @@ __all__ = ["DEMO_CLASSICAL", "DEMO_LEARNED", "EPISODES_PER_PROCESS", "WORLD_DEFA
 
 #: The env's physics engine and ball sensor where none is asked for.
 WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
+#: Engines for training only: a policy trained in one is evaluated, by default, in the default engine (PyBullet),
+#: the reference it must hold up in; ``--backend batched`` still evaluates it there.
+TRAINING_BACKENDS = ("batched",)
 
 
 @dataclass(frozen=True)
@@ -178,9 +181,11 @@ def demo_policies(env_id: str, geometry: str | None) -> list[str]:
 
 def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | None) -> dict:
     """``env_kwargs`` with the physics engine and the ball sensor asked for, else the ones ``source`` (a resolved
-    policy) was trained with, else the env's defaults (PyBullet, the touch panel)."""
+    policy) was trained with (not a :data:`TRAINING_BACKENDS` engine), else the env's defaults (PyBullet, the
+    touch panel)."""
     trained = source.env_kwargs
-    chosen = {"backend": backend or trained.get("backend"), "sensor": sensor or trained.get("sensor")}
+    trained_backend = trained.get("backend") if trained.get("backend") not in TRAINING_BACKENDS else None
+    chosen = {"backend": backend or trained_backend, "sensor": sensor or trained.get("sensor")}
     return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
 
 

@@ -448,6 +448,14 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
     not imported the package, imports it (and so registers the ids) first.
     """
     check_vec_env(vec_env)
+    if (env_kwargs or {}).get("backend") == "batched":  # every copy on one batched simulator
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from stewart_gym.sb3_vec import BatchedVecEnv
+
+        batched = BatchedVecEnv(env_id.split(":")[-1], n_envs, env_kwargs, residual)
+        batched.seed(seed)
+        return VecMonitor(batched)
     vec_cls = VEC_ENVS[vec_env] if n_envs > 1 else InProcessVecEnv
     full_id = env_id if ":" in env_id else f"stewart_gym:{env_id}"
     wrapper = {"wrapper_class": ResidualAction, "wrapper_kwargs": {"residual": residual}} if residual else {}
@@ -572,7 +580,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     if residual is not None:
         hp["residual"] = residual  # with the base's design as it is now: a later retune leaves this run alone
     # built here first: a bad env keyword is one error line, before the run folder and the worker processes
-    eval_env: VecEnv = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
+    if env_kwargs.get("backend") == "batched":  # the evaluation episodes side by side, on one batched simulator
+        eval_env: VecEnv = make_env(config.env_id, eval_episodes, config.seed + EVAL_SEED_OFFSET, env_kwargs, residual)
+    else:
+        eval_env = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
     eval_env.seed(config.seed + EVAL_SEED_OFFSET)  # the same evaluation episodes, so learning curve and best/, each run
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)

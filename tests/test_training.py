@@ -343,3 +343,23 @@ def test_env_copies_step_alike_in_this_process_and_in_worker_processes() -> None
     assert done_a.any() and rew_a.dtype == rew_b.dtype == np.float64
     assert np.array_equal(obs_a, obs_b) and np.array_equal(rew_a, rew_b) and np.array_equal(done_a, done_b)
     assert not np.array_equal(rew_a, rew_a.astype(np.float32))  # float32 would have rounded these rewards
+
+
+@pytest.mark.slow
+def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``train --hyperparams ppo_batched`` trains on the batched backend (its copies on one batched simulator);
+    the run then evaluates without complaint in PyBullet (the default for it), MuJoCo and the batched backend."""
+    run = tmp_path / "run"
+    assert main(["train", "--hyperparams", "ppo_batched", "--run-dir", str(run), "--n-envs", "16",
+                 "--timesteps", "2048", "--eval-freq", "1024", "--eval-episodes", "2"]) == 0  # fmt: skip
+    recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
+    assert recorded["env_kwargs"]["backend"] == "batched"
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["n_envs"] == 16 and metrics["timesteps"] >= 2048 and metrics["last_eval"]["timesteps"] >= 1024
+    capsys.readouterr()
+    for backend, engine in ((None, "pybullet"), ("mujoco", "mujoco"), ("batched", "batched")):
+        extra = ["--backend", backend] if backend else []
+        assert main(["evaluate", "--policy", str(run), "--episodes", "1", "--json", *extra]) == 0
+        result = json.loads(capsys.readouterr().out)
+        assert result["backend"] == engine and result["episodes"] == 1

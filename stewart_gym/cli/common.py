@@ -230,7 +230,7 @@ def json_safe(v: Any) -> Any:
 
 
 def add_backend(parser: argparse.ArgumentParser, text: str) -> None:
-    """``--backend pybullet|mujoco``."""
+    """``--backend pybullet|mujoco|batched``."""
     from stewart_gym.sim.engines import BACKEND_NAMES
 
     parser.add_argument("--backend", choices=BACKEND_NAMES, help=text)

@@ -312,7 +312,7 @@ def register(sub: Any) -> None:
     p.add_argument("--algo", choices=ALGO_CHOICES, default="ppo", help="the learning algorithm")
     p.add_argument("--geometry", help="preset or TOML file of the platform to train for (default: the YAML's, else "
                                       "servo-hexapod)")
-    add_backend(p, "physics engine to train in (default: the YAML's, else pybullet)")
+    add_backend(p, "physics engine to train in (default: the YAML's, else pybullet; batched: many copies at once)")
     add_sensor(p, "ball sensor model to train with (default: the YAML's, else panel)")
     add_estimator(p, "the observer to train behind (default: the YAML's, else lowpass)")
     p.add_argument("--hyperparams", help="YAML file, or the name of a shipped one, such as ppo_residual (default "
@@ -345,7 +345,8 @@ def register(sub: Any) -> None:
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
     p.add_argument("--geometry", help="the platform: picks the shipped policy or sets the PID's; a trained policy "
                                       "runs on its own (default servo-hexapod)")
-    add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet)")
+    add_backend(p, "physics engine to evaluate in (default: the one the policy was trained in, else pybullet; a "
+                   "policy trained in batched: pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policy was trained with, else panel)")
     add_estimator(p, ESTIMATOR_HELP)
     add_episodes(p, at_least=1)
@@ -361,7 +362,8 @@ def register(sub: Any) -> None:
     p.add_argument("--env", choices=ENV_CHOICES, help="default: the env the first policy was trained for")
     p.add_argument("--geometry", help="the platform (default: the one a trained policy given by path was trained for, "
                                       "else servo-hexapod); named policies adapt to it")  # fmt: skip
-    add_backend(p, "physics engine (default: the one the policies were trained in, else pybullet)")
+    add_backend(p, "physics engine (default: the one the policies were trained in, else pybullet; batched: "
+                   "pybullet)")
     add_sensor(p, "ball sensor model (default: the one the policies were trained with, else panel)")
     add_episodes(p, at_least=2)
     add_workers(p)

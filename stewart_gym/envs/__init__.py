@@ -7,9 +7,12 @@ a task is a task file (see :mod:`stewart_gym.envs.task`) and one line in
 
 from __future__ import annotations
 
-__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "env_table", "register_envs", "reward_threshold", "trajectory_env_ids"]
+__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "VECTOR_ENTRY_POINT", "env_table", "register_envs", "reward_threshold",
+           "trajectory_env_ids"]
 
 ENV_ENTRY_POINT = "stewart_gym.envs.ball_env:StewartBallEnv"
+#: ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")``: the batched vector env.
+VECTOR_ENTRY_POINT = "stewart_gym.envs.vector:StewartBallVectorEnv"
 
 #: id → (task, episode length in s): the task is a "module:Class" path (see stewart_gym.envs.task). An episode is a
 #: duration: at the default 50 Hz, 500 steps for balance, 1000 for track; at ``control_hz=25``, half as many.
@@ -47,7 +50,8 @@ def register_envs() -> None:
 
     for env_id, (task, seconds) in ENV_IDS.items():
         if env_id not in gymnasium.registry:
-            gymnasium.register(id=env_id, entry_point=ENV_ENTRY_POINT, reward_threshold=reward_threshold(env_id),
+            gymnasium.register(id=env_id, entry_point=ENV_ENTRY_POINT, vector_entry_point=VECTOR_ENTRY_POINT,
+                               reward_threshold=reward_threshold(env_id),
                                kwargs={"task": task, "episode_s": seconds})  # fmt: skip
 
 

@@ -391,13 +391,24 @@ class StewartBallEnv(gym.Env, EzPickle):
         return out
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        mapped = self.begin_step(action)
+        self.sim.step()
+        return self.end_step(mapped)
+
+    def begin_step(self, action: np.ndarray) -> Any:
+        """The part of :meth:`step` before the physics: map the action and send its pulses. Returns what
+        :meth:`end_step` takes once the backend has advanced a control period (the batched vector env advances
+        all its envs' platforms between the two)."""
         if self._episode is not None:
             self._episode[2].append(np.array(action, copy=True))
         mapped = self.mapper(action)
+        self.task.before_step(self.sim.time, self.sim)
+        self.sim.command(mapped.pulses)
+        return mapped
+
+    def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """The part of :meth:`step` after the physics: sense, observe, reward, and the episode's end."""
         sim, task = self.sim, self.task
-        task.before_step(sim.time, sim)
-        sim.command(mapped.pulses)
-        sim.step()
         self._pulses = mapped.pulses
         self._scaled = mapped.scaled
         self._unreachable += mapped.scaled

@@ -140,6 +140,8 @@ class SimulatorBase:
     _step_count: int
     #: whether :meth:`camera_image` renders what a camera above the plate sees (an optional capability)
     renders_camera = False
+    #: whether :meth:`set_plate_load` changes the motion (the servos' torque is modelled)
+    models_plate_load = True
 
     def _setup(self, geometry: Any, calibration: ServoCalibration | None, physics_hz: int, control_hz: int, ball: bool,
                ball_spec: BallSpec | None, servo_spec: ServoSpec | None, mechanism: Any, render_mode: str | None,

@@ -107,24 +107,57 @@ class BatchedSim:
         balls = ball_specs or [self.ball_spec] * n
         if len(servos) != n or len(balls) != n:
             raise ValueError(f"servo_specs and ball_specs give one per platform ({n})")
-        phys_dt = 1.0 / self.physics_hz
-        self._gain = np.array([s.position_gain for s in servos])[:, None]
-        self._max_step = np.array([s.max_speed * phys_dt for s in servos])[:, None]
-        self._band = np.array([s.deadband_us for s in servos])[:, None]
-        self._resolution = np.array([s.resolution_us for s in servos])[:, None]
-        self._delay = np.array([int(round(s.lag_s * self.physics_hz)) for s in servos])
-        self._trim = np.array([s.trim_error_us for s in servos])
-        self._radius = np.array([b.radius for b in balls])
-        self._beta = np.array([b.inertia / (b.mass * b.radius**2) for b in balls])
-        self._held = np.broadcast_to(self.calibration.neutral_us, (n, 6)).copy()
-        self._sent: deque[tuple[int, np.ndarray]] = deque()
-        self.alpha = np.broadcast_to(self._home_alpha, (n, 6)).copy()
+        self._gain, self._max_step, self._band, self._resolution = (np.zeros((n, 1)) for _ in range(4))
+        self._resolution_list = [0.0] * n
+        self._delay, self._trim = np.zeros(n, dtype=np.int64), np.zeros((n, 6))
+        self._radius, self._beta, self._mass = np.zeros(n), np.zeros(n), np.zeros(n)
+        self._step_count = 0
+        self._since = np.zeros(n, dtype=np.int64)  # the physics step of each platform's last reset
+        self._sent: deque[tuple[int, np.ndarray, np.ndarray]] = deque()  # (step, pulses, which platforms)
+        self._pending = np.zeros((n, 6))
+        self._pending_mask = np.zeros(n, dtype=bool)
         home = (np.broadcast_to(self.geometry.home_position, (n, 3)).copy(), np.broadcast_to(np.eye(3), (n, 3, 3)).copy())
-        self._frames = [home, home]  # the platform frame (origin, rotation) a physics step ago and now
-        self._jacobian_inverse = self._inverse_jacobian(*home, self.alpha)
+        self._frames = [home, (home[0].copy(), home[1].copy())]  # the platform frame a physics step ago and now
+        self._held = np.zeros((n, 6))
+        self.alpha = np.zeros((n, 6))
         self.ball_xy = np.zeros((n, 2))
         self.ball_velocity = np.zeros((n, 2))
-        self._step_count = 0
+        self.plate_loads: list[Any] = [None] * n
+        for i in range(n):
+            self._set_platform(i, servos[i], balls[i])
+        self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
+
+    def reset_platform(self, i: int, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None) -> None:
+        """Platform ``i`` alone back at home with its servos holding neutral (commands sent to it before are
+        dropped), its ball at rest at the plate centre; with its own servos and ball where given."""
+        self._set_platform(i, servo_spec or self.servo_spec, ball_spec or self.ball_spec)
+        self._since[i] = self._step_count
+        self._pending_mask[i] = False
+        for frame in self._frames:
+            frame[0][i], frame[1][i] = self.geometry.home_position, np.eye(3)
+
+    def _set_platform(self, i: int, servo: ServoSpec, ball: BallSpec) -> None:
+        phys_dt = 1.0 / self.physics_hz
+        self._gain[i], self._max_step[i] = servo.position_gain, servo.max_speed * phys_dt
+        self._band[i], self._resolution[i] = servo.deadband_us, servo.resolution_us
+        self._resolution_list[i] = float(servo.resolution_us)
+        self._delay[i], self._trim[i] = int(round(servo.lag_s * self.physics_hz)), servo.trim_error_us
+        self._radius[i], self._mass[i] = ball.radius, ball.mass
+        self._beta[i] = ball.inertia / (ball.mass * ball.radius**2)
+        self._held[i] = self.calibration.neutral_us
+        self.alpha[i] = self._home_alpha
+        self.ball_xy[i] = 0.0
+        self.ball_velocity[i] = 0.0
+        self.plate_loads[i] = None
+
+    @property
+    def ball_radius(self) -> np.ndarray:
+        """(n,) m: each platform's ball radius (this episode's)."""
+        return self._radius
+
+    def platform_time(self, i: int) -> float:
+        """s of simulated time since platform ``i``'s last reset."""
+        return float(self._step_count - self._since[i]) / self.physics_hz
 
     @property
     def time(self) -> float:
@@ -158,12 +191,15 @@ class BatchedSim:
         ``frame`` (a physics step earlier, so one step suffices), with the Jacobian of the control period's start
         (the chord method); a second step where the first leaves more than 1 µm."""
         origin, rot = frame
-        for attempt in range(2):
-            error = self._legs(origin, rot, alpha)[0]
-            if attempt and np.abs(error).max() < 1e-6:
-                break
-            delta = -np.einsum("nij,nj->ni", self._jacobian_inverse, error)
-            origin, rot = origin + delta[:, :3], _rodrigues(delta[:, 3:]) @ rot
+        error = self._legs(origin, rot, alpha)[0]
+        delta = -np.einsum("nij,nj->ni", self._jacobian_inverse, error)
+        origin, rot = origin + delta[:, :3], _rodrigues(delta[:, 3:]) @ rot
+        error = self._legs(origin, rot, alpha)[0]
+        again = np.abs(error).max(axis=1) >= 1e-6  # per platform, so that each moves as it would alone
+        if again.any():
+            delta = -np.einsum("nij,nj->ni", self._jacobian_inverse[again], error[again])
+            origin[again] += delta[:, :3]
+            rot[again] = _rodrigues(delta[:, 3:]) @ rot[again]
         return origin, rot
 
     def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -182,39 +218,63 @@ class BatchedSim:
         self.ball_velocity[where] = v[where]
 
     # ------------------------------------------------------------ commanding
+    def _quantised(self, w: np.ndarray, rows: Any) -> np.ndarray:
+        """``w`` (rows, 6) µs checked against the channel limits (raises, naming the channel) and quantised."""
+        self.calibration.check(w)
+        res = self._resolution[rows]
+        return np.where(res > 0, np.round(w / np.where(res > 0, res, 1.0)) * res, w)
+
     def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
         """Send pulses (n, 6) µs to every platform's servos; they act on them after their lag. Returns them as
         quantised. Raises :class:`~stewart_gym.calibration.PulseRangeError` if any pulse leaves its channel's
         limits or is not finite: nothing is sent then."""
-        w = np.asarray(pulse_widths_us, dtype=np.float64).reshape(self.n, 6)
-        self.calibration.check(w)
-        res = self._resolution
-        quantised = np.where(res > 0, np.round(w / np.where(res > 0, res, 1.0)) * res, w)
-        self._sent.append((self._step_count, quantised))
+        w = self._quantised(np.asarray(pulse_widths_us, dtype=np.float64).reshape(self.n, 6), slice(None))
+        self._pending[:] = w
+        self._pending_mask[:] = True
+        return w
+
+    def command_one(self, i: int, pulse_widths_us: np.ndarray) -> np.ndarray:
+        """Send pulses (6,) µs to platform ``i``'s servos with the next :meth:`step` (checked and quantised as
+        :meth:`command`)."""
+        pulses = np.asarray(pulse_widths_us, dtype=np.float64).reshape(6).tolist()
+        if not self.calibration.in_range_one(pulses):
+            self.calibration.check(np.array([pulses]))  # raises, naming the channel
+        res = self._resolution_list[i]
+        if res > 0:
+            pulses = [round(w / res) * res for w in pulses]
+        self._pending[i] = pulses
+        self._pending_mask[i] = True
+        return self._pending[i].copy()
+
+    def _send_pending(self) -> None:
+        if self._pending_mask.any():
+            self._sent.append((self._step_count, self._pending.copy(), self._pending_mask.copy()))
+            self._pending_mask[:] = False
         keep = int(self._delay.max()) + 1
-        while len(self._sent) > 1 and self._sent[1][0] + keep <= self._step_count:
-            self._sent.popleft()  # an older command than one already due everywhere can never be due again
-        return quantised
+        while len(self._sent) > 1 and self._sent[1][0] + keep <= self._step_count and self._sent[1][2].all():
+            self._sent.popleft()  # older than a command to every platform that is already due everywhere
 
     def held_pulses(self) -> np.ndarray:
         """(n, 6) µs: the pulses the servos act on now (after lag and dead band)."""
         return self._held.copy()
 
+    def push(self, i: int, impulse_xy: tuple[float, float]) -> None:
+        """An impulse (N·s, plate frame) on ball ``i``: its velocity changes by impulse / mass, and it keeps
+        rolling."""
+        self.ball_velocity[i] += np.asarray(impulse_xy, dtype=np.float64) / self._mass[i]
+
     def _targets(self) -> np.ndarray:
         return self.calibration.angles(self._held - self._trim)
 
     def _update_held(self) -> bool:
-        """Apply, per platform, the latest command that its lag has made due; whether any held pulse changed."""
+        """Apply, per platform, the latest command sent since its reset that its lag has made due; whether any held
+        pulse changed."""
         if not self._sent:
             return False
-        due = None
-        for sent_at, pulses in self._sent:  # oldest first: the last one due wins
-            ready = (sent_at + self._delay) <= self._step_count
-            if due is None:
-                due = np.where(ready[:, None], pulses, np.nan)
-            else:
-                due = np.where(ready[:, None], pulses, due)
-        assert due is not None
+        due = np.full((self.n, 6), np.nan)
+        for sent_at, pulses, which in self._sent:  # oldest first: the last one due wins
+            ready = which & (sent_at + self._delay <= self._step_count) & (sent_at >= self._since)
+            due = np.where(ready[:, None], pulses, due)
         new = np.isfinite(due) & (np.abs(due - self._held) > self._band)
         if not new.any():
             return False
@@ -225,6 +285,7 @@ class BatchedSim:
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
         h = 1.0 / self.physics_hz
+        self._send_pending()
         targets = self._targets()
         alpha, frames = self.alpha, list(self._frames)  # frames: k-1, k, then k+1 … k+substeps
         self._jacobian_inverse = self._inverse_jacobian(*frames[1], alpha)
@@ -261,3 +322,89 @@ class BatchedSim:
         accel = np.einsum("nji,nj->ni", r1[:, :, :2], a_rel)  # plate frame, in the plate (the tangential part)
         self.ball_velocity = self.ball_velocity + accel * h
         self.ball_xy = self.ball_xy + self.ball_velocity * h
+
+
+class BatchedPlatform:
+    """One platform of a :class:`BatchedSim` as a :class:`~stewart_gym.sim.PhysicsBackend`, so that an env runs
+    on it unchanged: ``gym.make(id, backend="batched")`` (a simulator of its own, which :meth:`step` advances),
+    or one of the N envs of the batched vector env (a shared simulator, which the vector env advances for all
+    of them at once: then :meth:`step` only marks this platform's period as asked for).
+
+    The reduced model has no torque limit, so a plate load (:meth:`set_plate_load`) is kept but does not move the
+    plate (:attr:`models_plate_load` is False), and the plate friction is not modelled (the ball always rolls).
+    """
+
+    renders_camera = False
+    #: whether :meth:`set_plate_load` changes the motion (the reduced model has no servo torque limit: no)
+    models_plate_load = False
+
+    def __init__(self, sim: BatchedSim, index: int = 0, *, owns_steps: bool = True) -> None:
+        self.batch, self.index, self.owns_steps = sim, int(index), owns_steps
+        self.geometry, self.calibration = sim.geometry, sim.calibration
+        self.physics_hz, self.control_hz, self.substeps, self.dt = sim.physics_hz, sim.control_hz, sim.substeps, sim.dt
+        self.plate_half_extent, self.plate_top = sim.plate_half_extent, sim.plate_top
+        self.servo_spec, self.ball_spec = sim.servo_spec, sim.ball_spec
+        self.has_ball, self.render_mode = True, None
+        self._closed = False
+
+    @property
+    def time(self) -> float:
+        """s of simulated time since this platform's last reset."""
+        return self.batch.platform_time(self.index)
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
+              plate_friction: float | None = None, plate_load: Any = None) -> None:  # fmt: skip
+        """Home, servos at neutral, ball at rest at the centre; the episode's servos and ball where given."""
+        self._closed = False
+        if servo_spec is not None:
+            self.servo_spec = servo_spec
+        if ball_spec is not None:
+            self.ball_spec = ball_spec
+        self.batch.reset_platform(self.index, self.servo_spec, self.ball_spec)
+        self.set_plate_load(plate_load)
+
+    def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
+        return self.batch.command_one(self.index, pulse_widths_us)
+
+    def step(self) -> None:
+        """Advance one control period (a simulator of its own); in a shared one the vector env advances all."""
+        if self.owns_steps:
+            self.batch.step()
+
+    def held_pulses(self) -> np.ndarray:
+        return self.batch.held_pulses()[self.index]
+
+    def place_ball(self, xy: np.ndarray, velocity_xy: Any = (0.0, 0.0)) -> None:
+        self.batch.ball_xy[self.index] = np.asarray(xy, dtype=np.float64)[:2]
+        self.batch.ball_velocity[self.index] = np.asarray(velocity_xy, dtype=np.float64)[:2]
+
+    def ball_position(self) -> tuple[float, float, float]:
+        i = self.index
+        x, y = self.batch.ball_xy[i]
+        return float(x), float(y), float(self.plate_top + self.batch.ball_radius[i])
+
+    def ball_state(self) -> tuple[np.ndarray, np.ndarray]:
+        vx, vy = self.batch.ball_velocity[self.index]
+        return np.array(self.ball_position()), np.array([vx, vy, 0.0])
+
+    def push_ball(self, impulse_xy: tuple[float, float]) -> None:
+        self.batch.push(self.index, impulse_xy)
+
+    def set_plate_load(self, load: Any) -> None:
+        self.batch.plate_loads[self.index] = load
+
+    def platform_pose(self) -> np.ndarray:
+        return self.batch.platform_pose()[self.index]
+
+    def render(self) -> None:
+        return None
+
+    def camera_image(self, camera: Any, markers: Any = None, ball_rgb: Any = None) -> np.ndarray:
+        raise NotImplementedError("the batched simulator does not render camera images; use the PyBullet backend")
+
+    def close(self) -> None:
+        self._closed = True

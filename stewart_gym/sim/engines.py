@@ -10,7 +10,7 @@ from stewart_gym.sim.backend import PhysicsBackend
 __all__ = ["BACKEND_NAMES", "DEFAULT_BACKEND", "backend_class", "default_backend", "make_backend"]
 
 #: Engines :func:`make_backend` builds (MuJoCo needs the ``mujoco`` extra).
-BACKEND_NAMES = ("pybullet", "mujoco")
+BACKEND_NAMES = ("pybullet", "mujoco", "batched")
 #: What ``backend="auto"`` (the envs' default) picks: PyBullet, the reference engine, where it imports, else MuJoCo.
 DEFAULT_BACKEND = "auto"
 _SAID: list[str] = []
@@ -62,6 +62,10 @@ def backend_class(name: str) -> type:
         from stewart_gym.sim.mujoco_sim import MujocoSim
 
         return MujocoSim
+    if name == "batched":
+        from stewart_gym.sim.batched import BatchedPlatform
+
+        return BatchedPlatform
     if name == "auto":
         return backend_class(default_backend())
     raise ConfigError(f"backend must be one of {list(BACKEND_NAMES)}, got {name!r}")
@@ -87,4 +91,12 @@ def make_backend(name: str, geometry: Any, *, physics_hz: int | None = None, **k
                               "python -m mujoco.viewer on the file from stewart-gym mjcf")  # fmt: skip
         own = (kwargs.get("physics") or MujocoPhysics()).physics_hz
         return MujocoSim(geometry, physics_hz=physics_hz or multiple_at_least(own, control_hz), **kwargs)
+    if name == "batched":
+        from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
+
+        if kwargs.pop("render_mode", None) is not None:
+            raise ConfigError("the batched backend does not render; use backend 'pybullet' or 'mujoco' to watch")
+        kwargs.pop("ball", None)  # it always has its ball
+        sim = BatchedSim(geometry, n=1, physics_hz=physics_hz or multiple_at_least(PYBULLET_ENV_HZ, control_hz), **kwargs)
+        return BatchedPlatform(sim)
     raise ConfigError(f"backend must be one of {list(BACKEND_NAMES)}, got {name!r}")

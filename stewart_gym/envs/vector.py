@@ -1,0 +1,143 @@
+"""The batched vector env: N copies of an env id whose platforms advance together in one
+:class:`~stewart_gym.sim.batched.BatchedSim`, as Gymnasium's ``vector_entry_point``.
+
+``gym.make_vec("StewartBallBalance-v0", num_envs=1024, vectorization_mode="vector_entry_point")`` returns it.
+Each copy is the same :class:`~stewart_gym.envs.ball_env.StewartBallEnv` as ``gym.make`` gives, with its task,
+sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.batched.BatchedPlatform`: every
+step, each copy maps its action and sends its pulses, the shared simulator advances every platform at once, and
+each copy senses and scores its own. An episode that ends is reset in the same step (Gymnasium's
+``AutoresetMode.SAME_STEP``): ``info["final_obs"]`` and ``info["final_info"]`` hold its last observation and info.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
+from stewart_gym.errors import ConfigError
+from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
+from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
+
+__all__ = ["MAX_NUM_ENVS", "StewartBallVectorEnv"]
+
+#: The most copies one vector env holds.
+MAX_NUM_ENVS = 1_000_000
+
+
+class StewartBallVectorEnv(VectorEnv):
+    """``num_envs`` copies of one env id on one batched simulator.
+
+    Args:
+        num_envs: How many copies.
+        backend: ``"batched"`` (the only one: the copies share its simulator).
+        render_mode: None (the batched simulator does not render).
+        **kwargs: The env's keywords, as ``gym.make`` takes them (``task``, ``action_mode``, ``randomize``,
+            ``geometry``, ``sensor``, ``estimator``, …); each copy gets the same.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 1, *, backend: str = "batched", render_mode: str | None = None,
+                 geometry: Any = "servo-hexapod", control_hz: int = 50, physics_hz: int | None = None,
+                 ball: Any = None, servo: Any = None, **kwargs: Any) -> None:  # fmt: skip
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+            raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+        if backend != "batched":
+            raise ConfigError(f"the vector entry point steps the batched backend; got backend {backend!r} (for "
+                              "PyBullet or MuJoCo copies use vectorization_mode='sync' or 'async')")  # fmt: skip
+        if render_mode is not None:
+            raise ConfigError("the batched backend does not render; make one env with backend 'pybullet' to watch")
+        from stewart_gym.sim import BallSpec, ServoSpec
+
+        geo = check_ball_geometry(geometry, ball)
+        self.num_envs = int(num_envs)
+        self.sim = BatchedSim(geo, n=self.num_envs, control_hz=control_hz,
+                              physics_hz=physics_hz or multiple_at_least(PYBULLET_ENV_HZ, control_hz),
+                              ball_spec=ball or BallSpec(), servo_spec=servo or ServoSpec())  # fmt: skip
+        self.envs = [StewartBallEnv(backend=BatchedPlatform(self.sim, i, owns_steps=False), ball=ball, servo=servo,
+                                    control_hz=control_hz, **kwargs) for i in range(self.num_envs)]  # fmt: skip
+        first = self.envs[0]
+        self.single_observation_space = first.observation_space
+        self.single_action_space = first.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.render_mode = None
+        self.spec = None
+        self.metadata = {**self.metadata, "render_fps": int(control_hz)}
+
+    def reset(self, *, seed: int | list[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+        """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
+        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+        if seed is None or isinstance(seed, int):
+            seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ConfigError(f"reset: {len(seeds)} seeds for {self.num_envs} envs")
+        observations, infos = [], {}
+        for i, (env, s) in enumerate(zip(self.envs, seeds)):
+            obs, info = env.reset(seed=s, options=options)
+            observations.append(obs)
+            infos = self._add_info(infos, info, i)
+        return np.stack(observations), infos
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
+        observations, rewards, terminations, truncations, infos, finals = self.step_each(actions)
+        batched = self._batched_infos(infos)
+        for i, (final_obs, final_info) in finals.items():  # as Gymnasium's SyncVectorEnv does in SAME_STEP mode
+            batched = self._add_info(batched, {"final_obs": final_obs, "final_info": final_info}, i)
+        return observations, rewards, terminations, truncations, batched
+
+    def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
+        """:meth:`step` with each copy's info as its own dict, and ``{i: (last observation, last info)}`` of the
+        copies whose episode ended (and which were reset): the form Stable-Baselines3's VecEnv returns."""
+        actions = np.asarray(actions)
+        if actions.shape[0] != self.num_envs:
+            raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
+        mapped = [env.begin_step(a) for env, a in zip(self.envs, actions)]
+        self.sim.step()
+        observations = np.empty((self.num_envs, *self.single_observation_space.shape), dtype=np.float32)
+        rewards = np.zeros(self.num_envs)
+        terminations = np.zeros(self.num_envs, dtype=bool)
+        truncations = np.zeros(self.num_envs, dtype=bool)
+        infos: list[dict[str, Any]] = []
+        finals: dict[int, tuple[np.ndarray, dict]] = {}
+        for i, (env, m) in enumerate(zip(self.envs, mapped)):
+            obs, rewards[i], terminations[i], truncations[i], info = env.end_step(m)
+            if terminations[i] or truncations[i]:
+                finals[i] = (obs, info)
+                obs, info = env.reset()
+            observations[i] = obs
+            infos.append(info)
+        return observations, rewards, terminations, truncations, infos, finals
+
+    def _batched_infos(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
+        """The copies' infos as Gymnasium batches them (a key's values stacked, ``_key`` the copies that have it),
+        in one pass per key where every copy has the key."""
+        out: dict[str, Any] = {}
+        keys = infos[0].keys()
+        if all(info.keys() == keys for info in infos):
+            for key in keys:
+                out[key] = np.array([info[key] for info in infos])
+                out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
+            return out
+        for i, info in enumerate(infos):
+            out = self._add_info(out, info, i)
+        return out
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments
+            env.close()
+
+
+def make_vector_env(num_envs: int, env_id: str = "StewartBallBalance-v0", **kwargs: Any) -> StewartBallVectorEnv:
+    """``gym.make_vec(env_id, num_envs, vectorization_mode="vector_entry_point", **kwargs)``."""
+    return gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs)

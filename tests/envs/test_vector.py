@@ -1,0 +1,110 @@
+"""The batched vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) and its SB3 VecEnv:
+each copy is exactly the env ``gym.make(id, backend="batched")`` gives, autoreset included, and a residual recipe
+mixes each copy's action as :class:`~stewart_gym.sb3_models.ResidualAction` does."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import stewart_gym  # noqa: F401  (registers the ids)
+from stewart_gym.envs.vector import StewartBallVectorEnv
+from stewart_gym.errors import ConfigError
+
+KWARGS = {"randomize": True, "estimator": "kalman"}
+
+
+def test_make_vec_returns_the_batched_vector_env() -> None:
+    env = gym.make_vec("StewartBallBalance-v0", num_envs=3, vectorization_mode="vector_entry_point", **KWARGS)
+    assert isinstance(env, StewartBallVectorEnv)
+    obs, info = env.reset(seed=0)
+    assert obs.shape == (3, 12) and env.action_space.shape == (3, 2)
+    assert info["ball_xy_m"].shape == (3, 2) and info["_ball_xy_m"].all()
+    env.close()
+
+
+@pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0", "StewartBallDisturbance-v0"])
+def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
+    """Copy i, seeded seed + i, steps exactly as ``gym.make(id, backend="batched")`` with the same seed and
+    actions, through an episode's end and its reset in the same step."""
+    n, steps = 3, 60
+    kwargs = {**KWARGS, "episode_s": 0.6}  # 30 steps: every copy ends and resets once
+    vector = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    singles = [gym.make(env_id, backend="batched", **kwargs) for _ in range(n)]
+    rng = np.random.default_rng(1)
+    actions = rng.uniform(-1, 1, (steps, n, 2)).astype(np.float32)
+    obs, _ = vector.reset(seed=10)
+    single_obs = [env.reset(seed=10 + i)[0] for i, env in enumerate(singles)]
+    np.testing.assert_array_equal(obs, np.stack(single_obs))
+    ended = 0
+    for a in actions:
+        obs, reward, terminated, truncated, info = vector.step(a)
+        for i, env in enumerate(singles):
+            o, r, te, tr, inf = env.step(a[i])
+            assert (r, te, tr) == (reward[i], terminated[i], truncated[i])
+            if te or tr:
+                ended += 1
+                np.testing.assert_array_equal(info["final_obs"][i], o)
+                assert info["final_info"]["distance_mm"][i] == inf["distance_mm"]
+                o, inf = env.reset()
+            np.testing.assert_array_equal(obs[i], o)
+            assert info["distance_mm"][i] == inf["distance_mm"]
+    assert ended >= n
+    vector.close()
+
+
+def test_bad_arguments_are_one_clear_error() -> None:
+    with pytest.raises(ConfigError, match="num_envs"):
+        gym.make_vec("StewartBallBalance-v0", num_envs=0, vectorization_mode="vector_entry_point")
+    with pytest.raises(ConfigError, match="batched"):
+        gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point", backend="pybullet")
+    with pytest.raises(ConfigError, match="render"):
+        gym.make("StewartBallBalance-v0", backend="batched", render_mode="rgb_array")
+
+
+def test_the_single_batched_env_passes_the_env_checkers() -> None:
+    from gymnasium.utils.env_checker import check_env
+    from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+    env = gym.make("StewartBallBalance-v0", backend="batched", **KWARGS)
+    check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped)
+
+
+def test_the_sb3_vec_env_reports_ended_episodes_as_dummy_vec_env_does() -> None:
+    from stewart_gym.sb3_vec import BatchedVecEnv
+
+    venv = BatchedVecEnv("StewartBallBalance-v0", 2, {**KWARGS, "episode_s": 0.2, "backend": "batched"})
+    venv.seed(3)
+    obs = venv.reset()
+    assert obs.shape == (2, 12)
+    for _ in range(10):
+        venv.step_async(np.zeros((2, 2), dtype=np.float32))
+        obs, rewards, dones, infos = venv.step_wait()
+    assert dones.all()  # 10 steps: the 0.2 s episodes end together
+    for info in infos:
+        assert info["terminal_observation"].shape == (12,)
+        assert info["TimeLimit.truncated"] is True and "is_success" in info
+    venv.close()
+
+
+def test_a_residual_copy_moves_as_the_residual_wrapper() -> None:
+    """The SB3 VecEnv's residual mixing equals ResidualAction around the single batched env."""
+    from stewart_gym.sb3_models import ResidualAction
+    from stewart_gym.sb3_vec import BatchedVecEnv
+
+    residual = {"base": "lqr-pid", "scale": 0.3}
+    venv = BatchedVecEnv("StewartBallBalance-v0", 1, {**KWARGS, "backend": "batched"}, residual)
+    venv.seed(5)
+    obs = venv.reset()
+    single = ResidualAction(gym.make("StewartBallBalance-v0", backend="batched", **KWARGS), residual)
+    o, _ = single.reset(seed=5)
+    np.testing.assert_array_equal(obs[0], o)
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        a = rng.uniform(-1, 1, 2).astype(np.float32)
+        venv.step_async(a[None])
+        obs, _, _, _ = venv.step_wait()
+        o, *_ = single.step(a)
+        np.testing.assert_array_equal(obs[0], o)
