@@ -441,6 +441,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         return obs, reward, terminated, not terminated and self._steps >= self.episode_steps, info
 
     def render(self) -> np.ndarray | None:
+        if getattr(self.sim, "marks_target", False):  # the target drawn on the plate, where the engine can
+            self.sim.mark_target(self.task.target(self.sim.time)[0])
         return self.sim.render()
 
     def __deepcopy__(self, memo: dict) -> StewartBallEnv:

@@ -22,7 +22,7 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
@@ -216,6 +216,7 @@ class StewartSim(SimulatorBase):
         self.ball = self._make_ball() if self.has_ball else None
         self._marker_body: int | None = None
         self._marker_layout: MarkerLayout | None = None
+        self._target_body: int | None = None
 
     def _make_ball(self) -> int:
         """Create the ball resting at the plate centre (collision shapes are cached per radius)."""
@@ -280,6 +281,9 @@ class StewartSim(SimulatorBase):
         if self._marker_body is not None:  # restoreState needs the bodies of the saved state only
             c.removeBody(self._marker_body)
             self._marker_body = None
+        if self._target_body is not None:
+            c.removeBody(self._target_body)
+            self._target_body = None
         c.restoreState(self._state)
         self._frame = None
         self._step_count = 0
@@ -347,6 +351,21 @@ class StewartSim(SimulatorBase):
         origin, rot = self._plate_frame()
         local = np.array([xy[0], xy[1], self.mechanism.plate_top + self.ball_spec.radius + lift])
         return origin + rot @ local
+
+    #: whether :meth:`mark_target` draws the target in rendered frames (an optional capability)
+    marks_target = True
+
+    def mark_target(self, xy: Sequence[float]) -> None:
+        """Draw the target as a flat red disc on the plate at ``xy`` (m, plate frame) in the frames :meth:`render`
+        makes from now on (a visual body only: the ball rolls over it)."""
+        c = self._client
+        if self._target_body is None:
+            shape = c.createVisualShape(pb.GEOM_CYLINDER, radius=0.008, length=0.001, rgbaColor=[0.9, 0.1, 0.1, 1])
+            self._target_body = c.createMultiBody(0.0, -1, shape)
+        _, orientation = self._pb_base_pose(self.plate)
+        lift = 0.0006 - self.ball_spec.radius  # on the surface, not at the ball's centre height
+        c.resetBasePositionAndOrientation(self._target_body, self._plate_point(np.asarray(xy), lift).tolist(),
+                                          orientation)  # fmt: skip
 
     def place_ball(self, xy: np.ndarray, velocity_xy: np.ndarray = (0.0, 0.0)) -> None:
         """Put the ball on the plate at ``xy`` (m, plate frame) rolling with ``velocity_xy`` (m/s, plate frame)."""

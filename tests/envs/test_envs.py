@@ -301,3 +301,23 @@ def test_the_envs_that_take_a_trajectory_are_those_whose_task_follows_a_moving_t
         else:
             with pytest.raises(ConfigError):
                 load_task(path, trajectory="waypoints")
+
+
+def test_rendered_frames_mark_the_target_on_the_plate() -> None:
+    """A red disc on the plate where the target is: it moves with a moving target."""
+    import gymnasium as gym
+
+    env = gym.make("StewartBallTrack-v0", render_mode="rgb_array", trajectory="circle")
+    env.reset(seed=0)
+
+    def red_centre() -> np.ndarray:
+        frame = env.render().astype(int)
+        red = (frame[..., 0] > 180) & (frame[..., 1] < 60) & (frame[..., 2] < 60)
+        assert red.sum() > 10
+        return np.argwhere(red).mean(axis=0)
+
+    first = red_centre()
+    for _ in range(50):  # a second along the circle
+        env.step(np.zeros(2, dtype=np.float32))
+    assert np.linalg.norm(red_centre() - first) > 5  # pixels
+    env.close()
