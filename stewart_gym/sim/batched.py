@@ -408,3 +408,9 @@ class BatchedPlatform:
 
     def close(self) -> None:
         self._closed = True
+
+    def __enter__(self) -> BatchedPlatform:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
