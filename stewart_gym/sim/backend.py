@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from stewart_gym.geometry import PlatformGeometry
     from stewart_gym.sim.servo_model import ServoSpec
 
-__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase"]
+__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase", "check_rates"]
 
 #: An extra mass on the plate: (kg, (3,) offset of its centre in the platform frame, m).
 PlateLoad = tuple[float, np.ndarray]
@@ -54,6 +54,15 @@ class BallSpec:
     def inertia(self) -> float:
         """kg·m², about any diameter."""
         return (2.0 / 3.0 if self.hollow else 2.0 / 5.0) * self.mass * self.radius**2
+
+
+def check_rates(physics_hz: int, control_hz: int) -> None:
+    """A :class:`~stewart_gym.errors.ConfigError` unless the physics rate is a positive multiple of the control
+    rate (Hz): every simulator steps its physics a whole number of times per control period."""
+    from stewart_gym.errors import ConfigError
+
+    if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
+        raise ConfigError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
 
 
 @runtime_checkable
@@ -148,13 +157,11 @@ class SimulatorBase:
                render_size: tuple[int, int], render_modes: tuple[str, ...]) -> None:  # fmt: skip
         """Check the options and set what every backend has; raises ``ValueError`` naming a bad option."""
         from stewart_gym.calibration import ServoCalibration
-        from stewart_gym.errors import ConfigError
         from stewart_gym.presets import load_geometry
         from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, HobbyServos, ServoSpec
         from stewart_gym.sim.urdf import MechanismSpec
 
-        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
-            raise ConfigError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        check_rates(physics_hz, control_hz)
         if render_mode is not None and render_mode not in render_modes:
             allowed = " or ".join(repr(m) for m in (None, *render_modes))
             raise ValueError(f"render_mode must be {allowed} for {type(self).__name__}, got {render_mode!r}")

@@ -34,7 +34,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.constants import GRAVITY
 from stewart_gym.kinematics import horn_tips, inverse_kinematics
-from stewart_gym.sim.backend import BallSpec
+from stewart_gym.sim.backend import BallSpec, check_rates
 from stewart_gym.sim.servo_model import ServoSpec
 
 __all__ = ["BatchedSim"]
@@ -80,8 +80,7 @@ class BatchedSim:
 
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 10_000_000:
             raise ConfigError(f"n: a whole number of platforms, 1 to 10,000,000, got {n!r}")
-        if control_hz <= 0 or physics_hz <= 0 or physics_hz % control_hz:
-            raise ConfigError(f"physics_hz ({physics_hz}) must be a positive multiple of control_hz ({control_hz})")
+        check_rates(physics_hz, control_hz)
         self.geometry = load_geometry(geometry)
         if not self.geometry.is_rotary:
             raise ConfigError(f"the batched simulator models rotary servos; {self.geometry.name!r} is linear")
