@@ -203,6 +203,8 @@ def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
         out["backend"] = default_backend()
     if env_id in trajectory_env_ids():
         out["trajectory"] = str(env_kwargs.get("trajectory", "circle"))
+    if env_kwargs.get("twin") is not None:
+        out["twin"] = "given"
     return out
 
 
@@ -210,7 +212,8 @@ def world_line(where: dict[str, str]) -> str:
     """:func:`world` as words: ``StewartBallBalance-v0 on my-build (runs/a/geometry.toml), pybullet, sensor panel``."""
     build = where["geometry_name"] + (f" ({where['geometry']})" if where["geometry"] != where["geometry_name"] else "")
     moving = f", trajectory {where['trajectory']}" if "trajectory" in where else ""
-    return f"{where['env_id']} on {build}, {where['backend']}, sensor {where['sensor']}{moving}"
+    twin = ", the twin's physics" if "twin" in where else ""
+    return f"{where['env_id']} on {build}, {where['backend']}, sensor {where['sensor']}{moving}{twin}"
 
 
 def check_can_render(backend: str | None) -> None:
@@ -244,12 +247,12 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
 
 def compare_setup(policies: list[str], env_id: str | None = None, geometry: str | None = None,
                   backend: str | None = None, sensor: str | None = None,
-                  trajectory: str | None = None) -> tuple[str, str, dict[str, dict]]:  # fmt: skip
+                  trajectory: str | None = None, twin: dict | None = None) -> tuple[str, str, dict[str, dict]]:  # fmt: skip
     """Before any episode: the env id, the build and each policy's env keywords for :func:`compare`, every
     policy loaded once (a bad one is a :class:`ConfigError` or :class:`~stewart_gym.errors.PolicyError`). The
     build is ``geometry``, else the one a trained policy given by path was trained for (the named ones adapt to
     it); the physics engine and the sensor are ``backend`` and ``sensor``, else the ones the policies were trained
-    with, which must then agree."""
+    with, which must then agree; ``twin`` (a twin's tables) is the platform they all run on."""
     from stewart_gym.control import CLASSICAL_KINDS
     from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
 
@@ -273,6 +276,8 @@ def compare_setup(policies: list[str], env_id: str | None = None, geometry: str 
         source, _, kwargs = load_for_evaluation(spec, env_id, geometry)
         env_kwargs[spec] = resolve_world(source, kwargs, env_id, chosen["backend"], chosen["sensor"],
                                          trajectory).env_kwargs  # fmt: skip
+        if twin is not None:
+            env_kwargs[spec]["twin"] = twin
     return env_id, geometry, env_kwargs
 
 
@@ -281,13 +286,14 @@ def compare_setup(policies: list[str], env_id: str | None = None, geometry: str 
 def compare(policies: list[str], env_id: str | None = None, episodes: int = 100, seed: int = 0, randomize: bool = True,
             geometry: str | None = None, backend: str | None = None, sensor: str | None = None,
             trajectory: str | None = None, workers: int | None = None,
-            on_progress: Callable[[float], None] | None = None) -> tuple[dict[str, dict], list[dict]]:  # fmt: skip
+            on_progress: Callable[[float], None] | None = None,
+            twin: dict | None = None) -> tuple[dict[str, dict], list[dict]]:  # fmt: skip
     """Evaluate ``policies`` on the same seeded episodes (:func:`compare_setup`, :func:`evaluate_all`) and pair the
     first with each of the others (:func:`~stewart_gym.evaluation.paired_rows`): (figures by policy, paired
     rows)."""
     from stewart_gym.evaluation import paired_rows
 
-    env, build, env_kwargs = compare_setup(policies, env_id, geometry, backend, sensor, trajectory)
+    env, build, env_kwargs = compare_setup(policies, env_id, geometry, backend, sensor, trajectory, twin)
     processes, parts = process_plan(workers, len(policies), episodes)
     jobs = [EvaluationJob(spec, env, build, None, env_kwargs[spec], episodes, seed, randomize) for spec in policies]
     results = dict(zip(policies, evaluate_all(jobs, parts, processes, on_progress)))

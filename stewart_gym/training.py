@@ -86,6 +86,7 @@ class TrainConfig:
     eval_episodes: int | None = None
     checkpoint_freq: int = 100_000
     resume: str | None = None  # a run folder or checkpoint .zip to continue from
+    twin: str | None = None  # a twin file: train for that platform (randomised narrowly around it)
     overrides: dict[str, Any] | None = None  # replace the YAML's hyperparameters (env_kwargs: key by key)
     progress_bar: bool = True
     tensorboard: bool = True
@@ -361,6 +362,10 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         from stewart_gym.envs.ball_env import check_ball_geometry
 
         check_ball_geometry(geometry)
+    if config.twin is not None:
+        from stewart_gym.sim.twin import load_twin
+
+        load_twin(config.twin)
     if hp.get("residual"):  # the base as it will run on this build (a dither it cannot give is refused)
         spec = check_residual(hp["residual"])
         residual_base(spec, geometry) if geometry is not None else residual_base(spec)
@@ -571,6 +576,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         env_kwargs["sensor"] = config.sensor
     if config.estimator is not None:
         env_kwargs["estimator"] = config.estimator
+    if config.twin is not None:
+        from stewart_gym.sim.twin import load_twin
+
+        env_kwargs["twin"] = load_twin(config.twin).to_mapping()
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)

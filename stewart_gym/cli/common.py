@@ -255,3 +255,18 @@ def add_geometry(parser: argparse.ArgumentParser, default: str = "servo-hexapod"
     from stewart_gym.presets import preset_names
 
     parser.add_argument("--geometry", default=default, help=f"preset ({', '.join(preset_names())}) or TOML file")
+
+
+def add_twin(parser: argparse.ArgumentParser, text: str) -> None:
+    """``--twin FILE`` (a platform's twin, :mod:`stewart_gym.sim.twin`)."""
+    parser.add_argument("--twin", metavar="FILE", help=text)
+
+
+def twin_tables(path: str | None) -> dict | None:
+    """The twin file's tables, checked (an ``error:`` line naming the file and key), as the env takes them; None
+    without ``--twin``."""
+    if path is None:
+        return None
+    from stewart_gym.sim.twin import load_twin
+
+    return load_twin(path).to_mapping()

@@ -17,6 +17,8 @@ from stewart_gym.cli.common import (
     add_backend,
     add_estimator,
     add_sensor,
+    add_twin,
+    twin_tables,
     int_at_least,
     json_safe,
     output_dir,
@@ -43,6 +45,8 @@ VEC_ENV_CHOICES = ("dummy", "subproc")
 SEED_HELP = "the first episode's seed: episode k runs on seed + k, so the same seed gives the same episodes"
 POLICY_HELP = ("shipped, shipped-camera, shipped-residual, pid, pid-kalman, lqr, lqr-pid, a run folder, a model .zip, "
                "an ensemble folder, a bundle folder or a PID gains .json")
+TWIN_HELP = ("a platform's twin (TOML, see stewart-gym sysid): every episode runs on exactly its physics (the ball's "
+             "start and the sensor noise still vary by seed)")
 ESTIMATOR_HELP = ("the observer: lowpass (last reading, filtered velocity) or kalman (Kalman filter: the state now, "
                   "through the sensing delay); default the policy's own (what it was trained or tuned behind)")
 
@@ -62,7 +66,7 @@ def cmd_train(args: argparse.Namespace) -> int:
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, vec_env=args.vec_env,
                       eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                      resume=args.resume, progress_bar=False,  # the line or bar below instead of SB3's
+                      resume=resume_source(args.resume, args.env, args.geometry), twin=args.twin, progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
@@ -79,6 +83,16 @@ def cmd_train(args: argparse.Namespace) -> int:
               f"({total:,} planned); the model is saved as it stands", file=sys.stderr)  # fmt: skip
     print(json.dumps(metrics, indent=2))
     return EXIT_OK
+
+
+def resume_source(resume: str | None, env_id: str, geometry: str | None) -> str | None:
+    """``--resume``: a run folder or model as given, or a shipped policy's run folder by its name."""
+    from stewart_gym.registry import SHIPPED_TABLES, resolve_policy
+
+    if resume not in SHIPPED_TABLES:
+        return resume
+    source = resolve_policy(resume, env_id, geometry)
+    return str(source.path.parent if source.path.name == "model.zip" else source.path)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -100,20 +114,24 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     source, policy, trained = load_for_evaluation(args.policy, args.env, args.geometry, args.estimator)
     where = resolve_world(source, trained, args.env, args.backend, args.sensor, args.trajectory)
     env_id, env_kwargs = where.env_id, where.env_kwargs
+    twin = twin_tables(args.twin)
+    if twin is not None:  # exactly that platform: the episodes vary the ball's start and the noise, not the physics
+        env_kwargs = {**env_kwargs, "twin": twin}
+    randomize = not args.no_randomize and twin is None
     if gif:
         check_can_render(env_kwargs.get("backend"))
     processes, parts = process_plan(args.workers, 1, args.episodes)
     progress = Progress(args.episodes, "episodes", "evaluate")
     if parts == 1:
-        metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=not args.no_randomize,
+        metrics = evaluate(env_id, policy, episodes=args.episodes, seed=args.seed, randomize=randomize,
                            env_kwargs=env_kwargs, on_progress=progress.advance)  # fmt: skip
     else:  # the episodes split over processes: the same figures
         job = EvaluationJob(args.policy, env_id, args.geometry, args.estimator, env_kwargs, args.episodes, args.seed,
-                            not args.no_randomize)  # fmt: skip
+                            randomize)  # fmt: skip
         metrics = evaluate_all([job], parts, processes, progress.advance)[0]
     progress.close()
     if gif or plot:
-        episode_figures(env_id, policy, env_kwargs, args.seed, not args.no_randomize, gif, plot,
+        episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, plot,
                         f"{source.label} on {world_line(where.describe())}")  # fmt: skip
     if args.json:
         print(json.dumps(json_safe({"policy": source.label, **where.describe(), **metrics})))
@@ -137,21 +155,25 @@ def cmd_compare(args: argparse.Namespace) -> int:
     twice = sorted({p for p in policies if policies.count(p) > 1})
     if twice:
         raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
+    twin = twin_tables(args.twin)
+    randomize = not args.no_randomize and twin is None  # a twin: exactly that platform
     env_id, geometry, env_kwargs = compare_setup(policies, args.env, args.geometry, args.backend, args.sensor,
-                                                 args.trajectory)  # fmt: skip
+                                                 args.trajectory, twin)  # fmt: skip
     processes, _ = process_plan(args.workers, len(policies), args.episodes)
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
-          f"{', domain randomisation' if not args.no_randomize else ', nominal physics'}) of {env_id} on {geometry}, "
+          f"{', domain randomisation' if randomize else (', the twin' if twin else ', nominal physics')}) of {env_id} "
+          f"on {geometry}, "
           f"{world_line['backend']}, sensor {world_line['sensor']}; {processes} processes at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
     progress = Progress(args.episodes * len(policies), "episodes", "compare")
-    results, rows = compare(policies, env_id, args.episodes, args.seed, not args.no_randomize, geometry, args.backend,
-                            args.sensor, args.trajectory, args.workers, progress.advance)  # fmt: skip
+    results, rows = compare(policies, env_id, args.episodes, args.seed, randomize, geometry, args.backend,
+                            args.sensor, args.trajectory, args.workers, progress.advance, twin)  # fmt: skip
     progress.close()
     if args.json:
         print(json.dumps(json_safe({**world_line, "geometry": geometry, "episodes": args.episodes, "seed": args.seed,
-                                    "randomize": not args.no_randomize, "policies": results, "paired": rows})))  # fmt: skip
+                                    "randomize": randomize, "twin": args.twin, "policies": results,
+                                    "paired": rows})))  # fmt: skip
     else:
         labels = column_labels(policies)
         print()
@@ -196,10 +218,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out = output_dir(args.out)
     env_id = "StewartBallBalance-v0"
     names = demo_policies(env_id, args.geometry)
+    twin = twin_tables(args.twin)
+    randomize = twin is None  # a twin: exactly that platform
     loaded = {}
     for name in names:  # every policy loaded before the output folder and the first evaluation
         source, policy, env_kwargs = load_for_evaluation(name, env_id, args.geometry)
-        loaded[name] = (policy, resolve_world(source, env_kwargs, env_id, args.backend).env_kwargs)
+        kwargs = resolve_world(source, env_kwargs, env_id, args.backend).env_kwargs
+        loaded[name] = (policy, kwargs if twin is None else {**kwargs, "twin": twin})
     engine = loaded[names[0]][1].get("backend") or default_backend()
     gif: Path | None = out / "demo.gif"
     if engine == "mujoco":  # MuJoCo draws with OpenGL, which a headless machine may lack: then no GIF, said why
@@ -210,9 +235,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
             print(f"note: no GIF: {exc}", file=sys.stderr)
     out.mkdir(parents=True, exist_ok=True)
     processes, parts = process_plan(args.workers, len(names), args.episodes)
-    print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes with domain randomisation "
+    physics = "with domain randomisation" if twin is None else f"on the twin {args.twin}"
+    print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes {physics} "
           f"({engine}), {processes} processes at a time…", flush=True)  # fmt: skip
-    jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, True)
+    jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, randomize)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
     progress = Progress(args.episodes * len(jobs), "episodes", "demo")
     results = dict(zip(names, evaluate_all(jobs, parts, processes, progress.advance)))
@@ -223,7 +249,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(format_paired(paired_rows(results, names[0])))
     (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     policy, env_kwargs = loaded[names[0]]
-    episode_figures(env_id, policy, env_kwargs, args.seed, True, gif, out / "demo_pulses.png",
+    episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, out / "demo_pulses.png",
                     f"{names[0]} on {world_line(world(env_id, env_kwargs))}")  # fmt: skip
     wrote = [str(p) for p in (gif, out / "demo_pulses.png") if p is not None]
     print(f"\nwrote {', '.join(wrote)} (policy {names[0]}) and {out / 'demo_metrics.json'}")
@@ -334,7 +360,10 @@ def register(sub: Any) -> None:
     p.add_argument("--checkpoint-freq", type=int_at_least(1, MAX_TIMESTEPS), default=100_000,
                    help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
                         "default 100000)")  # fmt: skip
-    p.add_argument("--resume", help="run folder or checkpoint .zip to continue from")
+    p.add_argument("--resume", help="run folder or checkpoint .zip to continue from, or a shipped policy's name "
+                                    "(shipped, shipped-residual, shipped-camera) to fine-tune it")
+    add_twin(p, "a platform's twin (TOML, see stewart-gym sysid): train for it, each episode's physics drawn narrowly "
+                "around its values")
     p.add_argument("--max-minutes", type=positive_float, help="stop after this much wall time")
     p.add_argument("--no-progress", action="store_true", help="no progress bar or progress lines")
     p.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard log (tb/ in the run folder)")
@@ -352,6 +381,7 @@ def register(sub: Any) -> None:
     add_episodes(p, at_least=1)
     add_workers(p)
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_twin(p, TWIN_HELP)
     p.add_argument("--gif", help="write a GIF of one episode from the 100 mm offset")
     p.add_argument("--plot", help="write the ball path and pulse widths of that episode (PNG)")
     p.set_defaults(func=cmd_evaluate)
@@ -367,6 +397,7 @@ def register(sub: Any) -> None:
     add_sensor(p, "ball sensor model (default: the one the policies were trained with, else panel)")
     add_episodes(p, at_least=2)
     add_workers(p)
+    add_twin(p, TWIN_HELP)
     p.add_argument("--json", action="store_true", help="print one JSON object: each policy's metrics and the pairs")
     p.set_defaults(func=cmd_compare)
 
@@ -404,5 +435,6 @@ def register(sub: Any) -> None:
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
     p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help=SEED_HELP)
     p.add_argument("--out", default="out", help="folder for the GIF, plot and metrics")
+    add_twin(p, TWIN_HELP)
     add_workers(p)
     p.set_defaults(func=cmd_demo)

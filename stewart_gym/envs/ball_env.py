@@ -17,6 +17,7 @@ from gymnasium.utils import EzPickle
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.sim.twin import Twin, load_twin
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
@@ -191,7 +192,9 @@ class StewartBallEnv(gym.Env, EzPickle):
     ``"kalman"``: :class:`~stewart_gym.sensing.BallKalmanFilter`'s estimate for now, through the sensing
     delay), ``integral`` (append the observer's integral of the position error near the target, what a
     PID's integral term sees), ``start_distance`` (see Starting State), ``episode_s`` (s, the episode's length;
-    each id sets its own), and any keyword of the task
+    each id sets its own), ``twin`` (a twin file, :class:`~stewart_gym.sim.twin.Twin` or its tables: the
+    simulated platform has exactly its parameters; with ``randomize``, each is drawn narrowly around them, see
+    :data:`~stewart_gym.envs.randomization.TWIN_WIDTH_FLOOR`), and any keyword of the task
     (``trajectory`` for track; ``near_scale``, ``settled_rate_penalty``, ``outside_penalty`` and
     ``charge_until_settled`` of the reward).
 
@@ -224,6 +227,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         integral: bool = False,
         start_distance: Sequence[float] | None = None,
         episode_s: float = 10.0,
+        twin: Twin | Mapping[str, Any] | str | None = None,
         **task_kwargs: Any,
     ) -> None:
         EzPickle.__init__(self, task, action_mode, randomize, render_mode, max_tilt=max_tilt,
@@ -231,7 +235,7 @@ class StewartBallEnv(gym.Env, EzPickle):
                           control_hz=control_hz, ball=ball, servo=servo, sensor=sensor, geometry=geometry,
                           randomization=randomization, rate_penalty=rate_penalty, backend=backend,
                           estimator=estimator, integral=integral, start_distance=start_distance,
-                          episode_s=episode_s, **task_kwargs)  # fmt: skip
+                          episode_s=episode_s, twin=twin, **task_kwargs)  # fmt: skip
         unknown = sorted(set(task_kwargs) - task_keywords(task)) if isinstance(task, str) else sorted(task_kwargs)
         if unknown:  # a TypeError, as Python's own for a keyword a function does not take (clients probe for it)
             raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r} "
@@ -247,6 +251,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         if isinstance(randomization, Mapping):  # from YAML: the fields to change
             randomization = RandomizationRanges.from_mapping(randomization)
         self.ranges = randomization or RandomizationRanges()
+        #: the platform simulated (:class:`~stewart_gym.sim.twin.Twin`), or None: the nominal one
+        self.twin = None if twin is None else load_twin(twin)
         if isinstance(backend, str):
             geometry = check_ball_geometry(geometry, self.nominal_ball)
         rotary = (geometry if isinstance(backend, str) else backend.geometry).is_rotary
@@ -293,7 +299,10 @@ class StewartBallEnv(gym.Env, EzPickle):
         options = self._check_options(options)
         if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
             self._reopen()
-        if self.randomize:
+        if self.twin is not None:
+            params = EpisodeParams.from_twin(self.twin, self.nominal_ball, self.nominal_servo, self.nominal_sensor,
+                                             rng if self.randomize else None, self.ranges)  # fmt: skip
+        elif self.randomize:
             params = EpisodeParams.sample(rng, self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor)
         else:
             nominal = self.nominal_sensor[0] if isinstance(self.nominal_sensor, tuple) else self.nominal_sensor

@@ -13,8 +13,9 @@ from stewart_gym.camera import CameraSpec
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
+from stewart_gym.sim.twin import Twin
 
-__all__ = ["EpisodeParams", "RandomizationRanges"]
+__all__ = ["TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges"]
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,16 @@ class RandomizationRanges:
         return cls(**out)
 
 
+#: ``randomize`` around a twin: each value is drawn uniformly within ± max(2 σ of its fit, this floor), where
+#: σ is the ``[fit]`` uncertainty ``sysid`` wrote (0 for a twin written by hand); keys the fit left undetermined
+#: keep today's ranges (:class:`RandomizationRanges`).
+TWIN_WIDTH_FLOOR: dict[str, float] = {
+    "servos.speed_scale": 0.05, "servos.deadband_us": 1.0, "servos.trim_us": 3.0, "servos.latency_ms": 3.0,
+    "ball.mass_scale": 0.05, "ball.radius_scale": 0.02, "ball.rolling_friction": 5e-6, "plate.friction": 0.05,
+    "plate.load_kg": 0.005, "sensor.noise_mm": 0.15, "sensor.latency_ms": 3.0,
+}
+
+
 @dataclass(frozen=True)
 class EpisodeParams:
     """Physical parameters of one episode."""
@@ -103,3 +114,45 @@ class EpisodeParams:
         angle, dist = u(0, 2 * math.pi), r.plate_load_radius * math.sqrt(u(0, 1))
         load = (u(*r.plate_load_kg), np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
         return cls(ball_ep, servo_ep, sensor_ep, u(*r.plate_friction), load)
+
+    @classmethod
+    def from_twin(cls, twin: Twin, ball: BallSpec, servo: ServoSpec, sensor: TouchPanelSpec | CameraSpec | tuple,
+                  rng: np.random.Generator | None = None,
+                  ranges: RandomizationRanges | None = None) -> EpisodeParams:  # fmt: skip
+        """The platform ``twin`` describes, from the nominal ``ball``, ``servo`` and ``sensor``. With ``rng``, each
+        value is drawn around the twin's (:data:`TWIN_WIDTH_FLOOR`; an undetermined key from ``ranges``).
+
+        The twin's ``[sensor]`` is the touch panel's; a camera keeps its own latency and noise (a tuple of
+        cameras: one of them, drawn uniformly with ``rng``, else the first)."""
+        ranges = ranges or RandomizationRanges()
+        undetermined = set(twin.undetermined)
+
+        def value(name: str, lo: float, hi: float, wide: tuple[float, float] | None = None) -> float:
+            v = float(twin[name])
+            if rng is None:
+                return v
+            if name in undetermined and wide is not None:
+                return float(rng.uniform(*wide))
+            w = max(2.0 * twin.sigma.get(name, 0.0), TWIN_WIDTH_FLOOR[name])
+            return float(np.clip(rng.uniform(v - w, v + w), lo, hi))
+
+        mass = value("ball.mass_scale", 0.1, 10.0, ranges.ball_mass_scale)
+        radius = value("ball.radius_scale", 0.5, 2.0, ranges.ball_radius_scale)
+        ball_ep = replace(ball, radius=round(ball.radius * radius, 5), mass=ball.mass * mass,
+                          rolling_friction=value("ball.rolling_friction", 0.0, 1e-3, ranges.ball_rolling_friction))
+        trim = np.asarray(twin["servos.trim_us"], dtype=float)
+        if rng is not None:
+            w = max(2.0 * twin.sigma.get("servos.trim_us", 0.0), TWIN_WIDTH_FLOOR["servos.trim_us"])
+            trim = trim + rng.uniform(-w, w, 6)
+        servo_ep = replace(servo, max_speed=servo.max_speed * value("servos.speed_scale", 0.1, 5.0),
+                           deadband_us=value("servos.deadband_us", 0.0, 50.0), trim_error_us=tuple(trim),
+                           lag_s=servo.lag_s + value("servos.latency_ms", 0.0, 200.0) / 1e3)  # fmt: skip
+        if isinstance(sensor, tuple):
+            sensor = sensor[int(rng.integers(len(sensor)))] if rng is not None else sensor[0]
+        sensor_ep: TouchPanelSpec | CameraSpec = sensor
+        if isinstance(sensor, TouchPanelSpec):
+            sensor_ep = TouchPanelSpec(noise_mm=value("sensor.noise_mm", 0.0, 20.0), rate_hz=sensor.rate_hz,
+                                       latency_s=value("sensor.latency_ms", 0.0, 300.0) / 1e3)  # fmt: skip
+        load_kg = value("plate.load_kg", 0.0, 2.0, ranges.plate_load_kg)
+        load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
+        return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0, ranges.plate_friction), load)

@@ -84,10 +84,11 @@ class SimulatedPlant:
 
     def __init__(self, env_id: str = "StewartBallBalance-v0", seed: int = 0, randomize: bool = True,
                  ball_position: tuple[float, float] | None = None, geometry: Any = "servo-hexapod",
-                 backend: str = "auto") -> None:  # fmt: skip
+                 backend: str = "auto", twin: Any = None, control_hz: int = 50) -> None:  # fmt: skip
         import gymnasium as gym
 
-        self.env = gym.make(env_id, randomize=randomize, geometry=geometry, backend=backend).unwrapped
+        self.env = gym.make(env_id, randomize=randomize, geometry=geometry, backend=backend, twin=twin,
+                            control_hz=control_hz).unwrapped  # fmt: skip
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.backend = self.env.sim
@@ -133,6 +134,9 @@ MAX_RATE_HZ = 500.0
 MAX_MISSED_FRACTION = 0.05
 #: A run with no fresh valid reading on more than this fraction of its ticks has failed: the sensor did not work.
 MAX_STALE_FRACTION = 0.5
+#: The log's last columns: the sensor's newest reading this tick as it gave it, valid or not (plate frame, m) and
+#: its sample time on the loop's clock (s); empty (nan) when it gave none. ``sysid`` fits a twin from them.
+LOG_READING_COLUMNS = ("reading_x_m", "reading_y_m", "reading_t_s")
 #: Per-tick flags, in the log's columns and the summary's counts.
 TICK_FLAGS = ("held", "clamped", "rate_limited", "homing", "stale", "invalid", "unreachable")
 
@@ -301,7 +305,8 @@ class DeployLoop:
                 now = time.monotonic()
                 jitter = (now - next_tick) * 1e3
                 t = now - start
-                reading, invalid = self.checked(self.sensor.read(t), t)  # (x, y), age
+                got = self.sensor.read(t)
+                reading, invalid = self.checked(got, t)  # (x, y), age
                 c0 = time.perf_counter()
                 obs, action, pulses, flags = self.compute(reading, t)
                 flags["invalid"] = invalid
@@ -318,8 +323,10 @@ class DeployLoop:
                 jitters.append(jitter)
                 if writer is not None:
                     bits = [int(bool(flags[k])) for k in TICK_FLAGS]
+                    raw = (math.nan,) * 3 if got is None else (*got[0], got[1])  # what the sensor gave, as it gave it
                     writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
-                                     *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data)])
+                                     *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data),
+                                     *(f"{v:.6f}" for v in raw)])
                     fh.flush()
                 next_tick += period
                 sleep = next_tick - time.monotonic()
@@ -441,6 +448,7 @@ class DeployLoop:
         n = self.mapper.size
         writer.writerow(["t_s", "jitter_ms", *(f"obs{i}" for i in range(self.observer.builder.size)),
                          *(f"action{i}" for i in range(n)), "x_m", "y_m", "z_m", "roll", "pitch", "yaw",
-                         *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS, "missed_deadline", "bytes"])  # fmt: skip
+                         *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS, "missed_deadline", "bytes",
+                         *LOG_READING_COLUMNS])  # fmt: skip
         fh.flush()
         return writer, fh

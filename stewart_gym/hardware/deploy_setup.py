@@ -142,6 +142,7 @@ class DeployOptions:
     randomize: bool = True
     write_only: bool = False
     answer_timeout_s: float = ANSWER_TIMEOUT_S
+    twin: dict | None = None  # the simulated plant's platform (--sensor sim): a twin's tables
 
 
 class DeploySetup:
@@ -174,6 +175,8 @@ class DeploySetup:
                 raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
         elif options.backend:
             raise ConfigError("--backend chooses the simulated plant's engine: it needs --sensor sim")
+        elif options.twin is not None:
+            raise ConfigError("--twin describes the simulated plant: it needs --sensor sim")
         if options.sensor == "camera":
             if not options.camera_config:
                 raise ConfigError("--sensor camera needs --camera-config FILE (see stewart-gym camera-check)")
@@ -217,8 +220,8 @@ class DeploySetup:
 
             return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
         if o.sensor == "sim":
-            return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize, geometry=self.policy.geometry,
-                                  backend=o.backend or "auto")  # fmt: skip
+            return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize and o.twin is None,
+                                  geometry=self.policy.geometry, backend=o.backend or "auto", twin=o.twin)  # fmt: skip
         return None
 
     def run(self) -> DeploySummary:

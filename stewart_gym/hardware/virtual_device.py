@@ -39,8 +39,10 @@ from stewart_gym.sensing import reading_is_valid
 
 __all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary"]
 
-#: Hz: how often the board reads its input and the sketch reports the ball.
+#: Hz: how often the sketch reports the ball, and the rate the platform is simulated at (one step per period).
 TICK_HZ = 100
+#: Hz: how often the board reads its input (a frame acts within 1/POLL_HZ of its arrival).
+POLL_HZ = 500
 
 
 @dataclass(frozen=True)
@@ -352,12 +354,19 @@ class VirtualDevice:
         randomize: domain randomisation of that episode.
         link: a path to make a symlink to the pty (replaced if it is a link).
         env_id: the env whose task places the ball.
+        camera, camera_stream: the camera preset whose view is streamed as MJPEG into the named pipe.
+        twin: the platform's twin (:class:`~stewart_gym.sim.twin.Twin`, its tables or a file): the platform has
+            exactly its parameters (``randomize`` is then ignored).
+
+    Timing: the board reads its input at :data:`POLL_HZ`; the platform is simulated in steps of 1/:data:`TICK_HZ`
+    kept within half a step of real time, and a frame acts from the step that starts nearest its arrival; the
+    sketch reports the panel's reading for the real time of the report.
     """
 
     def __init__(self, protocol: str, backend: str = "auto", geometry: Any = "servo-hexapod",
                  calibration: ServoCalibration | None = None, faults: Faults | None = None, seed: int = 0,
                  randomize: bool = True, link: str | None = None, env_id: str = "StewartBallBalance-v0",
-                 camera: Any = None, camera_stream: str | None = None) -> None:  # fmt: skip
+                 camera: Any = None, camera_stream: str | None = None, twin: Any = None) -> None:  # fmt: skip
         from stewart_gym.hardware.deploy import SimulatedPlant
         from stewart_gym.presets import load_geometry
 
@@ -381,7 +390,8 @@ class VirtualDevice:
         geo = load_geometry(geometry)
         self.calibration = calibration or ServoCalibration.default(geo)
         self._channel_index = {c: i for i, c in enumerate(self.calibration.channels)}
-        self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize, geometry=geo, backend=backend)
+        self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize and twin is None, geometry=geo,
+                                    backend=backend, twin=twin, control_hz=TICK_HZ)  # fmt: skip
         self._rng = np.random.default_rng(seed + 7919)
         self.held = self.calibration.neutral_us.copy()
         self.commanded = self.held.copy()  # the last targets received (acting after any injected latency)
@@ -448,7 +458,7 @@ class VirtualDevice:
             return  # a hung board: what the host writes piles up unread
         size = 4096
         if f.read_bytes_per_s is not None:  # a slow board: a budget of bytes that grows with time
-            self._read_budget = min(self._read_budget + f.read_bytes_per_s / TICK_HZ, max(1.0, f.read_bytes_per_s))
+            self._read_budget = min(self._read_budget + f.read_bytes_per_s / POLL_HZ, max(1.0, f.read_bytes_per_s))
             size = int(self._read_budget)
             if size < 1:
                 return
@@ -498,8 +508,10 @@ class VirtualDevice:
     def run(self, stop: Callable[[], bool]) -> VirtualSummary:
         """Serve until ``stop()`` is True; returns (and keeps) the summary."""
         f = self.faults
-        period = 1.0 / TICK_HZ
+        period = 1.0 / POLL_HZ
+        step = 1.0 / TICK_HZ
         next_tick = time.monotonic()
+        next_report = next_tick
         last_ready = -1.0
         backend = self.plant.backend
         try:
@@ -514,20 +526,23 @@ class VirtualDevice:
                         self._unplug()
                         continue
                     if since is not None:
-                        while backend.time < since:  # real time: one control period per step
+                        while backend.time + step / 2 <= since:  # real time, to half a step
                             self.plant.apply(self.held)
                     if self.stream is not None and self.stream.connected and now >= self._next_frame:
                         self.stream.put(backend.camera_image(self.camera))  # what the camera sees now
                         self._next_frame = max(self._next_frame + 1.0 / self.camera.fps, now - 0.5)
                         self.summary.camera_frames += 1
-                    if self.protocol == "line":
+                    report = now >= next_report
+                    if report:
+                        next_report = max(next_report + step, now - 0.5)
+                    if self.protocol == "line" and report:
                         if since is None and now - last_ready >= 0.25:
                             self._send(f"{LineProtocol.READY}\n".encode(), now)
                             last_ready = now
                         stalled = f.stall_sensor_after_s is not None and since is not None and since >= \
                             f.stall_sensor_after_s  # fmt: skip
                         if not stalled:  # the sketch reports from power-up, the ball resting where it was put
-                            self._report(now, backend.time)
+                            self._report(now, backend.time if since is None else since)
                     self._flush(now)
                 next_tick += period
                 time.sleep(max(0.0, next_tick - time.monotonic()))

@@ -1,0 +1,76 @@
+"""The excitation experiment of ``stewart-gym identify``: a stabilising controller plus designed tilt steps.
+
+:class:`Excitation` wraps a deployable policy (the PID + Kalman by default): every tick it adds a tilt offset to
+the policy's action. The offset is a multilevel pseudo-random sequence: it holds each level for
+``hold_s`` (drawn uniformly), and each level is drawn uniformly within ``± amplitude`` of the action range, with
+the odd hold at zero. The controller keeps the ball on the plate while the steps make it roll, and the steps
+ask the servos for moves fast enough to show their speed. The run itself is a deploy run
+(:class:`~stewart_gym.hardware.deploy_setup.DeploySetup`): the same safety layer, the same channel limits, the
+same drive home on every stop, and the same log, which ``stewart-gym sysid`` reads.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.errors import ConfigError
+
+__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "Excitation"]
+
+#: ``identify``'s default rate limit, µs/s per channel: a step may move a servo as fast as about 3× the reference
+#: servos' speed, so that the log shows how fast the servos really are (a limit under their speed would hide it).
+IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
+
+
+class Excitation:
+    """``policy``'s action plus a pseudo-random multilevel tilt offset (see the module's description).
+
+    Args:
+        policy: the stabilising policy (its action is a tilt: ``action_mode`` ``"tilt"``).
+        rate_hz: the loop's rate (one call per tick).
+        amplitude: the offset's largest value, as a fraction of the action range (0 < amplitude ≤ 0.6).
+        hold_s: (shortest, longest) time a level is held, s.
+        seed: the sequence's seed.
+    """
+
+    def __init__(self, policy: Any, rate_hz: float = 50.0, amplitude: float = 0.3,
+                 hold_s: tuple[float, float] = (0.1, 0.5), seed: int = 0) -> None:  # fmt: skip
+        if getattr(policy, "action_mode", "tilt") != "tilt":
+            raise ConfigError(f"identify excites the plate's tilt: its controller must act in 'tilt' mode, not "
+                              f"{policy.action_mode!r}")  # fmt: skip
+        if not (math.isfinite(amplitude) and 0.0 < amplitude <= 0.6):
+            raise ConfigError(f"the excitation amplitude must be in (0, 0.6] of the tilt range, got {amplitude!r}")
+        lo, hi = hold_s
+        if not (0.0 < lo <= hi <= 10.0):
+            raise ConfigError(f"the excitation's hold times must be 0 < shortest ≤ longest ≤ 10 s, got {hold_s!r}")
+        self.policy, self.rate_hz, self.amplitude, self.hold_s = policy, float(rate_hz), float(amplitude), (lo, hi)
+        self._rng = np.random.default_rng(seed)
+        self._left = 0
+        self.offset = np.zeros(2)
+
+    def __getattr__(self, name: str) -> Any:  # the policy's own description: geometry, env id, observer, …
+        if name == "policy":  # not set yet (copying): no recursion
+            raise AttributeError(name)
+        return getattr(self.policy, name)
+
+    def reset(self) -> None:
+        """The policy's state cleared; the sequence goes on."""
+        self.policy.reset()
+
+    def _next_level(self) -> None:
+        lo, hi = self.hold_s
+        self._left = max(1, int(round(self._rng.uniform(lo, hi) * self.rate_hz)))
+        if self._rng.random() < 0.15:  # now and then a rest at zero, so that the log holds small moves too
+            self.offset = np.zeros(2)
+        else:
+            self.offset = self._rng.uniform(-self.amplitude, self.amplitude, 2)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        if self._left <= 0:
+            self._next_level()
+        self._left -= 1
+        action = np.asarray(self.policy(obs), dtype=np.float64)
+        return np.clip(action + self.offset, -1.0, 1.0)

@@ -1,0 +1,195 @@
+"""A platform's twin: the physical parameters of one real platform, in one TOML file.
+
+Every command that simulates a platform reads it (``--twin FILE``), and ``stewart-gym sysid`` writes it. The
+file has four tables; a missing key takes its nominal value, an unknown key or a value out of its physical range
+is a :class:`~stewart_gym.errors.ConfigError` naming the file and the key::
+
+    [servos]
+    speed_scale = 1.0                  # × the servo model's nominal speed
+    deadband_us = 5.0
+    trim_us = [0, 0, 0, 0, 0, 0]       # each servo's neutral error (what a perfect calibration would remove)
+    latency_ms = 0.0                   # delay between a pulse leaving and the servo acting on it
+    [ball]
+    mass_scale = 1.0
+    radius_scale = 1.0
+    rolling_friction = 0.0             # m
+    [plate]
+    friction = 0.6
+    load_kg = 0.0
+    [sensor]
+    noise_mm = 1.0
+    latency_ms = 10.0
+
+``sysid`` adds a ``[fit]`` table: the one-sigma uncertainty of each fitted value (``sigma``, keyed
+``"table.key"``), the keys the logs could not determine (``undetermined``), and the logs it read.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stewart_gym.errors import ConfigError
+
+__all__ = ["TWIN_FIELDS", "Twin", "load_twin"]
+
+#: Every key of a twin file: ``(table, key)`` → (nominal value, lowest, highest, unit, what it is).
+TWIN_FIELDS: dict[tuple[str, str], tuple[Any, float, float, str, str]] = {
+    ("servos", "speed_scale"): (1.0, 0.1, 5.0, "×", "the servos' speed, × the servo model's nominal no-load speed"),
+    ("servos", "deadband_us"): (5.0, 0.0, 50.0, "µs", "pulse changes this small are ignored"),
+    ("servos", "trim_us"): ((0.0,) * 6, -200.0, 200.0, "µs",
+                            "each servo's neutral error: its physical neutral minus the calibrated one (six values)"),
+    ("servos", "latency_ms"): (0.0, 0.0, 200.0, "ms",
+                               "delay between a pulse leaving the computer and the servo acting on it, on top of "
+                               "the servo model's own 10 ms lag"),
+    ("ball", "mass_scale"): (1.0, 0.1, 10.0, "×", "the ball's mass, × the nominal 66.8 g"),
+    ("ball", "radius_scale"): (1.0, 0.5, 2.0, "×", "the ball's radius, × the nominal 12.7 mm"),
+    ("ball", "rolling_friction"): (0.0, 0.0, 1e-3, "m", "rolling friction (lever arm)"),
+    ("plate", "friction"): (0.6, 0.05, 2.0, "", "friction coefficient between the ball and the plate"),
+    ("plate", "load_kg"): (0.0, 0.0, 2.0, "kg", "an extra mass at the plate's centre (a cable, a sensor)"),
+    ("sensor", "noise_mm"): (1.0, 0.0, 20.0, "mm", "standard deviation of each reported coordinate"),
+    ("sensor", "latency_ms"): (10.0, 0.0, 300.0, "ms", "age of a reading when it reaches the computer"),
+}
+TABLES = ("servos", "ball", "plate", "sensor")
+#: The table ``sysid`` adds: ``sigma`` (one-sigma uncertainties, keyed ``"table.key"``), ``undetermined``
+#: (the keys the logs could not determine), ``logs`` (the files fitted).
+FIT_TABLE = "fit"
+
+
+@dataclass(frozen=True)
+class Twin:
+    """One platform's physical parameters (see the module's description for each).
+
+    Attributes:
+        values: ``(table, key)`` → value, every key of :data:`TWIN_FIELDS`.
+        sigma: ``"table.key"`` → one-sigma uncertainty of a fitted value (empty for a twin written by hand).
+        undetermined: the ``"table.key"`` names the fit could not determine.
+        source: the file it was read from, for messages.
+    """
+
+    values: dict[tuple[str, str], Any] = field(default_factory=lambda: {k: v[0] for k, v in TWIN_FIELDS.items()})
+    sigma: dict[str, float] = field(default_factory=dict)
+    undetermined: tuple[str, ...] = ()
+    source: str = "twin"
+
+    def __getitem__(self, name: str) -> Any:
+        """A value by ``"table.key"``, e.g. ``twin["servos.speed_scale"]``."""
+        table, _, key = name.partition(".")
+        return self.values[(table, key)]
+
+    @property
+    def total_latency_ms(self) -> float:
+        """Sensor plus servo latency, ms: what the ball's response to a pulse shows."""
+        return float(self["servos.latency_ms"] + self["sensor.latency_ms"])
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any], source: str = "twin") -> Twin:
+        """A twin from the parsed tables; checks every key and value (:class:`ConfigError` naming ``source``)."""
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{source}: a twin is a set of TOML tables, got {type(data).__name__}")
+        unknown = sorted(set(data) - set(TABLES) - {FIT_TABLE})
+        if unknown:
+            raise ConfigError(f"{source}: unknown table(s) {unknown}; a twin has [servos], [ball], [plate], [sensor]")
+        values = {k: v[0] for k, v in TWIN_FIELDS.items()}
+        for table in TABLES:
+            given = data.get(table, {})
+            if not isinstance(given, Mapping):
+                raise ConfigError(f"{source}: [{table}] must be a table, got {given!r}")
+            keys = sorted(k for (t, k) in TWIN_FIELDS if t == table)
+            bad = sorted(set(given) - set(keys))
+            if bad:
+                raise ConfigError(f"{source}: unknown key(s) {bad} in [{table}]; its keys: {keys}")
+            for key, value in given.items():
+                values[(table, key)] = _checked(source, table, key, value)
+        sigma, undetermined = _fit_table(source, data.get(FIT_TABLE, {}))
+        return cls(values, sigma, undetermined, source)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The tables, as :meth:`from_mapping` reads them (with ``[fit]`` where there is one)."""
+        out: dict[str, Any] = {t: {} for t in TABLES}
+        for (table, key), value in self.values.items():
+            out[table][key] = list(value) if isinstance(value, tuple) else value
+        if self.sigma or self.undetermined:
+            out[FIT_TABLE] = {"sigma": dict(self.sigma), "undetermined": list(self.undetermined)}
+        return out
+
+    def replaced(self, **changes: Any) -> Twin:
+        """A copy with some values changed, keyed ``table__key`` (``servos__speed_scale=0.5``), each checked."""
+        values = dict(self.values)
+        for name, value in changes.items():
+            table, _, key = name.partition("__")
+            if (table, key) not in TWIN_FIELDS:
+                raise ConfigError(f"{self.source}: no twin key {table}.{key}")
+            values[(table, key)] = _checked(self.source, table, key, value)
+        return Twin(values, dict(self.sigma), self.undetermined, self.source)
+
+    def toml(self, comments: Mapping[str, str] | None = None) -> str:
+        """The twin as a TOML file; ``comments`` (``"table.key"`` → text) go beside the values."""
+        comments = comments or {}
+        lines: list[str] = []
+        for table in TABLES:
+            lines.append(f"[{table}]")
+            for (t, key), value in self.values.items():
+                if t != table:
+                    continue
+                text = ("[" + ", ".join(f"{v:.1f}" for v in value) + "]" if isinstance(value, tuple)
+                        else f"{value:.6g}")  # fmt: skip
+                note = comments.get(f"{table}.{key}")
+                lines.append(f"{key} = {text}" + (f"  # {note}" if note else ""))
+            lines.append("")
+        if self.sigma or self.undetermined:
+            lines.append(f"[{FIT_TABLE}]")
+            lines.append("undetermined = [" + ", ".join(f'"{u}"' for u in self.undetermined) + "]")
+            lines.append(f"[{FIT_TABLE}.sigma]")
+            lines.extend(f'"{name}" = {value:.4g}' for name, value in self.sigma.items())
+            lines.append("")
+        return "\n".join(lines)
+
+
+def _checked(source: str, table: str, key: str, value: Any) -> Any:
+    _, lo, hi, unit, _ = TWIN_FIELDS[(table, key)]
+    unit = f" {unit}" if unit and unit != "×" else ""
+    if key == "trim_us":
+        items = list(value) if isinstance(value, (list, tuple)) else None
+        if items is None or len(items) != 6 or not all(_number(v) and lo <= v <= hi for v in items):
+            raise ConfigError(f"{source}: servos.trim_us must be six numbers in {lo:g}…{hi:g} µs, got {value!r}")
+        return tuple(float(v) for v in items)
+    if not (_number(value) and lo <= value <= hi):
+        raise ConfigError(f"{source}: {table}.{key} must be a number in {lo:g}…{hi:g}{unit}, got {value!r}")
+    return float(value)
+
+
+def _number(v: Any) -> bool:
+    return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+
+
+def _fit_table(source: str, fit: Any) -> tuple[dict[str, float], tuple[str, ...]]:
+    if not isinstance(fit, Mapping):
+        raise ConfigError(f"{source}: [fit] must be a table, got {fit!r}")
+    names = {f"{t}.{k}" for t, k in TWIN_FIELDS}
+    bad = sorted(set(fit) - {"sigma", "undetermined", "logs"})
+    if bad:
+        raise ConfigError(f"{source}: unknown key(s) {bad} in [fit]; its keys: ['logs', 'sigma', 'undetermined']")
+    sigma = fit.get("sigma", {})
+    undetermined = fit.get("undetermined", [])
+    if not isinstance(sigma, Mapping) or not all(k in names and _number(v) and v >= 0 for k, v in sigma.items()):
+        raise ConfigError(f"{source}: fit.sigma must map twin keys (\"servos.speed_scale\", …) to numbers ≥ 0")
+    if not isinstance(undetermined, list) or not all(u in names for u in undetermined):
+        raise ConfigError(f"{source}: fit.undetermined must list twin keys (\"ball.mass_scale\", …)")
+    return {k: float(v) for k, v in sigma.items()}, tuple(undetermined)
+
+
+def load_twin(twin: Twin | Mapping[str, Any] | str | Path) -> Twin:
+    """A :class:`Twin` from a file path, parsed tables, or a twin (returned as it is)."""
+    if isinstance(twin, Twin):
+        return twin
+    if isinstance(twin, Mapping):
+        return Twin.from_mapping(twin)
+    if isinstance(twin, (str, Path)):
+        from stewart_gym.tomlio import read_toml
+
+        return Twin.from_mapping(read_toml(twin, ConfigError, "twin file"), source=str(twin))
+    raise ConfigError(f"twin must be a twin file path or its tables, got {type(twin).__name__}")

@@ -1,0 +1,535 @@
+"""System identification: fit a platform's twin (:mod:`stewart_gym.sim.twin`) from its deploy logs.
+
+The logs hold every pulse sent and every ball reading received, with their times (``identify``'s, or any deploy
+run's). The fit replays the logged pulses through the batched simulator
+(:class:`~stewart_gym.sim.BatchedSim`) and compares the simulated ball with the readings, over many short
+windows at once.
+
+**What it fits, and how.**
+
+- *Servo speed and dead band*: a grid of candidate servos, every window simulated for every candidate in one
+  batched run.
+- *Total latency* (sensor + servo): a delay of the input is a delay of the output, so each simulated path is
+  compared with the readings shifted by each candidate latency (1 ms steps) without simulating again.
+- *Each window's start*: the ball's position and velocity at a window's start are not known; they are fitted
+  by linear least squares for every candidate, so that they cost nothing and bias nothing.
+- *The plate's tilt offset* (what the servo trims do to the ball): one constant acceleration of the ball in the
+  plate frame, fitted by linear least squares over all windows together. The twin's trims are the smallest six
+  that tilt the plate that much.
+- *The panel noise*: the spread of the readings around the best fit.
+
+The best candidate is refined between grid points by a parabola through its neighbours. The uncertainties come
+from a bootstrap over windows (the fit repeated on windows drawn with replacement).
+
+**What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
+the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
+answers a pulse as late), each servo's own trim (only the tilt they make together), the ball's mass, radius and
+rolling friction, the plate's friction and load. A servo speed or dead band at the edge of its grid, or whose
+bootstrap spread covers much of the grid, is undetermined too: the logs never asked the servos for it.
+
+**Held out.** The last part of each log (``holdout``) is not fitted. There, the nominal and the fitted twin each
+predict the ball's path from the readings of the window's first 0.3 s; the report gives the RMS error of each
+over the next 0.5 s and 1 s.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.errors import ConfigError
+from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
+from stewart_gym.sim import BatchedSim, ServoSpec
+from stewart_gym.sim.twin import TWIN_FIELDS, Twin
+
+__all__ = ["READ_OVERHEAD_S", "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
+
+#: s: how much older a panel reading is, on average, than its stated latency when the loop reads it: the panel
+#: samples every 10 ms (a sample is half a period old when sent), and the loop reads the newest line at its
+#: tick (half a line period after it arrived). The fitted total latency less this is the twin's.
+READ_OVERHEAD_S = 0.010
+#: Candidate servo speeds (× nominal) and dead bands (µs) of the grid, and latencies (s).
+SPEED_GRID = tuple(float(v) for v in np.round(np.geomspace(0.25, 3.0, 19), 4))
+DEADBAND_GRID = tuple(float(v) for v in np.arange(0.0, 30.1, 2.0))
+LATENCY_GRID = tuple(float(v) for v in np.arange(0.0, 0.2005, 0.001))
+#: A window: this much burn-in of the servos, then the ball's path compared over FIT_S (readings from
+#: LATENCY_GRID's largest value on, so that every candidate latency sees the same readings).
+BURN_IN_S = 0.3
+FIT_S = 1.0
+#: Held-out windows: the ball's start fitted over the first PAST_S, then predicted over the horizons.
+PAST_S = 0.3
+HORIZONS_S = (0.5, 1.0)
+#: A parameter whose bootstrap spread (one sigma) exceeds this fraction of its grid's span is undetermined.
+UNDETERMINED_FRACTION = 0.2
+BOOTSTRAP = 200
+
+
+@dataclass(frozen=True)
+class FlightLog:
+    """The parts of a deploy log a fit reads.
+
+    Attributes:
+        path: the file.
+        t: (K,) s, each tick's time on the loop's clock.
+        pulses: (K, 6) µs sent at each tick.
+        usable: (K,) whether the tick ran normally (not stale, invalid, missed, held or homing).
+        reading_t: (M,) s, each distinct reading's sample time on the loop's clock.
+        reading_xy: (M, 2) m, the readings (plate frame).
+        rate_hz: the loop's rate.
+    """
+
+    path: str
+    t: np.ndarray
+    pulses: np.ndarray
+    usable: np.ndarray
+    reading_t: np.ndarray
+    reading_xy: np.ndarray
+    rate_hz: float
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+
+def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> FlightLog:
+    """A deploy log (``identify``'s or ``deploy``'s), checked: its columns, finite pulses, at least 5 s of ticks
+    and readings. Readings off the plate (``plate_half`` m, with a 10 mm margin) or not finite are dropped, and a
+    reading read at two ticks is kept once. Raises :class:`ConfigError` naming the file."""
+    from stewart_gym.inputs import read_text
+
+    text = read_text(path, "deploy log", error=ConfigError)
+    rows = list(csv.reader(text.splitlines()))
+    if not rows:
+        raise ConfigError(f"{path}: empty; give a log that identify or deploy wrote")
+    header = rows[0]
+    need = ["t_s", *(f"pulse{i}_us" for i in range(6)), *LOG_READING_COLUMNS]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise ConfigError(f"{path}: not a deploy log with readings (no column {missing[0]!r}); write one with "
+                          "stewart-gym identify, or deploy with this version")  # fmt: skip
+    col = {name: header.index(name) for name in header}
+    flags = [c for c in ("stale", "invalid", "missed_deadline", "held", "homing") if c in col]
+    try:
+        body = [r for r in rows[1:] if r]
+        t = np.array([float(r[col["t_s"]]) for r in body])
+        pulses = np.array([[float(r[col[f"pulse{i}_us"]]) for i in range(6)] for r in body])
+        raw = np.array([[float(r[col[c]]) if r[col[c]] != "" else math.nan for c in LOG_READING_COLUMNS]
+                        for r in body])  # fmt: skip
+        bad = np.array([[int(r[col[c]]) for c in flags] for r in body]).reshape(len(body), len(flags))
+    except (ValueError, IndexError) as exc:
+        raise ConfigError(f"{path}: a row is not a deploy log's ({exc}); the file may be cut or edited") from None
+    if len(t) < 2 or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
+        raise ConfigError(f"{path}: the tick times (t_s) must be finite and increasing, with 2 ticks or more")
+    if not np.all(np.isfinite(pulses)):
+        raise ConfigError(f"{path}: a pulse width is not a finite number")
+    rate = 1.0 / float(np.median(np.diff(t)))
+    half = np.asarray(plate_half, dtype=float) + 0.010
+    ok = np.all(np.isfinite(raw), axis=1)
+    ok[ok] &= np.all(np.abs(raw[ok, :2]) <= half, axis=1)
+    readings = raw[ok]
+    _, first = np.unique(readings[:, 2], return_index=True)
+    readings = readings[np.sort(first)]
+    readings = readings[np.argsort(readings[:, 2], kind="stable")]
+    if t[-1] - t[0] < 5.0 or len(readings) < 5 * rate / 2:
+        raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks and {len(readings)} readings on the plate; a fit "
+                          "needs at least 5 s with the ball on the plate (identify runs 60 s)")  # fmt: skip
+    return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate)
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit_twin` found.
+
+    Attributes:
+        twin: the fitted twin (with its ``[fit]`` table).
+        total_latency_ms: the fitted sensor + servo latency, as the twin counts it.
+        tilt_accel: (2,) m/s², the ball's constant acceleration from the plate's tilt offset.
+        noise_mm: the readings' spread around the fit.
+        prediction: horizon (s) → {"nominal": RMS mm, "fitted": RMS mm, "windows": n} on held-out windows.
+        fit_windows, heldout_windows: how many windows each part had.
+        notes: ``"table.key"`` → why it is undetermined (or what bounds it).
+        examples: a few held-out windows' paths for the report's figure: (t, logged, nominal, fitted).
+    """
+
+    twin: Twin
+    total_latency_ms: float
+    tilt_accel: np.ndarray
+    noise_mm: float
+    prediction: dict[float, dict[str, float]]
+    fit_windows: int
+    heldout_windows: int
+    notes: dict[str, str] = field(default_factory=dict)
+    examples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+
+    def lines(self) -> list[str]:
+        """The fit as text: each value with its uncertainty, then what could not be determined."""
+        tw = self.twin
+        s = tw.sigma
+        out = [f"fitted on {self.fit_windows} windows; predictions on {self.heldout_windows} held-out windows",
+               f"  total latency  {self.total_latency_ms:6.1f} ms ± {s.get('servos.latency_ms', 0):.1f} "
+               f"(sensor {tw['sensor.latency_ms']:.0f} + servos {tw['servos.latency_ms']:.1f})",
+               f"  servo speed    {tw['servos.speed_scale']:6.2f} × ± {s.get('servos.speed_scale', 0):.2f}",
+               f"  dead band      {tw['servos.deadband_us']:6.1f} µs ± {s.get('servos.deadband_us', 0):.1f}",
+               f"  panel noise    {tw['sensor.noise_mm']:6.2f} mm ± {s.get('sensor.noise_mm', 0):.2f}",
+               f"  tilt offset    ball acceleration ({self.tilt_accel[0] * 1e3:+.0f}, {self.tilt_accel[1] * 1e3:+.0f}) "
+               f"mm/s²: trims {', '.join(f'{v:+.0f}' for v in tw['servos.trim_us'])} µs"]  # fmt: skip
+        for h, row in self.prediction.items():
+            out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
+                       f"{row['fitted']:.2f} mm ({row['nominal'] / max(row['fitted'], 1e-9):.1f}× better)")
+        if tw.undetermined:
+            out.append("undetermined (the twin keeps these as written):")
+            out.extend(f"  {name}: {self.notes.get(name, '')}" for name in tw.undetermined)
+        return out
+
+
+# ------------------------------------------------------------------ windows
+@dataclass(frozen=True)
+class _Window:
+    log: int
+    start: int  # the first tick (burn-in starts here)
+    ticks: int  # how many ticks the window simulates
+    heldout: bool
+
+
+def _windows(logs: list[FlightLog], holdout: float) -> list[_Window]:
+    """Windows of burn-in + latency margin + FIT_S (held out: + PAST_S + the longest horizon), one after another,
+    in stretches of usable ticks with readings throughout (no gap over 0.1 s)."""
+    out = []
+    margin = max(LATENCY_GRID)
+    for li, log in enumerate(logs):
+        dt = 1.0 / log.rate_hz
+        split = log.t[0] + (1.0 - holdout) * (log.t[-1] - log.t[0])
+        k = int(round(1.0 / dt))  # the first second: the controller takes the ball
+        while True:
+            heldout = log.t[min(k, len(log.t) - 1)] >= split
+            span = BURN_IN_S + margin + (PAST_S + max(HORIZONS_S) if heldout else FIT_S)
+            n = int(round(span / dt))
+            if k + n >= len(log.t):
+                break
+            t0, t1 = log.t[k], log.t[k + n]
+            inside = log.reading_t[(log.reading_t >= t0) & (log.reading_t <= t1)]
+            gaps = np.diff(np.concatenate([[t0], inside, [t1]]))
+            fits = log.t[k + n - 1] < split or heldout
+            if fits and log.usable[k:k + n].all() and len(inside) and gaps.max() <= 0.1:
+                out.append(_Window(li, k, n, heldout))
+                k += n
+            else:
+                k += max(1, n // 4)
+    return out
+
+
+def _simulate(geometry: Any, calibration: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
+              servos: list[ServoSpec]) -> np.ndarray:  # fmt: skip
+    """Every window under every candidate servo: the ball's path (W, C, steps + 1, 2) m from the end of the
+    burn-in, the ball placed there at rest at the window's first reading."""
+    rate = logs[0].rate_hz
+    W, C = len(windows), len(servos)
+    sim = BatchedSim(geometry, n=W * C, calibration=calibration, physics_hz=int(round(rate)) * 4,
+                     control_hz=int(round(rate)))  # fmt: skip
+    sim.reset(servo_specs=[s for _ in windows for s in servos])
+    burn = int(round(BURN_IN_S * rate))
+    steps = max(w.ticks for w in windows) - burn
+    pulses = np.empty((W, burn + steps, 6))
+    start_xy = np.zeros((W, 2))
+    for i, w in enumerate(windows):
+        log = logs[w.log]
+        p = log.pulses[w.start:w.start + w.ticks]
+        pulses[i, :len(p)] = p
+        pulses[i, len(p):] = p[-1]
+        after = np.searchsorted(log.reading_t, log.t[w.start + burn])
+        start_xy[i] = log.reading_xy[min(after, len(log.reading_t) - 1)]
+    path = np.empty((W, C, steps + 1, 2))
+    for j in range(burn + steps):
+        if j == burn:
+            sim.place_ball(np.repeat(start_xy, C, axis=0), np.zeros((W * C, 2)))
+            path[:, :, 0] = sim.ball_xy.reshape(W, C, 2)
+        sim.command(np.repeat(pulses[:, j], C, axis=0))
+        sim.step()
+        if j >= burn:
+            path[:, :, j - burn + 1] = sim.ball_xy.reshape(W, C, 2)
+    return path
+
+
+def _projector(u: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(W, R, R): for each window, the projection off span{1, u} over its readings (``mask``)."""
+    W, R = u.shape
+    X = np.stack([np.ones_like(u), u], axis=2) * mask[:, :, None]
+    G = np.einsum("wri,wrj->wij", X, X) + 1e-12 * np.eye(2)
+    H = X @ np.linalg.solve(G, np.transpose(X, (0, 2, 1)))
+    return (np.eye(R)[None] - H) * mask[:, :, None] * mask[:, None, :]
+
+
+def _readings(logs: list[FlightLog], windows: list[_Window], lo: float, hi: float) -> tuple[np.ndarray, ...]:
+    """Each window's readings between ``lo`` and ``hi`` s after its burn-in (padded): u (W, R) s from the burn-in's
+    end, xy (W, R, 2), mask (W, R)."""
+    rate = logs[0].rate_hz
+    burn = int(round(BURN_IN_S * rate))
+    picked = []
+    for w in windows:
+        log = logs[w.log]
+        t0 = log.t[w.start + burn]
+        sel = (log.reading_t >= t0 + lo) & (log.reading_t <= t0 + hi)
+        picked.append((log.reading_t[sel] - t0, log.reading_xy[sel]))
+    R = max(1, max(len(p[0]) for p in picked))
+    u, xy, mask = np.zeros((len(windows), R)), np.zeros((len(windows), R, 2)), np.zeros((len(windows), R))
+    for i, (ui, xyi) in enumerate(picked):
+        u[i, :len(ui)], xy[i, :len(ui)], mask[i, :len(ui)] = ui, xyi, 1.0
+    return u, xy, mask
+
+
+def _at(path: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
+    """``path`` (W, C, S, 2) sampled every ``dt`` from 0, at times ``tau`` (W, R) (linear; clamped to the path)."""
+    S = path.shape[2]
+    x = np.clip(tau / dt, 0.0, S - 1.000001)
+    i = np.floor(x).astype(int)
+    w = (x - i)[:, None, :, None]
+    gather = lambda k: np.take_along_axis(path, np.broadcast_to(k[:, None, :, None], (*path.shape[:2], k.shape[1], 2)),
+                                          axis=2)  # noqa: E731
+    return gather(i) * (1 - w) + gather(i + 1) * w
+
+
+# ---------------------------------------------------------------------- fit
+def _statistics(path: np.ndarray, u: np.ndarray, xy: np.ndarray, mask: np.ndarray,
+                dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Per window, candidate, latency and axis: the sufficient statistics of the least squares with each window's
+    start and one shared tilt acceleration eliminated: c = |P r|², b = <P q, P r>, and per window A = |P q|²;
+    also n, the readings per window."""
+    P = _projector(u, mask)
+    q = 0.5 * u**2
+    Pq = np.einsum("wrs,ws->wr", P, q)
+    A = np.einsum("wr,wr->w", Pq, Pq)
+    W, C = path.shape[:2]
+    c = np.empty((W, C, len(LATENCY_GRID), 2))
+    b = np.empty_like(c)
+    for li, lat in enumerate(LATENCY_GRID):
+        pred = _at(path, u - lat, dt)  # (W, C, R, 2)
+        r = (xy[:, None] - pred) * mask[:, None, :, None]
+        Pr = np.einsum("wrs,wcsa->wcra", P, r)
+        c[:, :, li] = np.einsum("wcra,wcra->wca", Pr, Pr)
+        b[:, :, li] = np.einsum("wr,wcra->wca", Pq, Pr)
+    return c, b, A, mask.sum(axis=1)
+
+
+def _cost(c: np.ndarray, b: np.ndarray, A: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Total cost (C, L) over windows weighted by ``weights`` (W,), with the shared acceleration (C, L, 2)."""
+    cw = np.einsum("w,wcla->cla", weights, c)
+    bw = np.einsum("w,wcla->cla", weights, b)
+    aw = float(weights @ A) + 1e-18
+    return (cw - bw**2 / aw).sum(axis=2), bw / aw
+
+
+def _refine(values: Sequence[float], costs: np.ndarray, i: int) -> float:
+    """The minimum of a parabola through ``costs`` at i − 1, i, i + 1 (``values`` there), kept between them."""
+    if i <= 0 or i >= len(values) - 1:
+        return float(values[i])
+    x0, x1, x2 = values[i - 1], values[i], values[i + 1]
+    y0, y1, y2 = costs[i - 1], costs[i], costs[i + 1]
+    den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+    bb = (x2**2 * (y0 - y1) + x1**2 * (y2 - y0) + x0**2 * (y1 - y2)) / den
+    if a <= 0:
+        return float(x1)
+    return float(np.clip(-bb / (2 * a), x0, x2))
+
+
+def _best(total: np.ndarray) -> tuple[float, float, float, tuple[int, int, int]]:
+    """(speed, dead band, latency s) at the cost's minimum over the grid (C = speeds × dead bands, L), refined."""
+    S, D = len(SPEED_GRID), len(DEADBAND_GRID)
+    grid = total.reshape(S, D, len(LATENCY_GRID))
+    si, di, li = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    return (_refine(SPEED_GRID, grid[:, di, li], si), _refine(DEADBAND_GRID, grid[si, :, li], di),
+            _refine(LATENCY_GRID, grid[si, di, :], li), (int(si), int(di), int(li)))  # fmt: skip
+
+
+def _trims_for(geometry: Any, calibration: ServoCalibration, accel: np.ndarray) -> np.ndarray:
+    """The smallest six trims (µs) that tilt the plate so that a resting ball accelerates by ``accel`` (m/s²,
+    plate frame): the pulses of a small roll and of a small pitch, the ball's acceleration under each measured in
+    the batched simulator, and the combination that gives ``accel``."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    angle = 0.01
+    home = calibration.pulse_widths(inverse_kinematics(geometry, np.zeros(6)).servo_angles)
+    shapes = []
+    for axis in (3, 4):  # roll, pitch
+        pose = np.zeros(6)
+        pose[axis] = angle
+        shapes.append(calibration.pulse_widths(inverse_kinematics(geometry, pose).servo_angles) - home)
+    sim = BatchedSim(geometry, n=2, calibration=calibration)
+    sim.reset(servo_specs=[replace(ServoSpec(), trim_error_us=tuple(-d)) for d in shapes])  # held at home, tilted
+    for _ in range(25):  # the servos settle on the tilt
+        sim.command(np.repeat(home[None], 2, axis=0))
+        sim.step()
+    sim.place_ball(np.zeros((2, 2)), np.zeros((2, 2)))
+    steps = 10
+    for _ in range(steps):
+        sim.command(np.repeat(home[None], 2, axis=0))
+        sim.step()
+    response = (2.0 * sim.ball_xy / (steps * sim.dt) ** 2).T  # (2 axes, 2 shapes): acceleration per shape
+    mix = np.linalg.solve(response, np.asarray(accel, dtype=float))
+    return -(mix[0] * shapes[0] + mix[1] * shapes[1])
+
+
+def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibration: ServoCalibration | None = None,
+             start: Twin | None = None, holdout: float = 0.3, seed: int = 0,
+             on_progress: Any = None) -> FitResult:  # fmt: skip
+    """Fit a twin to ``logs`` (see the module's description). ``start`` is the twin the fit changes (its ball,
+    plate and sensor split kept; default nominal); ``holdout`` the fraction of each log kept out of the fit."""
+    from stewart_gym.presets import load_geometry
+
+    if not logs:
+        raise ConfigError("sysid needs at least one log")
+    rates = {round(log.rate_hz) for log in logs}
+    if len(rates) != 1:
+        raise ConfigError(f"the logs ran at different rates ({sorted(rates)} Hz): fit logs of one rate together")
+    if not 0.0 <= holdout <= 0.8:
+        raise ConfigError(f"holdout must be a fraction in [0, 0.8], got {holdout!r}")
+    geo = load_geometry(geometry)
+    cal = calibration or ServoCalibration.default(geo)
+    start = start or Twin()
+    windows = _windows(list(logs), holdout)
+    fit_w = [w for w in windows if not w.heldout]
+    held_w = [w for w in windows if w.heldout]
+    if len(fit_w) < 5:
+        raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit (5 or more needed): log longer runs "
+                          "with the ball on the plate (identify --duration 60)")  # fmt: skip
+    nominal = ServoSpec()
+    servos = [replace(nominal, max_speed=nominal.max_speed * s, deadband_us=d) for s in SPEED_GRID
+              for d in DEADBAND_GRID]  # fmt: skip
+    rate = logs[0].rate_hz
+    dt = 1.0 / rate
+    margin = max(LATENCY_GRID)
+    path = _simulate(geo, cal, list(logs), fit_w, servos)
+    if on_progress:
+        on_progress(0.7)
+    u, xy, mask = _readings(list(logs), fit_w, margin, margin + FIT_S)
+    c, b, A, n = _statistics(path, u, xy, mask, dt)
+    ones = np.ones(len(fit_w))
+    total, accel = _cost(c, b, A, ones)
+    speed, band, lat, (si, di, li) = _best(total)
+    best_accel = accel.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1, 2)[si, di, li]
+    dof = float(n.sum()) * 2 - 4 * len(fit_w) - 2
+    noise_mm = math.sqrt(max(float(total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1)[si, di, li]), 0.0)
+                         / (2 * max(dof / 2, 1.0))) * 1e3  # fmt: skip
+    # the bootstrap: the same fit on windows drawn with replacement
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(BOOTSTRAP):
+        weights = np.bincount(rng.integers(len(fit_w), size=len(fit_w)), minlength=len(fit_w)).astype(float)
+        tb, _ = _cost(c, b, A, weights)
+        sb, db, lb, _ = _best(tb)
+        draws.append((sb, db, lb))
+    spread = np.std(np.array(draws), axis=0)
+    if on_progress:
+        on_progress(0.85)
+    total_ms = (lat - READ_OVERHEAD_S) * 1e3
+    sensor_ms = min(float(start["sensor.latency_ms"]), max(total_ms, 0.0))
+    sigma = {"servos.speed_scale": float(max(spread[0], 0.01)), "servos.deadband_us": float(max(spread[1], 0.5)),
+             "servos.latency_ms": float(max(spread[2] * 1e3, 0.5)), "sensor.noise_mm": 0.05 + 0.05 * noise_mm}
+    notes = {"sensor.latency_ms": "the ball shows the total latency only: the sensor keeps its value and the servos "
+                                  "take the rest",
+             "servos.trim_us": "the panel sees only the tilt the trims make together: these are the smallest trims "
+                               "that make it (a camera on the plate's markers would see each)"}  # fmt: skip
+    undetermined = ["sensor.latency_ms", "servos.trim_us"]
+    for name, grid, value, sd in (("servos.speed_scale", SPEED_GRID, speed, spread[0]),
+                                  ("servos.deadband_us", DEADBAND_GRID, band, spread[1])):  # fmt: skip
+        span = grid[-1] - grid[0]
+        if sd > UNDETERMINED_FRACTION * span:
+            undetermined.append(name)
+            notes[name] = f"the bootstrap spread ({sd:.2g}) covers much of the search range: the logs hardly show it"
+        elif value >= grid[-1] or value <= grid[0]:
+            undetermined.append(name)
+            notes[name] = f"at the edge of the search ({value:g}): the logs only bound it"
+    for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "plate.friction", "plate.load_kg"):
+        undetermined.append(key)
+        notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
+    trims = _trims_for(geo, cal, best_accel)
+    values = dict(start.values)
+    values.update({("servos", "speed_scale"): float(np.clip(speed, 0.1, 5.0)),
+                   ("servos", "deadband_us"): float(np.clip(band, 0.0, 50.0)),
+                   ("servos", "latency_ms"): float(np.clip(total_ms - sensor_ms, 0.0, 200.0)),
+                   ("servos", "trim_us"): tuple(float(np.clip(v, -200, 200)) for v in trims),
+                   ("sensor", "latency_ms"): sensor_ms, ("sensor", "noise_mm"): float(np.clip(noise_mm, 0.0, 20.0))})
+    order = [f"{t}.{k}" for t, k in TWIN_FIELDS]
+    twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
+    result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes)
+    if held_w:
+        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, servos[si * len(DEADBAND_GRID) + di])
+    if on_progress:
+        on_progress(1.0)
+    return result
+
+
+def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
+             start: Twin, lat: float, accel: np.ndarray, fitted: ServoSpec) -> None:  # fmt: skip
+    """Held-out prediction errors of the nominal twin (``start``) and the fitted one."""
+    rate = logs[0].rate_hz
+    dt = 1.0 / rate
+    nominal = ServoSpec()
+    nominal_servo = replace(nominal, max_speed=nominal.max_speed * start["servos.speed_scale"],
+                            deadband_us=start["servos.deadband_us"])  # fmt: skip
+    nominal_lat = start.total_latency_ms / 1e3 + READ_OVERHEAD_S
+    path = _simulate(geo, cal, logs, windows, [nominal_servo, fitted])
+    margin = max(LATENCY_GRID)
+    u, xy, mask = _readings(logs, windows, margin, margin + PAST_S + max(HORIZONS_S))
+    past = mask * (u <= margin + PAST_S)
+    errors: dict[float, dict[str, list[float]]] = {h: {"nominal": [], "fitted": []} for h in HORIZONS_S}
+    paths: dict[str, list[np.ndarray]] = {"nominal": [], "fitted": []}
+    for ci, (name, lt, acc) in enumerate((("nominal", nominal_lat, np.zeros(2)), ("fitted", lat, accel))):
+        pred = _at(path[:, ci:ci + 1], u - lt, dt)[:, 0] + 0.5 * acc * ((u - margin) ** 2)[:, :, None]
+        r = xy - pred
+        for w in range(len(windows)):  # the ball's start from the past readings only: position and velocity
+            sel = past[w] > 0
+            X = np.stack([np.ones(sel.sum()), u[w, sel]], axis=1)
+            coef, *_ = np.linalg.lstsq(X, r[w, sel], rcond=None)
+            predicted = pred[w] + coef[0] + np.outer(u[w], coef[1])
+            err = np.linalg.norm(xy[w] - predicted, axis=1)
+            for h in HORIZONS_S:
+                ahead = (mask[w] > 0) & (u[w] > margin + PAST_S) & (u[w] <= margin + PAST_S + h)
+                if ahead.any():
+                    errors[h][name].append(float(np.mean(err[ahead] ** 2)))
+            paths[name].append(predicted[mask[w] > 0])
+    for w in range(min(3, len(windows))):
+        keep = mask[w] > 0
+        result.examples.append((u[w, keep] - margin, xy[w, keep], paths["nominal"][w], paths["fitted"][w]))
+    for h in HORIZONS_S:
+        result.prediction[h] = {k: math.sqrt(float(np.mean(v))) * 1e3 for k, v in errors[h].items()}
+        result.prediction[h]["windows"] = len(errors[h]["fitted"])
+
+
+def write_report(result: FitResult, folder: str | Path, logs: Sequence[str]) -> list[Path]:
+    """``report.md`` (the fit, its uncertainties, the held-out predictions) and ``paths.png`` (logged and predicted
+    ball paths of held-out windows) in ``folder``; the files written."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    text = ["# sysid report", "", f"Logs: {', '.join(str(p) for p in logs)}", "", "```", *result.lines(), "```", ""]
+    (folder / "report.md").write_text("\n".join(text))
+    written = [folder / "report.md"]
+    if result.examples:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fig, axes = plt.subplots(len(result.examples), 2, figsize=(9, 2.6 * len(result.examples)), squeeze=False)
+        for row, (t, logged, nominal, fitted) in zip(axes, result.examples):
+            for a, ax in enumerate(row):
+                ax.plot(t, logged[:, a] * 1e3, ".", ms=3, color="black", label="logged")
+                ax.plot(t, nominal[:, a] * 1e3, "-", label="nominal twin")
+                ax.plot(t, fitted[:, a] * 1e3, "-", label="fitted twin")
+                ax.axvline(PAST_S, color="grey", lw=0.8)
+                ax.set_ylabel(f"{'xy'[a]} (mm)")
+        axes[-1][0].set_xlabel("s")
+        axes[-1][1].set_xlabel("s")
+        axes[0][0].legend(fontsize=8)
+        fig.tight_layout()
+        fig.savefig(folder / "paths.png", dpi=90)
+        plt.close(fig)
+        written.append(folder / "paths.png")
+    return written
