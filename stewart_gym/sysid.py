@@ -12,11 +12,14 @@ windows at once.
 - *Total latency* (sensor + servo): a delay of the input is a delay of the output, so each simulated path is
   compared with the readings shifted by each candidate latency (1 ms steps) without simulating again.
 - *Each window's start*: the ball's position and velocity at a window's start are not known; they are fitted
-  by linear least squares for every candidate, so that they cost nothing and bias nothing.
+  by linear least squares for every candidate, so that they cost nothing and bias nothing. The whole fit runs
+  twice: the second time, each window's ball starts where the first fit put it, so that the plate's rotation
+  acts on the ball as it moved.
 - *The plate's tilt offset* (what the servo trims do to the ball): one constant acceleration of the ball in the
   plate frame, fitted by linear least squares over all windows together. The twin's trims are the smallest six
   that tilt the plate that much.
-- *The panel noise*: the spread of the readings around the best fit.
+- *The panel noise*: the spread of the readings around the best fit, less the scatter a moving ball's readings
+  get from their uneven age (:data:`READ_TIME_VAR_S2`).
 
 The best candidate is refined between grid points by a parabola through its neighbours. The uncertainties come
 from a bootstrap over windows (the fit repeated on windows drawn with replacement).
@@ -49,19 +52,24 @@ from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
-__all__ = ["READ_OVERHEAD_S", "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
+__all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
 
-#: s: how much older a panel reading is, on average, than its stated latency when the loop reads it: the panel
-#: samples every 10 ms (a sample is half a period old when sent), and the loop reads the newest line at its
-#: tick (half a line period after it arrived). The fitted total latency less this is the twin's.
-READ_OVERHEAD_S = 0.010
+#: s: the panel's sample period (the sketch reports at 100 Hz).
+PANEL_PERIOD_S = 0.010
+#: s: how much older a panel reading is, on average, than its stated latency when the loop reads it: a sample is
+#: up to a period old when sent, and the loop reads the newest line at its tick, up to a period after it came
+#: (half a period each, on average). The fitted total latency less this is the twin's.
+READ_OVERHEAD_S = PANEL_PERIOD_S
+#: s²: the variance of that age (two uniform waits of up to a period each): a moving ball's readings scatter by
+#: its speed times this much more than the panel's own noise, which the noise estimate takes out.
+READ_TIME_VAR_S2 = PANEL_PERIOD_S**2 / 6
 #: Candidate servo speeds (× nominal) and dead bands (µs) of the grid, and latencies (s).
 SPEED_GRID = tuple(float(v) for v in np.round(np.geomspace(0.25, 3.0, 19), 4))
 DEADBAND_GRID = tuple(float(v) for v in np.arange(0.0, 30.1, 2.0))
 LATENCY_GRID = tuple(float(v) for v in np.arange(0.0, 0.2005, 0.001))
 #: A window: this much burn-in of the servos, then the ball's path compared over FIT_S (readings from
 #: LATENCY_GRID's largest value on, so that every candidate latency sees the same readings).
-BURN_IN_S = 0.3
+BURN_IN_S = 1.0
 FIT_S = 1.0
 #: Held-out windows: the ball's start fitted over the first PAST_S, then predicted over the horizons.
 PAST_S = 0.3
@@ -226,9 +234,10 @@ def _windows(logs: list[FlightLog], holdout: float) -> list[_Window]:
 
 
 def _simulate(geometry: Any, calibration: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
-              servos: list[ServoSpec]) -> np.ndarray:  # fmt: skip
+              servos: list[ServoSpec], start: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:  # fmt: skip
     """Every window under every candidate servo: the ball's path (W, C, steps + 1, 2) m from the end of the
-    burn-in, the ball placed there at rest at the window's first reading."""
+    burn-in, the ball placed there with ``start`` (positions and velocities, (W, 2) each), else at rest at the
+    window's first reading."""
     rate = logs[0].rate_hz
     W, C = len(windows), len(servos)
     sim = BatchedSim(geometry, n=W * C, calibration=calibration, physics_hz=int(round(rate)) * 4,
@@ -245,25 +254,19 @@ def _simulate(geometry: Any, calibration: ServoCalibration, logs: list[FlightLog
         pulses[i, len(p):] = p[-1]
         after = np.searchsorted(log.reading_t, log.t[w.start + burn])
         start_xy[i] = log.reading_xy[min(after, len(log.reading_t) - 1)]
+    start_v = np.zeros((W, 2))
+    if start is not None:
+        start_xy, start_v = start
     path = np.empty((W, C, steps + 1, 2))
     for j in range(burn + steps):
         if j == burn:
-            sim.place_ball(np.repeat(start_xy, C, axis=0), np.zeros((W * C, 2)))
+            sim.place_ball(np.repeat(start_xy, C, axis=0), np.repeat(start_v, C, axis=0))
             path[:, :, 0] = sim.ball_xy.reshape(W, C, 2)
         sim.command(np.repeat(pulses[:, j], C, axis=0))
         sim.step()
         if j >= burn:
             path[:, :, j - burn + 1] = sim.ball_xy.reshape(W, C, 2)
     return path
-
-
-def _projector(u: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """(W, R, R): for each window, the projection off span{1, u} over its readings (``mask``)."""
-    W, R = u.shape
-    X = np.stack([np.ones_like(u), u], axis=2) * mask[:, :, None]
-    G = np.einsum("wri,wrj->wij", X, X) + 1e-12 * np.eye(2)
-    H = X @ np.linalg.solve(G, np.transpose(X, (0, 2, 1)))
-    return (np.eye(R)[None] - H) * mask[:, :, None] * mask[:, None, :]
 
 
 def _readings(logs: list[FlightLog], windows: list[_Window], lo: float, hi: float) -> tuple[np.ndarray, ...]:
@@ -290,8 +293,11 @@ def _at(path: np.ndarray, tau: np.ndarray, dt: float) -> np.ndarray:
     x = np.clip(tau / dt, 0.0, S - 1.000001)
     i = np.floor(x).astype(int)
     w = (x - i)[:, None, :, None]
-    gather = lambda k: np.take_along_axis(path, np.broadcast_to(k[:, None, :, None], (*path.shape[:2], k.shape[1], 2)),
-                                          axis=2)  # noqa: E731
+    shape = (*path.shape[:2], tau.shape[1], 2)
+
+    def gather(k: np.ndarray) -> np.ndarray:
+        return np.take_along_axis(path, np.broadcast_to(k[:, None, :, None], shape), axis=2)
+
     return gather(i) * (1 - w) + gather(i + 1) * w
 
 
@@ -301,20 +307,33 @@ def _statistics(path: np.ndarray, u: np.ndarray, xy: np.ndarray, mask: np.ndarra
     """Per window, candidate, latency and axis: the sufficient statistics of the least squares with each window's
     start and one shared tilt acceleration eliminated: c = |P r|², b = <P q, P r>, and per window A = |P q|²;
     also n, the readings per window."""
-    P = _projector(u, mask)
-    q = 0.5 * u**2
-    Pq = np.einsum("wrs,ws->wr", P, q)
+    X = np.stack([np.ones_like(u), u], axis=2) * mask[:, :, None]  # (W, R, 2): each window's start, eliminated
+    Ginv = np.linalg.inv(np.einsum("wri,wrj->wij", X, X) + 1e-12 * np.eye(2))
+    q = 0.5 * u**2 * mask
+    Pq = q - np.einsum("wri,wij,wj->wr", X, Ginv, np.einsum("wrj,wr->wj", X, q))  # q off span{1, u}: I − X G⁻¹ Xᵀ
     A = np.einsum("wr,wr->w", Pq, Pq)
     W, C = path.shape[:2]
     c = np.empty((W, C, len(LATENCY_GRID), 2))
     b = np.empty_like(c)
     for li, lat in enumerate(LATENCY_GRID):
-        pred = _at(path, u - lat, dt)  # (W, C, R, 2)
-        r = (xy[:, None] - pred) * mask[:, None, :, None]
-        Pr = np.einsum("wrs,wcsa->wcra", P, r)
-        c[:, :, li] = np.einsum("wcra,wcra->wca", Pr, Pr)
-        b[:, :, li] = np.einsum("wr,wcra->wca", Pq, Pr)
+        r = (xy[:, None] - _at(path, u - lat, dt)) * mask[:, None, :, None]  # (W, C, R, 2)
+        Xr = np.einsum("wrk,wcra->wcka", X, r)
+        c[:, :, li] = np.einsum("wcra,wcra->wca", r, r) - np.einsum("wcka,wkj,wcja->wca", Xr, Ginv, Xr)
+        b[:, :, li] = np.einsum("wr,wcra->wca", Pq, r)
     return c, b, A, mask.sum(axis=1)
+
+
+def _start_states(path: np.ndarray, u: np.ndarray, xy: np.ndarray, mask: np.ndarray, dt: float, lat: float,
+                  accel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Each window's ball at the end of its burn-in (positions, velocities (W, 2)), from the readings: where
+    ``path`` (W, S, 2; the ball placed at rest there) would have to start to fit them, with latency ``lat`` and
+    the shared acceleration ``accel``."""
+    X = np.stack([np.ones_like(u), u], axis=2) * mask[:, :, None]
+    Ginv = np.linalg.inv(np.einsum("wri,wrj->wij", X, X) + 1e-12 * np.eye(2))
+    r = (xy - _at(path[:, None], u - lat, dt)[:, 0] - 0.5 * accel * (u**2)[:, :, None]) * mask[:, :, None]
+    beta = np.einsum("wij,wrj,wra->wia", Ginv, X, r)  # (W, 2 coefficients, 2 axes): y ≈ path + β0 + β1 u
+    # in the path's own time τ = u − lat: the offset β0 + β1 (τ + lat) + ½ a (τ + lat)², at τ = 0
+    return path[:, 0] + beta[:, 0] + beta[:, 1] * lat + 0.5 * accel * lat**2, beta[:, 1] + accel * lat
 
 
 def _cost(c: np.ndarray, b: np.ndarray, A: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -405,18 +424,24 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     rate = logs[0].rate_hz
     dt = 1.0 / rate
     margin = max(LATENCY_GRID)
-    path = _simulate(geo, cal, list(logs), fit_w, servos)
-    if on_progress:
-        on_progress(0.7)
     u, xy, mask = _readings(list(logs), fit_w, margin, margin + FIT_S)
-    c, b, A, n = _statistics(path, u, xy, mask, dt)
     ones = np.ones(len(fit_w))
-    total, accel = _cost(c, b, A, ones)
-    speed, band, lat, (si, di, li) = _best(total)
+    start_state = None
+    for done in (0.35, 0.7):  # twice: the second time each window's ball starts where the first fit put it
+        path = _simulate(geo, cal, list(logs), fit_w, servos, start_state)
+        c, b, A, n = _statistics(path, u, xy, mask, dt)
+        total, accel = _cost(c, b, A, ones)
+        speed, band, lat, (si, di, li) = _best(total)
+        best = accel.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1, 2)[si, di, li]
+        start_state = _start_states(path[:, si * len(DEADBAND_GRID) + di], u, xy, mask, dt, LATENCY_GRID[li], best)
+        if on_progress:
+            on_progress(done)
     best_accel = accel.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1, 2)[si, di, li]
     dof = float(n.sum()) * 2 - 4 * len(fit_w) - 2
-    noise_mm = math.sqrt(max(float(total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1)[si, di, li]), 0.0)
-                         / (2 * max(dof / 2, 1.0))) * 1e3  # fmt: skip
+    residual_var = max(float(total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1)[si, di, li]), 0.0) / max(dof, 1.0)
+    best_path = path[:, si * len(DEADBAND_GRID) + di]  # (W, S, 2)
+    speed_sq = float(np.mean(np.diff(best_path, axis=1) ** 2)) / dt**2  # per axis, m²/s²
+    noise_mm = math.sqrt(max(residual_var - READ_TIME_VAR_S2 * speed_sq, 0.0)) * 1e3
     # the bootstrap: the same fit on windows drawn with replacement
     rng = np.random.default_rng(seed)
     draws = []

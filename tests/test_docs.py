@@ -102,7 +102,9 @@ def format_keys() -> dict[str, set[str]]:
     import json
 
     from stewart_gym import calibration, geometry, sb3_models, sweep, training, vision
+    from stewart_gym.hardware.deploy import log_columns
     from stewart_gym.hardware.export import classical_meta
+    from stewart_gym.sim.twin import FIT_KEYS, TWIN_FIELDS
 
     bundles = [json.loads(p.read_text()) for p in (ROOT / "stewart_gym" / "policies").glob("*/bundle/bundle.json")]
     bundles.append(classical_meta("pid", {"kp": 1.0}))
@@ -115,6 +117,10 @@ def format_keys() -> dict[str, set[str]]:
         "sweep": set(sweep.SPEC_KEYS),
         "hyperparameters": (set(training.RUN_KEYS) - internal | {"env_wrapper"} | set(sb3_models.RESIDUAL_FIELDS)),
         "bundle": {key for meta in bundles for key in meta},
+        "twin": {f"{table}.{key}" for table, key in TWIN_FIELDS} | {f"fit.{key}" for key in FIT_KEYS},
+        # numbered columns by their first (and, for the pulses, last) name
+        "deploy-log": {c for c in log_columns(12, 2) if not re.fullmatch(r"(obs|action|pulse)\d+(_us)?", c)}
+                      | {"obs0", "action0", "pulse0_us", "pulse5_us"},
     }
 
 
@@ -152,5 +158,8 @@ def test_the_config_references_examples_load(tmp_path: Path) -> None:
     assert camera.markers.size_mm == 36
     spec = load_sweep(example("sweep", ".yml"))
     assert spec.search["learning_rate"][0] == "loguniform"
+    from stewart_gym.sim.twin import Twin, load_twin
+
+    assert load_twin(example("twin", ".toml")).values == Twin().values
     hp = load_hyperparams("ppo", "StewartBallBalance-v0", str(example("hyperparameters", ".yml")))
     assert hp["residual"]["base"] == "lqr-pid" and hp["eval_freq"] == 25000

@@ -117,3 +117,28 @@ def test_the_first_hour_tutorial_runs_as_written(tmp_path: Path, monkeypatch: py
     assert (tmp_path / "out" / "first_bundle" / "bundle.json").is_file()
     out = capsys.readouterr().out
     assert "servos homed: confirmed by the board" in out and "failed" not in out
+
+
+def test_the_reality_gap_page_has_the_steps_it_promises() -> None:
+    commands = [v.split()[1] for k, v in steps("reality-gap.md") if k == "run"]
+    assert commands == ["virtual-device", "identify", "sysid", "compare", "train", "compare", "export", "deploy"]
+    assert [v.split("\0")[0] for k, v in steps("reality-gap.md") if k == "save"] == ["real.toml"]
+
+
+@pytest.mark.slow
+def test_the_reality_gap_tutorial_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The whole loop through the wire: identify on the board with the hidden twin, the fit, the fine-tune, the
+    deploy; the fitted twin is near the hidden one."""
+    from stewart_gym.sim.twin import load_twin
+
+    ran = run_tutorial("reality-gap.md", tmp_path, monkeypatch)
+    assert len(ran) == 9
+    fitted, real = load_twin(tmp_path / "twin.toml"), load_twin(tmp_path / "real.toml")
+    assert abs(fitted.total_latency_ms - real.total_latency_ms) <= 8.0
+    assert abs(fitted["servos.speed_scale"] - real["servos.speed_scale"]) <= 0.15
+    assert (tmp_path / "sysid-report" / "paths.png").is_file()
+    assert (tmp_path / "runs" / "my-twin" / "model.zip").is_file()
+    out = capsys.readouterr().out
+    assert "held-out 1 s prediction RMS" in out
+    assert "servos homed: confirmed by the board" in out and "failed" not in out

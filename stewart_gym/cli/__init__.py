@@ -27,13 +27,14 @@ def _version() -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from stewart_gym.cli import analysis, hardware, kinematics, learning  # here: main() handles Ctrl-C meanwhile
+    # imported here: main() handles Ctrl-C meanwhile
+    from stewart_gym.cli import analysis, hardware, identification, kinematics, learning
 
     parser = Parser(prog="stewart-gym", description="Servo Stewart platform toolkit", epilog=EXIT_CODES_HELP)
     parser.add_argument("--version", action="version", version=f"stewart-gym {_version()}")
     parser.add_argument("--debug", action="store_true", help="show the traceback of any error")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for group in (kinematics, learning, hardware, analysis):
+    for group in (kinematics, learning, hardware, identification, analysis):
         group.register(sub)
     for sp in sub.choices.values():  # --debug is accepted after the subcommand too
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of any error")

@@ -61,31 +61,6 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     return summary.exit_code
 
 
-def cmd_identify(args: argparse.Namespace) -> int:
-    """Run the excitation experiment that stewart-gym sysid fits a twin from: the PID + Kalman keeps the ball on
-    the plate while pseudo-random tilt steps make it roll. It is a deploy run: the same checks before the port
-    opens, the same safety layer and channel limits, the servos home on every stop; it writes the deploy log."""
-    from stewart_gym.hardware.deploy_setup import DeployOptions, DeploySetup
-    from stewart_gym.hardware.identify import IDENTIFY_MAX_STEP_US_PER_S, Excitation
-    from stewart_gym.registry import deployable_policy, resolve_policy
-
-    base = deployable_policy(resolve_policy("pid-kalman", "StewartBallBalance-v0", args.geometry))
-    policy = Excitation(base, rate_hz=args.rate, amplitude=args.amplitude, seed=args.seed)
-    options = DeployOptions(port=args.port, protocol=args.protocol, baudrate=args.baudrate, sensor=args.sensor,
-                            camera_config=args.camera_config, calibration=args.calibration, backend=args.backend,
-                            rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
-                            max_step_us=args.max_step_us or IDENTIFY_MAX_STEP_US_PER_S / args.rate, log=args.out,
-                            overwrite=args.overwrite, seed=args.seed, randomize=False,
-                            answer_timeout_s=args.answer_timeout_ms / 1000, twin=twin_tables(args.twin))  # fmt: skip
-    setup = DeploySetup(policy, options, say=lambda line: print(line, flush=True))
-    print(f"identify: {args.duration:g} s of tilt steps (±{args.amplitude:g} of the tilt range) under the PID + "
-          f"Kalman; Ctrl-C stops it and homes the servos", flush=True)  # fmt: skip
-    summary = setup.run()
-    print(summary.text(), flush=True)
-    print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log} --out twin.toml)", flush=True)
-    return summary.exit_code
-
-
 def cmd_calibrate(args: argparse.Namespace) -> int:
     """Find servo trims: step one servo at a time; keys on stdin: + / - (trim), n (next servo), q (save and quit)."""
     from stewart_gym.hardware.deploy_setup import load_calibration, port_settings
@@ -251,38 +226,6 @@ def register(sub: Any) -> None:
                    help="a board that leaves a position query unanswered this long has stopped reading, or reads "
                         "too slowly: a device failure (default 500)")  # fmt: skip
     p.set_defaults(func=cmd_deploy)
-
-    p = sub.add_parser("identify", help=cmd_identify.__doc__.split(":")[0] + ".", description=cmd_identify.__doc__,
-                       epilog=EXIT_CODES_HELP)  # fmt: skip
-    add_geometry(p)
-    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
-                   help="the servo board's serial protocol (default: [hardware] protocol of the calibration file)")
-    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
-                   help="serial speed (default: the calibration file's, else the protocol's own)")
-    p.add_argument("--sensor", choices=["panel", "camera", "sim"], default="panel",
-                   help="where the ball position comes from: the board's touch panel (default), a camera, or the "
-                        "simulated plant (a dry run)")  # fmt: skip
-    p.add_argument("--camera-config", help="camera config TOML (--sensor camera)")
-    add_backend(p, "physics engine of the simulated plant (--sensor sim)")
-    add_twin(p, "the simulated plant's twin (--sensor sim)")
-    p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
-    p.add_argument("--duration", type=bounded_float(5.0, 3600.0), default=60.0, help="seconds (default 60)")
-    p.add_argument("--out", required=True, help="the log to write (CSV, the deploy log's columns)")
-    p.add_argument("--overwrite", action="store_true", help="allow --out to replace an existing file")
-    p.add_argument("--amplitude", type=bounded_float(0.0, 0.6, lo_open=True), default=0.3,
-                   help="largest tilt step, as a fraction of the controller's tilt range (default 0.3)")
-    p.add_argument("--rate", type=bounded_float(10.0, 500.0), default=50.0, help="control rate, Hz (default 50)")
-    p.add_argument("--max-step-us", type=bounded_float(0.0, 1000.0, lo_open=True),
-                   help="rate limit per channel per tick, µs (default 10000 µs/s ÷ rate: 200 at 50 Hz, so that the "
-                        "log shows the servos' own speed)")  # fmt: skip
-    p.add_argument("--watchdog-ms", type=bounded_float(1.0, 10_000.0), default=100.0,
-                   help="sensor data older than this sends the platform home")  # fmt: skip
-    p.add_argument("--answer-timeout-ms", type=bounded_float(50.0, 60_000.0), default=500.0,
-                   help="a board that leaves a position query unanswered this long has failed (default 500)")
-    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0,
-                   help="the excitation sequence's seed (and the simulated plant's, --sensor sim)")  # fmt: skip
-    p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("virtual-device", help=cmd_virtual_device.__doc__, description=cmd_virtual_device.__doc__)
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES, default="maestro", help="the serial protocol to answer")

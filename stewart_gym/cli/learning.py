@@ -18,12 +18,12 @@ from stewart_gym.cli.common import (
     add_estimator,
     add_sensor,
     add_twin,
-    twin_tables,
     int_at_least,
     json_safe,
     output_dir,
     output_file,
     positive_float,
+    twin_tables,
 )
 from stewart_gym.envs import ENV_IDS, trajectory_env_ids
 from stewart_gym.envs.targets import TRACK_TRAJECTORIES
@@ -66,7 +66,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, vec_env=args.vec_env,
                       eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
-                      resume=resume_source(args.resume, args.env, args.geometry), twin=args.twin, progress_bar=False,  # the line or bar below instead of SB3's
+                      resume=resume_source(args.resume, args.env, args.geometry), twin=args.twin,
+                      progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))

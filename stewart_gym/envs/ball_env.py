@@ -17,13 +17,13 @@ from gymnasium.utils import EzPickle
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
-from stewart_gym.sim.twin import Twin, load_twin
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
+from stewart_gym.sim.twin import Twin, load_twin
 
 __all__ = ["StewartBallEnv", "check_ball_geometry", "settling_start"]
 

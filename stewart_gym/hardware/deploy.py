@@ -45,7 +45,8 @@ from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
 from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact, reading_is_valid
 
-__all__ = ["DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant"]
+__all__ = ["LOG_READING_COLUMNS", "DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant",
+           "log_columns"]
 
 
 class Plant(Protocol):
@@ -214,6 +215,14 @@ class DeploySummary:
                 f"unreachable {self.unreachable}; jitter mean {self.jitter_ms_mean:.2f} ms, max "
                 f"{self.jitter_ms_max:.2f} ms; compute p99 {self.compute_ms_p99:.3f} ms; "
                 f"{board}{self.home_text()}")  # fmt: skip
+
+
+def log_columns(obs_size: int, action_size: int) -> list[str]:
+    """The deploy log's header: the tick's time and jitter, the observation, the action, the pose asked for, the
+    pulses sent, the tick's flags, whether it missed its deadline, the bytes written, and the reading."""
+    return ["t_s", "jitter_ms", *(f"obs{i}" for i in range(obs_size)), *(f"action{i}" for i in range(action_size)),
+            "x_m", "y_m", "z_m", "roll", "pitch", "yaw", *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS,
+            "missed_deadline", "bytes", *LOG_READING_COLUMNS]  # fmt: skip
 
 
 class DeployLoop:
@@ -445,10 +454,6 @@ class DeployLoop:
         path.parent.mkdir(parents=True, exist_ok=True)
         fh = path.open("w", newline="", buffering=1)
         writer = csv.writer(fh)
-        n = self.mapper.size
-        writer.writerow(["t_s", "jitter_ms", *(f"obs{i}" for i in range(self.observer.builder.size)),
-                         *(f"action{i}" for i in range(n)), "x_m", "y_m", "z_m", "roll", "pitch", "yaw",
-                         *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS, "missed_deadline", "bytes",
-                         *LOG_READING_COLUMNS])  # fmt: skip
+        writer.writerow(log_columns(self.observer.builder.size, self.mapper.size))
         fh.flush()
         return writer, fh

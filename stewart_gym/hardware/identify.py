@@ -3,8 +3,9 @@
 :class:`Excitation` wraps a deployable policy (the PID + Kalman by default): every tick it adds a tilt offset to
 the policy's action. The offset is a multilevel pseudo-random sequence: it holds each level for
 ``hold_s`` (drawn uniformly), and each level is drawn uniformly within ``± amplitude`` of the action range, with
-the odd hold at zero. The controller keeps the ball on the plate while the steps make it roll, and the steps
-ask the servos for moves fast enough to show their speed. The run itself is a deploy run
+the odd hold at zero. About every two seconds comes a doublet: a large tilt one way then the other, each for
+``doublet_s``, which asks the servos for moves large enough to show their speed and leaves the ball's velocity
+as it was. The controller keeps the ball on the plate while the steps make it roll. The run itself is a deploy run
 (:class:`~stewart_gym.hardware.deploy_setup.DeploySetup`): the same safety layer, the same channel limits, the
 same drive home on every stop, and the same log, which ``stewart-gym sysid`` reads.
 """
@@ -33,11 +34,14 @@ class Excitation:
         rate_hz: the loop's rate (one call per tick).
         amplitude: the offset's largest value, as a fraction of the action range (0 < amplitude ≤ 0.6).
         hold_s: (shortest, longest) time a level is held, s.
+        doublet: (smallest, largest) amplitude of a doublet, a fraction of the action range.
+        doublet_s: (shortest, longest) time of each half of a doublet, s.
         seed: the sequence's seed.
     """
 
     def __init__(self, policy: Any, rate_hz: float = 50.0, amplitude: float = 0.3,
-                 hold_s: tuple[float, float] = (0.1, 0.5), seed: int = 0) -> None:  # fmt: skip
+                 hold_s: tuple[float, float] = (0.1, 0.5), doublet: tuple[float, float] = (0.4, 0.7),
+                 doublet_s: tuple[float, float] = (0.06, 0.1), seed: int = 0) -> None:  # fmt: skip
         if getattr(policy, "action_mode", "tilt") != "tilt":
             raise ConfigError(f"identify excites the plate's tilt: its controller must act in 'tilt' mode, not "
                               f"{policy.action_mode!r}")  # fmt: skip
@@ -47,8 +51,10 @@ class Excitation:
         if not (0.0 < lo <= hi <= 10.0):
             raise ConfigError(f"the excitation's hold times must be 0 < shortest ≤ longest ≤ 10 s, got {hold_s!r}")
         self.policy, self.rate_hz, self.amplitude, self.hold_s = policy, float(rate_hz), float(amplitude), (lo, hi)
+        self.doublet, self.doublet_s = doublet, doublet_s
         self._rng = np.random.default_rng(seed)
         self._left = 0
+        self._queue: list[np.ndarray] = []  # the doublet's ticks still to come
         self.offset = np.zeros(2)
 
     def __getattr__(self, name: str) -> Any:  # the policy's own description: geometry, env id, observer, …
@@ -62,7 +68,13 @@ class Excitation:
 
     def _next_level(self) -> None:
         lo, hi = self.hold_s
-        self._left = max(1, int(round(self._rng.uniform(lo, hi) * self.rate_hz)))
+        hold = self._rng.uniform(lo, hi)
+        self._left = max(1, int(round(hold * self.rate_hz)))
+        if self._rng.random() < hold / 2:  # a doublet about every two seconds
+            angle = self._rng.uniform(0.0, 2.0 * math.pi)
+            size = self._rng.uniform(*self.doublet) * np.array([math.cos(angle), math.sin(angle)])
+            half = max(1, int(round(self._rng.uniform(*self.doublet_s) * self.rate_hz)))
+            self._queue = [size] * half + [-size] * half
         if self._rng.random() < 0.15:  # now and then a rest at zero, so that the log holds small moves too
             self.offset = np.zeros(2)
         else:
@@ -73,4 +85,6 @@ class Excitation:
             self._next_level()
         self._left -= 1
         action = np.asarray(self.policy(obs), dtype=np.float64)
+        if self._queue:
+            return np.clip(action + self._queue.pop(0), -1.0, 1.0)
         return np.clip(action + self.offset, -1.0, 1.0)

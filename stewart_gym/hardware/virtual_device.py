@@ -519,15 +519,21 @@ class VirtualDevice:
                 now = time.monotonic()
                 if not self.summary.unplugged:
                     self._receive(now)
-                    while self._incoming and self._incoming[0][0] <= now:
-                        self._apply_targets(self._incoming.popleft()[1])
+                    if self._started is None:  # powered down: the first frame starts the clock
+                        while self._incoming and self._incoming[0][0] <= now:
+                            self._apply_targets(self._incoming.popleft()[1])
                     since = None if self._started is None else now - self._started
                     if since is not None and f.unplug_after_s is not None and since >= f.unplug_after_s:
                         self._unplug()
                         continue
                     if since is not None:
                         while backend.time + step / 2 <= since:  # real time, to half a step
+                            due = self._started + backend.time + step / 2  # a frame acts from the step nearest it
+                            while self._incoming and self._incoming[0][0] <= due:
+                                self._apply_targets(self._incoming.popleft()[1])
                             self.plant.apply(self.held)
+                        while self._incoming and self._incoming[0][0] <= now:  # what is left acts from the next
+                            self._apply_targets(self._incoming.popleft()[1])
                     if self.stream is not None and self.stream.connected and now >= self._next_frame:
                         self.stream.put(backend.camera_image(self.camera))  # what the camera sees now
                         self._next_frame = max(self._next_frame + 1.0 / self.camera.fps, now - 0.5)

@@ -20,8 +20,8 @@ is a :class:`~stewart_gym.errors.ConfigError` naming the file and the key::
     noise_mm = 1.0
     latency_ms = 10.0
 
-``sysid`` adds a ``[fit]`` table: the one-sigma uncertainty of each fitted value (``sigma``, keyed
-``"table.key"``), the keys the logs could not determine (``undetermined``), and the logs it read.
+``sysid`` adds a ``[fit]`` table: the keys the logs could not determine (``undetermined``) and the one-sigma
+uncertainty of each fitted value (``[fit.sigma]``, keyed ``"table.key"``).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from typing import Any
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["TWIN_FIELDS", "Twin", "load_twin"]
+__all__ = ["FIT_KEYS", "TWIN_FIELDS", "Twin", "load_twin"]
 
 #: Every key of a twin file: ``(table, key)`` → (nominal value, lowest, highest, unit, what it is).
 TWIN_FIELDS: dict[tuple[str, str], tuple[Any, float, float, str, str]] = {
@@ -54,9 +54,10 @@ TWIN_FIELDS: dict[tuple[str, str], tuple[Any, float, float, str, str]] = {
     ("sensor", "latency_ms"): (10.0, 0.0, 300.0, "ms", "age of a reading when it reaches the computer"),
 }
 TABLES = ("servos", "ball", "plate", "sensor")
-#: The table ``sysid`` adds: ``sigma`` (one-sigma uncertainties, keyed ``"table.key"``), ``undetermined``
-#: (the keys the logs could not determine), ``logs`` (the files fitted).
+#: The table ``sysid`` adds: ``sigma`` (one-sigma uncertainties, keyed ``"table.key"``) and ``undetermined``
+#: (the keys the logs could not determine).
 FIT_TABLE = "fit"
+FIT_KEYS = ("sigma", "undetermined")
 
 
 @dataclass(frozen=True)
@@ -170,9 +171,9 @@ def _fit_table(source: str, fit: Any) -> tuple[dict[str, float], tuple[str, ...]
     if not isinstance(fit, Mapping):
         raise ConfigError(f"{source}: [fit] must be a table, got {fit!r}")
     names = {f"{t}.{k}" for t, k in TWIN_FIELDS}
-    bad = sorted(set(fit) - {"sigma", "undetermined", "logs"})
+    bad = sorted(set(fit) - set(FIT_KEYS))
     if bad:
-        raise ConfigError(f"{source}: unknown key(s) {bad} in [fit]; its keys: ['logs', 'sigma', 'undetermined']")
+        raise ConfigError(f"{source}: unknown key(s) {bad} in [fit]; its keys: {list(FIT_KEYS)}")
     sigma = fit.get("sigma", {})
     undetermined = fit.get("undetermined", [])
     if not isinstance(sigma, Mapping) or not all(k in names and _number(v) and v >= 0 for k, v in sigma.items()):

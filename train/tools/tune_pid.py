@@ -9,7 +9,8 @@ runs behind: ``kalman`` (the default) writes ``policies/pid_kalman_gains.json``
 (``--policy pid-kalman``), ``lowpass`` ``policies/pid_gains.json`` (``--policy
 pid``); ``--out`` writes elsewhere. ``--kp-pos``, ``--kp-vel`` and ``--ki-vel``
 give the grid; ``--integral-zone-mm`` (default 20) the conditional integration zone
-(the error is integrated only this close to the target). Prints the table.
+(the error is integrated only this close to the target). ``--twin FILE`` tunes for a platform's twin (each
+episode drawn around it, as ``train --twin`` draws them); ``--out`` is then required. Prints the table.
 
 Run: ``.venv/bin/python train/tools/tune_pid.py [--episodes 30] [--estimator kalman]``
 """
@@ -42,14 +43,22 @@ def main() -> None:
     parser.add_argument("--ki-vel", type=floats, default=[2.0, 3.0, 4.0])
     parser.add_argument("--integral-zone-mm", type=float, default=20.0,
                         help="integrate the error only this close to the target (0: always; default 20)")
+    parser.add_argument("--twin", help="tune for this twin (TOML, as sysid writes it); needs --out")
     args = parser.parse_args()
+    env_kwargs: dict = {"estimator": args.estimator}
+    if args.twin:
+        from stewart_gym.sim.twin import load_twin
+
+        if not args.out:
+            parser.error("--twin needs --out (the shipped gains are for the nominal platform)")
+        env_kwargs["twin"] = load_twin(args.twin).to_mapping()
     args.out = args.out or str(POLICY_DIR / ("pid_kalman_gains.json" if args.estimator == "kalman" else "pid_gains.json"))
     grid = itertools.product(args.kp_pos, args.kp_vel, args.ki_vel)
     rows = []
     for kp_pos, kp_vel, ki_vel in grid:
         gains = PIDGains(kp_pos=kp_pos, kp_vel=kp_vel, ki_vel=ki_vel, integral_zone=args.integral_zone_mm * 1e-3)
         m = evaluate("StewartBallBalance-v0", CascadedPID(gains), episodes=args.episodes, seed=10_000, settling=False,
-                     env_kwargs={"estimator": args.estimator})  # fmt: skip
+                     env_kwargs=env_kwargs)  # fmt: skip
         rows.append((m["success_rate"], -m["rms_error_mm"], gains, m))
         print(f"kp_pos={kp_pos:4.1f} kp_vel={kp_vel:4.1f} ki_vel={ki_vel:3.1f}  success {m['success_rate']:.0%}  "
               f"RMS {m['rms_error_mm']:.2f} mm  final {m['final_error_mm']:.2f} mm  settled "

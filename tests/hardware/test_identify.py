@@ -1,0 +1,168 @@
+"""identify: the excitation, and the run through the wire with the deploy loop's safety (faults included)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.errors import ConfigError
+from stewart_gym.hardware.identify import Excitation
+from stewart_gym.registry import deployable_policy, resolve_policy
+from tests.conftest import cli
+from tests.hardware.test_virtual_device import Board
+
+SLOW_TWIN = """[servos]
+speed_scale = 0.5
+deadband_us = 12
+trim_us = [30, -30, 20, -10, 0, 25]
+latency_ms = 50
+[sensor]
+noise_mm = 2.5
+latency_ms = 30
+"""
+
+
+class Still:
+    """A tilt policy that always answers ``value``."""
+
+    action_mode, env_id = "tilt", "StewartBallBalance-v0"
+
+    def __init__(self, value: float = 0.0) -> None:
+        self.value, self.resets = value, 0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        return np.full(2, self.value)
+
+    def reset(self) -> None:
+        self.resets += 1
+
+
+def test_the_excitation_steps_within_its_amplitude_with_doublets_and_rests():
+    ex = Excitation(Still(), rate_hz=50, amplitude=0.3, seed=1)
+    actions = np.array([ex(np.zeros(3)) for _ in range(50 * 60)])
+    assert np.all(np.abs(actions) <= 1.0)
+    steps = np.abs(actions).max(axis=1)
+    levels = steps[(steps > 0) & (steps <= 0.3)]
+    assert levels.max() > 0.28 and np.median(levels) > 0.15  # the levels: up to the amplitude
+    assert (steps > 0.4).mean() > 0.02  # the doublets, larger than the levels
+    assert (steps == 0).mean() > 0.02  # the rests
+    # a doublet leaves the ball's velocity as it was: its two halves cancel
+    big = np.flatnonzero(steps > 0.3 + 1e-9)
+    assert abs(actions[big].sum(axis=0)).max() < 0.35 * len(big) ** 0.5
+    ex.reset()
+    assert ex.policy.resets == 1 and ex.env_id == "StewartBallBalance-v0"  # the policy's own description
+
+
+def test_the_excitation_adds_to_the_policy_and_clips():
+    ex = Excitation(Still(0.9), amplitude=0.6, seed=2)
+    actions = np.array([ex(np.zeros(3)) for _ in range(500)])
+    assert actions.max() == 1.0 and actions.min() >= 0.3 - 0.7 - 1e-9
+
+
+@pytest.mark.parametrize("kwargs, words", [({"amplitude": 0.0}, "amplitude"), ({"amplitude": 0.7}, "amplitude"),
+                                           ({"hold_s": (0.5, 0.1)}, "hold times")])  # fmt: skip
+def test_the_excitation_checks_its_settings(kwargs, words):
+    with pytest.raises(ConfigError, match=words):
+        Excitation(Still(), **kwargs)
+    pose = Still()
+    pose.action_mode = "pose"
+    with pytest.raises(ConfigError, match="'tilt' mode"):
+        Excitation(pose)
+
+
+def test_identify_wraps_the_pid_kalman():
+    ex = Excitation(deployable_policy(resolve_policy("pid-kalman")))
+    assert ex.estimator == "kalman" and ex.obs_size == ex.policy.obs_size
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--sensor", "camera"], "--sensor camera needs --camera-config"),
+    (["--sensor", "panel", "--twin", "TWIN"], "--twin describes the simulated plant: it needs --sensor sim"),
+    (["--sensor", "panel", "--protocol", "maestro"], "--sensor panel needs --protocol line"),
+    (["--amplitude", "0.9"], "--amplitude"),
+    (["--duration", "2"], "--duration"),
+])  # fmt: skip
+def test_identify_refuses_bad_input_before_the_port_opens(tmp_path, capfd, args, words):
+    (tmp_path / "twin.toml").write_text(SLOW_TWIN)
+    args = [str(tmp_path / "twin.toml") if a == "TWIN" else a for a in args]
+    code, _, err = cli(capfd, "identify", "--port", str(tmp_path / "none"), "--protocol", "line",
+                       "--out", str(tmp_path / "log.csv"), *args)  # fmt: skip
+    assert code != 0 and words in err and "Traceback" not in err
+    assert not (tmp_path / "log.csv").exists()
+
+
+def identify(tmp_path: Path, port: Path, *args: str, wait: float | None = None) -> tuple[int, str, list[dict]]:
+    log = tmp_path / "identify.csv"
+    cmd = [sys.executable, "-m", "stewart_gym", "identify", "--port", str(port), "--protocol", "line", "--sensor",
+           "panel", "--out", str(log), "--overwrite", *args]  # fmt: skip
+    if wait is None:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ))
+        code, out = proc.returncode, proc.stdout + proc.stderr
+    else:  # stopped by SIGINT after ``wait`` s of ticks
+        run = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and (not log.exists() or log.read_text().count("\n") < wait * 50):
+            time.sleep(0.05)
+        run.send_signal(signal.SIGINT)
+        out = run.communicate(timeout=60)[0]
+        code = run.returncode
+    rows = list(csv.DictReader(log.open())) if log.exists() else []
+    return code, out, rows
+
+
+def within_limits(rows: list[dict]) -> bool:
+    cal = ServoCalibration.default("servo-hexapod")
+    pulses = np.array([[float(r[f"pulse{i}_us"]) for i in range(6)] for r in rows])
+    return bool(np.all(pulses >= cal.min_us - 1e-6) and np.all(pulses <= cal.max_us + 1e-6))
+
+
+@pytest.mark.slow
+def test_identify_through_the_wire_logs_pulses_and_readings_and_goes_home(tmp_path):
+    (tmp_path / "twin.toml").write_text(SLOW_TWIN)
+    board = Board(tmp_path, "--protocol", "line", "--twin", str(tmp_path / "twin.toml"), "--seed", "2")
+    code, out, rows = identify(tmp_path, board.link, "--duration", "6")
+    bcode, bout, _ = board.stop()
+    assert code == 0 and "servos homed: confirmed by the board" in out, out
+    assert bcode == 0 and "0 targets clamped" in bout and "on the plate" in bout, bout
+    assert len(rows) >= 290 and within_limits(rows)
+    readings = np.array([[float(r["reading_x_m"]), float(r["reading_y_m"]), float(r["reading_t_s"])] for r in rows])
+    assert np.isfinite(readings).mean() > 0.95 and len(np.unique(readings[:, 2])) > 250
+    tilts = np.array([[float(r["action0"]), float(r["action1"])] for r in rows])
+    assert np.abs(tilts).max() > 0.3  # the steps went out
+
+
+@pytest.mark.slow
+def test_identify_goes_home_when_stopped_by_ctrl_c(tmp_path):
+    board = Board(tmp_path, "--protocol", "line", "--seed", "3")
+    code, out, rows = identify(tmp_path, board.link, "--duration", "60", wait=2.0)
+    board.stop()
+    assert code == 130 and "stopped by Ctrl-C" in out and "servos homed: confirmed by the board" in out, out
+    assert within_limits(rows)
+
+
+@pytest.mark.slow
+def test_identify_on_a_board_that_disappears_says_so(tmp_path):
+    board = Board(tmp_path, "--protocol", "line", "--unplug-after", "1.5")
+    code, out, rows = identify(tmp_path, board.link, "--duration", "10")
+    board.stop()
+    assert code == 2 and "device failure" in out and "servos NOT" in out and "Traceback" not in out, out
+    assert rows and within_limits(rows)
+
+
+@pytest.mark.slow
+def test_identify_with_a_stalled_panel_holds_home_and_fails(tmp_path):
+    board = Board(tmp_path, "--protocol", "line", "--stall-sensor-after", "1.0")
+    code, out, rows = identify(tmp_path, board.link, "--duration", "4")
+    board.stop()
+    assert code == 1 and "no fresh valid reading" in out and "servos homed: confirmed by the board" in out, out
+    late = [r for r in rows if float(r["t_s"]) > 1.5]
+    assert late and all(int(r["stale"]) and int(r["homing"]) for r in late) and within_limits(rows)

@@ -1,0 +1,145 @@
+"""The twin file: its format, its checks, and what the env makes of it."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import stewart_gym  # noqa: F401  (registers the envs)
+from stewart_gym.envs.randomization import TWIN_WIDTH_FLOOR, RandomizationRanges
+from stewart_gym.errors import ConfigError
+from stewart_gym.sensing import TouchPanelSpec
+from stewart_gym.sim import BallSpec, ServoSpec
+from stewart_gym.sim.twin import TWIN_FIELDS, Twin, load_twin
+
+#: The issue's example, as a user would save it.
+EXAMPLE = """\
+[servos]
+speed_scale = 1.0                  # × the servo model's nominal speed
+deadband_us = 5.0
+trim_us = [0, 0, 0, 0, 0, 0]       # each servo's neutral error (what a perfect calibration would remove)
+latency_ms = 0.0                   # delay between a pulse leaving and the servo acting on it
+[ball]
+mass_scale = 1.0
+radius_scale = 1.0
+rolling_friction = 0.0             # m
+[plate]
+friction = 0.6
+load_kg = 0.0
+[sensor]
+noise_mm = 1.0
+latency_ms = 10.0
+"""
+
+SLOW = {"servos": {"speed_scale": 0.5, "deadband_us": 12, "trim_us": [30, -30, 20, -10, 0, 25], "latency_ms": 50},
+        "ball": {"mass_scale": 1.5, "radius_scale": 1.1, "rolling_friction": 2e-5},
+        "plate": {"friction": 0.4, "load_kg": 0.2}, "sensor": {"noise_mm": 2.5, "latency_ms": 30}}  # fmt: skip
+
+
+def toml_text(tables: dict) -> str:
+    """Tables of scalars and lists as TOML (JSON spells them alike), a value that is no table as a bare key."""
+    lines = []
+    for table, values in tables.items():
+        if not isinstance(values, dict):
+            lines.insert(0, f"{table} = {json.dumps(values)}")
+            continue
+        lines.append(f"[{table}]")
+        for key, value in values.items():
+            text = "nan" if isinstance(value, float) and value != value else json.dumps(value)
+            if isinstance(value, dict):  # an inline table
+                text = "{" + ", ".join(f'"{k}" = {json.dumps(v)}' for k, v in value.items()) + "}"
+            lines.append(f"{key} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+def test_the_example_file_is_the_nominal_twin(tmp_path):
+    path = tmp_path / "twin.toml"
+    path.write_text(EXAMPLE)
+    twin = load_twin(path)
+    assert twin.values == Twin().values
+    assert twin.total_latency_ms == 10.0
+    assert set(Twin().values) == set(TWIN_FIELDS)
+
+
+def test_missing_keys_take_the_nominal_values():
+    twin = Twin.from_mapping({"servos": {"speed_scale": 0.5}})
+    assert twin["servos.speed_scale"] == 0.5
+    assert twin["servos.deadband_us"] == 5.0 and twin["sensor.latency_ms"] == 10.0 and twin["plate.friction"] == 0.6
+
+
+@pytest.mark.parametrize("tables, words", [
+    ({"servos": {"speed": 1.0}}, "unknown key(s) ['speed'] in [servos]"),
+    ({"motors": {}}, "unknown table(s) ['motors']"),
+    ({"servos": {"speed_scale": 0.0}}, "servos.speed_scale must be a number in 0.1…5"),
+    ({"servos": {"deadband_us": -1}}, "servos.deadband_us"),
+    ({"servos": {"latency_ms": float("nan")}}, "servos.latency_ms"),
+    ({"servos": {"latency_ms": True}}, "servos.latency_ms"),
+    ({"servos": {"trim_us": [0, 0, 0]}}, "servos.trim_us must be six numbers"),
+    ({"servos": {"trim_us": [0, 0, 0, 0, 0, 500]}}, "servos.trim_us must be six numbers in -200…200"),
+    ({"sensor": {"noise_mm": "1"}}, "sensor.noise_mm"),
+    ({"ball": {"rolling_friction": 0.01}}, "ball.rolling_friction"),
+    ({"plate": 3}, "[plate] must be a table"),
+    ({"fit": {"sigma": {"servos.speed": 1}}}, "fit.sigma"),
+])  # fmt: skip
+def test_a_bad_twin_is_one_error_naming_the_file_and_key(tmp_path, tables, words):
+    path = tmp_path / "mine.toml"
+    path.write_text(toml_text(tables))
+    with pytest.raises(ConfigError) as err:
+        load_twin(path)
+    assert str(path) in str(err.value) and words in str(err.value)
+
+
+def test_a_twin_round_trips_through_its_file(tmp_path):
+    twin = Twin.from_mapping(SLOW)
+    fitted = Twin(twin.values, {"servos.speed_scale": 0.05, "servos.latency_ms": 2.0}, ("ball.mass_scale",))
+    path = tmp_path / "t.toml"
+    path.write_text(fitted.toml({"ball.mass_scale": "undetermined"}))
+    back = load_twin(path)
+    for key, value in twin.values.items():
+        assert np.allclose(back.values[key], value, rtol=1e-5), key
+    assert back.sigma == pytest.approx(fitted.sigma) and back.undetermined == ("ball.mass_scale",)
+    assert Twin.from_mapping(back.to_mapping()).values == back.values
+
+
+def test_the_env_simulates_exactly_the_twin():
+    env = gym.make("StewartBallBalance-v0", twin=SLOW, backend="batched").unwrapped
+    env.reset(seed=3)
+    p, nominal = env.params, ServoSpec()
+    assert p.servo.max_speed == pytest.approx(0.5 * nominal.max_speed)
+    assert p.servo.deadband_us == 12 and p.servo.trim_error_us == (30, -30, 20, -10, 0, 25)
+    assert p.servo.lag_s == pytest.approx(nominal.lag_s + 0.050)
+    assert p.sensor == TouchPanelSpec(noise_mm=2.5, rate_hz=100.0, latency_s=0.030)
+    assert p.ball.mass == pytest.approx(1.5 * BallSpec().mass)
+    assert p.ball.radius == pytest.approx(round(1.1 * BallSpec().radius, 5)) and p.ball.rolling_friction == 2e-5
+    assert p.plate_friction == 0.4 and p.plate_load[0] == 0.2
+    env.reset(seed=4)  # another seed: the same platform
+    assert env.params.servo == p.servo and env.params.sensor == p.sensor
+    env.close()
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), sigma=st.floats(0.0, 0.3))
+def test_randomised_around_a_twin_each_value_stays_within_its_width(seed, sigma):
+    twin = Twin(Twin.from_mapping(SLOW).values, {"servos.speed_scale": sigma}, ("plate.friction",))
+    from stewart_gym.envs.randomization import EpisodeParams
+
+    rng = np.random.default_rng(seed)
+    p = EpisodeParams.from_twin(twin, BallSpec(), ServoSpec(), TouchPanelSpec(), rng, RandomizationRanges())
+    width = max(2 * sigma, TWIN_WIDTH_FLOOR["servos.speed_scale"])
+    assert abs(p.servo.max_speed / ServoSpec().max_speed - 0.5) <= width + 1e-9
+    assert abs(p.servo.deadband_us - 12) <= TWIN_WIDTH_FLOOR["servos.deadband_us"] + 1e-9
+    assert np.all(np.abs(np.subtract(p.servo.trim_error_us, SLOW["servos"]["trim_us"]))
+                  <= TWIN_WIDTH_FLOOR["servos.trim_us"] + 1e-9)  # fmt: skip
+    assert abs(p.sensor.latency_s - 0.030) <= TWIN_WIDTH_FLOOR["sensor.latency_ms"] / 1e3 + 1e-12
+    lo, hi = RandomizationRanges().plate_friction  # undetermined: drawn from today's range
+    assert lo <= p.plate_friction <= hi
+
+
+def test_a_bad_twin_keyword_is_refused_by_the_env():
+    with pytest.raises(ConfigError, match="unknown key"):
+        gym.make("StewartBallBalance-v0", twin={"servos": {"speed": 2}})

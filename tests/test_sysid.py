@@ -1,0 +1,149 @@
+"""sysid: reading deploy logs, and fitting a twin from them (on logs whose truth is known)."""
+
+from __future__ import annotations
+
+import csv
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import stewart_gym  # noqa: F401  (registers the envs)
+from stewart_gym.errors import ConfigError
+from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
+from stewart_gym.hardware.identify import Excitation
+from stewart_gym.registry import deployable_policy, resolve_policy
+from stewart_gym.sim.twin import Twin
+from stewart_gym.sysid import READ_OVERHEAD_S, fit_twin, read_log
+from tests.conftest import cli
+
+TWIN = {"servos": {"speed_scale": 0.6, "deadband_us": 10.0, "trim_us": [20, -20, 10, -5, 0, 15], "latency_ms": 40.0},
+        "sensor": {"noise_mm": 1.8, "latency_ms": 20.0}}  # fmt: skip
+HEADER = ["t_s", *(f"pulse{i}_us" for i in range(6)), "stale", "invalid", "held", "homing", "missed_deadline",
+          *LOG_READING_COLUMNS]  # fmt: skip
+
+
+def synthetic_log(path, twin: dict, seconds: float, seed: int = 0) -> None:
+    """What identify would log on the platform ``twin`` describes, written in simulated time (the batched
+    backend, not real time): the excitation under the PID + Kalman, each tick's pulses, and the newest panel
+    line as the loop reads it: sent at the panel's last report, up to one report period before the tick, and
+    stamped with the tick's time (the line carries no time of its own)."""
+    env = gym.make("StewartBallBalance-v0", twin=twin, backend="batched", estimator="kalman",
+                   episode_s=seconds + 1).unwrapped  # fmt: skip
+    policy = Excitation(deployable_policy(resolve_policy("pid-kalman")), seed=seed)
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
+    period = 1.0 / env.sensor_model.spec.rate_hz
+    with open(path, "w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(HEADER)
+        for k in range(int(seconds * env.sim.control_hz)):
+            t = env.sim.time
+            got = env.sensor_model.read(t - rng.uniform(0.0, period))
+            action = policy(obs)
+            obs, _, terminated, _, info = env.step(action)
+            reading = ("", "", "") if got is None else (*got[0], t)
+            writer.writerow([f"{t:.4f}", *np.round(info["pulse_widths_us"], 2), 0, 0, 0, 0, 0, *reading])
+            assert not terminated, "the ball left the plate during the excitation"
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    path = tmp_path_factory.mktemp("sysid") / "log.csv"
+    synthetic_log(path, TWIN, 40.0)
+    return path, fit_twin([read_log(path)])
+
+
+def test_the_fit_recovers_a_known_twin(fitted):
+    _, result = fitted
+    truth = Twin.from_mapping(TWIN)
+    twin = result.twin
+    assert result.total_latency_ms == pytest.approx(truth.total_latency_ms, abs=4.0)
+    assert twin["servos.speed_scale"] == pytest.approx(0.6, abs=0.1)
+    assert twin["servos.deadband_us"] == pytest.approx(10.0, abs=2.5)
+    assert twin["sensor.noise_mm"] == pytest.approx(1.8, abs=0.2)
+    # the twin written keeps the sensor's nominal latency and gives the rest to the servos
+    assert twin["sensor.latency_ms"] == 10.0
+    assert twin.total_latency_ms == pytest.approx(result.total_latency_ms)
+    for name in ("servos.speed_scale", "servos.deadband_us", "servos.latency_ms", "sensor.noise_mm"):
+        assert 0 < twin.sigma[name] < 1e3 and name not in twin.undetermined
+    assert {"sensor.latency_ms", "servos.trim_us", "ball.mass_scale", "plate.load_kg"} <= set(twin.undetermined)
+
+
+def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
+    _, result = fitted
+    for horizon, row in result.prediction.items():
+        assert row["windows"] >= 3
+        assert row["fitted"] * 2 <= row["nominal"], f"{horizon} s: {row}"
+
+
+def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
+    """The fitted trims, put into a simulated platform at rest, make the ball accelerate as the fit says."""
+    from stewart_gym.sim import BatchedSim, ServoSpec
+
+    _, result = fitted
+    sim = BatchedSim(n=1)
+    sim.reset(servo_specs=[ServoSpec(trim_error_us=result.twin["servos.trim_us"])])
+    home = sim.calibration.neutral_us[None]
+    for _ in range(25):
+        sim.command(home)
+        sim.step()
+    sim.place_ball(np.zeros((1, 2)))
+    for _ in range(10):
+        sim.command(home)
+        sim.step()
+    accel = 2 * sim.ball_xy[0] / (10 * sim.dt) ** 2
+    assert np.allclose(accel, result.tilt_accel, atol=0.1 * np.linalg.norm(result.tilt_accel) + 1e-3)
+
+
+def test_sysid_writes_the_twin_and_its_report(fitted, tmp_path, capfd):
+    log, _ = fitted
+    code, out, err = cli(capfd, "sysid", str(log), "--out", str(tmp_path / "twin.toml"), "--report",
+                         str(tmp_path / "report"))  # fmt: skip
+    assert code == 0, err
+    from stewart_gym.sim.twin import load_twin
+
+    twin = load_twin(tmp_path / "twin.toml")
+    assert twin.sigma and "total latency" in out and "undetermined" in out
+    assert (tmp_path / "report" / "report.md").read_text().count("prediction RMS") == 2
+    assert (tmp_path / "report" / "paths.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize("content, words", [
+    ("t_s,pulse0_us\n0,1500\n", "not a deploy log with readings (no column 'pulse1_us')"),
+    ("", "empty"),
+    (",".join(HEADER) + "\n" + "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0,0,{k / 50}\n"
+                                        for k in range(100)), "at least 5 s"),
+    (",".join(HEADER) + "\n0.02,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,\n0.0,1500,1500,1500,1500,1500,1500,0,0,0,0,"
+     "0,,,\n", "increasing"),
+    (",".join(HEADER) + "\n0,1500,x,1500,1500,1500,1500,0,0,0,0,0,,,\n", "a row is not a deploy log's"),
+])  # fmt: skip
+def test_a_bad_log_is_one_error_line(tmp_path, capfd, content, words):
+    log = tmp_path / "log.csv"
+    log.write_text(content)
+    code, out, err = cli(capfd, "sysid", str(log), "--out", str(tmp_path / "twin.toml"))
+    assert code == 1 and words in err and str(log) in err and "Traceback" not in err
+    assert err.strip().count("\n") == 0 and not (tmp_path / "twin.toml").exists()
+
+
+def test_sysid_refuses_before_any_work(tmp_path, capfd):
+    (tmp_path / "twin.toml").write_text("")
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "twin.toml"))
+    assert code == 1 and "exists" in err  # the output is checked first
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"))
+    assert code == 1 and "none.csv" in err
+
+
+def test_nan_and_off_plate_readings_are_no_readings(tmp_path):
+    rows = [",".join(HEADER)]
+    for k in range(400):
+        t = k / 50
+        x = "nan" if k % 7 == 0 else ("0.9" if k % 11 == 0 else f"{0.01 * math.sin(t):.5f}")
+        rows.append(f"{t:.4f},1500,1500,1500,1500,1500,1500,0,0,0,0,0,{x},0.0,{t:.4f}")
+    (tmp_path / "log.csv").write_text("\n".join(rows) + "\n")
+    log = read_log(tmp_path / "log.csv")
+    assert np.all(np.isfinite(log.reading_xy)) and np.all(np.abs(log.reading_xy) <= 0.16)
+    assert len(log.reading_t) == len([k for k in range(400) if k % 7 and k % 11])
+    assert READ_OVERHEAD_S > 0
