@@ -52,7 +52,8 @@ from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
-__all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
+__all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "FitResult", "FlightLog", "fit_twin", "read_log",
+           "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import stewart_gym  # noqa: F401  (registers the envs)
-from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
@@ -38,7 +37,7 @@ def synthetic_log(path, twin: dict, seconds: float, seed: int = 0) -> None:
     with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(HEADER)
-        for k in range(int(seconds * env.sim.control_hz)):
+        for _ in range(int(seconds * env.sim.control_hz)):
             t = env.sim.time
             got = env.sensor_model.read(t - rng.uniform(0.0, period))
             action = policy(obs)
