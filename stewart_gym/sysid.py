@@ -22,7 +22,8 @@ windows at once.
   get from their uneven age (:data:`READ_TIME_VAR_S2`).
 
 The best candidate is refined between grid points by a parabola through its neighbours. The uncertainties come
-from a bootstrap over windows (the fit repeated on windows drawn with replacement).
+from a bootstrap over windows (the fit repeated on windows drawn with replacement); they measure the scatter
+of the fit, not what the model leaves out.
 
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
@@ -31,7 +32,7 @@ rolling friction, the plate's friction and load. A servo speed or dead band at t
 bootstrap spread covers much of the grid, is undetermined too: the logs never asked the servos for it.
 
 **Held out.** The last part of each log (``holdout``) is not fitted. There, the nominal and the fitted twin each
-predict the ball's path from the readings of the window's first 0.3 s; the report gives the RMS error of each
+predict the ball's path from the readings of the window's first 0.6 s; the report gives the RMS error of each
 over the next 0.5 s and 1 s.
 """
 
@@ -73,7 +74,7 @@ LATENCY_GRID = tuple(float(v) for v in np.arange(0.0, 0.2005, 0.001))
 BURN_IN_S = 1.0
 FIT_S = 1.0
 #: Held-out windows: the ball's start fitted over the first PAST_S, then predicted over the horizons.
-PAST_S = 0.3
+PAST_S = 0.6
 HORIZONS_S = (0.5, 1.0)
 #: A parameter whose bootstrap spread (one sigma) exceeds this fraction of its grid's span is undetermined.
 UNDETERMINED_FRACTION = 0.2
@@ -438,11 +439,19 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         if on_progress:
             on_progress(done)
     best_accel = accel.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1, 2)[si, di, li]
-    dof = float(n.sum()) * 2 - 4 * len(fit_w) - 2
-    residual_var = max(float(total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1)[si, di, li]), 0.0) / max(dof, 1.0)
-    best_path = path[:, si * len(DEADBAND_GRID) + di]  # (W, S, 2)
-    speed_sq = float(np.mean(np.diff(best_path, axis=1) ** 2)) / dt**2  # per axis, m²/s²
-    noise_mm = math.sqrt(max(residual_var - READ_TIME_VAR_S2 * speed_sq, 0.0)) * 1e3
+    ci = si * len(DEADBAND_GRID) + di
+    best_path = path[:, ci]  # (W, S, 2)
+    speed_sq = np.mean(np.diff(best_path, axis=1) ** 2, axis=(1, 2)) / dt**2  # (W,) per axis, m²/s²
+    # each window's squared residual at the best fit, the shared acceleration taken out
+    sse = (c[:, ci, li] - 2 * best_accel * b[:, ci, li] + best_accel**2 * A[:, None]).sum(axis=1)
+
+    def noise_of(weights: np.ndarray) -> float:
+        """The panel noise, mm, from the windows so weighted: the residual's variance less the timing scatter."""
+        dof = max(float(weights @ (2 * n - 4)) - 2, 1.0)
+        var = float(weights @ sse) / dof - READ_TIME_VAR_S2 * float(weights @ speed_sq) / float(weights.sum())
+        return math.sqrt(max(var, 0.0)) * 1e3
+
+    noise_mm = noise_of(ones)
     # the bootstrap: the same fit on windows drawn with replacement
     rng = np.random.default_rng(seed)
     draws = []
@@ -450,14 +459,14 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         weights = np.bincount(rng.integers(len(fit_w), size=len(fit_w)), minlength=len(fit_w)).astype(float)
         tb, _ = _cost(c, b, A, weights)
         sb, db, lb, _ = _best(tb)
-        draws.append((sb, db, lb))
+        draws.append((sb, db, lb, noise_of(weights)))
     spread = np.std(np.array(draws), axis=0)
     if on_progress:
         on_progress(0.85)
     total_ms = (lat - READ_OVERHEAD_S) * 1e3
     sensor_ms = min(float(start["sensor.latency_ms"]), max(total_ms, 0.0))
     sigma = {"servos.speed_scale": float(max(spread[0], 0.01)), "servos.deadband_us": float(max(spread[1], 0.5)),
-             "servos.latency_ms": float(max(spread[2] * 1e3, 0.5)), "sensor.noise_mm": 0.05 + 0.05 * noise_mm}
+             "servos.latency_ms": float(max(spread[2] * 1e3, 0.5)), "sensor.noise_mm": float(max(spread[3], 0.01))}
     notes = {"sensor.latency_ms": "the ball shows the total latency only: the sensor keeps its value and the servos "
                                   "take the rest",
              "servos.trim_us": "the panel sees only the tilt the trims make together: these are the smallest trims "

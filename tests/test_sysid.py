@@ -55,6 +55,7 @@ def fitted(tmp_path_factory):
     return path, fit_twin([read_log(path)])
 
 
+@pytest.mark.slow
 def test_the_fit_recovers_a_known_twin(fitted):
     _, result = fitted
     truth = Twin.from_mapping(TWIN)
@@ -71,6 +72,7 @@ def test_the_fit_recovers_a_known_twin(fitted):
     assert {"sensor.latency_ms", "servos.trim_us", "ball.mass_scale", "plate.load_kg"} <= set(twin.undetermined)
 
 
+@pytest.mark.slow
 def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
     _, result = fitted
     for horizon, row in result.prediction.items():
@@ -78,6 +80,7 @@ def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
         assert row["fitted"] * 2 <= row["nominal"], f"{horizon} s: {row}"
 
 
+@pytest.mark.slow
 def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
     """The fitted trims, put into a simulated platform at rest, make the ball accelerate as the fit says."""
     from stewart_gym.sim import BatchedSim, ServoSpec
@@ -97,6 +100,7 @@ def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
     assert np.allclose(accel, result.tilt_accel, atol=0.1 * np.linalg.norm(result.tilt_accel) + 1e-3)
 
 
+@pytest.mark.slow
 def test_sysid_writes_the_twin_and_its_report(fitted, tmp_path, capfd):
     log, _ = fitted
     code, out, err = cli(capfd, "sysid", str(log), "--out", str(tmp_path / "twin.toml"), "--report",

@@ -185,6 +185,15 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     return EXIT_OK if last.xy_mm is not None else EXIT_FAILED
 
 
+def add_port(p: argparse.ArgumentParser) -> None:
+    """``--port``, ``--protocol`` and ``--baudrate`` of the commands that talk to the servo board."""
+    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
+                   help="the servo board's serial protocol (default: [hardware] protocol of the calibration file)")
+    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
+                   help="serial speed (default: the calibration file's, else the protocol's own)")
+
+
 def register(sub: Any) -> None:
     """Add the hardware subcommands to the ``stewart-gym`` parser."""
     p = sub.add_parser("deploy", help=cmd_deploy.__doc__, description=cmd_deploy.__doc__, epilog=EXIT_CODES_HELP)
@@ -194,11 +203,7 @@ def register(sub: Any) -> None:
     add_estimator(p, "the observer: lowpass or kalman (default: the bundle's; kalman for pid-kalman and lqr)")
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); a bundle carries its own")
-    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
-                   help="the servo board's serial protocol (default: [hardware] protocol of the calibration file)")
-    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
-                   help="serial speed (default: the calibration file's, else the protocol's own)")
+    add_port(p)
     p.add_argument("--sensor", choices=["sim", "panel", "camera"], default="sim",
                    help="where the ball position comes from: the simulated plant (a dry run), the board's touch panel "
                         "or a camera")  # fmt: skip

@@ -20,7 +20,7 @@ from stewart_gym.cli.common import (
     output_file,
     twin_tables,
 )
-from stewart_gym.cli.hardware import PROTOCOL_CHOICES
+from stewart_gym.cli.hardware import add_port
 
 __all__ = ["register"]
 
@@ -94,11 +94,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("identify", help=cmd_identify.__doc__.split(":")[0] + ".", description=cmd_identify.__doc__,
                        epilog=EXIT_CODES_HELP)  # fmt: skip
     add_geometry(p)
-    p.add_argument("--port", help="serial port (default: [hardware] port of the calibration file)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
-                   help="the servo board's serial protocol (default: [hardware] protocol of the calibration file)")
-    p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
-                   help="serial speed (default: the calibration file's, else the protocol's own)")
+    add_port(p)
     p.add_argument("--sensor", choices=["panel", "camera", "sim"], default="panel",
                    help="where the ball position comes from: the board's touch panel (default), a camera, or the "
                         "simulated plant (a dry run)")  # fmt: skip

@@ -118,6 +118,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     twin = twin_tables(args.twin)
     if twin is not None:  # exactly that platform: the episodes vary the ball's start and the noise, not the physics
         env_kwargs = {**env_kwargs, "twin": twin}
+        where = type(where)(env_id, env_kwargs)
     randomize = not args.no_randomize and twin is None
     if gif:
         check_can_render(env_kwargs.get("backend"))

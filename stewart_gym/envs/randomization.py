@@ -64,8 +64,8 @@ class RandomizationRanges:
 
 
 #: ``randomize`` around a twin: each value is drawn uniformly within ± max(2 σ of its fit, this floor), where
-#: σ is the ``[fit]`` uncertainty ``sysid`` wrote (0 for a twin written by hand); keys the fit left undetermined
-#: keep today's ranges (:class:`RandomizationRanges`).
+#: σ is the ``[fit]`` uncertainty ``sysid`` wrote (0 for a twin written by hand). The ball's and the plate's keys
+#: that the fit left undetermined are drawn from today's ranges (:class:`RandomizationRanges`) instead.
 TWIN_WIDTH_FLOOR: dict[str, float] = {
     "servos.speed_scale": 0.05, "servos.deadband_us": 1.0, "servos.trim_us": 3.0, "servos.latency_ms": 3.0,
     "ball.mass_scale": 0.05, "ball.radius_scale": 0.02, "ball.rolling_friction": 5e-6, "plate.friction": 0.05,
@@ -120,7 +120,8 @@ class EpisodeParams:
                   rng: np.random.Generator | None = None,
                   ranges: RandomizationRanges | None = None) -> EpisodeParams:  # fmt: skip
         """The platform ``twin`` describes, from the nominal ``ball``, ``servo`` and ``sensor``. With ``rng``, each
-        value is drawn around the twin's (:data:`TWIN_WIDTH_FLOOR`; an undetermined key from ``ranges``).
+        value is drawn around the twin's (:data:`TWIN_WIDTH_FLOOR`; an undetermined ball or plate key from
+        ``ranges``).
 
         The twin's ``[sensor]`` is the touch panel's; a camera keeps its own latency and noise (a tuple of
         cameras: one of them, drawn uniformly with ``rng``, else the first)."""

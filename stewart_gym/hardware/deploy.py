@@ -88,8 +88,8 @@ class SimulatedPlant:
                  backend: str = "auto", twin: Any = None, control_hz: int = 50) -> None:  # fmt: skip
         import gymnasium as gym
 
-        self.env = gym.make(env_id, randomize=randomize, geometry=geometry, backend=backend, twin=twin,
-                            control_hz=control_hz).unwrapped  # fmt: skip
+        self.env = gym.make(env_id, randomize=randomize and twin is None, geometry=geometry, backend=backend,
+                            twin=twin, control_hz=control_hz).unwrapped  # the twin exactly, where there is one
         options = None if ball_position is None else {"ball_position": ball_position, "ball_velocity": (0.0, 0.0)}
         self.env.reset(seed=seed, options=options)
         self.backend = self.env.sim

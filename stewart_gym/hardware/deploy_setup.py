@@ -220,8 +220,8 @@ class DeploySetup:
 
             return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
         if o.sensor == "sim":
-            return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize and o.twin is None,
-                                  geometry=self.policy.geometry, backend=o.backend or "auto", twin=o.twin)  # fmt: skip
+            return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize, geometry=self.policy.geometry,
+                                  backend=o.backend or "auto", twin=o.twin)  # fmt: skip
         return None
 
     def run(self) -> DeploySummary:

@@ -390,8 +390,8 @@ class VirtualDevice:
         geo = load_geometry(geometry)
         self.calibration = calibration or ServoCalibration.default(geo)
         self._channel_index = {c: i for i, c in enumerate(self.calibration.channels)}
-        self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize and twin is None, geometry=geo,
-                                    backend=backend, twin=twin, control_hz=TICK_HZ)  # fmt: skip
+        self.plant = SimulatedPlant(env_id, seed=seed, randomize=randomize, geometry=geo, backend=backend, twin=twin,
+                                    control_hz=TICK_HZ)  # fmt: skip
         self._rng = np.random.default_rng(seed + 7919)
         self.held = self.calibration.neutral_us.copy()
         self.commanded = self.held.copy()  # the last targets received (acting after any injected latency)

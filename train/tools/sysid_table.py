@@ -94,6 +94,7 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int) -
         "deadband_sigma": fit.sigma.get("servos.deadband_us"),
         "undetermined": list(fit.undetermined),
         "prediction": {str(h): {k: round(v, 3) for k, v in p.items()} for h, p in result.prediction.items()},
+        "printed": result.lines(),
     }
     for key, bound in BOUNDS.items():
         row[f"{key}_ok"] = abs(row[f"{key}_fit"] - row[f"{key}_true"]) <= bound
