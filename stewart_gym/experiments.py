@@ -204,7 +204,7 @@ def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
     if env_id in trajectory_env_ids():
         out["trajectory"] = str(env_kwargs.get("trajectory", "circle"))
     if env_kwargs.get("twin") is not None:
-        out["twin"] = "given"
+        out["twin"] = "given"  # its tables: the commands that read the file name it
     return out
 
 

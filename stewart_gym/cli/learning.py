@@ -136,7 +136,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, plot,
                         f"{source.label} on {world_line(where.describe())}")  # fmt: skip
     if args.json:
-        print(json.dumps(json_safe({"policy": source.label, **where.describe(), **metrics})))
+        twin_file = {"twin": args.twin} if args.twin else {}
+        print(json.dumps(json_safe({"policy": source.label, **where.describe(), **twin_file, **metrics})))
     else:
         print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}")
         print(format_table({source.label: metrics}))

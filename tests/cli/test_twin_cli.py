@@ -35,7 +35,7 @@ def test_evaluate_runs_on_exactly_the_twin(twin, capfd):
     code, out, err = cli(capfd, "evaluate", "--policy", "pid-kalman", "--episodes", "2", "--twin", str(twin), "--json")
     assert code == 0, err
     on_twin = json.loads(out)
-    assert on_twin["twin"] == "given"
+    assert on_twin["twin"] == str(twin)
     code, out, _ = cli(capfd, "evaluate", "--policy", "pid-kalman", "--episodes", "2", "--json", "--no-randomize")
     nominal = json.loads(out)
     assert "twin" not in nominal
@@ -94,4 +94,4 @@ def test_train_for_a_twin_from_the_shipped_policy(twin, tmp_path, capfd):
     assert json.loads(out)["timesteps"] > 150_000  # it went on from the shipped policy's steps
     code, out, err = cli(capfd, "evaluate", "--policy", str(tmp_path / "run"), "--episodes", "2", "--twin",
                          str(twin), "--json")  # fmt: skip
-    assert code == 0 and json.loads(out)["twin"] == "given", err
+    assert code == 0 and json.loads(out)["twin"] == str(twin), err
