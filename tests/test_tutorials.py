@@ -133,7 +133,7 @@ def test_the_reality_gap_tutorial_runs_as_written(tmp_path: Path, monkeypatch: p
     from stewart_gym.sim.twin import load_twin
 
     ran = run_tutorial("reality-gap.md", tmp_path, monkeypatch)
-    assert len(ran) == 9
+    assert len(ran) == 8
     fitted, real = load_twin(tmp_path / "twin.toml"), load_twin(tmp_path / "real.toml")
     assert abs(fitted.total_latency_ms - real.total_latency_ms) <= 8.0
     assert abs(fitted["servos.speed_scale"] - real["servos.speed_scale"]) <= 0.15
