@@ -121,7 +121,8 @@ def test_the_first_hour_tutorial_runs_as_written(tmp_path: Path, monkeypatch: py
 
 def test_the_reality_gap_page_has_the_steps_it_promises() -> None:
     commands = [v.split()[1] for k, v in steps("reality-gap.md") if k == "run"]
-    assert commands == ["virtual-device", "identify", "sysid", "compare", "train", "compare", "export", "deploy"]
+    assert commands == ["virtual-device", "identify", "sysid", "compare", "train", "compare", "export",
+                        "virtual-device", "deploy"]  # fmt: skip
     assert [v.split("\0")[0] for k, v in steps("reality-gap.md") if k == "save"] == ["real.toml"]
 
 
@@ -129,16 +130,23 @@ def test_the_reality_gap_page_has_the_steps_it_promises() -> None:
 def test_the_reality_gap_tutorial_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The whole loop through the wire: identify on the board with the hidden twin, the fit, the fine-tune, the
-    deploy; the fitted twin is near the hidden one."""
+    deploy; the fitted twin is near the hidden one, and predicts the held-out ball better than the nominal one.
+
+    The bounds are wider than the results page's: here the board and the loop run in real time beside other
+    tests, and a busy machine delays them (the page's table is made on a quiet one)."""
+    import re
+
     from stewart_gym.sim.twin import load_twin
 
     ran = run_tutorial("reality-gap.md", tmp_path, monkeypatch)
-    assert len(ran) == 8
+    assert len(ran) == 9
     fitted, real = load_twin(tmp_path / "twin.toml"), load_twin(tmp_path / "real.toml")
-    assert abs(fitted.total_latency_ms - real.total_latency_ms) <= 8.0
+    assert abs(fitted.total_latency_ms - real.total_latency_ms) <= 20.0
     assert abs(fitted["servos.speed_scale"] - real["servos.speed_scale"]) <= 0.15
     assert (tmp_path / "sysid-report" / "paths.png").is_file()
     assert (tmp_path / "runs" / "my-twin" / "model.zip").is_file()
     out = capsys.readouterr().out
-    assert "held-out 1 s prediction RMS" in out
+    nominal, fitted_rms = map(float, re.search(r"held-out 1 s prediction RMS: nominal twin ([\d.]+) mm, fitted "
+                                               r"([\d.]+) mm", out).groups())
+    assert fitted_rms * 2 <= nominal
     assert "servos homed: confirmed by the board" in out and "failed" not in out

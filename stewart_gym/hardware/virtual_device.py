@@ -354,7 +354,8 @@ class VirtualDevice:
         randomize: domain randomisation of that episode.
         link: a path to make a symlink to the pty (replaced if it is a link).
         env_id: the env whose task places the ball.
-        camera, camera_stream: the camera preset whose view is streamed as MJPEG into the named pipe.
+        camera: the camera preset whose view is streamed (with ``camera_stream``).
+        camera_stream: a named pipe to stream the camera's view into, as MJPEG.
         twin: the platform's twin (:class:`~stewart_gym.sim.twin.Twin`, its tables or a file): the platform has
             exactly its parameters (``randomize`` is then ignored).
 

@@ -66,8 +66,10 @@ class BatchedSim:
         geometry: A rotary build (preset name, TOML path or geometry).
         n: How many platforms.
         calibration: The pulse mapping the servos obey (default: the build's default).
-        physics_hz, control_hz: Rates; ``physics_hz`` a multiple of ``control_hz``.
-        ball_spec, servo_spec: The nominal ball and servos; :meth:`reset` may give each platform its own.
+        physics_hz: Physics steps per second, a multiple of ``control_hz``.
+        control_hz: Control periods per second (one :meth:`step` each).
+        ball_spec: The nominal ball; :meth:`reset` may give each platform its own.
+        servo_spec: The nominal servos; :meth:`reset` may give each platform its own.
         plate_top: m, height of the plate's surface above the platform frame origin.
     """
 

@@ -161,7 +161,7 @@ def test_identify_on_a_board_that_disappears_says_so(tmp_path):
 @pytest.mark.slow
 def test_identify_with_a_stalled_panel_holds_home_and_fails(tmp_path):
     board = Board(tmp_path, "--protocol", "line", "--stall-sensor-after", "1.0")
-    code, out, rows = identify(tmp_path, board.link, "--duration", "4")
+    code, out, rows = identify(tmp_path, board.link, "--duration", "6")
     board.stop()
     assert code == 1 and "no fresh valid reading" in out and "servos homed: confirmed by the board" in out, out
     late = [r for r in rows if float(r["t_s"]) > 1.5]
