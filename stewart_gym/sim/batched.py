@@ -6,7 +6,9 @@ platforms at once and at the physics rate:
 1. **the servos**: the same pulse handling as :class:`~stewart_gym.sim.servo_model.HobbyServos` (quantisation,
    lag, dead band, trim error, decoding by the calibration), then each shaft turns towards its target as
    PyBullet's position motor drives it: by ``position_gain`` of the error per physics step, at most
-   ``max_speed``;
+   ``max_speed``, its speed changing by at most ``stall_torque`` / ``rotor_inertia``
+   (:class:`~stewart_gym.sim.urdf.MechanismSpec`) per second, so that a servo takes about 13 ms to reach
+   full speed;
 2. **the plate**: its pose from the six servo angles by batched forward kinematics
    (:func:`~stewart_gym.kinematics.forward_kinematics`, warm-started from the last pose), so the closed chains
    hold exactly;
@@ -18,10 +20,11 @@ platforms at once and at the physics rate:
    ball's velocity relative to the plate, σ its spin relative to the plate and n the plate normal. The plate's
    motion comes from finite differences of its poses at the physics rate.
 
-What it leaves out, knowingly: the servos' torque limit (the ball and plate never load a hobby servo near its
-stall torque on these builds), the compliance of the joints, rolling and spinning friction (1e-5 m in the
-PyBullet model: about 0.005 m/s² of deceleration), slip (the ball rolls without slipping whatever the
-friction), a ball leaving the plate's surface, and the plate's edge. Arrays are float64, shape (N, …).
+What it leaves out, knowingly: the load on the servos (the ball and plate never load a hobby servo near its stall
+torque on these builds; the rotor's inertia alone limits the acceleration), the compliance of the joints, rolling
+and spinning friction (1e-5 m in the PyBullet model: about 0.005 m/s² of deceleration), slip (the ball rolls
+without slipping whatever the friction), a ball leaving the plate's surface, and the plate's edge. Arrays are
+float64, shape (N, …).
 """
 
 from __future__ import annotations
@@ -91,7 +94,9 @@ class BatchedSim:
         self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
         self.substeps = self.physics_hz // self.control_hz
         self.dt = 1.0 / self.control_hz
-        self.plate_top = MechanismSpec().plate_top if plate_top is None else float(plate_top)
+        mechanism = MechanismSpec()
+        self.plate_top = mechanism.plate_top if plate_top is None else float(plate_top)
+        self._rotor_inertia = mechanism.rotor_inertia
         self.ball_spec = ball_spec or BallSpec()
         self.servo_spec = servo_spec or ServoSpec()
         self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
@@ -109,6 +114,8 @@ class BatchedSim:
         if len(servos) != n or len(balls) != n:
             raise ValueError(f"servo_specs and ball_specs give one per platform ({n})")
         self._gain, self._max_step, self._band, self._resolution = (np.zeros((n, 1)) for _ in range(4))
+        self._max_change = np.zeros((n, 1))  # rad: the most a shaft's step changes from one physics step to the next
+        self._last_step = np.zeros((n, 6))  # rad: each shaft's last physics step
         self._resolution_list = [0.0] * n
         self._delay, self._trim = np.zeros(n, dtype=np.int64), np.zeros((n, 6))
         self._radius, self._beta, self._mass = np.zeros(n), np.zeros(n), np.zeros(n)
@@ -140,6 +147,8 @@ class BatchedSim:
     def _set_platform(self, i: int, servo: ServoSpec, ball: BallSpec) -> None:
         phys_dt = 1.0 / self.physics_hz
         self._gain[i], self._max_step[i] = servo.position_gain, servo.max_speed * phys_dt
+        self._max_change[i] = servo.stall_torque / self._rotor_inertia * phys_dt**2
+        self._last_step[i] = 0.0
         self._band[i], self._resolution[i] = servo.deadband_us, servo.resolution_us
         self._resolution_list[i] = float(servo.resolution_us)
         self._delay[i], self._trim[i] = int(round(servo.lag_s * self.physics_hz)), servo.trim_error_us
@@ -288,17 +297,19 @@ class BatchedSim:
         h = 1.0 / self.physics_hz
         self._send_pending()
         targets = self._targets()
-        alpha, frames = self.alpha, list(self._frames)  # frames: k-1, k, then k+1 … k+substeps
+        alpha, last, frames = self.alpha, self._last_step, list(self._frames)  # frames: k-1, k, then k+1 … k+substeps
         self._jacobian_inverse = self._inverse_jacobian(*frames[1], alpha)
         for _ in range(self.substeps):  # the plate's path over the period: it does not depend on the ball
             if self._update_held():
                 targets = self._targets()
-            alpha = alpha + np.clip(self._gain * (targets - alpha), -self._max_step, self._max_step)
+            wanted = np.clip(self._gain * (targets - alpha), -self._max_step, self._max_step)
+            last = np.clip(wanted, last - self._max_change, last + self._max_change)
+            alpha = alpha + last
             frames.append(self._plate_frame(frames[-1], alpha))
             self._step_count += 1
         for j in range(self.substeps):
             self._roll(frames[j], frames[j + 1], frames[j + 2], h)
-        self.alpha = alpha
+        self.alpha, self._last_step = alpha, last
         self._frames = frames[-2:]
 
     def _roll(self, before: tuple, now: tuple, after: tuple, h: float) -> None:
@@ -331,12 +342,13 @@ class BatchedPlatform:
     or one of the N envs of the batched vector env (a shared simulator, which the vector env advances for all
     of them at once: then :meth:`step` only marks this platform's period as asked for).
 
-    The reduced model has no torque limit, so a plate load (:meth:`set_plate_load`) is kept but does not move the
-    plate (:attr:`models_plate_load` is False), and the plate friction is not modelled (the ball always rolls).
+    The reduced model carries no load on its servos, so a plate load (:meth:`set_plate_load`) is kept but does not
+    move the plate (:attr:`models_plate_load` is False), and the plate friction is not modelled (the ball always
+    rolls).
     """
 
     renders_camera = False
-    #: whether :meth:`set_plate_load` changes the motion (the reduced model has no servo torque limit: no)
+    #: whether :meth:`set_plate_load` changes the motion (the reduced model carries no load on its servos: no)
     models_plate_load = False
 
     def __init__(self, sim: BatchedSim, index: int = 0, *, owns_steps: bool = True) -> None:
