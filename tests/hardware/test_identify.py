@@ -100,19 +100,20 @@ def test_identify_refuses_bad_input_before_the_port_opens(tmp_path, capfd, args,
     assert not (tmp_path / "log.csv").exists()
 
 
-def identify(tmp_path: Path, port: Path, *args: str, wait: float | None = None) -> tuple[int, str, list[dict]]:
+def identify(tmp_path: Path, port: Path, *args: str, wait: float | None = None,
+             sig: int = signal.SIGINT) -> tuple[int, str, list[dict]]:  # fmt: skip
     log = tmp_path / "identify.csv"
     cmd = [sys.executable, "-m", "stewart_gym", "identify", "--port", str(port), "--protocol", "line", "--sensor",
            "panel", "--out", str(log), "--overwrite", *args]  # fmt: skip
     if wait is None:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=dict(os.environ))
         code, out = proc.returncode, proc.stdout + proc.stderr
-    else:  # stopped by SIGINT after ``wait`` s of ticks
+    else:  # stopped by ``sig`` after ``wait`` s of ticks
         run = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and (not log.exists() or log.read_text().count("\n") < wait * 50):
             time.sleep(0.05)
-        run.send_signal(signal.SIGINT)
+        run.send_signal(sig)
         out = run.communicate(timeout=60)[0]
         code = run.returncode
     rows = list(csv.DictReader(log.open())) if log.exists() else []
@@ -141,12 +142,15 @@ def test_identify_through_the_wire_logs_pulses_and_readings_and_goes_home(tmp_pa
 
 
 @pytest.mark.slow
-def test_identify_goes_home_when_stopped_by_ctrl_c(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_identify_goes_home_when_stopped_by_a_signal(tmp_path, sig):
     board = Board(tmp_path, "--protocol", "line", "--seed", "3")
-    code, out, rows = identify(tmp_path, board.link, "--duration", "60", wait=2.0)
+    code, out, rows = identify(tmp_path, board.link, "--duration", "60", wait=2.0, sig=sig)
     board.stop()
-    assert code == 130 and "stopped by Ctrl-C" in out and "servos homed: confirmed by the board" in out, out
-    assert within_limits(rows)
+    name = "Ctrl-C" if sig == signal.SIGINT else signal.Signals(sig).name
+    assert code == 128 + sig and f"stopped by {name}" in out, out
+    assert "servos homed: confirmed by the board" in out and "Traceback" not in out, out
+    assert len(rows) >= 90 and within_limits(rows)
 
 
 @pytest.mark.slow
