@@ -8,7 +8,7 @@ PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 SEED ?= 0
 
-.PHONY: demo test test-fast bench train train-track train-camera train-residual results sweep lint docs clean
+.PHONY: demo test test-fast bench train train-pybullet train-track train-camera train-residual results sweep lint docs clean
 
 DEMO_STAMP := $(VENV)/.installed-demo
 
@@ -76,15 +76,16 @@ train-residual: $(STAMP)
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
-# The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe and the same with the
-# error integral observed (3 minutes each, one at a time: side by side each would get fewer steps in its 3
-# minutes), the first balance residual, over the PID + Kalman, and the approach residual as one network, each
-# trained with 3 seeds; the shipped balance residual's recipe (6 networks averaged) drawn 3 times, seeds 0-5, 6-11
-# and 12-17 (these TRAIN_JOBS at a time, as in train-residual: about 45 minutes, 2.5 hours one after another in
-# worker processes); the shipped track residual's recipe drawn twice more, seeds 6-11 and 12-17 (TRAIN_JOBS at a
-# time: 77 minutes on a slow day), its shipped draw being the first; the PPO tracker (make train-track's recipe)
-# with seeds 0-2, TRAIN_JOBS at a time (about 15 minutes); then every evaluation, with the shipped track
-# residual's 6 networks one by one (about 1 hour). About 3 hours on 2 cores.
+# The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe (batched, about 1 minute
+# each), the `make train-pybullet` recipe and the same with the error integral observed (3 minutes each, one at a
+# time: side by side each would get fewer steps in its 3 minutes), the first balance residual, over the PID +
+# Kalman, and the approach residual as one network, each trained with 3 seeds; the shipped balance residual's
+# recipe (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (these TRAIN_JOBS at a time, as in
+# train-residual: about 45 minutes, 2.5 hours one after another in worker processes); the shipped track residual's
+# recipe drawn twice more, seeds 6-11 and 12-17 (TRAIN_JOBS at a time: 77 minutes on a slow day), its shipped draw
+# being the first; the PPO tracker (make train-track's recipe) with seeds 0-2, TRAIN_JOBS at a time (about 15
+# minutes); then every evaluation, with the shipped track residual's 6 networks one by one (about 1 hour). About 3
+# hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
 # $(call residual_draws,DRAWS,NAME,TRAIN_ARGS): the shipped residual recipe drawn once per d in DRAWS, its 6 networks
 # (seeds 6d to 6d + 5, TRAIN_JOBS at a time) in runs/NAME_d<d>_s<seed>, averaged into runs/NAME_d<d>.
@@ -98,23 +99,30 @@ TRACK_NETS := stewart_gym/policies/track_residual/members
 TRACK_DRAWS := 1 2
 results: $(STAMP)
 	for s in 0 1 2; do $(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/scratch_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
+	for s in 0 1 2; do $(PY) -m stewart_gym train --hyperparams ppo_batched --run-dir runs/batched_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	for s in 0 1 2; do $(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --hyperparams ppo_integral --run-dir runs/integral_s$$s --seed $$s --max-minutes 3 --overwrite --no-progress; done
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams ppo_residual_pid_kalman --run-dir runs/residual_bal_s{} --seed {} --overwrite --no-progress
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --hyperparams ppo_residual_single --run-dir runs/approach_s{} --seed {} --overwrite --no-progress
 	$(call residual_draws,$(ENSEMBLE_DRAWS),ensemble,)
 	$(call residual_draws,$(TRACK_DRAWS),track_ens,--env StewartBallTrack-v0)
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/track_s{} --seed {} --overwrite --no-progress
-	$(PY) train/tools/results.py --recipe "PPO, make train=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
+	$(PY) train/tools/results.py --recipe "PPO batched, make train=runs/batched_s0,runs/batched_s1,runs/batched_s2" --recipe "PPO in PyBullet, make train-pybullet=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
 	$(PY) -m stewart_gym sweep train/sweeps/ppo_balance.yaml --out sweeps/ppo_balance
 
-# Train a balance policy from scratch: PPO behind the Kalman observer, 3 minutes of wall time on 2 cores
-# (`make train SEED=1` for another training seed), then evaluate it on the 100 seeds.
+# Train a balance policy from scratch: PPO behind the Kalman observer on the batched backend (64 copies stepped
+# together, 150k steps: about 1 minute on 2 cores; `make train SEED=1` for another training seed), then evaluate
+# it on the 100 seeds in PyBullet.
 train: $(STAMP)
-	$(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite
+	$(PY) -m stewart_gym train --hyperparams ppo_batched --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance/model.zip --episodes 100
+
+# The same in PyBullet, as the shipped PPO was trained: 3 minutes of wall time on 2 cores.
+train-pybullet: $(STAMP)
+	$(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance_pybullet --seed $(SEED) --max-minutes 3 --overwrite
+	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance_pybullet/model.zip --episodes 100
 
 # Train a tracking policy from scratch, as the shipped one (`--policy shipped --env StewartBallTrack-v0`) was:
 # PPO behind the Kalman observer on the circle, figure-8 and waypoints, one drawn per episode (300k steps), then
