@@ -6,7 +6,7 @@ A sweep file (YAML) names the task and the search space::
     algo: ppo                          # ppo, sac, td3 or tqc
     geometry: servo-hexapod            # optional: a preset or TOML file
     n_timesteps: 150000                # per trial
-    n_envs: 1                          # env workers per trial = CPUs per trial
+    n_envs: 1                          # env workers per trial = CPUs per trial (batched: copies in one process)
     seeds: [0, 1, 2]                   # every configuration is trained with each seed
     learning_rate: 0.0005              # fixed hyperparameters, named as in stewart_gym/hyperparams/<algo>.yml
     search:
@@ -74,6 +74,13 @@ class SweepSpec:
     eval_freq: int | None = None
     eval_episodes: int = 10
     name: str = "sweep"
+    batched: bool = False  # the trials train on the batched backend (env_kwargs backend: batched)
+
+    @property
+    def cpus_per_trial(self) -> int:
+        """The CPUs Ray reserves for a trial: one per env worker, or one for all the copies of a batched trial
+        (they step together in the trial's own process)."""
+        return 1 if self.batched else self.n_envs
 
     def trial_count(self) -> int:
         """How many trials the sweep runs: grid points × samples × seeds."""
@@ -220,6 +227,13 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
             raise ConfigError(f"{path}: search: sweep env keywords one by one, as env_kwargs.NAME")
         spec.search[str(name)] = _check_domain(str(name), entry)
     base = load_hyperparams(spec.algo, spec.env, spec.hyperparams_file)
+    if "env_kwargs.backend" in spec.search:
+        raise ConfigError(f"{path}: search: env_kwargs.backend: sweep one backend at a time (a batched trial and an "
+                          "engine's need different CPUs)")  # fmt: skip
+    env_kwargs = {**(base.get("env_kwargs") or {}), **(spec.fixed.get("env_kwargs") or {})}
+    spec.batched = env_kwargs.get("backend") == "batched"
+    if spec.batched and "n_envs" not in data:  # the recipe's copies (a batched trial with one copy wastes it)
+        spec.n_envs = _whole(base.get("n_envs", 1), "n_envs")
     check_hyperparameter_values({**base, **{k: v for k, v in spec.fixed.items() if k != "env_kwargs"}}, str(path))
     for name, (kind, values) in spec.search.items():  # every value a trial may be given (a range: its ends)
         if "." not in name:
@@ -284,7 +298,7 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
                       geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
                       n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
                       overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
-                      vec_env="subproc")  # fmt: skip  (a trial's n_envs are worker processes: the CPUs Ray reserves)
+                      vec_env="subproc")  # fmt: skip  (n_envs worker processes, the CPUs Ray reserves; batched: one process)
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:
@@ -391,13 +405,14 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
         out.mkdir(parents=True, exist_ok=True)
         (out / "sweep.json").write_text(json.dumps(spec.to_dict(), indent=2) + "\n")
         cpus = int(resources.get("CPU", 0))
-        if cpus < spec.n_envs:
-            raise ConfigError(f"each trial needs {spec.n_envs} CPUs (n_envs) but the cluster has {cpus}")
+        if cpus < spec.cpus_per_trial:
+            raise ConfigError(f"each trial needs {spec.cpus_per_trial} CPUs (n_envs) but the cluster has {cpus}")
+        where = f" ({spec.n_envs} copies on the batched backend)" if spec.batched else ""
         echo(f"Ray: {len(ray.nodes())} node(s), {cpus} CPUs; {spec.trial_count()} trial(s) of {spec.n_timesteps} "
-             f"steps, {spec.n_envs} CPU(s) each; results in {out}")  # fmt: skip
+             f"steps, {spec.cpus_per_trial} CPU(s) each{where}; results in {out}")  # fmt: skip
         trainable = tune.with_resources(tune.with_parameters(run_trial, spec=spec.to_dict(),
                                                              trials_dir=str(out / "trials")),
-                                        {"cpu": spec.n_envs})  # fmt: skip
+                                        {"cpu": spec.cpus_per_trial})  # fmt: skip
         if resume:
             tuner = tune.Tuner.restore(str(state), trainable, resume_unfinished=True, resume_errored=True)
         else:

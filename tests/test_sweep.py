@@ -91,6 +91,13 @@ def test_the_sweep_file_is_read_into_fixed_and_searched_hyperparameters(tmp_path
     assert hp["env_kwargs"] == {"max_tilt": 0.12, "rate_penalty": 0.0, "randomization": {"sensor_noise_mm": [0.5, 4.0]}}
 
 
+@pytest.mark.parametrize("name", ["ppo_balance", "ppo_batched"])
+def test_the_shipped_sweep_files_load(name: str) -> None:
+    spec = load_sweep(Path(__file__).resolve().parents[1] / "train" / "sweeps" / f"{name}.yaml")
+    assert spec.trial_count() == {"ppo_balance": 24, "ppo_batched": 8}[name]
+    assert spec.batched == (name == "ppo_batched") and spec.cpus_per_trial == 1
+
+
 def test_trials_rank_finished_first_then_by_the_metric_and_configs_pool_seeds() -> None:
     spec = SweepSpec(env="StewartBallBalance-v0", algo="ppo", n_timesteps=10, search={"lr": ("grid", [1, 2])})
     trials = [{"trial": "a", "status": "finished", "lr": 1, "success_rate": 0.5, "mean_reward": 10},
@@ -117,6 +124,21 @@ def test_the_cli_refuses_a_bad_sweep_in_one_line_before_ray_starts(tmp_path: Pat
     assert proc.returncode == 1 and "nothing answers there" in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_a_sweep_on_the_batched_backend_takes_one_cpu_a_trial(tmp_path: Path) -> None:
+    """A trial's copies on the batched backend step in its own process: one CPU, whatever n_envs; the
+    recipe's copies when the file gives none; the backend itself is not swept."""
+    path = tmp_path / "batched.yaml"
+    path.write_text(yaml.safe_dump({k: v for k, v in {**TINY, "hyperparams": "ppo_batched"}.items() if k != "n_envs"}))
+    spec = load_sweep(path)
+    assert spec.batched and spec.n_envs == 64 and spec.cpus_per_trial == 1
+    spec = load_sweep(write(tmp_path, n_envs=4, env_kwargs={"backend": "batched"}))
+    assert spec.batched and spec.n_envs == 4 and spec.cpus_per_trial == 1
+    spec = load_sweep(write(tmp_path, n_envs=2))
+    assert not spec.batched and spec.cpus_per_trial == 2
+    with pytest.raises(ConfigError, match="env_kwargs.backend"):
+        load_sweep(write(tmp_path, search={"env_kwargs.backend": {"grid": ["batched", "pybullet"]}}))
+
+
 # ----------------------------------------------------------------------------------------- real sweeps
 @pytest.mark.slow
 def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> None:
@@ -136,6 +158,24 @@ def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> 
         assert (run / name).is_file(), name
     assert yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]["env_kwargs"]["max_tilt"] == 0.15
     assert (out / "configs.csv").is_file() and (out / "sweep.png").stat().st_size > 1000
+    check_bundle_deploys(out / "best_bundle")
+
+
+@pytest.mark.slow
+def test_a_local_sweep_on_the_batched_backend_runs_a_trial_per_cpu(tmp_path: Path) -> None:
+    """Two trials of 4 copies each on the batched backend, side by side on 2 CPUs; both finish, trained on the
+    batched backend, and the best bundle deploys."""
+    path = write(tmp_path, n_envs=4, n_steps=64, env_kwargs={"backend": "batched"}, eval_freq=512,
+                 search={"learning_rate": {"grid": [0.0003, 0.001]}})  # fmt: skip
+    out = tmp_path / "out"
+    proc = sg("sweep", str(path), "--out", str(out), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "1 CPU(s) each (4 copies on the batched backend)" in proc.stdout
+    table = rows(out)
+    assert [r["status"] for r in table] == ["finished", "finished"]
+    for row in table:
+        config = yaml.safe_load((Path(row["run_dir"]) / "config.yaml").read_text())
+        assert config["hyperparams"]["env_kwargs"]["backend"] == "batched" and int(row["timesteps"]) >= 1024
     check_bundle_deploys(out / "best_bundle")
 
 
