@@ -140,16 +140,21 @@ def test_a_sweep_on_the_batched_backend_takes_one_cpu_a_trial(tmp_path: Path) ->
 
 
 # ----------------------------------------------------------------------------------------- real sweeps
+def local_sweep(tmp_path: Path, **entries: object) -> tuple[Path, str, list[dict[str, str]]]:
+    """``stewart-gym sweep`` of TINY with ``entries`` on a local Ray, which must exit 0: its --out folder, its
+    stdout and its results table."""
+    out = tmp_path / "out"
+    proc = sg("sweep", str(write(tmp_path, **entries)), "--out", str(out), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return out, proc.stdout, rows(out)
+
+
 @pytest.mark.slow
 def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> None:
     """Two trials on a local Ray: one finishes, one's env refuses its max_tilt; the sweep ends normally, the
     table says which failed and why, and the finished trial's bundle is exported and deploys."""
-    path = write(tmp_path, search={"env_kwargs.max_tilt": {"grid": [0.15, -1.0]}})
-    out = tmp_path / "out"
-    proc = sg("sweep", str(path), "--out", str(out), cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "1 finished, 0 stopped early by the scheduler, 1 failed" in proc.stdout
-    table = rows(out)
+    out, stdout, table = local_sweep(tmp_path, search={"env_kwargs.max_tilt": {"grid": [0.15, -1.0]}})
+    assert "1 finished, 0 stopped early by the scheduler, 1 failed" in stdout
     assert [r["status"] for r in table] == ["finished", "error"]
     assert float(table[0]["env_kwargs.max_tilt"]) == 0.15 and int(table[0]["timesteps"]) >= 1024
     assert "max_tilt" in table[1]["error"]
@@ -165,13 +170,9 @@ def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> 
 def test_a_local_sweep_on_the_batched_backend_runs_a_trial_per_cpu(tmp_path: Path) -> None:
     """Two trials of 4 copies each on the batched backend, side by side on 2 CPUs; both finish, trained on the
     batched backend, and the best bundle deploys."""
-    path = write(tmp_path, n_envs=4, n_steps=64, env_kwargs={"backend": "batched"}, eval_freq=512,
-                 search={"learning_rate": {"grid": [0.0003, 0.001]}})  # fmt: skip
-    out = tmp_path / "out"
-    proc = sg("sweep", str(path), "--out", str(out), cwd=tmp_path)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "1 CPU(s) each (4 copies on the batched backend)" in proc.stdout
-    table = rows(out)
+    out, stdout, table = local_sweep(tmp_path, n_envs=4, n_steps=64, env_kwargs={"backend": "batched"},
+                                     search={"learning_rate": {"grid": [0.0003, 0.001]}})  # fmt: skip
+    assert "1 CPU(s) each (4 copies on the batched backend)" in stdout
     assert [r["status"] for r in table] == ["finished", "finished"]
     for row in table:
         config = yaml.safe_load((Path(row["run_dir"]) / "config.yaml").read_text())

@@ -27,6 +27,22 @@ def tilt_pulses(seed: int, geometry: str = "servo-hexapod") -> np.ndarray:
     return ServoCalibration.default(geo).pulse_widths(inverse_kinematics(geo, poses).servo_angles)
 
 
+def side_by_side(reference, batched: BatchedSim, pulses: np.ndarray, read) -> list:
+    """``read(reference, batched)`` after each row of ``pulses`` (steps, 6) µs, sent to both and stepped; the
+    reference simulator is closed at the end."""
+    out = []
+    try:
+        for w in pulses:
+            reference.command(w)
+            reference.step()
+            batched.command(w[None])
+            batched.step()
+            out.append(read(reference, batched))
+    finally:
+        reference.close()
+    return out
+
+
 @pytest.mark.parametrize("seed", [1, 3, 5])
 def test_ball_and_plate_follow_pybullet(seed: int) -> None:
     """Ball within 1 mm RMS and the plate within 0.5 mm / 0.2° of PyBullet over 3 s (the sequences keep the ball
@@ -39,20 +55,8 @@ def test_ball_and_plate_follow_pybullet(seed: int) -> None:
     reference.place_ball(START)
     batched = BatchedSim("servo-hexapod", n=1)
     batched.place_ball(START[None])
-    ball_a, ball_b, pose_a, pose_b = [], [], [], []
-    try:
-        for w in pulses:
-            reference.command(w)
-            reference.step()
-            batched.command(w[None])
-            batched.step()
-            ball_a.append(reference.ball_state()[0][:2])
-            ball_b.append(batched.ball_state()[0][0, :2])
-            pose_a.append(reference.platform_pose())
-            pose_b.append(batched.platform_pose()[0])
-    finally:
-        reference.close()
-    ball_a, ball_b, pose_a, pose_b = map(np.array, (ball_a, ball_b, pose_a, pose_b))
+    ball_a, ball_b, pose_a, pose_b = map(np.array, zip(*side_by_side(reference, batched, pulses, lambda a, b: (
+        a.ball_state()[0][:2], b.ball_state()[0][0, :2], a.platform_pose(), b.platform_pose()[0]))))
     assert np.abs(ball_a).max() < 0.15  # on the 300 mm plate throughout
     assert np.abs(ball_a - START).max() > 0.02  # and it rolled
     gap = np.linalg.norm(ball_a - ball_b, axis=1)
@@ -76,18 +80,8 @@ def test_a_tilt_step_starts_as_in_pybullet() -> None:
     reference = StewartSim("servo-hexapod", ball=False, physics_hz=150, control_hz=150, servo_spec=servo)
     reference.reset()
     batched = BatchedSim("servo-hexapod", n=1, physics_hz=150, control_hz=150, servo_spec=servo)
-    roll_a, roll_b = [], []
-    try:
-        for w in pulses:
-            reference.command(w)
-            reference.step()
-            batched.command(w[None])
-            batched.step()
-            roll_a.append(reference.platform_pose()[3])
-            roll_b.append(batched.platform_pose()[0, 3])
-    finally:
-        reference.close()
-    roll_a, roll_b = np.degrees(roll_a), np.degrees(roll_b)
+    rolls = side_by_side(reference, batched, pulses, lambda a, b: (a.platform_pose()[3], b.platform_pose()[0, 3]))
+    roll_a, roll_b = np.degrees(np.array(rolls)).T
     assert np.abs(roll_a).max() > 5.5  # the steps were made
     assert np.sqrt(np.mean((roll_a - roll_b) ** 2)) < 0.1
 
