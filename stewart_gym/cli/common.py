@@ -171,7 +171,7 @@ def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> 
     """
     debug = bool(getattr(args, "debug", False))
     try:
-        return int(func(args))
+        return _call(func, args)
     except KeyboardInterrupt as exc:
         if debug:
             raise
@@ -192,6 +192,32 @@ def run(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> 
         print(f"error: {describe(exc)}", file=sys.stderr)
         is_device = isinstance(exc, DeviceFailure) or _is_serial_error(exc)
         return EXIT_DEVICE if is_device else EXIT_FAILED
+
+
+def _call(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """Call a subcommand; a stop signal that a library turned into its own error is raised as the stop again.
+
+    A signal handler's exception can surface inside a library's C code, which then reports its own failure
+    (a C extension's import says ``ImportError: initialization failed``) with the stop as its cause."""
+    try:
+        return int(func(args))
+    except Exception as exc:
+        stop = stop_behind(exc)
+        if stop is None:
+            raise
+        raise stop from exc
+
+
+def stop_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The stop signal (Ctrl-C, SIGTERM, SIGHUP) among an exception's causes and contexts, or None."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
 
 
 def describe(exc: BaseException) -> str:

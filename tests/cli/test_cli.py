@@ -18,6 +18,7 @@ import math
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -622,6 +623,45 @@ def test_debug_shows_the_traceback() -> None:
     assert proc.returncode == 1 and "Traceback" in proc.stderr and "error: " in proc.stderr
     proc = sg("ik", "0", "0", "0", "0", "0", "0", "--geometry", "nope", "--debug")
     assert proc.returncode == 1 and "Traceback" in proc.stderr
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+@pytest.mark.parametrize("how", ["cause", "context"])
+def test_a_stop_that_a_library_wraps_is_still_a_stop(signum: int, how: str, capsys: pytest.CaptureFixture) -> None:
+    """A signal that lands inside a C extension's import (onnxruntime's, while deploy loads a bundle) comes back
+    as that library's ``ImportError: initialization failed``, with the stop as its cause or context: still one
+    ``error: stopped by …`` line and 128 + the signal's number, never a traceback."""
+    import argparse
+
+    from stewart_gym.cli.common import run
+    from stewart_gym.errors import Stopped
+
+    def load_library(args: argparse.Namespace) -> int:
+        try:
+            raise Stopped(signum, signal.Signals(signum).name) if signum != signal.SIGINT else KeyboardInterrupt
+        except KeyboardInterrupt as stop:
+            if how == "cause":
+                raise ImportError("initialization failed") from stop
+            raise ImportError("initialization failed")  # noqa: B904 (as a C extension raises it)
+
+    assert run(load_library, argparse.Namespace()) == 128 + signum
+    err = capsys.readouterr().err
+    assert err.startswith("error: stopped by") and len(err.splitlines()) == 1, err
+
+
+def test_an_error_with_no_stop_behind_it_is_still_a_bug(capsys: pytest.CaptureFixture) -> None:
+    import argparse
+
+    from stewart_gym.cli.common import run
+
+    def broken(args: argparse.Namespace) -> int:
+        try:
+            raise ValueError("inner")
+        except ValueError:
+            raise ImportError("initialization failed")  # noqa: B904
+
+    with pytest.raises(ImportError):
+        run(broken, argparse.Namespace())
 
 
 # ------------------------------------------------------- deploy, end to end
