@@ -35,6 +35,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure as make_sb3_logger
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from stewart_gym.errors import ConfigError
@@ -91,6 +92,25 @@ class TrainConfig:
     progress_bar: bool = True
     tensorboard: bool = True
     verbose: int = 0
+
+
+class FixedStatistics(RunningMeanStd):
+    """Observation statistics that no longer update: a resumed run scales its inputs as the policy it resumes
+    was trained with. Updating them on another platform (a fine-tune for a twin) shifts every input the
+    policy sees before it has learnt anything there, and can undo it. It pickles as SB3's own
+    ``RunningMeanStd``, so the statistics a resumed run saves load anywhere."""
+
+    @classmethod
+    def of(cls, stats: RunningMeanStd) -> FixedStatistics:
+        fixed = cls(shape=stats.mean.shape)
+        fixed.mean, fixed.var, fixed.count = stats.mean.copy(), stats.var.copy(), stats.count
+        return fixed
+
+    def update(self, arr: np.ndarray) -> None:
+        return None
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return RunningMeanStd, (), dict(self.__dict__)
 
 
 def resume_statistics(resume: Path) -> Path | None:
@@ -616,6 +636,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         norm_kwargs = normalize if isinstance(normalize, dict) else {}
         if stats is not None:
             env = VecNormalize.load(str(stats), env)
+            env.obs_rms = FixedStatistics.of(env.obs_rms)  # the resumed policy's inputs keep their meaning
         else:
             env = VecNormalize(env, **{"norm_obs": True, "norm_reward": True, **norm_kwargs})
         eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()

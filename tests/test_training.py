@@ -59,6 +59,16 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
                              n_timesteps=200, eval_freq=1000, eval_episodes=1, progress_bar=False,
                              tensorboard=False))  # fmt: skip
     assert more["timesteps"] >= metrics["timesteps"] + 200
+    # ... with the observations scaled as the resumed policy was trained (the rewards' scale keeps learning), in
+    # statistics saved as SB3's own, which load without this package's training module
+    import pickle
+
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    before, after = (pickle.loads((r / "vecnormalize.pkl").read_bytes()) for r in (run, tmp_path / "run2"))
+    assert type(after.obs_rms) is RunningMeanStd
+    assert np.array_equal(after.obs_rms.mean, before.obs_rms.mean) and after.obs_rms.count == before.obs_rms.count
+    assert after.ret_rms.count > before.ret_rms.count
     # resume from the best model takes the statistics saved beside it (once, it silently started fresh ones)
     from stewart_gym.training import check_run_dir, resume_statistics
 

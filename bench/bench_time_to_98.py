@@ -1,0 +1,107 @@
+"""Wall time to a ≥ 98 % policy, from scratch, for each training recipe: the first checkpoint that succeeds on
+≥ 98 % of held-out randomised episodes in PyBullet and in MuJoCo.
+
+Run: ``.venv/bin/python bench/bench_time_to_98.py [--env balance|track] [--recipes ppo_batched,ppo]
+[--seeds 0,1,2] [--eval-freq 25000] [--episodes 100] [--max-minutes 6] [--json]``.
+
+For each recipe and seed it runs ``python -m stewart_gym train`` as a user types it (no TensorBoard), with a
+checkpoint at every evaluation. The training's own evaluations (the recipe's ``eval_episodes``, in its own
+backend) point at the candidates: each checkpoint whose evaluation reached 98 %, in order, is evaluated with
+``stewart-gym evaluate`` on ``--episodes`` randomised seeds in PyBullet and then in MuJoCo. The time reported is
+the training's wall time at the first checkpoint that passes both (the in-training evaluations included; the
+held-out evaluations not). A run that has none within ``--max-minutes`` reports ``none``.
+
+The track env is evaluated on ``--trajectory mixed`` (circle, figure-8 and waypoints, one drawn per episode).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ENVS = {"balance": "StewartBallBalance-v0", "track": "StewartBallTrack-v0"}
+TARGET = 0.98
+
+
+def stewart_gym(*args: str) -> str:
+    """Run ``python -m stewart_gym ARGS``; its stdout (exits with its last error line if it fails)."""
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True)
+    if proc.returncode != 0:
+        sys.exit(f"error: stewart-gym {' '.join(args[:3])} … failed: "
+                 f"{(proc.stderr.strip().splitlines() or ['no message'])[-1]}")  # fmt: skip
+    return proc.stdout
+
+
+def held_out(model: Path, env: str, episodes: int) -> dict[str, float]:
+    """Success rate of a checkpoint on ``episodes`` randomised seeds in each engine."""
+    extra = ["--trajectory", "mixed"] if env == "track" else []
+    out = {}
+    for backend in ("pybullet", "mujoco"):
+        got = json.loads(stewart_gym("evaluate", "--policy", str(model), "--backend", backend, "--episodes",
+                                     str(episodes), "--json", *extra))  # fmt: skip
+        out[backend] = float(got["success_rate"])
+        if out[backend] < TARGET:
+            break  # no need for the second engine
+    return out
+
+
+def time_to_target(recipe: str, env: str, seed: int, eval_freq: int, episodes: int, max_minutes: float,
+                   run: Path) -> dict:  # fmt: skip
+    stewart_gym("train", "--env", ENVS[env], "--hyperparams", recipe, "--seed", str(seed), "--run-dir", str(run),
+                "--eval-freq", str(eval_freq), "--checkpoint-freq", str(eval_freq), "--max-minutes", str(max_minutes),
+                "--no-progress", "--no-tensorboard", "--overwrite")  # fmt: skip
+    with (run / "eval.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    tried = []
+    for row in rows:
+        if float(row["success_rate"]) < TARGET:
+            continue
+        steps = int(row["timesteps"])
+        model = run / "checkpoints" / f"rl_model_{steps}_steps.zip"
+        if not model.is_file():
+            continue
+        rates = held_out(model, env, episodes)
+        tried.append({"timesteps": steps, "wall_s": float(row["wall_s"]), **rates})
+        if all(rates.get(b, 0.0) >= TARGET for b in ("pybullet", "mujoco")):
+            return {"recipe": recipe, "seed": seed, "wall_s": float(row["wall_s"]), "timesteps": steps, **rates,
+                    "candidates": tried}  # fmt: skip
+    return {"recipe": recipe, "seed": seed, "wall_s": None, "timesteps": None, "candidates": tried,
+            "trained_s": json.loads((run / "metrics.json").read_text())["wall_time_s"]}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--env", choices=sorted(ENVS), default="balance")
+    parser.add_argument("--recipes", default="ppo_batched,ppo", help="comma-separated recipe names or YAML files")
+    parser.add_argument("--seeds", default="0,1,2", help="comma-separated training seeds")
+    parser.add_argument("--eval-freq", type=int, default=25_000, help="env steps between checkpoints")
+    parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per engine")
+    parser.add_argument("--max-minutes", type=float, default=6.0, help="training wall time per run, at most")
+    parser.add_argument("--json", action="store_true")
+    args = parser.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for recipe in args.recipes.split(","):
+            for seed in seeds:
+                row = time_to_target(recipe, args.env, seed, args.eval_freq, args.episodes, args.max_minutes,
+                                     Path(tmp) / f"{Path(recipe).stem}_{seed}")  # fmt: skip
+                rows.append(row)
+                if not args.json:
+                    got = "none" if row["wall_s"] is None else f"{row['wall_s']:.1f} s ({row['timesteps']:,} steps)"
+                    print(f"{args.env} {recipe:<14} seed {seed}: ≥ {TARGET:.0%} in PyBullet and MuJoCo after {got}; "
+                          f"held-out checks: " + ", ".join(
+                              f"{c['timesteps']:,} steps {c.get('pybullet', 0):.0%}/{c.get('mujoco', float('nan')):.0%}"
+                              for c in row["candidates"]) or "none", flush=True)  # fmt: skip
+    if args.json:
+        print(json.dumps({"env": args.env, "cores": os.cpu_count(), "episodes": args.episodes, "runs": rows}))
+
+
+if __name__ == "__main__":
+    main()
