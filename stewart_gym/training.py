@@ -648,6 +648,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         # the YAML's learning rate (and PPO's clip range) apply to the continued run, e.g. to fine-tune
         custom = {k: algo_kwargs[k] for k in ("learning_rate", "clip_range") if k in algo_kwargs}
         model = algo_cls.load(zip_path, env=env, device="cpu", tensorboard_log=tb, custom_objects=custom)
+        model.seed = config.seed  # else the run goes on with the seed the resumed model was trained with
+        model.set_random_seed(config.seed)
         if noise is not None:  # not saved with the model
             model.action_noise = noise
     else:

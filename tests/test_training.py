@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -69,6 +70,13 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
     assert type(after.obs_rms) is RunningMeanStd
     assert np.array_equal(after.obs_rms.mean, before.obs_rms.mean) and after.obs_rms.count == before.obs_rms.count
     assert after.ret_rms.count > before.ret_rms.count
+    # ... and with its own seed, not the resumed model's
+    other = train(TrainConfig(algo=algo, hyperparams=str(hp_file), run_dir=str(tmp_path / "run2s1"), resume=str(run),
+                              n_timesteps=200, eval_freq=1000, eval_episodes=1, progress_bar=False, tensorboard=False,
+                              seed=1))  # fmt: skip
+    assert other["seed"] == 1
+    with zipfile.ZipFile(tmp_path / "run2" / "model.zip") as a, zipfile.ZipFile(tmp_path / "run2s1" / "model.zip") as b:
+        assert a.read("policy.pth") != b.read("policy.pth")
     # resume from the best model takes the statistics saved beside it (once, it silently started fresh ones)
     from stewart_gym.training import check_run_dir, resume_statistics
 
