@@ -75,6 +75,16 @@ def time_to_target(recipe: str, env: str, seed: int, eval_freq: int, episodes: i
             "trained_s": json.loads((run / "metrics.json").read_text())["wall_time_s"]}
 
 
+def line(env: str, row: dict) -> str:
+    """One run as a line: the time to the target, and each checkpoint tried (PyBullet / MuJoCo success)."""
+    got = "none" if row["wall_s"] is None else f"{row['wall_s']:.1f} s ({row['timesteps']:,} steps)"
+    tried = ", ".join(f"{c['timesteps']:,} steps " + " / ".join(f"{c[b]:.0%}" if b in c else "–"
+                                                                for b in ("pybullet", "mujoco"))
+                      for c in row["candidates"])  # fmt: skip
+    return (f"{env} {row['recipe']:<14} seed {row['seed']}: ≥ {TARGET:.0%} in PyBullet and MuJoCo after {got}; "
+            f"checkpoints tried (PyBullet / MuJoCo): {tried or 'none'}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--env", choices=sorted(ENVS), default="balance")
@@ -94,11 +104,7 @@ def main() -> None:
                                      Path(tmp) / f"{Path(recipe).stem}_{seed}")  # fmt: skip
                 rows.append(row)
                 if not args.json:
-                    got = "none" if row["wall_s"] is None else f"{row['wall_s']:.1f} s ({row['timesteps']:,} steps)"
-                    print(f"{args.env} {recipe:<14} seed {seed}: ≥ {TARGET:.0%} in PyBullet and MuJoCo after {got}; "
-                          f"held-out checks: " + ", ".join(
-                              f"{c['timesteps']:,} steps {c.get('pybullet', 0):.0%}/{c.get('mujoco', float('nan')):.0%}"
-                              for c in row["candidates"]) or "none", flush=True)  # fmt: skip
+                    print(line(args.env, row), flush=True)
     if args.json:
         print(json.dumps({"env": args.env, "cores": os.cpu_count(), "episodes": args.episodes, "runs": rows}))
 
