@@ -95,7 +95,12 @@ def main() -> None:
     parser.add_argument("--max-minutes", type=float, default=6.0, help="training wall time per run, at most")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    seeds = [int(s) for s in args.seeds.split(",")]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",")]
+    except ValueError:
+        parser.error(f"--seeds must be whole numbers separated by commas, got {args.seeds!r}")
+    if min(seeds) < 0 or args.eval_freq < 1 or args.episodes < 1 or not args.max_minutes > 0:
+        parser.error("--seeds must be 0 or more; --eval-freq, --episodes and --max-minutes must be positive")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in args.recipes.split(","):
