@@ -19,7 +19,7 @@ windows at once.
   plate frame, fitted by linear least squares over all windows together. The twin's trims are the smallest six
   that tilt the plate that much.
 - *The panel noise*: the spread of the readings around the best fit, less the scatter a moving ball's readings
-  get from their uneven age (:data:`READ_TIME_VAR_S2`).
+  get from their uneven age (:attr:`FlightLog.read_time_var_s2`).
 
 The best candidate is refined between grid points by a parabola through its neighbours. The uncertainties come
 from a bootstrap over windows (the fit repeated on windows drawn with replacement); they measure the scatter
@@ -53,18 +53,23 @@ from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
-__all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "FitResult", "FlightLog", "fit_twin", "read_log",
-           "write_report"]
+__all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "TICK_DATED_OVERHEAD_S", "TICK_DATED_VAR_S2",
+           "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010
-#: s: how much older a panel reading is, on average, than its stated latency when the loop reads it: a sample is
-#: up to a period old when sent, and the loop reads the newest line at its tick, up to a period after it came
-#: (half a period each, on average). The fitted total latency less this is the twin's.
-READ_OVERHEAD_S = PANEL_PERIOD_S
-#: s²: the variance of that age (two uniform waits of up to a period each): a moving ball's readings scatter by
-#: its speed times this much more than the panel's own noise, which the noise estimate takes out.
-READ_TIME_VAR_S2 = PANEL_PERIOD_S**2 / 6
+#: s: how much older a panel reading is than its stated latency when it arrives: the sketch sends each sample as
+#: soon as the panel has it, and the loop reads each line as it arrives (``deploy``'s wait between ticks), so
+#: what is left is the time to send and read it. The fitted total latency less this is the twin's.
+READ_OVERHEAD_S = 0.001
+#: s²: the variance of that age (about ±1 ms): a moving ball's readings scatter by its speed times this much more
+#: than the panel's own noise, which the noise estimate takes out.
+READ_TIME_VAR_S2 = 0.002**2 / 12
+#: s and s²: the extra age, on average, and its variance, of readings in a log dated at the tick that read them,
+#: not when they arrived (:attr:`FlightLog.dated_at_ticks`: the loop read the port only at its ticks): the
+#: newest line waited up to a panel period for the tick.
+TICK_DATED_OVERHEAD_S = PANEL_PERIOD_S / 2
+TICK_DATED_VAR_S2 = PANEL_PERIOD_S**2 / 12
 #: Candidate servo speeds (× nominal) and dead bands (µs) of the grid, and latencies (s).
 SPEED_GRID = tuple(float(v) for v in np.round(np.geomspace(0.25, 3.0, 19), 4))
 DEADBAND_GRID = tuple(float(v) for v in np.arange(0.0, 30.1, 2.0))
@@ -93,6 +98,8 @@ class FlightLog:
         reading_t: (M,) s, each distinct reading's sample time on the loop's clock.
         reading_xy: (M, 2) m, the readings (plate frame).
         rate_hz: the loop's rate.
+        dated_at_ticks: whether the readings are dated at the tick that read them (most of them at a tick's
+            time) rather than when they arrived between ticks.
     """
 
     path: str
@@ -102,6 +109,17 @@ class FlightLog:
     reading_t: np.ndarray
     reading_xy: np.ndarray
     rate_hz: float
+    dated_at_ticks: bool = False
+
+    @property
+    def read_overhead_s(self) -> float:
+        """s: how much older than the twin's latency a reading is at the time the log gives it, on average."""
+        return READ_OVERHEAD_S + (TICK_DATED_OVERHEAD_S if self.dated_at_ticks else 0.0)
+
+    @property
+    def read_time_var_s2(self) -> float:
+        """s²: the variance of that age."""
+        return READ_TIME_VAR_S2 + (TICK_DATED_VAR_S2 if self.dated_at_ticks else 0.0)
 
     @property
     def duration_s(self) -> float:
@@ -150,7 +168,9 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
     if t[-1] - t[0] < 5.0 or len(readings) < 5 * rate / 2:
         raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks and {len(readings)} readings on the plate; a fit "
                           "needs at least 5 s with the ball on the plate (identify runs 60 s)")  # fmt: skip
-    return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate)
+    at_tick = np.abs(readings[:, 2] - t[np.clip(np.searchsorted(t, readings[:, 2]), 0, len(t) - 1)]) < 2e-4
+    return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate,
+                     dated_at_ticks=bool(np.mean(at_tick) > 0.5))  # fmt: skip
 
 
 @dataclass
@@ -425,6 +445,8 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
               for d in DEADBAND_GRID]  # fmt: skip
     rate = logs[0].rate_hz
     dt = 1.0 / rate
+    overhead = float(np.mean([log.read_overhead_s for log in logs]))
+    read_var = float(np.mean([log.read_time_var_s2 for log in logs]))
     margin = max(LATENCY_GRID)
     u, xy, mask = _readings(list(logs), fit_w, margin, margin + FIT_S)
     ones = np.ones(len(fit_w))
@@ -448,7 +470,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     def noise_of(weights: np.ndarray) -> float:
         """The panel noise, mm, from the windows so weighted: the residual's variance less the timing scatter."""
         dof = max(float(weights @ (2 * n - 4)) - 2, 1.0)
-        var = float(weights @ sse) / dof - READ_TIME_VAR_S2 * float(weights @ speed_sq) / float(weights.sum())
+        var = float(weights @ sse) / dof - read_var * float(weights @ speed_sq) / float(weights.sum())
         return math.sqrt(max(var, 0.0)) * 1e3
 
     noise_mm = noise_of(ones)
@@ -463,7 +485,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     spread = np.std(np.array(draws), axis=0)
     if on_progress:
         on_progress(0.85)
-    total_ms = (lat - READ_OVERHEAD_S) * 1e3
+    total_ms = (lat - overhead) * 1e3
     sensor_ms = min(float(start["sensor.latency_ms"]), max(total_ms, 0.0))
     sigma = {"servos.speed_scale": float(max(spread[0], 0.01)), "servos.deadband_us": float(max(spread[1], 0.5)),
              "servos.latency_ms": float(max(spread[2] * 1e3, 0.5)), "sensor.noise_mm": float(max(spread[3], 0.01))}
@@ -509,7 +531,7 @@ def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[Flig
     nominal = ServoSpec()
     nominal_servo = replace(nominal, max_speed=nominal.max_speed * start["servos.speed_scale"],
                             deadband_us=start["servos.deadband_us"])  # fmt: skip
-    nominal_lat = start.total_latency_ms / 1e3 + READ_OVERHEAD_S
+    nominal_lat = start.total_latency_ms / 1e3 + float(np.mean([log.read_overhead_s for log in logs]))
     path = _simulate(geo, cal, logs, windows, [nominal_servo, fitted])
     margin = max(LATENCY_GRID)
     u, xy, mask = _readings(logs, windows, margin, margin + PAST_S + max(HORIZONS_S))

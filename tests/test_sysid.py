@@ -14,7 +14,7 @@ from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sim.twin import Twin
-from stewart_gym.sysid import READ_OVERHEAD_S, fit_twin, read_log
+from stewart_gym.sysid import READ_OVERHEAD_S, TICK_DATED_OVERHEAD_S, fit_twin, read_log
 from tests.conftest import cli
 
 TWIN = {"servos": {"speed_scale": 0.6, "deadband_us": 10.0, "trim_us": [20, -20, 10, -5, 0, 15], "latency_ms": 40.0},
@@ -23,26 +23,29 @@ HEADER = ["t_s", *(f"pulse{i}_us" for i in range(6)), "stale", "invalid", "held"
           *LOG_READING_COLUMNS]  # fmt: skip
 
 
-def synthetic_log(path, twin: dict, seconds: float, seed: int = 0) -> None:
+def synthetic_log(path, twin: dict, seconds: float, seed: int = 0, dated_at_ticks: bool = False) -> None:
     """What identify would log on the platform ``twin`` describes, written in simulated time (the batched
     backend, not real time): the excitation under the PID + Kalman, each tick's pulses, and the newest panel
-    line as the loop reads it: sent at the panel's last report, up to one report period before the tick, and
-    stamped with the tick's time (the line carries no time of its own)."""
+    line the loop has at the tick, dated when it arrived: the sketch sends each sample as soon as the panel has it,
+    and it takes up to 2 ms to reach the loop. ``dated_at_ticks``: dated at the tick instead, as a loop that reads
+    the port only at its ticks dates them."""
     env = gym.make("StewartBallBalance-v0", twin=twin, backend="batched", estimator="kalman",
                    episode_s=seconds + 1).unwrapped  # fmt: skip
     policy = Excitation(deployable_policy(resolve_policy("pid-kalman")), seed=seed)
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
-    period = 1.0 / env.sensor_model.spec.rate_hz
+    latency = env.sensor_model.spec.latency_s
     with open(path, "w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(HEADER)
         for _ in range(int(seconds * env.sim.control_hz)):
             t = env.sim.time
-            got = env.sensor_model.read(t - rng.uniform(0.0, period))
+            transit = rng.uniform(0.0, 0.002)
+            got = env.sensor_model.read(t - transit)
             action = policy(obs)
             obs, _, terminated, _, info = env.step(action)
-            reading = ("", "", "") if got is None else (*got[0], t)
+            arrived = None if got is None else (t if dated_at_ticks else got[1] + latency + transit)
+            reading = ("", "", "") if got is None else (*got[0], arrived)
             writer.writerow([f"{t:.4f}", *np.round(info["pulse_widths_us"], 2), 0, 0, 0, 0, 0, *reading])
             assert not terminated, "the ball left the plate during the excitation"
     env.close()
@@ -149,4 +152,13 @@ def test_nan_and_off_plate_readings_are_no_readings(tmp_path):
     log = read_log(tmp_path / "log.csv")
     assert np.all(np.isfinite(log.reading_xy)) and np.all(np.abs(log.reading_xy) <= 0.16)
     assert len(log.reading_t) == len([k for k in range(400) if k % 7 and k % 11])
-    assert READ_OVERHEAD_S > 0
+    assert log.dated_at_ticks and log.read_overhead_s == READ_OVERHEAD_S + TICK_DATED_OVERHEAD_S
+
+
+def test_a_log_dated_at_arrival_is_told_from_one_dated_at_ticks(tmp_path):
+    synthetic_log(tmp_path / "arrival.csv", TWIN, 6.0)
+    synthetic_log(tmp_path / "ticks.csv", TWIN, 6.0, dated_at_ticks=True)
+    arrival, ticks = read_log(tmp_path / "arrival.csv"), read_log(tmp_path / "ticks.csv")
+    assert not arrival.dated_at_ticks and arrival.read_overhead_s == READ_OVERHEAD_S
+    assert ticks.dated_at_ticks and ticks.read_overhead_s == pytest.approx(READ_OVERHEAD_S + TICK_DATED_OVERHEAD_S)
+    assert ticks.read_time_var_s2 > arrival.read_time_var_s2 > 0

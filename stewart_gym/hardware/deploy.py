@@ -344,7 +344,7 @@ class DeployLoop:
                     summary.missed_deadlines += 1
                     next_tick = time.monotonic()
                 elif sleep > 0:
-                    time.sleep(sleep)
+                    self.controller.wait_until(next_tick)  # a panel's lines are read (and dated) as they arrive
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP raised as errors.Stopped
             summary.message = f"stopped by {getattr(exc, 'name', 'Ctrl-C (SIGINT)')}"
             summary.exit_code = 128 + int(getattr(exc, "signum", signal.SIGINT))

@@ -15,6 +15,7 @@ asks whether the board holds the home pulses.
 from __future__ import annotations
 
 import math
+import select
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -204,6 +205,13 @@ class ServoController(ABC):
         self._read_waiting()
         self._replies = b""
 
+    def wait_until(self, deadline: float) -> None:
+        """Sleep until ``deadline`` (:func:`time.monotonic`): what the loop does between ticks. A controller that
+        reads the board's own reports (:class:`LineController`) reads them as they arrive meanwhile."""
+        remaining = deadline - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
+
     def drain(self) -> None:
         """Wait until every byte written has left the computer (``tcdrain``)."""
         try:
@@ -386,6 +394,28 @@ class LineController(ServoController):
         self._pump()
         got, self._held = self._held, []
         return got
+
+    def wait_until(self, deadline: float) -> None:
+        """Sleep until ``deadline``, reading each line as it arrives, so that a ball reading's arrival time is when
+        it came, not the next tick (the port is watched with ``select`` where it has a file descriptor, else read
+        every millisecond)."""
+        try:
+            fd: int | None = self.serial.fileno()
+        except (AttributeError, OSError, ValueError, serial.SerialException):  # not a POSIX port: a URL or a fake
+            fd = None
+        while (remaining := deadline - time.monotonic()) > 0:
+            if fd is None or not self._in_waiting_after(fd, remaining):
+                time.sleep(min(remaining, 0.001))
+            self._pump()
+
+    def _in_waiting_after(self, fd: int, timeout: float) -> bool:
+        """Whether bytes are waiting on ``fd`` within ``timeout`` s (False also when the descriptor says it is
+        readable but has nothing, as a hung-up one does: the caller then sleeps a little rather than spin)."""
+        try:
+            readable, _, _ = select.select([fd], [], [], timeout)
+            return bool(readable) and bool(self.serial.in_waiting)
+        except (ValueError, *PORT_ERRORS):  # closed or unplugged: the read that follows says so
+            return False
 
     def poll_ball(self) -> tuple[tuple[float, float], float] | None:
         """The newest ``B x,y`` reading ((x, y) mm, arrival time s, monotonic) received so far, if any. The values

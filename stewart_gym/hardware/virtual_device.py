@@ -361,7 +361,7 @@ class VirtualDevice:
 
     Timing: the board reads its input at :data:`POLL_HZ`; the platform is simulated in steps of 1/:data:`TICK_HZ`
     kept within half a step of real time, and a frame acts from the step that starts nearest its arrival; the
-    sketch reports the panel's reading for the real time of the report.
+    sketch sends each panel sample as soon as the panel has it.
     """
 
     def __init__(self, protocol: str, backend: str = "auto", geometry: Any = "servo-hexapod",
@@ -423,6 +423,9 @@ class VirtualDevice:
         self._outgoing: deque[tuple[float, bytes]] = deque()
         self._started: float | None = None
         self._read_budget = 0.0
+        self._last_ready = -1.0  # when the last ``ready`` line left
+        self._next_report = 0.0  # when the next scheduled panel line is due
+        self._last_sample_t: float | None = None  # the sample time of the last panel reading sent
 
     # ----------------------------------------------------------- board
     def _position(self, channel: int, pending: float | None = None) -> float:
@@ -512,8 +515,6 @@ class VirtualDevice:
         period = 1.0 / POLL_HZ
         step = 1.0 / TICK_HZ
         next_tick = time.monotonic()
-        next_report = next_tick
-        last_ready = -1.0
         backend = self.plant.backend
         try:
             while not stop():
@@ -539,17 +540,8 @@ class VirtualDevice:
                         self.stream.put(backend.camera_image(self.camera))  # what the camera sees now
                         self._next_frame = max(self._next_frame + 1.0 / self.camera.fps, now - 0.5)
                         self.summary.camera_frames += 1
-                    report = now >= next_report
-                    if report:
-                        next_report = max(next_report + step, now - 0.5)
-                    if self.protocol == "line" and report:
-                        if since is None and now - last_ready >= 0.25:
-                            self._send(f"{LineProtocol.READY}\n".encode(), now)
-                            last_ready = now
-                        stalled = f.stall_sensor_after_s is not None and since is not None and since >= \
-                            f.stall_sensor_after_s  # fmt: skip
-                        if not stalled:  # the sketch reports from power-up, the ball resting where it was put
-                            self._report(now, backend.time if since is None else since)
+                    if self.protocol == "line":
+                        self._serve_lines(now, since)
                     self._flush(now)
                 next_tick += period
                 time.sleep(max(0.0, next_tick - time.monotonic()))
@@ -559,10 +551,30 @@ class VirtualDevice:
             self._finish()
         return self.summary
 
-    def _report(self, now: float, sim_t: float) -> None:
-        got = self.plant.sensor.read(sim_t)
+    def _serve_lines(self, now: float, since: float | None) -> None:
+        """The sketch's lines at real time ``now`` (``since``: s since the first frame, None while powered down):
+        ``ready`` every 0.25 s while powered down, and the panel. The sketch reports from power-up, the ball resting
+        where it was put, every 1/:data:`TICK_HZ`; once the platform runs, it sends each panel sample as soon as the
+        panel has it (its latency after the ball was there), and ``B -`` on the same schedule while the panel touches
+        nothing."""
+        f = self.faults
+        if since is None and now - self._last_ready >= 0.25:
+            self._send(f"{LineProtocol.READY}\n".encode(), now)
+            self._last_ready = now
+        if f.stall_sensor_after_s is not None and since is not None and since >= f.stall_sensor_after_s:
+            return
+        got = self.plant.sensor.read(self.plant.backend.time if since is None else since)
         if got is not None and not reading_is_valid(got, self.plant.env.plate_half_extent):
             got = None  # the sketch reports what the panel can touch: nothing off the plate
+        step = 1.0 / TICK_HZ
+        if since is not None and got is not None:  # running, the ball on the panel: each new sample as it comes
+            if got[1] == self._last_sample_t:
+                return
+            self._last_sample_t, self._next_report = got[1], now + step
+        elif now < self._next_report:
+            return
+        else:  # on the schedule: one period on (from now, after a stall)
+            self._next_report = now + step if now - self._next_report > step else self._next_report + step
         line = "B -\n" if got is None else f"B {got[0][0] * 1e3:.1f},{got[0][1] * 1e3:.1f}\n"
         self._send(line.encode(), now)
         self.summary.reports += 1

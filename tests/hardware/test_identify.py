@@ -17,6 +17,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
+from stewart_gym.sysid import read_log
 from tests.conftest import cli
 from tests.hardware.test_virtual_device import Board
 
@@ -137,6 +138,11 @@ def test_identify_through_the_wire_logs_pulses_and_readings_and_goes_home(tmp_pa
     assert len(rows) >= 290 and within_limits(rows)
     readings = np.array([[float(r["reading_x_m"]), float(r["reading_y_m"]), float(r["reading_t_s"])] for r in rows])
     assert np.isfinite(readings).mean() > 0.95 and len(np.unique(readings[:, 2])) > 250
+    # each reading is dated when it arrived, between the ticks (not at the tick that read it), and never after it
+    ticks = np.array([float(r["t_s"]) for r in rows])
+    dated = np.isfinite(readings[:, 2])
+    assert np.all(readings[dated, 2] <= ticks[dated] + 1e-3) and np.mean(ticks[dated] - readings[dated, 2] > 5e-4) > 0.5
+    assert not read_log(tmp_path / "identify.csv").dated_at_ticks
     tilts = np.array([[float(r["action0"]), float(r["action1"])] for r in rows])
     assert np.abs(tilts).max() > 0.3  # the steps went out
 

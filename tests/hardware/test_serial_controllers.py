@@ -74,6 +74,28 @@ def test_line_controller_waits_for_ready_and_reads_the_panel(device: FakeDevice)
     ctl.close()
 
 
+def test_line_controller_dates_a_reading_when_it_arrives_between_ticks(device: FakeDevice) -> None:
+    """The loop's wait between ticks reads the panel's lines as they come: a reading's time is its arrival, not
+    the end of the wait (the next tick), which a loop reading only at its ticks would give it."""
+    threading.Timer(0.2, device.write, args=(b"ready\n",)).start()  # once the port is open
+    ctl = LineController(device.path, ready_timeout=3.0)
+    written: list[float] = []
+
+    def panel() -> None:
+        time.sleep(0.05)
+        written.append(time.monotonic())
+        device.write(b"B 3.0,-4.0\n")
+
+    threading.Thread(target=panel, daemon=True).start()
+    start = time.monotonic()
+    ctl.wait_until(start + 1.0)
+    assert time.monotonic() >= start + 1.0  # it waited the whole time
+    (xy, arrived) = ctl.poll_ball()
+    assert xy == (3.0, -4.0) and written
+    assert written[0] <= arrived < written[0] + 0.5  # dated when it came, not at the end of the wait
+    ctl.close()
+
+
 def test_line_controller_without_ready_fails_clearly(device: FakeDevice) -> None:
     with pytest.raises(DeviceError, match="no 'ready' line .* and no answer to '\\?'"):
         LineController(device.path, ready_timeout=0.2)
