@@ -95,7 +95,8 @@ class FlightLog:
         t: (K,) s, each tick's time on the loop's clock.
         pulses: (K, 6) µs sent at each tick.
         usable: (K,) whether the tick ran normally (not stale, invalid, missed, held or homing).
-        reading_t: (M,) s, each distinct reading's sample time on the loop's clock.
+        reading_t: (M,) s, each distinct reading's time on the loop's clock: when it arrived (or the tick that
+            read it).
         reading_xy: (M, 2) m, the readings (plate frame).
         rate_hz: the loop's rate.
         dated_at_ticks: whether the readings are dated at the tick that read them (most of them at a tick's
