@@ -518,21 +518,23 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
     result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes)
     if held_w:
-        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, servos[si * len(DEADBAND_GRID) + di])
+        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, servos[si * len(DEADBAND_GRID) + di],
+                 overhead)
     if on_progress:
         on_progress(1.0)
     return result
 
 
 def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
-             start: Twin, lat: float, accel: np.ndarray, fitted: ServoSpec) -> None:  # fmt: skip
-    """Held-out prediction errors of the nominal twin (``start``) and the fitted one."""
+             start: Twin, lat: float, accel: np.ndarray, fitted: ServoSpec, overhead: float) -> None:  # fmt: skip
+    """Held-out prediction errors of the nominal twin (``start``) and the fitted one (``lat``: its latency as the
+    logs date the readings; ``overhead``: what the logs' dates add to a twin's latency)."""
     rate = logs[0].rate_hz
     dt = 1.0 / rate
     nominal = ServoSpec()
     nominal_servo = replace(nominal, max_speed=nominal.max_speed * start["servos.speed_scale"],
                             deadband_us=start["servos.deadband_us"])  # fmt: skip
-    nominal_lat = start.total_latency_ms / 1e3 + float(np.mean([log.read_overhead_s for log in logs]))
+    nominal_lat = start.total_latency_ms / 1e3 + overhead
     path = _simulate(geo, cal, logs, windows, [nominal_servo, fitted])
     margin = max(LATENCY_GRID)
     u, xy, mask = _readings(logs, windows, margin, margin + PAST_S + max(HORIZONS_S))
