@@ -404,18 +404,19 @@ class LineController(ServoController):
         except (AttributeError, OSError, ValueError, serial.SerialException):  # not a POSIX port: a URL or a fake
             fd = None
         while (remaining := deadline - time.monotonic()) > 0:
-            if fd is None or not self._in_waiting_after(fd, remaining):
-                time.sleep(min(remaining, 0.001))
+            if fd is None or self._woke_without_bytes(fd, remaining):
+                time.sleep(max(0.0, min(deadline - time.monotonic(), 0.001)))
             self._pump()
 
-    def _in_waiting_after(self, fd: int, timeout: float) -> bool:
-        """Whether bytes are waiting on ``fd`` within ``timeout`` s (False also when the descriptor says it is
-        readable but has nothing, as a hung-up one does: the caller then sleeps a little rather than spin)."""
+    def _woke_without_bytes(self, fd: int, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for bytes on ``fd``; whether the wait ended early with none to read (a hung-up
+        descriptor is readable with nothing in it; or the port failed, which the read that follows says): the
+        caller then sleeps a little rather than spin. A wait that times out is not early."""
         try:
             readable, _, _ = select.select([fd], [], [], timeout)
-            return bool(readable) and bool(self.serial.in_waiting)
-        except (ValueError, *PORT_ERRORS):  # closed or unplugged: the read that follows says so
-            return False
+            return bool(readable) and not self.serial.in_waiting
+        except (ValueError, *PORT_ERRORS):
+            return True
 
     def poll_ball(self) -> tuple[tuple[float, float], float] | None:
         """The newest ``B x,y`` reading ((x, y) mm, arrival time s, monotonic) received so far, if any. The values
