@@ -21,7 +21,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration, servo_pulses_one
 from stewart_gym.errors import ConfigError, UnreachableError
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.kinematics import axis_ranges
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 from stewart_gym.presets import load_geometry
 
 __all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "action_table",
@@ -195,6 +195,28 @@ class ActionMapper:
             return MappedAction(np.array(pose), np.array(fast), False, 1.0, tuple(clipped))
         best, pulses, scale = self.reachable_pose(np.array(pose))
         return MappedAction(best, pulses, scale < 1.0, scale, tuple(clipped))
+
+    def map_many(self, actions: np.ndarray) -> list[MappedAction]:
+        """:meth:`__call__` of many actions (rows × :attr:`size`) at once: one batched IK pass for the feasible
+        poses (:func:`~stewart_gym.kinematics.inverse_kinematics`), the scalar path for the rest (and for
+        "pulse" mode). The same results as one call per action, to rounding."""
+        values = np.asarray(actions, dtype=np.float64).reshape(-1, self.size)
+        if self.mode == "pulse" or len(values) == 0:
+            return [self(row) for row in values]
+        if not np.isfinite(values).all():
+            row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
+            raise ValueError(f"action must be finite, got {values[row].tolist()} (row {row})")
+        clipped = np.clip(values, -1.0, 1.0)
+        if self.mode == "tilt":
+            poses = np.zeros((len(values), 6))
+            poses[:, 3:5] = clipped * self.max_tilt
+        else:
+            poses = clipped * self.pose_scale
+        ik = inverse_kinematics(self.geometry, poses)
+        pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+        feasible = (ik.reachable & np.isfinite(pulses).all(axis=1)).tolist()
+        return [MappedAction(pose, w, False, 1.0, tuple(c)) if ok else self(row)
+                for pose, w, c, ok, row in zip(poses, pulses, clipped.tolist(), feasible, values)]  # fmt: skip
 
 
 def _clip_unit(values: list[float]) -> list[float]:

@@ -604,6 +604,13 @@ class ObservationBuilder:
                          for x, k, hi in zip(raw, self._scales, self._highs)], dtype=np.float32)  # fmt: skip
 
 
+    def build_many(self, raw: np.ndarray) -> np.ndarray:
+        """:meth:`build` of many observations at once from their parts laid end to end (rows × size, in the
+        layout's order, unscaled): scaled and clipped, (rows × size) float32."""
+        scales, highs = np.array(self._scales), np.array(self._highs)
+        return np.clip(np.asarray(raw, dtype=np.float64) * scales, -highs, highs).astype(np.float32)
+
+
 class BallObserver:
     """Sensor readings → observation, the same way in the environments and on hardware.
 

@@ -20,12 +20,13 @@ from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
+from stewart_gym.sensing_arrays import ObserverArray, PanelArray
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 from stewart_gym.sim.twin import Twin, load_twin
 
-__all__ = ["StewartBallEnv", "check_ball_geometry", "settling_start"]
+__all__ = ["StewartBallEnv", "check_ball_geometry", "end_steps", "settling_start"]
 
 #: m: where the settling-time test starts (:mod:`stewart_gym.evaluation`) on a plate large enough.
 SETTLING_OFFSET = 0.100
@@ -408,12 +409,18 @@ class StewartBallEnv(gym.Env, EzPickle):
         """The part of :meth:`step` before the physics: map the action and send its pulses. Returns what
         :meth:`end_step` takes once the backend has advanced a control period (the batched vector env advances
         all its envs' platforms between the two)."""
-        if self._episode is not None:
-            self._episode[2].append(np.array(action, copy=True))
         mapped = self.mapper(action)
-        self.task.before_step(self.sim.time, self.sim)
+        self.start_step(action)
         self.sim.command(mapped.pulses)
         return mapped
+
+    def start_step(self, action: np.ndarray) -> None:
+        """What :meth:`begin_step` does besides mapping the action and sending its pulses: record the action (for
+        :meth:`__deepcopy__`) and let the task act (a push). The batched vector env calls it for each copy, having
+        mapped every copy's action and sending every copy's pulses at once."""
+        if self._episode is not None:
+            self._episode[2].append(np.array(action, copy=True))
+        self.task.before_step(self.sim.time, self.sim)
 
     def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         """The part of :meth:`step` after the physics: sense, observe, reward, and the episode's end."""
@@ -513,6 +520,54 @@ class StewartBallEnv(gym.Env, EzPickle):
             "physics_error": np.False_,
             **self.task.info(),
         }
+
+
+def end_steps(envs: Sequence[StewartBallEnv], mapped: Sequence[Any], sim: Any, panels: PanelArray,
+              observers: ObserverArray) -> list[tuple[np.ndarray, float, bool, bool, dict]]:  # fmt: skip
+    """:meth:`StewartBallEnv.end_step` of every env of a batched vector env at once: env ``i`` on platform ``i`` of
+    the batched simulator ``sim``, with row ``i`` of ``panels`` and ``observers`` as its sensor and observer
+    (:class:`~stewart_gym.sensing_arrays.PanelRow`, :class:`~stewart_gym.sensing_arrays.ObserverRow`). The same
+    results as each env's own :meth:`~StewartBallEnv.end_step`, with the sensing and observing done as arrays;
+    a step where a platform's physics blew up takes each env's own."""
+    n = len(envs)
+    t = sim.platform_times()
+    xy = sim.ball_xy.copy()
+    z = sim.plate_top + sim.ball_radius
+    if not (np.isfinite(xy).all() and np.isfinite(z).all() and (np.abs(z) < 1.0).all()):
+        return [env.end_step(m) for env, m in zip(envs, mapped)]
+    first = envs[0]
+    hx, hy = first.plate_half_extent
+    on_plate = (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy) & (z > sim.plate_top)
+    panels.record(t, xy, on_plate & (z < sim.plate_top + 1.5 * sim.ball_radius))
+    targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
+    roll_pitch, actions, rates = np.empty((n, 2)), np.empty((n, first.mapper.size)), np.empty(n)
+    for i, (env, m) in enumerate(zip(envs, mapped)):
+        env._pulses = m.pulses
+        env._scaled = m.scaled
+        env._unreachable += m.scaled
+        if env.action_mode != "pulse":
+            env._roll_pitch = (m.pose.item(3), m.pose.item(4))
+        a = m.action
+        rate = 0.0
+        for v, p in zip(a, env._prev_action):
+            rate += (v - p) * (v - p)
+        rates[i] = rate / len(a)
+        env._prev_action = a
+        targets[i], target_velocities[i] = env.task.target(float(t[i]))
+        roll_pitch[i], actions[i] = env._roll_pitch, a
+    reading, sample_t, has = panels.read(t)
+    obs = observers.observe(np.arange(n), has, reading, sample_t, targets, target_velocities, roll_pitch, actions, t)
+    out = []
+    for i, (env, (x, y), (tx, ty)) in enumerate(zip(envs, xy.tolist(), targets.tolist())):
+        on, dist = bool(on_plate[i]), math.hypot(x - tx, y - ty)
+        env._last_obs = obs[i]
+        env._inside = env._inside + 1 if (on and dist <= env.success_radius) else 0
+        reward = env.task.reward(dist, float(rates[i]), not on)
+        info = env._info(np.array([x, y]), (tx, ty), dist)
+        info["is_success"] = np.bool_(on and env._inside >= env.success_steps)
+        env._steps += 1
+        out.append((obs[i], reward, not on, on and env._steps >= env.episode_steps, info))
+    return out
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:

@@ -18,8 +18,10 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
+from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry, end_steps
 from stewart_gym.errors import ConfigError
+from stewart_gym.sensing import BallObserver, KalmanSpec, SimulatedTouchPanel, TouchPanelSpec
+from stewart_gym.sensing_arrays import ObserverArray, ObserverRow, PanelArray, PanelRow
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
@@ -62,6 +64,17 @@ class StewartBallVectorEnv(VectorEnv):
         self.envs = [StewartBallEnv(backend=BatchedPlatform(self.sim, i, owns_steps=False), ball=ball, servo=servo,
                                     control_hz=control_hz, **kwargs) for i in range(self.num_envs)]  # fmt: skip
         first = self.envs[0]
+        #: the copies' touch panels and observers as arrays (:mod:`stewart_gym.sensing_arrays`), or None where the
+        #: copies sense otherwise (a camera): then each copy senses and observes on its own
+        self.panels: PanelArray | None = None
+        self.observers: ObserverArray | None = None
+        if all(senses_with_arrays(env) for env in self.envs):
+            self.panels = PanelArray(self.num_envs, 1.0 / control_hz)
+            self.observers = ObserverArray(self.num_envs, first.mapper.size, first.plate_half_extent,
+                                           first.observer.estimator, first.observer.builder.integral)  # fmt: skip
+            for i, env in enumerate(self.envs):
+                env.sensor_model = PanelRow(self.panels, i)
+                env.observer = ObserverRow(self.observers, i)
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -102,7 +115,13 @@ class StewartBallVectorEnv(VectorEnv):
         actions = np.asarray(actions)
         if actions.shape[0] != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
-        mapped = [env.begin_step(a) for env, a in zip(self.envs, actions)]
+        if self.panels is not None:  # the arrays' path: every copy's action mapped, and its pulses sent, at once
+            mapped = self.envs[0].mapper.map_many(actions)
+            for env, a in zip(self.envs, actions):
+                env.start_step(a)
+            self.sim.command(np.stack([m.pulses for m in mapped]))
+        else:
+            mapped = [env.begin_step(a) for env, a in zip(self.envs, actions)]
         self.sim.step()
         observations = np.empty((self.num_envs, *self.single_observation_space.shape), dtype=np.float32)
         rewards = np.zeros(self.num_envs)
@@ -110,8 +129,11 @@ class StewartBallVectorEnv(VectorEnv):
         truncations = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = []
         finals: dict[int, tuple[np.ndarray, dict]] = {}
-        for i, (env, m) in enumerate(zip(self.envs, mapped)):
-            obs, rewards[i], terminations[i], truncations[i], info = env.end_step(m)
+        if self.panels is not None and self.observers is not None:
+            ended = end_steps(self.envs, mapped, self.sim, self.panels, self.observers)
+        else:
+            ended = [env.end_step(m) for env, m in zip(self.envs, mapped)]
+        for i, (env, (obs, rewards[i], terminations[i], truncations[i], info)) in enumerate(zip(self.envs, ended)):
             if terminations[i] or truncations[i]:
                 finals[i] = (obs, info)
                 obs, info = env.reset()
@@ -136,6 +158,16 @@ class StewartBallVectorEnv(VectorEnv):
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments
             env.close()
+
+
+def senses_with_arrays(env: StewartBallEnv) -> bool:
+    """Whether a copy's sensor and observer are what :class:`~stewart_gym.sensing_arrays.PanelArray` and
+    :class:`~stewart_gym.sensing_arrays.ObserverArray` model: a touch panel in every episode, and an observer with
+    the default Kalman filter (or none)."""
+    observer = env.observer
+    kalman = getattr(observer, "kalman", None)
+    return (isinstance(env.sensor_model, SimulatedTouchPanel) and isinstance(env.nominal_sensor, TouchPanelSpec)
+            and isinstance(observer, BallObserver) and (kalman is None or kalman.spec == KalmanSpec()))  # fmt: skip
 
 
 def make_vector_env(num_envs: int, env_id: str = "StewartBallBalance-v0", **kwargs: Any) -> StewartBallVectorEnv:

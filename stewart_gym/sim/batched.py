@@ -56,6 +56,17 @@ def _rodrigues(v: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * k + b * (k @ k)
 
 
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 3) cross products of (..., 3) vectors (broadcast), the same numbers as ``np.cross`` at half its cost
+    on small batches (no axis handling)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    a0, a1, a2, b0, b1, b2 = a[..., 0], a[..., 1], a[..., 2], b[..., 0], b[..., 1], b[..., 2]
+    np.subtract(a1 * b2, a2 * b1, out=out[..., 0])
+    np.subtract(a2 * b0, a0 * b2, out=out[..., 1])
+    np.subtract(a0 * b1, a1 * b0, out=out[..., 2])
+    return out
+
+
 def _skew_vector(m: np.ndarray) -> np.ndarray:
     """(..., 3) the axial vector of the skew part of (..., 3, 3) matrices."""
     return 0.5 * np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]],
@@ -169,6 +180,10 @@ class BatchedSim:
         """s of simulated time since platform ``i``'s last reset."""
         return float(self._step_count - self._since[i]) / self.physics_hz
 
+    def platform_times(self) -> np.ndarray:
+        """(n,) s of simulated time since each platform's last reset (:meth:`platform_time` of each)."""
+        return (self._step_count - self._since).astype(np.float64) / self.physics_hz
+
     @property
     def time(self) -> float:
         """s of simulated time since the last reset."""
@@ -194,7 +209,7 @@ class BatchedSim:
     def _inverse_jacobian(self, origin: np.ndarray, rot: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         """(n, 6, 6): the inverse of d(rod length errors) / d(origin, rotation vector) at this frame."""
         _, unit, arm = self._legs(origin, rot, alpha)
-        return np.linalg.inv(np.concatenate([unit, np.cross(arm, unit)], axis=-1))
+        return np.linalg.inv(np.concatenate([unit, _cross(arm, unit)], axis=-1))
 
     def _plate_frame(self, frame: tuple[np.ndarray, np.ndarray], alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The platform frame that closes all six chains at servo angles ``alpha``: Newton's method from
@@ -324,13 +339,14 @@ class BatchedSim:
         omega, omega_dot = 0.5 * (w_back + w_ahead), (w_ahead - w_back) / h
         normal = r1[:, :, 2]
         u = np.einsum("nij,nj->ni", r1[:, :, :2], self.ball_velocity)  # relative velocity, world
-        sigma = np.cross(normal, u) / self._radius[:, None]  # spin relative to the plate (none about n)
+        sigma = _cross(normal, u) / self._radius[:, None]  # spin relative to the plate (none about n)
         beta, radius = self._beta[:, None], self._radius[:, None]
         gravity = np.array([0.0, 0.0, -GRAVITY])
-        drive = (gravity - a_p - np.cross(omega, u) - beta * radius * np.cross(omega_dot, normal)
-                 + beta * radius * np.cross(sigma, np.cross(omega, normal)))  # fmt: skip
+        coriolis = _cross(omega, u)
+        drive = (gravity - a_p - coriolis - beta * radius * _cross(omega_dot, normal)
+                 + beta * radius * _cross(sigma, _cross(omega, normal)))  # fmt: skip
         w = drive / (1.0 + beta)
-        a_rel = w - np.cross(omega, u)
+        a_rel = w - coriolis
         accel = np.einsum("nji,nj->ni", r1[:, :, :2], a_rel)  # plate frame, in the plate (the tangential part)
         self.ball_velocity = self.ball_velocity + accel * h
         self.ball_xy = self.ball_xy + self.ball_velocity * h

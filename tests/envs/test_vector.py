@@ -27,13 +27,28 @@ def test_make_vec_returns_the_batched_vector_env() -> None:
 @pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0", "StewartBallDisturbance-v0"])
 def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
     """Copy i, seeded seed + i, steps exactly as ``gym.make(id, backend="batched")`` with the same seed and
-    actions, through an episode's end and its reset in the same step."""
+    actions, through an episode's end and its reset in the same step; the copies sense and observe as arrays."""
+    vector = assert_copies_are_single_envs(env_id, KWARGS)
+    assert vector.unwrapped.panels is not None
+
+
+@pytest.mark.parametrize("kwargs", [{"randomize": True, "estimator": "lowpass", "integral": True},
+                                    {"randomize": True, "estimator": "kalman", "integral": True, "action_mode": "pose"},
+                                    {"randomize": True, "sensor": "pixy2"}], ids=["lowpass", "pose", "camera"])  # fmt: skip
+def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
+    """The same with the low-pass observer, the error integral and the pose actions (sensed as arrays), and with a
+    camera (each copy senses on its own)."""
+    vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
+    assert (vector.unwrapped.panels is None) == ("sensor" in kwargs)
+
+
+def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.VectorEnv:
     n, steps = 3, 60
-    kwargs = {**KWARGS, "episode_s": 0.6}  # 30 steps: every copy ends and resets once
+    kwargs = {**kwargs, "episode_s": 0.6}  # 30 steps: every copy ends and resets once
     vector = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
     singles = [gym.make(env_id, backend="batched", **kwargs) for _ in range(n)]
     rng = np.random.default_rng(1)
-    actions = rng.uniform(-1, 1, (steps, n, 2)).astype(np.float32)
+    actions = rng.uniform(-1, 1, (steps, n, vector.single_action_space.shape[0])).astype(np.float32)
     obs, _ = vector.reset(seed=10)
     single_obs = [env.reset(seed=10 + i)[0] for i, env in enumerate(singles)]
     np.testing.assert_array_equal(obs, np.stack(single_obs))
@@ -52,6 +67,7 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
             assert info["distance_mm"][i] == inf["distance_mm"]
     assert ended >= n
     vector.close()
+    return vector
 
 
 def test_bad_arguments_are_one_clear_error() -> None:

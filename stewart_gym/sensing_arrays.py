@@ -1,0 +1,426 @@
+"""The touch panels and observers of N envs as arrays: what the batched vector env senses and observes with.
+
+:class:`PanelArray` is N :class:`~stewart_gym.sensing.SimulatedTouchPanel` and :class:`ObserverArray` N
+:class:`~stewart_gym.sensing.BallObserver` (the low-pass or the Kalman estimator, with the error integral or
+without), one row each, advanced for every row with one NumPy operation per step of the arithmetic instead of
+one Python call per env. They follow the one-env classes step for step: the same sample times, the same noise
+(drawn from each row's own generator, in the same order), the same filter equations; the results agree to
+rounding (``tests/test_sensing_arrays.py``).
+
+Each env of the vector env reads and resets its own row through :class:`PanelRow` and :class:`ObserverRow`,
+which follow the one-env classes' interface, so that an env resets and observes alone exactly as it would with
+its own sensor and observer, while the vector env steps every row at once.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.constants import GRAVITY
+from stewart_gym.sensing import (
+    READING_MARGIN,
+    BallKalmanFilter,
+    BallObserver,
+    KalmanSpec,
+    ObservationBuilder,
+    ReadingNoise,  # fmt: skip
+    TouchPanelSpec,
+)
+
+__all__ = ["ObserverArray", "ObserverRow", "PanelArray", "PanelRow"]
+
+#: Standard normals drawn from a row's generator at a time, as :class:`~stewart_gym.sensing.SimulatedTouchPanel`.
+DRAW_BLOCK = 128
+
+
+class PanelArray:
+    """``n`` simulated touch panels, each with its own spec, history, noise and generator.
+
+    Args:
+        n: How many panels.
+        control_dt: s between :meth:`record` calls (sizes the history kept).
+    """
+
+    def __init__(self, n: int, control_dt: float) -> None:
+        self.n, self.control_dt = int(n), float(control_dt)
+        self.specs: list[TouchPanelSpec] = [TouchPanelSpec()] * self.n
+        self.noise_m, self.rate, self.latency = np.full(self.n, 1e-3), np.full(self.n, 100.0), np.full(self.n, 0.01)
+        self._columns = 8
+        # the recorded true positions, oldest first (column -1 the newest), per row
+        self.t = np.zeros((self.n, self._columns))
+        self.x, self.y = np.zeros((self.n, self._columns)), np.zeros((self.n, self._columns))
+        self.on = np.ones((self.n, self._columns), dtype=bool)
+        self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the sample whose noise is in self.noise
+        self.noise = np.zeros((self.n, 2))
+        self.draws = np.zeros((self.n, DRAW_BLOCK))
+        self.left = np.zeros(self.n, dtype=np.int64)  # draws not yet used, taken from the end
+        self.rngs: list[np.random.Generator | None] = [None] * self.n
+
+    def set_spec(self, i: int, spec: TouchPanelSpec) -> None:
+        """Row ``i``'s panel from now on."""
+        self.specs[i] = spec
+        self.noise_m[i], self.rate[i], self.latency[i] = spec.noise_mm * 1e-3, spec.rate_hz, spec.latency_s
+        needed = int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt)) + 3
+        if needed > self._columns:  # older readings than kept: more columns, copies of the oldest
+            extra = needed - self._columns
+            self.t, self.x, self.y, self.on = (np.concatenate([np.repeat(a[:, :1], extra, axis=1), a], axis=1)
+                                               for a in (self.t, self.x, self.y, self.on))  # fmt: skip
+            self._columns = needed
+
+    def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
+        """:meth:`SimulatedTouchPanel.reset <stewart_gym.sensing.SimulatedTouchPanel.reset>` of row ``i``."""
+        spec = self.specs[i]
+        self.t[i, :-1] = t - spec.latency_s - 1.0 / spec.rate_hz - 1.0  # the ball at rest there before t
+        self.t[i, -1] = t
+        self.x[i], self.y[i], self.on[i] = float(xy[0]), float(xy[1]), True
+        self.last_k[i] = np.iinfo(np.int64).min
+        self.left[i] = 0
+        self.rngs[i] = rng
+
+    def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
+        """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
+        for history, value in ((self.t, t), (self.x, xy[:, 0]), (self.y, xy[:, 1]), (self.on, on_plate)):
+            history[rows, :-1] = history[rows, 1:]
+            history[rows, -1] = value
+
+    def read(self, t: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What ``rows`` report at times ``t``: (x, y) m (rows × 2), the sample times (s) and whether there is a
+        reading (the ball touching at the sample time)."""
+        index = np.arange(self.n)[rows]
+        rate, latency = self.rate[index], self.latency[index]
+        k = np.floor((t - latency) * rate + 1e-9).astype(np.int64)
+        ts = k / rate
+        ht, hx, hy, hon = self.t[index], self.x[index], self.y[index], self.on[index]
+        last = ht.shape[1] - 1
+        i = np.maximum((ht <= ts[:, None]).sum(axis=1) - 1, 0)
+        j = np.minimum(i + 1, last)
+        pick = np.arange(len(index))
+        t0, t1 = ht[pick, i], ht[pick, j]
+        inner = (i < last) & (t1 > t0)
+        w = np.where(inner, (ts - t0) / np.where(inner, t1 - t0, 1.0), 0.0)
+        x0, y0 = hx[pick, i], hy[pick, i]
+        x = np.where(i < last, x0 + w * (hx[pick, j] - x0), x0)
+        y = np.where(i < last, y0 + w * (hy[pick, j] - y0), y0)
+        on = hon[pick, i] & hon[pick, j]
+        fresh = on & (k != self.last_k[index])
+        for row in index[fresh & (self.left[index] < 2)]:  # a new block of draws, from the row's generator
+            self.draws[row] = self.rngs[row].standard_normal(DRAW_BLOCK)
+            self.left[row] = DRAW_BLOCK
+        new = index[fresh]
+        if len(new):
+            sigma, left = self.noise_m[new], self.left[new]
+            self.noise[new, 0] = sigma * self.draws[new, left - 1]
+            self.noise[new, 1] = sigma * self.draws[new, left - 2]
+            self.left[new] = left - 2
+            self.last_k[new] = k[fresh]
+        xy = np.stack([x + self.noise[index, 0], y + self.noise[index, 1]], axis=1)
+        return xy, ts, on
+
+
+class PanelRow:
+    """Row ``i`` of a :class:`PanelArray` as one simulated sensor (:class:`~stewart_gym.sensing.SimulatedSensor`)."""
+
+    def __init__(self, panels: PanelArray, i: int) -> None:
+        self.panels, self.i = panels, int(i)
+
+    @property
+    def spec(self) -> TouchPanelSpec:
+        return self.panels.specs[self.i]
+
+    @spec.setter
+    def spec(self, value: TouchPanelSpec) -> None:
+        self.panels.set_spec(self.i, value)
+
+    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
+        self.panels.reset_row(self.i, t, xy, rng)
+
+    def record(self, t: float, xy: Sequence[float], on_plate: bool) -> None:
+        rows = [self.i]
+        self.panels.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([on_plate]), rows)
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        xy, ts, on = self.panels.read(np.array([t]), [self.i])
+        return ((float(xy[0, 0]), float(xy[0, 1])), float(ts[0])) if on[0] else None
+
+
+class KalmanArray:
+    """``n`` :class:`~stewart_gym.sensing.BallKalmanFilter` of one spec, with their reading-noise estimates."""
+
+    def __init__(self, n: int, spec: KalmanSpec | None = None) -> None:
+        self.spec = spec or KalmanSpec()
+        c = self.spec
+        if not c.noise_window:
+            raise ValueError("KalmanArray estimates the readings' noise: it needs a spec with noise_window > 0")
+        self.n = int(n)
+        self.prior = (c.measurement_noise_mm * 1e-3) ** 2
+        self.state = np.zeros((self.n, 8))  # px, py, vx, vy, ax, ay, bx, by
+        self.cov = np.zeros((self.n, 10))  # the upper triangle of P, row by row
+        self.t = np.zeros(self.n)
+        self.r = np.full(self.n, self.prior)
+        # the commands (when each acts, sin of the tilt along x, y), in time order
+        self._slots = 4
+        self.cmd_t = np.zeros((self.n, self._slots))
+        self.cmd_u = np.zeros((self.n, self._slots, 2))
+        self.cmd_n = np.zeros(self.n, dtype=np.int64)
+        self.last_issued = np.full(self.n, -np.inf)
+        # ReadingNoise: the last (up to 4) equally spaced readings, the estimate and its count
+        self.noise_t, self.noise_x, self.noise_y = (np.zeros((self.n, 4)) for _ in range(3))
+        self.noise_n = np.zeros(self.n, dtype=np.int64)
+        self.variance = np.full(self.n, self.prior)
+        self.noise_count = np.zeros(self.n, dtype=np.int64)
+        template = ReadingNoise(c.measurement_noise_mm, c.noise_window)
+        self.window, self.prior_readings = template.window, template.prior_readings
+        self.qc_a, self.qc_b = c.accel_noise**2, c.bias_noise**2
+
+    def reset_row(self, i: int, t: float, xy: Sequence[float]) -> None:
+        self.noise_n[i], self.noise_count[i], self.variance[i] = 0, 0, self.prior
+        self.r[i] = self.prior
+        self.state[i] = (float(xy[0]), float(xy[1]), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self.cov[i] = (self.prior, 0.0, 0.0, 0.0, 0.1**2, 0.0, 0.0, 0.5**2, 0.0, 0.5**2)
+        self.t[i] = float(t)
+        self.cmd_n[i] = 0
+        self.last_issued[i] = -np.inf
+
+    def command(self, rows: np.ndarray, t: np.ndarray, roll_pitch: np.ndarray) -> None:
+        """:meth:`BallKalmanFilter.command <stewart_gym.sensing.BallKalmanFilter.command>` of ``rows``."""
+        u = np.stack([np.sin(roll_pitch[:, 1]), -np.sin(roll_pitch[:, 0])], axis=1)
+        count = self.cmd_n[rows]
+        again = (count > 0) & (t <= self.last_issued[rows])
+        if again.any():
+            r = rows[again]
+            self.cmd_u[r, self.cmd_n[r] - 1] = u[again]
+        new = ~again
+        if new.any():
+            r, tn = rows[new], t[new]
+            if int(self.cmd_n[r].max()) >= self._slots:  # more commands pending than slots: twice the slots
+                grow = self._slots
+                self.cmd_t = np.concatenate([self.cmd_t, np.zeros((self.n, grow))], axis=1)
+                self.cmd_u = np.concatenate([self.cmd_u, np.zeros((self.n, grow, 2))], axis=1)
+                self._slots += grow
+            self.last_issued[r] = tn
+            self.cmd_t[r, self.cmd_n[r]] = tn + self.spec.dead_time_s
+            self.cmd_u[r, self.cmd_n[r]] = u[new]
+            self.cmd_n[r] += 1
+        while True:  # drop the commands spent before the estimate's time
+            spent = rows[(self.cmd_n[rows] > 1) & (self.cmd_t[rows, 1] <= self.t[rows])]
+            if not len(spent):
+                break
+            self.cmd_t[spent, :-1] = self.cmd_t[spent, 1:]
+            self.cmd_u[spent, :-1] = self.cmd_u[spent, 1:]
+            self.cmd_n[spent] -= 1
+
+    def _noise_update(self, rows: np.ndarray, ts: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """:meth:`ReadingNoise.update <stewart_gym.sensing.ReadingNoise.update>` of ``rows``; their variances."""
+        count = self.noise_n[rows]
+        pick = np.arange(len(rows))
+        lt = self.noise_t[rows]
+        prev, prev2 = lt[pick, np.maximum(count - 1, 0)], lt[pick, np.maximum(count - 2, 0)]
+        restart = (count >= 2) & (np.abs((ts - prev) - (prev - prev2)) > 0.25 * (ts - prev))
+        if restart.any():  # keep only the newest
+            r = rows[restart]
+            last = count[restart] - 1
+            for table in (self.noise_t, self.noise_x, self.noise_y):
+                table[r, 0] = table[r, last]
+            count = np.where(restart, 1, count)
+        self.noise_t[rows, count], self.noise_x[rows, count], self.noise_y[rows, count] = ts, xy[:, 0], xy[:, 1]
+        count = count + 1
+        full = count == 4
+        if full.any():
+            r = rows[full]
+            x0, x1, x2, x3 = (self.noise_x[r, j] for j in range(4))
+            y0, y1, y2, y3 = (self.noise_y[r, j] for j in range(4))
+            dx, dy = x3 - 3 * x2 + 3 * x1 - x0, y3 - 3 * y2 + 3 * y1 - y0
+            ok = np.isfinite(dx) & np.isfinite(dy)
+            good = r[ok]
+            self.noise_count[good] += 1
+            weight = np.maximum(1.0 / (self.noise_count[good] + self.prior_readings), 1.0 / self.window)
+            d2 = dx[ok] * dx[ok] + dy[ok] * dy[ok]
+            self.variance[good] += weight * (d2 / 40.0 - self.variance[good])
+            for table in (self.noise_t, self.noise_x, self.noise_y):
+                table[r, :3] = table[r, 1:]
+            count = np.where(full, 3, count)
+        self.noise_n[rows] = count
+        return self.variance[rows]
+
+    def update(self, rows: np.ndarray, ts: np.ndarray, xy: np.ndarray) -> None:
+        """:meth:`BallKalmanFilter.update <stewart_gym.sensing.BallKalmanFilter.update>` of ``rows``."""
+        later = ts > self.t[rows]
+        rows, ts, xy = rows[later], ts[later], xy[later]
+        if not len(rows):
+            return
+        self.r[rows] = np.maximum(self._noise_update(rows, ts, xy), BallKalmanFilter.MIN_NOISE_M**2)
+        state, cov = self._propagate(rows, self.state[rows], self.cov[rows], self.t[rows], ts)
+        self.t[rows] = ts
+        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = cov.T
+        s = pp + self.r[rows]
+        k0, k1, k2, k3 = pp / s, pv / s, pa / s, pb / s
+        px, py, vx, vy, ax, ay, bx, by = state.T
+        ex, ey = xy[:, 0] - px, xy[:, 1] - py
+        self.state[rows] = np.stack([px + k0 * ex, py + k0 * ey, vx + k1 * ex, vy + k1 * ey,
+                                     ax + k2 * ex, ay + k2 * ey, bx + k3 * ex, by + k3 * ey], axis=1)  # fmt: skip
+        self.cov[rows] = np.stack([pp - k0 * pp, pv - k0 * pv, pa - k0 * pa, pb - k0 * pb, vv - k1 * pv, va - k1 * pa,
+                                   vb - k1 * pb, aa - k2 * pa, ab - k2 * pb, bb - k3 * pb], axis=1)  # fmt: skip
+
+    def estimate(self, rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted positions and velocities (rows × 2) of ``rows`` at times ``t``."""
+        state, _ = self._propagate(rows, self.state[rows], None, self.t[rows], np.maximum(t, self.t[rows]))
+        return state[:, 0:2], state[:, 2:4]
+
+    def _propagate(self, rows: np.ndarray, state: np.ndarray, cov: np.ndarray | None, t0: np.ndarray,
+                   t1: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:  # fmt: skip
+        """:meth:`BallKalmanFilter._propagate <stewart_gym.sensing.BallKalmanFilter._propagate>` of ``rows``: one
+        exact step per interval of constant input, the intervals' ends being the times the commands act."""
+        state = state.copy()
+        cov = None if cov is None else cov.copy()
+        when, inputs, count = self.cmd_t[rows], self.cmd_u[rows], self.cmd_n[rows]
+        valid = np.arange(self._slots)[None, :] < count[:, None]
+        edges = valid & (when > t0[:, None]) & (when < t1[:, None])
+        now = t0.copy()
+        for j in np.flatnonzero(edges.any(axis=0)):
+            m = edges[:, j]
+            self._advance(state, cov, m, when[m, j] - now[m], self._input(when[m], inputs[m], valid[m], now[m]))
+            now[m] = when[m, j]
+        m = t1 > now
+        if m.any():
+            self._advance(state, cov, m, t1[m] - now[m], self._input(when[m], inputs[m], valid[m], now[m]))
+        return state, cov
+
+    @staticmethod
+    def _input(when: np.ndarray, inputs: np.ndarray, valid: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """(rows × 2) the input acting at ``at``: the last command acting by then (within 1 ns), else none."""
+        acting = valid & (when <= at[:, None] + 1e-9)
+        last = acting.shape[1] - 1 - np.argmax(acting[:, ::-1], axis=1)
+        return np.where(acting.any(axis=1)[:, None], inputs[np.arange(len(at)), last], 0.0)
+
+    def _advance(self, state: np.ndarray, cov: np.ndarray | None, m: np.ndarray, h: np.ndarray, u: np.ndarray) -> None:
+        """Carry ``state`` (and ``cov``) of the rows ``m`` over intervals ``h`` (s) with inputs ``u``, in place:
+        :meth:`BallKalmanFilter._discrete <stewart_gym.sensing.BallKalmanFilter._discrete>`'s closed form."""
+        tau, gain = self.spec.tilt_lag_s, self.spec.rolling_factor * GRAVITY
+        h = np.round(h, 6)  # the one-env filter's transitions are per µs of interval
+        e = np.exp(-h / tau)
+        lag = tau * (1.0 - e)
+        c = tau * h - tau * lag
+        half_h2 = 0.5 * h * h
+        gp, gv, ga = gain * (0.5 * h * h - tau * h + tau * lag), gain * (h - lag), gain * (1.0 - e)
+        ux, uy = u[:, 0], u[:, 1]
+        px, py, vx, vy, ax, ay, bx, by = state[m].T
+        state[m] = np.stack([px + h * vx + c * ax + half_h2 * bx + gp * ux, py + h * vy + c * ay + half_h2 * by + gp * uy,
+                             vx + lag * ax + h * bx + gv * ux, vy + lag * ay + h * by + gv * uy,
+                             e * ax + ga * ux, e * ay + ga * uy, bx, by], axis=1)  # fmt: skip
+        if cov is None:
+            return
+        qa, qb = self.qc_a, self.qc_b
+        q = ((h * qa * h + half_h2 * qb * half_h2) * h, (h * qa + half_h2 * qb * h) * h, half_h2 * qb * h,
+             (qa + h * qb * h) * h, h * qb * h, qb * h)  # Φ Qc Φᵀ h on Φ's entries (Qc = diag(0, qa, 0, qb))
+        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = cov[m].T
+        m00 = pp + h * pv + c * pa + half_h2 * pb
+        m01 = pv + h * vv + c * va + half_h2 * vb
+        m02 = pa + h * va + c * aa + half_h2 * ab
+        m03 = pb + h * vb + c * ab + half_h2 * bb
+        m11, m12, m13 = vv + lag * va + h * vb, va + lag * aa + h * ab, vb + lag * ab + h * bb
+        cov[m] = np.stack([m00 + h * m01 + c * m02 + half_h2 * m03 + q[0], m01 + lag * m02 + h * m03 + q[1],
+                           e * m02, m03 + q[2], m11 + lag * m12 + h * m13 + q[3], e * m12, m13 + q[4],
+                           e * e * aa, e * ab, bb + q[5]], axis=1)  # fmt: skip
+
+
+class ObserverArray:
+    """``n`` :class:`~stewart_gym.sensing.BallObserver` of one layout and estimator (default Kalman spec).
+
+    Args:
+        n: How many.
+        action_size, plate_half, estimator, integral: As :class:`~stewart_gym.sensing.BallObserver`.
+    """
+
+    def __init__(self, n: int, action_size: int, plate_half: tuple[float, float] = (0.15, 0.15),
+                 estimator: str = "lowpass", integral: bool = False, velocity_cutoff_hz: float = 8.0) -> None:  # fmt: skip
+        template = BallObserver(action_size, velocity_cutoff_hz, plate_half, estimator, integral=integral)
+        self.n, self.estimator, self.builder = int(n), estimator, template.builder
+        self.plate_half = template.plate_half
+        self.reach = np.array(self.plate_half) * (1.0 + READING_MARGIN)
+        self.integral_limit, self.integral_zone = np.array(template.integral_limit), template.integral_zone
+        self.invalid_readings = np.zeros(self.n, dtype=np.int64)
+        self.reading = np.zeros((self.n, 2))
+        self.t = np.zeros(self.n)
+        self.error_integral, self.integral_t = np.zeros((self.n, 2)), np.zeros(self.n)
+        self.kalman = KalmanArray(self.n) if estimator == "kalman" else None
+        self.tau = 1.0 / (2 * math.pi * velocity_cutoff_hz)
+        self.velocity, self.velocity_t, self.velocity_xy = np.zeros((self.n, 2)), np.zeros(self.n), np.zeros((self.n, 2))
+
+    def reset_row(self, i: int, t: float, xy: Sequence[float]) -> None:
+        """:meth:`BallObserver.reset <stewart_gym.sensing.BallObserver.reset>` of row ``i``."""
+        self.velocity_t[i], self.velocity_xy[i], self.velocity[i] = float(t), (float(xy[0]), float(xy[1])), 0.0
+        self.reading[i] = (float(xy[0]), float(xy[1]))
+        self.t[i] = float(t)
+        self.error_integral[i], self.integral_t[i] = 0.0, float(t)
+        if self.kalman is not None:
+            self.kalman.reset_row(i, t, xy)
+
+    def observe(self, rows: np.ndarray, has: np.ndarray, xy: np.ndarray, ts: np.ndarray, target_xy: np.ndarray,
+                target_velocity: np.ndarray, roll_pitch: np.ndarray, previous_action: np.ndarray,
+                now: np.ndarray) -> np.ndarray:  # fmt: skip
+        """:meth:`BallObserver.observe <stewart_gym.sensing.BallObserver.observe>` of ``rows`` (each argument with a
+        row each): ``has`` says which have a reading (``xy`` taken at ``ts``); observations (rows × size), float32."""
+        with np.errstate(invalid="ignore"):
+            valid = has & np.isfinite(xy).all(axis=1) & np.isfinite(ts) & (np.abs(xy) <= self.reach).all(axis=1)
+        self.invalid_readings[rows[has & ~valid]] += 1
+        got = rows[valid]
+        self.reading[got] = xy[valid]
+        if self.kalman is None:
+            dt = ts[valid] - self.velocity_t[got]
+            moved = dt > 0
+            r, dt = got[moved], dt[moved]
+            alpha = (dt / (dt + self.tau))[:, None]
+            sample = self.reading[r]
+            self.velocity[r] += alpha * ((sample - self.velocity_xy[r]) / dt[:, None] - self.velocity[r])
+            self.velocity_t[r], self.velocity_xy[r] = ts[valid][moved], sample
+            pos, vel = self.reading[rows], self.velocity[rows]
+        else:
+            self.kalman.command(rows, self.t[rows], roll_pitch)
+            self.kalman.update(got, np.minimum(ts[valid], now[valid]), xy[valid])
+            pos, vel = self.kalman.estimate(rows, now)
+            self.t[rows] = now
+        parts = [pos, vel, target_xy, target_velocity, roll_pitch, previous_action]
+        if self.builder.integral:
+            dt = np.maximum(0.0, now - self.integral_t[rows])
+            self.integral_t[rows] = np.maximum(now, self.integral_t[rows])
+            error = target_xy - pos
+            near = (error * error).sum(axis=1) <= self.integral_zone * self.integral_zone
+            r = rows[near]
+            self.error_integral[r] = np.clip(self.error_integral[r] + error[near] * dt[near, None],
+                                             -self.integral_limit, self.integral_limit)  # fmt: skip
+            parts.append(self.error_integral[rows])
+        return self.builder.build_many(np.concatenate(parts, axis=1))
+
+
+class ObserverRow:
+    """Row ``i`` of an :class:`ObserverArray` as one :class:`~stewart_gym.sensing.BallObserver`."""
+
+    def __init__(self, observers: ObserverArray, i: int) -> None:
+        self.observers, self.i = observers, int(i)
+        self.builder: ObservationBuilder = observers.builder
+        self.estimator, self.plate_half = observers.estimator, observers.plate_half
+
+    @property
+    def invalid_readings(self) -> int:
+        return int(self.observers.invalid_readings[self.i])
+
+    def reset(self, t: float, xy: Sequence[float]) -> None:
+        self.observers.reset_row(self.i, t, xy)
+
+    def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: Sequence[float],
+                target_velocity: Sequence[float], roll_pitch: Sequence[float], previous_action: Sequence[float],
+                now: float | None = None) -> np.ndarray:  # fmt: skip
+        o = self.observers
+        has = reading is not None
+        xy, ts = (reading[0], reading[1]) if has else ((math.nan, math.nan), math.nan)
+        if now is None:
+            now = float(ts) if has else float(o.t[self.i])
+        row = np.array([self.i])
+        return o.observe(row, np.array([has]), np.array([xy], dtype=np.float64), np.array([ts], dtype=np.float64),
+                         np.array([target_xy], dtype=np.float64), np.array([target_velocity], dtype=np.float64),
+                         np.array([roll_pitch], dtype=np.float64), np.array([previous_action], dtype=np.float64),
+                         np.array([now], dtype=np.float64))[0]  # fmt: skip

@@ -1,0 +1,122 @@
+"""The array sensing of the batched vector env against the one-env classes it stands for: the same readings, the
+same noise, the same filters, row by row."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
+from stewart_gym.sensing_arrays import ObserverArray, ObserverRow, PanelArray, PanelRow
+
+DT = 0.02
+HALF = (0.15, 0.15)
+
+
+def random_spec(rng: np.random.Generator) -> TouchPanelSpec:
+    return TouchPanelSpec(noise_mm=float(rng.uniform(0.0, 3.0)), rate_hz=float(rng.choice([50.0, 100.0, 200.0])),
+                          latency_s=float(rng.uniform(0.0, 0.12)))  # fmt: skip
+
+
+def test_the_panel_rows_read_as_single_panels_through_resets_and_lifts() -> None:
+    """Each row reports what a :class:`SimulatedTouchPanel` with the same spec, positions and generator reports,
+    sample for sample, noise included; a row reset mid-way with a new spec (a longer latency than the history
+    kept) goes on matching."""
+    n, steps = 5, 240
+    rng = np.random.default_rng(3)
+    panels = PanelArray(n, DT)
+    singles = [SimulatedTouchPanel(TouchPanelSpec()) for _ in range(n)]
+    rows = [PanelRow(panels, i) for i in range(n)]
+
+    def reset(i: int, t: float) -> None:
+        spec, xy, seed = random_spec(rng), rng.uniform(-0.1, 0.1, 2), int(rng.integers(1 << 30))
+        singles[i].spec = rows[i].spec = spec
+        singles[i].reset(t, xy, np.random.default_rng(seed))
+        rows[i].reset(t, xy, np.random.default_rng(seed))
+
+    for i in range(n):
+        reset(i, 0.0)
+    start = np.zeros(n)
+    compared = touching_seen = 0
+    for k in range(1, steps):
+        t_global = k * DT
+        if k == 120:
+            start[2] = t_global
+            reset(2, 0.0)
+            panels.set_spec(2, TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.9))  # needs more history
+            singles[2].spec = panels.specs[2]
+        t = t_global - start
+        xy = np.stack([0.1 * np.sin(t + np.arange(n)), 0.1 * np.cos(1.3 * t)], axis=1)
+        touching = (k // 17 + np.arange(n)) % 5 != 0  # each row lifts now and then
+        panels.record(t, xy, touching)
+        for i in range(n):
+            singles[i].record(float(t[i]), xy[i], bool(touching[i]))
+        got, ts, on = panels.read(t)
+        for i in range(n):
+            want = singles[i].read(float(t[i]))
+            assert on[i] == (want is not None)
+            if want is not None:
+                touching_seen += 1
+                np.testing.assert_allclose(got[i], want[0], rtol=0, atol=1e-15)
+                assert ts[i] == pytest.approx(want[1], abs=1e-15)
+            compared += 1
+        one = rows[4].read(float(t[4]))  # a row read alone gives the same again
+        want = singles[4].read(float(t[4]))
+        assert one == want
+    assert touching_seen > compared // 2
+
+
+@pytest.mark.parametrize("estimator", ["lowpass", "kalman"])
+@pytest.mark.parametrize("integral", [False, True])
+def test_the_observer_rows_observe_as_single_observers(estimator: str, integral: bool) -> None:
+    """Each row's observations equal a :class:`BallObserver`'s fed the same readings (late, missing, invalid:
+    NaN or off the plate), targets, tilts and actions, to float32 rounding; so do its estimates."""
+    n, steps = 6, 300
+    rng = np.random.default_rng(7)
+    observers = ObserverArray(n, 2, HALF, estimator, integral)
+    singles = [BallObserver(2, plate_half=HALF, estimator=estimator, integral=integral) for _ in range(n)]
+    start = rng.uniform(-0.05, 0.05, (n, 2))
+    for i in range(n):
+        observers.reset_row(i, 0.0, start[i])
+        singles[i].reset(0.0, start[i])
+    latency = rng.uniform(0.005, 0.05, n)
+    for k in range(steps):  # the first at the reset's time, as an env's reset observes
+        now = np.full(n, k * DT)
+        ts = np.floor((now - latency) * 100.0) / 100.0
+        xy = np.stack([0.08 * np.sin(0.7 * ts + np.arange(n)), 0.08 * np.cos(0.9 * ts)], axis=1)
+        xy += rng.normal(0.0, 0.001, (n, 2))
+        has = rng.random(n) > 0.1
+        xy[rng.random(n) < 0.03] = np.nan
+        xy[rng.random(n) < 0.03] = 0.3  # off the plate: no reading
+        target = np.stack([0.02 * np.sin(now), np.zeros(n)], axis=1)
+        target_velocity = np.stack([0.02 * np.cos(now), np.zeros(n)], axis=1)
+        tilt = rng.uniform(-0.17, 0.17, (n, 2))
+        action = rng.uniform(-1, 1, (n, 2))
+        got = observers.observe(np.arange(n), has, xy, ts, target, target_velocity, tilt, action, now)
+        for i in range(n):
+            reading = ((float(xy[i, 0]), float(xy[i, 1])), float(ts[i])) if has[i] else None
+            want = singles[i].observe(reading, target[i], target_velocity[i], tilt[i], action[i], now=float(now[i]))
+            np.testing.assert_allclose(got[i], want, rtol=1e-5, atol=1e-6)
+    for i in range(n):
+        assert observers.invalid_readings[i] == singles[i].invalid_readings > 0
+        if estimator == "kalman":
+            np.testing.assert_allclose(observers.kalman.state[i], singles[i].kalman.x.ravel(), rtol=1e-9, atol=1e-12)
+            assert observers.kalman.variance[i] == pytest.approx(singles[i].kalman.noise.variance, rel=1e-9)
+    row = ObserverRow(observers, 1)
+    assert row.builder is observers.builder and row.invalid_readings == singles[1].invalid_readings
+
+
+def test_a_row_observes_without_a_time_as_a_single_observer_does() -> None:
+    """``now`` left out: the reading's time, or the last observation's when there is no reading."""
+    observers = ObserverArray(1, 2, HALF, "kalman")
+    single = BallObserver(2, plate_half=HALF, estimator="kalman")
+    row = ObserverRow(observers, 0)
+    row.reset(0.0, (0.01, 0.0))
+    single.reset(0.0, (0.01, 0.0))
+    for reading in (((0.012, 0.001), 0.02), None, ((0.015, 0.002), 0.06)):
+        want = single.observe(reading, (0.0, 0.0), (0.0, 0.0), (0.01, -0.02), (0.1, 0.2))
+        np.testing.assert_allclose(row.observe(reading, (0.0, 0.0), (0.0, 0.0), (0.01, -0.02), (0.1, 0.2)), want,
+                                   rtol=1e-6, atol=1e-7)  # fmt: skip
+    assert math.isclose(float(observers.t[0]), single.t)
