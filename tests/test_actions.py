@@ -86,3 +86,23 @@ def test_the_ray_search_ends_on_the_edge_of_the_feasible(action: list[float]) ->
     if mapped.scaled:
         farther = (mapped.scale + 1 / 4096) * mapper.pose(np.array(action))
         assert servo_pulses_one(mapper.geometry, mapper.calibration, farther.tolist()) is None
+
+
+@pytest.mark.parametrize("mode", ["tilt", "pose", "pulse"])
+def test_mapping_many_actions_at_once_maps_each_as_alone(mode: str) -> None:
+    """``map_many`` gives, row by row, what one call per action gives: the same pose, scale and clipped action,
+    pulses equal to rounding, unreachable poses (pose mode at the corners) scaled back the same way."""
+    mapper = ActionMapper("servo-hexapod", mode=mode)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(-1.3, 1.3, (200, mapper.size))
+    many = mapper.map_many(actions)
+    assert len(many) == len(actions)
+    for got, action in zip(many, actions):
+        want = mapper(action)
+        np.testing.assert_allclose(got.pulses, want.pulses, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(got.pose, want.pose)
+        assert (got.scaled, got.scale, got.action) == (want.scaled, want.scale, want.action)
+    if mode == "pose":
+        assert sum(m.scaled for m in many) > 10
+    with pytest.raises(ValueError, match="finite"):
+        mapper.map_many(np.where(np.arange(mapper.size) == 1, np.nan, 0.0)[None, :])

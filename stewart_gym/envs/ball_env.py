@@ -425,11 +425,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         """The part of :meth:`step` after the physics: sense, observe, reward, and the episode's end."""
         sim, task = self.sim, self.task
-        self._pulses = mapped.pulses
-        self._scaled = mapped.scaled
-        self._unreachable += mapped.scaled
-        if self.action_mode != "pulse":
-            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
+        rate, roll_pitch = self.apply_action(mapped)
         t = sim.time
         x, y, z = sim.ball_position()
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
@@ -438,19 +434,35 @@ class StewartBallEnv(gym.Env, EzPickle):
             return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
         on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
         self.sensor_model.record(t, (x, y), touching)
+        target_xy, target_vel = task.target(t)
+        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, roll_pitch, mapped.action, now=t)
+        return self.conclude_step(x, y, on_plate, target_xy, obs, rate)
+
+    def apply_action(self, mapped: Any) -> tuple[float, tuple[float, float]]:
+        """Take ``mapped`` (:class:`~stewart_gym.actions.MappedAction`) as this step's action: its pulses, its
+        tilt and the action itself. Returns the action rate (the mean squared change from the last action) and
+        the commanded (roll, pitch) now in force. A part of :meth:`end_step`."""
+        self._pulses = mapped.pulses
+        self._scaled = mapped.scaled
+        self._unreachable += mapped.scaled
+        if self.action_mode != "pulse":
+            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
         a = mapped.action
         rate = 0.0
         for v, p in zip(a, self._prev_action):
             rate += (v - p) * (v - p)
-        rate /= len(a)
         self._prev_action = a
-        target_xy, target_vel = task.target(t)
-        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch, a, now=t)
+        return rate / len(a), self._roll_pitch
+
+    def conclude_step(self, x: float, y: float, on_plate: bool, target_xy: tuple[float, float], obs: np.ndarray,
+                      rate: float) -> tuple[np.ndarray, float, bool, bool, dict]:  # fmt: skip
+        """The step's outcome, from the ball at (``x``, ``y``) m (``on_plate`` or not), the target, the observation
+        and the action rate: (observation, reward, terminated, truncated, info). A part of :meth:`end_step`."""
         self._last_obs = obs
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
-        reward = task.reward(dist, rate, terminated)
+        reward = self.task.reward(dist, rate, terminated)
         info = self._info(np.array([x, y]), target_xy, dist)
         info["is_success"] = np.bool_(on_plate and self._inside >= self.success_steps)
         self._steps += 1
@@ -542,32 +554,14 @@ def end_steps(envs: Sequence[StewartBallEnv], mapped: Sequence[Any], sim: Any, p
     targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
     roll_pitch, actions, rates = np.empty((n, 2)), np.empty((n, first.mapper.size)), np.empty(n)
     for i, (env, m) in enumerate(zip(envs, mapped)):
-        env._pulses = m.pulses
-        env._scaled = m.scaled
-        env._unreachable += m.scaled
-        if env.action_mode != "pulse":
-            env._roll_pitch = (m.pose.item(3), m.pose.item(4))
-        a = m.action
-        rate = 0.0
-        for v, p in zip(a, env._prev_action):
-            rate += (v - p) * (v - p)
-        rates[i] = rate / len(a)
-        env._prev_action = a
+        rates[i], roll_pitch[i] = env.apply_action(m)
+        actions[i] = m.action
         targets[i], target_velocities[i] = env.task.target(float(t[i]))
-        roll_pitch[i], actions[i] = env._roll_pitch, a
     reading, sample_t, has = panels.read(t)
     obs = observers.observe(np.arange(n), has, reading, sample_t, targets, target_velocities, roll_pitch, actions, t)
-    out = []
-    for i, (env, (x, y), (tx, ty)) in enumerate(zip(envs, xy.tolist(), targets.tolist())):
-        on, dist = bool(on_plate[i]), math.hypot(x - tx, y - ty)
-        env._last_obs = obs[i]
-        env._inside = env._inside + 1 if (on and dist <= env.success_radius) else 0
-        reward = env.task.reward(dist, float(rates[i]), not on)
-        info = env._info(np.array([x, y]), (tx, ty), dist)
-        info["is_success"] = np.bool_(on and env._inside >= env.success_steps)
-        env._steps += 1
-        out.append((obs[i], reward, not on, on and env._steps >= env.episode_steps, info))
-    return out
+    return [env.conclude_step(x, y, on, target, o, rate)
+            for env, (x, y), on, target, o, rate in zip(envs, xy.tolist(), on_plate.tolist(), targets.tolist(), obs,
+                                                       rates.tolist())]  # fmt: skip
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:
