@@ -2,9 +2,9 @@
 
 * simulators (one control step of one platform with its ball): one PyBullet simulator, one MuJoCo simulator,
   and the batched NumPy simulator at N = 1, 64, 1,024 and 4,096;
-* envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random actions): one PyBullet env
-  (``gym.make``) and the batched vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at
-  N = 64, 256 and 1,024.
+* envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random tilt actions of ±0.3, an
+  episode reset when it ends): one PyBullet, one MuJoCo and one batched env (``gym.make``), and the batched
+  vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096.
 
 Run: ``.venv/bin/python bench/bench_batched.py [--json]``. Each figure is the best of three timed runs; the
 ratio column is against the PyBullet simulator, or the PyBullet env, of the same run.
@@ -77,28 +77,30 @@ def main() -> None:
 
 
 def env_rates() -> dict[str, float]:
-    """Env steps per second: one PyBullet env, and the batched vector env at a few sizes."""
+    """Env steps per second: one PyBullet env, one MuJoCo env, one batched env, and the batched vector env at a
+    few sizes; random tilt actions (±0.3), each episode reset when it ends."""
     import gymnasium as gym
 
     import stewart_gym  # noqa: F401
 
     kwargs = {"randomize": True, "estimator": "kalman"}
     out: dict[str, float] = {}
-    env = gym.make("StewartBallBalance-v0", backend="pybullet", **kwargs)
-    env.reset(seed=0)
-    actions = np.random.default_rng(0).uniform(-1, 1, (1000, 2)).astype(np.float32)
+    actions = np.random.default_rng(0).uniform(-0.3, 0.3, (1000, 2)).astype(np.float32)
+    for backend in ("pybullet", "mujoco", "batched"):
+        env = gym.make("StewartBallBalance-v0", backend=backend, **kwargs)
+        env.reset(seed=0)
 
-    def single(i: int) -> None:
-        _, _, terminated, truncated, _ = env.step(actions[i % 1000])
-        if terminated or truncated:
-            env.reset()
+        def single(i: int, env=env) -> None:
+            _, _, terminated, truncated, _ = env.step(actions[i % 1000])
+            if terminated or truncated:
+                env.reset()
 
-    out["pybullet, one env"] = rate(single, 1)
-    env.close()
-    for n in (64, 256, 1024):
+        out[f"{backend}, one env"] = rate(single, 1)
+        env.close()
+    for n in (64, 1024, 4096):
         vector = gym.make_vec("StewartBallBalance-v0", num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
         vector.reset(seed=0)
-        batch = np.random.default_rng(1).uniform(-1, 1, (8, n, 2)).astype(np.float32)
+        batch = np.random.default_rng(1).uniform(-0.3, 0.3, (8, n, 2)).astype(np.float32)
         out[f"batched vector env, N = {n:,}"] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
         vector.close()
     return out

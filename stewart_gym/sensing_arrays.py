@@ -280,13 +280,11 @@ class KalmanArray:
         valid = np.arange(self._slots)[None, :] < count[:, None]
         edges = valid & (when > t0[:, None]) & (when < t1[:, None])
         now = t0.copy()
-        for j in np.flatnonzero(edges.any(axis=0)):
+        for j in np.flatnonzero(edges.any(axis=0)):  # a row without an edge here stays put: an interval of 0
             m = edges[:, j]
-            self._advance(state, cov, m, when[m, j] - now[m], self._input(when[m], inputs[m], valid[m], now[m]))
-            now[m] = when[m, j]
-        m = t1 > now
-        if m.any():
-            self._advance(state, cov, m, t1[m] - now[m], self._input(when[m], inputs[m], valid[m], now[m]))
+            self._advance(state, cov, np.where(m, when[:, j] - now, 0.0), self._input(when, inputs, valid, now))
+            now = np.where(m, when[:, j], now)
+        self._advance(state, cov, np.maximum(t1 - now, 0.0), self._input(when, inputs, valid, now))
         return state, cov
 
     @staticmethod
@@ -296,9 +294,10 @@ class KalmanArray:
         last = acting.shape[1] - 1 - np.argmax(acting[:, ::-1], axis=1)
         return np.where(acting.any(axis=1)[:, None], inputs[np.arange(len(at)), last], 0.0)
 
-    def _advance(self, state: np.ndarray, cov: np.ndarray | None, m: np.ndarray, h: np.ndarray, u: np.ndarray) -> None:
-        """Carry ``state`` (and ``cov``) of the rows ``m`` over intervals ``h`` (s) with inputs ``u``, in place:
-        :meth:`BallKalmanFilter._discrete <stewart_gym.sensing.BallKalmanFilter._discrete>`'s closed form."""
+    def _advance(self, state: np.ndarray, cov: np.ndarray | None, h: np.ndarray, u: np.ndarray) -> None:
+        """Carry ``state`` (and ``cov``) over intervals ``h`` (s, one per row) with inputs ``u``, in place:
+        :meth:`BallKalmanFilter._discrete <stewart_gym.sensing.BallKalmanFilter._discrete>`'s closed form. An
+        interval of 0 leaves a row exactly as it is."""
         tau, gain = self.spec.tilt_lag_s, self.spec.rolling_factor * GRAVITY
         h = np.round(h, 6)  # the one-env filter's transitions are per µs of interval
         e = np.exp(-h / tau)
@@ -307,8 +306,8 @@ class KalmanArray:
         half_h2 = 0.5 * h * h
         gp, gv, ga = gain * (0.5 * h * h - tau * h + tau * lag), gain * (h - lag), gain * (1.0 - e)
         ux, uy = u[:, 0], u[:, 1]
-        px, py, vx, vy, ax, ay, bx, by = state[m].T
-        state[m] = np.stack([px + h * vx + c * ax + half_h2 * bx + gp * ux, py + h * vy + c * ay + half_h2 * by + gp * uy,
+        px, py, vx, vy, ax, ay, bx, by = state.T
+        state[:] = np.stack([px + h * vx + c * ax + half_h2 * bx + gp * ux, py + h * vy + c * ay + half_h2 * by + gp * uy,
                              vx + lag * ax + h * bx + gv * ux, vy + lag * ay + h * by + gv * uy,
                              e * ax + ga * ux, e * ay + ga * uy, bx, by], axis=1)  # fmt: skip
         if cov is None:
@@ -316,13 +315,13 @@ class KalmanArray:
         qa, qb = self.qc_a, self.qc_b
         q = ((h * qa * h + half_h2 * qb * half_h2) * h, (h * qa + half_h2 * qb * h) * h, half_h2 * qb * h,
              (qa + h * qb * h) * h, h * qb * h, qb * h)  # Φ Qc Φᵀ h on Φ's entries (Qc = diag(0, qa, 0, qb))
-        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = cov[m].T
+        pp, pv, pa, pb, vv, va, vb, aa, ab, bb = cov.T
         m00 = pp + h * pv + c * pa + half_h2 * pb
         m01 = pv + h * vv + c * va + half_h2 * vb
         m02 = pa + h * va + c * aa + half_h2 * ab
         m03 = pb + h * vb + c * ab + half_h2 * bb
         m11, m12, m13 = vv + lag * va + h * vb, va + lag * aa + h * ab, vb + lag * ab + h * bb
-        cov[m] = np.stack([m00 + h * m01 + c * m02 + half_h2 * m03 + q[0], m01 + lag * m02 + h * m03 + q[1],
+        cov[:] = np.stack([m00 + h * m01 + c * m02 + half_h2 * m03 + q[0], m01 + lag * m02 + h * m03 + q[1],
                            e * m02, m03 + q[2], m11 + lag * m12 + h * m13 + q[3], e * m12, m13 + q[4],
                            e * e * aa, e * ab, bb + q[5]], axis=1)  # fmt: skip
 

@@ -4,6 +4,8 @@ mixes each copy's action as :class:`~stewart_gym.sb3_models.ResidualAction` does
 
 from __future__ import annotations
 
+import math
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -124,3 +126,20 @@ def test_a_residual_copy_moves_as_the_residual_wrapper() -> None:
         obs, _, _, _ = venv.step_wait()
         o, *_ = single.step(a)
         np.testing.assert_array_equal(obs[0], o)
+
+
+def test_a_copy_whose_physics_blows_up_ends_alone() -> None:
+    """A copy whose ball goes non-finite ends with ``physics_error`` (each copy then takes its own end of step);
+    the other copies step on exactly as single envs."""
+    vector = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point", **KWARGS)
+    single = gym.make("StewartBallBalance-v0", backend="batched", **KWARGS)
+    vector.reset(seed=4)
+    single.reset(seed=4)
+    action = np.array([0.1, -0.2], dtype=np.float32)
+    vector.unwrapped.envs[1].sim.place_ball((math.nan, 0.0))
+    obs, _, terminated, _, info = vector.step(np.stack([action, action]))
+    o, _, te, _, _ = single.step(action)
+    assert terminated[1] and info["final_info"]["physics_error"][1] and not te and not terminated[0]
+    np.testing.assert_array_equal(obs[0], o)
+    assert np.isfinite(obs).all()  # the ended copy was reset
+    vector.close()
