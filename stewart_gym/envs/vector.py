@@ -3,9 +3,12 @@
 
 ``gym.make_vec("StewartBallBalance-v0", num_envs=1024, vectorization_mode="vector_entry_point")`` returns it.
 Each copy is the same :class:`~stewart_gym.envs.ball_env.StewartBallEnv` as ``gym.make`` gives, with its task,
-sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.batched.BatchedPlatform`: every
-step, each copy maps its action and sends its pulses, the shared simulator advances every platform at once, and
-each copy senses and scores its own. An episode that ends is reset in the same step (Gymnasium's
+sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.batched.BatchedPlatform`, and
+steps exactly as that env would alone. Every step, the shared simulator advances every platform at once. With the
+touch panel (the default), the copies' actions are mapped in one IK pass, and their panels and observers are rows
+of :class:`~stewart_gym.sensing_arrays.PanelArray` and :class:`~stewart_gym.sensing_arrays.ObserverArray`, advanced
+together (:func:`~stewart_gym.envs.ball_env.end_steps`); each copy still scores its own step with its task. With a
+camera, each copy maps, senses and observes on its own. An episode that ends is reset in the same step (Gymnasium's
 ``AutoresetMode.SAME_STEP``): ``info["final_obs"]`` and ``info["final_info"]`` hold its last observation and info.
 """
 
@@ -129,7 +132,7 @@ class StewartBallVectorEnv(VectorEnv):
         truncations = np.zeros(self.num_envs, dtype=bool)
         infos: list[dict[str, Any]] = []
         finals: dict[int, tuple[np.ndarray, dict]] = {}
-        if self.panels is not None and self.observers is not None:
+        if self.panels is not None and self.observers is not None:  # set together
             ended = end_steps(self.envs, mapped, self.sim, self.panels, self.observers)
         else:
             ended = [env.end_step(m) for env, m in zip(self.envs, mapped)]
