@@ -331,7 +331,11 @@ class ObserverArray:
 
     Args:
         n: How many.
-        action_size, plate_half, estimator, integral: As :class:`~stewart_gym.sensing.BallObserver`.
+        action_size: 2 ("tilt") or 6, as :class:`~stewart_gym.sensing.BallObserver`.
+        plate_half: (h_x, h_y) m, half the plate's width and depth.
+        estimator: ``"lowpass"`` or ``"kalman"``.
+        integral: Append the error integral.
+        velocity_cutoff_hz: The low-pass estimator's cut-off.
     """
 
     def __init__(self, n: int, action_size: int, plate_half: tuple[float, float] = (0.15, 0.15),
