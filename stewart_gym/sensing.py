@@ -603,7 +603,6 @@ class ObservationBuilder:
         return np.array([hi if (v := x * k) > hi else -hi if v < -hi else v
                          for x, k, hi in zip(raw, self._scales, self._highs)], dtype=np.float32)  # fmt: skip
 
-
     def build_many(self, raw: np.ndarray) -> np.ndarray:
         """:meth:`build` of many observations at once from their parts laid end to end (rows × size, in the
         layout's order, unscaled): scaled and clipped, (rows × size) float32."""

@@ -22,6 +22,7 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sensing_arrays import ObserverArray, PanelArray
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
+from stewart_gym.sim.batched import BatchedSim
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 from stewart_gym.sim.twin import Twin, load_twin
@@ -534,7 +535,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         }
 
 
-def end_steps(envs: Sequence[StewartBallEnv], mapped: Sequence[Any], sim: Any, panels: PanelArray,
+def end_steps(envs: Sequence[StewartBallEnv], mapped: Sequence[Any], sim: BatchedSim, panels: PanelArray,
               observers: ObserverArray) -> list[tuple[np.ndarray, float, bool, bool, dict]]:  # fmt: skip
     """:meth:`StewartBallEnv.end_step` of every env of a batched vector env at once: env ``i`` on platform ``i`` of
     the batched simulator ``sim``, with row ``i`` of ``panels`` and ``observers`` as its sensor and observer
