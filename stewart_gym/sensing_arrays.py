@@ -27,7 +27,7 @@ from stewart_gym.sensing import (
     BallObserver,
     KalmanSpec,
     ObservationBuilder,
-    ReadingNoise,  # fmt: skip
+    ReadingNoise,
     TouchPanelSpec,
 )
 
