@@ -31,7 +31,7 @@ from stewart_gym.constants import GRAVITY
 
 __all__ = ["ESTIMATORS", "BallKalmanFilter", "BallObserver", "BallSensor", "KalmanSpec", "ObservationBuilder", "Reading",
            "SimulatedSensor", "SimulatedTouchPanel", "TouchPanelSpec", "VelocityEstimator", "ball_contact",
-           "observation_table", "READING_MARGIN", "reading_is_valid"]  # fmt: skip
+           "observation_table", "READING_MARGIN", "reading_is_valid", "readings_are_valid"]  # fmt: skip
 
 #: How the observer estimates the ball's state from the readings (:class:`BallObserver`).
 ESTIMATORS = ("lowpass", "kalman")
@@ -59,6 +59,13 @@ def reading_is_valid(reading: Reading, plate_half: Sequence[float]) -> bool:
         return False
     reach = 1.0 + READING_MARGIN
     return abs(x) <= plate_half[0] * reach and abs(y) <= plate_half[1] * reach
+
+
+def readings_are_valid(xy: np.ndarray, ts: np.ndarray, plate_half: Sequence[float]) -> np.ndarray:
+    """:func:`reading_is_valid` of many readings at once: ``xy`` (rows × 2) m taken at ``ts`` (rows) s; (rows) bool."""
+    reach = np.array([plate_half[0], plate_half[1]], dtype=np.float64) * (1.0 + READING_MARGIN)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(xy).all(axis=1) & np.isfinite(ts) & (np.abs(xy) <= reach).all(axis=1)
 
 
 @runtime_checkable
@@ -550,6 +557,7 @@ class ObservationBuilder:
         high_arr = np.array(high, dtype=np.float32)
         self.low, self.high = -high_arr, high_arr
         self._scales, self._highs = [1.0 / k for k in scales], [float(v) for v in high_arr]
+        self._scale_array, self._high_array = np.array(self._scales), np.array(self._highs)
 
     @property
     def space(self) -> Any:
@@ -606,8 +614,8 @@ class ObservationBuilder:
     def build_many(self, raw: np.ndarray) -> np.ndarray:
         """:meth:`build` of many observations at once from their parts laid end to end (rows × size, in the
         layout's order, unscaled): scaled and clipped, (rows × size) float32."""
-        scales, highs = np.array(self._scales), np.array(self._highs)
-        return np.clip(np.asarray(raw, dtype=np.float64) * scales, -highs, highs).astype(np.float32)
+        highs = self._high_array
+        return np.clip(np.asarray(raw, dtype=np.float64) * self._scale_array, -highs, highs).astype(np.float32)
 
 
 class BallObserver:

@@ -22,13 +22,13 @@ import numpy as np
 
 from stewart_gym.constants import GRAVITY
 from stewart_gym.sensing import (
-    READING_MARGIN,
     BallKalmanFilter,
     BallObserver,
     KalmanSpec,
     ObservationBuilder,
     ReadingNoise,
     TouchPanelSpec,
+    readings_are_valid,
 )
 
 __all__ = ["ObserverArray", "ObserverRow", "PanelArray", "PanelRow"]
@@ -343,7 +343,6 @@ class ObserverArray:
         template = BallObserver(action_size, velocity_cutoff_hz, plate_half, estimator, integral=integral)
         self.n, self.estimator, self.builder = int(n), estimator, template.builder
         self.plate_half = template.plate_half
-        self.reach = np.array(self.plate_half) * (1.0 + READING_MARGIN)
         self.integral_limit, self.integral_zone = np.array(template.integral_limit), template.integral_zone
         self.invalid_readings = np.zeros(self.n, dtype=np.int64)
         self.reading = np.zeros((self.n, 2))
@@ -367,8 +366,7 @@ class ObserverArray:
                 now: np.ndarray) -> np.ndarray:  # fmt: skip
         """:meth:`BallObserver.observe <stewart_gym.sensing.BallObserver.observe>` of ``rows`` (each argument with a
         row each): ``has`` says which have a reading (``xy`` taken at ``ts``); observations (rows × size), float32."""
-        with np.errstate(invalid="ignore"):
-            valid = has & np.isfinite(xy).all(axis=1) & np.isfinite(ts) & (np.abs(xy) <= self.reach).all(axis=1)
+        valid = has & readings_are_valid(xy, ts, self.plate_half)
         self.invalid_readings[rows[has & ~valid]] += 1
         got = rows[valid]
         self.reading[got] = xy[valid]

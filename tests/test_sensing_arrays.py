@@ -120,3 +120,16 @@ def test_a_row_observes_without_a_time_as_a_single_observer_does() -> None:
         np.testing.assert_allclose(row.observe(reading, (0.0, 0.0), (0.0, 0.0), (0.01, -0.02), (0.1, 0.2)), want,
                                    rtol=1e-6, atol=1e-7)  # fmt: skip
     assert math.isclose(float(observers.t[0]), single.t)
+
+
+def test_readings_are_judged_valid_as_one_by_one() -> None:
+    """The array rule and :func:`reading_is_valid` agree: NaN, infinite, off the plate (past the margin) or not."""
+    from stewart_gym.sensing import reading_is_valid, readings_are_valid
+
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-0.2, 0.2, (400, 2))
+    ts = rng.uniform(0.0, 1.0, 400)
+    xy[::17, 0], xy[::23, 1], ts[::29] = np.nan, np.inf, np.nan
+    got = readings_are_valid(xy, ts, HALF)
+    want = [reading_is_valid(((x, y), t), HALF) for (x, y), t in zip(xy.tolist(), ts.tolist())]
+    assert got.tolist() == want and 0 < sum(want) < len(want)
