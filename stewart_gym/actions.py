@@ -112,7 +112,24 @@ class ActionMapper:
         self.pose_scale = np.asarray(pose_scale, dtype=np.float64).reshape(6)
         self._pose_scale = self.pose_scale.tolist()
         self.size = ACTION_SIZES[mode]
+        self._offset: list[float] | None = None
         self._ray_ends: dict[tuple[float, ...], tuple[float, list[float]]] = {}  # unreachable pose → (scale, pulses)
+
+    @property
+    def offset(self) -> np.ndarray:
+        """(6,) m, rad: the pose added to every commanded pose ("tilt" and "pose" modes); zeros unless set."""
+        return np.zeros(6) if self._offset is None else np.array(self._offset)
+
+    def set_offset(self, pose: np.ndarray | None) -> None:
+        """Add ``pose`` (6,) (x, y, z, roll, pitch, yaw; m, rad) to every commanded pose from now on; None: none.
+        ``identify`` moves the plate's height and yaw this way while its controller tilts the plate."""
+        if pose is None:
+            self._offset = None
+            return
+        values = [float(v) for v in np.asarray(pose, dtype=np.float64).reshape(6)]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"the pose offset must be finite, got {values}")
+        self._offset = values if any(values) else None
 
     def pose(self, action: np.ndarray) -> np.ndarray:
         """The commanded pose (6,) for an action ("tilt" or "pose" mode); actions are clipped to [-1, 1]."""
@@ -123,8 +140,10 @@ class ActionMapper:
     def _pose_list(self, clipped: list[float]) -> list[float]:
         """:meth:`pose` of a clipped "tilt" or "pose" action, in and out as Python floats."""
         if self.mode == "tilt":
-            return [0.0, 0.0, 0.0, clipped[0] * self.max_tilt, clipped[1] * self.max_tilt, 0.0]
-        return [v * k for v, k in zip(clipped, self._pose_scale)]
+            pose = [0.0, 0.0, 0.0, clipped[0] * self.max_tilt, clipped[1] * self.max_tilt, 0.0]
+        else:
+            pose = [v * k for v, k in zip(clipped, self._pose_scale)]
+        return pose if self._offset is None else [p + o for p, o in zip(pose, self._offset)]
 
     def reachable_pose(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """(pose, pulses, scale): ``pose`` if feasible, else the farthest feasible point on the ray from home.
@@ -212,6 +231,8 @@ class ActionMapper:
             poses[:, 3:5] = clipped * self.max_tilt
         else:
             poses = clipped * self.pose_scale
+        if self._offset is not None:
+            poses = poses + self._offset
         ik = inverse_kinematics(self.geometry, poses)
         pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
         feasible = (ik.reachable & np.isfinite(pulses).all(axis=1)).tolist()

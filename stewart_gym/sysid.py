@@ -49,7 +49,8 @@ import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
-from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
+from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS
+from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, TrimFit, fit_trims
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
@@ -101,6 +102,8 @@ class FlightLog:
         rate_hz: the loop's rate.
         dated_at_ticks: whether the readings are dated at the tick that read them (most of them at a tick's
             time) rather than when they arrived between ticks.
+        plate: with a camera (the log's plate columns), each distinct frame's time and plate pose
+            (:class:`~stewart_gym.plate_trims.PlateLog`); None without.
     """
 
     path: str
@@ -111,6 +114,7 @@ class FlightLog:
     reading_xy: np.ndarray
     rate_hz: float
     dated_at_ticks: bool = False
+    plate: PlateLog | None = None
 
     @property
     def read_overhead_s(self) -> float:
@@ -170,8 +174,19 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
         raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks and {len(readings)} readings on the plate; a fit "
                           "needs at least 5 s with the ball on the plate (identify runs 60 s)")  # fmt: skip
     at_tick = np.abs(readings[:, 2] - t[np.clip(np.searchsorted(t, readings[:, 2]), 0, len(t) - 1)]) < 2e-4
+    plate = None
+    if all(c in col for c in LOG_PLATE_COLUMNS):
+        try:
+            seen = np.array([[float(r[col[c]]) if r[col[c]] != "" else math.nan for c in LOG_PLATE_COLUMNS]
+                             for r in body])  # fmt: skip
+        except (ValueError, IndexError) as exc:
+            raise ConfigError(f"{path}: a plate pose is not a number ({exc}); the file may be cut or edited") from None
+        seen = seen[np.all(np.isfinite(seen), axis=1)]
+        _, first = np.unique(seen[:, :6], axis=0, return_index=True)  # a frame read at several ticks: once
+        seen = seen[np.sort(first)]
+        plate = PlateLog(t, pulses, seen[:, 6], seen[:, :6])
     return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate,
-                     dated_at_ticks=bool(np.mean(at_tick) > 0.5))  # fmt: skip
+                     dated_at_ticks=bool(np.mean(at_tick) > 0.5), plate=plate)  # fmt: skip
 
 
 @dataclass
@@ -187,6 +202,8 @@ class FitResult:
         fit_windows, heldout_windows: how many windows each part had.
         notes: ``"table.key"`` → why it is undetermined (or what bounds it).
         examples: a few held-out windows' paths for the report's figure: (t, logged, nominal, fitted).
+        trim_fit: each servo's trim from the camera's plate poses (:mod:`stewart_gym.plate_trims`); None where the
+            logs hold no plate poses (the trims are then the smallest that make the tilt offset).
     """
 
     twin: Twin
@@ -198,6 +215,7 @@ class FitResult:
     heldout_windows: int
     notes: dict[str, str] = field(default_factory=dict)
     examples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
+    trim_fit: TrimFit | None = None
 
     def lines(self) -> list[str]:
         """The fit as text: each value with its uncertainty, then what could not be determined."""
@@ -210,7 +228,12 @@ class FitResult:
                f"  dead band      {tw['servos.deadband_us']:6.1f} µs ± {s.get('servos.deadband_us', 0):.1f}",
                f"  panel noise    {tw['sensor.noise_mm']:6.2f} mm ± {s.get('sensor.noise_mm', 0):.2f}",
                f"  tilt offset    ball acceleration ({self.tilt_accel[0] * 1e3:+.0f}, {self.tilt_accel[1] * 1e3:+.0f}) "
-               f"mm/s²: trims {', '.join(f'{v:+.0f}' for v in tw['servos.trim_us'])} µs"]  # fmt: skip
+               f"mm/s²" + ("" if self.trim_fit else f": trims {', '.join(f'{v:+.0f}' for v in tw['servos.trim_us'])} µs")]
+        if self.trim_fit is not None:
+            f = self.trim_fit
+            out.append(f"  servo trims    {', '.join(f'{v:+.1f}' for v in f.trims_us)} µs ± "
+                       f"{', '.join(f'{v:.1f}' for v in f.sigma_us)} (from {f.frames} camera frames of the plate; "
+                       f"residual {f.rms_m * 1e3:.2f} mm RMS)")  # fmt: skip
         for h, row in self.prediction.items():
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
                        f"{row['fitted']:.2f} mm ({row['nominal'] / max(row['fitted'], 1e-9):.1f}× better)")
@@ -493,7 +516,8 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     notes = {"sensor.latency_ms": "the ball shows the total latency only: the sensor keeps its value and the servos "
                                   "take the rest",
              "servos.trim_us": "the panel sees only the tilt the trims make together: these are the smallest trims "
-                               "that make it (a camera on the plate's markers would see each)"}  # fmt: skip
+                               "that make it (identify --sensor camera logs the plate's pose, which shows "
+                               "each)"}  # fmt: skip
     undetermined = ["sensor.latency_ms", "servos.trim_us"]
     for name, grid, value, sd in (("servos.speed_scale", SPEED_GRID, speed, spread[0]),
                                   ("servos.deadband_us", DEADBAND_GRID, band, spread[1])):  # fmt: skip
@@ -507,7 +531,17 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "plate.friction", "plate.load_kg"):
         undetermined.append(key)
         notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
-    trims = _trims_for(geo, cal, best_accel)
+    camera = [log.plate for log in logs if log.plate is not None]
+    trim_fit = None
+    if sum(len(p.frame_t) for p in camera) >= MIN_FRAMES:
+        from stewart_gym.sim.urdf import MechanismSpec
+
+        trim_fit = fit_trims(geo, cal, camera, servos[si * len(DEADBAND_GRID) + di], lat, MechanismSpec().plate_top)
+        trims = trim_fit.trims_us
+        undetermined.remove("servos.trim_us")
+        sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))
+    else:
+        trims = _trims_for(geo, cal, best_accel)
     values = dict(start.values)
     values.update({("servos", "speed_scale"): float(np.clip(speed, 0.1, 5.0)),
                    ("servos", "deadband_us"): float(np.clip(band, 0.0, 50.0)),
@@ -516,7 +550,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                    ("sensor", "latency_ms"): sensor_ms, ("sensor", "noise_mm"): float(np.clip(noise_mm, 0.0, 20.0))})
     order = [f"{t}.{k}" for t, k in TWIN_FIELDS]
     twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
-    result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes)
+    result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes, trim_fit=trim_fit)
     if held_w:
         _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, servos[si * len(DEADBAND_GRID) + di],
                  overhead)

@@ -5,8 +5,8 @@ The pipeline, per frame (:func:`locate_ball`):
 1. **The plate.** ArUco markers lie flat at the plate's corners, axis-aligned with
    their top edge toward +y; their ids, centres and size (mm) are in the camera
    config. Every marker found gives four corners with known plate coordinates:
-   at least two markers fix the plate (a homography, and the camera's pose by
-   ``solvePnP``), so a tilted plate is handled frame by frame.
+   at least two markers fix the plate (a homography, and the plate's pose in the
+   camera's frame by ``solvePnP``), so a tilted plate is handled frame by frame.
 2. **The ball.** Pixels inside an HSV range, cleaned by a morphological opening;
    the largest blob, if big enough, gives a sub-pixel centroid (image moments).
 3. **Plate millimetres.** The centroid's ray from the camera meets the plane one
@@ -283,12 +283,16 @@ class Detection:
         reason: why there is no ball ("" when found).
         pixel: the ball's centroid (u, v), px.
         markers: how many of the plate's markers were found.
+        plate_pose: the plate's pose in the camera's frame (OpenCV's: x right, y down, z along the view) where
+            the markers fixed it: its rotation vector (rad, 3) and the position of its marker plane's origin
+            (m, 3); None if not. ``sysid`` reads it from the deploy log for each servo's trim.
     """
 
     xy_mm: tuple[float, float] | None
     reason: str = ""
     pixel: tuple[float, float] | None = None
     markers: int = 0
+    plate_pose: tuple[float, ...] | None = None
 
     def as_dict(self) -> dict[str, Any]:
         """``{"x_mm": …, "y_mm": …}`` or ``{"ball": None, "reason": …}`` (what ``camera-check --json`` prints)."""
@@ -390,28 +394,31 @@ def locate_ball(image_bgr: np.ndarray, config: CameraConfig) -> Detection:
         return Detection(None, f"no plate: {found} of its 4 markers found (need 2)", markers=found)
     img = np.concatenate(corners)
     plate = np.concatenate([marker_corners_mm(layout, layout.ids.index(i)) for i in ids])
-    centroid, why = _ball_centroid(image_bgr, config.ball, config.min_ball_px)
-    if centroid is None:
-        return Detection(None, why, markers=found)
-    u, v = centroid
-    r = config.ball.radius_mm
-    if r == 0:
-        hom, _ = cv2.findHomography(img, plate)
-        q = hom @ np.array([u, v, 1.0])
-        return Detection((float(q[0] / q[2]), float(q[1] / q[2])), pixel=(u, v), markers=found)
     height, width = image_bgr.shape[:2]
     k = _intrinsics(width, height, config.fov_deg)
     obj = np.column_stack([plate, np.zeros(len(plate))])
     ok, rvec, tvec = cv2.solvePnP(obj, img, k, None, flags=cv2.SOLVEPNP_SQPNP)  # globally optimal, 0.4 ms
     if not ok:
         return Detection(None, "no plate: its pose could not be solved from the markers", markers=found)
+    pose = (*(float(v) for v in rvec.ravel()), *(float(v) * 1e-3 for v in tvec.ravel()))
+    centroid, why = _ball_centroid(image_bgr, config.ball, config.min_ball_px)
+    if centroid is None:
+        return Detection(None, why, markers=found, plate_pose=pose)
+    u, v = centroid
+    r = config.ball.radius_mm
+    if r == 0:
+        hom, _ = cv2.findHomography(img, plate)
+        q = hom @ np.array([u, v, 1.0])
+        return Detection((float(q[0] / q[2]), float(q[1] / q[2])), pixel=(u, v), markers=found, plate_pose=pose)
     rot, _ = cv2.Rodrigues(rvec)
     centre = -rot.T @ tvec.ravel()  # the camera in plate mm
     ray = rot.T @ np.linalg.solve(k, np.array([u, v, 1.0]))
     if abs(ray[2]) < 1e-9:
-        return Detection(None, "no ball: its ray runs parallel to the plate", pixel=(u, v), markers=found)
+        return Detection(None, "no ball: its ray runs parallel to the plate", pixel=(u, v), markers=found,
+                         plate_pose=pose)  # fmt: skip
     p = centre + (r - centre[2]) / ray[2] * ray  # the ray meets the plane of the ball's centre
-    return Detection((float(p[0]), float(p[1])), pixel=(u, v), markers=found)
+    return Detection((float(p[0]), float(p[1])), pixel=(u, v), markers=found, plate_pose=pose)
+
 
 def annotate(image_bgr: np.ndarray, config: CameraConfig, detection: Detection) -> np.ndarray:
     """A copy of the image with the markers found, the plate's outline, the ball and its coordinates drawn on it

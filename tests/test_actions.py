@@ -106,3 +106,27 @@ def test_mapping_many_actions_at_once_maps_each_as_alone(mode: str) -> None:
         assert sum(m.scaled for m in many) > 10
     with pytest.raises(ValueError, match="finite"):
         mapper.map_many(np.where(np.arange(mapper.size) == 1, np.nan, 0.0)[None, :])
+
+
+@pytest.mark.parametrize("mode", ["tilt", "pose"])
+def test_a_pose_offset_moves_every_commanded_pose(mode: str) -> None:
+    """With an offset, each action's pose is the pose without it plus the offset, one at a time and many at once,
+    and its pulses are the inverse kinematics of that pose; None takes it off again."""
+    mapper = ActionMapper("servo-hexapod", mode=mode)
+    actions = np.random.default_rng(1).uniform(-0.3, 0.3, (50, mapper.size))
+    plain = [mapper(a) for a in actions]
+    offset = np.array([0.002, -0.001, 0.004, 0.01, -0.02, 0.05])
+    mapper.set_offset(offset)
+    np.testing.assert_array_equal(mapper.offset, offset)
+    for got, base, many in zip((mapper(a) for a in actions), plain, mapper.map_many(actions)):
+        assert not got.scaled
+        np.testing.assert_allclose(got.pose, base.pose + offset, rtol=0, atol=1e-15)
+        want = mapper.calibration.pulse_widths(inverse_kinematics(mapper.geometry, got.pose).servo_angles)
+        np.testing.assert_allclose(got.pulses, want, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(many.pulses, got.pulses, rtol=0, atol=1e-9)
+        assert not np.allclose(got.pulses, base.pulses)
+    with pytest.raises(ValueError, match="finite"):
+        mapper.set_offset([0, 0, np.nan, 0, 0, 0])
+    mapper.set_offset(None)
+    np.testing.assert_array_equal(mapper(actions[0]).pulses, plain[0].pulses)
+    assert not mapper.offset.any()

@@ -119,7 +119,7 @@ def format_keys() -> dict[str, set[str]]:
         "bundle": {key for meta in bundles for key in meta},
         "twin": {f"{table}.{key}" for table, key in TWIN_FIELDS} | {f"fit.{key}" for key in FIT_KEYS},
         # numbered columns by their first (and, for the pulses, last) name
-        "deploy-log": {c for c in log_columns(12, 2) if not re.fullmatch(r"(obs|action|pulse)\d+(_us)?", c)}
+        "deploy-log": {c for c in log_columns(12, 2, plate=True) if not re.fullmatch(r"(obs|action|pulse)\d+(_us)?", c)}
                       | {"obs0", "action0", "pulse0_us", "pulse5_us"},
     }
 

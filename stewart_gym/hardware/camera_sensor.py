@@ -52,6 +52,7 @@ class CameraSensor:
         self._plate_half = None if plate_half is None else (float(plate_half[0]), float(plate_half[1]))
         self._lock = threading.Lock()
         self._latest: tuple[tuple[float, float], float] | None = None
+        self._plate: tuple[tuple[float, ...], float] | None = None  # the newest plate pose and its capture time
         self.last_detection: Detection | None = None
         self.frames = self.found = self.invalid = 0
         self.ended = False
@@ -112,6 +113,8 @@ class CameraSensor:
             with self._lock:
                 self.frames += 1
                 self.last_detection = detection
+                if detection.plate_pose is not None:
+                    self._plate = (detection.plate_pose, captured)
                 if detection.xy_mm is not None:
                     self.found += 1
                     reading = ((detection.xy_mm[0] * 1e-3, detection.xy_mm[1] * 1e-3), captured)
@@ -132,6 +135,16 @@ class CameraSensor:
             return None
         (x_mm, y_mm), captured = latest
         return (x_mm * 1e-3, y_mm * 1e-3), t - (time.monotonic() - captured)
+
+    def plate_pose(self, t: float) -> tuple[tuple[float, ...], float] | None:
+        """The newest plate pose seen (:attr:`Detection.plate_pose <stewart_gym.vision.Detection.plate_pose>`: six
+        numbers) and its capture time on the caller's clock ``t``, or None before the first."""
+        with self._lock:
+            plate = self._plate
+        if plate is None:
+            return None
+        pose, captured = plate
+        return pose, t - (time.monotonic() - captured)
 
     def close(self) -> None:
         """Stop the thread and release the camera. A thread still blocked opening a named pipe that no writer

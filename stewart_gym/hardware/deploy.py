@@ -45,8 +45,8 @@ from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
 from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact, reading_is_valid
 
-__all__ = ["LOG_READING_COLUMNS", "DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor", "Plant", "SimulatedPlant",
-           "log_columns"]
+__all__ = ["LOG_PLATE_COLUMNS", "LOG_READING_COLUMNS", "DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor",
+           "Plant", "SimulatedPlant", "log_columns"]
 
 
 class Plant(Protocol):
@@ -138,6 +138,11 @@ MAX_STALE_FRACTION = 0.5
 #: The log's last columns: the sensor's newest reading this tick as it gave it, valid or not (plate frame, m) and
 #: its sample time on the loop's clock (s); empty (nan) when it gave none. ``sysid`` fits a twin from them.
 LOG_READING_COLUMNS = ("reading_x_m", "reading_y_m", "reading_t_s")
+#: With a sensor that also sees the plate (the camera: ``plate_pose(t)``), the log ends with the newest plate pose
+#: as it gave it: its rotation vector (rad) and position (m) in the camera's frame, and its capture time on the
+#: loop's clock (s). ``sysid`` fits each servo's trim from them.
+LOG_PLATE_COLUMNS = ("plate_rx_rad", "plate_ry_rad", "plate_rz_rad", "plate_x_m", "plate_y_m", "plate_z_m",
+                     "plate_t_s")  # fmt: skip
 #: Per-tick flags, in the log's columns and the summary's counts.
 TICK_FLAGS = ("held", "clamped", "rate_limited", "homing", "stale", "invalid", "unreachable")
 
@@ -217,12 +222,13 @@ class DeploySummary:
                 f"{board}{self.home_text()}")  # fmt: skip
 
 
-def log_columns(obs_size: int, action_size: int) -> list[str]:
+def log_columns(obs_size: int, action_size: int, plate: bool = False) -> list[str]:
     """The deploy log's header: the tick's time and jitter, the observation, the action, the pose asked for, the
-    pulses sent, the tick's flags, whether it missed its deadline, the bytes written, and the reading."""
+    pulses sent, the tick's flags, whether it missed its deadline, the bytes written, the reading, and with
+    ``plate`` the plate pose the sensor saw (:data:`LOG_PLATE_COLUMNS`)."""
     return ["t_s", "jitter_ms", *(f"obs{i}" for i in range(obs_size)), *(f"action{i}" for i in range(action_size)),
             "x_m", "y_m", "z_m", "roll", "pitch", "yaw", *(f"pulse{i}_us" for i in range(6)), *TICK_FLAGS,
-            "missed_deadline", "bytes", *LOG_READING_COLUMNS]  # fmt: skip
+            "missed_deadline", "bytes", *LOG_READING_COLUMNS, *(LOG_PLATE_COLUMNS if plate else ())]  # fmt: skip
 
 
 class DeployLoop:
@@ -304,7 +310,8 @@ class DeployLoop:
         summary = DeploySummary()
         if self.controller.monitoring:
             summary.board_answers = 0
-        writer, fh = self._open_log()
+        sees_plate = callable(getattr(self.sensor, "plate_pose", None))
+        writer, fh = self._open_log(sees_plate)
         jitters, computes = [], []
         start = time.monotonic()
         next_tick = start
@@ -333,6 +340,9 @@ class DeployLoop:
                 if writer is not None:
                     bits = [int(bool(flags[k])) for k in TICK_FLAGS]
                     raw = (math.nan,) * 3 if got is None else (*got[0], got[1])  # what the sensor gave, as it gave it
+                    if sees_plate:
+                        plate = self.sensor.plate_pose(t)
+                        raw += (math.nan,) * 7 if plate is None else (*plate[0], plate[1])
                     writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
                                      *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data),
                                      *(f"{v:.6f}" for v in raw)])
@@ -447,13 +457,13 @@ class DeployLoop:
                 except KeyboardInterrupt:
                     continue
 
-    def _open_log(self) -> tuple[Any, Any]:
+    def _open_log(self, plate: bool) -> tuple[Any, Any]:
         if not self.config.log_path:
             return None, None
         path = Path(self.config.log_path)
         path.parent.mkdir(parents=True, exist_ok=True)
         fh = path.open("w", newline="", buffering=1)
         writer = csv.writer(fh)
-        writer.writerow(log_columns(self.observer.builder.size, self.mapper.size))
+        writer.writerow(log_columns(self.observer.builder.size, self.mapper.size, plate))
         fh.flush()
         return writer, fh

@@ -5,7 +5,15 @@ the policy's action. The offset is a multilevel pseudo-random sequence: it holds
 ``hold_s`` (drawn uniformly), and each level is drawn uniformly within ``± amplitude`` of the action range, with
 the odd hold at zero. About every two seconds comes a doublet: a large tilt one way then the other, each for
 ``doublet_s``, which asks the servos for moves large enough to show their speed and leaves the ball's velocity
-as it was. The controller keeps the ball on the plate while the steps make it roll. The run itself is a deploy run
+as it was. The controller keeps the ball on the plate while the steps make it roll.
+
+With a camera (:meth:`Excitation.move_plate`), the plate also moves in height and yaw: a level of each, drawn
+uniformly within ``± PLATE_MOVES`` of the pose action's range, held for 1–2 s, through the mapper's pose offset
+(:meth:`~stewart_gym.actions.ActionMapper.set_offset`). Height and yaw change how each servo's angle moves the
+plate, which is what separates each servo's trim from the camera's unknown pose in ``sysid``. The tilt is then
+kept within what the platform reaches at every such offset, so that no tick's pose is out of reach.
+
+The run itself is a deploy run
 (:class:`~stewart_gym.hardware.deploy_setup.DeploySetup`): the same safety layer, the same channel limits, the
 same drive home on every stop, and the same log, which ``stewart-gym sysid`` reads.
 """
@@ -19,11 +27,15 @@ import numpy as np
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "Excitation"]
+__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "PLATE_MOVES", "Excitation"]
 
 #: ``identify``'s default rate limit, µs/s per channel: a step may move a servo as fast as about 3× the reference
 #: servos' speed, so that the log shows how fast the servos really are (a limit under their speed would hide it).
 IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
+#: The plate's height and yaw moves with a camera: the largest of each, as a fraction of the pose action's range
+#: (90 % of the platform's reach along the axis), and how long each level is held (s).
+PLATE_MOVES = {"z": 0.35, "yaw": 0.15}
+PLATE_HOLD_S = (1.0, 2.0)
 
 
 class Excitation:
@@ -56,6 +68,39 @@ class Excitation:
         self._left = 0
         self._queue: list[np.ndarray] = []  # the doublet's ticks still to come
         self.offset = np.zeros(2)
+        self._mapper: Any = None  # with move_plate: the mapper whose pose offset moves the plate
+        self._plate_left = 0
+        self._max_tilt_action = math.inf  # with move_plate: the longest tilt action reached at every offset
+
+    def move_plate(self, mapper: Any) -> None:
+        """Move the plate in height and yaw too, through ``mapper``'s pose offset (a "tilt"-mode
+        :class:`~stewart_gym.actions.ActionMapper`, the one the run sends with); see the module's description."""
+        from stewart_gym.actions import ActionMapper
+
+        if mapper.mode != "tilt":
+            raise ConfigError(f"identify moves the plate about the controller's tilt: its mapper must be in 'tilt' "
+                              f"mode, not {mapper.mode!r}")  # fmt: skip
+        scale = ActionMapper(mapper.geometry, mapper.calibration, "pose").pose_scale
+        self._lift, self._turn = PLATE_MOVES["z"] * scale[2], PLATE_MOVES["yaw"] * scale[5]
+        self._mapper = mapper
+        self._max_tilt_action = self._reachable_tilt(mapper)
+        mapper.set_offset(None)
+
+    def _reachable_tilt(self, mapper: Any) -> float:
+        """The largest tilt action (its length) that the mapper reaches in every direction at the four corners
+        of the height and yaw moves (0.05 steps)."""
+        best = 0.0
+        try:
+            for size in np.arange(0.05, 1.0001, 0.05):
+                for z, yaw in ((-1, -1), (-1, 1), (1, -1), (1, 1)):
+                    mapper.set_offset([0.0, 0.0, z * self._lift, 0.0, 0.0, yaw * self._turn])
+                    if any(mapper(size * np.array([math.cos(a), math.sin(a)])).scaled
+                           for a in np.linspace(0.0, 2 * math.pi, 24, endpoint=False)):  # fmt: skip
+                        return best
+                best = float(size)
+        finally:
+            mapper.set_offset(None)
+        return best
 
     def __getattr__(self, name: str) -> Any:  # the policy's own description: geometry, env id, observer, …
         if name == "policy":  # not set yet (copying): no recursion
@@ -80,11 +125,22 @@ class Excitation:
         else:
             self.offset = self._rng.uniform(-self.amplitude, self.amplitude, 2)
 
+    def _next_plate_level(self) -> None:
+        self._plate_left = max(1, int(round(self._rng.uniform(*PLATE_HOLD_S) * self.rate_hz)))
+        z, yaw = self._rng.uniform(-1.0, 1.0, 2)
+        self._mapper.set_offset([0.0, 0.0, z * self._lift, 0.0, 0.0, yaw * self._turn])
+
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         if self._left <= 0:
             self._next_level()
         self._left -= 1
+        if self._mapper is not None:
+            if self._plate_left <= 0:
+                self._next_plate_level()
+            self._plate_left -= 1
         action = np.asarray(self.policy(obs), dtype=np.float64)
-        if self._queue:
-            return np.clip(action + self._queue.pop(0), -1.0, 1.0)
-        return np.clip(action + self.offset, -1.0, 1.0)
+        action = np.clip(action + (self._queue.pop(0) if self._queue else self.offset), -1.0, 1.0)
+        size = float(np.hypot(*action))
+        if size > self._max_tilt_action:  # with plate moves: within reach at every height and yaw
+            action = action * (self._max_tilt_action / size)
+        return action

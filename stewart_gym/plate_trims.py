@@ -1,0 +1,174 @@
+"""Each servo's trim from the plate poses a camera saw: the part of ``sysid`` that reads ``identify --sensor camera``.
+
+A trim is a constant error in a servo's angle. The ball only feels the tilt the six make together; a camera on
+the plate's markers sees the plate's whole pose, frame by frame, in its own frame (OpenCV's ``solvePnP``). The
+camera's pose relative to the base is not known, so the fit finds it too:
+
+- the logged pulses are replayed through the batched simulator with the servos ``sysid`` fitted (speed, dead
+  band), without trims, which gives each servo's angle at every tick;
+- a frame taken at time t shows the plate where the forward kinematics put it for those angles at ``t − τ``,
+  each less its trim, as a camera at an unknown pose sees it;
+- the trims (6, µs), the camera's rotation and position (6) and the delay τ are fitted together by nonlinear
+  least squares (a soft-L1 loss, so that a bad frame counts little) on four points of the marker plane, 0.1 m
+  from its centre, in every frame.
+
+A trim moves the plate the same way at every pose to first order, exactly as the camera's pose would; what tells
+them apart is how the kinematics change with the plate's height and yaw. That is why ``identify`` moves the
+plate in height and yaw when a camera watches it, and why the fit wants :data:`MIN_FRAMES` frames or more.
+
+The uncertainties are the least-squares covariance with the residuals grouped by second (a frame's errors are
+not independent of its neighbours'), so they grow where the log is short or the model misses.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from stewart_gym.calibration import ServoCalibration
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.kinematics import forward_kinematics, rotation_matrix
+from stewart_gym.sim import BatchedSim, ServoSpec
+
+__all__ = ["MIN_FRAMES", "PlateLog", "TrimFit", "fit_trims", "rotation_from_vector"]
+
+#: The fewest distinct frames a fit uses (about 10 s of a 30 fps camera).
+MIN_FRAMES = 200
+#: The points of the marker plane compared in each frame, m (a square 0.2 m across, about the plate's size).
+POINTS = np.array([[-0.1, 0.1, 0.0], [0.1, 0.1, 0.0], [0.1, -0.1, 0.0], [-0.1, -0.1, 0.0]])
+#: The replay's physics steps per tick: the angles between ticks are interpolated from these.
+SUBSTEPS = 4
+#: Frames in the log's first second are left out: the controller takes the ball then.
+SKIP_S = 1.0
+#: m: the scale of the soft-L1 loss (a frame's point further off than this counts less than its square).
+LOSS_SCALE_M = 0.001
+
+
+@dataclass(frozen=True)
+class PlateLog:
+    """What a fit reads from one log: the ticks' times (K,) s and pulses (K, 6) µs, and each distinct frame's
+    time (F,) s and plate pose (F, 6): rotation vector (rad) and position (m) in the camera's frame."""
+
+    t: np.ndarray
+    pulses: np.ndarray
+    frame_t: np.ndarray
+    frame_pose: np.ndarray
+
+
+@dataclass(frozen=True)
+class TrimFit:
+    """The fitted trims (6,) µs with their one-sigma uncertainties, the delay τ (s) between a tick's angles and
+    the frame that shows them, the RMS residual (m) and the number of frames used."""
+
+    trims_us: np.ndarray
+    sigma_us: np.ndarray
+    delay_s: float
+    rms_m: float
+    frames: int
+
+
+def rotation_from_vector(v: np.ndarray) -> np.ndarray:
+    """Rotation matrices (..., 3, 3) from rotation vectors (..., 3) (Rodrigues' formula; OpenCV's convention)."""
+    v = np.asarray(v, dtype=np.float64)
+    angle = np.linalg.norm(v, axis=-1)[..., None, None]
+    safe = np.where(angle > 1e-12, angle, 1.0)
+    k = v / safe[..., 0]
+    kx, ky, kz = k[..., 0], k[..., 1], k[..., 2]
+    zero = np.zeros_like(kx)
+    cross = np.stack([np.stack([zero, -kz, ky], -1), np.stack([kz, zero, -kx], -1), np.stack([-ky, kx, zero], -1)],
+                     -2)  # fmt: skip
+    eye = np.broadcast_to(np.eye(3), cross.shape)
+    return eye + np.sin(angle) * cross + (1.0 - np.cos(angle)) * (cross @ cross)
+
+
+def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: PlateLog,
+            servo: ServoSpec) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The servos' angles (S + 1, 6) rad, untrimmed, under ``servo``, at every physics step of the replay (each
+    tick's pulses held for its :data:`SUBSTEPS`), and their times (S + 1,) s."""
+    period = float(np.median(np.diff(log.t)))
+    hz = int(round(SUBSTEPS / period))
+    sim = BatchedSim(geometry, n=1, calibration=calibration, physics_hz=hz, control_hz=hz)
+    sim.reset(servo_specs=[servo])
+    alpha = np.empty((len(log.t) * SUBSTEPS + 1, 6))
+    alpha[0] = sim.alpha[0]
+    for k, pulses in enumerate(log.pulses):
+        for j in range(SUBSTEPS):
+            sim.command(pulses[None])
+            sim.step()
+            alpha[k * SUBSTEPS + j + 1] = sim.alpha[0]
+    times = np.concatenate([(log.t[:, None] + np.arange(SUBSTEPS) / hz).ravel(), [log.t[-1] + period]])
+    return alpha, times
+
+
+def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: Sequence[PlateLog], servo: ServoSpec,
+              delay_s: float, plate_top: float) -> TrimFit:  # fmt: skip
+    """Fit the trims from ``logs`` (see the module's description).
+
+    Args:
+        geometry, calibration: the platform and the calibration the logs ran with.
+        logs: the logs with plate poses (:data:`MIN_FRAMES` distinct frames or more in all).
+        servo: the servos to replay the pulses with (speed and dead band as fitted; no lag, no trim).
+        delay_s: the first guess of τ (the ball's fitted total latency).
+        plate_top: m, the marker plane's height above the platform frame's origin.
+    """
+    from scipy.optimize import least_squares
+
+    parts = []
+    for log in logs:
+        alpha, times = _angles(geometry, calibration, log, servo)
+        keep = log.frame_t > log.t[0] + SKIP_S
+        parts.append((alpha, times, log.frame_t[keep], log.frame_pose[keep]))
+    frames = sum(len(p[2]) for p in parts)
+    if frames < MIN_FRAMES:
+        raise ValueError(f"{frames} frames with the plate's pose; the fit needs {MIN_FRAMES} or more")
+    measured = np.concatenate([rotation_from_vector(pose[:, :3]) @ POINTS.T + pose[:, 3:, None]
+                               for _, _, _, pose in parts]).transpose(0, 2, 1)  # (F, 4, 3)  # fmt: skip
+    gain = calibration.direction * calibration.us_per_rad
+    plate_points = POINTS + np.array([0.0, 0.0, plate_top])
+    first = parts[0][3][0]
+    camera0 = rotation_from_vector(first[:3])  # the plate near level at the start: the camera's rotation, nearly
+    base = np.asarray(geometry.home_position, dtype=np.float64)
+    home = base + np.array([0.0, 0.0, plate_top])
+    x0 = np.zeros(13)
+    x0[9:12] = np.mean(np.concatenate([p[3][:, 3:] for p in parts]), axis=0) - camera0 @ home
+    x0[12] = delay_s
+
+    def model(x: np.ndarray) -> np.ndarray:
+        trims, turn, shift, delay = x[:6], x[6:9], x[9:12], x[12]
+        out = []
+        for alpha, times, frame_t, _ in parts:
+            at = frame_t - delay
+            theta = np.stack([np.interp(at, times, alpha[:, i]) for i in range(6)], axis=1) - trims / gain
+            pose = forward_kinematics(geometry, servo_angles=theta).pose
+            rot = rotation_matrix(pose[:, 3], pose[:, 4], pose[:, 5])
+            out.append(plate_points @ rot.transpose(0, 2, 1) + pose[:, None, :3] + base)
+        world = np.concatenate(out)
+        camera = camera0 @ rotation_from_vector(turn)
+        return world @ camera.T + shift
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        r = model(x) - measured
+        return np.where(np.isfinite(r), r, 0.1).ravel()  # a pose the kinematics cannot close: far off
+
+    scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01]])
+    sol = least_squares(residuals, x0, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M)
+    sigma = _grouped_sigma(sol.jac, sol.fun, np.concatenate([p[2] for p in parts]))
+    return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), float(math.sqrt(np.mean(sol.fun**2))), frames)
+
+
+def _grouped_sigma(jac: np.ndarray, res: np.ndarray, frame_t: np.ndarray) -> np.ndarray:
+    """One-sigma uncertainties of the parameters: the least-squares covariance with the residuals grouped by the
+    second their frame was taken in (the sandwich estimator), so that correlated errors are not counted as
+    independent."""
+    per_frame = res.size // len(frame_t)
+    groups = np.repeat(np.floor(frame_t).astype(np.int64), per_frame)
+    bread = np.linalg.pinv(jac.T @ jac)
+    meat = np.zeros_like(bread)
+    for g in np.unique(groups):
+        sel = groups == g
+        s = jac[sel].T @ res[sel]
+        meat += np.outer(s, s)
+    return np.sqrt(np.clip(np.diag(bread @ meat @ bread), 0.0, None))
