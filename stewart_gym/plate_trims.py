@@ -29,11 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from stewart_gym.calibration import ServoCalibration
+from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import forward_kinematics, rotation_matrix
 from stewart_gym.sim import BatchedSim, ServoSpec
 
-__all__ = ["MIN_FRAMES", "PlateLog", "TrimFit", "fit_trims", "rotation_from_vector"]
+__all__ = ["MIN_FRAMES", "PlateLog", "TrimFit", "fit_trims", "rotation_from_vector", "usable_frames"]
 
 #: The fewest distinct frames a fit uses (about 10 s of a 30 fps camera).
 MIN_FRAMES = 200
@@ -84,6 +85,11 @@ def rotation_from_vector(v: np.ndarray) -> np.ndarray:
     return eye + np.sin(angle) * cross + (1.0 - np.cos(angle)) * (cross @ cross)
 
 
+def usable_frames(logs: Sequence[PlateLog]) -> int:
+    """How many of the logs' frames a fit uses (those after each log's first :data:`SKIP_S`)."""
+    return int(sum(np.count_nonzero(log.frame_t > log.t[0] + SKIP_S) for log in logs))
+
+
 def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: PlateLog,
             servo: ServoSpec) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The servos' angles (S + 1, 6) rad, untrimmed, under ``servo``, at every physics step of the replay (each
@@ -109,7 +115,8 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
 
     Args:
         geometry, calibration: the platform and the calibration the logs ran with.
-        logs: the logs with plate poses (:data:`MIN_FRAMES` distinct frames or more in all).
+        logs: the logs with plate poses (:data:`MIN_FRAMES` usable frames or more in all, else
+            :class:`~stewart_gym.errors.ConfigError`).
         servo: the servos to replay the pulses with (speed and dead band as fitted; no lag, no trim).
         delay_s: the first guess of τ (the ball's fitted total latency).
         plate_top: m, the marker plane's height above the platform frame's origin.
@@ -123,7 +130,8 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         parts.append((alpha, times, log.frame_t[keep], log.frame_pose[keep]))
     frames = sum(len(p[2]) for p in parts)
     if frames < MIN_FRAMES:
-        raise ValueError(f"{frames} frames with the plate's pose; the fit needs {MIN_FRAMES} or more")
+        raise ConfigError(f"the logs hold {frames} camera frames of the plate after their first second; the trims "
+                          f"need {MIN_FRAMES} or more: run identify --sensor camera longer")  # fmt: skip
     measured = np.concatenate([rotation_from_vector(pose[:, :3]) @ POINTS.T + pose[:, 3:, None]
                                for _, _, _, pose in parts]).transpose(0, 2, 1)  # (F, 4, 3)  # fmt: skip
     gain = calibration.direction * calibration.us_per_rad

@@ -25,6 +25,10 @@ The best candidate is refined between grid points by a parabola through its neig
 from a bootstrap over windows (the fit repeated on windows drawn with replacement); they measure the scatter
 of the fit, not what the model leaves out.
 
+- *Each servo's trim*, where the logs hold the plate poses a camera saw (``identify --sensor camera``): the
+  pulses replayed, and the plate poses they give fitted to the camera's, with the camera's own pose
+  (:mod:`stewart_gym.plate_trims`).
+
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
 answers a pulse as late), each servo's own trim (only the tilt they make together), the ball's mass, radius and
@@ -50,7 +54,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS
-from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, TrimFit, fit_trims
+from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, TrimFit, fit_trims, usable_frames
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
@@ -533,7 +537,11 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
     camera = [log.plate for log in logs if log.plate is not None]
     trim_fit = None
-    if sum(len(p.frame_t) for p in camera) >= MIN_FRAMES:
+    if camera and usable_frames(camera) < MIN_FRAMES:
+        notes["servos.trim_us"] = (f"the camera's logs hold {usable_frames(camera)} frames of the plate after their "
+                                   f"first second, fewer than the {MIN_FRAMES} the trims need: these are the "
+                                   "smallest trims that make the tilt offset")  # fmt: skip
+    elif camera:
         from stewart_gym.sim.urdf import MechanismSpec
 
         trim_fit = fit_trims(geo, cal, camera, servos[si * len(DEADBAND_GRID) + di], lat, MechanismSpec().plate_top)

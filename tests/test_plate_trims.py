@@ -95,7 +95,7 @@ def test_without_height_and_yaw_moves_the_trims_are_less_well_determined() -> No
 
 def test_too_few_frames_is_refused() -> None:
     log = plate_log(np.zeros(6), 3.0, 4)
-    with pytest.raises(ValueError, match=f"{MIN_FRAMES} or more"):
+    with pytest.raises(ConfigError, match=f"need {MIN_FRAMES} or more"):
         fit_trims(GEOMETRY, CALIBRATION, [log], SERVO, 0.04, PLATE_TOP)
 
 

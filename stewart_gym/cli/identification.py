@@ -58,8 +58,9 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def cmd_sysid(args: argparse.Namespace) -> int:
     """Fit a platform's twin from its logs (identify's, or any deploy log): the total latency, the servos' speed
-    and dead band, the plate's tilt offset and the panel noise, each with its uncertainty; it says what the logs
-    could not determine, and how much better the fitted twin predicts the ball on a held-out part of the logs."""
+    and dead band, the plate's tilt offset and the panel noise, and from a camera's log each servo's trim, each
+    with its uncertainty; it says what the logs could not determine, and how much better the fitted twin
+    predicts the ball on a held-out part of the logs."""
     from stewart_gym.calibration import ServoCalibration
     from stewart_gym.hardware.deploy_setup import load_calibration
     from stewart_gym.presets import load_geometry
@@ -88,7 +89,8 @@ def cmd_sysid(args: argparse.Namespace) -> int:
         print(json.dumps(json_safe({"twin": twin.to_mapping(), "total_latency_ms": result.total_latency_ms,
                                     "noise_mm": result.noise_mm, "prediction": {str(h): v for h, v in
                                                                                result.prediction.items()},
-                                    "out": str(out)})))  # fmt: skip
+                                    "trim_sigma_us": None if result.trim_fit is None else
+                                    result.trim_fit.sigma_us.tolist(), "out": str(out)})))  # fmt: skip
     else:
         print("\n".join(result.lines()))
         print(f"twin written to {out}" + (f"; report in {report}" if report is not None else ""))

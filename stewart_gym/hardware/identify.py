@@ -36,6 +36,8 @@ IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
 #: (90 % of the platform's reach along the axis), and how long each level is held (s).
 PLATE_MOVES = {"z": 0.35, "yaw": 0.15}
 PLATE_HOLD_S = (1.0, 2.0)
+#: The least tilt action (its length) the platform must reach at every such move for the controller to work.
+MIN_TILT_ACTION = 0.3
 
 
 class Excitation:
@@ -82,9 +84,12 @@ class Excitation:
                               f"mode, not {mapper.mode!r}")  # fmt: skip
         scale = ActionMapper(mapper.geometry, mapper.calibration, "pose").pose_scale
         self._lift, self._turn = PLATE_MOVES["z"] * scale[2], PLATE_MOVES["yaw"] * scale[5]
-        self._mapper = mapper
-        self._max_tilt_action = self._reachable_tilt(mapper)
-        mapper.set_offset(None)
+        reach = self._reachable_tilt(mapper)
+        if reach < MIN_TILT_ACTION:
+            raise ConfigError(f"{mapper.geometry.name} reaches a tilt of only {reach:g} of its range at the plate's "
+                              f"height and yaw moves (±{PLATE_MOVES['z']:g} and ±{PLATE_MOVES['yaw']:g} of their "
+                              f"reach); the controller needs {MIN_TILT_ACTION:g}: identify it with the panel")  # fmt: skip
+        self._mapper, self._max_tilt_action = mapper, reach
 
     def _reachable_tilt(self, mapper: Any) -> float:
         """The largest tilt action (its length) that the mapper reaches in every direction at the four corners

@@ -1,14 +1,20 @@
 """The sysid recovery table: ``identify`` then ``sysid`` on twins behind ``virtual-device --twin``, the fit
 against the truth.
 
-Run: ``.venv/bin/python train/tools/sysid_table.py [--seconds 60] [--twins NAME,...] [--keep]
-[--out docs/src/sysid.json] [--page PAGE ...]``, on a quiet machine: the board and the loop run in real time.
+Run: ``.venv/bin/python train/tools/sysid_table.py [--sensor panel|camera] [--seconds 60] [--twins NAME,...]
+[--keep] [--out JSON] [--page PAGE ...]``, on a quiet machine: the board and the loop run in real time.
 
-For each twin of :data:`TWINS`: start ``stewart-gym virtual-device --protocol line --twin T`` (a platform whose
-parameters the host does not know), run ``stewart-gym identify --sensor panel`` through the wire for
-``--seconds``, stop the board with SIGINT, then ``stewart-gym sysid`` on the log. It writes every twin's truth,
-fit, uncertainties and held-out predictions to ``--out`` (JSON; ``--keep``: the rows of twins not run stay) and
-the table into each ``--page`` between :data:`MARKERS`.
+For each twin of :data:`TWINS`: start ``stewart-gym virtual-device --twin T`` (a platform whose parameters the
+host does not know), run ``stewart-gym identify`` through the wire for ``--seconds``, stop the board with SIGINT,
+then ``stewart-gym sysid`` on the log. It writes every twin's truth, fit, uncertainties and held-out predictions
+to ``--out`` (JSON; ``--keep``: the rows of twins not run stay) and the table into each ``--page`` between the
+markers.
+
+``--sensor panel`` (default): the line protocol and the board's touch panel; the recovery table
+(:data:`MARKERS`, ``docs/src/sysid.json``). ``--sensor camera``: the board streams its camera's view (the
+``pixy2`` preset, 316 × 208 px at 60 fps: the largest the 2-core machine renders in real time beside the loop)
+and ``identify --sensor camera`` reads it; the trims table (:data:`CAMERA_MARKERS`,
+``docs/src/sysid_camera.json``): each servo's trim, true against fitted.
 """
 
 from __future__ import annotations
@@ -25,6 +31,27 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 SG = [sys.executable, "-m", "stewart_gym"]
 MARKERS = ("<!-- sysid table: train/tools/sysid_table.py -->", "<!-- end sysid table -->")
+CAMERA_MARKERS = ("<!-- sysid camera table: train/tools/sysid_table.py --sensor camera -->",
+                  "<!-- end sysid camera table -->")  # fmt: skip
+#: The camera the board streams and the config ``identify`` reads it with (``{pipe}``: the stream).
+CAMERA_PRESET = "pixy2"
+CAMERA_CONFIG = """[camera]
+source = "{pipe}"
+resolution = [316, 208]
+fps = 60
+fov_deg = 60
+[markers]
+dictionary = "DICT_4X4_50"
+ids = [0, 1, 2, 3]
+centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]
+size_mm = 36
+[ball]
+hsv_low = [5, 120, 120]
+hsv_high = [25, 255, 255]
+radius_mm = 12.7
+"""
+#: The issue's bound on each servo's trim from the camera, µs.
+TRIM_BOUND_US = 5.0
 #: Twins spread over the plausible ranges, several outside today's randomisation (servo speed 0.8–1.1, dead band
 #: 3–8 µs, trims ±15 µs, latency 5–40 ms in all, panel noise 0.5–2 mm).
 TWINS: dict[str, dict] = {
@@ -53,7 +80,7 @@ def twin_toml(tables: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int) -> dict:
+def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, sensor: str = "panel") -> dict:
     """identify and sysid on the twin ``tables`` behind a virtual board; the row of the table. Leaves the twin
     (``NAME.toml``), the log (``NAME.csv``) and the fitted twin (``NAME-fitted.toml``) in ``folder``."""
     from stewart_gym.sim.twin import load_twin
@@ -62,15 +89,22 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int) -
     twin_path, link, log = folder / f"{name}.toml", folder / f"board-{name}", folder / f"{name}.csv"
     twin_path.write_text(twin_toml(tables))
     truth = load_twin(twin_path)
-    board = subprocess.Popen([*SG, "virtual-device", "--protocol", "line", "--twin", str(twin_path), "--seed",
-                              str(seed), "--link", str(link)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)  # fmt: skip
+    protocol, board_extra, identify_extra = "line", [], ["--sensor", "panel"]
+    if sensor == "camera":
+        pipe, config = folder / f"camera-{name}.mjpg", folder / f"camera-{name}.toml"
+        config.write_text(CAMERA_CONFIG.format(pipe=pipe))
+        protocol = "maestro"
+        board_extra = ["--camera-stream", str(pipe), "--camera", CAMERA_PRESET]
+        identify_extra = ["--sensor", "camera", "--camera-config", str(config)]
+    board = subprocess.Popen([*SG, "virtual-device", "--protocol", protocol, "--twin", str(twin_path), "--seed",
+                              str(seed), "--link", str(link), *board_extra], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
         while not link.is_symlink():
             if board.poll() is not None:
                 raise RuntimeError(board.communicate()[1])
             time.sleep(0.05)
-        run = subprocess.run([*SG, "identify", "--port", str(link), "--protocol", "line", "--sensor", "panel",
+        run = subprocess.run([*SG, "identify", "--port", str(link), "--protocol", protocol, *identify_extra,
                               "--duration", str(seconds), "--out", str(log), "--seed", str(seed)],
                              capture_output=True, text=True)  # fmt: skip
     finally:
@@ -93,6 +127,9 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int) -
         "deadband_true": truth["servos.deadband_us"], "deadband_fit": round(fit["servos.deadband_us"], 2),
         "deadband_sigma": fit.sigma.get("servos.deadband_us"),
         "undetermined": list(fit.undetermined),
+        "trims_true": list(truth["servos.trim_us"]), "trims_fit": [round(v, 2) for v in fit["servos.trim_us"]],
+        "trims_sigma": None if result.trim_fit is None else [round(float(v), 2) for v in result.trim_fit.sigma_us],
+        "camera_frames": None if result.trim_fit is None else result.trim_fit.frames,
         "prediction": {str(h): {k: round(v, 3) for k, v in p.items()} for h, p in result.prediction.items()},
         "printed": result.lines(),
     }
@@ -127,27 +164,45 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def camera_table(rows: list[dict]) -> str:
+    """Each servo's trim, true → fitted (± its one-sigma uncertainty), ✗ past :data:`TRIM_BOUND_US`."""
+    out = ["| twin | " + " | ".join(f"servo {i} (µs)" for i in range(6)) + " | largest error (µs) | frames |",
+           "|---|" + "---|" * 8]  # fmt: skip
+    for r in rows:
+        cells = []
+        for true, fit, sd in zip(r["trims_true"], r["trims_fit"], r["trims_sigma"] or [float("nan")] * 6):
+            mark = "" if abs(fit - true) <= TRIM_BOUND_US else " ✗"
+            cells.append(f"{true:+.0f} → {fit:+.1f} ± {sd:.1f}{mark}")
+        worst = max(abs(f - t) for t, f in zip(r["trims_true"], r["trims_fit"]))
+        out.append(f"| {r['twin']} | " + " | ".join(cells) + f" | {worst:.1f} | {r['camera_frames']} |")
+    return "\n".join(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sensor", choices=["panel", "camera"], default="panel")
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--twins", help=f"comma-separated names of {sorted(TWINS)} (default all)")
-    ap.add_argument("--out", default=str(ROOT / "docs/src/sysid.json"))
+    ap.add_argument("--out", help="JSON of the rows (default docs/src/sysid.json, or sysid_camera.json)")
     ap.add_argument("--page", action="append",
                     help="page to write the table into, between the markers (default: the results page and its "
                          "intro, train/tools/results_intro.md)")
     ap.add_argument("--keep", action="store_true", help="keep the rows of twins not run from --out")
     args = ap.parse_args(argv)
     names = args.twins.split(",") if args.twins else list(TWINS)
-    out = Path(args.out)
+    camera = args.sensor == "camera"
+    out = Path(args.out or ROOT / "docs/src" / ("sysid_camera.json" if camera else "sysid.json"))
     rows = {r["twin"]: r for r in (json.loads(out.read_text()) if out.exists() and args.keep else [])}
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            rows[name] = run_twin(name, TWINS[name], args.seconds, Path(tmp), seed=list(TWINS).index(name))
+            rows[name] = run_twin(name, TWINS[name], args.seconds, Path(tmp), seed=list(TWINS).index(name),
+                                  sensor=args.sensor)  # fmt: skip
     ordered = [rows[n] for n in TWINS if n in rows]
     out.write_text(json.dumps(ordered, indent=1) + "\n")
+    made = camera_table(ordered) if camera else table(ordered)
     for page in args.page or [ROOT / "docs/src/results.md", ROOT / "train/tools/results_intro.md"]:
-        write_between(Path(page), MARKERS, table(ordered))
-    print(table(ordered))
+        write_between(Path(page), CAMERA_MARKERS if camera else MARKERS, made)
+    print(made)
     return 0
 
 
