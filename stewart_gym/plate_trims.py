@@ -12,8 +12,8 @@ camera's pose relative to the base is not known, so the fit finds it too:
   least squares (a soft-L1 loss, so that a bad frame counts little) on four points of the marker plane, 0.1 m
   from its centre, in every frame.
 
-A trim moves the plate the same way at every pose to first order, exactly as the camera's pose would; what tells
-them apart is how the kinematics change with the plate's height and yaw. That is why ``identify`` moves the
+At any one pose, what a trim does to the plate a small shift of the camera would do too; what tells them apart
+is how the kinematics change with the plate's height and yaw. That is why ``identify`` moves the
 plate in height and yaw when a camera watches it, and why the fit wants :data:`MIN_FRAMES` frames or more.
 
 The uncertainties are the least-squares covariance with the residuals grouped by second (a frame's errors are
@@ -163,16 +163,17 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
 
     scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01]])
     sol = least_squares(residuals, x0, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M)
-    sigma = _grouped_sigma(sol.jac, sol.fun, np.concatenate([p[2] for p in parts]))
+    seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
+    sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
     return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), float(math.sqrt(np.mean(sol.fun**2))), frames)
 
 
-def _grouped_sigma(jac: np.ndarray, res: np.ndarray, frame_t: np.ndarray) -> np.ndarray:
-    """One-sigma uncertainties of the parameters: the least-squares covariance with the residuals grouped by the
-    second their frame was taken in (the sandwich estimator), so that correlated errors are not counted as
-    independent."""
-    per_frame = res.size // len(frame_t)
-    groups = np.repeat(np.floor(frame_t).astype(np.int64), per_frame)
+def _grouped_sigma(jac: np.ndarray, res: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """One-sigma uncertainties of the parameters: the least-squares covariance with the residuals grouped by
+    ``group`` (one value per frame: the log and the second it was taken in), the sandwich estimator, so that
+    correlated errors are not counted as independent."""
+    per_frame = res.size // len(group)
+    groups = np.repeat(group.astype(np.int64), per_frame)
     bread = np.linalg.pinv(jac.T @ jac)
     meat = np.zeros_like(bread)
     for g in np.unique(groups):
