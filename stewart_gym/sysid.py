@@ -544,7 +544,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     elif camera:
         from stewart_gym.sim.urdf import MechanismSpec
 
-        trim_fit = fit_trims(geo, cal, camera, servos[si * len(DEADBAND_GRID) + di], lat, MechanismSpec().plate_top)
+        trim_fit = fit_trims(geo, cal, camera, servos[ci], lat, MechanismSpec().plate_top)
         trims = trim_fit.trims_us
         undetermined.remove("servos.trim_us")
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))
