@@ -10,11 +10,18 @@ camera's pose relative to the base is not known, so the fit finds it too:
   each less its trim, as a camera at an unknown pose sees it;
 - the trims (6, µs), the camera's rotation and position (6) and the delay τ are fitted together by nonlinear
   least squares (a soft-L1 loss, so that a bad frame counts little) on four points of the marker plane, 0.1 m
-  from its centre, in every frame.
+  from its centre, in every frame;
+- a frame's time is known only to within part of a frame period, so a frame taken while the plate moves fast
+  is further off: the fit measures that timing scatter from its residuals (against the plate's speed) and
+  weighs each frame by it, then fits again;
+- given several candidate servos (``sysid`` gives the ball's best and those up to two steps from it on its
+  grid), all are replayed in one batched run, and the fit keeps the one whose plate poses fit the camera's best.
 
 At any one pose, what a trim does to the plate a small shift of the camera would do too; what tells them apart
-is how the kinematics change with the plate's height and yaw. That is why ``identify`` moves the
-plate in height and yaw when a camera watches it, and why the fit wants :data:`MIN_FRAMES` frames or more.
+is how the kinematics change with the plate's tilt, height and yaw. That is why ``identify`` moves the plate in
+height and yaw and in large tilt triplets when a camera watches it, and why the fit wants :data:`MIN_FRAMES`
+frames or more. The trims' common part (every horn turned the same way: the plate's height) is the least
+determined: the camera's depth is its least precise direction.
 
 The uncertainties are the least-squares covariance with the residuals grouped by second (a frame's errors are
 not independent of its neighbours'), so they grow where the log is short or the model misses.
@@ -25,6 +32,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -62,13 +70,16 @@ class PlateLog:
 @dataclass(frozen=True)
 class TrimFit:
     """The fitted trims (6,) µs with their one-sigma uncertainties, the delay τ (s) between a tick's angles and
-    the frame that shows them, the RMS residual (m) and the number of frames used."""
+    the frame that shows them, the RMS residual (m), the number of frames used, the servos the replay kept and
+    the frames' timing scatter (s)."""
 
     trims_us: np.ndarray
     sigma_us: np.ndarray
     delay_s: float
     rms_m: float
     frames: int
+    servo: ServoSpec
+    timing_s: float
 
 
 def rotation_from_vector(v: np.ndarray) -> np.ndarray:
@@ -91,41 +102,47 @@ def usable_frames(logs: Sequence[PlateLog]) -> int:
 
 
 def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: PlateLog,
-            servo: ServoSpec) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The servos' angles (S + 1, 6) rad, untrimmed, under ``servo``, at every physics step of the replay (each
-    tick's pulses held for its :data:`SUBSTEPS`), and their times (S + 1,) s."""
+            servos: Sequence[ServoSpec]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The servos' angles (C, S + 1, 6) rad, untrimmed, under each of the C candidate ``servos`` (one batched run),
+    at every physics step of the replay (each tick's pulses held for its :data:`SUBSTEPS`), and their times
+    (S + 1,) s."""
     period = float(np.median(np.diff(log.t)))
     hz = int(round(SUBSTEPS / period))
-    sim = BatchedSim(geometry, n=1, calibration=calibration, physics_hz=hz, control_hz=hz)
-    sim.reset(servo_specs=[servo])
-    alpha = np.empty((len(log.t) * SUBSTEPS + 1, 6))
-    alpha[0] = sim.alpha[0]
+    n = len(servos)
+    sim = BatchedSim(geometry, n=n, calibration=calibration, physics_hz=hz, control_hz=hz)
+    sim.reset(servo_specs=list(servos))
+    alpha = np.empty((n, len(log.t) * SUBSTEPS + 1, 6))
+    alpha[:, 0] = sim.alpha
     for k, pulses in enumerate(log.pulses):
         for j in range(SUBSTEPS):
-            sim.command(pulses[None])
+            sim.command(np.broadcast_to(pulses, (n, 6)))
             sim.step()
-            alpha[k * SUBSTEPS + j + 1] = sim.alpha[0]
+            alpha[:, k * SUBSTEPS + j + 1] = sim.alpha
     times = np.concatenate([(log.t[:, None] + np.arange(SUBSTEPS) / hz).ravel(), [log.t[-1] + period]])
     return alpha, times
 
 
-def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: Sequence[PlateLog], servo: ServoSpec,
-              delay_s: float, plate_top: float) -> TrimFit:  # fmt: skip
+def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: Sequence[PlateLog],
+              servos: ServoSpec | Sequence[ServoSpec], delay_s: float, plate_top: float) -> TrimFit:  # fmt: skip
     """Fit the trims from ``logs`` (see the module's description).
 
     Args:
         geometry, calibration: the platform and the calibration the logs ran with.
         logs: the logs with plate poses (:data:`MIN_FRAMES` usable frames or more in all, else
             :class:`~stewart_gym.errors.ConfigError`).
-        servo: the servos to replay the pulses with (speed and dead band as fitted; no lag, no trim).
+        servos: the servos to replay the pulses with (speed and dead band; no trim), or candidates, the likeliest
+            first: the fit starts from the first and keeps the one whose plate poses fit the camera's best.
         delay_s: the first guess of τ (the ball's fitted total latency).
         plate_top: m, the marker plane's height above the platform frame's origin.
     """
     from scipy.optimize import least_squares
 
+    candidates = [servos] if isinstance(servos, ServoSpec) else list(servos)
+    if not candidates:
+        raise ValueError("fit_trims needs at least one candidate servo")
     parts = []
     for log in logs:
-        alpha, times = _angles(geometry, calibration, log, servo)
+        alpha, times = _angles(geometry, calibration, log, candidates)
         keep = log.frame_t > log.t[0] + SKIP_S
         parts.append((alpha, times, log.frame_t[keep], log.frame_pose[keep]))
     frames = sum(len(p[2]) for p in parts)
@@ -144,12 +161,13 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     x0[9:12] = np.mean(np.concatenate([p[3][:, 3:] for p in parts]), axis=0) - camera0 @ home
     x0[12] = delay_s
 
-    def model(x: np.ndarray) -> np.ndarray:
+    def model(x: np.ndarray, c: int) -> np.ndarray:
+        """The marker plane's points (F, 4, 3) in the camera's frame for the parameters ``x``, candidate ``c``."""
         trims, turn, shift, delay = x[:6], x[6:9], x[9:12], x[12]
         out = []
         for alpha, times, frame_t, _ in parts:
             at = frame_t - delay
-            theta = np.stack([np.interp(at, times, alpha[:, i]) for i in range(6)], axis=1) - trims / gain
+            theta = np.stack([np.interp(at, times, alpha[c, :, i]) for i in range(6)], axis=1) - trims / gain
             pose = forward_kinematics(geometry, servo_angles=theta).pose
             rot = rotation_matrix(pose[:, 3], pose[:, 4], pose[:, 5])
             out.append(plate_points @ rot.transpose(0, 2, 1) + pose[:, None, :3] + base)
@@ -157,15 +175,65 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         camera = camera0 @ rotation_from_vector(turn)
         return world @ camera.T + shift
 
-    def residuals(x: np.ndarray) -> np.ndarray:
-        r = model(x) - measured
+    def residuals(x: np.ndarray, c: int, weight: np.ndarray) -> np.ndarray:
+        r = (model(x, c) - measured) * weight[:, None, None]
         return np.where(np.isfinite(r), r, 0.1).ravel()  # a pose the kinematics cannot close: far off
 
     scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01]])
-    sol = least_squares(residuals, x0, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M)
+
+    def solve(x: np.ndarray, c: int, weight: np.ndarray) -> Any:
+        return least_squares(residuals, x, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M, args=(c, weight))
+
+    sol = solve(x0, 0, np.ones(frames))
+    weight, timing_s = _jitter_weights(sol.fun.reshape(frames, -1), _point_speed(model, sol.x, 0))
+    sol = solve(sol.x, 0, weight)
+    best = 0
+    if len(candidates) > 1:
+        costs = [_linearised_cost(residuals(sol.x, c, weight), sol.jac, sol.fun) for c in range(len(candidates))]
+        best = int(np.argmin(costs))
+        if best != 0:
+            sol = solve(sol.x, best, weight)
     seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
     sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
-    return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), float(math.sqrt(np.mean(sol.fun**2))), frames)
+    rms = float(math.sqrt(np.mean(residuals(sol.x, best, np.ones(frames)) ** 2)))
+    return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), rms, frames, candidates[best], timing_s)
+
+
+def _point_speed(model: Any, x: np.ndarray, c: int) -> np.ndarray:
+    """m/s: how fast each frame's points move in the model, the root mean square over their coordinates (the
+    delay moved by ±5 ms): a frame whose time is off by δt is off by this times δt, coordinate by coordinate."""
+    h = 0.005
+    early, late = x.copy(), x.copy()
+    early[12] -= h
+    late[12] += h
+    step = model(late, c) - model(early, c)
+    step = step.reshape(len(step), -1)
+    return np.sqrt(np.nanmean(step**2, axis=1)) / (2 * h)
+
+
+def _jitter_weights(res: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each frame's weight (F,) and the frames' timing scatter (s): a frame's squared error is taken as the
+    camera's noise plus its speed times a timing scatter, squared (a frame's time is known only to a part of a
+    frame period), both fitted to the residuals ``res`` (F, k); the weight makes every frame's error the same."""
+    from scipy.optimize import nnls
+
+    msq = np.nan_to_num(np.mean(res**2, axis=1), nan=0.0)
+    speed = np.nan_to_num(speed, nan=0.0)
+    A = np.stack([np.ones_like(speed), speed**2], axis=1)
+    coef, _ = nnls(A, msq)
+    noise = max(float(coef[0]), 1e-12)
+    return np.sqrt(noise / (noise + coef[1] * speed**2)), float(math.sqrt(coef[1]))
+
+
+def _linearised_cost(res: np.ndarray, jac: np.ndarray, res0: np.ndarray) -> float:
+    """The soft-L1 cost of residuals ``res`` once the parameters take one (reweighted) Gauss–Newton step.
+    ``jac`` is the Jacobian ``least_squares`` returns at a solution whose residuals are ``res0``: each row scaled
+    by the square root of the loss's second derivative, (1 + z)^-3/4 with z = (r / scale)², which is undone."""
+    raw = jac / ((1.0 + (res0 / LOSS_SCALE_M) ** 2) ** -0.75)[:, None]
+    root = (1.0 + (res / LOSS_SCALE_M) ** 2) ** -0.25  # the square root of the loss's weight on each residual
+    step = np.linalg.lstsq(raw * root[:, None], -res * root, rcond=None)[0]
+    after = res + raw @ step
+    return float(np.sum(2.0 * (np.sqrt(1.0 + (after / LOSS_SCALE_M) ** 2) - 1.0)))
 
 
 def _grouped_sigma(jac: np.ndarray, res: np.ndarray, group: np.ndarray) -> np.ndarray:

@@ -27,7 +27,8 @@ of the fit, not what the model leaves out.
 
 - *Each servo's trim*, where the logs hold the plate poses a camera saw (``identify --sensor camera``): the
   pulses replayed, and the plate poses they give fitted to the camera's, with the camera's own pose
-  (:mod:`stewart_gym.plate_trims`).
+  (:mod:`stewart_gym.plate_trims`). The replay's servos are the best candidate's or one up to two grid steps
+  from it in speed and dead band, whichever the plate poses fit best.
 
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
@@ -237,7 +238,9 @@ class FitResult:
             f = self.trim_fit
             out.append(f"  servo trims    {', '.join(f'{v:+.1f}' for v in f.trims_us)} µs ± "
                        f"{', '.join(f'{v:.1f}' for v in f.sigma_us)} (from {f.frames} camera frames of the plate; "
-                       f"residual {f.rms_m * 1e3:.2f} mm RMS)")  # fmt: skip
+                       f"residual {f.rms_m * 1e3:.2f} mm RMS; servos replayed at "
+                       f"{f.servo.max_speed / ServoSpec().max_speed:.2f}× speed, {f.servo.deadband_us:g} µs dead "
+                       "band)")  # fmt: skip
         for h, row in self.prediction.items():
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
                        f"{row['fitted']:.2f} mm ({row['nominal'] / max(row['fitted'], 1e-9):.1f}× better)")
@@ -445,6 +448,11 @@ def _trims_for(geometry: Any, calibration: ServoCalibration, accel: np.ndarray) 
     return -(mix[0] * shapes[0] + mix[1] * shapes[1])
 
 
+def _around(i: int, n: int, reach: int = 2) -> list[int]:
+    """Grid index ``i`` first, then those up to ``reach`` steps from it within ``[0, n)``."""
+    return [i, *(k for d in range(1, reach + 1) for k in (i - d, i + d) if 0 <= k < n)]
+
+
 def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibration: ServoCalibration | None = None,
              start: Twin | None = None, holdout: float = 0.3, seed: int = 0,
              on_progress: Any = None) -> FitResult:  # fmt: skip
@@ -544,7 +552,9 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     elif camera:
         from stewart_gym.sim.urdf import MechanismSpec
 
-        trim_fit = fit_trims(geo, cal, camera, servos[ci], lat, MechanismSpec().plate_top)
+        near = [servos[i * len(DEADBAND_GRID) + j] for i in _around(si, len(SPEED_GRID))
+                for j in _around(di, len(DEADBAND_GRID))]  # the ball's best first, then those near it  # fmt: skip
+        trim_fit = fit_trims(geo, cal, camera, near, lat, MechanismSpec().plate_top)
         trims = trim_fit.trims_us
         undetermined.remove("servos.trim_us")
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))

@@ -313,7 +313,7 @@ class _Detectors:
         if key not in cls.cache:
             cv2 = _cv2()
             params = cv2.aruco.DetectorParameters()
-            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # refined at full resolution below
+            params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_CONTOUR  # lines fitted to the edges
             if fast:
                 params.adaptiveThreshWinSizeMin = params.adaptiveThreshWinSizeMax = 11
             dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, layout.dictionary))
@@ -321,17 +321,17 @@ class _Detectors:
         return cls.cache[key]
 
 
-_SUBPIX = (3, 30, 0.01)  # cv2.TERM_CRITERIA_EPS + COUNT, 30 iterations, 0.01 px
-
-
 def find_markers(gray: np.ndarray, layout: MarkerLayout) -> tuple[list[np.ndarray], list[int]]:
     """The plate's markers in a grey image: their corners (4, 2) px (sub-pixel) and ids.
+
+    Each corner is where lines fitted to the marker's edges meet (ArUco's contour refinement). On rendered frames
+    of a tilted plate, the pose this gives is about twice as close to the truth as with OpenCV's ``cornerSubPix``
+    on the detected corners, and it takes less time.
 
     One adaptive-threshold window (11 px) first: on the rendered test frames it finds the same markers as
     ArUco's default three windows in 60 % of the time. Where it finds fewer than two, the default detector
     tries again.
     """
-    cv2 = _cv2()
     found: list[tuple[np.ndarray, int]] = []
     for fast in (True, False):
         corners, ids, _ = _Detectors.aruco(layout, fast=fast).detectMarkers(gray)
@@ -339,11 +339,7 @@ def find_markers(gray: np.ndarray, layout: MarkerLayout) -> tuple[list[np.ndarra
                                          if i in layout.ids]  # fmt: skip
         if len(found) >= 2:
             break
-    if not found:
-        return [], []
-    pts = np.concatenate([c for c, _ in found]).astype(np.float32).reshape(-1, 1, 2)
-    cv2.cornerSubPix(gray, pts, (5, 5), (-1, -1), _SUBPIX)
-    return [p.reshape(4, 2).astype(np.float64) for p in np.split(pts, len(found))], [i for _, i in found]
+    return [c.astype(np.float64) for c, _ in found], [i for _, i in found]
 
 
 def _colour_mask(image_bgr: np.ndarray, ball: BallColour) -> np.ndarray:

@@ -27,10 +27,10 @@ __all__ = ["register"]
 
 def cmd_identify(args: argparse.Namespace) -> int:
     """Run the excitation experiment that stewart-gym sysid fits a twin from: the PID + Kalman keeps the ball on
-    the plate while pseudo-random tilt steps make it roll (with a camera, the plate also moves in height and yaw,
-    and the log holds the plate pose the camera sees, for each servo's trim). It is a deploy run: the same checks
-    before the port opens, the same safety layer and channel limits, the servos home on every stop; it writes the
-    deploy log."""
+    the plate while pseudo-random tilt steps make it roll (with a camera, the plate also moves in height and yaw
+    and in large tilt triplets, and the log holds the plate pose the camera sees, for each servo's trim). It is a
+    deploy run: the same checks before the port opens, the same safety layer and channel limits, the servos home
+    on every stop; it writes the deploy log."""
     from stewart_gym.hardware.deploy_setup import DeployOptions, DeploySetup
     from stewart_gym.hardware.identify import IDENTIFY_MAX_STEP_US_PER_S, Excitation
     from stewart_gym.registry import deployable_policy, resolve_policy
@@ -47,7 +47,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
     moves = ""
     if args.sensor == "camera":  # the camera sees the plate: height and yaw moves show each servo's trim
         policy.move_plate(setup.mapper)
-        moves = ", with height and yaw moves of the plate for the camera"
+        moves = (f", with height and yaw moves of the plate and tilt triplets (up to {policy.max_tilt_action:g} of "
+                 "the tilt range) for the camera")  # fmt: skip
     print(f"identify: {args.duration:g} s of tilt steps (±{args.amplitude:g} of the tilt range){moves} under the "
           f"PID + Kalman; Ctrl-C stops it and homes the servos", flush=True)  # fmt: skip
     summary = setup.run()

@@ -11,7 +11,10 @@ With a camera (:meth:`Excitation.move_plate`), the plate also moves in height an
 uniformly within ``± PLATE_MOVES`` of the pose action's range, held for 1–2 s, through the mapper's pose offset
 (:meth:`~stewart_gym.actions.ActionMapper.set_offset`). Height and yaw change how each servo's angle moves the
 plate, which is what separates each servo's trim from the camera's unknown pose in ``sysid``. The tilt is then
-kept within what the platform reaches at every such offset, so that no tick's pose is out of reach.
+kept within what the platform reaches at every such offset, so that no tick's pose is out of reach. Half the
+tilt levels become triplets: a large tilt (60–100 % of that reach) one way for 0.10–0.16 s, the other way for
+twice as long, then the first way again. A triplet leaves the ball where it was and as fast, and large tilts are
+what pins each servo's trim down most.
 
 The run itself is a deploy run
 (:class:`~stewart_gym.hardware.deploy_setup.DeploySetup`): the same safety layer, the same channel limits, the
@@ -27,15 +30,20 @@ import numpy as np
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "PLATE_MOVES", "Excitation"]
+__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "PLATE_MOVES", "PLATE_TRIPLETS", "Excitation"]
 
 #: ``identify``'s default rate limit, µs/s per channel: a step may move a servo as fast as about 3× the reference
 #: servos' speed, so that the log shows how fast the servos really are (a limit under their speed would hide it).
 IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
 #: The plate's height and yaw moves with a camera: the largest of each, as a fraction of the pose action's range
 #: (90 % of the platform's reach along the axis), and how long each level is held (s).
-PLATE_MOVES = {"z": 0.35, "yaw": 0.15}
+PLATE_MOVES = {"z": 0.35, "yaw": 0.3}
 PLATE_HOLD_S = (1.0, 2.0)
+#: With a camera, this fraction of the tilt levels are triplets instead (see the module's description): their
+#: size as a fraction of the tilt reached at every height and yaw, and the time of their first part (s).
+PLATE_TRIPLETS = 0.5
+TRIPLET_SIZE = (0.6, 1.0)
+TRIPLET_S = (0.10, 0.16)
 #: The least tilt action (its length) the platform must reach at every such move for the controller to work.
 MIN_TILT_ACTION = 0.3
 
@@ -91,6 +99,12 @@ class Excitation:
                               f"reach); the controller needs {MIN_TILT_ACTION:g}: identify it with the panel")  # fmt: skip
         self._mapper, self._max_tilt_action = mapper, reach
 
+    @property
+    def max_tilt_action(self) -> float:
+        """The longest tilt action (its length) the excitation sends: with plate moves, the one reached at every
+        height and yaw; without, unbounded (the mapper clips)."""
+        return self._max_tilt_action
+
     def _reachable_tilt(self, mapper: Any) -> float:
         """The largest tilt action (its length) that the mapper reaches in every direction at the four corners
         of the height and yaw moves (0.05 steps)."""
@@ -117,6 +131,14 @@ class Excitation:
         self.policy.reset()
 
     def _next_level(self) -> None:
+        if self._mapper is not None and self._rng.random() < PLATE_TRIPLETS:
+            angle = self._rng.uniform(0.0, 2.0 * math.pi)
+            size = self._rng.uniform(*TRIPLET_SIZE) * min(self._max_tilt_action, 1.0)
+            tilt = size * np.array([math.cos(angle), math.sin(angle)])
+            part = max(1, int(round(self._rng.uniform(*TRIPLET_S) * self.rate_hz)))
+            self._queue = [tilt] * part + [-tilt] * (2 * part) + [tilt] * part
+            self._left = len(self._queue)
+            return
         lo, hi = self.hold_s
         hold = self._rng.uniform(lo, hi)
         self._left = max(1, int(round(hold * self.rate_hz)))
