@@ -189,7 +189,8 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     sol = solve(sol.x, 0, weight)
     best = 0
     if len(candidates) > 1:
-        costs = [_linearised_cost(residuals(sol.x, c, weight), sol.jac, sol.fun) for c in range(len(candidates))]
+        raw = _unscaled_jacobian(sol.jac, sol.fun)
+        costs = [_linearised_cost(residuals(sol.x, c, weight), raw) for c in range(len(candidates))]
         best = int(np.argmin(costs))
         if best != 0:
             sol = solve(sol.x, best, weight)
@@ -225,14 +226,19 @@ def _jitter_weights(res: np.ndarray, speed: np.ndarray) -> tuple[np.ndarray, flo
     return np.sqrt(noise / (noise + coef[1] * speed**2)), float(math.sqrt(coef[1]))
 
 
-def _linearised_cost(res: np.ndarray, jac: np.ndarray, res0: np.ndarray) -> float:
-    """The soft-L1 cost of residuals ``res`` once the parameters take one (reweighted) Gauss–Newton step.
-    ``jac`` is the Jacobian ``least_squares`` returns at a solution whose residuals are ``res0``: each row scaled
-    by the square root of the loss's second derivative, (1 + z)^-3/4 with z = (r / scale)², which is undone."""
-    raw = jac / ((1.0 + (res0 / LOSS_SCALE_M) ** 2) ** -0.75)[:, None]
+def _unscaled_jacobian(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """The residuals' own Jacobian from the one ``least_squares`` returns at a solution whose residuals are
+    ``res``: it scales each row by the square root of the soft-L1 loss's second derivative, (1 + z)^-3/4 with
+    z = (r / scale)², which is undone here."""
+    return jac / ((1.0 + (res / LOSS_SCALE_M) ** 2) ** -0.75)[:, None]
+
+
+def _linearised_cost(res: np.ndarray, jac: np.ndarray) -> float:
+    """The soft-L1 cost of residuals ``res`` once the parameters take one (reweighted) Gauss–Newton step with
+    the residuals' Jacobian ``jac``."""
     root = (1.0 + (res / LOSS_SCALE_M) ** 2) ** -0.25  # the square root of the loss's weight on each residual
-    step = np.linalg.lstsq(raw * root[:, None], -res * root, rcond=None)[0]
-    after = res + raw @ step
+    step = np.linalg.lstsq(jac * root[:, None], -res * root, rcond=None)[0]
+    after = res + jac @ step
     return float(np.sum(2.0 * (np.sqrt(1.0 + (after / LOSS_SCALE_M) ** 2) - 1.0)))
 
 

@@ -19,6 +19,7 @@ from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, fit_trims, rotation_fr
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sysid import read_log
+from tests.hardware.test_identify import Still
 
 GEOMETRY = load_geometry("servo-hexapod")
 CALIBRATION = ServoCalibration.default(GEOMETRY)
@@ -148,16 +149,6 @@ def test_read_log_keeps_each_camera_frame_once(tmp_path) -> None:
     assert read_log(without).plate is None
 
 
-class _Zero:
-    action_mode = "tilt"
-
-    def __call__(self, obs):
-        return np.zeros(2)
-
-    def reset(self):
-        pass
-
-
 def test_the_excitation_moves_the_plate_within_reach() -> None:
     """With a mapper to move, the excitation sets its pose offset to heights and yaws within the stated fractions
     of the reach, changes them every 1–2 s, and keeps every tilt it sends within reach at the offset of the
@@ -188,7 +179,7 @@ def test_the_excitation_moves_the_plate_within_reach() -> None:
     changes = np.flatnonzero(np.any(np.diff(o, axis=0) != 0, axis=1))
     assert 4 <= len(changes) <= 11 and np.min(np.diff(changes)) >= 49  # a level held 1–2 s at 50 Hz
     assert np.all(o[:, [0, 1, 3, 4]] == 0.0)
-    still = Excitation(_Zero(), seed=6)
+    still = Excitation(Still(), seed=6)
     still.move_plate(mapper)
     tilts = np.array([still(np.zeros(12)) for _ in range(50 * 60)])
     size = np.hypot(tilts[:, 0], tilts[:, 1])
