@@ -24,8 +24,8 @@ from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import axis_ranges, inverse_kinematics
 from stewart_gym.presets import load_geometry
 
-__all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "action_table",
-           "default_max_tilt"]  # fmt: skip
+__all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "MappedActions",
+           "action_table", "default_max_tilt"]  # fmt: skip
 
 ActionMode = Literal["tilt", "pose", "pulse"]
 ACTION_MODES: tuple[str, ...] = ("tilt", "pose", "pulse")
@@ -79,6 +79,25 @@ class MappedAction(NamedTuple):
     scaled: bool
     scale: float
     action: tuple[float, ...]
+
+
+class MappedActions(NamedTuple):
+    """The result of mapping many actions (:meth:`ActionMapper.map_arrays`): row i is what
+    :class:`MappedAction` holds for action i.
+
+    Attributes:
+        poses: (n, 6) m, rad: the poses sent (after ray scaling); NaN in "pulse" mode.
+        pulses: (n, 6) µs: what goes to the servos, always within the channel limits.
+        scaled: (n,) True where the commanded pose was unreachable and was scaled back.
+        scales: (n,) the fraction of each commanded pose that was sent.
+        actions: (n, size) the actions as applied, clipped to [-1, 1].
+    """
+
+    poses: np.ndarray
+    pulses: np.ndarray
+    scaled: np.ndarray
+    scales: np.ndarray
+    actions: np.ndarray
 
 
 class ActionMapper:
@@ -215,19 +234,23 @@ class ActionMapper:
         best, pulses, scale = self.reachable_pose(np.array(pose))
         return MappedAction(best, pulses, scale < 1.0, scale, tuple(clipped))
 
-    def map_many(self, actions: np.ndarray) -> list[MappedAction]:
-        """:meth:`__call__` of many actions (rows × :attr:`size`) at once: one batched IK pass for the feasible
-        poses (:func:`~stewart_gym.kinematics.inverse_kinematics`), the scalar path for the rest (and for
-        "pulse" mode). The same results as one call per action, to rounding."""
+    def map_arrays(self, actions: np.ndarray) -> MappedActions:
+        """:meth:`__call__` of many actions (rows × :attr:`size`) at once, as arrays: one batched IK pass for the
+        feasible poses (:func:`~stewart_gym.kinematics.inverse_kinematics`), the scalar path for the rest (and for
+        "pulse" mode). Row by row the same results as one call per action, the pulses to rounding."""
         values = np.asarray(actions, dtype=np.float64).reshape(-1, self.size)
-        if self.mode == "pulse" or len(values) == 0:
-            return [self(row) for row in values]
         if not np.isfinite(values).all():
             row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
             raise ValueError(f"action must be finite, got {values[row].tolist()} (row {row})")
         clipped = np.clip(values, -1.0, 1.0)
+        n = len(values)
+        if self.mode == "pulse" or n == 0:
+            ones = [self(row) for row in values]
+            return MappedActions(np.array([m.pose for m in ones]).reshape(n, 6),
+                                 np.array([m.pulses for m in ones]).reshape(n, 6), np.zeros(n, dtype=bool),
+                                 np.ones(n), clipped)  # fmt: skip
         if self.mode == "tilt":
-            poses = np.zeros((len(values), 6))
+            poses = np.zeros((n, 6))
             poses[:, 3:5] = clipped * self.max_tilt
         else:
             poses = clipped * self.pose_scale
@@ -235,9 +258,11 @@ class ActionMapper:
             poses = poses + self._offset
         ik = inverse_kinematics(self.geometry, poses)
         pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
-        feasible = (ik.reachable & np.isfinite(pulses).all(axis=1)).tolist()
-        return [MappedAction(pose, w, False, 1.0, tuple(c)) if ok else self(row)
-                for pose, w, c, ok, row in zip(poses, pulses, clipped.tolist(), feasible, values)]  # fmt: skip
+        scaled, scales = np.zeros(n, dtype=bool), np.ones(n)
+        for row in np.flatnonzero(~(ik.reachable & np.isfinite(pulses).all(axis=1))):
+            one = self(values[row])
+            poses[row], pulses[row], scaled[row], scales[row] = one.pose, one.pulses, one.scaled, one.scale
+        return MappedActions(poses, pulses, scaled, scales, clipped)
 
 
 def _clip_unit(values: list[float]) -> list[float]:

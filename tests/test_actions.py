@@ -90,22 +90,23 @@ def test_the_ray_search_ends_on_the_edge_of_the_feasible(action: list[float]) ->
 
 @pytest.mark.parametrize("mode", ["tilt", "pose", "pulse"])
 def test_mapping_many_actions_at_once_maps_each_as_alone(mode: str) -> None:
-    """``map_many`` gives, row by row, what one call per action gives: the same pose, scale and clipped action,
+    """``map_arrays`` gives, row by row, what one call per action gives: the same pose, scale and clipped action,
     pulses equal to rounding, unreachable poses (pose mode at the corners) scaled back the same way."""
     mapper = ActionMapper("servo-hexapod", mode=mode)
     rng = np.random.default_rng(0)
     actions = rng.uniform(-1.3, 1.3, (200, mapper.size))
-    many = mapper.map_many(actions)
-    assert len(many) == len(actions)
-    for got, action in zip(many, actions):
+    many = mapper.map_arrays(actions)
+    assert many.pulses.shape == (len(actions), 6) and many.actions.shape == actions.shape
+    for i, action in enumerate(actions):
         want = mapper(action)
-        np.testing.assert_allclose(got.pulses, want.pulses, rtol=0, atol=1e-9)
-        np.testing.assert_array_equal(got.pose, want.pose)
-        assert (got.scaled, got.scale, got.action) == (want.scaled, want.scale, want.action)
+        np.testing.assert_allclose(many.pulses[i], want.pulses, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(many.poses[i], want.pose)
+        assert (many.scaled[i], many.scales[i], tuple(many.actions[i].tolist())) == (want.scaled, want.scale,
+                                                                                      want.action)  # fmt: skip
     if mode == "pose":
-        assert sum(m.scaled for m in many) > 10
+        assert many.scaled.sum() > 10
     with pytest.raises(ValueError, match="finite"):
-        mapper.map_many(np.where(np.arange(mapper.size) == 1, np.nan, 0.0)[None, :])
+        mapper.map_arrays(np.where(np.arange(mapper.size) == 1, np.nan, 0.0)[None, :])
 
 
 @pytest.mark.parametrize("mode", ["tilt", "pose"])
@@ -118,12 +119,12 @@ def test_a_pose_offset_moves_every_commanded_pose(mode: str) -> None:
     offset = np.array([0.002, -0.001, 0.004, 0.01, -0.02, 0.05])
     mapper.set_offset(offset)
     np.testing.assert_array_equal(mapper.offset, offset)
-    for got, base, many in zip((mapper(a) for a in actions), plain, mapper.map_many(actions)):
+    for got, base, many in zip((mapper(a) for a in actions), plain, mapper.map_arrays(actions).pulses):
         assert not got.scaled
         np.testing.assert_allclose(got.pose, base.pose + offset, rtol=0, atol=1e-15)
         want = mapper.calibration.pulse_widths(inverse_kinematics(mapper.geometry, got.pose).servo_angles)
         np.testing.assert_allclose(got.pulses, want, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(many.pulses, got.pulses, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(many, got.pulses, rtol=0, atol=1e-9)
         assert not np.allclose(got.pulses, base.pulses)
     with pytest.raises(ValueError, match="finite"):
         mapper.set_offset([0, 0, np.nan, 0, 0, 0])

@@ -20,14 +20,12 @@ from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
-from stewart_gym.sensing_arrays import ObserverArray, PanelArray
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
-from stewart_gym.sim.batched import BatchedSim
 from stewart_gym.sim.engines import make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 from stewart_gym.sim.twin import Twin, load_twin
 
-__all__ = ["StewartBallEnv", "check_ball_geometry", "end_steps", "settling_start"]
+__all__ = ["StewartBallEnv", "check_ball_geometry", "settling_start"]
 
 #: m: where the settling-time test starts (:mod:`stewart_gym.evaluation`) on a plate large enough.
 SETTLING_OFFSET = 0.100
@@ -407,26 +405,31 @@ class StewartBallEnv(gym.Env, EzPickle):
         return self.end_step(mapped)
 
     def begin_step(self, action: np.ndarray) -> Any:
-        """The part of :meth:`step` before the physics: map the action and send its pulses. Returns what
-        :meth:`end_step` takes once the backend has advanced a control period (the batched vector env advances
-        all its envs' platforms between the two)."""
+        """The part of :meth:`step` before the physics: map the action, record it (for :meth:`__deepcopy__`), let
+        the task act (a push) and send the pulses. Returns what :meth:`end_step` takes once the backend has
+        advanced a control period (the batched vector env advances all its copies' platforms between the two)."""
         mapped = self.mapper(action)
-        self.start_step(action)
-        self.sim.command(mapped.pulses)
-        return mapped
-
-    def start_step(self, action: np.ndarray) -> None:
-        """What :meth:`begin_step` does besides mapping the action and sending its pulses: record the action (for
-        :meth:`__deepcopy__`) and let the task act (a push). The batched vector env calls it for each copy, having
-        mapped every copy's action and sending every copy's pulses at once."""
         if self._episode is not None:
             self._episode[2].append(np.array(action, copy=True))
         self.task.before_step(self.sim.time, self.sim)
+        self.sim.command(mapped.pulses)
+        return mapped
 
     def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
-        """The part of :meth:`step` after the physics: sense, observe, reward, and the episode's end."""
+        """The part of :meth:`step` after the physics: take ``mapped`` (:class:`~stewart_gym.actions.MappedAction`)
+        as the step's action, sense, observe, reward, and the episode's end. (The batched vector env's copies with
+        touch panels do all this as arrays, :class:`~stewart_gym.envs.copies.CopySteps`, with the same results.)"""
         sim, task = self.sim, self.task
-        rate, roll_pitch = self.apply_action(mapped)
+        self._pulses = mapped.pulses
+        self._scaled = mapped.scaled
+        self._unreachable += mapped.scaled
+        if self.action_mode != "pulse":
+            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
+        rate = 0.0  # the action rate: the mean squared change from the last action
+        for v, p in zip(mapped.action, self._prev_action):
+            rate += (v - p) * (v - p)
+        rate /= len(mapped.action)
+        self._prev_action = mapped.action
         t = sim.time
         x, y, z = sim.ball_position()
         if not (math.isfinite(x + y + z) and abs(z) < 1.0):  # NaN or a ball flung away: the physics blew up
@@ -436,34 +439,13 @@ class StewartBallEnv(gym.Env, EzPickle):
         on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
         self.sensor_model.record(t, (x, y), touching)
         target_xy, target_vel = task.target(t)
-        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, roll_pitch, mapped.action, now=t)
-        return self.conclude_step(x, y, on_plate, target_xy, obs, rate)
-
-    def apply_action(self, mapped: Any) -> tuple[float, tuple[float, float]]:
-        """Take ``mapped`` (:class:`~stewart_gym.actions.MappedAction`) as this step's action: its pulses, its
-        tilt and the action itself. Returns the action rate (the mean squared change from the last action) and
-        the commanded (roll, pitch) now in force. A part of :meth:`end_step`."""
-        self._pulses = mapped.pulses
-        self._scaled = mapped.scaled
-        self._unreachable += mapped.scaled
-        if self.action_mode != "pulse":
-            self._roll_pitch = (mapped.pose.item(3), mapped.pose.item(4))
-        a = mapped.action
-        rate = 0.0
-        for v, p in zip(a, self._prev_action):
-            rate += (v - p) * (v - p)
-        self._prev_action = a
-        return rate / len(a), self._roll_pitch
-
-    def conclude_step(self, x: float, y: float, on_plate: bool, target_xy: tuple[float, float], obs: np.ndarray,
-                      rate: float) -> tuple[np.ndarray, float, bool, bool, dict]:  # fmt: skip
-        """The step's outcome, from the ball at (``x``, ``y``) m (``on_plate`` or not), the target, the observation
-        and the action rate: (observation, reward, terminated, truncated, info). A part of :meth:`end_step`."""
+        obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch,
+                                    mapped.action, now=t)  # fmt: skip
         self._last_obs = obs
         dist = math.hypot(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
-        reward = self.task.reward(dist, rate, terminated)
+        reward = task.reward(dist, rate, terminated)
         info = self._info(np.array([x, y]), target_xy, dist)
         info["is_success"] = np.bool_(on_plate and self._inside >= self.success_steps)
         self._steps += 1
@@ -533,36 +515,6 @@ class StewartBallEnv(gym.Env, EzPickle):
             "physics_error": np.False_,
             **self.task.info(),
         }
-
-
-def end_steps(envs: Sequence[StewartBallEnv], mapped: Sequence[Any], sim: BatchedSim, panels: PanelArray,
-              observers: ObserverArray) -> list[tuple[np.ndarray, float, bool, bool, dict]]:  # fmt: skip
-    """:meth:`StewartBallEnv.end_step` of every env of a batched vector env at once: env ``i`` on platform ``i`` of
-    the batched simulator ``sim``, with row ``i`` of ``panels`` and ``observers`` as its sensor and observer
-    (:class:`~stewart_gym.sensing_arrays.PanelRow`, :class:`~stewart_gym.sensing_arrays.ObserverRow`). The same
-    results as each env's own :meth:`~StewartBallEnv.end_step`, with the sensing and observing done as arrays;
-    a step where a platform's physics blew up takes each env's own."""
-    n = len(envs)
-    t = sim.platform_times()
-    xy = sim.ball_xy.copy()
-    z = sim.plate_top + sim.ball_radius
-    if not (np.isfinite(xy).all() and np.isfinite(z).all() and (np.abs(z) < 1.0).all()):
-        return [env.end_step(m) for env, m in zip(envs, mapped)]
-    first = envs[0]
-    hx, hy = first.plate_half_extent
-    on_plate = (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy) & (z > sim.plate_top)
-    panels.record(t, xy, on_plate & (z < sim.plate_top + 1.5 * sim.ball_radius))
-    targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
-    roll_pitch, actions, rates = np.empty((n, 2)), np.empty((n, first.mapper.size)), np.empty(n)
-    for i, (env, m) in enumerate(zip(envs, mapped)):
-        rates[i], roll_pitch[i] = env.apply_action(m)
-        actions[i] = m.action
-        targets[i], target_velocities[i] = env.task.target(float(t[i]))
-    reading, sample_t, has = panels.read(t)
-    obs = observers.observe(np.arange(n), has, reading, sample_t, targets, target_velocities, roll_pitch, actions, t)
-    return [env.conclude_step(x, y, on, target, o, rate)
-            for env, (x, y), on, target, o, rate in zip(envs, xy.tolist(), on_plate.tolist(), targets.tolist(), obs,
-                                                       rates.tolist())]  # fmt: skip
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:

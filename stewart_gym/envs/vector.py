@@ -7,9 +7,10 @@ sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.b
 steps exactly as that env would alone. Every step, the shared simulator advances every platform at once. With the
 touch panel (the default), the copies' actions are mapped in one IK pass, and their panels and observers are rows
 of :class:`~stewart_gym.sensing_arrays.PanelArray` and :class:`~stewart_gym.sensing_arrays.ObserverArray`, advanced
-together (:func:`~stewart_gym.envs.ball_env.end_steps`); each copy still scores its own step with its task. With a
-camera, each copy maps, senses and observes on its own. An episode that ends is reset in the same step (Gymnasium's
-``AutoresetMode.SAME_STEP``): ``info["final_obs"]`` and ``info["final_info"]`` hold its last observation and info.
+together, and every copy's step ends as arrays (:class:`~stewart_gym.envs.copies.CopySteps`); each copy's task
+still acts, targets and scores on its own. With a camera, each copy maps, senses and observes on its own. An
+episode that ends is reset in the same step (Gymnasium's ``AutoresetMode.SAME_STEP``): ``info["final_obs"]``
+and ``info["final_info"]`` hold its last observation and info.
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry, end_steps
+from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
+from stewart_gym.envs.copies import CopySteps
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, KalmanSpec, SimulatedTouchPanel, TouchPanelSpec
 from stewart_gym.sensing_arrays import ObserverArray, ObserverRow, PanelArray, PanelRow
@@ -71,6 +73,8 @@ class StewartBallVectorEnv(VectorEnv):
         #: copies sense otherwise (a camera): then each copy senses and observes on its own
         self.panels: PanelArray | None = None
         self.observers: ObserverArray | None = None
+        #: every copy's step as arrays where the copies sense with panels (else None: each copy steps on its own)
+        self.copy_steps: CopySteps | None = None
         if all(senses_with_arrays(env) for env in self.envs):
             self.panels = PanelArray(self.num_envs, 1.0 / control_hz)
             self.observers = ObserverArray(self.num_envs, first.mapper.size, first.plate_half_extent,
@@ -78,6 +82,7 @@ class StewartBallVectorEnv(VectorEnv):
             for i, env in enumerate(self.envs):
                 env.sensor_model = PanelRow(self.panels, i)
                 env.observer = ObserverRow(self.observers, i)
+            self.copy_steps = CopySteps(self.envs, self.sim, self.panels, self.observers)
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -96,66 +101,72 @@ class StewartBallVectorEnv(VectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ConfigError(f"reset: {len(seeds)} seeds for {self.num_envs} envs")
-        observations, infos = [], {}
+        observations, infos = [], []
         for i, (env, s) in enumerate(zip(self.envs, seeds)):
             obs, info = env.reset(seed=s, options=options)
+            if self.copy_steps is not None:
+                self.copy_steps.reset_row(i, obs)
             observations.append(obs)
-            infos = self._add_info(infos, info, i)
-        return np.stack(observations), infos
+            infos.append(info)
+        return np.stack(observations), self._gymnasium_info(self._columns(infos))
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
-        observations, rewards, terminations, truncations, infos, finals = self.step_each(actions)
-        batched = self._batched_infos(infos)
+        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
+        batched = self._gymnasium_info(info)
         for i, (final_obs, final_info) in finals.items():  # as Gymnasium's SyncVectorEnv does in SAME_STEP mode
             batched = self._add_info(batched, {"final_obs": final_obs, "final_info": final_info}, i)
         return observations, rewards, terminations, truncations, batched
 
-    def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
-        """:meth:`step` with each copy's info as its own dict, and ``{i: (last observation, last info)}`` of the
-        copies whose episode ended (and which were reset): the form Stable-Baselines3's VecEnv returns."""
+    def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
+        """:meth:`step` with the info as one array per key (a row per copy) and ``{i: (last observation, last
+        info)}`` of the copies whose episode ended (and which were reset in this step: their rows hold the new
+        episode's first observation and info)."""
         actions = np.asarray(actions)
         if actions.shape[0] != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
-        if self.panels is not None:  # the arrays' path: every copy's action mapped, and its pulses sent, at once
-            mapped = self.envs[0].mapper.map_many(actions)
-            for env, a in zip(self.envs, actions):
-                env.start_step(a)
-            self.sim.command(np.stack([m.pulses for m in mapped]))
+        if self.copy_steps is not None:
+            observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
         else:
             mapped = [env.begin_step(a) for env, a in zip(self.envs, actions)]
-        self.sim.step()
-        observations = np.empty((self.num_envs, *self.single_observation_space.shape), dtype=np.float32)
-        rewards = np.zeros(self.num_envs)
-        terminations = np.zeros(self.num_envs, dtype=bool)
-        truncations = np.zeros(self.num_envs, dtype=bool)
-        infos: list[dict[str, Any]] = []
-        finals: dict[int, tuple[np.ndarray, dict]] = {}
-        if self.panels is not None and self.observers is not None:  # set together
-            ended = end_steps(self.envs, mapped, self.sim, self.panels, self.observers)
-        else:
+            self.sim.step()
             ended = [env.end_step(m) for env, m in zip(self.envs, mapped)]
-        for i, (env, (obs, rewards[i], terminations[i], truncations[i], info)) in enumerate(zip(self.envs, ended)):
-            if terminations[i] or truncations[i]:
-                finals[i] = (obs, info)
-                obs, info = env.reset()
+            observations = np.stack([e[0] for e in ended])
+            rewards = np.array([e[1] for e in ended], dtype=np.float64)
+            terminations = np.array([e[2] for e in ended], dtype=bool)
+            truncations = np.array([e[3] for e in ended], dtype=bool)
+            info = self._columns([e[4] for e in ended])
+        finals: dict[int, tuple[np.ndarray, dict]] = {}
+        for i in np.flatnonzero(terminations | truncations).tolist():
+            finals[i] = (observations[i].copy(), {key: value[i].copy() for key, value in info.items()})
+            obs, reset_info = self.envs[i].reset()
+            if self.copy_steps is not None:
+                self.copy_steps.reset_row(i, obs)
             observations[i] = obs
-            infos.append(info)
+            for key, value in info.items():
+                value[i] = reset_info[key]
+        return observations, rewards, terminations, truncations, info, finals
+
+    def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
+        """:meth:`step_arrays` with each copy's info as its own dict: the form Stable-Baselines3's VecEnv
+        returns."""
+        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
+        keys = list(info)
+        infos = [dict(zip(keys, row)) for row in zip(*(info[key] for key in keys))]
         return observations, rewards, terminations, truncations, infos, finals
 
-    def _batched_infos(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
-        """The copies' infos as Gymnasium batches them (a key's values stacked, ``_key`` the copies that have it),
-        in one pass per key where every copy has the key."""
+    def _columns(self, infos: list[dict[str, Any]]) -> dict[str, np.ndarray]:
+        """The copies' infos (every copy's with the same keys) as one array per key, a row per copy."""
+        return {key: np.array([info[key] for info in infos]) for key in infos[0]}
+
+    def _gymnasium_info(self, columns: dict[str, np.ndarray]) -> dict[str, Any]:
+        """One array per key as Gymnasium batches infos: each key with ``_key``, the copies that have it (all)."""
         out: dict[str, Any] = {}
-        keys = infos[0].keys()
-        if all(info.keys() == keys for info in infos):
-            for key in keys:
-                out[key] = np.array([info[key] for info in infos])
-                out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
-            return out
-        for i, info in enumerate(infos):
-            out = self._add_info(out, info, i)
+        for key, value in columns.items():
+            out[key] = value
+            out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
         return out
 
     def close_extras(self, **kwargs: Any) -> None:

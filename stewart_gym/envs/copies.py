@@ -1,0 +1,130 @@
+"""The batched vector env's copies stepped as arrays, where they sense with touch panels.
+
+:class:`CopySteps` does, for every copy of a :class:`~stewart_gym.envs.vector.StewartBallVectorEnv` at once,
+what :meth:`StewartBallEnv.step <stewart_gym.envs.ball_env.StewartBallEnv.step>` does for one env: map the
+actions (one IK pass), let each task act, send every copy's pulses, advance the shared simulator, record and read
+the panels (:class:`~stewart_gym.sensing_arrays.PanelArray`), observe (:class:`~stewart_gym.sensing_arrays
+.ObserverArray`), and end the step: reward, success, termination and truncation, and the info as arrays. It
+carries, per copy, what the env carries from step to step (the last action, the commanded tilt, the steps taken
+and the steps in a row within the success radius); each copy's own env is used for its task and its resets.
+The results equal each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step`, to the last bit
+(``tests/envs/test_vector.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from stewart_gym.envs.ball_env import StewartBallEnv
+from stewart_gym.sensing_arrays import ObserverArray, PanelArray
+from stewart_gym.sim.batched import BatchedSim
+
+__all__ = ["CopySteps", "StepArrays"]
+
+#: The step's info as arrays, one row per copy: name → (n, …) array, in the order an env's info has them.
+StepArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]
+
+
+class CopySteps:
+    """Every copy's step at once, for copies on one batched simulator with touch panels and observers as arrays.
+
+    Args:
+        envs: The copies; env i runs on platform i of ``sim`` with row i of ``panels`` and ``observers``.
+        sim: Their shared simulator.
+        panels: Their touch panels.
+        observers: Their observers.
+    """
+
+    def __init__(self, envs: Sequence[StewartBallEnv], sim: BatchedSim, panels: PanelArray,
+                 observers: ObserverArray) -> None:  # fmt: skip
+        first = envs[0]
+        self.envs, self.sim, self.panels, self.observers = list(envs), sim, panels, observers
+        self.n = len(self.envs)
+        self.mapper = first.mapper
+        self.half_extent = first.plate_half_extent
+        self.success_radius, self.success_steps = first.success_radius, first.success_steps
+        self.episode_steps = first.episode_steps
+        self.rows = np.arange(self.n)
+        self.steps = np.zeros(self.n, dtype=np.int64)
+        self.inside = np.zeros(self.n, dtype=np.int64)  # steps in a row on the plate within the success radius
+        self.previous_action = np.zeros((self.n, self.mapper.size))
+        self.roll_pitch = np.zeros((self.n, 2))
+        self.unreachable = np.zeros(self.n, dtype=np.int64)
+        self.pulses = np.tile(sim.calibration.neutral_us, (self.n, 1))
+        self.last_obs = np.zeros((self.n, *first.observation_space.shape), dtype=np.float32)
+
+    def reset_row(self, i: int, obs: np.ndarray) -> None:
+        """Copy ``i`` has started an episode (its env's reset), observing ``obs``."""
+        self.steps[i] = self.inside[i] = self.unreachable[i] = 0
+        self.previous_action[i] = 0.0
+        self.roll_pitch[i] = 0.0
+        self.pulses[i] = self.sim.calibration.neutral_us
+        self.last_obs[i] = obs
+
+    def step(self, actions: np.ndarray) -> StepArrays:
+        """Every copy's step with its action (n × action size): observations, rewards, terminated, truncated and
+        the info as arrays. A copy whose episode ends is left for the caller to reset (then :meth:`reset_row`)."""
+        n, sim = self.n, self.sim
+        mapped = self.mapper.map_arrays(actions)
+        before = sim.platform_times()
+        for env, t in zip(self.envs, before.tolist()):
+            env.task.before_step(t, env.sim)
+        sim.command(mapped.pulses)
+        sim.step()
+        t = sim.platform_times()
+        difference = mapped.actions - self.previous_action
+        rates = (difference * difference).sum(axis=1) / self.mapper.size
+        self.previous_action = mapped.actions
+        self.pulses = mapped.pulses
+        self.unreachable += mapped.scaled
+        if self.mapper.mode != "pulse":
+            self.roll_pitch = mapped.poses[:, 3:5].copy()
+        xy = sim.ball_xy.copy()
+        z = sim.plate_top + sim.ball_radius
+        sound = np.isfinite(xy).all(axis=1) & np.isfinite(z) & (np.abs(z) < 1.0)  # else the physics blew up
+        hx, hy = self.half_extent
+        on_plate = sound & (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy) & (z > sim.plate_top)
+        good = self.rows[sound]
+        self.panels.record(t[good], xy[good], (on_plate & (z < sim.plate_top + 1.5 * sim.ball_radius))[good], good)
+        targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
+        for i, (env, ti) in enumerate(zip(self.envs, t.tolist())):
+            targets[i], target_velocities[i] = env.task.target(ti)
+        reading, sample_t, has = self.panels.read(t[good], good)
+        obs = self.last_obs.copy()
+        obs[good] = self.observers.observe(good, has, reading, sample_t, targets[good], target_velocities[good],
+                                           self.roll_pitch[good], mapped.actions[good], t[good])  # fmt: skip
+        self.last_obs = obs
+        distances = np.full(n, math.nan)
+        rewards = np.empty(n)
+        lost = 2 * hx  # the distance a step whose physics blew up is scored at
+        for i, (env, (x, y), (tx, ty), ok, on, rate) in enumerate(zip(
+                self.envs, xy.tolist(), targets.tolist(), sound.tolist(), on_plate.tolist(), rates.tolist())):  # fmt: skip
+            if ok:
+                distances[i] = dist = math.hypot(x - tx, y - ty)
+                rewards[i] = env.task.reward(dist, rate, not on)
+            else:
+                rewards[i] = env.task.reward(lost, 0.0, True)
+        within = on_plate & (distances <= self.success_radius)
+        self.inside = np.where(sound, np.where(within, self.inside + 1, 0), self.inside)
+        self.steps += sound
+        terminated = ~on_plate
+        truncated = sound & on_plate & (self.steps >= self.episode_steps)
+        ball_xy = np.where(sound[:, None], xy, math.nan)
+        info = {
+            "is_success": on_plate & (self.inside >= self.success_steps),
+            "distance_mm": distances * 1e3,
+            "ball_xy_m": ball_xy,
+            "target_xy_m": np.where(sound[:, None], targets, math.nan),
+            "pulse_widths_us": self.pulses.copy(),
+            "commanded_tilt_rad": self.roll_pitch.copy(),
+            "action_scaled": mapped.scaled,
+            "unreachable_count": self.unreachable.copy(),
+            "physics_error": ~sound,
+        }
+        task_infos = [env.task.info() for env in self.envs]
+        for key in task_infos[0]:
+            info[key] = np.array([each[key] for each in task_infos])
+        return obs, rewards, terminated, truncated, info
