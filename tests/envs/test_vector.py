@@ -36,10 +36,12 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
 
 @pytest.mark.parametrize("kwargs", [{"randomize": True, "estimator": "lowpass", "integral": True},
                                     {"randomize": True, "estimator": "kalman", "integral": True, "action_mode": "pose"},
-                                    {"randomize": True, "sensor": "pixy2"}], ids=["lowpass", "pose", "camera"])  # fmt: skip
+                                    {"randomize": True, "action_mode": "pulse"},
+                                    {"randomize": True, "sensor": "pixy2"}],
+                         ids=["lowpass", "pose", "pulse", "camera"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
-    """The same with the low-pass observer, the error integral and the pose actions (sensed as arrays), and with a
-    camera (each copy senses on its own)."""
+    """The same with the low-pass observer, the error integral, the pose and the pulse actions (sensed as arrays),
+    and with a camera (each copy senses on its own)."""
     vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
     assert (vector.unwrapped.panels is None) == ("sensor" in kwargs)
 
