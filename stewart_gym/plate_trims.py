@@ -8,10 +8,9 @@ camera's pose relative to the base is not known, so the fit finds it too:
   band), without trims, which gives each servo's angle at every tick;
 - a frame taken at time t shows the plate where the forward kinematics put it for those angles at ``t − τ``,
   each less its trim, as a camera at an unknown pose sees it;
-- the trims (6, µs), the camera's rotation and position (6), the delay τ and the marker plane's height above the
-  plate's top (markers printed on card, or cut from acrylic, are that much higher) are fitted together by
-  nonlinear least squares (a soft-L1 loss, so that a bad frame counts little) on four points of the marker
-  plane, 0.1 m from its centre, in every frame;
+- the trims (6, µs), the camera's rotation and position (6) and the delay τ are fitted together by nonlinear
+  least squares (a soft-L1 loss, so that a bad frame counts little) on four points of the marker plane, 0.1 m
+  from its centre, in every frame;
 - a frame's time is known only to within part of a frame period, so a frame taken while the plate moves fast
   is further off: the fit measures that timing scatter from its residuals (against the plate's speed) and
   weighs each frame by it, then fits again;
@@ -71,8 +70,8 @@ class PlateLog:
 @dataclass(frozen=True)
 class TrimFit:
     """The fitted trims (6,) µs with their one-sigma uncertainties, the delay τ (s) between a tick's angles and
-    the frame that shows them, the RMS residual (m), the number of frames used, the servos the replay kept, the
-    frames' timing scatter (s), and the marker plane's height above the plate's top (m) with its uncertainty."""
+    the frame that shows them, the RMS residual (m), the number of frames used, the servos the replay kept and
+    the frames' timing scatter (s)."""
 
     trims_us: np.ndarray
     sigma_us: np.ndarray
@@ -81,8 +80,6 @@ class TrimFit:
     frames: int
     servo: ServoSpec
     timing_s: float
-    lift_m: float
-    lift_sigma_m: float
 
 
 def rotation_from_vector(v: np.ndarray) -> np.ndarray:
@@ -136,8 +133,7 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         servos: the servos to replay the pulses with (speed and dead band; no trim), or candidates, the likeliest
             first: the fit starts from the first and keeps the one whose plate poses fit the camera's best.
         delay_s: the first guess of τ (the ball's fitted total latency).
-        plate_top: m, the plate top's height above the platform frame's origin (the fit finds how far above it
-            the marker plane lies).
+        plate_top: m, the marker plane's height above the platform frame's origin.
     """
     from scipy.optimize import least_squares
 
@@ -156,18 +152,18 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     measured = np.concatenate([rotation_from_vector(pose[:, :3]) @ POINTS.T + pose[:, 3:, None]
                                for _, _, _, pose in parts]).transpose(0, 2, 1)  # (F, 4, 3)  # fmt: skip
     gain = calibration.direction * calibration.us_per_rad
+    plate_points = POINTS + np.array([0.0, 0.0, plate_top])
     first = parts[0][3][0]
     camera0 = rotation_from_vector(first[:3])  # the plate near level at the start: the camera's rotation, nearly
     base = np.asarray(geometry.home_position, dtype=np.float64)
     home = base + np.array([0.0, 0.0, plate_top])
-    x0 = np.zeros(14)
+    x0 = np.zeros(13)
     x0[9:12] = np.mean(np.concatenate([p[3][:, 3:] for p in parts]), axis=0) - camera0 @ home
     x0[12] = delay_s
 
     def model(x: np.ndarray, c: int) -> np.ndarray:
         """The marker plane's points (F, 4, 3) in the camera's frame for the parameters ``x``, candidate ``c``."""
         trims, turn, shift, delay = x[:6], x[6:9], x[9:12], x[12]
-        plate_points = POINTS + np.array([0.0, 0.0, plate_top + x[13]])
         out = []
         for alpha, times, frame_t, _ in parts:
             at = frame_t - delay
@@ -183,7 +179,7 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         r = (model(x, c) - measured) * weight[:, None, None]
         return np.where(np.isfinite(r), r, 0.1).ravel()  # a pose the kinematics cannot close: far off
 
-    scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01, 0.001]])
+    scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01]])
 
     def solve(x: np.ndarray, c: int, weight: np.ndarray) -> Any:
         return least_squares(residuals, x, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M, args=(c, weight))
@@ -201,8 +197,7 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
     sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
     rms = float(math.sqrt(np.mean(residuals(sol.x, best, np.ones(frames)) ** 2)))
-    return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), rms, frames, candidates[best], timing_s,
-                   float(sol.x[13]), float(sigma[13]))
+    return TrimFit(sol.x[:6].copy(), sigma[:6], float(sol.x[12]), rms, frames, candidates[best], timing_s)
 
 
 def _point_speed(model: Any, x: np.ndarray, c: int) -> np.ndarray:

@@ -90,6 +90,8 @@ HORIZONS_S = (0.5, 1.0)
 #: A parameter whose bootstrap spread (one sigma) exceeds this fraction of its grid's span is undetermined.
 UNDETERMINED_FRACTION = 0.2
 BOOTSTRAP = 200
+#: m: the thickest markers ``sysid --marker-height-mm`` takes (tiles cut from a thick sheet).
+MAX_MARKER_HEIGHT = 0.02
 
 
 @dataclass(frozen=True)
@@ -456,11 +458,15 @@ def _around(i: int, n: int, reach: int = 2) -> list[int]:
 
 def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibration: ServoCalibration | None = None,
              start: Twin | None = None, holdout: float = 0.3, seed: int = 0,
-             on_progress: Any = None) -> FitResult:  # fmt: skip
+             on_progress: Any = None, marker_height: float = 0.0) -> FitResult:  # fmt: skip
     """Fit a twin to ``logs`` (see the module's description). ``start`` is the twin the fit changes (its ball,
-    plate and sensor split kept; default nominal); ``holdout`` the fraction of each log kept out of the fit."""
+    plate and sensor split kept; default nominal); ``holdout`` the fraction of each log kept out of the fit;
+    ``marker_height`` (m) how far above the plate's top a camera's markers lie (their thickness)."""
     from stewart_gym.presets import load_geometry
 
+    if not (math.isfinite(marker_height) and 0.0 <= marker_height <= MAX_MARKER_HEIGHT):
+        raise ConfigError(f"the markers' height above the plate must be 0 to {MAX_MARKER_HEIGHT * 1e3:g} mm, got "
+                          f"{marker_height * 1e3:g} mm")  # fmt: skip
     if not logs:
         raise ConfigError("sysid needs at least one log")
     rates = {round(log.rate_hz) for log in logs}
@@ -555,7 +561,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
 
         near = [servos[i * len(DEADBAND_GRID) + j] for i in _around(si, len(SPEED_GRID))
                 for j in _around(di, len(DEADBAND_GRID))]  # the ball's best first, then those near it  # fmt: skip
-        trim_fit = fit_trims(geo, cal, camera, near, lat, MechanismSpec().plate_top)
+        trim_fit = fit_trims(geo, cal, camera, near, lat, MechanismSpec().plate_top + marker_height)
         trims = trim_fit.trims_us
         undetermined.remove("servos.trim_us")
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))

