@@ -242,8 +242,7 @@ class FitResult:
                        f"{', '.join(f'{v:.1f}' for v in f.sigma_us)} (from {f.frames} camera frames of the plate; "
                        f"residual {f.rms_m * 1e3:.2f} mm RMS; servos replayed at "
                        f"{f.servo.max_speed / ServoSpec().max_speed:.2f}× speed, {f.servo.deadband_us:g} µs dead "
-                       f"band; markers {f.lift_m * 1e3:+.1f} mm ± {f.lift_sigma_m * 1e3:.1f} off the plate's "
-                       "top)")  # fmt: skip
+                       "band)")  # fmt: skip
         for h, row in self.prediction.items():
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
                        f"{row['fitted']:.2f} mm ({row['nominal'] / max(row['fitted'], 1e-9):.1f}× better)")
