@@ -7,8 +7,8 @@ the panels (:class:`~stewart_gym.sensing_arrays.PanelArray`), observe (:class:`~
 .ObserverArray`), and end the step: reward, success, termination and truncation, and the info as arrays. It
 carries, per copy, what the env carries from step to step (the last action, the commanded tilt, the steps taken
 and the steps in a row within the success radius); each copy's own env is used for its task and its resets.
-The results equal each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step`, to the last bit
-(``tests/envs/test_vector.py``).
+The results equal each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but
+for ``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``).
 """
 
 from __future__ import annotations
@@ -24,7 +24,8 @@ from stewart_gym.sim.batched import BatchedSim
 
 __all__ = ["CopySteps", "StepArrays"]
 
-#: The step's info as arrays, one row per copy: name → (n, …) array, in the order an env's info has them.
+#: A step of every copy: observations, rewards, terminated, truncated (a row each) and the info, name → (n, …)
+#: array, in the order an env's info has them.
 StepArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]
 
 
