@@ -15,12 +15,16 @@ from __future__ import annotations
 
 import csv
 import inspect
+import io
 import json
 import math
+import os
+import pickle
 import subprocess
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +34,7 @@ import yaml
 from sb3_contrib import TQC
 from stable_baselines3 import PPO, SAC, TD3
 from stable_baselines3.common.base_class import BaseAlgorithm
-from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback, EvalCallback
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure as make_sb3_logger
 from stable_baselines3.common.noise import ActionNoise, NormalActionNoise, OrnsteinUhlenbeckActionNoise
@@ -43,11 +47,12 @@ from stewart_gym.inputs import read_yaml
 from stewart_gym.outputs import RUN_GEOMETRY_FILE, model_statistics, run_config
 from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
+from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator
 
 __all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
            "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
-           "check_run_dir", "action_noise", "load_hyperparams", "make_env", "planned_timesteps", "run_hyperparams",
-           "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+           "check_run_dir", "action_noise", "evaluation_env", "load_hyperparams", "make_env", "planned_timesteps",
+           "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -85,6 +90,7 @@ class TrainConfig:
     vec_env: str = "dummy"  # where the n_envs copies step: "dummy" (this process) or "subproc" (one process each)
     eval_freq: int | None = None  # env steps between evaluations (total over all envs)
     eval_episodes: int | None = None
+    background_eval: bool | None = None  # evaluate in a second process (default: where there are 2 cores or more)
     checkpoint_freq: int = 100_000
     resume: str | None = None  # a run folder or checkpoint .zip to continue from
     twin: str | None = None  # a twin file: train for that platform (randomised narrowly around it)
@@ -488,32 +494,67 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
                         **wrapper)  # fmt: skip
 
 
-class _EvalLog(EvalCallback):
-    """EvalCallback that also writes the learning curve with wall time, and saves VecNormalize with the best model."""
+class _EvalLog(BaseCallback):
+    """Every ``eval_freq`` calls, a snapshot of the policy for ``evaluator``; with each evaluation that comes back,
+    a row of the learning curve (``eval.csv``, with the wall time it came back at), SB3's ``eval/evaluations.npz``,
+    the logger's ``eval/`` values, and the best model so far, as it was when its snapshot was taken, with its
+    statistics (``best/``). :meth:`finish` waits for the evaluations still out."""
 
-    def __init__(self, *args: Any, csv_path: Path, started: float,
-                 on_eval: Callable[[dict[str, float]], None] | None = None, **kwargs: Any) -> None:  # fmt: skip
-        super().__init__(*args, **kwargs)
-        self.csv_path, self.started, self.on_eval = csv_path, started, on_eval
-        with csv_path.open("w", newline="") as fh:
+    def __init__(self, evaluator: InProcessEvaluator | BackgroundEvaluator, eval_freq: int, run: Path,
+                 started: float, on_eval: Callable[[dict[str, float]], None] | None = None) -> None:  # fmt: skip
+        super().__init__()
+        self.evaluator, self.eval_freq, self.run, self.started, self.on_eval = evaluator, eval_freq, run, started, on_eval
+        self.best_mean_reward = -math.inf
+        self._snapshots: dict[int, tuple[bytes, bytes | None]] = {}  # model zip and statistics, until evaluated
+        self._history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": [], "successes": []}
+        (run / "best").mkdir(parents=True, exist_ok=True)
+        (run / "eval").mkdir(parents=True, exist_ok=True)
+        with (run / "eval.csv").open("w", newline="") as fh:
             csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate"])
 
     def _on_step(self) -> bool:
-        n_before = len(self.evaluations_timesteps)
-        best_before = self.best_mean_reward
-        ok = super()._on_step()
-        if len(self.evaluations_timesteps) > n_before:
-            success = float(np.mean(self._is_success_buffer)) if self._is_success_buffer else float("nan")
-            row = {"timesteps": self.num_timesteps, "wall_s": round(time.time() - self.started, 1),
-                   "mean_reward": round(float(self.last_mean_reward), 3), "success_rate": success}  # fmt: skip
-            with self.csv_path.open("a", newline="") as fh:
-                csv.writer(fh).writerow(row.values())
-            train_env = self.model.get_env()
-            if self.best_mean_reward > best_before and isinstance(train_env, VecNormalize) and self.best_model_save_path:
-                train_env.save(str(Path(self.best_model_save_path) / "vecnormalize.pkl"))
-            if self.on_eval is not None:
-                self.on_eval(row)
-        return ok
+        if self.n_calls % self.eval_freq == 0:
+            zipped = io.BytesIO()
+            self.model.save(zipped)
+            norm = self.model.get_vec_normalize_env()
+            self._snapshots[self.num_timesteps] = (zipped.getvalue(), None if norm is None else pickle.dumps(norm))
+            self.evaluator.submit(self.num_timesteps, self.model)
+        for evaluation in self.evaluator.results():
+            self._record(evaluation)
+        return True
+
+    def finish(self) -> None:
+        """Record the evaluations still out, once they are done."""
+        for evaluation in self.evaluator.results(wait=True):
+            self._record(evaluation)
+
+    def _record(self, evaluation: Evaluation) -> None:
+        zipped, statistics = self._snapshots.pop(evaluation.timesteps)
+        mean_reward = float(np.mean(evaluation.episode_rewards))
+        success = float(np.mean(evaluation.successes)) if evaluation.successes else float("nan")
+        row = {"timesteps": evaluation.timesteps, "wall_s": round(time.time() - self.started, 1),
+               "mean_reward": round(mean_reward, 3), "success_rate": success}  # fmt: skip
+        with (self.run / "eval.csv").open("a", newline="") as fh:
+            csv.writer(fh).writerow(row.values())
+        history = self._history
+        history["timesteps"].append(evaluation.timesteps)
+        history["results"].append(evaluation.episode_rewards)
+        history["ep_lengths"].append(evaluation.episode_lengths)
+        if evaluation.successes:
+            history["successes"].append(evaluation.successes)
+        np.savez(self.run / "eval" / "evaluations", **{k: v for k, v in history.items() if v})
+        self.logger.record("eval/mean_reward", mean_reward)
+        self.logger.record("eval/mean_ep_length", float(np.mean(evaluation.episode_lengths)))
+        if evaluation.successes:
+            self.logger.record("eval/success_rate", success)
+        self.logger.dump(evaluation.timesteps)
+        if mean_reward > self.best_mean_reward:
+            self.best_mean_reward = mean_reward
+            (self.run / "best" / "best_model.zip").write_bytes(zipped)
+            if statistics is not None:
+                (self.run / "best" / "vecnormalize.pkl").write_bytes(statistics)
+        if self.on_eval is not None:
+            self.on_eval(row)
 
 
 class _Deadline(BaseCallback):
@@ -608,12 +649,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     residual = check_residual(hp["residual"]) if hp.get("residual") else None
     if residual is not None:
         hp["residual"] = residual  # with the base's design as it is now: a later retune leaves this run alone
-    # built here first: a bad env keyword is one error line, before the run folder and the worker processes
-    if env_kwargs.get("backend") == "batched":  # the evaluation episodes side by side, on one batched simulator
-        eval_env: VecEnv = make_env(config.env_id, eval_episodes, config.seed + EVAL_SEED_OFFSET, env_kwargs, residual)
-    else:
-        eval_env = DummyVecEnv([lambda: _monitored(config.env_id, env_kwargs, residual)])
-    eval_env.seed(config.seed + EVAL_SEED_OFFSET)  # the same evaluation episodes, so learning curve and best/, each run
+    make_eval_env = partial(evaluation_env, config.env_id, eval_episodes, config.seed + EVAL_SEED_OFFSET, env_kwargs,
+                            residual)  # fmt: skip
+    eval_env = make_eval_env()  # built here first: a bad env keyword is one error line, before the run folder
+    background = config.background_eval if config.background_eval is not None else (os.cpu_count() or 1) >= 2
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
     recorded = hp
@@ -632,15 +671,22 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     stats = None
     if resume is not None:
         stats = resume_statistics(resume)
+    norm_kwargs = normalize if isinstance(normalize, dict) else {}
     if normalize:
-        norm_kwargs = normalize if isinstance(normalize, dict) else {}
         if stats is not None:
             env = VecNormalize.load(str(stats), env)
             env.obs_rms = FixedStatistics.of(env.obs_rms)  # the resumed policy's inputs keep their meaning
         else:
             env = VecNormalize(env, **{"norm_obs": True, "norm_reward": True, **norm_kwargs})
-        eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **{k: v for k, v in norm_kwargs.items()
-                                                                                if k not in ("norm_reward",)})  # fmt: skip
+    eval_norm = {k: v for k, v in norm_kwargs.items() if k != "norm_reward"} if normalize else None
+    if background:
+        eval_env.close()
+        evaluator: InProcessEvaluator | BackgroundEvaluator = BackgroundEvaluator(make_eval_env, algo_cls,
+                                                                                  eval_episodes, eval_norm)  # fmt: skip
+    else:
+        if eval_norm is not None:
+            eval_env = VecNormalize(eval_env, training=False, norm_reward=False, **eval_norm)
+        evaluator = InProcessEvaluator(eval_env, eval_episodes)
     tb = str(run / "tb") if config.tensorboard else None
     noise = action_noise(hp, int(env.action_space.shape[0]))
     if resume is not None:
@@ -659,18 +705,23 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         model.set_logger(make_sb3_logger(str(run), ["stdout"] if config.verbose else []))
     started = time.time()
     deadline = _Deadline(max_wall_s)
+    evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval)
     every_callback = CallbackList([
-        _EvalLog(eval_env, n_eval_episodes=eval_episodes, eval_freq=max(eval_freq // n_envs, 1),
-                 best_model_save_path=str(run / "best"), log_path=str(run / "eval"), deterministic=True,
-                 csv_path=run / "eval.csv", started=started, on_eval=on_eval, verbose=0),
+        evaluations,
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
                            save_vecnormalize=bool(normalize)),
         deadline,
         *([_Progress(on_progress)] if on_progress is not None else []),
         *callbacks,
     ])  # fmt: skip
-    model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
-                reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
+    try:
+        if eval_freq <= n_timesteps:  # a worker starts while the training does: ready for the first evaluation
+            evaluator.start()
+        model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
+                    reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
+        evaluations.finish()
+    finally:
+        evaluator.close()
     wall = time.time() - started
     model.save(run / "model.zip")
     if isinstance(env, VecNormalize):
@@ -687,7 +738,6 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
                                                 default=None)  # fmt: skip
     (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     env.close()
-    eval_env.close()
     return metrics
 
 
@@ -697,6 +747,17 @@ def _number(text: str) -> int | float | None:
     if value != value:
         return None
     return int(value) if value.is_integer() and "." not in text else value
+
+
+def evaluation_env(env_id: str, n_episodes: int, seed: int, env_kwargs: dict, residual: dict | None = None) -> VecEnv:
+    """A training run's evaluation env, seeded: on the batched backend ``n_episodes`` copies, to play the
+    episodes side by side on one batched simulator; on the others one env, to play them in turn."""
+    if env_kwargs.get("backend") == "batched":
+        env = make_env(env_id, n_episodes, seed, env_kwargs, residual)
+    else:
+        env = DummyVecEnv([partial(_monitored, env_id, env_kwargs, residual)])
+    env.seed(seed)  # the same evaluation episodes, so learning curve and best/, each run
+    return env
 
 
 def _monitored(env_id: str, env_kwargs: dict, residual: dict | None = None) -> Any:

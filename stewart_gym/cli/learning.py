@@ -65,7 +65,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
                       geometry=args.geometry, backend=args.backend, sensor=args.sensor, estimator=args.estimator,
                       seed=args.seed, n_timesteps=args.timesteps, n_envs=args.n_envs, vec_env=args.vec_env,
-                      eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, checkpoint_freq=args.checkpoint_freq,
+                      eval_freq=args.eval_freq, eval_episodes=args.eval_episodes,
+                      background_eval=args.background_eval, checkpoint_freq=args.checkpoint_freq,
                       resume=resume_source(args.resume, args.env, args.geometry), twin=args.twin,
                       progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
@@ -360,6 +361,9 @@ def register(sub: Any) -> None:
     p.add_argument("--eval-freq", type=int_at_least(1, MAX_TIMESTEPS), help="env steps between evaluations")
     p.add_argument("--eval-episodes", type=int_at_least(1, 10_000),
                    help="episodes per evaluation during training (default: the YAML's evaluation section, else 20)")
+    p.add_argument("--background-eval", action=argparse.BooleanOptionalAction,
+                   help="evaluate in a second process while the training goes on (default: where the machine has 2 "
+                        "cores or more); the same evaluations either way")  # fmt: skip
     p.add_argument("--checkpoint-freq", type=int_at_least(1, MAX_TIMESTEPS), default=100_000,
                    help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
                         "default 100000)")  # fmt: skip
