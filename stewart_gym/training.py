@@ -652,7 +652,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     make_eval_env = partial(evaluation_env, config.env_id, eval_episodes, config.seed + EVAL_SEED_OFFSET, env_kwargs,
                             residual)  # fmt: skip
     eval_env = make_eval_env()  # built here first: a bad env keyword is one error line, before the run folder
-    background = config.background_eval if config.background_eval is not None else (os.cpu_count() or 1) >= 2
+    background = config.background_eval if config.background_eval is not None else _cores() >= 2
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)
     recorded = hp
@@ -739,6 +739,15 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
     env.close()
     return metrics
+
+
+def _cores() -> int:
+    """The CPU cores this process may run on."""
+    if hasattr(os, "process_cpu_count"):  # Python 3.13
+        return os.process_cpu_count() or 1
+    if hasattr(os, "sched_getaffinity"):  # Linux
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def _number(text: str) -> int | float | None:

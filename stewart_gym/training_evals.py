@@ -114,8 +114,11 @@ class BackgroundEvaluator:
         """Start the worker now, so that it is ready for the first snapshot (else :meth:`submit` starts it)."""
         if self._process is not None:
             return
-        context = multiprocessing.get_context("forkserver")
-        context.set_forkserver_preload(["stewart_gym.training"])  # a warm server: each worker starts in ~0.1 s
+        if "forkserver" in multiprocessing.get_all_start_methods():
+            context = multiprocessing.get_context("forkserver")
+            context.set_forkserver_preload(["stewart_gym.training"])  # a warm server: each worker starts in ~0.1 s
+        else:  # Windows
+            context = multiprocessing.get_context("spawn")
         self._tasks, self._answers = context.Queue(), context.Queue()
         self._process = context.Process(target=_serve, args=(*self._spec, self._tasks, self._answers, os.getpid()),
                                         daemon=True, name="stewart-gym evaluations")  # fmt: skip
