@@ -298,7 +298,8 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
                       geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
                       n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
                       overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
-                      vec_env="subproc")  # fmt: skip  (n_envs worker processes, the CPUs Ray reserves; batched: one process)
+                      vec_env="subproc",  # n_envs worker processes, the CPUs Ray reserves; batched: one process
+                      background_eval=False)  # fmt: skip  (the trials fill the cores Ray has: no core to spare)
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:

@@ -155,15 +155,19 @@ class BackgroundEvaluator:
         return done
 
     def close(self) -> None:
-        """Stop the worker (it finishes nothing outstanding)."""
+        """Stop the worker (it finishes nothing outstanding), and let this process exit without the snapshots it
+        did not take."""
         if self._process is None:
             return
         if self._process.is_alive():
             self._tasks.put(None)
-            self._process.join(timeout=5.0)
+            self._process.join(timeout=1.0)  # an evaluation under way is not waited for
         if self._process.is_alive():
             self._process.kill()
             self._process.join()
+        for channel in (self._tasks, self._answers):  # a snapshot no one will read must not hold up this process's exit
+            channel.cancel_join_thread()
+            channel.close()
         self._process = None
 
 

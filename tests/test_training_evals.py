@@ -103,3 +103,37 @@ def test_the_worker_ends_when_the_training_process_is_killed() -> None:
     finally:
         proc.kill()
         proc.wait()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stopped_training_exits_and_leaves_no_worker(sig: signal.Signals, tmp_path: Path) -> None:
+    """Ctrl-C (to the whole process group, as a terminal sends it) or SIGTERM (to the training alone) while the
+    worker evaluates or waits: one error line, the signal's exit status, and no process of the group left, even
+    with a snapshot the worker never read."""
+    run = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "train", "--hyperparams", "ppo_batched",
+                             "--run-dir", str(run), "--timesteps", "400000", "--eval-freq", "4096", "--no-progress",
+                             "--no-tensorboard", "--background-eval"], cwd=ROOT, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and not (run / "eval.csv").is_file() or len(
+                (run / "eval.csv").read_text().splitlines()) < 2:  # fmt: skip
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.2)
+        if sig == signal.SIGINT:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+        assert proc.returncode == 128 + sig
+        assert err.strip().splitlines()[-1].startswith("error: stopped by")
+        deadline = time.monotonic() + 10
+        while (left := subprocess.run(["pgrep", "-a", "-g", str(proc.pid)], capture_output=True,
+                                      text=True).stdout.strip()) and time.monotonic() < deadline:  # fmt: skip
+            time.sleep(0.2)
+        assert left == ""
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
