@@ -104,21 +104,23 @@ def usable_frames(logs: Sequence[PlateLog]) -> int:
 def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: PlateLog,
             servos: Sequence[ServoSpec]) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """The servos' angles (C, S + 1, 6) rad, untrimmed, under each of the C candidate ``servos`` (one batched run),
-    at every physics step of the replay (each tick's pulses held for its :data:`SUBSTEPS`), and their times
-    (S + 1,) s."""
+    at every physics step of the replay, and their times (S + 1,) s. The replay runs at :data:`SUBSTEPS` physics
+    steps a median tick, on a regular grid from the first tick; at each step the servos are sent the pulses of
+    the last tick logged by then, so that a late or early tick (a loaded machine's) acts when it was sent."""
     period = float(np.median(np.diff(log.t)))
     hz = int(round(SUBSTEPS / period))
     n = len(servos)
     sim = BatchedSim(geometry, n=n, calibration=calibration, physics_hz=hz, control_hz=hz)
     sim.reset(servo_specs=list(servos))
-    alpha = np.empty((n, len(log.t) * SUBSTEPS + 1, 6))
+    steps = int(math.ceil((log.t[-1] + period - log.t[0]) * hz))
+    times = log.t[0] + np.arange(steps + 1) / hz
+    ticks = np.clip(np.searchsorted(log.t, times[:-1] + 1e-9, side="right") - 1, 0, len(log.t) - 1)
+    alpha = np.empty((n, steps + 1, 6))
     alpha[:, 0] = sim.alpha
-    for k, pulses in enumerate(log.pulses):
-        for j in range(SUBSTEPS):
-            sim.command(np.broadcast_to(pulses, (n, 6)))
-            sim.step()
-            alpha[:, k * SUBSTEPS + j + 1] = sim.alpha
-    times = np.concatenate([(log.t[:, None] + np.arange(SUBSTEPS) / hz).ravel(), [log.t[-1] + period]])
+    for i, k in enumerate(ticks):
+        sim.command(np.broadcast_to(log.pulses[k], (n, 6)))
+        sim.step()
+        alpha[:, i + 1] = sim.alpha
     return alpha, times
 
 
