@@ -14,8 +14,12 @@ camera's pose relative to the base is not known, so the fit finds it too:
 - a frame's time is known only to within part of a frame period, so a frame taken while the plate moves fast
   is further off: the fit measures that timing scatter from its residuals (against the plate's speed) and
   weighs each frame by it, then fits again;
-- given several candidate servos (``sysid`` gives the ball's best and those up to two steps from it on its
-  grid), all are replayed in one batched run, and the fit keeps the one whose plate poses fit the camera's best.
+- given several candidate servos (``sysid`` gives its whole grid of speeds and dead bands, the ball's best
+  first), all are replayed in one batched run of their servos alone; the fit ranks them by how well their plate
+  poses would fit the camera's after one Gauss–Newton step (first on every :data:`RANK_STRIDE`-th frame, then the
+  :data:`SHORTLIST` best on all), solves again with the best, and ranks again from there, at most
+  :data:`MAX_PICKS` times. A servo replayed with the wrong dead band stops elsewhere than the real one did, an
+  error the trims would take up.
 
 At any one pose, what a trim does to the plate a small shift of the camera would do too; what tells them apart
 is how the kinematics change with the plate's tilt, height and yaw. That is why ``identify`` moves the plate in
@@ -52,6 +56,13 @@ POINTS = np.array([[-0.1, 0.1, 0.0], [0.1, 0.1, 0.0], [0.1, -0.1, 0.0], [-0.1, -
 SUBSTEPS = 4
 #: Frames in the log's first second are left out: the controller takes the ball then.
 SKIP_S = 1.0
+#: The most times the fit moves to another candidate servo, each time solving again from the last solution and
+#: ranking every candidate anew from there.
+MAX_PICKS = 3
+#: How many of the candidates the first ranking puts first are ranked again after each move.
+SHORTLIST = 8
+#: With more candidates than :data:`SHORTLIST`, the first ranking looks at every this-th frame.
+RANK_STRIDE = 4
 #: m: the scale of the soft-L1 loss (a frame's point further off than this counts less than its square).
 LOSS_SCALE_M = 0.001
 
@@ -119,8 +130,7 @@ def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: Plat
     alpha[:, 0] = sim.alpha
     for i, k in enumerate(ticks):
         sim.command(np.broadcast_to(log.pulses[k], (n, 6)))
-        sim.step()
-        alpha[:, i + 1] = sim.alpha
+        alpha[:, i + 1] = sim.step_servos()[-1]
     return alpha, times
 
 
@@ -163,12 +173,13 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     x0[9:12] = np.mean(np.concatenate([p[3][:, 3:] for p in parts]), axis=0) - camera0 @ home
     x0[12] = delay_s
 
-    def model(x: np.ndarray, c: int) -> np.ndarray:
-        """The marker plane's points (F, 4, 3) in the camera's frame for the parameters ``x``, candidate ``c``."""
+    def model(x: np.ndarray, c: int, stride: int = 1) -> np.ndarray:
+        """The marker plane's points (F, 4, 3) in the camera's frame for the parameters ``x``, candidate ``c`` (of
+        every ``stride``-th frame of each log)."""
         trims, turn, shift, delay = x[:6], x[6:9], x[9:12], x[12]
         out = []
         for alpha, times, frame_t, _ in parts:
-            at = frame_t - delay
+            at = frame_t[::stride] - delay
             theta = np.stack([np.interp(at, times, alpha[c, :, i]) for i in range(6)], axis=1) - trims / gain
             pose = forward_kinematics(geometry, servo_angles=theta).pose
             rot = rotation_matrix(pose[:, 3], pose[:, 4], pose[:, 5])
@@ -177,9 +188,15 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         camera = camera0 @ rotation_from_vector(turn)
         return world @ camera.T + shift
 
-    def residuals(x: np.ndarray, c: int, weight: np.ndarray) -> np.ndarray:
-        r = (model(x, c) - measured) * weight[:, None, None]
+    def residuals(x: np.ndarray, c: int, weight: np.ndarray, stride: int = 1) -> np.ndarray:
+        sel = every(stride)
+        r = (model(x, c, stride) - measured[sel]) * weight[sel, None, None]
         return np.where(np.isfinite(r), r, 0.1).ravel()  # a pose the kinematics cannot close: far off
+
+    def every(stride: int) -> np.ndarray:
+        """The indices of every ``stride``-th frame of each log among all the frames."""
+        starts = np.cumsum([0, *(len(p[2]) for p in parts)])
+        return np.concatenate([np.arange(a, b, stride) for a, b in zip(starts[:-1], starts[1:])])
 
     scale = np.concatenate([np.full(6, 10.0), np.full(3, 0.01), np.full(3, 0.01), [0.01]])
 
@@ -189,13 +206,22 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     sol = solve(x0, 0, np.ones(frames))
     weight, timing_s = _jitter_weights(sol.fun.reshape(frames, -1), _point_speed(model, sol.x, 0))
     sol = solve(sol.x, 0, weight)
-    best = 0
-    if len(candidates) > 1:
+    best, tried, ranked = 0, {0}, list(range(len(candidates)))
+    for _ in range(MAX_PICKS if len(candidates) > 1 else 0):
         raw = _unscaled_jacobian(sol.jac, sol.fun)
-        costs = [_linearised_cost(residuals(sol.x, c, weight), raw) for c in range(len(candidates))]
-        best = int(np.argmin(costs))
-        if best != 0:
-            sol = solve(sol.x, best, weight)
+        stride = RANK_STRIDE if len(ranked) > SHORTLIST else 1  # many candidates: a first cut on fewer frames
+        rows = (every(stride)[:, None] * (raw.shape[0] // frames) + np.arange(raw.shape[0] // frames)).ravel()
+        costs = np.array([_linearised_cost(residuals(sol.x, c, weight, stride), raw[rows]) for c in ranked])
+        ranked = [ranked[i] for i in np.argsort(costs)[:SHORTLIST]]  # the next rounds rank only these
+        if stride > 1:
+            raw_costs = [_linearised_cost(residuals(sol.x, c, weight), raw) for c in ranked]
+            ranked = [ranked[i] for i in np.argsort(raw_costs)]
+        pick = ranked[0]
+        if pick == best or pick in tried:  # settled (or going round): keep the one solved last
+            break
+        best = pick
+        tried.add(pick)
+        sol = solve(sol.x, best, weight)
     seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
     sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
     rms = float(math.sqrt(np.mean(residuals(sol.x, best, np.ones(frames)) ** 2)))

@@ -27,8 +27,9 @@ of the fit, not what the model leaves out.
 
 - *Each servo's trim*, where the logs hold the plate poses a camera saw (``identify --sensor camera``): the
   pulses replayed, and the plate poses they give fitted to the camera's, with the camera's own pose
-  (:mod:`stewart_gym.plate_trims`). The replay's servos are the best candidate's or one up to two grid steps
-  from it in speed and dead band, whichever the plate poses fit best.
+  (:mod:`stewart_gym.plate_trims`). The replay's servos are whichever of the grid's speeds and dead bands the
+  plate poses fit best, starting from the ball's best: with a dead band, a servo stops short of its target, which
+  a trim would take up.
 
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
@@ -450,11 +451,6 @@ def _trims_for(geometry: Any, calibration: ServoCalibration, accel: np.ndarray) 
     return -(mix[0] * shapes[0] + mix[1] * shapes[1])
 
 
-def _around(i: int, n: int, reach: int = 2) -> list[int]:
-    """Grid index ``i`` first, then those up to ``reach`` steps from it within ``[0, n)``."""
-    return [i, *(k for d in range(1, reach + 1) for k in (i - d, i + d) if 0 <= k < n)]
-
-
 def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibration: ServoCalibration | None = None,
              start: Twin | None = None, holdout: float = 0.3, seed: int = 0,
              on_progress: Any = None, marker_height: float = 0.0) -> FitResult:  # fmt: skip
@@ -558,9 +554,9 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     elif camera:
         from stewart_gym.sim.urdf import MechanismSpec
 
-        near = [servos[i * len(DEADBAND_GRID) + j] for i in _around(si, len(SPEED_GRID))
-                for j in _around(di, len(DEADBAND_GRID))]  # the ball's best first, then those near it  # fmt: skip
-        trim_fit = fit_trims(geo, cal, camera, near, lat, MechanismSpec().plate_top + marker_height)
+        ball_best = si * len(DEADBAND_GRID) + di  # the first candidate; the plate poses choose among all the grid
+        candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:]]
+        trim_fit = fit_trims(geo, cal, camera, candidates, lat, MechanismSpec().plate_top + marker_height)
         trims = trim_fit.trims_us
         undetermined.remove("servos.trim_us")
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))

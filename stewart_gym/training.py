@@ -518,7 +518,7 @@ class _EvalLog(BaseCallback):
             self.model.save(zipped)
             norm = self.model.get_vec_normalize_env()
             self._snapshots[self.num_timesteps] = (zipped.getvalue(), None if norm is None else pickle.dumps(norm))
-            self.evaluator.submit(self.num_timesteps, self.model)
+            self.evaluator.submit(self.num_timesteps, self.model, zipped.getvalue())
         for evaluation in self.evaluator.results():
             self._record(evaluation)
         return True

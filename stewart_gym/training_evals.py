@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import multiprocessing
+import multiprocessing.context
 import os
 import pickle
 import queue
@@ -71,8 +72,9 @@ class InProcessEvaluator:
     def start(self) -> None:
         """Nothing to start: the evaluations run in this process."""
 
-    def submit(self, timesteps: int, model: BaseAlgorithm) -> None:
-        """Evaluate ``model`` now, with the training env's observation statistics."""
+    def submit(self, timesteps: int, model: BaseAlgorithm, zipped: bytes) -> None:
+        """Evaluate ``model`` now, with the training env's observation statistics (``zipped``, the model as
+        saved, is not needed here)."""
         if model.get_vec_normalize_env() is not None:
             sync_envs_normalization(model.get_env(), self.env)
         self._done.append(Evaluation(int(timesteps), *play(model, self.env, self.n_episodes)))
@@ -114,6 +116,7 @@ class BackgroundEvaluator:
         """Start the worker now, so that it is ready for the first snapshot (else :meth:`submit` starts it)."""
         if self._process is not None:
             return
+        context: multiprocessing.context.BaseContext
         if "forkserver" in multiprocessing.get_all_start_methods():
             context = multiprocessing.get_context("forkserver")
             context.set_forkserver_preload(["stewart_gym.training"])  # a warm server: each worker starts in ~0.1 s
@@ -124,14 +127,13 @@ class BackgroundEvaluator:
                                         daemon=True, name="stewart-gym evaluations")  # fmt: skip
         self._process.start()
 
-    def submit(self, timesteps: int, model: BaseAlgorithm) -> None:
-        """Send the policy as it is now (and the training env's observation statistics) to be evaluated."""
+    def submit(self, timesteps: int, model: BaseAlgorithm, zipped: bytes) -> None:
+        """Send the policy as it is now (``zipped``: ``model`` saved now, as ``model.save`` writes it) and the
+        training env's observation statistics to be evaluated."""
         self.start()
-        zipped = io.BytesIO()
-        model.save(zipped)
         norm = model.get_vec_normalize_env()
         statistics = None if norm is None else pickle.dumps(norm.obs_rms)
-        self._tasks.put((int(timesteps), zipped.getvalue(), statistics))
+        self._tasks.put((int(timesteps), zipped, statistics))
         self._pending += 1
 
     def results(self, wait: bool = False) -> list[Evaluation]:

@@ -28,6 +28,14 @@ WORKSPACE_BOX = {
 }
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _sb3_logs_in_a_temporary_folder(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """SB3 makes a folder for its logger (``$SB3_LOGDIR``, else a new ``SB3-<time>`` in the system's temporary
+    folder) for a model that learns without one set, as ``examples/train_sb3.py`` does: here it goes with the
+    tests' own temporary files."""
+    os.environ.setdefault("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+
+
 @pytest.fixture(params=preset_names())
 def preset(request: pytest.FixtureRequest) -> PlatformGeometry:
     return load_preset(request.param)

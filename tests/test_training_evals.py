@@ -4,6 +4,7 @@ give in the training's own, a failing or orphaned worker does not hang or linger
 from __future__ import annotations
 
 import csv
+import io
 import os
 import signal
 import subprocess
@@ -60,7 +61,9 @@ def test_a_failing_worker_is_an_error_not_a_hang() -> None:
     evaluator = BackgroundEvaluator(_broken_env, PPO, 2)
     model = PPO("MlpPolicy", "Pendulum-v1", n_steps=64, device="cpu")
     try:
-        evaluator.submit(64, model)
+        zipped = io.BytesIO()
+        model.save(zipped)
+        evaluator.submit(64, model, zipped.getvalue())
         with pytest.raises(RuntimeError, match="the evaluation process failed: ValueError: no such platform"):
             evaluator.results(wait=True)
     finally:

@@ -330,12 +330,29 @@ class BatchedSim:
     # --------------------------------------------------------------- stepping
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps)."""
+        self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
+        alphas = self._servo_steps()  # the servos, then the plate's path over the period: neither needs the ball
+        origin, rot = self._plate_frames(self._frames[1], alphas)
+        (o0, r0), (o1, r1) = self._frames
+        origins = np.concatenate([o0[None], o1[None], origin])  # frames k-1, k, then k+1 … k+substeps
+        rots = np.concatenate([r0[None], r1[None], rot])
+        self._roll(origins, rots)
+        self._frames = [(origins[-2], rots[-2]), (origins[-1], rots[-1])]
+
+    def step_servos(self) -> np.ndarray:
+        """Advance only the servos one control period, for a replay that needs their angles alone (the plate and
+        the balls stay as they were, out of step with them, until :meth:`reset`): the angles (``substeps``, n, 6)
+        rad at the end of each physics step."""
+        return self._servo_steps()
+
+    def _servo_steps(self) -> np.ndarray:
+        """Send what was commanded and turn the servos through the period's physics steps; their angles
+        (substeps, n, 6) after each."""
         self._send_pending()
         targets = self._targets()
         alpha, last = self.alpha, self._last_step
-        self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], alpha)
         alphas = np.empty((self.substeps, self.n, 6))
-        for j in range(self.substeps):  # the servos, then the plate's path over the period: neither needs the ball
+        for j in range(self.substeps):
             if self._update_held():
                 targets = self._targets()
             wanted = np.clip(self._gain * (targets - alpha), -self._max_step, self._max_step)
@@ -343,13 +360,8 @@ class BatchedSim:
             alpha = alpha + last
             alphas[j] = alpha
             self._step_count += 1
-        origin, rot = self._plate_frames(self._frames[1], alphas)
-        (o0, r0), (o1, r1) = self._frames
-        origins = np.concatenate([o0[None], o1[None], origin])  # frames k-1, k, then k+1 … k+substeps
-        rots = np.concatenate([r0[None], r1[None], rot])
-        self._roll(origins, rots)
         self.alpha, self._last_step = alpha, last
-        self._frames = [(origins[-2], rots[-2]), (origins[-1], rots[-1])]
+        return alphas
 
     def _roll(self, origins: np.ndarray, rots: np.ndarray) -> None:
         """Advance the balls over the period's physics steps on the plate, whose frames, origins (s + 2, n, 3) and

@@ -135,3 +135,24 @@ def test_each_platform_has_its_own_servos() -> None:
     moved = np.abs(sim.alpha - sim.calibration.angles(np.broadcast_to(sim.calibration.neutral_us, (3, 6))))
     assert moved[1].max() < moved[0].min()
     assert moved[2].max() == 0.0 and np.array_equal(sim.held_pulses()[2], sim.calibration.neutral_us)
+
+
+def test_stepping_the_servos_alone_turns_them_as_a_full_step_does() -> None:
+    """``step_servos`` (the camera trims' replay) gives the servo angles of every physics step exactly as
+    ``step`` leaves them, for servos of their own speed, dead band and lag."""
+    specs = [ServoSpec(), ServoSpec(max_speed=3.0, deadband_us=12.0), ServoSpec(lag_s=0.03)]
+    full, servos_only = BatchedSim(n=3), BatchedSim(n=3)
+    for sim in (full, servos_only):
+        sim.reset(servo_specs=specs)
+    pulses = tilt_pulses(4)[:60]
+    start, moved = full.alpha.copy(), 0.0
+    for w in pulses:
+        for sim in (full, servos_only):
+            sim.command(np.broadcast_to(w, (3, 6)))
+        full.step()
+        angles = servos_only.step_servos()
+        assert angles.shape == (full.substeps, 3, 6)
+        np.testing.assert_array_equal(angles[-1], full.alpha)
+        np.testing.assert_array_equal(servos_only.held_pulses(), full.held_pulses())
+        moved = max(moved, float(np.abs(full.alpha - start).min(axis=1).max()))
+    assert moved > 0.01  # the servos turned: the comparison saw motion, not three platforms at rest

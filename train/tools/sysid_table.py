@@ -2,7 +2,8 @@
 against the truth.
 
 Run: ``.venv/bin/python train/tools/sysid_table.py [--sensor panel|camera] [--seconds 60] [--twins NAME,...]
-[--keep] [--out JSON] [--page PAGE ...]``, on a quiet machine: the board and the loop run in real time.
+[--keep] [--out JSON] [--page PAGE ...] [--logs DIR [--refit]]``, on a quiet machine: the board and the loop
+run in real time.
 
 For each twin of :data:`TWINS`: start ``stewart-gym virtual-device --twin T`` (a platform whose parameters the
 host does not know), run ``stewart-gym identify`` through the wire for ``--seconds``, stop the board with SIGINT,
@@ -80,9 +81,12 @@ def twin_toml(tables: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, sensor: str = "panel") -> dict:
+def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, sensor: str = "panel",
+             record: bool = True) -> dict:  # fmt: skip
     """identify and sysid on the twin ``tables`` behind a virtual board; the row of the table. Leaves the twin
-    (``NAME.toml``), the log (``NAME.csv``) and the fitted twin (``NAME-fitted.toml``) in ``folder``."""
+    (``NAME.toml``), the log (``NAME.csv``) and the fitted twin (``NAME-fitted.toml``) in ``folder``. Without
+    ``record``, it fits the log already there."""
+    from stewart_gym.sim import ServoSpec
     from stewart_gym.sim.stewart_sim import MARKER_FACE_HEIGHT
     from stewart_gym.sim.twin import load_twin
     from stewart_gym.sysid import fit_twin, read_log
@@ -97,6 +101,43 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, s
         protocol = "maestro"
         board_extra = ["--camera-stream", str(pipe), "--camera", CAMERA_PRESET]
         identify_extra = ["--sensor", "camera", "--camera-config", str(config)]
+    board_log = folder / f"{name}-board.txt"
+    if record:
+        board_log.write_text(_record(name, twin_path, link, log, protocol, board_extra, identify_extra, seconds, seed))
+    elif not log.is_file():
+        raise RuntimeError(f"--refit: no log {log}")
+    t0 = time.perf_counter()
+    result = fit_twin([read_log(log)], "servo-hexapod", marker_height=MARKER_FACE_HEIGHT if sensor == "camera" else 0.0)
+    fit_s = time.perf_counter() - t0
+    fit = result.twin
+    (folder / f"{name}-fitted.toml").write_text(fit.toml())
+    row = {
+        "twin": name, "seconds": seconds, "fit_s": round(fit_s, 1), "fell_off": "off the plate" in board_log.read_text(),
+        "latency_true": truth.total_latency_ms, "latency_fit": round(result.total_latency_ms, 2),
+        "latency_sigma": fit.sigma.get("servos.latency_ms"),
+        "noise_true": truth["sensor.noise_mm"], "noise_fit": round(fit["sensor.noise_mm"], 3),
+        "speed_true": truth["servos.speed_scale"], "speed_fit": round(fit["servos.speed_scale"], 3),
+        "speed_sigma": fit.sigma.get("servos.speed_scale"),
+        "deadband_true": truth["servos.deadband_us"], "deadband_fit": round(fit["servos.deadband_us"], 2),
+        "deadband_sigma": fit.sigma.get("servos.deadband_us"),
+        "undetermined": list(fit.undetermined),
+        "trims_true": list(truth["servos.trim_us"]), "trims_fit": [round(v, 2) for v in fit["servos.trim_us"]],
+        "trims_sigma": None if result.trim_fit is None else [round(float(v), 2) for v in result.trim_fit.sigma_us],
+        "camera_frames": None if result.trim_fit is None else result.trim_fit.frames,
+        "replayed": None if result.trim_fit is None else [round(result.trim_fit.servo.max_speed / ServoSpec().max_speed, 3),
+                                                          result.trim_fit.servo.deadband_us],
+        "prediction": {str(h): {k: round(v, 3) for k, v in p.items()} for h, p in result.prediction.items()},
+        "printed": result.lines(),
+    }
+    for key, bound in BOUNDS.items():
+        row[f"{key}_ok"] = abs(row[f"{key}_fit"] - row[f"{key}_true"]) <= bound
+    print(json.dumps(row), flush=True)
+    return row
+
+
+def _record(name: str, twin_path: Path, link: Path, log: Path, protocol: str, board_extra: list[str],
+            identify_extra: list[str], seconds: float, seed: int) -> str:  # fmt: skip
+    """Run ``identify`` on a virtual board with the twin for ``seconds``, into ``log``; what the board printed."""
     board = subprocess.Popen([*SG, "virtual-device", "--protocol", protocol, "--twin", str(twin_path), "--seed",
                               str(seed), "--link", str(link), *board_extra], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -113,31 +154,7 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, s
         board_out = board.communicate(timeout=30)[0]
     if run.returncode != 0:
         raise RuntimeError(f"identify on {name} failed: {run.stdout}{run.stderr}")
-    t0 = time.perf_counter()
-    result = fit_twin([read_log(log)], "servo-hexapod", marker_height=MARKER_FACE_HEIGHT if sensor == "camera" else 0.0)
-    fit_s = time.perf_counter() - t0
-    fit = result.twin
-    (folder / f"{name}-fitted.toml").write_text(fit.toml())
-    row = {
-        "twin": name, "seconds": seconds, "fit_s": round(fit_s, 1), "fell_off": "off the plate" in board_out,
-        "latency_true": truth.total_latency_ms, "latency_fit": round(result.total_latency_ms, 2),
-        "latency_sigma": fit.sigma.get("servos.latency_ms"),
-        "noise_true": truth["sensor.noise_mm"], "noise_fit": round(fit["sensor.noise_mm"], 3),
-        "speed_true": truth["servos.speed_scale"], "speed_fit": round(fit["servos.speed_scale"], 3),
-        "speed_sigma": fit.sigma.get("servos.speed_scale"),
-        "deadband_true": truth["servos.deadband_us"], "deadband_fit": round(fit["servos.deadband_us"], 2),
-        "deadband_sigma": fit.sigma.get("servos.deadband_us"),
-        "undetermined": list(fit.undetermined),
-        "trims_true": list(truth["servos.trim_us"]), "trims_fit": [round(v, 2) for v in fit["servos.trim_us"]],
-        "trims_sigma": None if result.trim_fit is None else [round(float(v), 2) for v in result.trim_fit.sigma_us],
-        "camera_frames": None if result.trim_fit is None else result.trim_fit.frames,
-        "prediction": {str(h): {k: round(v, 3) for k, v in p.items()} for h, p in result.prediction.items()},
-        "printed": result.lines(),
-    }
-    for key, bound in BOUNDS.items():
-        row[f"{key}_ok"] = abs(row[f"{key}_fit"] - row[f"{key}_true"]) <= bound
-    print(json.dumps(row), flush=True)
-    return row
+    return board_out
 
 
 def write_between(page: Path, markers: tuple[str, str], text: str) -> None:
@@ -167,15 +184,18 @@ def table(rows: list[dict]) -> str:
 
 def camera_table(rows: list[dict]) -> str:
     """Each servo's trim, true → fitted (± its one-sigma uncertainty), ✗ past :data:`TRIM_BOUND_US`."""
-    out = ["| twin | " + " | ".join(f"servo {i} (µs)" for i in range(6)) + " | largest error (µs) | frames |",
-           "|---|" + "---|" * 8]  # fmt: skip
+    out = ["| twin | " + " | ".join(f"servo {i} (µs)" for i in range(6))
+           + " | largest error (µs) | frames | servos replayed: speed (×), dead band (µs), true → chosen |",
+           "|---|" + "---|" * 9]  # fmt: skip
     for r in rows:
         cells = []
         for true, fit, sd in zip(r["trims_true"], r["trims_fit"], r["trims_sigma"] or [float("nan")] * 6):
             mark = "" if abs(fit - true) <= TRIM_BOUND_US else " ✗"
             cells.append(f"{true:+.0f} → {fit:+.1f} ± {sd:.1f}{mark}")
         worst = max(abs(f - t) for t, f in zip(r["trims_true"], r["trims_fit"]))
-        out.append(f"| {r['twin']} | " + " | ".join(cells) + f" | {worst:.1f} | {r['camera_frames']} |")
+        speed, band = r["replayed"]
+        replayed = f"{r['speed_true']:.2f}, {r['deadband_true']:.0f} → {speed:.2f}, {band:.0f}"
+        out.append(f"| {r['twin']} | " + " | ".join(cells) + f" | {worst:.1f} | {r['camera_frames']} | {replayed} |")
     return "\n".join(out)
 
 
@@ -189,15 +209,22 @@ def main(argv: list[str] | None = None) -> int:
                     help="page to write the table into, between the markers (default: the results page and its "
                          "intro, train/tools/results_intro.md)")
     ap.add_argument("--keep", action="store_true", help="keep the rows of twins not run from --out")
+    ap.add_argument("--logs", help="folder to keep each twin's files in (its twin, log, board output and fitted "
+                                   "twin), to fit them again with --refit; default: a temporary folder")
+    ap.add_argument("--refit", action="store_true", help="fit the logs already in --logs instead of recording")
     args = ap.parse_args(argv)
+    if args.refit and not args.logs:
+        ap.error("--refit fits the logs in --logs DIR: give it")
     names = args.twins.split(",") if args.twins else list(TWINS)
     camera = args.sensor == "camera"
     out = Path(args.out or ROOT / "docs/src" / ("sysid_camera.json" if camera else "sysid.json"))
     rows = {r["twin"]: r for r in (json.loads(out.read_text()) if out.exists() and args.keep else [])}
     with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(args.logs or tmp)
+        folder.mkdir(parents=True, exist_ok=True)
         for name in names:
-            rows[name] = run_twin(name, TWINS[name], args.seconds, Path(tmp), seed=list(TWINS).index(name),
-                                  sensor=args.sensor)  # fmt: skip
+            rows[name] = run_twin(name, TWINS[name], args.seconds, folder, seed=list(TWINS).index(name),
+                                  sensor=args.sensor, record=not args.refit)  # fmt: skip
     ordered = [rows[n] for n in TWINS if n in rows]
     out.write_text(json.dumps(ordered, indent=1) + "\n")
     made = camera_table(ordered) if camera else table(ordered)
