@@ -375,3 +375,24 @@ def test_environments_pushes_table_is_the_results_json_table() -> None:
     pushed = [r for r in results if r["table"] == "pushes"]
     assert {r["env"] for r in pushed} == {"StewartBallDisturbance-v0"} and len(pushed) == 6
     assert table in (root / "docs" / "src" / "results.md").read_text()
+
+
+@pytest.mark.parametrize("camera", [False, True], ids=["panel", "camera"])
+def test_sysid_tables_are_what_the_tool_makes_of_their_json(camera: bool) -> None:
+    """The results page's sysid recovery table and camera-trims table (and the intro it is made from) are what
+    ``train/tools/sysid_table.py`` makes of ``docs/src/sysid.json`` and ``sysid_camera.json``: a rerun that
+    wrote one and not the other fails here."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("sysid_table", root / "train" / "tools" / "sysid_table.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    rows = json.loads((root / "docs" / "src" / ("sysid_camera.json" if camera else "sysid.json")).read_text())
+    made = tool.camera_table(rows) if camera else tool.table(rows)
+    start, end = tool.CAMERA_MARKERS if camera else tool.MARKERS
+    for page in (root / "docs" / "src" / "results.md", root / "train" / "tools" / "results_intro.md"):
+        assert page.read_text().split(start, 1)[1].split(end, 1)[0].strip() == made.strip(), \
+            f"{page.name}'s table is stale: rerun train/tools/sysid_table.py"  # fmt: skip
+    assert len(rows) >= 5 and made.count("\n") == len(rows) + 1
