@@ -57,7 +57,7 @@ SUBSTEPS = 4
 #: Frames in the log's first second are left out: the controller takes the ball then.
 SKIP_S = 1.0
 #: The most times the fit moves to another candidate servo, each time solving again from the last solution and
-#: ranking every candidate anew from there.
+#: ranking the :data:`SHORTLIST` anew from there.
 MAX_PICKS = 3
 #: How many of the candidates the first ranking puts first are ranked again after each move.
 SHORTLIST = 8
@@ -210,7 +210,8 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     for _ in range(MAX_PICKS if len(candidates) > 1 else 0):
         raw = _unscaled_jacobian(sol.jac, sol.fun)
         stride = RANK_STRIDE if len(ranked) > SHORTLIST else 1  # many candidates: a first cut on fewer frames
-        rows = (every(stride)[:, None] * (raw.shape[0] // frames) + np.arange(raw.shape[0] // frames)).ravel()
+        per_frame = raw.shape[0] // frames  # residuals per frame: 4 points × 3 coordinates
+        rows = (every(stride)[:, None] * per_frame + np.arange(per_frame)).ravel()
         costs = np.array([_linearised_cost(residuals(sol.x, c, weight, stride), raw[rows]) for c in ranked])
         ranked = [ranked[i] for i in np.argsort(costs)[:SHORTLIST]]  # the next rounds rank only these
         if stride > 1:
