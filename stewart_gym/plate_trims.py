@@ -189,7 +189,7 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         return world @ camera.T + shift
 
     def residuals(x: np.ndarray, c: int, weight: np.ndarray, stride: int = 1) -> np.ndarray:
-        sel = every(stride)
+        sel = slice(None) if stride == 1 else every(stride)  # the solver's calls: no copy of every frame
         r = (model(x, c, stride) - measured[sel]) * weight[sel, None, None]
         return np.where(np.isfinite(r), r, 0.1).ravel()  # a pose the kinematics cannot close: far off
 

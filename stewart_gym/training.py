@@ -514,11 +514,12 @@ class _EvalLog(BaseCallback):
 
     def _on_step(self) -> bool:
         if self.n_calls % self.eval_freq == 0:
-            zipped = io.BytesIO()
-            self.model.save(zipped)
+            buffer = io.BytesIO()
+            self.model.save(buffer)
+            zipped = buffer.getvalue()
             norm = self.model.get_vec_normalize_env()
-            self._snapshots[self.num_timesteps] = (zipped.getvalue(), None if norm is None else pickle.dumps(norm))
-            self.evaluator.submit(self.num_timesteps, self.model, zipped.getvalue())
+            self._snapshots[self.num_timesteps] = (zipped, None if norm is None else pickle.dumps(norm))
+            self.evaluator.submit(self.num_timesteps, self.model, zipped)
         for evaluation in self.evaluator.results():
             self._record(evaluation)
         return True

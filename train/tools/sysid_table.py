@@ -105,7 +105,7 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, s
     if record:
         board_log.write_text(_record(name, twin_path, link, log, protocol, board_extra, identify_extra, seconds, seed))
     elif not log.is_file():
-        raise RuntimeError(f"--refit: no log {log}")
+        raise FileNotFoundError(f"no log {log} to fit")
     t0 = time.perf_counter()
     result = fit_twin([read_log(log)], "servo-hexapod", marker_height=MARKER_FACE_HEIGHT if sensor == "camera" else 0.0)
     fit_s = time.perf_counter() - t0
@@ -216,6 +216,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.refit and not args.logs:
         ap.error("--refit fits the logs in --logs DIR: give it")
     names = args.twins.split(",") if args.twins else list(TWINS)
+    missing = [n for n in names if args.refit and not (Path(args.logs) / f"{n}.csv").is_file()]
+    if missing:
+        ap.error(f"--refit: no log {Path(args.logs) / (missing[0] + '.csv')}; record it first (--logs without "
+                 "--refit)")  # fmt: skip
     camera = args.sensor == "camera"
     out = Path(args.out or ROOT / "docs/src" / ("sysid_camera.json" if camera else "sysid.json"))
     rows = {r["twin"]: r for r in (json.loads(out.read_text()) if out.exists() and args.keep else [])}
