@@ -29,7 +29,9 @@ of the fit, not what the model leaves out.
   pulses replayed, and the plate poses they give fitted to the camera's, with the camera's own pose
   (:mod:`stewart_gym.plate_trims`). The replay's servos are whichever of the grid's speeds and dead bands the
   plate poses fit best, starting from the ball's best: with a dead band, a servo stops short of its target, which
-  a trim would take up.
+  a trim would take up. The plate shows the servos more directly than the ball does, so the twin takes the
+  plate's choice, with the ball's best latency for it; their uncertainty is half the grid's spacing (the bootstrap
+  then gives the latency's and the noise's only).
 
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
@@ -498,6 +500,20 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         start_state = _start_states(path[:, si * len(DEADBAND_GRID) + di], u, xy, mask, dt, LATENCY_GRID[li], best)
         if on_progress:
             on_progress(done)
+    camera = [log.plate for log in logs if log.plate is not None]
+    trim_fit = None
+    plate_chose = bool(camera) and usable_frames(camera) >= MIN_FRAMES
+    if plate_chose:  # the plate poses choose the servos among all the grid, the ball's best first
+        from stewart_gym.sim.urdf import MechanismSpec
+
+        ball_best = si * len(DEADBAND_GRID) + di
+        candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:]]
+        trim_fit = fit_trims(geo, cal, camera, candidates, lat, MechanismSpec().plate_top + marker_height)
+        si, di = divmod(servos.index(trim_fit.servo), len(DEADBAND_GRID))
+        speed, band = SPEED_GRID[si], DEADBAND_GRID[di]
+        grid = total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), len(LATENCY_GRID))
+        li = int(np.argmin(grid[si, di]))  # the latency for those servos
+        lat = _refine(LATENCY_GRID, grid[si, di], li)
     best_accel = accel.reshape(len(SPEED_GRID), len(DEADBAND_GRID), -1, 2)[si, di, li]
     ci = si * len(DEADBAND_GRID) + di
     best_path = path[:, ci]  # (W, S, 2)
@@ -518,9 +534,16 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     for _ in range(BOOTSTRAP):
         weights = np.bincount(rng.integers(len(fit_w), size=len(fit_w)), minlength=len(fit_w)).astype(float)
         tb, _ = _cost(c, b, A, weights)
-        sb, db, lb, _ = _best(tb)
+        if plate_chose:  # the servos stay the plate's: the latency for them
+            along = tb.reshape(len(SPEED_GRID), len(DEADBAND_GRID), len(LATENCY_GRID))[si, di]
+            sb, db, lb = speed, band, _refine(LATENCY_GRID, along, int(np.argmin(along)))
+        else:
+            sb, db, lb, _ = _best(tb)
         draws.append((sb, db, lb, noise_of(weights)))
     spread = np.std(np.array(draws), axis=0)
+    if plate_chose:  # the plate poses pick a grid point: half the grid's spacing around it
+        spread[0] = 0.25 * (SPEED_GRID[min(si + 1, len(SPEED_GRID) - 1)] - SPEED_GRID[max(si - 1, 0)])
+        spread[1] = 0.5 * (DEADBAND_GRID[1] - DEADBAND_GRID[0])
     if on_progress:
         on_progress(0.85)
     total_ms = (lat - overhead) * 1e3
@@ -545,18 +568,11 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "plate.friction", "plate.load_kg"):
         undetermined.append(key)
         notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
-    camera = [log.plate for log in logs if log.plate is not None]
-    trim_fit = None
-    if camera and usable_frames(camera) < MIN_FRAMES:
+    if camera and not plate_chose:
         notes["servos.trim_us"] = (f"the camera's logs hold {usable_frames(camera)} frames of the plate after their "
                                    f"first second, fewer than the {MIN_FRAMES} the trims need: these are the "
                                    "smallest trims that make the tilt offset")  # fmt: skip
-    elif camera:
-        from stewart_gym.sim.urdf import MechanismSpec
-
-        ball_best = si * len(DEADBAND_GRID) + di  # the first candidate; the plate poses choose among all the grid
-        candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:]]
-        trim_fit = fit_trims(geo, cal, camera, candidates, lat, MechanismSpec().plate_top + marker_height)
+    if trim_fit is not None:
         trims = trim_fit.trims_us
         undetermined.remove("servos.trim_us")
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))

@@ -7,8 +7,8 @@ Hyperparameters live in RL-Zoo-style YAML files, one section per env id
 A run folder holds ``config.yaml`` (the hyperparameters and options used),
 ``git.txt`` (revision), ``model.zip`` + ``vecnormalize.pkl`` (final),
 ``best/`` (best by evaluation, with its statistics), ``checkpoints/``,
-``tb/`` (TensorBoard), ``eval.csv`` (learning curve: timesteps, wall time,
-mean reward, success rate) and ``metrics.json``.
+``tb/`` (TensorBoard), ``eval.csv`` (learning curve: timesteps, the wall time the snapshot was taken at,
+mean reward, success rate, the wall time its evaluation came back at) and ``metrics.json``.
 """
 
 from __future__ import annotations
@@ -496,7 +496,8 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
 
 class _EvalLog(BaseCallback):
     """Every ``eval_freq`` calls, a snapshot of the policy for ``evaluator``; with each evaluation that comes back,
-    a row of the learning curve (``eval.csv``, with the wall time it came back at), SB3's ``eval/evaluations.npz``,
+    a row of the learning curve (``eval.csv``: the training's wall time when the snapshot was taken, ``wall_s``,
+    and when its evaluation came back, ``evaluated_s``), SB3's ``eval/evaluations.npz``,
     the logger's ``eval/`` values, and the best model so far, as it was when its snapshot was taken, with its
     statistics (``best/``). :meth:`finish` waits for the evaluations still out."""
 
@@ -505,20 +506,21 @@ class _EvalLog(BaseCallback):
         super().__init__()
         self.evaluator, self.eval_freq, self.run, self.started, self.on_eval = evaluator, eval_freq, run, started, on_eval
         self.best_mean_reward = -math.inf
-        self._snapshots: dict[int, tuple[bytes, bytes | None]] = {}  # model zip and statistics, until evaluated
+        self._snapshots: dict[int, tuple[float, bytes, bytes | None]] = {}  # when, model zip, statistics: until evaluated
         self._history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": [], "successes": []}
         (run / "best").mkdir(parents=True, exist_ok=True)
         (run / "eval").mkdir(parents=True, exist_ok=True)
         with (run / "eval.csv").open("w", newline="") as fh:
-            csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate"])
+            csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate", "evaluated_s"])
 
     def _on_step(self) -> bool:
         if self.n_calls % self.eval_freq == 0:
+            taken = time.time() - self.started
             buffer = io.BytesIO()
             self.model.save(buffer)
             zipped = buffer.getvalue()
             norm = self.model.get_vec_normalize_env()
-            self._snapshots[self.num_timesteps] = (zipped, None if norm is None else pickle.dumps(norm))
+            self._snapshots[self.num_timesteps] = (taken, zipped, None if norm is None else pickle.dumps(norm))
             self.evaluator.submit(self.num_timesteps, self.model, zipped)
         for evaluation in self.evaluator.results():
             self._record(evaluation)
@@ -530,11 +532,11 @@ class _EvalLog(BaseCallback):
             self._record(evaluation)
 
     def _record(self, evaluation: Evaluation) -> None:
-        zipped, statistics = self._snapshots.pop(evaluation.timesteps)
+        taken, zipped, statistics = self._snapshots.pop(evaluation.timesteps)
         mean_reward = float(np.mean(evaluation.episode_rewards))
         success = float(np.mean(evaluation.successes)) if evaluation.successes else float("nan")
-        row = {"timesteps": evaluation.timesteps, "wall_s": round(time.time() - self.started, 1),
-               "mean_reward": round(mean_reward, 3), "success_rate": success}  # fmt: skip
+        row = {"timesteps": evaluation.timesteps, "wall_s": round(taken, 1), "mean_reward": round(mean_reward, 3),
+               "success_rate": success, "evaluated_s": round(time.time() - self.started, 1)}  # fmt: skip
         with (self.run / "eval.csv").open("a", newline="") as fh:
             csv.writer(fh).writerow(row.values())
         history = self._history
@@ -615,7 +617,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     """Train as configured; return the final metrics (also written to ``run_dir/metrics.json``).
 
     ``on_eval`` is called after each evaluation with that row of the learning curve (``timesteps``,
-    ``wall_s``, ``mean_reward``, ``success_rate``): a sweep reports it to its scheduler. ``callbacks`` (SB3
+    ``wall_s``, ``mean_reward``, ``success_rate``, ``evaluated_s``): a sweep reports it to its scheduler. ``callbacks`` (SB3
     callbacks) run after the run's own, e.g. a curriculum (``train/experiments/curriculum.py``).
     ``on_progress(steps)`` is called with the env steps of each vectorised step (of :func:`planned_timesteps`
     in all). A run that ``max_wall_s`` ends has ``"stopped": "max_wall_s"`` in its metrics.

@@ -46,7 +46,10 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
     assert (run / "best" / "best_model.zip").exists() and list((run / "checkpoints").glob("*.zip"))
     assert list((run / "tb").rglob("events.out.tfevents.*"))
     rows = (run / "eval.csv").read_text().splitlines()
-    assert rows[0] == "timesteps,wall_s,mean_reward,success_rate" and len(rows) >= 3
+    assert rows[0] == "timesteps,wall_s,mean_reward,success_rate,evaluated_s" and len(rows) >= 3
+    taken = [float(r.split(",")[1]) for r in rows[1:]]
+    evaluated = [float(r.split(",")[4]) for r in rows[1:]]
+    assert taken == sorted(taken) and all(t <= e for t, e in zip(taken, evaluated))  # a snapshot, then its result
     # load: same actions as the trained model on the same normalised observations
     policy = load_sb3(run)
     obs = np.random.default_rng(0).normal(size=(5, 12)).astype(np.float32)

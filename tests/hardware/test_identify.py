@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import signal
 import subprocess
@@ -18,7 +19,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
-from stewart_gym.sysid import read_log
+from stewart_gym.sysid import DEADBAND_GRID, SPEED_GRID, read_log
 from tests.conftest import cli
 from tests.hardware.test_virtual_device import Board
 from tests.test_camera import CONFIG_TOML
@@ -189,7 +190,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     """identify --sensor camera through the virtual board's camera stream: the plate moves in height and yaw and
     in large tilt triplets, the log holds the plate pose of each frame, every pulse stays within the channel
     limits and the servos go home; sysid on the log fits each servo's trim, each within four of its stated sigmas
-    (plus 2 µs), closer to the truth than no trims at all (RMS), and no longer lists the trims as undetermined.
+    (plus 2 µs), closer to the truth than no trims at all (RMS), and no longer lists the trims as undetermined;
+    the twin's servos are those the plate poses chose.
     The board's camera is the pixy2 preset (316 × 208 px), the largest the machine renders in real time: the
     results page gives what it reaches on several twins."""
     trims = np.array([30.0, -30.0, 20.0, -10.0, 0.0, 25.0])
@@ -225,3 +227,6 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     assert np.all(np.abs(err) <= 4.0 * sigma + 2.0), (fitted, sigma)
     assert np.sqrt(np.mean(err**2)) < np.sqrt(np.mean(trims**2)), (fitted, trims)
     assert "servos.trim_us" not in got["twin"]["fit"]["undetermined"]
+    servos = got["twin"]["servos"]  # the plate poses chose the twin's servos: a point of the grid, near the truth
+    assert any(math.isclose(servos["speed_scale"], v) for v in SPEED_GRID) and servos["deadband_us"] in DEADBAND_GRID
+    assert abs(servos["speed_scale"] - 1.0) <= 0.15 and abs(servos["deadband_us"] - 5.0) <= 3.0, servos

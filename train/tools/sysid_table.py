@@ -165,6 +165,12 @@ def write_between(page: Path, markers: tuple[str, str], text: str) -> None:
         page.write_text(f"{before}{markers[0]}\n{text}\n{markers[1]}{rest.split(markers[1], 1)[1]}")
 
 
+def prediction_cell(row: dict) -> str:
+    """The held-out 1 s prediction RMS, nominal → fitted twin (mm), and the gain."""
+    p = row["prediction"].get("1.0", {})
+    return f"{p['nominal']:.1f} → {p['fitted']:.1f} ({p['nominal'] / p['fitted']:.1f}×)" if p else "–"
+
+
 def table(rows: list[dict]) -> str:
     head = ("| twin | total latency (ms): true → fit | panel noise (mm) | servo speed (×) | dead band (µs) | "
             "1 s prediction RMS (mm): nominal → fitted |")  # fmt: skip
@@ -175,18 +181,19 @@ def table(rows: list[dict]) -> str:
         return f"{row[f'{key}_true']:{fmt}} → {row[f'{key}_fit']:{fmt}}{mark}"
 
     for r in rows:
-        p = r["prediction"].get("1.0", {})
-        pred = f"{p['nominal']:.1f} → {p['fitted']:.1f} ({p['nominal'] / p['fitted']:.1f}×)" if p else "–"
+        pred = prediction_cell(r)
         out.append(f"| {r['twin']} | {cell(r, 'latency', '.1f')} | {cell(r, 'noise', '.2f')} | "
                    f"{cell(r, 'speed', '.2f')} | {cell(r, 'deadband', '.1f')} | {pred} |")  # fmt: skip
     return "\n".join(out)
 
 
 def camera_table(rows: list[dict]) -> str:
-    """Each servo's trim, true → fitted (± its one-sigma uncertainty), ✗ past :data:`TRIM_BOUND_US`."""
+    """Each servo's trim, true → fitted (± its one-sigma uncertainty), ✗ past :data:`TRIM_BOUND_US`; the servos
+    the plate poses chose; the held-out prediction."""
     out = ["| twin | " + " | ".join(f"servo {i} (µs)" for i in range(6))
-           + " | largest error (µs) | frames | servos replayed: speed (×), dead band (µs), true → chosen |",
-           "|---|" + "---|" * 9]  # fmt: skip
+           + " | largest error (µs) | frames | servos (the plate's choice): speed (×), dead band (µs), true → fit "
+           "| 1 s prediction RMS (mm): nominal → fitted |",
+           "|---|" + "---|" * 10]  # fmt: skip
     for r in rows:
         cells = []
         for true, fit, sd in zip(r["trims_true"], r["trims_fit"], r["trims_sigma"] or [float("nan")] * 6):
@@ -195,7 +202,9 @@ def camera_table(rows: list[dict]) -> str:
         worst = max(abs(f - t) for t, f in zip(r["trims_true"], r["trims_fit"]))
         speed, band = r["replayed"]
         replayed = f"{r['speed_true']:.2f}, {r['deadband_true']:.0f} → {speed:.2f}, {band:.0f}"
-        out.append(f"| {r['twin']} | " + " | ".join(cells) + f" | {worst:.1f} | {r['camera_frames']} | {replayed} |")
+        pred = prediction_cell(r)
+        out.append(f"| {r['twin']} | " + " | ".join(cells) + f" | {worst:.1f} | {r['camera_frames']} | {replayed} "
+                   f"| {pred} |")  # fmt: skip
     return "\n".join(out)
 
 
