@@ -91,16 +91,17 @@ class SimulatedSensor(BallSensor, Protocol):
     def record(self, t: float, xy: Sequence[float], touching: bool) -> None: ...
 
 
-def ball_contact(x: float, y: float, z: float, half_extent: tuple[float, float], plate_top: float,
-                 radius: float) -> tuple[bool, bool]:  # fmt: skip
-    """(on the plate, touching the panel) for a ball centre at (x, y, z) in the platform frame.
+def ball_contact(x: Any, y: Any, z: Any, half_extent: tuple[float, float], plate_top: Any,
+                 radius: Any) -> tuple[Any, Any]:  # fmt: skip
+    """(on the plate, touching the panel) for a ball centre at (x, y, z) in the platform frame: numbers, or
+    arrays with a value per ball (then two boolean arrays).
 
     On the plate: its centre is over the plate and above the surface. Touching:
     on the plate and its centre lower than 1.5 radii above the surface (a ball
-    in the air presses nothing).
+    in the air presses nothing). A NaN anywhere is neither.
     """
-    on = abs(x) <= half_extent[0] and abs(y) <= half_extent[1] and z > plate_top
-    return on, on and z < plate_top + 1.5 * radius
+    on = (np.abs(x) <= half_extent[0]) & (np.abs(y) <= half_extent[1]) & (z > plate_top)
+    return on, on & (z < plate_top + 1.5 * radius)
 
 
 @dataclass(frozen=True)

@@ -76,3 +76,8 @@ def test_ball_contact_rule() -> None:
     assert ball_contact(0.0, 0.12, top + r, half, top, r) == (False, False)  # beyond the short side
     assert ball_contact(0.0, 0.0, top + 2 * r, half, top, r) == (True, False)  # in the air
     assert ball_contact(0.0, 0.0, top - 0.001, half, top, r) == (False, False)  # below the surface
+    # the same balls as arrays, one per row, and a NaN: each row as alone
+    x, y = np.array([0.0, 0.0, 0.0, 0.0, np.nan]), np.array([0.0, 0.12, 0.0, 0.0, 0.0])
+    z = np.array([top + r, top + r, top + 2 * r, top - 0.001, top + r])
+    on, touching = ball_contact(x, y, z, half, top, np.full(5, r))
+    assert on.tolist() == [True, False, True, False, False] and touching.tolist() == [True, False, False, False, False]

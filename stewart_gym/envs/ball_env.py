@@ -436,7 +436,7 @@ class StewartBallEnv(gym.Env, EzPickle):
             info = self._info(np.full(2, np.nan), (math.nan, math.nan), math.nan)
             info["physics_error"] = np.True_
             return self._last_obs.copy(), task.reward(2 * self.plate_half_extent[0], 0.0, True), True, False, info
-        on_plate, touching = ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius)
+        on_plate, touching = map(bool, ball_contact(x, y, z, self.plate_half_extent, self._plate_top, self._radius))
         self.sensor_model.record(t, (x, y), touching)
         target_xy, target_vel = task.target(t)
         obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch,

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from stewart_gym.envs.ball_env import StewartBallEnv
+from stewart_gym.sensing import ball_contact
 from stewart_gym.sensing_arrays import ObserverArray, PanelArray
 from stewart_gym.sim.batched import BatchedSim
 
@@ -86,10 +87,10 @@ class CopySteps:
         xy = sim.ball_xy.copy()
         z = sim.plate_top + sim.ball_radius
         sound = np.isfinite(xy).all(axis=1) & np.isfinite(z) & (np.abs(z) < 1.0)  # else the physics blew up
-        hx, hy = self.half_extent
-        on_plate = sound & (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy) & (z > sim.plate_top)
+        on_plate, touching = ball_contact(xy[:, 0], xy[:, 1], z, self.half_extent, sim.plate_top, sim.ball_radius)
+        on_plate &= sound
         good = self.rows[sound]
-        self.panels.record(t[good], xy[good], (on_plate & (z < sim.plate_top + 1.5 * sim.ball_radius))[good], good)
+        self.panels.record(t[good], xy[good], touching[good], good)
         targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
         for i, (env, ti) in enumerate(zip(self.envs, t.tolist())):
             targets[i], target_velocities[i] = env.task.target(ti)
@@ -100,7 +101,7 @@ class CopySteps:
         self.last_obs = obs
         distances = np.full(n, math.nan)
         rewards = np.empty(n)
-        lost = 2 * hx  # the distance a step whose physics blew up is scored at
+        lost = 2 * self.half_extent[0]  # the distance a step whose physics blew up is scored at
         for i, (env, (x, y), (tx, ty), ok, on, rate) in enumerate(zip(
                 self.envs, xy.tolist(), targets.tolist(), sound.tolist(), on_plate.tolist(), rates.tolist())):  # fmt: skip
             if ok:
