@@ -2,7 +2,7 @@
 ≥ 98 % of held-out randomised episodes in PyBullet and in MuJoCo.
 
 Run: ``.venv/bin/python bench/bench_time_to_98.py [--env balance|track] [--recipes ppo_batched,ppo]
-[--seeds 0,1,2] [--eval-freq 25000] [--episodes 100] [--max-minutes 6] [--json]``.
+[--seeds 0,1,2] [--eval-freq 25000] [--episodes 100] [--max-minutes 6] [--budget-s S] [--json]``.
 
 For each recipe and seed it runs ``python -m stewart_gym train`` as a user types it (no TensorBoard), with a
 checkpoint at every evaluation. The training's own evaluations (the recipe's ``eval_episodes``, in its own
@@ -13,6 +13,10 @@ running beside it, in a second process on 2 cores), with the time its in-trainin
 held-out evaluations are not timed. A run that has none within ``--max-minutes`` reports ``none``.
 
 The track env is evaluated on ``--trajectory mixed`` (circle, figure-8 and waypoints, one drawn per episode).
+
+``--budget-s S`` asks the other way round, as a user with S seconds would: each run trains with
+``--max-minutes S/60`` and the model it ends with is evaluated on the held-out episodes in both engines (its
+steps, success rates and RMS errors are reported).
 """
 
 from __future__ import annotations
@@ -76,6 +80,28 @@ def time_to_target(recipe: str, env: str, seed: int, eval_freq: int, episodes: i
             "trained_s": json.loads((run / "metrics.json").read_text())["wall_time_s"]}
 
 
+def within_budget(recipe: str, env: str, seed: int, budget_s: float, episodes: int, run: Path) -> dict:
+    """Train for ``budget_s`` of wall time; the final model's held-out success and RMS error in each engine."""
+    stewart_gym("train", "--env", ENVS[env], "--hyperparams", recipe, "--seed", str(seed), "--run-dir", str(run),
+                "--max-minutes", str(budget_s / 60), "--no-progress", "--no-tensorboard", "--overwrite")  # fmt: skip
+    metrics = json.loads((run / "metrics.json").read_text())
+    row = {"recipe": recipe, "seed": seed, "budget_s": budget_s, "timesteps": metrics["timesteps"]}
+    extra = ["--trajectory", "mixed"] if env == "track" else []
+    for backend in ("pybullet", "mujoco"):
+        got = json.loads(stewart_gym("evaluate", "--policy", str(run), "--backend", backend, "--episodes",
+                                     str(episodes), "--json", *extra))  # fmt: skip
+        row[backend] = float(got["success_rate"])
+        row[f"{backend}_rms_mm"] = got.get("rms_error_mm")
+    return row
+
+
+def budget_line(env: str, row: dict) -> str:
+    """One budgeted run as a line: its steps and the final model's held-out results."""
+    engines = ", ".join(f"{b} {row[b]:.0%} ({row[f'{b}_rms_mm']:.2f} mm RMS)" for b in ("pybullet", "mujoco"))
+    return (f"{env} {row['recipe']:<14} seed {row['seed']}: {row['timesteps']:,} steps in {row['budget_s']:g} s; "
+            f"the final model: {engines}")
+
+
 def line(env: str, row: dict) -> str:
     """One run as a line: the time to the target, and each checkpoint tried (PyBullet / MuJoCo success)."""
     got = "none" if row["wall_s"] is None else (f"{row['wall_s']:.1f} s ({row['timesteps']:,} steps; its in-training "
@@ -95,6 +121,7 @@ def main() -> None:
     parser.add_argument("--eval-freq", type=int, default=25_000, help="env steps between checkpoints")
     parser.add_argument("--episodes", type=int, default=100, help="held-out episodes per engine")
     parser.add_argument("--max-minutes", type=float, default=6.0, help="training wall time per run, at most")
+    parser.add_argument("--budget-s", type=float, help="train each run this long, then test its final model")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     try:
@@ -103,15 +130,20 @@ def main() -> None:
         parser.error(f"--seeds must be whole numbers separated by commas, got {args.seeds!r}")
     if min(seeds) < 0 or args.eval_freq < 1 or args.episodes < 1 or not args.max_minutes > 0:
         parser.error("--seeds must be 0 or more; --eval-freq, --episodes and --max-minutes must be positive")
+    if args.budget_s is not None and not 0 < args.budget_s < 3600:
+        parser.error(f"--budget-s must be between 0 and 3600 seconds, got {args.budget_s:g}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for recipe in args.recipes.split(","):
             for seed in seeds:
-                row = time_to_target(recipe, args.env, seed, args.eval_freq, args.episodes, args.max_minutes,
-                                     Path(tmp) / f"{Path(recipe).stem}_{seed}")  # fmt: skip
+                run = Path(tmp) / f"{Path(recipe).stem}_{seed}"
+                if args.budget_s is not None:
+                    row = within_budget(recipe, args.env, seed, args.budget_s, args.episodes, run)
+                else:
+                    row = time_to_target(recipe, args.env, seed, args.eval_freq, args.episodes, args.max_minutes, run)
                 rows.append(row)
                 if not args.json:
-                    print(line(args.env, row), flush=True)
+                    print((budget_line if args.budget_s is not None else line)(args.env, row), flush=True)
     if args.json:
         print(json.dumps({"env": args.env, "cores": os.cpu_count(), "episodes": args.episodes, "runs": rows}))
 
