@@ -15,7 +15,7 @@ from stewart_gym.hardware.deploy import LOG_READING_COLUMNS
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sim.twin import Twin
-from stewart_gym.sysid import READ_OVERHEAD_S, TICK_DATED_OVERHEAD_S, fit_twin, read_log
+from stewart_gym.sysid import MAX_MARKER_HEIGHT, READ_OVERHEAD_S, TICK_DATED_OVERHEAD_S, fit_twin, read_log
 from tests.conftest import cli
 
 TWIN = {"servos": {"speed_scale": 0.6, "deadband_us": 10.0, "trim_us": [20, -20, 10, -5, 0, 15], "latency_ms": 40.0},
@@ -151,6 +151,17 @@ def test_a_bad_marker_height_is_one_error_line(tmp_path, capfd, height):
     assert not (tmp_path / "twin.toml").exists()
     with pytest.raises(ConfigError, match="markers' height"):
         fit_twin([], marker_height=0.03)
+
+
+def test_the_command_line_takes_the_markers_sysid_takes(tmp_path, capfd):
+    """The parser's bound on --marker-height-mm is sysid's MAX_MARKER_HEIGHT (the parser cannot import it)."""
+    highest = f"{MAX_MARKER_HEIGHT * 1e3:g}"
+    out = ["--out", str(tmp_path / "twin.toml")]
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), *out, "--marker-height-mm", highest)
+    assert code == 1 and "none.csv" in err and "--marker-height-mm" not in err  # taken: the missing log is the error
+    above = f"{MAX_MARKER_HEIGHT * 1e3 + 0.1:g}"
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), *out, "--marker-height-mm", above)
+    assert code != 0 and "--marker-height-mm" in err
 
 
 def test_nan_and_off_plate_readings_are_no_readings(tmp_path):
