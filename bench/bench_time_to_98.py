@@ -43,14 +43,18 @@ def stewart_gym(*args: str) -> str:
     return proc.stdout
 
 
+def evaluated(model: Path, env: str, episodes: int, backend: str) -> dict:
+    """``stewart-gym evaluate --json`` of a policy on ``episodes`` randomised seeds in one engine."""
+    extra = ["--trajectory", "mixed"] if env == "track" else []
+    return json.loads(stewart_gym("evaluate", "--policy", str(model), "--backend", backend, "--episodes",
+                                  str(episodes), "--json", *extra))  # fmt: skip
+
+
 def held_out(model: Path, env: str, episodes: int) -> dict[str, float]:
     """Success rate of a checkpoint on ``episodes`` randomised seeds in each engine."""
-    extra = ["--trajectory", "mixed"] if env == "track" else []
     out = {}
     for backend in ("pybullet", "mujoco"):
-        got = json.loads(stewart_gym("evaluate", "--policy", str(model), "--backend", backend, "--episodes",
-                                     str(episodes), "--json", *extra))  # fmt: skip
-        out[backend] = float(got["success_rate"])
+        out[backend] = float(evaluated(model, env, episodes, backend)["success_rate"])
         if out[backend] < TARGET:
             break  # no need for the second engine
     return out
@@ -86,10 +90,8 @@ def within_budget(recipe: str, env: str, seed: int, budget_s: float, episodes: i
                 "--max-minutes", str(budget_s / 60), "--no-progress", "--no-tensorboard", "--overwrite")  # fmt: skip
     metrics = json.loads((run / "metrics.json").read_text())
     row = {"recipe": recipe, "seed": seed, "budget_s": budget_s, "timesteps": metrics["timesteps"]}
-    extra = ["--trajectory", "mixed"] if env == "track" else []
     for backend in ("pybullet", "mujoco"):
-        got = json.loads(stewart_gym("evaluate", "--policy", str(run), "--backend", backend, "--episodes",
-                                     str(episodes), "--json", *extra))  # fmt: skip
+        got = evaluated(run, env, episodes, backend)
         row[backend] = float(got["success_rate"])
         row[f"{backend}_rms_mm"] = got.get("rms_error_mm")
     return row
