@@ -147,7 +147,9 @@ def main() -> None:
                 if not args.json:
                     print((budget_line if args.budget_s is not None else line)(args.env, row), flush=True)
     if args.json:
-        print(json.dumps({"env": args.env, "cores": os.cpu_count(), "episodes": args.episodes, "runs": rows}))
+        print(json.dumps({"env": args.env, "cores": os.cpu_count(), "episodes": args.episodes,
+                          "eval_freq": None if args.budget_s is not None else args.eval_freq,
+                          "budget_s": args.budget_s, "runs": rows}))
 
 
 if __name__ == "__main__":

@@ -20,6 +20,7 @@ is not modelled: calibrate it out first if your lens has much.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -219,6 +220,23 @@ class CameraConfig:
                                   "file; a relative path is taken from the config's folder)")  # fmt: skip
             source = str(found)
         return cls(source, (width, height), fps, fov, markers, colour, min_ball_px)
+
+    def to_toml(self) -> str:
+        """This config as a camera config file, read back by :meth:`from_toml` to an equal config (a path
+        ``source`` as it is: give an absolute one, or one relative to the folder the file goes into)."""
+        m, b = self.markers, self.ball
+
+        def numbers(values: Any) -> str:
+            return "[" + ", ".join(repr(v) for v in values) + "]"
+
+        return "\n".join([
+            "[camera]", f"source = {json.dumps(self.source)}", f"resolution = {numbers(self.resolution)}",
+            f"fps = {float(self.fps)!r}", f"fov_deg = {float(self.fov_deg)!r}", f"min_ball_px = {self.min_ball_px}",
+            "[markers]", f"dictionary = {json.dumps(m.dictionary)}", f"ids = {numbers(m.ids)}",
+            "centres_mm = [" + ", ".join(numbers(map(float, c)) for c in m.centres_mm) + "]",
+            f"size_mm = {float(m.size_mm)!r}",
+            "[ball]", f"hsv_low = {numbers(b.hsv_low)}", f"hsv_high = {numbers(b.hsv_high)}",
+            f"radius_mm = {float(b.radius_mm)!r}", ""])  # fmt: skip
 
 
 def _list(value: Any, key: str, length: int | None = None) -> list[Any]:

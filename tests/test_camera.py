@@ -253,3 +253,20 @@ def test_a_camera_that_never_finds_the_ball_sends_the_platform_home(clip: Path, 
 
     rows = list(csv.DictReader((tmp_path / "d.csv").open()))
     assert rows and all(int(r["stale"]) and int(r["homing"]) for r in rows)
+
+
+def test_a_camera_config_written_as_toml_reads_back_equal(tmp_path: Path) -> None:
+    """``CameraConfig.to_toml`` writes what ``from_toml`` reads back to an equal config: every field, the
+    markers and the ball included."""
+    from stewart_gym.vision import BallColour, MarkerLayout
+
+    (tmp_path / "clip.mp4").write_bytes(b"")
+    configs = [CameraConfig(source=3),
+               CameraConfig(source=str(tmp_path / "clip.mp4"), resolution=(316, 208), fps=59.94, fov_deg=72.5,
+                            markers=MarkerLayout("DICT_5X5_100", (7, 3, 9, 1),
+                                                 ((-90.5, 80.0), (90.0, 80.0), (90.0, -80.0), (-90.0, -80.25)), 28.5),
+                            ball=BallColour((0, 90, 80), (12, 250, 255), 20.0), min_ball_px=30)]  # fmt: skip
+    for i, config in enumerate(configs):
+        (tmp_path / f"c{i}.toml").write_text(config.to_toml())
+        assert CameraConfig.from_toml(tmp_path / f"c{i}.toml") == config
+

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from stewart_gym.calibration import ServoCalibration
@@ -91,7 +92,7 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     import signal
 
     from stewart_gym.hardware.deploy_setup import load_calibration
-    from stewart_gym.hardware.virtual_device import Faults, VirtualDevice
+    from stewart_gym.hardware.virtual_device import Faults, VirtualDevice, stream_camera_config
     from stewart_gym.presets import load_geometry
 
     faults = Faults(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate,
@@ -107,16 +108,32 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
 
         if importlib.util.find_spec("mujoco") is None:
             raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
+    config_out = Path(args.camera_config_out) if args.camera_config_out else None
+    if config_out is not None and not args.camera_stream:
+        raise ConfigError("--camera-config-out writes the config that reads the camera stream: give --camera-stream "
+                          "PIPE too")  # fmt: skip
+    if config_out is not None and (config_out.is_dir() or not config_out.parent.is_dir()):
+        raise ConfigError(f"--camera-config-out {config_out}: not a file in an existing folder; give a path such as "
+                          "/tmp/camera.toml")  # fmt: skip
     camera = None
     if args.camera_stream:
         from stewart_gym.camera import camera_preset
 
         camera = camera_preset(args.camera)
     twin = twin_tables(args.twin)
-    device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
-                           randomize=not args.no_randomize, link=args.link, env_id=args.env, camera=camera,
-                           camera_stream=args.camera_stream, twin=twin)  # fmt: skip
+    if config_out is not None:  # before the board's link appears: a host may read it at once
+        config_out.write_text(stream_camera_config(camera, args.camera_stream).to_toml())
+    try:
+        device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
+                               randomize=not args.no_randomize, link=args.link, env_id=args.env, camera=camera,
+                               camera_stream=args.camera_stream, twin=twin)  # fmt: skip
+    except BaseException:
+        if config_out is not None:  # no board reads that stream
+            config_out.unlink(missing_ok=True)
+        raise
     where = device.path + (f" (link {device.link})" if device.link else "")
+    if config_out is not None:
+        where += f"; the camera config that reads its stream in {config_out}"
     print(f"virtual {args.protocol} board with {geometry.name}{' (the twin ' + args.twin + ')' if twin else ''} in "
           f"{args.backend} on {where}; Ctrl-C to stop",
           flush=True)  # fmt: skip
@@ -260,6 +277,8 @@ def register(sub: Any) -> None:
                    help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
     p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",
                    help="the streamed camera's preset: resolution, field of view, frame rate (default pixy2)")
+    p.add_argument("--camera-config-out", metavar="FILE",
+                   help="write the camera config that reads the stream, for --camera-config of identify and deploy")
     p.set_defaults(func=cmd_virtual_device, backend="auto")
 
     p = sub.add_parser("camera-check", help=cmd_camera_check.__doc__, description=cmd_camera_check.__doc__)

@@ -28,7 +28,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -37,7 +37,12 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.protocols import LineProtocol
 from stewart_gym.sensing import reading_is_valid
 
-__all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary"]
+if TYPE_CHECKING:
+    from stewart_gym.camera import CameraSpec
+    from stewart_gym.vision import CameraConfig
+
+__all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary",
+           "stream_camera_config"]
 
 #: Hz: how often the sketch reports the ball, and the rate the platform is simulated at (one step per period).
 TICK_HZ = 100
@@ -242,6 +247,16 @@ class LineParser:
 
 
 # ------------------------------------------------------------------ camera
+def stream_camera_config(camera: CameraSpec, pipe: str | Path) -> CameraConfig:
+    """The :class:`~stewart_gym.vision.CameraConfig` that reads a board's camera stream: the pipe (as an
+    absolute path), the preset ``camera``'s resolution, frame rate and field of view, and the markers and ball as
+    the twin is rendered with them."""
+    from stewart_gym.vision import CameraConfig
+
+    return CameraConfig(source=str(Path(pipe).resolve()), resolution=tuple(camera.resolution), fps=camera.fps,
+                        fov_deg=camera.fov_deg)  # fmt: skip
+
+
 class CameraStream:
     """Rendered frames as an MJPEG stream in a named pipe (what ``deploy --sensor camera`` reads as a camera).
 

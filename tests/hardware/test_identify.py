@@ -22,7 +22,6 @@ from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sysid import DEADBAND_GRID, SPEED_GRID, read_log
 from tests.conftest import cli
 from tests.hardware.test_virtual_device import Board
-from tests.test_camera import CONFIG_TOML
 
 SLOW_TWIN = """[servos]
 speed_scale = 0.5
@@ -181,10 +180,6 @@ def test_identify_with_a_stalled_panel_holds_home_and_fails(tmp_path):
     assert late and all(int(r["stale"]) and int(r["homing"]) for r in late) and within_limits(rows)
 
 
-#: The camera config that reads the virtual board's pixy2 stream (316 × 208 px at 60 fps).
-PIXY2_CONFIG = CONFIG_TOML.replace("resolution = [640, 480]", "resolution = [316, 208]").replace("fps = 30", "fps = 60")
-
-
 @pytest.mark.slow
 def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     """identify --sensor camera through the virtual board's camera stream: the plate moves in height and yaw and
@@ -197,9 +192,9 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     trims = np.array([30.0, -30.0, 20.0, -10.0, 0.0, 25.0])
     (tmp_path / "twin.toml").write_text(f"[servos]\ntrim_us = {trims.tolist()}\n")
     pipe = tmp_path / "camera.mjpg"
-    (tmp_path / "camera.toml").write_text(PIXY2_CONFIG.format(source=pipe))
     board = Board(tmp_path, "--protocol", "maestro", "--twin", str(tmp_path / "twin.toml"), "--seed", "3",
-                  "--camera-stream", str(pipe), "--camera", "pixy2")  # fmt: skip
+                  "--camera-stream", str(pipe), "--camera", "pixy2",
+                  "--camera-config-out", str(tmp_path / "camera.toml"))  # fmt: skip
     log = tmp_path / "identify.csv"
     run = subprocess.run([sys.executable, "-m", "stewart_gym", "identify", "--port", str(board.link), "--protocol",
                           "maestro", "--sensor", "camera", "--camera-config", str(tmp_path / "camera.toml"),

@@ -201,17 +201,42 @@ def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> Non
     assert 0.9 <= float(rows[-1]["t_s"]) <= 1.5
 
 
+@pytest.mark.parametrize("preset", ["pixy2", "global90"])
+def test_the_boards_camera_config_reads_its_stream_as_rendered(tmp_path: Path, preset: str) -> None:
+    """The camera config a board writes for its stream (``--camera-config-out``) reads back as the preset's
+    resolution, frame rate and field of view, the stream's absolute path, and the markers and ball the twin is
+    rendered with (the defaults ``render`` uses)."""
+    from stewart_gym.camera import CAMERA_PRESETS
+    from stewart_gym.hardware.virtual_device import stream_camera_config
+    from stewart_gym.vision import BallColour, CameraConfig, MarkerLayout
+
+    spec = CAMERA_PRESETS[preset]
+    os.mkfifo(tmp_path / "camera.mjpg")
+    (tmp_path / "camera.toml").write_text(stream_camera_config(spec, tmp_path / "camera.mjpg").to_toml())
+    got = CameraConfig.from_toml(tmp_path / "camera.toml")
+    assert got.source == str((tmp_path / "camera.mjpg").resolve())
+    assert (got.resolution, got.fps, got.fov_deg) == (tuple(spec.resolution), spec.fps, spec.fov_deg)
+    assert got.markers == MarkerLayout() and got.ball == BallColour()
+
+
+def test_a_board_that_cannot_start_leaves_no_camera_config(tmp_path: Path) -> None:
+    """``--camera-config-out`` is written before the board is up (a host may read it as soon as the link is
+    there); a board that then cannot start (MuJoCo renders no camera) removes it and says why."""
+    from stewart_gym.cli import main
+
+    code = main(["virtual-device", "--camera-stream", str(tmp_path / "p"), "--backend", "mujoco",
+                 "--camera-config-out", str(tmp_path / "camera.toml")])  # fmt: skip
+    assert code != 0 and not (tmp_path / "camera.toml").exists() and not (tmp_path / "p").exists()
+
+
 @pytest.mark.slow
 def test_the_rendered_camera_closes_the_loop_through_the_virtual_board(tmp_path: Path) -> None:
     """The board streams the twin's camera view (MJPEG in a named pipe); deploy reads it as a camera, finds the
     plate's markers and the ball in every frame, and balances the ball it sees."""
     pipe = tmp_path / "camera.mjpg"
-    board = Board(tmp_path, "--protocol", "maestro", "--camera-stream", str(pipe), "--camera", "pixy2", "--seed", "2")
     config = tmp_path / "camera.toml"
-    config.write_text(f'[camera]\nsource = "{pipe}"\nresolution = [316, 208]\nfps = 60\nfov_deg = 60\n'
-                      '[markers]\ndictionary = "DICT_4X4_50"\nids = [0, 1, 2, 3]\n'
-                      'centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]\nsize_mm = 36\n'
-                      '[ball]\nhsv_low = [5, 120, 120]\nhsv_high = [25, 255, 255]\nradius_mm = 12.7\n')  # fmt: skip
+    board = Board(tmp_path, "--protocol", "maestro", "--camera-stream", str(pipe), "--camera", "pixy2", "--seed", "2",
+                  "--camera-config-out", str(config))  # fmt: skip
     dep, rows = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "camera",
                        "--camera-config", str(config), "--duration", "6")  # fmt: skip
     code, out, err = board.stop()

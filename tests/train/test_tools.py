@@ -396,3 +396,68 @@ def test_sysid_tables_are_what_the_tool_makes_of_their_json(camera: bool) -> Non
         assert page.read_text().split(start, 1)[1].split(end, 1)[0].strip() == made.strip(), \
             f"{page.name}'s table is stale: rerun train/tools/sysid_table.py"  # fmt: skip
     assert len(rows) >= 5 and made.count("\n") == len(rows) + 1
+
+
+def time_to_98_tool() -> Any:
+    """``train/tools/time_to_98_table.py`` as a module (it finds ``sysid_table`` beside it)."""
+    import importlib.util
+    import sys
+
+    tools = str(ROOT / "train" / "tools")
+    spec = importlib.util.spec_from_file_location("time_to_98_table", ROOT / "train" / "tools" / "time_to_98_table.py")
+    assert spec is not None and spec.loader is not None
+    tool = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(tool)
+    finally:
+        while tools in sys.path:
+            sys.path.remove(tools)
+    return tool
+
+
+def test_training_time_tables_are_what_the_tool_makes_of_their_json() -> None:
+    """The results page's training-time tables (and the intro it is made from) are what
+    ``train/tools/time_to_98_table.py`` makes of ``docs/src/time_to_98.json``, which holds the batched balance
+    recipe's time to ≥ 98 % for three training seeds."""
+    tool = time_to_98_tool()
+    runs = json.loads((ROOT / "docs" / "src" / "time_to_98.json").read_text())
+    made = tool.tables(runs)
+    start, end = tool.MARKERS
+    for page in (ROOT / "docs" / "src" / "results.md", ROOT / "train" / "tools" / "results_intro.md"):
+        assert page.read_text().split(start, 1)[1].split(end, 1)[0].strip() == made.strip(), \
+            f"{page.name}'s training-time tables are stale: rerun train/tools/time_to_98_table.py"  # fmt: skip
+    timed = [r for r in runs if r["env"] == "balance" and r["recipe"] == "ppo_batched" and r["budget_s"] is None]
+    assert sorted(r["seed"] for r in timed) == [0, 1, 2]
+    assert made.count("| balance | `ppo_batched` |") >= 3
+
+
+def test_a_training_time_bench_run_replaces_only_its_own_task_recipe_and_kind(tmp_path: Path) -> None:
+    """A new bench output replaces the saved runs of its task, recipe and kind (time to ≥ 98 % or a budget) and
+    keeps the others; a file that is not a bench output is refused before anything is written."""
+    tool = time_to_98_tool()
+
+    def bench(recipe: str, budget: float | None, seeds: list[int]) -> dict:
+        runs = [{"recipe": recipe, "seed": s, "timesteps": 1000 * (s + 1), "wall_s": 1.0 + s, "evaluated_s": 2.0 + s,
+                 "pybullet": 1.0, "mujoco": 0.99, "pybullet_rms_mm": 3.0, "mujoco_rms_mm": 3.1, "candidates": [],
+                 "budget_s": budget} for s in seeds]  # fmt: skip
+        return {"env": "balance", "cores": 2, "episodes": 100, "eval_freq": None if budget else 12500,
+                "budget_s": budget, "runs": runs}  # fmt: skip
+
+    saved = tool.runs_of([bench("ppo_batched", None, [0, 1, 2]), bench("ppo_batched", 30.0, [0, 1, 2]),
+                          bench("ppo", None, [0])])  # fmt: skip
+    fresh = tool.runs_of([bench("ppo_batched", None, [5])])
+    got = tool.merged(saved, fresh)
+    assert [(r["recipe"], r["budget_s"], r["seed"]) for r in got] == [
+        ("ppo_batched", 30.0, 0), ("ppo_batched", 30.0, 1), ("ppo_batched", 30.0, 2), ("ppo", None, 0),
+        ("ppo_batched", None, 5)]  # fmt: skip
+    made = tool.tables(got)
+    assert "| balance | `ppo_batched` | 5 | 12,500 | 6,000 | 6.0 | 7.0 | 100% / 99% |" in made
+    assert "| balance | `ppo_batched` | 2 | 30 | 3,000 | 100% (3.00) | 99% (3.10) |" in made
+    saved_file = ROOT / "docs" / "src" / "time_to_98.json"
+    before = saved_file.read_bytes()
+    (tmp_path / "bad.json").write_text("Traceback (most recent call last):\n")
+    (tmp_path / "other.json").write_text('{"env": "balance"}\n')  # JSON, but no runs
+    for bad in ("bad.json", "other.json", "missing.json"):
+        with pytest.raises(SystemExit) as exit_info:
+            tool.main([str(tmp_path / bad), "--page", str(tmp_path / "page.md")])
+        assert exit_info.value.code == 2 and saved_file.read_bytes() == before

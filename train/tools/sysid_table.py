@@ -34,23 +34,8 @@ SG = [sys.executable, "-m", "stewart_gym"]
 MARKERS = ("<!-- sysid table: train/tools/sysid_table.py -->", "<!-- end sysid table -->")
 CAMERA_MARKERS = ("<!-- sysid camera table: train/tools/sysid_table.py --sensor camera -->",
                   "<!-- end sysid camera table -->")  # fmt: skip
-#: The camera the board streams and the config ``identify`` reads it with (``{pipe}``: the stream).
+#: The camera the board streams (it writes the config ``identify`` reads the stream with).
 CAMERA_PRESET = "pixy2"
-CAMERA_CONFIG = """[camera]
-source = "{pipe}"
-resolution = [316, 208]
-fps = 60
-fov_deg = 60
-[markers]
-dictionary = "DICT_4X4_50"
-ids = [0, 1, 2, 3]
-centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]
-size_mm = 36
-[ball]
-hsv_low = [5, 120, 120]
-hsv_high = [25, 255, 255]
-radius_mm = 12.7
-"""
 #: The issue's bound on each servo's trim from the camera, µs.
 TRIM_BOUND_US = 5.0
 #: Twins spread over the plausible ranges, several outside today's randomisation (servo speed 0.8–1.1, dead band
@@ -97,9 +82,8 @@ def run_twin(name: str, tables: dict, seconds: float, folder: Path, seed: int, s
     protocol, board_extra, identify_extra = "line", [], ["--sensor", "panel"]
     if sensor == "camera":
         pipe, config = folder / f"camera-{name}.mjpg", folder / f"camera-{name}.toml"
-        config.write_text(CAMERA_CONFIG.format(pipe=pipe))
         protocol = "maestro"
-        board_extra = ["--camera-stream", str(pipe), "--camera", CAMERA_PRESET]
+        board_extra = ["--camera-stream", str(pipe), "--camera", CAMERA_PRESET, "--camera-config-out", str(config)]
         identify_extra = ["--sensor", "camera", "--camera-config", str(config)]
     board_log = folder / f"{name}-board.txt"
     if record:
