@@ -336,7 +336,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         obs = self._observe(0.0)
         self._last_obs = obs
         target_xy, _ = self.task.target(0.0)
-        return obs, self._info(xy.copy(), target_xy, math.hypot(xy[0] - target_xy[0], xy[1] - target_xy[1]))
+        return obs, self._info(xy.copy(), target_xy, distance(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 
     #: The ball starts within this fraction of the plate's half size of the centre (0.10 m on the 300 mm plate).
     START_FRACTION = 2.0 / 3.0
@@ -442,7 +442,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         obs = self.observer.observe(self.sensor_model.read(t), target_xy, target_vel, self._roll_pitch,
                                     mapped.action, now=t)  # fmt: skip
         self._last_obs = obs
-        dist = math.hypot(x - target_xy[0], y - target_xy[1])
+        dist = distance(x - target_xy[0], y - target_xy[1])
         self._inside = self._inside + 1 if (on_plate and dist <= self.success_radius) else 0
         terminated = not on_plate
         reward = task.reward(dist, rate, terminated)
@@ -515,6 +515,12 @@ class StewartBallEnv(gym.Env, EzPickle):
             "physics_error": np.False_,
             **self.task.info(),
         }
+
+
+def distance(dx: float, dy: float) -> float:
+    """m, the length of (dx, dy) as ``sqrt(dx² + dy²)``: the same bits as NumPy's on arrays (the batched vector env's
+    copies, :class:`~stewart_gym.envs.copies.CopySteps`), which ``math.hypot`` is not."""
+    return math.sqrt(dx * dx + dy * dy)
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:

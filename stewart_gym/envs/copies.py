@@ -19,6 +19,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from stewart_gym.envs.ball_env import StewartBallEnv
+from stewart_gym.envs.task_array import TaskArray
 from stewart_gym.sensing import ball_contact
 from stewart_gym.sensing_arrays import ObserverArray, PanelArray
 from stewart_gym.sim.batched import BatchedSim
@@ -45,6 +46,8 @@ class CopySteps:
         first = envs[0]
         self.envs, self.sim, self.panels, self.observers = list(envs), sim, panels, observers
         self.n = len(self.envs)
+        self.tasks = TaskArray([env.task for env in self.envs])
+        self.platforms = [env.sim for env in self.envs]  # each copy's platform of ``sim``, which its task acts on
         self.mapper = first.mapper
         self.half_extent = first.plate_half_extent
         self.success_radius, self.success_steps = first.success_radius, first.success_steps
@@ -69,11 +72,9 @@ class CopySteps:
     def step(self, actions: np.ndarray) -> StepArrays:
         """Every copy's step with its action (n × action size): observations, rewards, terminated, truncated and
         the info as arrays. A copy whose episode ends is left for the caller to reset (then :meth:`reset_row`)."""
-        n, sim = self.n, self.sim
+        sim = self.sim
         mapped = self.mapper.map_arrays(actions)
-        before = sim.platform_times()
-        for env, t in zip(self.envs, before.tolist()):
-            env.task.before_step(t, env.sim)
+        self.tasks.before_step(sim.platform_times(), self.platforms)
         sim.command(mapped.pulses)
         sim.step()
         t = sim.platform_times()
@@ -91,24 +92,16 @@ class CopySteps:
         on_plate &= sound
         good = self.rows[sound]
         self.panels.record(t[good], xy[good], touching[good], good)
-        targets, target_velocities = np.empty((n, 2)), np.empty((n, 2))
-        for i, (env, ti) in enumerate(zip(self.envs, t.tolist())):
-            targets[i], target_velocities[i] = env.task.target(ti)
+        targets, target_velocities = self.tasks.targets(t)
         reading, sample_t, has = self.panels.read(t[good], good)
         obs = self.last_obs.copy()
         obs[good] = self.observers.observe(good, has, reading, sample_t, targets[good], target_velocities[good],
                                            self.roll_pitch[good], mapped.actions[good], t[good])  # fmt: skip
         self.last_obs = obs
-        distances = np.full(n, math.nan)
-        rewards = np.empty(n)
         lost = 2 * self.half_extent[0]  # the distance a step whose physics blew up is scored at
-        for i, (env, (x, y), (tx, ty), ok, on, rate) in enumerate(zip(
-                self.envs, xy.tolist(), targets.tolist(), sound.tolist(), on_plate.tolist(), rates.tolist())):  # fmt: skip
-            if ok:
-                distances[i] = dist = math.hypot(x - tx, y - ty)
-                rewards[i] = env.task.reward(dist, rate, not on)
-            else:
-                rewards[i] = env.task.reward(lost, 0.0, True)
+        offset = np.where(sound[:, None], xy - targets, 0.0)  # (a blown-up row: inf or NaN, never inf − inf)
+        distances = np.where(sound, np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1]), math.nan)
+        rewards = self.tasks.rewards(np.where(sound, distances, lost), np.where(sound, rates, 0.0), ~on_plate)
         within = on_plate & (distances <= self.success_radius)
         self.inside = np.where(sound, np.where(within, self.inside + 1, 0), self.inside)
         self.steps += sound
@@ -126,7 +119,5 @@ class CopySteps:
             "unreachable_count": self.unreachable.copy(),
             "physics_error": ~sound,
         }
-        task_infos = [env.task.info() for env in self.envs]
-        for key in task_infos[0]:
-            info[key] = np.array([each[key] for each in task_infos])
+        info.update(self.tasks.infos())
         return obs, rewards, terminated, truncated, info

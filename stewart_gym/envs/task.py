@@ -143,7 +143,8 @@ class BallTask:
         weight = self.rate_penalty + (self.settled_rate_penalty if inside else 0.0)
         outside = 0.0 if inside else self.outside_penalty * (1 + (self._steps_inside if self.charge_until_settled
                                                                    else 0))  # fmt: skip
-        self._steps_inside = self._steps_inside + 1 if inside else 0
+        if self.charge_until_settled:  # the count matters only then (the batched vector env keeps none otherwise)
+            self._steps_inside = self._steps_inside + 1 if inside else 0
         return (1.0 - min(distance, 2 * half) / half + math.exp(-distance / self.near_scale)
                 - weight * action_rate - outside - (self.FALL_PENALTY if fell else 0.0))  # fmt: skip
 

@@ -37,11 +37,13 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
 @pytest.mark.parametrize("kwargs", [{"randomize": True, "estimator": "lowpass", "integral": True},
                                     {"randomize": True, "estimator": "kalman", "integral": True, "action_mode": "pose"},
                                     {"randomize": True, "action_mode": "pulse"},
-                                    {"randomize": True, "sensor": "pixy2"}],
-                         ids=["lowpass", "pose", "pulse", "camera"])  # fmt: skip
+                                    {"randomize": True, "sensor": "pixy2"},
+                                    {"randomize": True, "outside_penalty": 0.2, "charge_until_settled": True}],
+                         ids=["lowpass", "pose", "pulse", "camera", "charged"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
     """The same with the low-pass observer, the error integral, the pose and the pulse actions (sensed as arrays),
-    and with a camera (each copy senses on its own)."""
+    with a camera (each copy senses on its own), and with a reward whose count of steps inside is per copy (each
+    copy's task rewards on its own)."""
     vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
     assert (vector.unwrapped.panels is None) == ("sensor" in kwargs)
 

@@ -1,0 +1,87 @@
+"""The batched vector env's tasks as arrays: each copy's target, reward, disturbance and info for every copy at once.
+
+:class:`TaskArray` asks N copies' tasks (one :class:`~stewart_gym.envs.task.Task` per copy) what their envs ask
+of them in a step. Where every copy's task uses :class:`~stewart_gym.envs.task.BallTask`'s own hook, that hook is
+done as arrays: the fixed target at the centre, no disturbance, no info, and the reward (without
+``charge_until_settled``, whose count of steps inside is per copy). Any other hook (a moving target, a push, a
+task's own reward or info) is asked of each copy's task in turn, as its env would ask it. The results are each
+task's own to the last bit (the reward's exponential is Python's ``math.exp``, as the task's).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.envs.task import BallTask, Task
+
+__all__ = ["TaskArray"]
+
+
+def _inherited(tasks: Sequence[Task], hook: str) -> bool:
+    """Whether every task is a :class:`BallTask` whose ``hook`` is :class:`BallTask`'s own."""
+    return all(isinstance(task, BallTask) and getattr(type(task), hook) is getattr(BallTask, hook) for task in tasks)
+
+
+class TaskArray:
+    """``tasks[i]`` is copy i's task; each method takes and returns a row per copy.
+
+    Args:
+        tasks: The copies' tasks (each copy's env's own, which its resets redraw).
+    """
+
+    def __init__(self, tasks: Sequence[Task]) -> None:
+        self.tasks = list(tasks)
+        self.n = len(self.tasks)
+        #: whether a task acts on the physics before a step (else :meth:`before_step` does nothing)
+        self.disturbs = not _inherited(self.tasks, "before_step")
+        #: whether every target is the fixed one at the centre
+        self.fixed_target = _inherited(self.tasks, "target")
+        #: whether the tasks add entries to the info
+        self.adds_info = not _inherited(self.tasks, "info")
+        #: whether the rewards are found as arrays (else each task's own :meth:`~BallTask.reward`)
+        self.array_rewards = _inherited(self.tasks, "reward") and not any(
+            task.charge_until_settled for task in self.tasks)  # fmt: skip
+        if self.array_rewards:
+            def column(key: str) -> np.ndarray:
+                return np.array([getattr(task, key) for task in self.tasks], dtype=np.float64)
+
+            self._radius, self._half, self._near = column("success_radius"), column("plate_half"), column("near_scale")
+            self._rate, self._settled = column("rate_penalty"), column("settled_rate_penalty")
+            self._outside = column("outside_penalty")
+
+    def before_step(self, times: np.ndarray, backends: Sequence[Any]) -> None:
+        """Let each task act on its copy's physics (``backends[i]``) before the period that starts at ``times[i]``."""
+        if self.disturbs:
+            for task, t, backend in zip(self.tasks, times.tolist(), backends):
+                task.before_step(t, backend)
+
+    def targets(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each copy's target (n, 2) m and its velocity (n, 2) m/s at ``times[i]``."""
+        targets, velocities = np.zeros((self.n, 2)), np.zeros((self.n, 2))
+        if not self.fixed_target:
+            for i, (task, t) in enumerate(zip(self.tasks, times.tolist())):
+                targets[i], velocities[i] = task.target(t)
+        return targets, velocities
+
+    def rewards(self, distances: np.ndarray, rates: np.ndarray, fell: np.ndarray) -> np.ndarray:
+        """Each copy's reward (n,) for its ball-to-target distance (m), action rate and whether the ball fell."""
+        if not self.array_rewards:
+            return np.array([task.reward(d, r, f) for task, d, r, f in zip(
+                self.tasks, distances.tolist(), rates.tolist(), fell.tolist())], dtype=np.float64)  # fmt: skip
+        inside = distances <= self._radius
+        weight = self._rate + np.where(inside, self._settled, 0.0)
+        outside = np.where(inside, 0.0, self._outside)
+        near = np.array([math.exp(v) for v in (-distances / self._near).tolist()], dtype=np.float64)
+        return (1.0 - np.minimum(distances, 2 * self._half) / self._half + near - weight * rates - outside
+                - np.where(fell, BallTask.FALL_PENALTY, 0.0))  # fmt: skip
+
+    def infos(self) -> dict[str, np.ndarray]:
+        """The tasks' info entries, one array per key with a row per copy (none where the tasks add none)."""
+        if not self.adds_info:
+            return {}
+        each = [task.info() for task in self.tasks]
+        return {key: np.array([entry[key] for entry in each]) for key in each[0]}
