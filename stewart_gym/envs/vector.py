@@ -7,8 +7,9 @@ sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.b
 steps exactly as that env would alone. Every step, the shared simulator advances every platform at once. With the
 touch panel (the default), the copies' actions are mapped in one IK pass, and their panels and observers are rows
 of :class:`~stewart_gym.sensing_arrays.PanelArray` and :class:`~stewart_gym.sensing_arrays.ObserverArray`, advanced
-together, and every copy's step ends as arrays (:class:`~stewart_gym.envs.copies.CopySteps`); each copy's task
-still acts, targets and scores on its own. With a camera, each copy maps, senses and observes on its own. An
+together, and every copy's step ends as arrays (:class:`~stewart_gym.envs.copies.CopySteps`), its task's target,
+reward and info included (:class:`~stewart_gym.envs.task_array.TaskArray`: as arrays where the task uses the
+built-in hooks, else copy by copy). With a camera, each copy maps, senses and observes on its own. An
 episode that ends is reset in the same step (Gymnasium's ``AutoresetMode.SAME_STEP``): ``info["final_obs"]``
 and ``info["final_info"]`` hold its last observation and info.
 """

@@ -416,9 +416,9 @@ def time_to_98_tool() -> Any:
 
 
 def test_training_time_tables_are_what_the_tool_makes_of_their_json() -> None:
-    """The results page's training-time tables (and the intro it is made from) are what
-    ``train/tools/time_to_98_table.py`` makes of ``docs/src/time_to_98.json``, which holds the batched balance
-    recipe's time to ≥ 98 % for three training seeds."""
+    """The results page's training-time tables (and the intro it is made from), and the README's sentence on
+    them, are what ``train/tools/time_to_98_table.py`` makes of ``docs/src/time_to_98.json``, which holds the
+    batched balance recipe's time to ≥ 98 % for three training seeds."""
     tool = time_to_98_tool()
     runs = json.loads((ROOT / "docs" / "src" / "time_to_98.json").read_text())
     made = tool.tables(runs)
@@ -426,8 +426,13 @@ def test_training_time_tables_are_what_the_tool_makes_of_their_json() -> None:
     for page in (ROOT / "docs" / "src" / "results.md", ROOT / "train" / "tools" / "results_intro.md"):
         assert page.read_text().split(start, 1)[1].split(end, 1)[0].strip() == made.strip(), \
             f"{page.name}'s training-time tables are stale: rerun train/tools/time_to_98_table.py"  # fmt: skip
+    start, end = tool.README_MARKERS
+    sentence = (ROOT / "README.md").read_text().split(start, 1)[1].split(end, 1)[0].strip()
+    assert sentence == tool.readme_sentence(runs), "README's time-to-98 sentence is stale: rerun the tool"
     timed = [r for r in runs if r["env"] == "balance" and r["recipe"] == "ppo_batched" and r["budget_s"] is None]
     assert sorted(r["seed"] for r in timed) == [0, 1, 2]
+    low, high = min(r["wall_s"] for r in timed), max(r["wall_s"] for r in timed)
+    assert f"after {low:.0f}–{high:.0f} s of training" in sentence
     assert made.count("| balance | `ppo_batched` |") >= 3
 
 

@@ -6,7 +6,8 @@ Run: ``.venv/bin/python bench/bench_time_to_98.py --recipes ppo_batched --eval-f
 
 Each file is one run of the bench (``--json``). Its runs replace those of the same task, recipe and kind (time to
 ≥ 98 %, or a fixed budget) in ``docs/src/time_to_98.json``; the others are kept. The tables made of that file go
-into the results page and its intro (``train/tools/results_intro.md``) between :data:`MARKERS`.
+into the results page and its intro (``train/tools/results_intro.md``) between :data:`MARKERS`, and the balance
+recipes' range into the README between :data:`README_MARKERS`.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sysid_table import ROOT, write_between  # noqa: E402
 
 MARKERS = ("<!-- time-to-98 table: train/tools/time_to_98_table.py -->", "<!-- end time-to-98 table -->")
+#: Where the README's sentence on the balance recipes' time to ≥ 98 % goes (:func:`readme_sentence`).
+README_MARKERS = ("<!-- time-to-98 sentence: train/tools/time_to_98_table.py -->", "<!-- end time-to-98 sentence -->")
 SAVED = ROOT / "docs/src/time_to_98.json"
 TASKS = {"balance": "balance", "track": "track (mixed)"}
 
@@ -72,6 +75,19 @@ def budget_table(runs: list[dict]) -> str:
     return "\n".join(out)
 
 
+def readme_sentence(runs: list[dict]) -> str:
+    """The README's sentence: the range of the batched and the PyBullet balance recipes' times to ≥ 98 %, over
+    their training seeds."""
+    def span(recipe: str) -> str:
+        times = [r["wall_s"] for r in runs if r["env"] == "balance" and r["recipe"] == recipe
+                 and r["budget_s"] is None and r["wall_s"] is not None]  # fmt: skip
+        return f"{min(times):.0f}–{max(times):.0f} s" if times else "no run"
+
+    return (f"From scratch, `ppo_batched` holds ≥ 98 % of held-out balance episodes in PyBullet and in MuJoCo after "
+            f"{span('ppo_batched')} of training on 2 cores, against {span('ppo')} for the PyBullet recipe "
+            "([training time](docs/src/results.md#training-time)).")
+
+
 def tables(runs: list[dict]) -> str:
     """Both tables, each where it has runs, with the held-out episodes they were judged on."""
     parts = []
@@ -109,6 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     made = tables(runs)
     for page in args.page or [ROOT / "docs/src/results.md", ROOT / "train/tools/results_intro.md"]:
         write_between(Path(page), MARKERS, made)
+    if not args.page:
+        write_between(ROOT / "README.md", README_MARKERS, readme_sentence(runs))
     print(made)
     return 0
 
