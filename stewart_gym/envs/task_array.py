@@ -2,15 +2,21 @@
 
 :class:`TaskArray` asks N copies' tasks (one :class:`~stewart_gym.envs.task.Task` per copy) what their envs ask
 of them in a step. Where every copy's task uses :class:`~stewart_gym.envs.task.BallTask`'s own hook, that hook is
-done as arrays: the fixed target at the centre, no disturbance, no info, and the reward (without
+done as arrays: the fixed target at the centre, no disturbance, no info, and the reward (but with
 ``charge_until_settled``, whose count of steps inside is per copy). Any other hook (a moving target, a push, a
 task's own reward or info) is asked of each copy's task in turn, as its env would ask it. The results are each
 task's own to the last bit (the reward's exponential is Python's ``math.exp``, as the task's).
+
+Which hooks a task overrides (in its class or on the instance) is looked up once, when the array is made; the
+reward's parameters (``success_radius``, ``near_scale``, the penalties, ``FALL_PENALTY``,
+``charge_until_settled``) are read at every step, so that a change made between steps (a curriculum's) counts
+at once, as it does for one env.
 """
 
 from __future__ import annotations
 
 import math
+import operator
 from collections.abc import Sequence
 from typing import Any
 
@@ -20,10 +26,17 @@ from stewart_gym.envs.task import BallTask, Task
 
 __all__ = ["TaskArray"]
 
+#: Getters of the :class:`BallTask` attributes its reward reads (:meth:`TaskArray.rewards` reads them at each step).
+_REWARD_PARAMETERS = tuple(map(operator.attrgetter, (
+    "success_radius", "plate_half", "near_scale", "rate_penalty", "settled_rate_penalty", "outside_penalty",
+    "FALL_PENALTY", "charge_until_settled")))  # fmt: skip
+
 
 def _inherited(tasks: Sequence[Task], hook: str) -> bool:
-    """Whether every task is a :class:`BallTask` whose ``hook`` is :class:`BallTask`'s own."""
-    return all(isinstance(task, BallTask) and getattr(type(task), hook) is getattr(BallTask, hook) for task in tasks)
+    """Whether every task is a :class:`BallTask` that uses :class:`BallTask`'s own ``hook`` (not overridden in
+    its class, nor set on the instance)."""
+    return all(isinstance(task, BallTask) and getattr(type(task), hook) is getattr(BallTask, hook)
+               and hook not in vars(task) for task in tasks)  # fmt: skip
 
 
 class TaskArray:
@@ -42,16 +55,9 @@ class TaskArray:
         self.fixed_target = _inherited(self.tasks, "target")
         #: whether the tasks add entries to the info
         self.adds_info = not _inherited(self.tasks, "info")
-        #: whether the rewards are found as arrays (else each task's own :meth:`~BallTask.reward`)
-        self.array_rewards = _inherited(self.tasks, "reward") and not any(
-            task.charge_until_settled for task in self.tasks)  # fmt: skip
-        if self.array_rewards:
-            def column(key: str) -> np.ndarray:
-                return np.array([getattr(task, key) for task in self.tasks], dtype=np.float64)
-
-            self._radius, self._half, self._near = column("success_radius"), column("plate_half"), column("near_scale")
-            self._rate, self._settled = column("rate_penalty"), column("settled_rate_penalty")
-            self._outside = column("outside_penalty")
+        #: whether every task rewards with :class:`BallTask`'s own reward: then :meth:`rewards` finds the rewards
+        #: as arrays, unless a task counts its steps inside (``charge_until_settled``)
+        self.ball_rewards = _inherited(self.tasks, "reward")
 
     def before_step(self, times: np.ndarray, backends: Sequence[Any]) -> None:
         """Let each task act on its copy's physics (``backends[i]``) before the period that starts at ``times[i]``."""
@@ -69,15 +75,18 @@ class TaskArray:
 
     def rewards(self, distances: np.ndarray, rates: np.ndarray, fell: np.ndarray) -> np.ndarray:
         """Each copy's reward (n,) for its ball-to-target distance (m), action rate and whether the ball fell."""
-        if not self.array_rewards:
-            return np.array([task.reward(d, r, f) for task, d, r, f in zip(
-                self.tasks, distances.tolist(), rates.tolist(), fell.tolist())], dtype=np.float64)  # fmt: skip
-        inside = distances <= self._radius
-        weight = self._rate + np.where(inside, self._settled, 0.0)
-        outside = np.where(inside, 0.0, self._outside)
-        near = np.array([math.exp(v) for v in (-distances / self._near).tolist()], dtype=np.float64)
-        return (1.0 - np.minimum(distances, 2 * self._half) / self._half + near - weight * rates - outside
-                - np.where(fell, BallTask.FALL_PENALTY, 0.0))  # fmt: skip
+        if self.ball_rewards:
+            columns = [np.fromiter(map(attribute, self.tasks), np.float64, self.n) for attribute in _REWARD_PARAMETERS]
+            radius, half, near_scale, rate_penalty, settled, outside_penalty, fall_penalty, charged = columns
+            if not charged.any():
+                inside = distances <= radius
+                weight = rate_penalty + np.where(inside, settled, 0.0)
+                outside = np.where(inside, 0.0, outside_penalty)
+                near = np.array([math.exp(v) for v in (-distances / near_scale).tolist()], dtype=np.float64)
+                return (1.0 - np.minimum(distances, 2 * half) / half + near - weight * rates - outside
+                        - np.where(fell, fall_penalty, 0.0))  # fmt: skip
+        return np.array([task.reward(d, r, f) for task, d, r, f in zip(
+            self.tasks, distances.tolist(), rates.tolist(), fell.tolist())], dtype=np.float64)  # fmt: skip
 
     def infos(self) -> dict[str, np.ndarray]:
         """The tasks' info entries, one array per key with a row per copy (none where the tasks add none)."""

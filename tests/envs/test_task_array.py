@@ -26,28 +26,44 @@ class OwnReward(BallTask):
         return -distance - action_rate - (1.0 if fell else 0.0)
 
 
+class HardFall(BallTask):
+    """BallTask's reward with a heavier fall."""
+
+    FALL_PENALTY = 100.0
+
+
 def test_the_built_in_hooks_are_arrays_and_the_others_are_asked() -> None:
     balance = TaskArray([load_task("balance") for _ in range(3)])
-    assert (balance.disturbs, balance.fixed_target, balance.adds_info, balance.array_rewards) == (False, True, False, True)
+    assert (balance.disturbs, balance.fixed_target, balance.adds_info, balance.ball_rewards) == (False, True, False, True)
     track = TaskArray([load_task("track", trajectory="mixed") for _ in range(3)])
-    assert (track.disturbs, track.fixed_target, track.array_rewards) == (False, False, True)
+    assert (track.disturbs, track.fixed_target, track.ball_rewards) == (False, False, True)
     disturbance = TaskArray([load_task("disturbance") for _ in range(3)])
     assert disturbance.disturbs and disturbance.adds_info and disturbance.fixed_target
-    assert not TaskArray([load_task("balance"), OwnReward()]).array_rewards
-    assert not TaskArray([load_task("balance", charge_until_settled=True, outside_penalty=0.1)]).array_rewards
+    assert not TaskArray([load_task("balance"), OwnReward()]).ball_rewards
+    patched = load_task("balance")
+    patched.reward = lambda distance, action_rate, fell: 7.0  # a hook set on the instance is the task's own
+    array = TaskArray([load_task("balance"), patched])
+    assert not array.ball_rewards
+    assert array.rewards(np.array([0.0, 0.0]), np.zeros(2), np.array([False, True]))[1] == 7.0
 
 
 @pytest.mark.parametrize("kwargs", REWARD_KWARGS, ids=["default", "penalties", "track-radius", "charged"])
 @settings(max_examples=30, deadline=None)
 @given(data=st.data())
 def test_rewards_are_each_tasks_own(kwargs: dict, data: st.DataObject) -> None:
-    """Over a few steps (the charged reward counts steps inside), distances on and around the success radius."""
+    """Over a few steps (the charged reward counts steps inside), distances on and around the success radius; the
+    copies' tasks differ (each row its own parameters: one with ``kwargs``, the others drawn, one falling harder)."""
     n = 5
-    tasks = [load_task("balance", **kwargs) for _ in range(n)]
+    tasks = [load_task("balance", **kwargs), HardFall()]
+    for _ in range(n - 2):
+        tasks.append(load_task("balance", near_scale=data.draw(st.floats(0.005, 0.03)),
+                               success_radius=data.draw(st.sampled_from([0.01, 0.02])),
+                               settled_rate_penalty=data.draw(st.sampled_from([0.0, 0.5])),
+                               outside_penalty=data.draw(st.sampled_from([0.0, 0.2]))))  # fmt: skip
     own = copy.deepcopy(tasks)
     array = TaskArray(tasks)
     radius = tasks[0].success_radius
-    near = st.sampled_from([0.0, radius, np.nextafter(radius, 1.0), 0.3, 1e-9])
+    near = st.sampled_from([0.0, radius, np.nextafter(radius, 1.0), 0.01, 0.02, 0.3, 1e-9])
     distance = st.one_of(near, st.floats(0.0, 0.35, allow_nan=False))
     for _ in range(data.draw(st.integers(1, 4))):
         d = np.array(data.draw(st.lists(distance, min_size=n, max_size=n)))
@@ -55,6 +71,22 @@ def test_rewards_are_each_tasks_own(kwargs: dict, data: st.DataObject) -> None:
         fell = np.array(data.draw(st.lists(st.booleans(), min_size=n, max_size=n)))
         expected = [task.reward(a, b, c) for task, a, b, c in zip(own, d.tolist(), rate.tolist(), fell.tolist())]
         np.testing.assert_array_equal(array.rewards(d, rate, fell), expected)
+
+
+def test_a_reward_parameter_changed_between_steps_counts_at_once() -> None:
+    """As for one env (a curriculum sharpens ``near_scale`` between rollouts): the next step's reward uses it."""
+    tasks = [load_task("balance", settled_rate_penalty=0.5) for _ in range(3)]
+    array = TaskArray(tasks)
+    d, rate, fell = np.array([0.004, 0.02, 0.05]), np.array([0.1, 0.0, 0.3]), np.zeros(3, dtype=bool)
+    before = array.rewards(d, rate, fell)
+    tasks[0].near_scale, tasks[1].outside_penalty, tasks[2].success_radius = 0.005, 1.0, 0.06
+    after = array.rewards(d, rate, fell)
+    assert (after != before).all()
+    np.testing.assert_array_equal(after, [t.reward(a, b, False) for t, a, b in zip(tasks, d.tolist(), rate.tolist())])
+    tasks[1].charge_until_settled = True  # now counted per copy: asked copy by copy
+    np.testing.assert_array_equal(array.rewards(d, rate, fell),
+                                  [t.reward(a, b, False) for t, a, b in zip(copy.deepcopy(tasks), d.tolist(),
+                                                                            rate.tolist())])  # fmt: skip
 
 
 def test_targets_pushes_and_infos_are_each_tasks_own() -> None:
@@ -82,7 +114,7 @@ def test_targets_pushes_and_infos_are_each_tasks_own() -> None:
     for task, t in zip(own, (0.0, 5.0, 9.0)):
         task.before_step(t, BatchedPlatform(BatchedSim(n=1), 0))
     infos = array.infos()
-    assert infos["pushes"].tolist() == [task.info()["pushes"] for task in own] and infos["pushes"][2] >= 3
+    assert infos["pushes"].tolist() == [task.info()["pushes"] for task in own] and infos["pushes"][2] >= 2
     assert infos["plate_load_kg"].tolist() == [task.info()["plate_load_kg"] for task in own]
     moved = np.any(sim.ball_velocity != before, axis=1)
     assert moved.tolist() == [False, True, True]

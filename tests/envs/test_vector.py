@@ -145,17 +145,21 @@ def test_a_residual_copy_moves_as_the_residual_wrapper() -> None:
 
 
 def test_a_copy_whose_physics_blows_up_ends_alone() -> None:
-    """A copy whose ball goes non-finite ends with ``physics_error`` (each copy then takes its own end of step);
-    the other copies step on exactly as single envs."""
+    """A copy whose ball goes non-finite ends with ``physics_error`` and the reward a single env gives then; the
+    other copies step on exactly as single envs."""
     vector = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point", **KWARGS)
-    single = gym.make("StewartBallBalance-v0", backend="batched", **KWARGS)
+    single, blown = (gym.make("StewartBallBalance-v0", backend="batched", **KWARGS) for _ in range(2))
     vector.reset(seed=4)
     single.reset(seed=4)
+    blown.reset(seed=5)
     action = np.array([0.1, -0.2], dtype=np.float32)
     vector.unwrapped.envs[1].sim.place_ball((math.nan, 0.0))
-    obs, _, terminated, _, info = vector.step(np.stack([action, action]))
-    o, _, te, _, _ = single.step(action)
+    blown.unwrapped.sim.place_ball((math.nan, 0.0))
+    obs, reward, terminated, _, info = vector.step(np.stack([action, action]))
+    o, r, te, _, _ = single.step(action)
+    _, r_blown, te_blown, _, info_blown = blown.step(action)
     assert terminated[1] and info["final_info"]["physics_error"][1] and not te and not terminated[0]
+    assert te_blown and info_blown["physics_error"] and reward[1] == r_blown < -40 and reward[0] == r
     np.testing.assert_array_equal(obs[0], o)
     assert np.isfinite(obs).all()  # the ended copy was reset
     vector.close()

@@ -431,9 +431,24 @@ def test_training_time_tables_are_what_the_tool_makes_of_their_json() -> None:
     assert sentence == tool.readme_sentence(runs), "README's time-to-98 sentence is stale: rerun the tool"
     timed = [r for r in runs if r["env"] == "balance" and r["recipe"] == "ppo_batched" and r["budget_s"] is None]
     assert sorted(r["seed"] for r in timed) == [0, 1, 2]
-    low, high = min(r["wall_s"] for r in timed), max(r["wall_s"] for r in timed)
-    assert f"after {low:.0f}–{high:.0f} s of training" in sentence
     assert made.count("| balance | `ppo_batched` |") >= 3
+
+
+def test_the_readme_training_time_sentence_says_what_the_runs_show() -> None:
+    """A range over the seeds, one figure where they agree, how many seeds got there where some did not, and no
+    sentence at all without a run that got there."""
+    tool = time_to_98_tool()
+
+    def run(recipe: str, seed: int, wall: float | None) -> dict:
+        return {"env": "balance", "recipe": recipe, "seed": seed, "wall_s": wall, "budget_s": None}
+
+    sentence = tool.readme_sentence([run("ppo_batched", 0, 22.2), run("ppo_batched", 1, 28.8), run("ppo", 0, 90.4),
+                                     run("ppo", 1, 90.0), {**run("ppo", 2, 20.0), "budget_s": 30.0}])  # fmt: skip
+    assert "after 22–29 s of training on 2 cores, against 90 s for the PyBullet recipe" in sentence
+    sentence = tool.readme_sentence([run("ppo_batched", 0, 25.0), run("ppo_batched", 1, None), run("ppo", 0, 80.0)])
+    assert "after 25 s (1 of 2 training seeds) of training" in sentence
+    with pytest.raises(ValueError, match="ppo_batched"):
+        tool.readme_sentence([run("ppo_batched", 0, None), run("ppo", 0, 80.0)])
 
 
 def test_a_training_time_bench_run_replaces_only_its_own_task_recipe_and_kind(tmp_path: Path) -> None:
