@@ -477,7 +477,10 @@ def test_a_training_time_bench_run_replaces_only_its_own_task_recipe_and_kind(tm
     before = saved_file.read_bytes()
     (tmp_path / "bad.json").write_text("Traceback (most recent call last):\n")
     (tmp_path / "other.json").write_text('{"env": "balance"}\n')  # JSON, but no runs
-    for bad in ("bad.json", "other.json", "missing.json"):
+    unjudged = {key: value for key, value in bench("ppo", None, [0]).items() if key != "episodes"}
+    (tmp_path / "unjudged.json").write_text(json.dumps(unjudged))  # no held-out episodes
+    (tmp_path / "seedless.json").write_text(json.dumps({**unjudged, "episodes": 100, "runs": [{"recipe": "ppo"}]}))
+    for bad in ("bad.json", "other.json", "missing.json", "unjudged.json", "seedless.json"):
         with pytest.raises(SystemExit) as exit_info:
             tool.main([str(tmp_path / bad), "--page", str(tmp_path / "page.md")])
         assert exit_info.value.code == 2 and saved_file.read_bytes() == before

@@ -122,9 +122,11 @@ def main(argv: list[str] | None = None) -> int:
             bench = json.loads(Path(name).read_text())
         except (OSError, ValueError) as exc:
             ap.error(f"{name}: not a bench_time_to_98.py --json output ({exc})")
-        if not (isinstance(bench, dict) and bench.get("env") in TASKS and isinstance(bench.get("runs"), list)
-                and "budget_s" in bench):  # fmt: skip
-            ap.error(f"{name}: not a bench_time_to_98.py --json output (it needs env, budget_s and runs)")
+        runs = bench.get("runs") if isinstance(bench, dict) else None
+        if not (isinstance(runs, list) and bench.get("env") in TASKS and {"budget_s", "episodes"} <= set(bench)
+                and all(isinstance(r, dict) and {"recipe", "seed", "timesteps"} <= set(r) for r in runs)):
+            ap.error(f"{name}: not a bench_time_to_98.py --json output (it needs env, episodes, budget_s and runs, "
+                     "each with its recipe, seed and steps)")  # fmt: skip
         benches.append(bench)
     saved = json.loads(SAVED.read_text()) if SAVED.is_file() else []
     runs = merged(saved, runs_of(benches))
