@@ -76,7 +76,7 @@ train-residual: $(STAMP)
 	$(PY) -m stewart_gym evaluate --policy runs/residual_balance --episodes 100
 	$(PY) -m stewart_gym evaluate --policy runs/residual_track --episodes 100
 
-# The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe (batched, about 1 minute
+# The docs' control page (learned vs PID vs LQR), regenerated: the `make train` recipe (batched, about 30 s
 # each), the `make train-pybullet` recipe and the same with the error integral observed (3 minutes each, one at a
 # time: side by side each would get fewer steps in its 3 minutes), the first balance residual, over the PID +
 # Kalman, and the approach residual as one network, each trained with 3 seeds; the shipped balance residual's
@@ -112,8 +112,8 @@ results: $(STAMP)
 sweep: $(STAMP)
 	$(PY) -m stewart_gym sweep train/sweeps/ppo_balance.yaml --out sweeps/ppo_balance
 
-# Train a balance policy from scratch: PPO behind the Kalman observer on the batched backend (64 copies stepped
-# together, 150k steps: about 1 minute on 2 cores; `make train SEED=1` for another training seed), then evaluate
+# Train a balance policy from scratch: PPO behind the Kalman observer on the batched backend (128 copies stepped
+# together, 150k steps: about 30 s on 2 cores; `make train SEED=1` for another training seed), then evaluate
 # it on the 100 seeds in PyBullet.
 train: $(STAMP)
 	$(PY) -m stewart_gym train --hyperparams ppo_batched --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite

@@ -130,7 +130,7 @@ def test_a_sweep_on_the_batched_backend_takes_one_cpu_a_trial(tmp_path: Path) ->
     path = tmp_path / "batched.yaml"
     path.write_text(yaml.safe_dump({k: v for k, v in {**TINY, "hyperparams": "ppo_batched"}.items() if k != "n_envs"}))
     spec = load_sweep(path)
-    assert spec.batched and spec.n_envs == 64 and spec.cpus_per_trial == 1
+    assert spec.batched and spec.n_envs == 128 and spec.cpus_per_trial == 1
     spec = load_sweep(write(tmp_path, n_envs=4, env_kwargs={"backend": "batched"}))
     assert spec.batched and spec.n_envs == 4 and spec.cpus_per_trial == 1
     spec = load_sweep(write(tmp_path, n_envs=2))

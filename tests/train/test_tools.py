@@ -430,7 +430,7 @@ def test_training_time_tables_are_what_the_tool_makes_of_their_json() -> None:
     sentence = (ROOT / "README.md").read_text().split(start, 1)[1].split(end, 1)[0].strip()
     assert sentence == tool.readme_sentence(runs), "README's time-to-98 sentence is stale: rerun the tool"
     timed = [r for r in runs if r["env"] == "balance" and r["recipe"] == "ppo_batched" and r["budget_s"] is None]
-    assert sorted(r["seed"] for r in timed) == [0, 1, 2]
+    assert {r["seed"] for r in timed} == {0, 1, 2}  # each seed at least once
     assert made.count("| balance | `ppo_batched` |") >= 3
 
 
