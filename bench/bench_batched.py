@@ -4,7 +4,8 @@
   and the batched NumPy simulator at N = 1, 64, 1,024 and 4,096;
 * envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random tilt actions of ±0.3, an
   episode reset when it ends): one PyBullet, one MuJoCo and one batched env (``gym.make``), and the batched
-  vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096.
+  vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096, and at
+  N = 1,024 with cameras (``sensor="camera"``: a preset drawn per episode) instead of touch panels.
 
 Run: ``.venv/bin/python bench/bench_batched.py [--json]``. Each figure is the best of three timed runs; the
 ratio column is against the PyBullet simulator, or the PyBullet env, of the same run.
@@ -70,9 +71,9 @@ def main() -> None:
         return
     for title, table, reference in (("simulator", results, "pybullet, one simulator"),
                                     ("env", envs, "pybullet, one env")):  # fmt: skip
-        print(f"{title:<30}{'steps/s':>12}{'× PyBullet':>12}")
+        print(f"{title:<40}{'steps/s':>12}{'× PyBullet':>12}")
         for name, value in table.items():
-            print(f"{name:<30}{value:>12,.0f}{value / table[reference]:>12.1f}")
+            print(f"{name:<40}{value:>12,.0f}{value / table[reference]:>12.1f}")
         print()
 
 
@@ -97,12 +98,15 @@ def env_rates() -> dict[str, float]:
 
         out[f"{backend}, one env"] = rate(single, 1)
         env.close()
-    for n in (64, 1024, 4096):
-        vector = gym.make_vec("StewartBallBalance-v0", num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
-        vector.reset(seed=0)
-        batch = np.random.default_rng(1).uniform(-0.3, 0.3, (8, n, 2)).astype(np.float32)
-        out[f"batched vector env, N = {n:,}"] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
-        vector.close()
+    for sensor, sizes in (("panel", (64, 1024, 4096)), ("camera", (1024,))):
+        for n in sizes:
+            vector = gym.make_vec("StewartBallBalance-v0", num_envs=n, vectorization_mode="vector_entry_point",
+                                  sensor=sensor, **kwargs)  # fmt: skip
+            vector.reset(seed=0)
+            batch = np.random.default_rng(1).uniform(-0.3, 0.3, (8, n, 2)).astype(np.float32)
+            name = f"batched vector env, N = {n:,}" + (", cameras" if sensor == "camera" else "")
+            out[name] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
+            vector.close()
     return out
 
 

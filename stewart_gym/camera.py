@@ -36,6 +36,9 @@ from stewart_gym.sensing import BallHistory
 
 __all__ = ["CAMERA_PRESETS", "CameraSpec", "SimulatedCamera", "camera_preset"]
 
+#: Frames whose draws (a uniform and two standard normals each) a camera takes from its generator at a time.
+FRAME_DRAWS = 64
+
 
 @dataclass(frozen=True)
 class CameraSpec:
@@ -131,12 +134,15 @@ class SimulatedCamera:
         self._history = BallHistory(history_s)
         self._frames: dict[int, tuple[float, float] | None] = {}
         self._rng = np.random.default_rng()
+        self._misses, self._noise = np.zeros(0), np.zeros((0, 2))
+        self._drawn = 0  # frames of the current block of draws used
 
     def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
         """Start over at time ``t`` (s) with the ball at rest at ``xy`` (m); frames draw their noise from ``rng``."""
         self._history.clear()
         self._frames.clear()
         self._rng = rng
+        self._drawn = len(self._misses)  # the next frame draws a new block
         self._history.append(t - self.spec.latency_s - 2.0 / self.spec.fps - 1.0, xy[0], xy[1], True)
         self.record(t, xy, True)
 
@@ -159,6 +165,18 @@ class SimulatedCamera:
         scale = abs(cz - h) / f
         return u * scale, v * scale
 
+    def _draw(self) -> tuple[float, tuple[float, float]]:
+        """A new frame's draws: a uniform (the frame misses the ball if it is under ``miss_rate``) and two standard
+        normals (the centroid's noise), taken in order from blocks of :data:`FRAME_DRAWS` frames, one generator
+        call each, whether the frame uses them or not."""
+        if self._drawn == len(self._misses):
+            self._misses = self._rng.random(FRAME_DRAWS)
+            self._noise = self._rng.standard_normal((FRAME_DRAWS, 2))
+            self._drawn = 0
+        k = self._drawn
+        self._drawn += 1
+        return float(self._misses[k]), (float(self._noise[k, 0]), float(self._noise[k, 1]))
+
     def read(self, t: float) -> tuple[tuple[float, float], float] | None:
         """((x, y) m, exposure time s) of the newest frame available at ``t``; None if it missed the ball or
         the ball was off the plate."""
@@ -167,12 +185,11 @@ class SimulatedCamera:
         ts = k / s.fps
         if k not in self._frames:
             x, y, on = self._history.at(ts)
-            miss = self._rng.random() < s.miss_rate
-            if not on or miss:
+            draw, noise = self._draw()
+            if not on or draw < s.miss_rate:
                 self._frames[k] = None
             else:
-                n = self._rng.standard_normal(2) * s.centroid_noise_px
-                self._frames[k] = self.detect(x, y, (float(n[0]), float(n[1])))
+                self._frames[k] = self.detect(x, y, (noise[0] * s.centroid_noise_px, noise[1] * s.centroid_noise_px))
             if len(self._frames) > 256:
                 for old in sorted(self._frames)[:128]:
                     del self._frames[old]

@@ -1,15 +1,17 @@
-"""The touch panels and observers of N envs as arrays: what the batched vector env senses and observes with.
+"""The touch panels, cameras and observers of N envs as arrays: what the batched vector env senses and observes
+with.
 
-:class:`PanelArray` is N :class:`~stewart_gym.sensing.SimulatedTouchPanel` and :class:`ObserverArray` N
-:class:`~stewart_gym.sensing.BallObserver` (the low-pass or the Kalman estimator, with the error integral or
-without), one row each, advanced for every row with one NumPy operation per step of the arithmetic instead of
-one Python call per env. They follow the one-env classes step for step: the same sample times, the same noise
-(drawn from each row's own generator, in the same order), the same filter equations; the results agree to
-rounding (``tests/test_sensing_arrays.py``).
+:class:`PanelArray` is N :class:`~stewart_gym.sensing.SimulatedTouchPanel`, :class:`CameraArray` N
+:class:`~stewart_gym.camera.SimulatedCamera` and :class:`ObserverArray` N :class:`~stewart_gym.sensing.BallObserver`
+(the low-pass or the Kalman estimator, with the error integral or without), one row each, advanced for every row
+with one NumPy operation per step of the arithmetic instead of one Python call per env. They follow the one-env
+classes step for step: the same sample times, the same noise and missed frames (drawn from each row's own
+generator, in the same order), the same filter equations; the results agree to rounding
+(``tests/test_sensing_arrays.py``).
 
-Each env of the vector env reads and resets its own row through :class:`PanelRow` and :class:`ObserverRow`,
-which follow the one-env classes' interface, so that an env resets and observes alone exactly as it would with
-its own sensor and observer, while the vector env steps every row at once.
+Each env of the vector env reads and resets its own row through :class:`PanelRow`, :class:`CameraRow` and
+:class:`ObserverRow`, which follow the one-env classes' interface, so that an env resets and observes alone exactly
+as it would with its own sensor and observer, while the vector env steps every row at once.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.camera import FRAME_DRAWS, CameraSpec
 from stewart_gym.constants import GRAVITY
 from stewart_gym.sensing import (
     BallKalmanFilter,
@@ -31,10 +34,62 @@ from stewart_gym.sensing import (
     readings_are_valid,
 )
 
-__all__ = ["ObserverArray", "ObserverRow", "PanelArray", "PanelRow"]
+__all__ = ["CameraArray", "CameraRow", "HistoryArray", "ObserverArray", "ObserverRow", "PanelArray", "PanelRow"]
 
 #: Standard normals drawn from a row's generator at a time, as :class:`~stewart_gym.sensing.SimulatedTouchPanel`.
 DRAW_BLOCK = 128
+
+
+class HistoryArray:
+    """The true ball positions recorded for ``n`` simulated sensors, the newest ``columns`` per row, oldest first
+    (column -1 the newest), read as :class:`~stewart_gym.sensing.BallHistory` reads them.
+
+    Args:
+        n: How many rows.
+        columns: How many recorded positions a row keeps at first (:meth:`keep` makes room for more).
+    """
+
+    def __init__(self, n: int, columns: int = 8) -> None:
+        self.n, self.columns = int(n), int(columns)
+        self.t = np.zeros((self.n, self.columns))
+        self.x, self.y = np.zeros((self.n, self.columns)), np.zeros((self.n, self.columns))
+        self.on = np.ones((self.n, self.columns), dtype=bool)
+
+    def keep(self, columns: int) -> None:
+        """Keep at least ``columns`` positions per row from now on (the added ones copies of each row's oldest)."""
+        if columns > self.columns:
+            extra = columns - self.columns
+            self.t, self.x, self.y, self.on = (np.concatenate([np.repeat(a[:, :1], extra, axis=1), a], axis=1)
+                                               for a in (self.t, self.x, self.y, self.on))  # fmt: skip
+            self.columns = columns
+
+    def reset_row(self, i: int, before: float, t: float, xy: Sequence[float]) -> None:
+        """Row ``i`` starts over: the ball at rest at ``xy`` from time ``before`` to ``t`` (s), touching."""
+        self.t[i, :-1] = before
+        self.t[i, -1] = t
+        self.x[i], self.y[i], self.on[i] = float(xy[0]), float(xy[1]), True
+
+    def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
+        """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
+        for history, value in ((self.t, t), (self.x, xy[:, 0]), (self.y, xy[:, 1]), (self.on, on_plate)):
+            history[rows, :-1] = history[rows, 1:]
+            history[rows, -1] = value
+
+    def at(self, index: np.ndarray, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows ``index``'s (x, y, touching) at times ``ts``: linear between the positions around it, the newest
+        after it, and touching only if both neighbours were."""
+        ht, hx, hy, hon = self.t[index], self.x[index], self.y[index], self.on[index]
+        last = ht.shape[1] - 1
+        i = np.maximum((ht <= ts[:, None]).sum(axis=1) - 1, 0)
+        j = np.minimum(i + 1, last)
+        pick = np.arange(len(index))
+        t0, t1 = ht[pick, i], ht[pick, j]
+        inner = (i < last) & (t1 > t0)
+        w = np.where(inner, (ts - t0) / np.where(inner, t1 - t0, 1.0), 0.0)
+        x0, y0 = hx[pick, i], hy[pick, i]
+        x = np.where(i < last, x0 + w * (hx[pick, j] - x0), x0)
+        y = np.where(i < last, y0 + w * (hy[pick, j] - y0), y0)
+        return x, y, hon[pick, i] & hon[pick, j]
 
 
 class PanelArray:
@@ -49,11 +104,7 @@ class PanelArray:
         self.n, self.control_dt = int(n), float(control_dt)
         self.specs: list[TouchPanelSpec] = [TouchPanelSpec()] * self.n
         self.noise_m, self.rate, self.latency = np.full(self.n, 1e-3), np.full(self.n, 100.0), np.full(self.n, 0.01)
-        self._columns = 8
-        # the recorded true positions, oldest first (column -1 the newest), per row
-        self.t = np.zeros((self.n, self._columns))
-        self.x, self.y = np.zeros((self.n, self._columns)), np.zeros((self.n, self._columns))
-        self.on = np.ones((self.n, self._columns), dtype=bool)
+        self.history = HistoryArray(self.n)
         self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the sample whose noise is in self.noise
         self.noise = np.zeros((self.n, 2))
         self.draws = np.zeros((self.n, DRAW_BLOCK))
@@ -64,28 +115,19 @@ class PanelArray:
         """Row ``i``'s panel from now on."""
         self.specs[i] = spec
         self.noise_m[i], self.rate[i], self.latency[i] = spec.noise_mm * 1e-3, spec.rate_hz, spec.latency_s
-        needed = int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt)) + 3
-        if needed > self._columns:  # older readings than kept: more columns, copies of the oldest
-            extra = needed - self._columns
-            self.t, self.x, self.y, self.on = (np.concatenate([np.repeat(a[:, :1], extra, axis=1), a], axis=1)
-                                               for a in (self.t, self.x, self.y, self.on))  # fmt: skip
-            self._columns = needed
+        self.history.keep(int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt)) + 3)
 
     def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
         """:meth:`SimulatedTouchPanel.reset <stewart_gym.sensing.SimulatedTouchPanel.reset>` of row ``i``."""
         spec = self.specs[i]
-        self.t[i, :-1] = t - spec.latency_s - 1.0 / spec.rate_hz - 1.0  # the ball at rest there before t
-        self.t[i, -1] = t
-        self.x[i], self.y[i], self.on[i] = float(xy[0]), float(xy[1]), True
+        self.history.reset_row(i, t - spec.latency_s - 1.0 / spec.rate_hz - 1.0, t, xy)  # at rest there before t
         self.last_k[i] = np.iinfo(np.int64).min
         self.left[i] = 0
         self.rngs[i] = rng
 
     def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
-        for history, value in ((self.t, t), (self.x, xy[:, 0]), (self.y, xy[:, 1]), (self.on, on_plate)):
-            history[rows, :-1] = history[rows, 1:]
-            history[rows, -1] = value
+        self.history.record(t, xy, on_plate, rows)
 
     def read(self, t: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What ``rows`` report at times ``t``: (x, y) m (rows × 2), the sample times (s) and whether there is a
@@ -94,18 +136,7 @@ class PanelArray:
         rate, latency = self.rate[index], self.latency[index]
         k = np.floor((t - latency) * rate + 1e-9).astype(np.int64)
         ts = k / rate
-        ht, hx, hy, hon = self.t[index], self.x[index], self.y[index], self.on[index]
-        last = ht.shape[1] - 1
-        i = np.maximum((ht <= ts[:, None]).sum(axis=1) - 1, 0)
-        j = np.minimum(i + 1, last)
-        pick = np.arange(len(index))
-        t0, t1 = ht[pick, i], ht[pick, j]
-        inner = (i < last) & (t1 > t0)
-        w = np.where(inner, (ts - t0) / np.where(inner, t1 - t0, 1.0), 0.0)
-        x0, y0 = hx[pick, i], hy[pick, i]
-        x = np.where(i < last, x0 + w * (hx[pick, j] - x0), x0)
-        y = np.where(i < last, y0 + w * (hy[pick, j] - y0), y0)
-        on = hon[pick, i] & hon[pick, j]
+        x, y, on = self.history.at(index, ts)
         fresh = on & (k != self.last_k[index])
         for row in index[fresh & (self.left[index] < 2)]:  # a new block of draws, from the row's generator
             self.draws[row] = self.rngs[row].standard_normal(DRAW_BLOCK)
@@ -139,12 +170,140 @@ class PanelRow:
         self.panels.reset_row(self.i, t, xy, rng)
 
     def record(self, t: float, xy: Sequence[float], on_plate: bool) -> None:
-        rows = [self.i]
-        self.panels.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([on_plate]), rows)
+        record_one(self.panels, self.i, t, xy, on_plate)
 
     def read(self, t: float) -> tuple[tuple[float, float], float] | None:
-        xy, ts, on = self.panels.read(np.array([t]), [self.i])
-        return ((float(xy[0, 0]), float(xy[0, 1])), float(ts[0])) if on[0] else None
+        return read_one(self.panels, self.i, t)
+
+
+class CameraArray:
+    """``n`` simulated cameras (:class:`~stewart_gym.camera.SimulatedCamera`), each with its own spec, ball
+    radius, history, draws and generator.
+
+    Args:
+        n: How many cameras.
+        control_dt: s between :meth:`record` calls (sizes the history kept).
+        spec: Every row's camera until :meth:`set_spec` gives it another.
+        ball_radius: m, every row's ball radius until it is set (:attr:`ball_radius`).
+    """
+
+    def __init__(self, n: int, control_dt: float, spec: CameraSpec, ball_radius: float = 0.0127) -> None:
+        self.n, self.control_dt = int(n), float(control_dt)
+        self.specs: list[CameraSpec] = [spec] * self.n
+        self.fps, self.latency, self.noise_px, self.miss_rate = (np.zeros(self.n) for _ in range(4))
+        self.focal, self.camera_z, self.corrected = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n, dtype=bool)
+        #: m, each row's ball radius: its centre's height above the plate, and the plane the pipeline maps onto
+        self.ball_radius = np.full(self.n, float(ball_radius))
+        self.history = HistoryArray(self.n)
+        for i in range(self.n):
+            self.set_spec(i, spec)
+        self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the frame in self.frame
+        self.frame = np.zeros((self.n, 2))
+        self.found = np.zeros(self.n, dtype=bool)  # whether that frame found the ball
+        self.misses, self.normals = np.zeros((self.n, FRAME_DRAWS)), np.zeros((self.n, FRAME_DRAWS, 2))
+        self.drawn = np.full(self.n, FRAME_DRAWS)  # frames of the row's block of draws used
+        self.rngs: list[np.random.Generator | None] = [None] * self.n
+
+    def set_spec(self, i: int, spec: CameraSpec) -> None:
+        """Row ``i``'s camera from now on."""
+        self.specs[i] = spec
+        self.fps[i], self.latency[i], self.noise_px[i], self.miss_rate[i] = (spec.fps, spec.latency_s,
+                                                                               spec.centroid_noise_px, spec.miss_rate)
+        self.focal[i] = spec.focal_px
+        self.camera_z[i] = spec.distance_m if spec.mount == "above" else -spec.distance_m
+        self.corrected[i] = spec.parallax_corrected
+        self.history.keep(int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt)) + 3)
+
+    def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
+        """:meth:`SimulatedCamera.reset <stewart_gym.camera.SimulatedCamera.reset>` of row ``i``."""
+        spec = self.specs[i]
+        self.history.reset_row(i, t - spec.latency_s - 2.0 / spec.fps - 1.0, t, xy)
+        self.last_k[i] = np.iinfo(np.int64).min
+        self.drawn[i] = FRAME_DRAWS
+        self.rngs[i] = rng
+
+    def record(self, t: np.ndarray, xy: np.ndarray, touching: np.ndarray, rows: Any = slice(None)) -> None:
+        """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
+        self.history.record(t, xy, touching, rows)
+
+    def detect(self, index: np.ndarray, x: np.ndarray, y: np.ndarray, noise: np.ndarray) -> np.ndarray:
+        """(rows × 2) :meth:`SimulatedCamera.detect <stewart_gym.camera.SimulatedCamera.detect>` of rows ``index``
+        for balls at plate (``x``, ``y``) with centroid noise ``noise`` (rows × 2, px)."""
+        f, r, cz = self.focal[index], self.ball_radius[index], self.camera_z[index]
+        h = np.where(self.corrected[index], r, 0.0)
+        depth = np.abs(cz - r)
+        u, v = f * x / depth + noise[:, 0], f * y / depth + noise[:, 1]
+        step = 1.0 / np.maximum(1.0, 2 * r / depth * f)
+        u, v = np.round(u / step) * step, np.round(v / step) * step
+        scale = np.abs(cz - h) / f
+        return np.stack([u * scale, v * scale], axis=1)
+
+    def read(self, t: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What ``rows`` report at times ``t``: (x, y) m (rows × 2) of the newest frame available then, its exposure
+        times (s), and whether it found the ball (else it missed it, or the ball was off the plate)."""
+        index = np.arange(self.n)[rows]
+        fps = self.fps[index]
+        k = np.floor((t - self.latency[index]) * fps + 1e-9).astype(np.int64)
+        ts = k / fps
+        fresh = k != self.last_k[index]
+        new = index[fresh]
+        if len(new):
+            for row in new[self.drawn[new] == FRAME_DRAWS]:  # a new block of draws, from the row's generator
+                self.misses[row] = self.rngs[row].random(FRAME_DRAWS)
+                self.normals[row] = self.rngs[row].standard_normal((FRAME_DRAWS, 2))
+                self.drawn[row] = 0
+            used = self.drawn[new]
+            self.drawn[new] = used + 1
+            x, y, on = self.history.at(new, ts[fresh])
+            found = on & ~(self.misses[new, used] < self.miss_rate[new])
+            self.found[new] = found
+            self.frame[new] = self.detect(new, x, y, self.normals[new, used] * self.noise_px[new, None])
+            self.last_k[new] = k[fresh]
+        return self.frame[index], ts, self.found[index].copy()
+
+
+class CameraRow:
+    """Row ``i`` of a :class:`CameraArray` as one simulated camera (:class:`~stewart_gym.sensing.SimulatedSensor`)."""
+
+    def __init__(self, cameras: CameraArray, i: int) -> None:
+        self.cameras, self.i = cameras, int(i)
+
+    @property
+    def spec(self) -> CameraSpec:
+        return self.cameras.specs[self.i]
+
+    @spec.setter
+    def spec(self, value: CameraSpec) -> None:
+        self.cameras.set_spec(self.i, value)
+
+    @property
+    def ball_radius(self) -> float:
+        return float(self.cameras.ball_radius[self.i])
+
+    @ball_radius.setter
+    def ball_radius(self, value: float) -> None:
+        self.cameras.ball_radius[self.i] = float(value)
+
+    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
+        self.cameras.reset_row(self.i, t, xy, rng)
+
+    def record(self, t: float, xy: Sequence[float], touching: bool) -> None:
+        record_one(self.cameras, self.i, t, xy, touching)
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        return read_one(self.cameras, self.i, t)
+
+
+def record_one(sensors: PanelArray | CameraArray, i: int, t: float, xy: Sequence[float], touching: bool) -> None:
+    """Record row ``i``'s true position ``xy`` (m) at time ``t`` (s), as its one-env sensor's ``record``."""
+    sensors.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([touching]), [i])
+
+
+def read_one(sensors: PanelArray | CameraArray, i: int, t: float) -> tuple[tuple[float, float], float] | None:
+    """Row ``i``'s reading at time ``t`` (s) as its one-env sensor's ``read`` gives it: ((x, y) m, time s), or
+    None."""
+    xy, ts, has = sensors.read(np.array([t]), [i])
+    return ((float(xy[0, 0]), float(xy[0, 1])), float(ts[0])) if has[0] else None
 
 
 class KalmanArray:

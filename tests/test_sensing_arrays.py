@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
-from stewart_gym.sensing_arrays import ObserverArray, ObserverRow, PanelArray, PanelRow
+from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, ObserverRow, PanelArray, PanelRow
 
 DT = 0.02
 HALF = (0.15, 0.15)
@@ -66,6 +67,68 @@ def test_the_panel_rows_read_as_single_panels_through_resets_and_lifts() -> None
         want = singles[4].read(float(t[4]))
         assert one == want
     assert touching_seen > compared // 2
+
+
+def random_camera(rng: np.random.Generator) -> CameraSpec:
+    """A preset with a random latency, noise, miss rate, mount and parallax correction."""
+    from dataclasses import replace
+
+    preset = CAMERA_PRESETS[str(rng.choice(sorted(CAMERA_PRESETS)))]
+    return replace(preset, latency_s=float(rng.uniform(0.0, 0.15)), centroid_noise_px=float(rng.uniform(0.0, 2.0)),
+                   miss_rate=float(rng.uniform(0.0, 0.4)), mount=str(rng.choice(["above", "below"])),
+                   parallax_corrected=bool(rng.random() < 0.7))  # fmt: skip
+
+
+def test_the_camera_rows_read_as_single_cameras_through_resets_and_lifts() -> None:
+    """Each row reports what a :class:`SimulatedCamera` with the same spec, ball radius, positions and generator
+    reports, frame for frame: the same exposure times, the same missed frames, the same noise and quantisation; a
+    row reset mid-way with another camera (a longer latency than the history kept) and another ball goes on
+    matching."""
+    n, steps = 6, 300
+    rng = np.random.default_rng(4)
+    cameras = CameraArray(n, DT, CAMERA_PRESETS["pixy2"])
+    singles = [SimulatedCamera(CAMERA_PRESETS["pixy2"]) for _ in range(n)]
+    rows = [CameraRow(cameras, i) for i in range(n)]
+
+    def reset(i: int, t: float, spec: CameraSpec) -> None:
+        xy, seed, radius = rng.uniform(-0.1, 0.1, 2), int(rng.integers(1 << 30)), float(rng.uniform(0.008, 0.02))
+        singles[i].spec = rows[i].spec = spec
+        singles[i].ball_radius = rows[i].ball_radius = radius
+        singles[i].reset(t, xy, np.random.default_rng(seed))
+        rows[i].reset(t, xy, np.random.default_rng(seed))
+
+    for i in range(n):
+        reset(i, 0.0, random_camera(rng))
+    start = np.zeros(n)
+    found = missed = 0
+    for k in range(1, steps):
+        t_global = k * DT
+        if k == 150:
+            start[2] = t_global
+            reset(2, 0.0, replace_latency(random_camera(rng), 0.8))  # needs more history
+        t = t_global - start
+        xy = np.stack([0.1 * np.sin(t + np.arange(n)), 0.1 * np.cos(1.3 * t)], axis=1)
+        touching = (k // 17 + np.arange(n)) % 5 != 0  # each row lifts now and then
+        cameras.record(t, xy, touching)
+        for i in range(n):
+            singles[i].record(float(t[i]), xy[i], bool(touching[i]))
+        got, ts, has = cameras.read(t)
+        for i in range(n):
+            want = singles[i].read(float(t[i]))
+            assert has[i] == (want is not None)
+            if want is None:
+                missed += 1
+            else:
+                found += 1
+                assert (tuple(got[i].tolist()), float(ts[i])) == want
+        assert rows[5].read(float(t[5])) == singles[5].read(float(t[5]))  # a row read alone gives the same again
+    assert found > 0.5 * n * steps and missed > 0.1 * n * steps
+
+
+def replace_latency(spec: CameraSpec, latency_s: float) -> CameraSpec:
+    from dataclasses import replace
+
+    return replace(spec, latency_s=latency_s)
 
 
 @pytest.mark.parametrize("estimator", ["lowpass", "kalman"])

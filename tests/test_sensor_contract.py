@@ -24,7 +24,21 @@ def _camera() -> SimulatedSensor:
     return SimulatedCamera(replace(CAMERA_PRESETS["webcam30"], miss_rate=0.0, centroid_noise_px=1.0))
 
 
-SIMULATED = {"touch-panel": _panel, "camera": _camera}
+def _panel_row() -> SimulatedSensor:
+    from stewart_gym.sensing_arrays import PanelArray, PanelRow
+
+    panels = PanelArray(3, 0.02)
+    panels.set_spec(1, TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.01))
+    return PanelRow(panels, 1)
+
+
+def _camera_row() -> SimulatedSensor:
+    from stewart_gym.sensing_arrays import CameraArray, CameraRow
+
+    return CameraRow(CameraArray(3, 0.02, _camera().spec), 2)
+
+
+SIMULATED = {"touch-panel": _panel, "camera": _camera, "panel-row": _panel_row, "camera-row": _camera_row}
 
 
 @pytest.mark.parametrize("name", sorted(SIMULATED))

@@ -328,7 +328,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if type(params.sensor) is not type(self.sensor_model.spec):
             self.sensor_model = sensor_model(params.sensor, params.ball.radius)
         self.sensor_model.spec = params.sensor
-        if isinstance(self.sensor_model, SimulatedCamera):
+        if isinstance(params.sensor, CameraSpec):
             self.sensor_model.ball_radius = params.ball.radius
         self.sensor_model.reset(0.0, xy, rng)
         self.observer.reset(0.0, xy)
@@ -418,7 +418,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         """The part of :meth:`step` after the physics: take ``mapped`` (:class:`~stewart_gym.actions.MappedAction`)
         as the step's action, sense, observe, reward, and the episode's end. (The batched vector env's copies with
-        touch panels do all this as arrays, :class:`~stewart_gym.envs.copies.CopySteps`, with the same results.)"""
+        touch panels or cameras do all this as arrays, :class:`~stewart_gym.envs.copies.CopySteps`, with the same
+        results.)"""
         sim, task = self.sim, self.task
         self._pulses = mapped.pulses
         self._scaled = mapped.scaled

@@ -1,16 +1,15 @@
-"""The batched vector env's copies stepped as arrays, where they sense with touch panels.
+"""The batched vector env's copies stepped as arrays, where they sense with touch panels or cameras as arrays.
 
-:class:`CopySteps` does, for every copy of a :class:`~stewart_gym.envs.vector.StewartBallVectorEnv` at once,
-what :meth:`StewartBallEnv.step <stewart_gym.envs.ball_env.StewartBallEnv.step>` does for one env: map the
-actions (one IK pass), let each task act, send every copy's pulses, advance the shared simulator, record and read
-the panels (:class:`~stewart_gym.sensing_arrays.PanelArray`), observe (:class:`~stewart_gym.sensing_arrays
-.ObserverArray`), and end the step: reward, success, termination and truncation, and the info as arrays. It
-carries, per copy, what the env carries from step to step (the last action, the commanded tilt, the steps taken
-and the steps in a row within the success radius); the copies' tasks are asked through a
-:class:`~stewart_gym.envs.task_array.TaskArray`, and each copy's own env resets it.
-The results equal each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but
-for ``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``).
-"""
+:class:`CopySteps` does, for every copy of a :class:`~stewart_gym.envs.vector.StewartBallVectorEnv` at once, what
+:meth:`StewartBallEnv.step <stewart_gym.envs.ball_env.StewartBallEnv.step>` does for one env: map the actions (one
+IK pass), let each task act, send every copy's pulses, advance the shared simulator, record and read the sensors
+(:class:`~stewart_gym.sensing_arrays.PanelArray` or :class:`~stewart_gym.sensing_arrays.CameraArray`), observe
+(:class:`~stewart_gym.sensing_arrays.ObserverArray`), and end the step: reward, success, termination and truncation,
+and the info as arrays. It carries, per copy, what the env carries from step to step (the last action, the commanded
+tilt, the steps taken and the steps in a row within the success radius); the copies' tasks are asked through a
+:class:`~stewart_gym.envs.task_array.TaskArray`, and each copy's own env resets it. The results equal each copy's
+own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for ``info["pulse_widths_us"]``,
+which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
 
 from __future__ import annotations
 
@@ -22,7 +21,7 @@ import numpy as np
 from stewart_gym.envs.ball_env import StewartBallEnv
 from stewart_gym.envs.task_array import TaskArray
 from stewart_gym.sensing import ball_contact
-from stewart_gym.sensing_arrays import ObserverArray, PanelArray
+from stewart_gym.sensing_arrays import CameraArray, ObserverArray, PanelArray
 from stewart_gym.sim.batched import BatchedSim
 
 __all__ = ["CopySteps", "StepArrays"]
@@ -33,19 +32,19 @@ StepArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.
 
 
 class CopySteps:
-    """Every copy's step at once, for copies on one batched simulator with touch panels and observers as arrays.
+    """Every copy's step at once, for copies on one batched simulator with sensors and observers as arrays.
 
     Args:
-        envs: The copies; env i runs on platform i of ``sim`` with row i of ``panels`` and ``observers``.
+        envs: The copies; env i runs on platform i of ``sim`` with row i of ``sensors`` and ``observers``.
         sim: Their shared simulator.
-        panels: Their touch panels.
+        sensors: Their touch panels or cameras.
         observers: Their observers.
     """
 
-    def __init__(self, envs: Sequence[StewartBallEnv], sim: BatchedSim, panels: PanelArray,
+    def __init__(self, envs: Sequence[StewartBallEnv], sim: BatchedSim, sensors: PanelArray | CameraArray,
                  observers: ObserverArray) -> None:  # fmt: skip
         first = envs[0]
-        self.envs, self.sim, self.panels, self.observers = list(envs), sim, panels, observers
+        self.envs, self.sim, self.sensors, self.observers = list(envs), sim, sensors, observers
         self.n = len(self.envs)
         self.tasks = TaskArray([env.task for env in self.envs])
         self.platforms = [env.sim for env in self.envs]  # each copy's platform of ``sim``, which its task acts on
@@ -92,9 +91,9 @@ class CopySteps:
         on_plate, touching = ball_contact(xy[:, 0], xy[:, 1], z, self.half_extent, sim.plate_top, sim.ball_radius)
         on_plate &= sound
         good = self.rows[sound]
-        self.panels.record(t[good], xy[good], touching[good], good)
+        self.sensors.record(t[good], xy[good], touching[good], good)
         targets, target_velocities = self.tasks.targets(t)
-        reading, sample_t, has = self.panels.read(t[good], good)
+        reading, sample_t, has = self.sensors.read(t[good], good)
         obs = self.last_obs.copy()
         obs[good] = self.observers.observe(good, has, reading, sample_t, targets[good], target_velocities[good],
                                            self.roll_pitch[good], mapped.actions[good], t[good])  # fmt: skip

@@ -4,13 +4,13 @@
 ``gym.make_vec("StewartBallBalance-v0", num_envs=1024, vectorization_mode="vector_entry_point")`` returns it.
 Each copy is the same :class:`~stewart_gym.envs.ball_env.StewartBallEnv` as ``gym.make`` gives, with its task,
 sensor, observer, action mode and randomisation, on a :class:`~stewart_gym.sim.batched.BatchedPlatform`, and
-steps exactly as that env would alone. Every step, the shared simulator advances every platform at once. With the
-touch panel (the default), the copies' actions are mapped in one IK pass, and their panels and observers are rows
-of :class:`~stewart_gym.sensing_arrays.PanelArray` and :class:`~stewart_gym.sensing_arrays.ObserverArray`, advanced
-together, and every copy's step ends as arrays (:class:`~stewart_gym.envs.copies.CopySteps`), its task's target,
-reward and info included (:class:`~stewart_gym.envs.task_array.TaskArray`: as arrays where the task uses the
-built-in hooks, else copy by copy). With a camera, each copy maps, senses and observes on its own. An
-episode that ends is reset in the same step (Gymnasium's ``AutoresetMode.SAME_STEP``): ``info["final_obs"]``
+steps exactly as that env would alone. Every step, the shared simulator advances every platform at once, the
+copies' actions are mapped in one IK pass, their sensors (touch panels or cameras) and observers are rows of
+:class:`~stewart_gym.sensing_arrays.PanelArray` or :class:`~stewart_gym.sensing_arrays.CameraArray` and
+:class:`~stewart_gym.sensing_arrays.ObserverArray`, advanced together, and every copy's step ends as arrays
+(:class:`~stewart_gym.envs.copies.CopySteps`), its task's target, reward and info included
+(:class:`~stewart_gym.envs.task_array.TaskArray`: as arrays where the task uses the built-in hooks, else copy by
+copy). An episode that ends is reset in the same step (Gymnasium's ``AutoresetMode.SAME_STEP``): ``info["final_obs"]``
 and ``info["final_info"]`` hold its last observation and info.
 """
 
@@ -23,11 +23,11 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from stewart_gym.camera import CameraSpec
 from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
 from stewart_gym.envs.copies import CopySteps
 from stewart_gym.errors import ConfigError
-from stewart_gym.sensing import BallObserver, KalmanSpec, SimulatedTouchPanel, TouchPanelSpec
-from stewart_gym.sensing_arrays import ObserverArray, ObserverRow, PanelArray, PanelRow
+from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, ObserverRow, PanelArray, PanelRow
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
@@ -70,20 +70,16 @@ class StewartBallVectorEnv(VectorEnv):
         self.envs = [StewartBallEnv(backend=BatchedPlatform(self.sim, i, owns_steps=False), ball=ball, servo=servo,
                                     control_hz=control_hz, **kwargs) for i in range(self.num_envs)]  # fmt: skip
         first = self.envs[0]
-        #: the copies' touch panels and observers as arrays (:mod:`stewart_gym.sensing_arrays`), or None where the
-        #: copies sense otherwise (a camera): then each copy senses and observes on its own
-        self.panels: PanelArray | None = None
-        self.observers: ObserverArray | None = None
-        #: every copy's step as arrays where the copies sense with panels (else None: each copy steps on its own)
-        self.copy_steps: CopySteps | None = None
-        if all(senses_with_arrays(env) for env in self.envs):
-            self.panels = PanelArray(self.num_envs, 1.0 / control_hz)
-            self.observers = ObserverArray(self.num_envs, first.mapper.size, first.plate_half_extent,
-                                           first.observer.estimator, first.observer.builder.integral)  # fmt: skip
-            for i, env in enumerate(self.envs):
-                env.sensor_model = PanelRow(self.panels, i)
-                env.observer = ObserverRow(self.observers, i)
-            self.copy_steps = CopySteps(self.envs, self.sim, self.panels, self.observers)
+        #: the copies' touch panels or cameras, and their observers, as arrays (:mod:`stewart_gym.sensing_arrays`)
+        self.sensors = sensor_array(first, self.num_envs, 1.0 / control_hz)
+        self.observers = ObserverArray(self.num_envs, first.mapper.size, first.plate_half_extent,
+                                       first.observer.estimator, first.observer.builder.integral)  # fmt: skip
+        for i, env in enumerate(self.envs):
+            env.sensor_model = (PanelRow(self.sensors, i) if isinstance(self.sensors, PanelArray)
+                                else CameraRow(self.sensors, i))  # fmt: skip
+            env.observer = ObserverRow(self.observers, i)
+        #: every copy's step as arrays
+        self.copy_steps = CopySteps(self.envs, self.sim, self.sensors, self.observers)
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -105,8 +101,7 @@ class StewartBallVectorEnv(VectorEnv):
         observations, infos = [], []
         for i, (env, s) in enumerate(zip(self.envs, seeds)):
             obs, info = env.reset(seed=s, options=options)
-            if self.copy_steps is not None:
-                self.copy_steps.reset_row(i, obs)
+            self.copy_steps.reset_row(i, obs)
             observations.append(obs)
             infos.append(info)
         return np.stack(observations), self._gymnasium_info(self._columns(infos))
@@ -127,23 +122,12 @@ class StewartBallVectorEnv(VectorEnv):
         actions = np.asarray(actions)
         if actions.shape[0] != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
-        if self.copy_steps is not None:
-            observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
-        else:
-            mapped = [env.begin_step(a) for env, a in zip(self.envs, actions)]
-            self.sim.step()
-            ended = [env.end_step(m) for env, m in zip(self.envs, mapped)]
-            observations = np.stack([e[0] for e in ended])
-            rewards = np.array([e[1] for e in ended], dtype=np.float64)
-            terminations = np.array([e[2] for e in ended], dtype=bool)
-            truncations = np.array([e[3] for e in ended], dtype=bool)
-            info = self._columns([e[4] for e in ended])
+        observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
         finals: dict[int, tuple[np.ndarray, dict]] = {}
         for i in np.flatnonzero(terminations | truncations).tolist():
             finals[i] = (observations[i].copy(), {key: value[i].copy() for key, value in info.items()})
             obs, reset_info = self.envs[i].reset()
-            if self.copy_steps is not None:
-                self.copy_steps.reset_row(i, obs)
+            self.copy_steps.reset_row(i, obs)
             observations[i] = obs
             for key, value in info.items():
                 value[i] = reset_info[key]
@@ -175,14 +159,12 @@ class StewartBallVectorEnv(VectorEnv):
             env.close()
 
 
-def senses_with_arrays(env: StewartBallEnv) -> bool:
-    """Whether a copy's sensor and observer are what :class:`~stewart_gym.sensing_arrays.PanelArray` and
-    :class:`~stewart_gym.sensing_arrays.ObserverArray` model: a touch panel in every episode, and an observer with
-    the default Kalman filter (or none)."""
-    observer = env.observer
-    kalman = getattr(observer, "kalman", None)
-    return (isinstance(env.sensor_model, SimulatedTouchPanel) and isinstance(env.nominal_sensor, TouchPanelSpec)
-            and isinstance(observer, BallObserver) and (kalman is None or kalman.spec == KalmanSpec()))  # fmt: skip
+def sensor_array(env: StewartBallEnv, n: int, control_dt: float) -> PanelArray | CameraArray:
+    """``n`` copies of ``env``'s sensor as one array: touch panels, or cameras where it has a camera (every
+    episode then has one: a preset, or one drawn from the presets)."""
+    if isinstance(env.nominal_sensor, (CameraSpec, tuple)):
+        return CameraArray(n, control_dt, env.sensor_model.spec, env.nominal_ball.radius)
+    return PanelArray(n, control_dt)
 
 
 def make_vector_env(num_envs: int, env_id: str = "StewartBallBalance-v0", **kwargs: Any) -> StewartBallVectorEnv:

@@ -13,6 +13,7 @@ import pytest
 import stewart_gym  # noqa: F401  (registers the ids)
 from stewart_gym.envs.vector import StewartBallVectorEnv
 from stewart_gym.errors import ConfigError
+from stewart_gym.sensing_arrays import CameraArray, PanelArray
 
 KWARGS = {"randomize": True, "estimator": "kalman"}
 
@@ -31,21 +32,24 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
     """Copy i, seeded seed + i, steps exactly as ``gym.make(id, backend="batched")`` with the same seed and
     actions, through an episode's end and its reset in the same step; the copies sense and observe as arrays."""
     vector = assert_copies_are_single_envs(env_id, KWARGS)
-    assert vector.unwrapped.panels is not None
+    assert isinstance(vector.unwrapped.sensors, PanelArray)
 
 
 @pytest.mark.parametrize("kwargs", [{"randomize": True, "estimator": "lowpass", "integral": True},
                                     {"randomize": True, "estimator": "kalman", "integral": True, "action_mode": "pose"},
                                     {"randomize": True, "action_mode": "pulse"},
                                     {"randomize": True, "sensor": "pixy2"},
+                                    {"randomize": True, "sensor": "camera", "estimator": "kalman"},
+                                    {"sensor": "global90", "estimator": "lowpass"},
                                     {"randomize": True, "outside_penalty": 0.2, "charge_until_settled": True}],
-                         ids=["lowpass", "pose", "pulse", "camera", "charged"])  # fmt: skip
+                         ids=["lowpass", "pose", "pulse", "pixy2", "cameras", "global90", "charged"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
-    """The same with the low-pass observer, the error integral, the pose and the pulse actions (sensed as arrays),
-    with a camera (each copy senses on its own), and with a reward whose count of steps inside is per copy (each
-    copy's task rewards on its own)."""
+    """The same with the low-pass observer, the error integral, the pose and the pulse actions, with a camera (one
+    preset, or a preset drawn per episode; its frames come faster than the steps on ``global90``), all sensed and
+    observed as arrays, and with a reward whose count of steps inside is per copy (each copy's task rewards on its
+    own)."""
     vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
-    assert (vector.unwrapped.panels is None) == ("sensor" in kwargs)
+    assert isinstance(vector.unwrapped.sensors, CameraArray if "sensor" in kwargs else PanelArray)
 
 
 def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.VectorEnv:
