@@ -26,10 +26,11 @@ from stewart_gym.envs.task import BallTask, Task
 
 __all__ = ["TaskArray"]
 
-#: Getters of the :class:`BallTask` attributes its reward reads (:meth:`TaskArray.rewards` reads them at each step).
-_REWARD_PARAMETERS = tuple(map(operator.attrgetter, (
+#: A getter of the :class:`BallTask` attributes its reward reads, as a tuple (:meth:`TaskArray.rewards` reads them
+#: at each step).
+_REWARD_PARAMETERS = operator.attrgetter(
     "success_radius", "plate_half", "near_scale", "rate_penalty", "settled_rate_penalty", "outside_penalty",
-    "FALL_PENALTY", "charge_until_settled")))  # fmt: skip
+    "FALL_PENALTY", "charge_until_settled")  # fmt: skip
 
 
 def _inherited(tasks: Sequence[Task], hook: str) -> bool:
@@ -76,7 +77,7 @@ class TaskArray:
     def rewards(self, distances: np.ndarray, rates: np.ndarray, fell: np.ndarray) -> np.ndarray:
         """Each copy's reward (n,) for its ball-to-target distance (m), action rate and whether the ball fell."""
         if self.ball_rewards:
-            columns = [np.fromiter(map(attribute, self.tasks), np.float64, self.n) for attribute in _REWARD_PARAMETERS]
+            columns = np.array(list(map(_REWARD_PARAMETERS, self.tasks)), dtype=np.float64).T
             radius, half, near_scale, rate_penalty, settled, outside_penalty, fall_penalty, charged = columns
             if not charged.any():
                 inside = distances <= radius
