@@ -366,6 +366,20 @@ def test_env_copies_step_alike_in_this_process_and_in_worker_processes() -> None
     assert not np.array_equal(rew_a, rew_a.astype(np.float32))  # float32 would have rounded these rewards
 
 
+def test_the_batched_backend_trains_behind_cameras(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``train --hyperparams ppo_batched --sensor camera`` trains on the batched backend behind a camera preset
+    drawn per episode, and the run evaluates behind a camera by default."""
+    run = tmp_path / "run"
+    assert main(["train", "--hyperparams", "ppo_batched", "--sensor", "camera", "--run-dir", str(run),
+                 "--n-envs", "8", "--timesteps", "512", "--eval-freq", "100000", "--no-progress"]) == 0  # fmt: skip
+    recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
+    assert recorded["env_kwargs"]["backend"] == "batched" and recorded["env_kwargs"]["sensor"] == "camera"
+    capsys.readouterr()
+    assert main(["evaluate", "--policy", str(run), "--episodes", "1", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["sensor"] == "camera" and result["backend"] == "pybullet"
+
+
 @pytest.mark.slow
 def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
