@@ -371,7 +371,7 @@ def test_the_batched_backend_trains_behind_cameras(tmp_path: Path, capsys: pytes
     drawn per episode, and the run evaluates behind a camera by default."""
     run = tmp_path / "run"
     assert main(["train", "--hyperparams", "ppo_batched", "--sensor", "camera", "--run-dir", str(run),
-                 "--n-envs", "8", "--timesteps", "512", "--eval-freq", "100000", "--no-progress"]) == 0  # fmt: skip
+                 "--n-envs", "32", "--timesteps", "1024", "--eval-freq", "100000", "--no-progress"]) == 0  # fmt: skip
     recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
     assert recorded["env_kwargs"]["backend"] == "batched" and recorded["env_kwargs"]["sensor"] == "camera"
     capsys.readouterr()
