@@ -34,7 +34,8 @@ from stewart_gym.sensing import (
     readings_are_valid,
 )
 
-__all__ = ["CameraArray", "CameraRow", "HistoryArray", "ObserverArray", "ObserverRow", "PanelArray", "PanelRow"]
+__all__ = ["CameraArray", "CameraRow", "HistoryArray", "ObserverArray", "ObserverRow", "PanelArray", "PanelRow",
+           "SensorRow"]
 
 #: Standard normals drawn from a row's generator at a time, as :class:`~stewart_gym.sensing.SimulatedTouchPanel`.
 DRAW_BLOCK = 128
@@ -152,30 +153,6 @@ class PanelArray:
         return xy, ts, on
 
 
-class PanelRow:
-    """Row ``i`` of a :class:`PanelArray` as one simulated sensor (:class:`~stewart_gym.sensing.SimulatedSensor`)."""
-
-    def __init__(self, panels: PanelArray, i: int) -> None:
-        self.panels, self.i = panels, int(i)
-
-    @property
-    def spec(self) -> TouchPanelSpec:
-        return self.panels.specs[self.i]
-
-    @spec.setter
-    def spec(self, value: TouchPanelSpec) -> None:
-        self.panels.set_spec(self.i, value)
-
-    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
-        self.panels.reset_row(self.i, t, xy, rng)
-
-    def record(self, t: float, xy: Sequence[float], on_plate: bool) -> None:
-        record_one(self.panels, self.i, t, xy, on_plate)
-
-    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
-        return read_one(self.panels, self.i, t)
-
-
 class CameraArray:
     """``n`` simulated cameras (:class:`~stewart_gym.camera.SimulatedCamera`), each with its own spec, ball
     radius, history, draws and generator.
@@ -262,48 +239,58 @@ class CameraArray:
         return self.frame[index], ts, self.found[index].copy()
 
 
-class CameraRow:
-    """Row ``i`` of a :class:`CameraArray` as one simulated camera (:class:`~stewart_gym.sensing.SimulatedSensor`)."""
+class SensorRow:
+    """Row ``i`` of a :class:`PanelArray` or a :class:`CameraArray` as one simulated sensor
+    (:class:`~stewart_gym.sensing.SimulatedSensor`)."""
 
-    def __init__(self, cameras: CameraArray, i: int) -> None:
-        self.cameras, self.i = cameras, int(i)
+    def __init__(self, sensors: PanelArray | CameraArray, i: int) -> None:
+        self.sensors, self.i = sensors, int(i)
 
     @property
-    def spec(self) -> CameraSpec:
-        return self.cameras.specs[self.i]
+    def spec(self) -> Any:
+        return self.sensors.specs[self.i]
 
     @spec.setter
-    def spec(self, value: CameraSpec) -> None:
-        self.cameras.set_spec(self.i, value)
+    def spec(self, value: Any) -> None:
+        self.sensors.set_spec(self.i, value)
+
+    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
+        self.sensors.reset_row(self.i, t, xy, rng)
+
+    def record(self, t: float, xy: Sequence[float], touching: bool) -> None:
+        self.sensors.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([touching]),
+                            [self.i])  # fmt: skip
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        xy, ts, has = self.sensors.read(np.array([t]), [self.i])
+        return ((float(xy[0, 0]), float(xy[0, 1])), float(ts[0])) if has[0] else None
+
+
+class PanelRow(SensorRow):
+    """Row ``i`` of a :class:`PanelArray` as one :class:`~stewart_gym.sensing.SimulatedTouchPanel`."""
+
+    sensors: PanelArray
+
+    def __init__(self, panels: PanelArray, i: int) -> None:
+        super().__init__(panels, i)
+
+
+class CameraRow(SensorRow):
+    """Row ``i`` of a :class:`CameraArray` as one :class:`~stewart_gym.camera.SimulatedCamera`, its ball radius
+    included."""
+
+    sensors: CameraArray
+
+    def __init__(self, cameras: CameraArray, i: int) -> None:
+        super().__init__(cameras, i)
 
     @property
     def ball_radius(self) -> float:
-        return float(self.cameras.ball_radius[self.i])
+        return float(self.sensors.ball_radius[self.i])
 
     @ball_radius.setter
     def ball_radius(self, value: float) -> None:
-        self.cameras.ball_radius[self.i] = float(value)
-
-    def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
-        self.cameras.reset_row(self.i, t, xy, rng)
-
-    def record(self, t: float, xy: Sequence[float], touching: bool) -> None:
-        record_one(self.cameras, self.i, t, xy, touching)
-
-    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
-        return read_one(self.cameras, self.i, t)
-
-
-def record_one(sensors: PanelArray | CameraArray, i: int, t: float, xy: Sequence[float], touching: bool) -> None:
-    """Record row ``i``'s true position ``xy`` (m) at time ``t`` (s), as its one-env sensor's ``record``."""
-    sensors.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([touching]), [i])
-
-
-def read_one(sensors: PanelArray | CameraArray, i: int, t: float) -> tuple[tuple[float, float], float] | None:
-    """Row ``i``'s reading at time ``t`` (s) as its one-env sensor's ``read`` gives it: ((x, y) m, time s), or
-    None."""
-    xy, ts, has = sensors.read(np.array([t]), [i])
-    return ((float(xy[0, 0]), float(xy[0, 1])), float(ts[0])) if has[0] else None
+        self.sensors.ball_radius[self.i] = float(value)
 
 
 class KalmanArray:
