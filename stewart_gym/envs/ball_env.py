@@ -407,7 +407,7 @@ class StewartBallEnv(gym.Env, EzPickle):
     def begin_step(self, action: np.ndarray) -> Any:
         """The part of :meth:`step` before the physics: map the action, record it (for :meth:`__deepcopy__`), let
         the task act (a push) and send the pulses. Returns what :meth:`end_step` takes once the backend has
-        advanced a control period (the batched vector env advances all its copies' platforms between the two)."""
+        advanced a control period."""
         mapped = self.mapper(action)
         if self._episode is not None:
             self._episode[2].append(np.array(action, copy=True))
@@ -417,9 +417,8 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def end_step(self, mapped: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         """The part of :meth:`step` after the physics: take ``mapped`` (:class:`~stewart_gym.actions.MappedAction`)
-        as the step's action, sense, observe, reward, and the episode's end. (The batched vector env's copies with
-        touch panels or cameras do all this as arrays, :class:`~stewart_gym.envs.copies.CopySteps`, with the same
-        results.)"""
+        as the step's action, sense, observe, reward, and the episode's end. (The batched vector env's copies do all
+        this as arrays, :class:`~stewart_gym.envs.copies.CopySteps`, with the same results.)"""
         sim, task = self.sim, self.task
         self._pulses = mapped.pulses
         self._scaled = mapped.scaled
