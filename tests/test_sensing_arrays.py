@@ -4,13 +4,23 @@ same noise, the same filters, row by row."""
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
-from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, ObserverRow, PanelArray, PanelRow
+from stewart_gym.sensing_arrays import (
+    CameraArray,
+    CameraRow,
+    ObserverArray,
+    ObserverRow,
+    PanelArray,
+    PanelRow,
+    SensorRow,
+)
 
 DT = 0.02
 HALF = (0.15, 0.15)
@@ -19,6 +29,30 @@ HALF = (0.15, 0.15)
 def random_spec(rng: np.random.Generator) -> TouchPanelSpec:
     return TouchPanelSpec(noise_mm=float(rng.uniform(0.0, 3.0)), rate_hz=float(rng.choice([50.0, 100.0, 200.0])),
                           latency_s=float(rng.uniform(0.0, 0.12)))  # fmt: skip
+
+
+def side_by_side(sensors: PanelArray | CameraArray, singles: list, last_row: SensorRow, steps: int,
+                 restart: Callable[[], None]) -> Iterator:  # fmt: skip
+    """Feed ``sensors`` (an array) and ``singles`` (one-env sensors, one per row) the same true positions, each row
+    lifting now and then, row 2 restarted (``restart``) half-way; at each step, the array's readings (xy, times,
+    whether there is one) and each single's. The last row read alone (``last_row``) must give its single's reading
+    again."""
+    n = len(singles)
+    start = np.zeros(n)
+    for k in range(1, steps):
+        t_global = k * DT
+        if k == steps // 2:
+            start[2] = t_global
+            restart()
+        t = t_global - start
+        xy = np.stack([0.1 * np.sin(t + np.arange(n)), 0.1 * np.cos(1.3 * t)], axis=1)
+        touching = (k // 17 + np.arange(n)) % 5 != 0  # each row lifts now and then
+        sensors.record(t, xy, touching)
+        for i in range(n):
+            singles[i].record(float(t[i]), xy[i], bool(touching[i]))
+        got, ts, has = sensors.read(t)
+        yield got, ts, has, [single.read(float(ti)) for single, ti in zip(singles, t)]
+        assert last_row.read(float(t[-1])) == singles[-1].read(float(t[-1]))
 
 
 def test_the_panel_rows_read_as_single_panels_through_resets_and_lifts() -> None:
@@ -37,42 +71,27 @@ def test_the_panel_rows_read_as_single_panels_through_resets_and_lifts() -> None
         singles[i].reset(t, xy, np.random.default_rng(seed))
         rows[i].reset(t, xy, np.random.default_rng(seed))
 
+    def restart() -> None:
+        reset(2, 0.0)
+        panels.set_spec(2, TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.9))  # needs more history
+        singles[2].spec = panels.specs[2]
+
     for i in range(n):
         reset(i, 0.0)
-    start = np.zeros(n)
     compared = touching_seen = 0
-    for k in range(1, steps):
-        t_global = k * DT
-        if k == 120:
-            start[2] = t_global
-            reset(2, 0.0)
-            panels.set_spec(2, TouchPanelSpec(noise_mm=1.0, rate_hz=100.0, latency_s=0.9))  # needs more history
-            singles[2].spec = panels.specs[2]
-        t = t_global - start
-        xy = np.stack([0.1 * np.sin(t + np.arange(n)), 0.1 * np.cos(1.3 * t)], axis=1)
-        touching = (k // 17 + np.arange(n)) % 5 != 0  # each row lifts now and then
-        panels.record(t, xy, touching)
-        for i in range(n):
-            singles[i].record(float(t[i]), xy[i], bool(touching[i]))
-        got, ts, on = panels.read(t)
-        for i in range(n):
-            want = singles[i].read(float(t[i]))
+    for got, ts, on, wants in side_by_side(panels, singles, rows[-1], steps, restart):
+        for i, want in enumerate(wants):
             assert on[i] == (want is not None)
             if want is not None:
                 touching_seen += 1
                 np.testing.assert_allclose(got[i], want[0], rtol=0, atol=1e-15)
                 assert ts[i] == pytest.approx(want[1], abs=1e-15)
             compared += 1
-        one = rows[4].read(float(t[4]))  # a row read alone gives the same again
-        want = singles[4].read(float(t[4]))
-        assert one == want
     assert touching_seen > compared // 2
 
 
 def random_camera(rng: np.random.Generator) -> CameraSpec:
     """A preset with a random latency, noise, miss rate, mount and parallax correction."""
-    from dataclasses import replace
-
     preset = CAMERA_PRESETS[str(rng.choice(sorted(CAMERA_PRESETS)))]
     return replace(preset, latency_s=float(rng.uniform(0.0, 0.15)), centroid_noise_px=float(rng.uniform(0.0, 2.0)),
                    miss_rate=float(rng.uniform(0.0, 0.4)), mount=str(rng.choice(["above", "below"])),
@@ -99,36 +118,20 @@ def test_the_camera_rows_read_as_single_cameras_through_resets_and_lifts() -> No
 
     for i in range(n):
         reset(i, 0.0, random_camera(rng))
-    start = np.zeros(n)
     found = missed = 0
-    for k in range(1, steps):
-        t_global = k * DT
-        if k == 150:
-            start[2] = t_global
-            reset(2, 0.0, replace_latency(random_camera(rng), 0.8))  # needs more history
-        t = t_global - start
-        xy = np.stack([0.1 * np.sin(t + np.arange(n)), 0.1 * np.cos(1.3 * t)], axis=1)
-        touching = (k // 17 + np.arange(n)) % 5 != 0  # each row lifts now and then
-        cameras.record(t, xy, touching)
-        for i in range(n):
-            singles[i].record(float(t[i]), xy[i], bool(touching[i]))
-        got, ts, has = cameras.read(t)
-        for i in range(n):
-            want = singles[i].read(float(t[i]))
+
+    def restart() -> None:
+        reset(2, 0.0, replace(random_camera(rng), latency_s=0.8))  # needs more history
+
+    for got, ts, has, wants in side_by_side(cameras, singles, rows[-1], steps, restart):
+        for i, want in enumerate(wants):
             assert has[i] == (want is not None)
             if want is None:
                 missed += 1
             else:
                 found += 1
                 assert (tuple(got[i].tolist()), float(ts[i])) == want
-        assert rows[5].read(float(t[5])) == singles[5].read(float(t[5]))  # a row read alone gives the same again
     assert found > 0.5 * n * steps and missed > 0.1 * n * steps
-
-
-def replace_latency(spec: CameraSpec, latency_s: float) -> CameraSpec:
-    from dataclasses import replace
-
-    return replace(spec, latency_s=latency_s)
 
 
 @pytest.mark.parametrize("estimator", ["lowpass", "kalman"])
