@@ -27,14 +27,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallHistory
 
-__all__ = ["CAMERA_PRESETS", "CameraSpec", "SimulatedCamera", "camera_preset"]
+__all__ = ["CAMERA_PRESETS", "CameraSpec", "SimulatedCamera", "camera_height", "camera_preset", "detection"]
 
 #: Frames whose draws (a uniform and two standard normals each) a camera takes from its generator at a time.
 FRAME_DRAWS = 64
@@ -117,6 +117,25 @@ def camera_preset(name: str) -> CameraSpec:
         raise ConfigError(f"camera preset must be one of {sorted(CAMERA_PRESETS)}, got {name!r}") from None
 
 
+def camera_height(spec: CameraSpec) -> float:
+    """m: the camera's height above the plate's surface, on its axis (negative below a transparent plate)."""
+    return spec.distance_m if spec.mount == "above" else -spec.distance_m
+
+
+def detection(x: Any, y: Any, noise_u: Any, noise_v: Any, focal_px: Any, camera_z: Any, radius: Any,
+              plane: Any) -> tuple[Any, Any]:  # fmt: skip
+    """The pipeline's plate coordinates (m) of balls whose centres are at plate (``x``, ``y``), with centroid noise
+    (``noise_u``, ``noise_v``) px: the centre, ``radius`` above the plate, projected by a pinhole camera
+    ``camera_z`` above it (focal length ``focal_px``), quantised to 1/(blob diameter) of a pixel, and mapped back
+    onto the plane ``plane`` above the plate. Numbers or arrays (one camera per element), the same arithmetic."""
+    depth = np.abs(camera_z - radius)
+    u, v = focal_px * x / depth + noise_u, focal_px * y / depth + noise_v
+    step = 1.0 / np.maximum(1.0, 2 * radius / depth * focal_px)  # centroid resolution: 1 / blob diameter (px)
+    u, v = np.round(u / step) * step, np.round(v / step) * step
+    scale = np.abs(camera_z - plane) / focal_px
+    return u * scale, v * scale
+
+
 class SimulatedCamera:
     """Camera detections of a simulated ball (a :class:`~stewart_gym.sensing.SimulatedSensor`).
 
@@ -154,16 +173,10 @@ class SimulatedCamera:
         """The pipeline's plate coordinates (m) of a ball whose centre is at plate ``(x, y)``, with centroid
         noise ``noise`` (px): projection, quantisation, and back-projection onto the assumed plane."""
         s = self.spec
-        f = s.focal_px
         r = self.ball_radius
-        h = (r if self.assumed_radius is None else self.assumed_radius) if s.parallax_corrected else 0.0
-        cz = s.distance_m if s.mount == "above" else -s.distance_m  # the camera on the plate's axis
-        depth = abs(cz - r)
-        u, v = f * x / depth + noise[0], f * y / depth + noise[1]
-        step = 1.0 / max(1.0, 2 * r / depth * f)  # centroid resolution: 1 / blob diameter (px)
-        u, v = round(u / step) * step, round(v / step) * step
-        scale = abs(cz - h) / f
-        return u * scale, v * scale
+        plane = (r if self.assumed_radius is None else self.assumed_radius) if s.parallax_corrected else 0.0
+        u, v = detection(x, y, noise[0], noise[1], s.focal_px, camera_height(s), r, plane)
+        return float(u), float(v)
 
     def _draw(self) -> tuple[float, tuple[float, float]]:
         """A new frame's draws: a uniform (the frame misses the ball if it is under ``miss_rate``) and two standard

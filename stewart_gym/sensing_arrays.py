@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.camera import FRAME_DRAWS, CameraSpec
+from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
 from stewart_gym.constants import GRAVITY
 from stewart_gym.sensing import (
     BallKalmanFilter,
@@ -172,8 +172,7 @@ class CameraArray:
         #: m, each row's ball radius: its centre's height above the plate, and the plane the pipeline maps onto
         self.ball_radius = np.full(self.n, float(ball_radius))
         self.history = HistoryArray(self.n)
-        for i in range(self.n):
-            self.set_spec(i, spec)
+        self._take(slice(None), spec)
         self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the frame in self.frame
         self.frame = np.zeros((self.n, 2))
         self.found = np.zeros(self.n, dtype=bool)  # whether that frame found the ball
@@ -184,11 +183,14 @@ class CameraArray:
     def set_spec(self, i: int, spec: CameraSpec) -> None:
         """Row ``i``'s camera from now on."""
         self.specs[i] = spec
-        self.fps[i], self.latency[i], self.noise_px[i], self.miss_rate[i] = (spec.fps, spec.latency_s,
-                                                                               spec.centroid_noise_px, spec.miss_rate)
-        self.focal[i] = spec.focal_px
-        self.camera_z[i] = spec.distance_m if spec.mount == "above" else -spec.distance_m
-        self.corrected[i] = spec.parallax_corrected
+        self._take(i, spec)
+
+    def _take(self, rows: Any, spec: CameraSpec) -> None:
+        """``rows`` see with ``spec``'s numbers from now on, with the history it needs."""
+        self.fps[rows], self.latency[rows], self.noise_px[rows], self.miss_rate[rows] = (
+            spec.fps, spec.latency_s, spec.centroid_noise_px, spec.miss_rate)  # fmt: skip
+        self.focal[rows], self.camera_z[rows], self.corrected[rows] = (spec.focal_px, camera_height(spec),
+                                                                       spec.parallax_corrected)  # fmt: skip
         self.history.keep(int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt)) + 3)
 
     def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
@@ -206,14 +208,10 @@ class CameraArray:
     def detect(self, index: np.ndarray, x: np.ndarray, y: np.ndarray, noise: np.ndarray) -> np.ndarray:
         """(rows × 2) :meth:`SimulatedCamera.detect <stewart_gym.camera.SimulatedCamera.detect>` of rows ``index``
         for balls at plate (``x``, ``y``) with centroid noise ``noise`` (rows × 2, px)."""
-        f, r, cz = self.focal[index], self.ball_radius[index], self.camera_z[index]
-        h = np.where(self.corrected[index], r, 0.0)
-        depth = np.abs(cz - r)
-        u, v = f * x / depth + noise[:, 0], f * y / depth + noise[:, 1]
-        step = 1.0 / np.maximum(1.0, 2 * r / depth * f)
-        u, v = np.round(u / step) * step, np.round(v / step) * step
-        scale = np.abs(cz - h) / f
-        return np.stack([u * scale, v * scale], axis=1)
+        r = self.ball_radius[index]
+        plane = np.where(self.corrected[index], r, 0.0)
+        u, v = detection(x, y, noise[:, 0], noise[:, 1], self.focal[index], self.camera_z[index], r, plane)
+        return np.stack([u, v], axis=1)
 
     def read(self, t: np.ndarray, rows: Any = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """What ``rows`` report at times ``t``: (x, y) m (rows × 2) of the newest frame available then, its exposure
@@ -236,7 +234,7 @@ class CameraArray:
             self.found[new] = found
             self.frame[new] = self.detect(new, x, y, self.normals[new, used] * self.noise_px[new, None])
             self.last_k[new] = k[fresh]
-        return self.frame[index], ts, self.found[index].copy()
+        return self.frame[index], ts, self.found[index]
 
 
 class SensorRow:
