@@ -113,7 +113,7 @@ sweep: $(STAMP)
 	$(PY) -m stewart_gym sweep train/sweeps/ppo_balance.yaml --out sweeps/ppo_balance
 
 # Train a balance policy from scratch: PPO behind the Kalman observer on the batched backend (128 copies stepped
-# together, 150k steps: about 30 s on 2 cores; `make train SEED=1` for another training seed), then evaluate
+# together, 300k steps: 20 s to a minute on 2 cores; `make train SEED=1` for another training seed), then evaluate
 # it on the 100 seeds in PyBullet.
 train: $(STAMP)
 	$(PY) -m stewart_gym train --hyperparams ppo_batched --run-dir runs/ppo_balance --seed $(SEED) --max-minutes 3 --overwrite
