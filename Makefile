@@ -8,7 +8,7 @@ PIP_EXTRA ?=
 STAMP := $(VENV)/.installed
 SEED ?= 0
 
-.PHONY: demo test test-fast bench train train-pybullet train-track train-camera train-residual results sweep lint docs clean
+.PHONY: demo test test-fast bench train train-pybullet train-track train-track-pybullet train-camera train-residual results sweep lint docs clean
 
 DEMO_STAMP := $(VENV)/.installed-demo
 
@@ -83,8 +83,8 @@ train-residual: $(STAMP)
 # recipe (6 networks averaged) drawn 3 times, seeds 0-5, 6-11 and 12-17 (these TRAIN_JOBS at a time, as in
 # train-residual: about 45 minutes, 2.5 hours one after another in worker processes); the shipped track residual's
 # recipe drawn twice more, seeds 6-11 and 12-17 (TRAIN_JOBS at a time: 77 minutes on a slow day), its shipped draw
-# being the first; the PPO tracker (make train-track's recipe) with seeds 0-2, TRAIN_JOBS at a time (about 15
-# minutes); then every evaluation, with the shipped track residual's 6 networks one by one (about 1 hour). About 3
+# being the first; the PPO tracker in PyBullet (make train-track-pybullet's recipe) with seeds 0-2, TRAIN_JOBS at a
+# time (about 15 minutes), and on the batched backend (make train-track's; 1-3 minutes each); then every evaluation, with the shipped track residual's 6 networks one by one (about 1 hour). About 3
 # hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
 # $(call residual_draws,DRAWS,NAME,TRAIN_ARGS): the shipped residual recipe drawn once per d in DRAWS, its 6 networks
@@ -106,7 +106,8 @@ results: $(STAMP)
 	$(call residual_draws,$(ENSEMBLE_DRAWS),ensemble,)
 	$(call residual_draws,$(TRACK_DRAWS),track_ens,--env StewartBallTrack-v0)
 	printf '%s\n' 0 1 2 | xargs -P $(TRAIN_JOBS) -I{} $(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/track_s{} --seed {} --overwrite --no-progress
-	$(PY) train/tools/results.py --recipe "PPO batched, make train=runs/batched_s0,runs/batched_s1,runs/batched_s2" --recipe "PPO in PyBullet, make train-pybullet=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker=runs/track_s0,runs/track_s1,runs/track_s2"
+	for s in 0 1 2; do $(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams ppo_batched --run-dir runs/track_batched_s$$s --seed $$s --overwrite --no-progress; done
+	$(PY) train/tools/results.py --recipe "PPO batched, make train=runs/batched_s0,runs/batched_s1,runs/batched_s2" --recipe "PPO in PyBullet, make train-pybullet=runs/scratch_s0,runs/scratch_s1,runs/scratch_s2" --recipe "PPO + error integral=runs/integral_s0,runs/integral_s1,runs/integral_s2" --recipe "residual PPO over the PID + Kalman=runs/residual_bal_s0,runs/residual_bal_s1,runs/residual_bal_s2" --recipe "residual PPO on the approach, one network=runs/approach_s0,runs/approach_s1,runs/approach_s2" --recipe "residual PPO on the approach, 6 networks averaged=runs/ensemble_d0,runs/ensemble_d1,runs/ensemble_d2" --recipe "residual PPO tracker, one network=$(TRACK_NETS)/0,$(TRACK_NETS)/1,$(TRACK_NETS)/2,$(TRACK_NETS)/3,$(TRACK_NETS)/4,$(TRACK_NETS)/5" --recipe "residual PPO tracker, 6 networks averaged=stewart_gym/policies/track_residual,runs/track_ens_d1,runs/track_ens_d2" --recipe "PPO tracker in PyBullet, make train-track-pybullet=runs/track_s0,runs/track_s1,runs/track_s2" --recipe "PPO tracker batched, make train-track=runs/track_batched_s0,runs/track_batched_s1,runs/track_batched_s2"
 
 # The PPO sweep reported in the docs (Ray Tune on this machine's cores): about 20 minutes on 2 cores.
 sweep: $(STAMP)
@@ -124,13 +125,18 @@ train-pybullet: $(STAMP)
 	$(PY) -m stewart_gym train --env StewartBallBalance-v0 --algo ppo --run-dir runs/ppo_balance_pybullet --seed $(SEED) --max-minutes 3 --overwrite
 	$(PY) -m stewart_gym evaluate --env StewartBallBalance-v0 --policy runs/ppo_balance_pybullet/model.zip --episodes 100
 
-# Train a tracking policy from scratch, as the shipped one (`--policy shipped --env StewartBallTrack-v0`) was:
-# PPO behind the Kalman observer on the circle, figure-8 and waypoints, one drawn per episode (300k steps), then
-# evaluate it on each trajectory's 100 seeds: 10 min 52 s on 2 cores on a slow day
-# (8 minutes of it training). `make train-track SEED=1` for another seed.
+# Train a tracking policy from scratch: PPO behind the Kalman observer on the circle, figure-8 and waypoints, one
+# drawn per episode, on the batched backend (64 copies, 600k steps: 1-3 minutes on 2 cores), then evaluate it on
+# each trajectory's 100 seeds in PyBullet. `make train-track SEED=1` for another seed.
 train-track: $(STAMP)
-	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/ppo_track --seed $(SEED) --overwrite
+	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --hyperparams ppo_batched --run-dir runs/ppo_track --seed $(SEED) --max-minutes 6 --overwrite
 	for t in circle figure8 waypoints; do $(PY) -m stewart_gym evaluate --env StewartBallTrack-v0 --trajectory $$t --policy runs/ppo_track --episodes 100 || exit 1; done
+
+# The same in PyBullet, as the shipped tracker (`--policy shipped --env StewartBallTrack-v0`) was trained (300k
+# steps): 10 min 52 s on 2 cores on a slow day (8 minutes of it training).
+train-track-pybullet: $(STAMP)
+	$(PY) -m stewart_gym train --env StewartBallTrack-v0 --run-dir runs/ppo_track_pybullet --seed $(SEED) --overwrite
+	for t in circle figure8 waypoints; do $(PY) -m stewart_gym evaluate --env StewartBallTrack-v0 --trajectory $$t --policy runs/ppo_track_pybullet --episodes 100 || exit 1; done
 
 lint: $(STAMP)
 	$(PY) -m ruff check stewart_gym tests bench train
