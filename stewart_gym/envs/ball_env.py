@@ -288,10 +288,18 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
         self._episode: tuple[dict, Any, list[np.ndarray]] | None = None
+        self._start_xy = np.zeros(2)  # m: where the episode's ball started (begin_reset → end_reset)
         self._reset_episode_state()
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        self.begin_reset(seed=seed, options=options)
+        return self.end_reset(self._observe(0.0))
+
+    def begin_reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
+        """:meth:`reset` up to the first observation: the episode's parameters, the physics, the ball, the task, the
+        sensor and the observer. :meth:`end_reset` takes the first observation; the batched vector env finds it
+        for all the copies it resets in a step at once, in between."""
         super().reset(seed=seed)
         rng = self.np_random
         #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since
@@ -333,8 +341,13 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sensor_model.reset(0.0, xy, rng)
         self.observer.reset(0.0, xy)
         self._reset_episode_state()
-        obs = self._observe(0.0)
+        self._start_xy = xy
+
+    def end_reset(self, obs: np.ndarray) -> tuple[np.ndarray, dict]:
+        """The end of :meth:`reset` (after :meth:`begin_reset`), given the episode's first observation: what
+        :meth:`reset` returns."""
         self._last_obs = obs
+        xy = self._start_xy
         target_xy, _ = self.task.target(0.0)
         return obs, self._info(xy.copy(), target_xy, distance(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 

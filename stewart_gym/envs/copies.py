@@ -69,6 +69,16 @@ class CopySteps:
         self.pulses[i] = self.sim.calibration.neutral_us
         self.last_obs[i] = obs
 
+    def first_observations(self, rows: np.ndarray) -> np.ndarray:
+        """The first observation (rows × size) of each copy of ``rows``, which their envs have just begun to reset
+        (:meth:`StewartBallEnv.begin_reset <stewart_gym.envs.ball_env.StewartBallEnv.begin_reset>`): what each
+        env's own reset observes at time 0, for all of them at once."""
+        t = np.zeros(len(rows))
+        reading, sample_t, has = self.sensors.read(t, rows)
+        targets, target_velocities = self.tasks.targets(t, rows)
+        return self.observers.observe(rows, has, reading, sample_t, targets, target_velocities,
+                                      np.zeros((len(rows), 2)), np.zeros((len(rows), self.mapper.size)), t)  # fmt: skip
+
     def step(self, actions: np.ndarray) -> StepArrays:
         """Every copy's step with its action (n × action size): observations, rewards, terminated, truncated and
         the info as arrays. A copy whose episode ends is left for the caller to reset (then :meth:`reset_row`)."""

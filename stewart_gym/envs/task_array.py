@@ -66,12 +66,15 @@ class TaskArray:
             for task, t, backend in zip(self.tasks, times.tolist(), backends):
                 task.before_step(t, backend)
 
-    def targets(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each copy's target (n, 2) m and its velocity (n, 2) m/s at ``times[i]``."""
-        targets, velocities = np.zeros((self.n, 2)), np.zeros((self.n, 2))
+    def targets(self, times: np.ndarray, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Each copy's target (n, 2) m and its velocity (n, 2) m/s at ``times[i]``; or those of the copies
+        ``rows`` alone, at a time each."""
+        count = self.n if rows is None else len(rows)
+        targets, velocities = np.zeros((count, 2)), np.zeros((count, 2))
         if not self.fixed_target:
-            for i, (task, t) in enumerate(zip(self.tasks, times.tolist())):
-                targets[i], velocities[i] = task.target(t)
+            tasks = self.tasks if rows is None else [self.tasks[i] for i in rows.tolist()]
+            for k, (task, t) in enumerate(zip(tasks, times.tolist())):
+                targets[k], velocities[k] = task.target(t)
         return targets, velocities
 
     def rewards(self, distances: np.ndarray, rates: np.ndarray, fell: np.ndarray) -> np.ndarray:

@@ -124,13 +124,17 @@ class StewartBallVectorEnv(VectorEnv):
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
         observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
         finals: dict[int, tuple[np.ndarray, dict]] = {}
-        for i in np.flatnonzero(terminations | truncations).tolist():
+        ended = np.flatnonzero(terminations | truncations)
+        for i in ended.tolist():
             finals[i] = (observations[i].copy(), {key: value[i].copy() for key, value in info.items()})
-            obs, reset_info = self.envs[i].reset()
-            self.copy_steps.reset_row(i, obs)
-            observations[i] = obs
-            for key, value in info.items():
-                value[i] = reset_info[key]
+            self.envs[i].begin_reset()
+        if ended.size:  # the reset copies' first observations, all at once
+            for i, first in zip(ended.tolist(), self.copy_steps.first_observations(ended)):
+                obs, reset_info = self.envs[i].end_reset(first)
+                self.copy_steps.reset_row(i, obs)
+                observations[i] = obs
+                for key, value in info.items():
+                    value[i] = reset_info[key]
         return observations, rewards, terminations, truncations, info, finals
 
     def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
