@@ -7,9 +7,10 @@ IK pass), let each task act, send every copy's pulses, advance the shared simula
 (:class:`~stewart_gym.sensing_arrays.ObserverArray`), and end the step: reward, success, termination and truncation,
 and the info as arrays. It carries, per copy, what the env carries from step to step (the last action, the commanded
 tilt, the steps taken and the steps in a row within the success radius); the copies' tasks are asked through a
-:class:`~stewart_gym.envs.task_array.TaskArray`, and each copy's own env resets it. The results equal each copy's
-own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for ``info["pulse_widths_us"]``,
-which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
+:class:`~stewart_gym.envs.task_array.TaskArray`, and each copy's own env resets it, but for the first observations
+of the copies reset in a step, which are found together (:meth:`CopySteps.first_observations`). The results equal
+each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for
+``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
 
 from __future__ import annotations
 
