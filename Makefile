@@ -84,8 +84,8 @@ train-residual: $(STAMP)
 # train-residual: about 45 minutes, 2.5 hours one after another in worker processes); the shipped track residual's
 # recipe drawn twice more, seeds 6-11 and 12-17 (TRAIN_JOBS at a time: 77 minutes on a slow day), its shipped draw
 # being the first; the PPO tracker in PyBullet (make train-track-pybullet's recipe) with seeds 0-2, TRAIN_JOBS at a
-# time (about 15 minutes), and on the batched backend (make train-track's; 1-3 minutes each); then every evaluation, with the shipped track residual's 6 networks one by one (about 1 hour). About 3
-# hours on 2 cores.
+# time (about 15 minutes), and on the batched backend (make train-track's; 1-3 minutes each); then every
+# evaluation, with the shipped track residual's 6 networks one by one (about 1 hour). About 3 hours on 2 cores.
 ENSEMBLE_DRAWS := 0 1 2
 # $(call residual_draws,DRAWS,NAME,TRAIN_ARGS): the shipped residual recipe drawn once per d in DRAWS, its 6 networks
 # (seeds 6d to 6d + 5, TRAIN_JOBS at a time) in runs/NAME_d<d>_s<seed>, averaged into runs/NAME_d<d>.
