@@ -19,7 +19,9 @@ camera's pose relative to the base is not known, so the fit finds it too:
   poses would fit the camera's after one Gauss–Newton step (first on every :data:`RANK_STRIDE`-th frame, then the
   :data:`SHORTLIST` best on all), solves again with the best, and ranks again from there, at most
   :data:`MAX_PICKS` times. A servo replayed with the wrong dead band stops elsewhere than the real one did, an
-  error the trims would take up.
+  error the trims would take up. The servo it settles on is also solved from the first guess, with the timing
+  weights of its own residuals, and the solution whose frames fit better (unweighted) is kept: a solve that
+  starts from another servo's solution can stay in that solution's minimum.
 
 At any one pose, what a trim does to the plate a small shift of the camera would do too; what tells them apart
 is how the kinematics change with the plate's tilt, height and yaw. That is why ``identify`` moves the plate in
@@ -203,9 +205,18 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
     def solve(x: np.ndarray, c: int, weight: np.ndarray) -> Any:
         return least_squares(residuals, x, x_scale=scale, loss="soft_l1", f_scale=LOSS_SCALE_M, args=(c, weight))
 
-    sol = solve(x0, 0, np.ones(frames))
-    weight, timing_s = _jitter_weights(sol.fun.reshape(frames, -1), _point_speed(model, sol.x, 0))
-    sol = solve(sol.x, 0, weight)
+    def from_start(c: int) -> tuple[Any, np.ndarray, float]:
+        """Candidate ``c`` solved from the first guess: unweighted, then with the timing weights its residuals
+        give; the solution, the weights and the timing scatter."""
+        first = solve(x0, c, np.ones(frames))
+        weight, timing_s = _jitter_weights(first.fun.reshape(frames, -1), _point_speed(model, first.x, c))
+        return solve(first.x, c, weight), weight, timing_s
+
+    def unweighted_cost(x: np.ndarray, c: int) -> float:
+        r = residuals(x, c, np.ones(frames)) / LOSS_SCALE_M
+        return float(np.sum(2.0 * (np.sqrt(1.0 + r * r) - 1.0)))
+
+    sol, weight, timing_s = from_start(0)
     best, tried, ranked = 0, {0}, list(range(len(candidates)))
     for _ in range(MAX_PICKS if len(candidates) > 1 else 0):
         raw = _unscaled_jacobian(sol.jac, sol.fun)
@@ -223,6 +234,10 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         best = pick
         tried.add(pick)
         sol = solve(sol.x, best, weight)
+    if best != 0:  # solved from another candidate's solution, with its weights: also from the start with its own,
+        fresh, _, fresh_timing = from_start(best)  # and keep the one the frames fit better
+        if unweighted_cost(fresh.x, best) < unweighted_cost(sol.x, best):
+            sol, timing_s = fresh, fresh_timing
     seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
     sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
     rms = float(math.sqrt(np.mean(residuals(sol.x, best, np.ones(frames)) ** 2)))

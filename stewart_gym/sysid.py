@@ -27,11 +27,13 @@ of the fit, not what the model leaves out.
 
 - *Each servo's trim*, where the logs hold the plate poses a camera saw (``identify --sensor camera``): the
   pulses replayed, and the plate poses they give fitted to the camera's, with the camera's own pose
-  (:mod:`stewart_gym.plate_trims`). The replay's servos are whichever of the grid's speeds and dead bands the
-  plate poses fit best, starting from the ball's best: with a dead band, a servo stops short of its target, which
-  a trim would take up. The plate shows the servos more directly than the ball does, so the twin takes the
-  plate's choice, with the ball's best latency for it; their uncertainty is half the grid's spacing (the bootstrap
-  then gives the latency's and the noise's only).
+  (:mod:`stewart_gym.plate_trims`). The replay's servos are whichever of the grid's speeds and dead bands, and of
+  speeds :data:`FINE_SPEED_STEPS` times finer around the ball's best, the plate poses fit best, starting from the
+  ball's best: with a dead band, a servo stops short of its target, which a trim would take up, and a replay a
+  few per cent too slow or too fast moves the trims by several µs. The plate shows the servos more directly than
+  the ball does, so the twin takes the plate's choice, with the ball's best latency for the grid's nearest
+  speed; their uncertainty is half the grid's spacing (the bootstrap then gives the latency's and the noise's
+  only).
 
 **What the ball alone cannot show** is listed as undetermined: the split of the latency between the sensor and
 the servos (the twin keeps the sensor's nominal 10 ms and puts the rest on the servos; either way the ball
@@ -83,6 +85,9 @@ TICK_DATED_VAR_S2 = PANEL_PERIOD_S**2 / 12
 SPEED_GRID = tuple(float(v) for v in np.round(np.geomspace(0.25, 3.0, 19), 4))
 DEADBAND_GRID = tuple(float(v) for v in np.arange(0.0, 30.1, 2.0))
 LATENCY_GRID = tuple(float(v) for v in np.arange(0.0, 0.2005, 0.001))
+#: With a camera, the plate poses also choose among speeds this many times finer than the grid's, from the grid
+#: point below the ball's best to the one above (the trims move by several µs when the replay's speed is 5 % off).
+FINE_SPEED_STEPS = 4
 #: A window: this much burn-in of the servos, then the ball's path compared over FIT_S (readings from
 #: LATENCY_GRID's largest value on, so that every candidate latency sees the same readings).
 BURN_IN_S = 1.0
@@ -507,10 +512,11 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         from stewart_gym.sim.urdf import MechanismSpec
 
         ball_best = si * len(DEADBAND_GRID) + di
-        candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:]]
+        candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:], *_finer_servos(si, di)]
         trim_fit = fit_trims(geo, cal, camera, candidates, lat, MechanismSpec().plate_top + marker_height)
-        si, di = divmod(servos.index(trim_fit.servo), len(DEADBAND_GRID))
-        speed, band = SPEED_GRID[si], DEADBAND_GRID[di]
+        speed, band = trim_fit.servo.max_speed / nominal.max_speed, trim_fit.servo.deadband_us
+        si = int(np.argmin(np.abs(np.log(np.array(SPEED_GRID) / speed))))  # the grid's nearest, for the latency
+        di = DEADBAND_GRID.index(band)
         grid = total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), len(LATENCY_GRID))
         li = int(np.argmin(grid[si, di]))  # the latency for those servos
         lat = _refine(LATENCY_GRID, grid[si, di], li)
@@ -588,11 +594,22 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
     result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes, trim_fit=trim_fit)
     if held_w:
-        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, servos[si * len(DEADBAND_GRID) + di],
-                 overhead)
+        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel,
+                 trim_fit.servo if plate_chose else servos[ci], overhead)  # fmt: skip
     if on_progress:
         on_progress(1.0)
     return result
+
+
+def _finer_servos(si: int, di: int) -> list[ServoSpec]:
+    """Servos at :data:`FINE_SPEED_STEPS` times the grid's speed resolution between the grid's speeds either side
+    of ``SPEED_GRID[si]`` (the grid's own left out), each with the dead bands ``DEADBAND_GRID[di - 1 … di + 1]``."""
+    nominal = ServoSpec()
+    low, high = max(si - 1, 0), min(si + 1, len(SPEED_GRID) - 1)
+    speeds = np.geomspace(SPEED_GRID[low], SPEED_GRID[high], FINE_SPEED_STEPS * (high - low) + 1)
+    speeds = [float(np.round(v, 4)) for v in speeds if not np.isclose(SPEED_GRID, v).any()]
+    bands = DEADBAND_GRID[max(di - 1, 0):di + 2]
+    return [replace(nominal, max_speed=nominal.max_speed * s, deadband_us=d) for s in speeds for d in bands]
 
 
 def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[FlightLog], windows: list[_Window],

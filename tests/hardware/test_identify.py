@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 import os
 import signal
 import subprocess
@@ -19,7 +18,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
-from stewart_gym.sysid import DEADBAND_GRID, SPEED_GRID, read_log
+from stewart_gym.sysid import DEADBAND_GRID, read_log
 from tests.conftest import cli
 from tests.hardware.test_virtual_device import Board
 
@@ -222,6 +221,6 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     assert np.all(np.abs(err) <= 4.0 * sigma + 2.0), (fitted, sigma)
     assert np.sqrt(np.mean(err**2)) < np.sqrt(np.mean(trims**2)), (fitted, trims)
     assert "servos.trim_us" not in got["twin"]["fit"]["undetermined"]
-    servos = got["twin"]["servos"]  # the plate poses chose the twin's servos: a point of the grid
-    assert any(math.isclose(servos["speed_scale"], v) for v in SPEED_GRID) and servos["deadband_us"] in DEADBAND_GRID
+    servos = got["twin"]["servos"]  # the plate poses chose the twin's servos: a dead band of the grid, a speed of
+    assert servos["deadband_us"] in DEADBAND_GRID  # the grid or a finer one near the ball's best
     assert abs(servos["speed_scale"] - 1.0) <= 0.15, servos  # the dead band may come out a grid step or two off
