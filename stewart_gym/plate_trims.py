@@ -212,10 +212,6 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         weight, timing_s = _jitter_weights(first.fun.reshape(frames, -1), _point_speed(model, first.x, c))
         return solve(first.x, c, weight), weight, timing_s
 
-    def unweighted_cost(x: np.ndarray, c: int) -> float:
-        r = residuals(x, c, np.ones(frames)) / LOSS_SCALE_M
-        return float(np.sum(2.0 * (np.sqrt(1.0 + r * r) - 1.0)))
-
     sol, weight, timing_s = from_start(0)
     best, tried, ranked = 0, {0}, list(range(len(candidates)))
     for _ in range(MAX_PICKS if len(candidates) > 1 else 0):
@@ -236,7 +232,8 @@ def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: S
         sol = solve(sol.x, best, weight)
     if best != 0:  # solved from another candidate's solution, with its weights: also from the start with its own,
         fresh, _, fresh_timing = from_start(best)  # and keep the one the frames fit better
-        if unweighted_cost(fresh.x, best) < unweighted_cost(sol.x, best):
+        ones = np.ones(frames)
+        if _soft_l1_cost(residuals(fresh.x, best, ones)) < _soft_l1_cost(residuals(sol.x, best, ones)):
             sol, timing_s = fresh, fresh_timing
     seconds = np.concatenate([np.floor(p[2] - p[2][0]) + 1e6 * i for i, p in enumerate(parts) if len(p[2])])
     sigma = _grouped_sigma(sol.jac, sol.fun, seconds)
@@ -282,8 +279,12 @@ def _linearised_cost(res: np.ndarray, jac: np.ndarray) -> float:
     the residuals' Jacobian ``jac``."""
     root = (1.0 + (res / LOSS_SCALE_M) ** 2) ** -0.25  # the square root of the loss's weight on each residual
     step = np.linalg.lstsq(jac * root[:, None], -res * root, rcond=None)[0]
-    after = res + jac @ step
-    return float(np.sum(2.0 * (np.sqrt(1.0 + (after / LOSS_SCALE_M) ** 2) - 1.0)))
+    return _soft_l1_cost(res + jac @ step)
+
+
+def _soft_l1_cost(res: np.ndarray) -> float:
+    """The soft-L1 cost of residuals ``res`` (m) at the scale :data:`LOSS_SCALE_M`, as ``least_squares`` counts it."""
+    return float(np.sum(2.0 * (np.sqrt(1.0 + (res / LOSS_SCALE_M) ** 2) - 1.0)))
 
 
 def _grouped_sigma(jac: np.ndarray, res: np.ndarray, group: np.ndarray) -> np.ndarray:
