@@ -33,7 +33,7 @@ demo: $(DEMO_STAMP)
 	$(PY) -m stewart_gym demo
 
 # The suite on two worker processes (pytest-xdist; the Ray sweeps share one worker, so no two clusters start at
-# once): about 30 minutes on 2 cores. `$(PY) -m pytest` alone runs it in one process.
+# once): about 13 minutes on 2 quiet cores. `$(PY) -m pytest` alone runs it in one process.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 --dist loadgroup
 

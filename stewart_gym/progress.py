@@ -1,5 +1,6 @@
 """Progress of a long run, for a person watching: a bar on a terminal, otherwise (a log file, a pipe, CI) a line at
-least every :data:`LINE_INTERVAL_S` seconds with what is done of the total and the time left.
+least every :data:`LINE_INTERVAL_S` seconds (or ``$STEWART_GYM_PROGRESS_S``) with what is done of the total and
+the time left.
 
 The library reports progress through a callback (``on_progress(amount)``); the command line makes a
 :class:`Progress` and passes its :meth:`Progress.advance`.
@@ -8,15 +9,41 @@ The library reports progress through a callback (``on_progress(amount)``); the c
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from collections.abc import Callable
 from typing import TextIO
 
-__all__ = ["LINE_INTERVAL_S", "Progress", "duration"]
+__all__ = ["INTERVAL_RANGE_S", "INTERVAL_VARIABLE", "LINE_INTERVAL_S", "Progress", "duration", "line_interval_s"]
 
-#: Seconds: the longest a run that is not on a terminal stays silent.
+#: Seconds: the longest a run that is not on a terminal stays silent, unless :data:`INTERVAL_VARIABLE` says otherwise.
 LINE_INTERVAL_S = 10.0
+#: The environment variable that sets the seconds between progress lines, for a log that wants them more or less
+#: often (``STEWART_GYM_PROGRESS_S=60 stewart-gym train … > train.log``).
+INTERVAL_VARIABLE = "STEWART_GYM_PROGRESS_S"
+#: The range :data:`INTERVAL_VARIABLE` may take (s).
+INTERVAL_RANGE_S = (0.1, 86400.0)
+
+
+def line_interval_s() -> float:
+    """The seconds between progress lines: ``$STEWART_GYM_PROGRESS_S`` where it is set, else :data:`LINE_INTERVAL_S`.
+
+    Raises:
+        ValueError: the variable is not a number of seconds within :data:`INTERVAL_RANGE_S`.
+    """
+    text = os.environ.get(INTERVAL_VARIABLE, "").strip()
+    if not text:
+        return LINE_INTERVAL_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    low, high = INTERVAL_RANGE_S
+    if not (math.isfinite(value) and low <= value <= high):
+        raise ValueError(f"{INTERVAL_VARIABLE} must be the seconds between progress lines, a number from {low:g} to "
+                          f"{high:g}; got {text!r} (set it to, say, 60, or unset it for {LINE_INTERVAL_S:g})")
+    return value
 
 
 def duration(seconds: float) -> str:
@@ -31,15 +58,17 @@ class Progress:
 
     On a terminal, a tqdm bar where tqdm is installed; otherwise a line such as
     ``evaluate: 40/200 episodes (20 %), 0:12 elapsed, about 0:48 left`` at most every ``interval_s`` seconds
+    (default: :func:`line_interval_s`)
     (the first once that much time has passed, so that a short run prints none). ``close()`` ends the bar; a
     run that stops early says so with :meth:`stopped`.
     """
 
     def __init__(self, total: float, unit: str, label: str, stream: TextIO | None = None,
-                 interval_s: float = LINE_INTERVAL_S, clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+                 interval_s: float | None = None, clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
         if not (math.isfinite(total) and total > 0):
             raise ValueError(f"total must be a positive number, got {total!r}")
-        self.total, self.unit, self.label, self.interval_s, self.clock = total, unit, label, interval_s, clock
+        self.total, self.unit, self.label, self.clock = total, unit, label, clock
+        self.interval_s = line_interval_s() if interval_s is None else interval_s
         self.stream = sys.stderr if stream is None else stream
         self.done = 0.0
         self.started = self.last_line = clock()

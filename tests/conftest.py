@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import os
 import pty
+import re
 import select
 import subprocess
 import sys
@@ -26,6 +27,28 @@ WORKSPACE_BOX = {
     "senilov2018": (0.05, math.radians(10)),
     "mathcad-micro": (0.0006, math.radians(3)),
 }
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """``--dist loadgroup`` (``make test``) keeps each ``xdist_group`` on one worker: the Ray sweeps never start
+    two clusters at once, and a costly module fixture is made once. On pytest 9.2 with pytest-xdist up to 3.8
+    the groups are ignored without a word (pytest-dev/pytest-xdist#1386): the run stops here and says so."""
+    if config.getoption("dist", "no") != "loadgroup" or hasattr(config, "workerinput"):
+        return
+    from importlib.metadata import version
+
+    pytest_version = tuple(int(p) for p in re.findall(r"\d+", pytest.__version__)[:2])
+    xdist_version = tuple(int(p) for p in re.findall(r"\d+", version("pytest-xdist"))[:2])
+    if pytest_version >= (9, 2) and xdist_version <= (3, 8):
+        pytest.exit(f"pytest {pytest.__version__} with pytest-xdist {version('pytest-xdist')} ignores xdist_group "
+                    "(pytest-dev/pytest-xdist#1386): install the pytest that constraints.txt allows", returncode=4)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The slow tests run first, each module's in its own order: on worker processes (``make test``), the run then
+    ends on short tests that fill in around the long ones, not on a long one that one worker runs while the
+    other has nothing left to do."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -152,6 +152,7 @@ def test_no_plate_is_said() -> None:
 
 
 # ------------------------------------------------------------- config and CLI
+# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 3 s MJPG clip rendered from the simulator (the ball rolling on a gently rocking plate) and its config."""
@@ -192,6 +193,7 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
     assert CameraConfig.from_toml(tmp_path / "rel.toml").source == str(tmp_path / "v.avi")
 
 
+@pytest.mark.xdist_group("camera_clip")
 @pytest.mark.slow
 def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> None:
     one = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(clip / "frame.png"),
@@ -213,6 +215,7 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
     assert bad.returncode == 1 and len(errors) == 1 and "nope.png" in errors[0]
 
 
+@pytest.mark.xdist_group("camera_clip")
 def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: Path, device: FakeDevice) -> None:
     drain = Board(device)
     dep = sg("deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(clip / "cam.toml"), "--port",
@@ -228,6 +231,7 @@ def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: P
     assert no_config.returncode == 1 and "--camera-config" in no_config.stderr
 
 
+@pytest.mark.xdist_group("camera_clip")
 def test_a_camera_that_never_finds_the_ball_sends_the_platform_home(clip: Path, tmp_path: Path,
                                                                     device: FakeDevice) -> None:  # fmt: skip
     """Frames with the plate but no ball: no detection ever arrives, so the watchdog holds the platform at home,

@@ -20,6 +20,7 @@ from conftest import Board, FakeDevice
 ROOT = Path(__file__).resolve().parents[1]
 
 
+# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
 @pytest.fixture(scope="module")
 def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``python -m build``: the wheel and the sdist, as a release would publish them."""
@@ -30,6 +31,7 @@ def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+@pytest.mark.xdist_group("dist")
 @pytest.mark.slow
 def test_the_distribution_would_publish_as_it_is(dist: Path) -> None:
     import zipfile
@@ -49,6 +51,7 @@ def test_the_distribution_would_publish_as_it_is(dist: Path) -> None:
                                              "stewart_pca9685.ino"}, shared  # fmt: skip
 
 
+@pytest.mark.xdist_group("dist")
 @pytest.mark.slow
 def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice, dist: Path) -> None:
     bundle = tmp_path / "bundle"
@@ -141,6 +144,7 @@ def test_the_python_check_names_what_is_missing(version, system, machine, header
         assert message.startswith("error: ") and says in message and "\n" not in message, message
 
 
+@pytest.mark.xdist_group("dist")
 @pytest.mark.slow
 def test_demo_only_install_runs_the_demo_without_torch(tmp_path: Path, dist: Path) -> None:
     """What ``make demo`` installs (the wheel's ``[demo]``) into a fresh venv: no torch, Stable-Baselines3 or Ray;

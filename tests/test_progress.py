@@ -4,6 +4,7 @@ what is done of the total and the time left; and the commands that run long prin
 from __future__ import annotations
 
 import io
+import os
 import subprocess
 import sys
 
@@ -40,19 +41,44 @@ def test_lines_come_every_interval_with_done_total_and_time_left() -> None:
     assert out.getvalue().splitlines()[-1] == "evaluate: stopped at 30/200 episodes: --max-minutes 1 reached"
 
 
+@pytest.mark.parametrize("value", ["0", "-5", "nan", "inf", "ten", "1e9"])
+def test_a_bad_progress_interval_is_one_error_line_before_any_work(value: str, monkeypatch: pytest.MonkeyPatch,
+                                                                    capfd: pytest.CaptureFixture[str],
+                                                                    tmp_path) -> None:  # fmt: skip
+    from stewart_gym.cli import main
+
+    monkeypatch.setenv("STEWART_GYM_PROGRESS_S", value)
+    plot = tmp_path / "plot.png"
+    assert main(["evaluate", "--policy", "pid", "--episodes", "1", "--json", "--plot", str(plot)]) == 1
+    out, err = capfd.readouterr()
+    assert err.startswith("error: STEWART_GYM_PROGRESS_S must be") and repr(value) in err and err.count("\n") == 1
+    assert out == "" and not plot.exists()  # no episode ran
+
+
+def test_the_progress_interval_comes_from_the_variable(monkeypatch: pytest.MonkeyPatch) -> None:
+    from stewart_gym.progress import LINE_INTERVAL_S, line_interval_s
+
+    assert line_interval_s() == LINE_INTERVAL_S
+    monkeypatch.setenv("STEWART_GYM_PROGRESS_S", " 60 ")
+    assert line_interval_s() == 60.0 and Progress(5, "steps", "train").interval_s == 60.0
+    assert Progress(5, "steps", "train", interval_s=2.0).interval_s == 2.0
+
+
 def test_durations_read_as_clock_times() -> None:
     assert [duration(s) for s in (0, 9.6, 61, 3599, 3723)] == ["0:00", "0:10", "1:01", "59:59", "1:02:03"]
     with pytest.raises(ValueError, match="positive"):
         Progress(0, "steps", "train")
 
 
-@pytest.mark.slow
-def test_a_piped_evaluate_of_200_episodes_prints_progress_before_its_result() -> None:
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--policy", "pid", "--episodes", "200"],
-                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900)  # fmt: skip
+def test_a_piped_evaluate_prints_progress_before_its_result_as_often_as_the_variable_says() -> None:
+    """A piped ``evaluate`` prints progress lines before its result, one every ``$STEWART_GYM_PROGRESS_S``
+    seconds (here 0.1 s, so that 20 episodes of a few seconds print several)."""
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "evaluate", "--policy", "pid", "--episodes", "20"],
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=900,
+                          env={**os.environ, "STEWART_GYM_PROGRESS_S": "0.1"})  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:]
     lines = proc.stdout.splitlines()
-    progress = [i for i, line in enumerate(lines) if line.startswith("evaluate: ") and "/200 episodes (" in line]
+    progress = [i for i, line in enumerate(lines) if line.startswith("evaluate: ") and "/20 episodes (" in line]
     result = next(i for i, line in enumerate(lines) if line.startswith("success rate"))
     assert progress and max(progress) < result, lines[:10]
     assert all("elapsed, about " in lines[i] and lines[i].endswith(" left") for i in progress)

@@ -52,6 +52,7 @@ def synthetic_log(path, twin: dict, seconds: float, seed: int = 0, dated_at_tick
     env.close()
 
 
+# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     path = tmp_path_factory.mktemp("sysid") / "log.csv"
@@ -59,6 +60,7 @@ def fitted(tmp_path_factory):
     return path, fit_twin([read_log(path)])
 
 
+@pytest.mark.xdist_group("sysid_fit")
 @pytest.mark.slow
 def test_the_fit_recovers_a_known_twin(fitted):
     _, result = fitted
@@ -76,6 +78,7 @@ def test_the_fit_recovers_a_known_twin(fitted):
     assert {"sensor.latency_ms", "servos.trim_us", "ball.mass_scale", "plate.load_kg"} <= set(twin.undetermined)
 
 
+@pytest.mark.xdist_group("sysid_fit")
 @pytest.mark.slow
 def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
     _, result = fitted
@@ -84,6 +87,7 @@ def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
         assert row["fitted"] * 2 <= row["nominal"], f"{horizon} s: {row}"
 
 
+@pytest.mark.xdist_group("sysid_fit")
 @pytest.mark.slow
 def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
     """The fitted trims, put into a simulated platform at rest, make the ball accelerate as the fit says."""
@@ -104,6 +108,7 @@ def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
     assert np.allclose(accel, result.tilt_accel, atol=0.1 * np.linalg.norm(result.tilt_accel) + 1e-3)
 
 
+@pytest.mark.xdist_group("sysid_fit")
 @pytest.mark.slow
 def test_sysid_writes_the_twin_and_its_report(fitted, tmp_path, capfd):
     log, _ = fitted

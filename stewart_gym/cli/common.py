@@ -27,8 +27,9 @@ from typing import Any, NoReturn
 
 import numpy as np
 
-from stewart_gym.errors import DeviceFailure, StewartGymError, Stopped
+from stewart_gym.errors import ConfigError, DeviceFailure, StewartGymError, Stopped
 from stewart_gym.outputs import output_dir, output_file
+from stewart_gym.progress import line_interval_s
 
 __all__ = ["EXIT_DEVICE", "EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "MAX_SEED", "Parser", "bounded_float",
            "finite_float", "int_at_least", "interrupted", "json_safe", "output_dir", "output_file", "positive_float", "run",
@@ -199,6 +200,10 @@ def _call(func: Callable[[argparse.Namespace], int], args: argparse.Namespace) -
 
     A signal handler's exception can surface inside a library's C code, which then reports its own failure
     (a C extension's import says ``ImportError: initialization failed``) with the stop as its cause."""
+    try:
+        line_interval_s()
+    except ValueError as exc:  # a bad $STEWART_GYM_PROGRESS_S: the user's mistake, before any work
+        raise ConfigError(str(exc)) from None
     try:
         return int(func(args))
     except Exception as exc:

@@ -186,8 +186,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     limits and the servos go home; sysid on the log fits each servo's trim, each within four of its stated sigmas
     (plus 2 µs), closer to the truth than no trims at all (RMS), and no longer lists the trims as undetermined;
     the twin's servos are those the plate poses chose.
-    The board's camera is the pixy2 preset (316 × 208 px), the largest the machine renders in real time: the
-    results page gives what it reaches on several twins."""
+    The board's camera is the pixy2 preset (316 × 208 px), the largest the machine renders in real time. The run
+    lasts 30 s, half the default: the results page gives what 60 s runs reach on several twins."""
     trims = np.array([30.0, -30.0, 20.0, -10.0, 0.0, 25.0])
     (tmp_path / "twin.toml").write_text(f"[servos]\ntrim_us = {trims.tolist()}\n")
     pipe = tmp_path / "camera.mjpg"
@@ -197,7 +197,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     log = tmp_path / "identify.csv"
     run = subprocess.run([sys.executable, "-m", "stewart_gym", "identify", "--port", str(board.link), "--protocol",
                           "maestro", "--sensor", "camera", "--camera-config", str(tmp_path / "camera.toml"),
-                          "--duration", "60", "--out", str(log)], capture_output=True, text=True, timeout=300)  # fmt: skip
+                          "--duration", "30", "--out", str(log)], capture_output=True, text=True, timeout=300)  # fmt: skip
     bcode, bout, _ = board.stop()
     assert run.returncode == 0 and "servos homed: confirmed by the board" in run.stdout, run.stdout + run.stderr
     assert "height and yaw moves" in run.stdout
@@ -210,7 +210,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     tilt = np.hypot([float(r["roll"]) for r in rows], [float(r["pitch"]) for r in rows])
     assert np.mean(tilt > 0.06) > 0.4  # the triplets: large tilts much of the time (without them, about 0.3)
     plate = read_log(log).plate
-    assert plate is not None and len(plate.frame_t) > 1500
+    assert plate is not None and len(plate.frame_t) > 750
     fit = subprocess.run([sys.executable, "-m", "stewart_gym", "sysid", str(log), "--out", str(tmp_path / "fit.toml"),
                           "--json"], capture_output=True, text=True, timeout=600)  # fmt: skip
     assert fit.returncode == 0, fit.stderr
