@@ -58,9 +58,8 @@ class Progress:
 
     On a terminal, a tqdm bar where tqdm is installed; otherwise a line such as
     ``evaluate: 40/200 episodes (20 %), 0:12 elapsed, about 0:48 left`` at most every ``interval_s`` seconds
-    (default: :func:`line_interval_s`)
-    (the first once that much time has passed, so that a short run prints none). ``close()`` ends the bar; a
-    run that stops early says so with :meth:`stopped`.
+    (default :func:`line_interval_s`; the first once that much time has passed, so that a short run prints
+    none). ``close()`` ends the bar; a run that stops early says so with :meth:`stopped`.
     """
 
     def __init__(self, total: float, unit: str, label: str, stream: TextIO | None = None,
