@@ -485,9 +485,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     if len(fit_w) < 5:
         raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit (5 or more needed): log longer runs "
                           "with the ball on the plate (identify --duration 60)")  # fmt: skip
-    nominal = ServoSpec()
-    servos = [replace(nominal, max_speed=nominal.max_speed * s, deadband_us=d) for s in SPEED_GRID
-              for d in DEADBAND_GRID]  # fmt: skip
+    servos = [_servo(s, d) for s in SPEED_GRID for d in DEADBAND_GRID]
     rate = logs[0].rate_hz
     dt = 1.0 / rate
     overhead = float(np.mean([log.read_overhead_s for log in logs]))
@@ -514,7 +512,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         ball_best = si * len(DEADBAND_GRID) + di
         candidates = [servos[ball_best], *servos[:ball_best], *servos[ball_best + 1:], *_finer_servos(si, di)]
         trim_fit = fit_trims(geo, cal, camera, candidates, lat, MechanismSpec().plate_top + marker_height)
-        speed, band = trim_fit.servo.max_speed / nominal.max_speed, trim_fit.servo.deadband_us
+        speed, band = trim_fit.servo.max_speed / ServoSpec().max_speed, trim_fit.servo.deadband_us
         si = int(np.argmin(np.abs(np.log(np.array(SPEED_GRID) / speed))))  # the grid's nearest, for the latency
         di = DEADBAND_GRID.index(band)
         grid = total.reshape(len(SPEED_GRID), len(DEADBAND_GRID), len(LATENCY_GRID))
@@ -547,7 +545,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
             sb, db, lb, _ = _best(tb)
         draws.append((sb, db, lb, noise_of(weights)))
     spread = np.std(np.array(draws), axis=0)
-    if plate_chose:  # the plate poses pick a grid point: half the grid's spacing around it
+    if plate_chose:  # the plate poses pick the servos: half the grid's spacing around them
         spread[0] = 0.25 * (SPEED_GRID[min(si + 1, len(SPEED_GRID) - 1)] - SPEED_GRID[max(si - 1, 0)])
         spread[1] = 0.5 * (DEADBAND_GRID[1] - DEADBAND_GRID[0])
     if on_progress:
@@ -601,15 +599,20 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     return result
 
 
+def _servo(speed_scale: float, deadband_us: float) -> ServoSpec:
+    """The nominal servo at ``speed_scale`` × its speed, with a dead band of ``deadband_us``."""
+    nominal = ServoSpec()
+    return replace(nominal, max_speed=nominal.max_speed * speed_scale, deadband_us=deadband_us)
+
+
 def _finer_servos(si: int, di: int) -> list[ServoSpec]:
     """Servos at :data:`FINE_SPEED_STEPS` times the grid's speed resolution between the grid's speeds either side
     of ``SPEED_GRID[si]`` (the grid's own left out), each with the dead bands ``DEADBAND_GRID[di - 1 … di + 1]``."""
-    nominal = ServoSpec()
     low, high = max(si - 1, 0), min(si + 1, len(SPEED_GRID) - 1)
     speeds = np.geomspace(SPEED_GRID[low], SPEED_GRID[high], FINE_SPEED_STEPS * (high - low) + 1)
     speeds = [float(np.round(v, 4)) for v in speeds if not np.isclose(SPEED_GRID, v).any()]
     bands = DEADBAND_GRID[max(di - 1, 0):di + 2]
-    return [replace(nominal, max_speed=nominal.max_speed * s, deadband_us=d) for s in speeds for d in bands]
+    return [_servo(s, d) for s in speeds for d in bands]
 
 
 def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
@@ -618,9 +621,7 @@ def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[Flig
     logs date the readings; ``overhead``: what the logs' dates add to a twin's latency)."""
     rate = logs[0].rate_hz
     dt = 1.0 / rate
-    nominal = ServoSpec()
-    nominal_servo = replace(nominal, max_speed=nominal.max_speed * start["servos.speed_scale"],
-                            deadband_us=start["servos.deadband_us"])  # fmt: skip
+    nominal_servo = _servo(start["servos.speed_scale"], start["servos.deadband_us"])
     nominal_lat = start.total_latency_ms / 1e3 + overhead
     path = _simulate(geo, cal, logs, windows, [nominal_servo, fitted])
     margin = max(LATENCY_GRID)

@@ -221,6 +221,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     assert np.all(np.abs(err) <= 4.0 * sigma + 2.0), (fitted, sigma)
     assert np.sqrt(np.mean(err**2)) < np.sqrt(np.mean(trims**2)), (fitted, trims)
     assert "servos.trim_us" not in got["twin"]["fit"]["undetermined"]
-    servos = got["twin"]["servos"]  # the plate poses chose the twin's servos: a dead band of the grid, a speed of
-    assert servos["deadband_us"] in DEADBAND_GRID  # the grid or a finer one near the ball's best
-    assert abs(servos["speed_scale"] - 1.0) <= 0.15, servos  # the dead band may come out a grid step or two off
+    # the plate poses chose the twin's servos: a dead band of the grid (it may come out a step or two off), and a
+    # speed of the grid or of the finer speeds near the ball's best
+    servos = got["twin"]["servos"]
+    assert servos["deadband_us"] in DEADBAND_GRID
+    assert abs(servos["speed_scale"] - 1.0) <= 0.15, servos
