@@ -141,6 +141,13 @@ def cli(capfd: pytest.CaptureFixture, *args: str, cwd: str | os.PathLike | None 
     return int(code), out, err
 
 
+def sg_in(capfd: pytest.CaptureFixture, *args: str, cwd: str | os.PathLike | None = None) -> subprocess.CompletedProcess:
+    """What :func:`sg` gives, run through :func:`cli` in this process: for commands whose processes, signals and
+    ports do not matter, without the two seconds a fresh interpreter takes to import torch and the engines."""
+    code, out, err = cli(capfd, *args, cwd=cwd)
+    return subprocess.CompletedProcess(["stewart-gym", *args], code, out, err)
+
+
 class FakeDevice:
     """A pseudo-terminal: the code under test opens ``path`` with pyserial; the test reads/writes ``master``."""
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import sg
+from conftest import sg_in
 
 from stewart_gym.hardware.export import BundlePolicy
 from stewart_gym.outputs import ensemble_members
@@ -69,20 +69,21 @@ def test_the_shipped_residuals_are_six_networks_of_the_shipped_recipe_averaged(e
 
 
 @pytest.mark.slow
-def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(tmp_path: Path) -> None:
+def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """``stewart-gym ensemble`` of two run folders: ``evaluate`` and ``export`` take the folder, the bundle's graph
     gives the mean of the two networks' corrections (each normalised with its own statistics), and the policy
     deploy runs from the bundle sends what the folder's policy does."""
     runs = [str(m) for m in ensemble_members(RESIDUAL)[:2]]
-    made = sg("ensemble", *runs, "--out", "pair", "--note", "two of the shipped six", cwd=tmp_path)
+    made = sg_in(capfd, "ensemble", *runs, "--out", "pair", "--note", "two of the shipped six", cwd=tmp_path)
     assert made.returncode == 0, made.stderr[-2000:]
     assert "ensemble of 2 networks written to pair" in made.stdout
     index = json.loads((tmp_path / "pair" / "ensemble.json").read_text())
     assert index["members"] == ["members/0", "members/1"] and index["note"] == "two of the shipped six"
-    evaluated = sg("evaluate", "--policy", "pair", "--episodes", "2", "--json", cwd=tmp_path)
+    evaluated = sg_in(capfd, "evaluate", "--policy", "pair", "--episodes", "2", "--json", cwd=tmp_path)
     assert evaluated.returncode == 0, evaluated.stderr[-2000:]
     assert 0.0 <= json.loads(evaluated.stdout)["success_rate"] <= 1.0
-    exported = sg("export", "--policy", "pair", "--out", "bundle", cwd=tmp_path)
+    exported = sg_in(capfd, "export", "--policy", "pair", "--out", "bundle", cwd=tmp_path)
     assert exported.returncode == 0, exported.stderr[-2000:]
     pair, bundle = load_policy(str(tmp_path / "pair")), BundlePolicy(tmp_path / "bundle")
     singles = [load_policy(r) for r in runs]
@@ -103,7 +104,7 @@ def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(
 
 @pytest.mark.slow
 def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_nothing_is_written(
-        tmp_path: Path) -> None:  # fmt: skip
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """The shipped balance network (no residual base) and a residual member cannot be averaged; an
     ensemble is not written over a folder that holds files; one network, or one network twice, is not an
     ensemble."""
@@ -120,7 +121,7 @@ def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_n
              ([member, "--out", "e"], "2 or more"),
              ([member, str(bare), "--out", "e"], "vecnormalize.pkl")]  # fmt: skip
     for args, message in cases:
-        proc = sg("ensemble", *args, cwd=tmp_path)
+        proc = sg_in(capfd, "ensemble", *args, cwd=tmp_path)
         lines = [line for line in proc.stderr.splitlines() if line.strip()]
         assert proc.returncode == 1 and len(lines) == 1 and lines[0].startswith("error: "), proc.stderr[-2000:]
         assert message in lines[0], lines[0]
@@ -145,7 +146,7 @@ def test_a_sampling_ensemble_averages_the_networks_samples() -> None:
 
 
 @pytest.mark.slow
-def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path) -> None:
+def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """A checkpoint (``checkpoints/rl_model_<n>_steps.zip`` with ``rl_model_vecnormalize_<n>_steps.pkl`` beside it,
     as training writes them) evaluates as the same network in a run folder does, and ``ensemble`` takes
     checkpoints (a snapshot ensemble of one run). Without its statistics it is one ``error:`` line: the network
@@ -160,38 +161,39 @@ def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path)
     checkpoint = folder / "rl_model_300000_steps.zip"
     figures = {}
     for name, policy in (("run folder", str(member)), ("checkpoint", str(checkpoint))):
-        proc = sg("evaluate", "--policy", policy, "--episodes", "2", "--json", cwd=tmp_path)
+        proc = sg_in(capfd, "evaluate", "--policy", policy, "--episodes", "2", "--json", cwd=tmp_path)
         assert proc.returncode == 0, proc.stderr[-2000:]
         figures[name] = json.loads(proc.stdout)
     for key in ("rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_rate_us_per_s"):
         assert figures["checkpoint"][key] == pytest.approx(figures["run folder"][key], rel=1e-9)
-    made = sg("ensemble", str(folder / "rl_model_250000_steps.zip"), str(checkpoint), "--out", "snap", cwd=tmp_path)
+    made = sg_in(capfd, "ensemble", str(folder / "rl_model_250000_steps.zip"), str(checkpoint), "--out", "snap",
+                 cwd=tmp_path)  # fmt: skip
     assert made.returncode == 0, made.stderr[-2000:]
     assert all((m / "vecnormalize.pkl").is_file() for m in ensemble_members(tmp_path / "snap"))
     (folder / "rl_model_vecnormalize_300000_steps.pkl").unlink()
-    lost = sg("evaluate", "--policy", str(checkpoint), "--episodes", "1", cwd=tmp_path)
+    lost = sg_in(capfd, "evaluate", "--policy", str(checkpoint), "--episodes", "1", cwd=tmp_path)
     errors = [ln for ln in lost.stderr.splitlines() if ln.startswith("error:")]
     assert lost.returncode == 1 and len(errors) == 1 and "statistics are not beside it" in errors[0]
     assert "Traceback" not in lost.stderr
 
 
 @pytest.mark.slow
-def test_train_checkpoints_make_a_snapshot_ensemble_of_one_run(tmp_path: Path) -> None:
+def test_train_checkpoints_make_a_snapshot_ensemble_of_one_run(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """``train --checkpoint-freq N`` saves a checkpoint with its statistics every N steps; ``ensemble`` averages
     checkpoints of that one run, and the result evaluates (the snapshot ensemble of the Control page)."""
     (tmp_path / "hp.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n"
                                      "  policy: MlpPolicy\n  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n"
                                      "  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
-    run = sg("train", "--hyperparams", "hp.yml", "--run-dir", "run", "--checkpoint-freq", "32", "--eval-freq", "32",
-             "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    run = sg_in(capfd, "train", "--hyperparams", "hp.yml", "--run-dir", "run", "--checkpoint-freq", "32", "--eval-freq",
+                "32", "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
     folder = tmp_path / "run" / "checkpoints"
     for steps in (32, 64):
         assert (folder / f"rl_model_{steps}_steps.zip").is_file()
         assert (folder / f"rl_model_vecnormalize_{steps}_steps.pkl").is_file()
-    made = sg("ensemble", str(folder / "rl_model_32_steps.zip"), str(folder / "rl_model_64_steps.zip"), "--out",
+    made = sg_in(capfd, "ensemble", str(folder / "rl_model_32_steps.zip"), str(folder / "rl_model_64_steps.zip"), "--out",
               "snap", cwd=tmp_path)  # fmt: skip
     assert made.returncode == 0, made.stderr[-2000:]
-    evaluated = sg("evaluate", "--policy", "snap", "--episodes", "1", "--json", cwd=tmp_path)
+    evaluated = sg_in(capfd, "evaluate", "--policy", "snap", "--episodes", "1", "--json", cwd=tmp_path)
     assert evaluated.returncode == 0, evaluated.stderr[-2000:]
     assert json.loads(evaluated.stdout)["episodes"] == 1

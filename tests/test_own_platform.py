@@ -10,7 +10,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
-from conftest import Board, FakeDevice, cli, maestro_frames, sg
+from conftest import Board, FakeDevice, cli, maestro_frames, sg, sg_in
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.kinematics import inverse_kinematics
@@ -48,16 +48,18 @@ def test_the_env_follows_the_plate_of_the_geometry(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: FakeDevice) -> None:
+def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: FakeDevice,
+                                                       capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """Through the real CLI: the frames sent are the IK pulses of the user's geometry, not the reference's."""
     geo_path = my_build(tmp_path)
     hp = tmp_path / "hp.yml"
     hp.write_text("StewartBallBalance-v0:\n  n_envs: 2\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
                   "  n_steps: 64\n  batch_size: 32\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
-    run = sg("train", "--geometry", str(geo_path), "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
+    run = sg_in(capfd, "train", "--geometry", str(geo_path), "--hyperparams", str(hp), "--run-dir", str(tmp_path / "run"),
              "--eval-freq", "64", "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
     assert run.returncode == 0, run.stderr
-    assert sg("export", "--policy", str(tmp_path / "run"), "--out", str(tmp_path / "b"), cwd=tmp_path).returncode == 0
+    exported = sg_in(capfd, "export", "--policy", str(tmp_path / "run"), "--out", str(tmp_path / "b"), cwd=tmp_path)
+    assert exported.returncode == 0, exported.stderr
     meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
     assert meta["geometry"]["name"] == "my-build" and "plate_size = [0.35, 0.25]" in meta["geometry"]["toml"]
     assert meta["observation_layout"] >= 2 and meta["control_hz"] == 50
@@ -93,7 +95,7 @@ def test_custom_geometry_train_export_calibrate_deploy(tmp_path: Path, device: F
 
 
 @pytest.mark.slow
-def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevice) -> None:
+def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevice, capfd: pytest.CaptureFixture) -> None:
     """senilov2018 (RC linear actuators) through the real CLI: calibrate with scripted keys, export the PID, deploy
     with the calibration; the frames are the trimmed pulses of the IK leg lengths."""
     drain = Board(device)
@@ -107,7 +109,7 @@ def test_a_linear_build_calibrates_and_deploys(tmp_path: Path, device: FakeDevic
     nominal = ServoCalibration.linear("senilov2018")
     assert calibration.actuator == "linear"
     assert np.allclose(calibration.neutral_us - nominal.neutral_us, [4, -2, 0, 0, 0, 0], atol=1e-6)
-    assert sg("export", "--policy", "pid", "--geometry", "senilov2018", "--out", str(tmp_path / "pid"),
+    assert sg_in(capfd, "export", "--policy", "pid", "--geometry", "senilov2018", "--out", str(tmp_path / "pid"),
               cwd=tmp_path).returncode == 0  # fmt: skip
     drain = Board(device)
     dep = sg("deploy", "--policy", str(tmp_path / "pid"), "--calibration", str(tmp_path / "cal.toml"), "--sensor",
@@ -151,9 +153,10 @@ def test_linear_calibration_files_round_trip_and_name_their_mistakes(tmp_path: P
         cal.to_toml("servo-hexapod")
 
 
-def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: Path, device: FakeDevice) -> None:
+def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: Path, device: FakeDevice,
+                                                                     capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     geo_path = my_build(tmp_path)
-    assert sg("export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
+    assert sg_in(capfd, "export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
               cwd=tmp_path).returncode == 0  # fmt: skip
     (tmp_path / "cal.toml").write_text('geometry = "servo-hexapod"\n' + ServoCalibration.default("servo-hexapod").to_toml())
     drain = Board(device)
@@ -170,18 +173,18 @@ def test_a_bundle_and_a_calibration_for_different_builds_are_refused(tmp_path: P
 
 
 @pytest.mark.slow
-def test_a_geometry_that_cannot_carry_the_task_says_why(tmp_path: Path) -> None:
-    proc = sg("evaluate", "--policy", "pid", "--geometry", "mathcad-micro", "--episodes", "1", cwd=tmp_path)
+def test_a_geometry_that_cannot_carry_the_task_says_why(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    proc = sg_in(capfd, "evaluate", "--policy", "pid", "--geometry", "mathcad-micro", "--episodes", "1", cwd=tmp_path)
     lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("error:")]
     assert proc.returncode == 1 and len(lines) == 1 and "too small" in lines[0] and "Traceback" not in proc.stderr
     small = load_preset("servo-hexapod").to_toml().replace("plate_size = [0.3, 0.3]", "plate_size = [0.08, 0.08]")
     (tmp_path / "small.toml").write_text(small)
-    proc = sg("train", "--geometry", str(tmp_path / "small.toml"), "--run-dir", str(tmp_path / "r"), cwd=tmp_path)
+    proc = sg_in(capfd, "train", "--geometry", str(tmp_path / "small.toml"), "--run-dir", str(tmp_path / "r"), cwd=tmp_path)
     assert proc.returncode == 1 and "too small" in proc.stderr and not (tmp_path / "r").exists()
 
 
-def test_a_trained_policy_stays_on_its_build(tmp_path: Path) -> None:
-    proc = sg("evaluate", "--policy", str(Path(__file__).resolve().parents[1] / "stewart_gym/policies/track"),
+def test_a_trained_policy_stays_on_its_build(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    proc = sg_in(capfd, "evaluate", "--policy", str(Path(__file__).resolve().parents[1] / "stewart_gym/policies/track"),
               "--geometry", "memememe-liverpool", "--episodes", "1", cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 1 and "trained for geometry 'servo-hexapod'" in proc.stderr
 
@@ -302,7 +305,7 @@ def test_the_pid_kalman_rests_on_target_on_the_linear_build() -> None:
 
 
 @pytest.mark.slow
-def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path) -> None:
+def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """A user's copy of a gains or design file (``--policy my.json``) is told apart by its fields and runs on
     the build ``--geometry`` names exactly as the named controller does (gains adapted to that build, its
     plate's observation scales, the observer the file names or else the Kalman observer for the LQR and the
@@ -314,14 +317,14 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
         mine = tmp_path / f"my_{file}"
         mine.write_text((policies / file).read_text())
         for spec in (name, str(mine)):
-            proc = sg("evaluate", "--policy", spec, "--geometry", "memememe-liverpool", "--episodes", "2", "--json",
-                      cwd=tmp_path)  # fmt: skip
+            proc = sg_in(capfd, "evaluate", "--policy", spec, "--geometry", "memememe-liverpool", "--episodes", "2",
+                         "--json", cwd=tmp_path)  # fmt: skip
             assert proc.returncode == 0, proc.stderr[-2000:]
             results[spec] = json.loads(proc.stdout)
         named, copied = results[name], results[str(mine)]
         for key in ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_p2p_us"):
             assert copied[key] == pytest.approx(named[key], rel=1e-6, abs=1e-9), (name, key)
-    proc = sg("export", "--policy", str(tmp_path / "my_lqr_pid.json"), "--out", str(tmp_path / "b"), cwd=tmp_path)
+    proc = sg_in(capfd, "export", "--policy", str(tmp_path / "my_lqr_pid.json"), "--out", str(tmp_path / "b"), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
     assert meta["kind"] == "handover" and meta["estimator"] == "kalman", meta
@@ -329,19 +332,19 @@ def test_a_design_file_runs_like_the_named_controller_on_a_build(tmp_path: Path)
     for bad, says in (({**pid_kalman, "estimator": "magic"}, "estimator must be one of"),
                       ({**pid_kalman, "dither": 0.1}, "less than half the build's max tilt")):  # 5.7° of 10°
         (tmp_path / "bad.json").write_text(json.dumps(bad))
-        proc = sg("evaluate", "--policy", str(tmp_path / "bad.json"), "--episodes", "1", cwd=tmp_path)
+        proc = sg_in(capfd, "evaluate", "--policy", str(tmp_path / "bad.json"), "--episodes", "1", cwd=tmp_path)
         assert proc.returncode != 0 and proc.stderr.startswith("error: ") and says in proc.stderr, proc.stderr
         assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
 
 
 @pytest.mark.slow
-def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
+def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """The shipped residual recipe, named as a user would, on the user's plate: its training starts (50–110 mm
     out, for the 300 mm plate) are scaled to that plate, with a note, and the run records what it trained with;
     a misspelt recipe is one error line naming the shipped ones."""
     import yaml
 
-    run = sg("train", "--hyperparams", "ppo_residual", "--geometry", str(my_build(tmp_path)), "--run-dir",
+    run = sg_in(capfd, "train", "--hyperparams", "ppo_residual", "--geometry", str(my_build(tmp_path)), "--run-dir",
              str(tmp_path / "run"), "--timesteps", "64", "--n-envs", "1", "--eval-freq", "64", "--eval-episodes", "1",
              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
     assert run.returncode == 0, run.stderr
@@ -349,7 +352,7 @@ def test_the_residual_recipe_trains_on_another_plate(tmp_path: Path) -> None:
     assert "note: start_distance scaled to" in run.stderr and "[0.0417, 0.0917] m" in run.stderr
     config = yaml.safe_load((tmp_path / "run" / "config.yaml").read_text())
     assert config["hyperparams"]["env_kwargs"]["start_distance"] == [0.0417, 0.0917]
-    bad = sg("train", "--hyperparams", "ppo_residul", "--run-dir", str(tmp_path / "bad"), cwd=tmp_path)
+    bad = sg_in(capfd, "train", "--hyperparams", "ppo_residul", "--run-dir", str(tmp_path / "bad"), cwd=tmp_path)
     assert bad.returncode == 1 and bad.stderr.count("\n") == 1 and not (tmp_path / "bad").exists()
     assert bad.stderr.startswith("error: --hyperparams ppo_residul: neither a file nor a shipped recipe (ppo, ")
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Board, Drain, FakeDevice, cli, maestro_frames, sg
+from conftest import Board, Drain, FakeDevice, cli, maestro_frames, sg, sg_in
 
 ROOT = Path(__file__).resolve().parents[2]
 SUBCOMMANDS = ("ik", "urdf", "mjcf", "render", "train", "evaluate", "export", "deploy", "calibrate", "workspace",
@@ -708,7 +708,7 @@ def test_deploy_with_the_panel_on_the_line_protocol(device: FakeDevice, tmp_path
     assert data.count(b"W ") >= 50
 
 
-def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
+def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for(capfd: pytest.CaptureFixture) -> None:
     """``evaluate --trajectory``: the figures printed are those of the Python evaluation on that trajectory (one
     seed, the PID + Kalman), not of the circle the PID gets by default."""
     from stewart_gym.evaluation import evaluate
@@ -718,14 +718,14 @@ def test_evaluate_runs_the_track_env_on_the_trajectory_asked_for() -> None:
     direct = {t: evaluate("StewartBallTrack-v0", policy, episodes=1, seed=3, env_kwargs={**env_kwargs,
                           "trajectory": t})["rms_error_mm"] for t in ("circle", "waypoints")}  # fmt: skip
     assert abs(direct["circle"] - direct["waypoints"]) > 0.05
-    proc = sg("evaluate", "--policy", "pid-kalman", "--env", "StewartBallTrack-v0", "--trajectory", "waypoints",
+    proc = sg_in(capfd, "evaluate", "--policy", "pid-kalman", "--env", "StewartBallTrack-v0", "--trajectory", "waypoints",
               "--episodes", "1", "--seed", "3", "--json")  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads(proc.stdout)["rms_error_mm"] == pytest.approx(direct["waypoints"], abs=1e-6)
 
 
 @pytest.mark.slow
-def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: Path) -> None:
+def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """``compare shipped-residual COPY --env StewartBallDisturbance-v0``: ``shipped-residual`` names the balance
     residual on the pushes env too, and its base gives a pushed ball back to the LQR at once (``release_mm_s``,
     ``push_release_mm``): on seed 0 it holds the pushed ball over a millimetre closer than the same networks whose
@@ -738,7 +738,7 @@ def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: 
         text = config.read_text()
         assert "release_mm_s: 60.0\n      push_release_mm: 5.0\n" in text
         config.write_text(text.replace("      release_mm_s: 60.0\n      push_release_mm: 5.0\n", ""))
-    proc = sg("compare", "shipped-residual", str(old), "--env", "StewartBallDisturbance-v0", "--episodes", "2",
+    proc = sg_in(capfd, "compare", "shipped-residual", str(old), "--env", "StewartBallDisturbance-v0", "--episodes", "2",
               "--json")  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     out = json.loads(proc.stdout)
@@ -748,18 +748,18 @@ def test_shipped_residual_answers_pushes_with_its_base_s_fast_release(tmp_path: 
 
 
 @pytest.mark.slow
-def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None:
+def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them(capfd: pytest.CaptureFixture) -> None:
     """``compare A B C``: each policy's figures are those ``evaluate`` prints for it on the same seeds (here two
     at a time, in worker processes), and A is paired with B and with C, each verdict agreeing with its interval
     (a lower error is better, a higher success rate is better). The text output names each pair's verdicts."""
     policies = ("pid-kalman", "lqr", "pid")
-    proc = sg("compare", *policies, "--episodes", "4", "--seed", "2", "--workers", "2", "--json")
+    proc = sg_in(capfd, "compare", *policies, "--episodes", "4", "--seed", "2", "--workers", "2", "--json")
     assert proc.returncode == 0, proc.stderr[-2000:]
     got = json.loads(proc.stdout)
     assert list(got["policies"]) == list(policies) and (got["episodes"], got["seed"]) == (4, 2)
     assert (got["env_id"], got["geometry"], got["backend"], got["sensor"]) == (
         "StewartBallBalance-v0", "servo-hexapod", "pybullet", "panel")
-    alone = sg("evaluate", "--policy", "lqr", "--episodes", "4", "--seed", "2", "--json")
+    alone = sg_in(capfd, "evaluate", "--policy", "lqr", "--episodes", "4", "--seed", "2", "--json")
     assert alone.returncode == 0, alone.stderr[-2000:]
     for key in ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_p2p_us"):
         assert got["policies"]["lqr"][key] == pytest.approx(json.loads(alone.stdout)[key], rel=1e-9)
@@ -774,7 +774,7 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
     # the PID + Kalman holds the ball closer than the plain PID on every seed of this draw, so better
     rms = {r["b"]: r for r in rows if r["metric"] == "rms_error_mm"}
     assert rms["pid"]["verdict"] == "better"
-    text = sg("compare", "pid-kalman", "pid", "--episodes", "3", "--workers", "1")
+    text = sg_in(capfd, "compare", "pid-kalman", "pid", "--episodes", "3", "--workers", "1")
     assert text.returncode == 0, text.stderr[-2000:]
     assert "pid-kalman − pid, seed by seed" in text.stdout and "RMS error (last 5 s)" in text.stdout
     assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
@@ -782,11 +782,11 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them() -> None
 
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", ["StewartBallBalance-v0", "StewartBallTrack-v0"])
-def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id: str) -> None:
+def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id: str, capfd: pytest.CaptureFixture) -> None:
     """``evaluate --workers 2`` runs the episodes in two processes (the first two in one, the third in the
     other) and prints the same JSON, every figure and per-episode value alike, as ``--workers 1``: each episode
     depends only on its seed (and, in the settling test, on its index among all the episodes)."""
-    runs = [sg("evaluate", "--policy", "pid-kalman", "--env", env_id, "--episodes", "3", "--seed", "5",
+    runs = [sg_in(capfd, "evaluate", "--policy", "pid-kalman", "--env", env_id, "--episodes", "3", "--seed", "5",
                "--workers", str(w), "--json") for w in (1, 2)]  # fmt: skip
     for proc in runs:
         assert proc.returncode == 0, proc.stderr[-2000:]
@@ -794,7 +794,7 @@ def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id:
     assert split == one and len(one["per_episode"]["final_mm"]) == 3
     assert (one["settling_time_s"] is None) == (env_id == "StewartBallTrack-v0")
     if env_id == "StewartBallBalance-v0":  # compare splits each policy's episodes too: 4 processes, 2 per policy
-        proc = sg("compare", "pid-kalman", "lqr", "--episodes", "3", "--seed", "5", "--workers", "4", "--json")
+        proc = sg_in(capfd, "compare", "pid-kalman", "lqr", "--episodes", "3", "--seed", "5", "--workers", "4", "--json")
         assert proc.returncode == 0 and "4 processes at a time" in proc.stderr, proc.stderr[-2000:]
         both = json.loads(proc.stdout)["policies"]
         assert {k: v for k, v in both["pid-kalman"].items() if k in one} == {k: v for k, v in one.items()
@@ -803,14 +803,14 @@ def test_evaluate_split_over_processes_prints_the_figures_of_one_process(env_id:
 
 
 @pytest.mark.slow
-def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path) -> None:
+def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """``compare``'s table labels a policy given by path with the path's last part, more of it where two would
     read alike, and says which path each label stands for; ``--json`` keeps the paths as given."""
     gains = [tmp_path / "a" / "deep" / "folder" / "gains.json", tmp_path / "b" / "gains.json"]
     for path in gains:
         path.parent.mkdir(parents=True)
         shutil.copyfile(ROOT / "stewart_gym" / "policies" / "pid_kalman_gains.json", path)
-    proc = sg("compare", "pid-kalman", *map(str, gains), "--episodes", "2", "--workers", "1")
+    proc = sg_in(capfd, "compare", "pid-kalman", *map(str, gains), "--episodes", "2", "--workers", "1")
     assert proc.returncode == 0, proc.stderr[-2000:]
     header = next(line for line in proc.stdout.splitlines() if "pid-kalman" in line and "gains" in line)
     assert header.split() == ["pid-kalman", "folder/gains.json", "b/gains.json"], header
@@ -830,8 +830,8 @@ def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
 
 
 @pytest.mark.slow
-def test_evaluate_writes_gif_and_plot(tmp_path: Path) -> None:
-    proc = sg("evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(tmp_path / "pid.gif"), "--plot",
+def test_evaluate_writes_gif_and_plot(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    proc = sg_in(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(tmp_path / "pid.gif"), "--plot",
               str(tmp_path / "pid.png"))  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "pid.gif").read_bytes()[:6] == b"GIF89a" and (tmp_path / "pid.png").stat().st_size > 10_000
@@ -885,8 +885,9 @@ def test_unplug_in_sim_mode_exits_2(device: FakeDevice, tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_path: Path) -> None:
-    proc = sg("export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "tb"))
+def test_deploy_track_bundle_follows_a_moving_target(device: FakeDevice, tmp_path: Path,
+                                                     capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "tb"))
     assert proc.returncode == 0, proc.stderr
     proc, _ = deploy(device, "--policy", str(tmp_path / "tb"), "--trajectory", "circle", "--duration", "1", "--log",
                      str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip  (trained on all three; the circle moves at once)
@@ -926,12 +927,13 @@ def test_deploy_runs_the_shipped_balance_residual_whose_bundle_averages_six_netw
 
 
 @pytest.mark.slow
-def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path) -> None:
+def test_export_of_the_shipped_track_policy_is_the_track_network(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     from stewart_gym.hardware.export import BundlePolicy
     from stewart_gym.registry import POLICY_DIR
 
-    assert sg("export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "t")).returncode == 0
-    assert sg("export", "--policy", "shipped", "--out", str(tmp_path / "b")).returncode == 0
+    track = sg_in(capfd, "export", "--policy", "shipped", "--env", "StewartBallTrack-v0", "--out", str(tmp_path / "t"))
+    assert track.returncode == 0
+    assert sg_in(capfd, "export", "--policy", "shipped", "--out", str(tmp_path / "b")).returncode == 0
     obs = np.random.default_rng(0).uniform(-1, 1, (50, 12))
     track, balance = BundlePolicy(tmp_path / "t"), BundlePolicy(tmp_path / "b")
     assert track.env_id == "StewartBallTrack-v0" and balance.env_id == "StewartBallBalance-v0"
@@ -969,7 +971,8 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["pose", "pulse"])
 def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, device: FakeDevice,
-                                                                     tmp_path: Path) -> None:  # fmt: skip
+                                                                     tmp_path: Path,
+                                                                     capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """train → evaluate → export → deploy, all through the command line, keep the action mode."""
     hp = tmp_path / "hp.yml"
     hp.write_text(f"StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 128\n  normalize: true\n  policy: MlpPolicy\n"
@@ -984,10 +987,10 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     metrics = json.loads((run / "metrics.json").read_text())
     assert isinstance(metrics["last_eval"]["timesteps"], int) and isinstance(metrics["last_eval"]["wall_s"], float)
     assert "not a git checkout" in (run / "git.txt").read_text() or "stewart_gym" in (run / "git.txt").read_text()
-    proc = sg("evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
+    proc = sg_in(capfd, "evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["episodes"] == 1
-    proc = sg("export", "--policy", str(run), "--out", str(tmp_path / "bundle"), cwd=tmp_path)
+    proc = sg_in(capfd, "export", "--policy", str(run), "--out", str(tmp_path / "bundle"), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
     assert meta["action_mode"] == mode and len(meta["action_low"]) == 6
@@ -999,12 +1002,13 @@ def test_policies_trained_in_pose_or_pulse_mode_work_after_training(mode: str, d
     rows = list(csv.DictReader((tmp_path / "l.csv").open()))
     assert sum(int(r["held"]) for r in rows) < len(rows)  # the policy's actions reach the servos
     assert "action5" in rows[0]  # six actions logged
-    proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), cwd=tmp_path)
+    proc = sg_in(capfd, "train", "--hyperparams", str(hp), "--run-dir", str(run), cwd=tmp_path)
     assert proc.returncode == 1 and "--overwrite" in proc.stderr  # a finished run is not overwritten
 
 
 @pytest.mark.slow
-def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_processes(tmp_path: Path) -> None:
+def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_processes(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """``train --vec-env subproc`` and the default (``dummy``) give the same weights and statistics, bit for
     bit: the choice is one of speed only (bench/bench_train.py). The evaluations during training are the same
     episodes in each run of a seed, so the learning curves agree too."""
@@ -1020,7 +1024,7 @@ def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_pro
     found = {}
     for vec_env in ("dummy", "subproc"):
         run = tmp_path / vec_env
-        proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--vec-env", vec_env, "--seed", "4",
+        proc = sg_in(capfd, "train", "--hyperparams", str(hp), "--run-dir", str(run), "--vec-env", vec_env, "--seed", "4",
                   "--eval-freq", "256", "--eval-episodes", "2", "--no-progress", "--no-tensorboard",
                   cwd=tmp_path)  # fmt: skip
         assert proc.returncode == 0, proc.stderr
@@ -1035,8 +1039,8 @@ def test_a_run_trains_the_same_network_with_its_envs_in_process_or_in_worker_pro
 
 
 @pytest.mark.slow
-def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_deploy(device: FakeDevice,
-                                                                                    tmp_path: Path) -> None:  # fmt: skip
+def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_deploy(
+        device: FakeDevice, tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """``integral: true``: train → evaluate → export → deploy through the command line; the bundle records it,
     deploy builds the 14-value observation (the integral in the last two, summed while the ball is near the
     centre); a bundle with a malformed flag is refused before the port opens."""
@@ -1045,12 +1049,12 @@ def test_a_policy_that_observes_the_error_integral_keeps_it_from_training_to_dep
                   "  env_kwargs: {estimator: kalman, integral: true}\n  n_steps: 64\n  batch_size: 32\n"
                   "  n_epochs: 1\n  policy_kwargs:\n    net_arch: [16, 16]\n")  # fmt: skip
     run, bundle = tmp_path / "run", tmp_path / "bundle"
-    proc = sg("train", "--hyperparams", str(hp), "--run-dir", str(run), "--eval-freq", "64", "--eval-episodes", "1",
-              "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    proc = sg_in(capfd, "train", "--hyperparams", str(hp), "--run-dir", str(run), "--eval-freq", "64",
+                 "--eval-episodes", "1", "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    proc = sg("evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
+    proc = sg_in(capfd, "evaluate", "--policy", str(run), "--episodes", "1", "--json", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    proc = sg("export", "--policy", str(run), "--out", str(bundle), cwd=tmp_path)
+    proc = sg_in(capfd, "export", "--policy", str(run), "--out", str(bundle), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((bundle / "bundle.json").read_text())
     assert meta["integral"] is True and meta["obs_size"] == 14 and meta["estimator"] == "kalman"

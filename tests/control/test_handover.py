@@ -4,8 +4,6 @@ pushes), its design as shipped, and its bundle."""
 
 import json
 import math
-import subprocess
-import sys
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -13,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from conftest import lqr_obs
+from conftest import lqr_obs, sg_in
 
 from stewart_gym.control import LQRController
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
@@ -296,7 +294,7 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
 
 
 @pytest.mark.slow
-def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: Path) -> None:
+def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """10 randomised seeds: all succeed, the ball ends within 3 mm, settles from 100 mm in under 0.75 s (the
     LQR's pace); the exported bundle (CLI) gives the same actions through hand-overs and records the Kalman
     observer."""
@@ -307,8 +305,7 @@ def test_the_handover_settles_like_the_lqr_and_its_bundle_acts_as_it(tmp_path: P
     assert metrics["success_rate"] == 1.0 and metrics["final_error_mm"] < 3.0, metrics
     assert metrics["settled_fraction"] == 1.0 and metrics["settling_time_s"] < 0.75, metrics
     out = tmp_path / "lqr_pid"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "lqr-pid", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", "lqr-pid", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     meta = json.loads((out / "bundle.json").read_text())
     assert meta["kind"] == "handover" and meta["estimator"] == "kalman" and meta["gains"]["handover_mm"] == 2.0

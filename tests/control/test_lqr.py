@@ -3,13 +3,11 @@ control of the simulated ball, a moving target included."""
 
 
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ball_presets, circle_velocities, lqr_obs
+from conftest import ball_presets, circle_velocities, lqr_obs, sg_in
 
 from stewart_gym.control import LQRController, LQRDesign, design_lqr, lqr_model
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
@@ -37,7 +35,7 @@ def test_the_lqr_balances_the_randomised_ball() -> None:
 
 
 def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_the_waypoints_as_they_were(
-        tmp_path: Path) -> None:  # fmt: skip
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """The shipped LQR (``feed_lead`` 0.08 s) against the same gains without the lead, on the same observations
     along a circle: the same commands until the target's path has held steady for 1.5 s, then commands that
     differ by the lead's part of the feed times the gains that act on it (command = feed − k·(…, a − feed,
@@ -81,8 +79,7 @@ def test_the_shipped_lqrs_lead_adds_the_led_feed_through_its_gains_and_leaves_th
         rms[name] = metrics["per_episode"]["rms_mm"]
     assert rms["led"] == rms["unled"]
     out = tmp_path / "bundle"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "lqr", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", "lqr", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("lqr")
     for v in vel:

@@ -5,8 +5,6 @@ dither."""
 import json
 import math
 import shutil
-import subprocess
-import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -14,7 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
-from conftest import circle_velocities, lqr_obs
+from conftest import circle_velocities, lqr_obs, sg_in
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -125,7 +123,8 @@ def test_a_feed_row_started_anew_waits_for_its_own_steady_path_and_rows_match_si
 
 
 @pytest.mark.slow
-def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_line(tmp_path: Path) -> None:
+def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_line(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """A residual's base design with a dither of half the build's max tilt or more is refused with one ``error:``
     line: in a run folder's config.yaml (evaluate, export) and in a hyperparameters file (train, before the run
     folder is made)."""
@@ -141,8 +140,7 @@ def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_li
     for args in (["evaluate", "--policy", str(run), "--episodes", "1"],
                  ["export", "--policy", str(run), "--out", str(tmp_path / "bundle")],
                  ["train", "--hyperparams", str(hyperparams), "--run-dir", str(tmp_path / "new"), "--no-progress"]):
-        proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
-                              timeout=300, cwd=tmp_path)  # fmt: skip
+        proc = sg_in(capfd, *args, cwd=tmp_path)
         assert proc.returncode != 0 and proc.stderr.startswith("error: "), (args[0], proc.stderr[-2000:])
         assert "less than half the build's max tilt" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, \
             (args[0], proc.stderr)  # fmt: skip
@@ -150,7 +148,8 @@ def test_a_residual_whose_base_has_too_much_dither_for_the_build_is_one_error_li
 
 
 @pytest.mark.parametrize("name", ["pid-kalman", "lqr", "lqr-pid"])
-def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(name: str, tmp_path: Path) -> None:
+def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(
+        name: str, tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """A design with ``dither`` gives, on the same observations, the undithered actions ± dither / max_tilt,
     the sign alternating every period (from + after a reset); a copy of the design file with dither exported
     through the CLI acts the same step by step; a negative dither is refused."""
@@ -177,8 +176,7 @@ def test_dither_adds_an_alternating_square_wave_and_its_bundle_carries_it(name: 
     path = tmp_path / "mine.json"
     path.write_text(json.dumps(dithered))
     out = tmp_path / "bundle"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(path), "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", str(path), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy(str(path))
     for obs in observations:

@@ -4,13 +4,11 @@ PID retuned behind the Kalman observer."""
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import circle_velocities, lqr_obs
+from conftest import circle_velocities, lqr_obs, sg_in
 
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
 from stewart_gym.sensing import ObservationBuilder
@@ -50,7 +48,7 @@ def test_the_pid_feeds_the_targets_acceleration_forward_from_the_second_period_o
 
 @pytest.mark.slow
 def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoints_as_they_were(
-        tmp_path: Path) -> None:  # fmt: skip
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """The shipped PID + Kalman (``feed_lead`` 0.06 s) against the same gains without the lead (2 seeds each):
     on the figure-8 at least 10 % closer over both episodes (about 25 % here), the same waypoint episodes to
     the last bit; its bundle, exported through
@@ -73,8 +71,7 @@ def test_the_shipped_pids_lead_follows_the_figure8_closer_and_leaves_the_waypoin
     assert np.mean(rms["figure8", "led"]) < 0.9 * np.mean(rms["figure8", "unled"])
     assert rms["waypoints", "led"] == rms["waypoints", "unled"]
     out = tmp_path / "bundle"
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", "pid-kalman", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", "pid-kalman", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     bundle, direct = deployable_policy(resolve_policy(str(out))), load_policy("pid-kalman")
 

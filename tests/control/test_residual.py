@@ -5,8 +5,6 @@ in bundles, and the base a run records."""
 import json
 import math
 import shutil
-import subprocess
-import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -14,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import yaml
+from conftest import sg_in
 
 from stewart_gym.control import shipped_design
 from stewart_gym.registry import deployable_policy, load_policy, resolve_policy
@@ -24,7 +23,8 @@ SHIPPED_RESIDUAL_RUN = Path(__file__).resolve().parents[2] / "stewart_gym/polici
 
 
 @pytest.mark.slow
-def test_a_residual_policy_adds_its_correction_to_the_lqr_pid_in_evaluation_and_in_its_bundle(tmp_path: Path) -> None:
+def test_a_residual_policy_adds_its_correction_to_the_lqr_pid_in_evaluation_and_in_its_bundle(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """Train a residual PPO (the track settings) for a moment (CLI), then: the evaluated policy is
     clip(LQR → PID + 0.5 · w · network), with w = clip((distance − 2 mm) / 15 mm, 0, 1) and 0 from the first
     step within 2 mm until the ball is beyond 20 mm (the LQR → PID stepped alongside on the same observations),
@@ -38,8 +38,7 @@ def test_a_residual_policy_adds_its_correction_to_the_lqr_pid_in_evaluation_and_
                   "--timesteps", "1024", "--n-envs", "1",
                   "--eval-freq", "1024", "--eval-episodes", "1", "--no-progress", "--no-tensorboard"],
                  ["export", "--policy", str(run), "--out", str(bundle_dir)]):  # fmt: skip
-        proc = subprocess.run([sys.executable, "-m", "stewart_gym", *args], capture_output=True, text=True,
-                              timeout=300)  # fmt: skip
+        proc = sg_in(capfd, *args)
         assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((bundle_dir / "bundle.json").read_text())
     assert meta["estimator"] == "kalman" and meta["residual"]["scale"] == 0.5 and meta["residual"]["fade_mm"] == 15
@@ -91,7 +90,7 @@ def test_the_shipped_balance_residual_is_the_lqr_pid_near_the_target_and_its_bun
 
 
 @pytest.mark.slow
-def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Path) -> None:
+def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     """A run folder's residual adds to the base gains its config.yaml recorded, not to whatever the package ships
     now (a later retune of the shipped PID must not change a trained policy); its bundle records the same."""
     from dataclasses import replace
@@ -109,8 +108,7 @@ def test_a_trained_residual_keeps_the_base_design_its_run_recorded(tmp_path: Pat
     (run / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     assert load_policy(str(run)).base.gains.pid.kp_pos == 1.25
     assert load_policy("shipped-residual").base.gains.pid.kp_pos == shipped_design("lqr-pid").pid.kp_pos != 1.25
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
-                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", str(run), "--out", str(tmp_path / "bundle"))
     assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
     assert meta["residual"]["base"]["gains"]["pid"]["kp_pos"] == 1.25
@@ -191,7 +189,8 @@ def test_the_latch_dwell_closes_the_latch_after_that_long_within_the_release_dis
 
 
 @pytest.mark.slow
-def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the_latch_dwell(tmp_path: Path) -> None:
+def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the_latch_dwell(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """A track network trained over the LQR (``tests/data/circling_tracker``: network 5 of the track residual
     shipped until 2026-11-25), alone, keeps the ball circling 6–17 mm from the circle's target on seed 17 (its
     correction never lets the ball within 2 mm, so the latch never closes). Its run folder with
@@ -218,8 +217,7 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
         tails[label] = float(np.sqrt(np.mean(np.square(log.distance_mm[-250:]))))
         env.close()
     assert tails["alone"] > 5.0 and tails["dwell"] < 2.0, tails  # here 12.0 and 0.8 (10.4 and 0.8 with 1e-6 noise)
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
-                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", str(run), "--out", str(tmp_path / "bundle"))
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert json.loads((tmp_path / "bundle" / "bundle.json").read_text())["residual"]["dwell_s"] == 3.0
     policy, bundle = load_policy(str(run)), deployable_policy(resolve_policy(str(tmp_path / "bundle")))
@@ -235,7 +233,8 @@ def test_a_one_network_tracker_circling_short_of_the_target_is_brought_in_by_the
 
 
 @pytest.mark.slow
-def test_a_residual_run_at_another_control_rate_runs_its_base_and_latch_at_that_rate(tmp_path: Path) -> None:
+def test_a_residual_run_at_another_control_rate_runs_its_base_and_latch_at_that_rate(
+        tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """A residual run recorded at 25 Hz (control_hz in its env keywords): evaluation designs its LQR base for
     0.04 s and times its latch dwell in 0.04 s periods, as training did, and so does its exported bundle."""
     from stewart_gym.registry import POLICY_DIR
@@ -250,8 +249,7 @@ def test_a_residual_run_at_another_control_rate_runs_its_base_and_latch_at_that_
     assert source.env_kwargs["control_hz"] == 25
     policy = load_policy(source)
     assert policy.base.gains.dt == pytest.approx(0.04) and policy.mix.dt == pytest.approx(0.04)
-    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "export", "--policy", str(run), "--out",
-                           str(tmp_path / "bundle")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    proc = sg_in(capfd, "export", "--policy", str(run), "--out", str(tmp_path / "bundle"))
     assert proc.returncode == 0, proc.stderr[-2000:]
     meta = json.loads((tmp_path / "bundle" / "bundle.json").read_text())
     assert meta["control_hz"] == 25 and meta["residual"]["base"]["gains"]["dt"] == pytest.approx(0.04)

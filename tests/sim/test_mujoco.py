@@ -18,6 +18,7 @@ from conftest import (
     servo_step_response,
     settled_pose_errors,
     sg,
+    sg_in,
     xml_differences,
 )
 
@@ -61,13 +62,13 @@ def test_committed_mjcf_matches_generator_and_loads_from_file() -> None:
     assert model.nbody == 1 + 12 + 2  # world, horns and rods, plate, ball
 
 
-def test_mjcf_command_writes_a_model_for_any_geometry(tmp_path: Path) -> None:
+def test_mjcf_command_writes_a_model_for_any_geometry(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
     out = tmp_path / "lin.xml"
-    proc = sg("mjcf", "--geometry", "senilov2018", "--out", str(out), timeout=120)
+    proc = sg_in(capfd, "mjcf", "--geometry", "senilov2018", "--out", str(out))
     assert proc.returncode == 0 and "mujoco.viewer" in proc.stdout, proc.stderr
     model = mujoco.MjModel.from_xml_path(str(out))
     assert model.nu == 6 and mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "ball") >= 0
-    bad = sg("mjcf", "--out", str(tmp_path / "m.txt"), timeout=120)
+    bad = sg_in(capfd, "mjcf", "--out", str(tmp_path / "m.txt"))
     errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]
     assert bad.returncode != 0 and len(errors) == 1 and ".xml" in errors[0], bad.stderr
 
@@ -235,7 +236,7 @@ def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -
     except ConfigError:
         can_render = False
     gif = tmp_path / "m.gif"
-    proc = sg("evaluate", "--backend", "mujoco", "--episodes", "1", "--gif", str(gif), timeout=300)
+    proc = sg("evaluate", "--backend", "mujoco", "--episodes", "1", "--gif", str(gif), timeout=300)  # a GL crash: its own
     if can_render:
         assert proc.returncode == 0 and gif.stat().st_size > 1000, proc.stderr
     else:
@@ -245,14 +246,15 @@ def test_a_mujoco_gif_renders_or_is_refused_before_any_episode(tmp_path: Path) -
 
 
 @pytest.mark.slow
-def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, device: FakeDevice) -> None:
+def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, device: FakeDevice,
+                                                          capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """Through the CLI: a shipped policy evaluated in MuJoCo, a short run trained in MuJoCo with a camera (its config
     records both, and ``evaluate`` runs it in that engine with that sensor unless told otherwise), and ``deploy
     --sensor sim --backend mujoco`` on a fake Maestro."""
     import json
 
     def sg_here(*args: str) -> subprocess.CompletedProcess:
-        return sg(*args, cwd=tmp_path)
+        return sg_in(capfd, *args, cwd=tmp_path)
 
     ev = sg_here("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
     assert ev.returncode == 0, ev.stderr
@@ -272,8 +274,8 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
         got = json.loads(ev.stdout.strip().splitlines()[-1])
         assert (got["backend"], got["sensor"]) == world and got["episodes"] == 1
     drain = Board(device)
-    dep = sg_here("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
-                  "--log", str(tmp_path / "d.csv"))  # fmt: skip
+    dep = sg("deploy", "--policy", "pid", "--backend", "mujoco", "--port", device.path, "--duration", "1",
+             "--log", str(tmp_path / "d.csv"), cwd=tmp_path)  # fmt: skip
     data = drain.stop()
     assert dep.returncode == 0, dep.stdout + dep.stderr
     assert "simulated ball" in dep.stdout and len(data) >= 24 * 40  # ~50 Maestro frames of 6 × 4 bytes in 1 s
