@@ -150,6 +150,21 @@ def local_sweep(tmp_path: Path, **entries: object) -> tuple[Path, str, list[dict
 
 
 @pytest.mark.slow
+def test_a_local_rays_trials_run_at_the_sweeps_priority_unless_the_user_sets_another() -> None:
+    """Ray's workers run at nice 15 by default, where any busy process starves them; the Ray a sweep starts runs
+    them at the sweep's own priority, and at the one ``RAY_worker_niceness`` names when the user sets it."""
+    code = ("import os, ray\nfrom stewart_gym.sweep import connect\n"
+            "nice = ray.remote(lambda: os.nice(0))\n"
+            "connect(None)\nprint(os.nice(0), ray.get(nice.remote()))\nray.shutdown()\n"
+            "os.environ['RAY_worker_niceness'] = '7'\nconnect(None)\nprint(ray.get(nice.remote()))\n")  # fmt: skip
+    env = {k: v for k, v in os.environ.items() if k != "RAY_worker_niceness"}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    own, worker, chosen = map(int, proc.stdout.split()[-3:])
+    assert worker == own and chosen == 7
+
+
+@pytest.mark.slow
 def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> None:
     """Two trials on a local Ray: one finishes, one's env refuses its max_tilt; the sweep ends normally, the
     table says which failed and why, and the finished trial's bundle is exported and deploys."""
