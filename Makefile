@@ -32,15 +32,17 @@ $(DEMO_STAMP): pyproject.toml constraints.txt
 demo: $(DEMO_STAMP)
 	$(PY) -m stewart_gym demo
 
-# The suite on two worker processes (pytest-xdist; the Ray sweeps share one worker, so no two clusters start at
-# once): about 13 minutes on 2 quiet cores. `$(PY) -m pytest` alone runs it in one process.
+# The suite on three worker processes (pytest-xdist; the Ray sweeps share one worker, so no two clusters start
+# at once). Three on 2 cores, because many tests wait on real time (a serial link, a board's timeouts, another
+# process) and the third keeps the cores busy meanwhile: about 10 minutes on 2 quiet cores (tests page).
+# `$(PY) -m pytest` alone runs it in one process.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n 3 --dist loadgroup
 
 # Every module's fast tests (those not marked slow: training runs, Ray sweeps, long evaluations, the fresh-venv
-# install, the 1,000,000-action fuzz), on two worker processes: a few minutes, for the edit-test loop.
+# install, the 1,000,000-action fuzz), on three worker processes: a few minutes, for the edit-test loop.
 test-fast: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadgroup -m "not slow"
+	$(PY) -m pytest -q -n 3 --dist loadgroup -m "not slow"
 
 bench: $(STAMP)
 	$(PY) bench/bench_kinematics.py

@@ -9,6 +9,7 @@ no torch, no Stable-Baselines3, no PyBullet, no Gymnasium. Slow (it builds a ven
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -166,8 +167,12 @@ def test_demo_only_install_runs_the_demo_without_torch(tmp_path: Path, dist: Pat
     demo = subprocess.run([str(venv / "bin" / "stewart-gym"), "demo", "--episodes", "2", "--out", "out"],
                           capture_output=True, text=True, cwd=tmp_path, env=env, timeout=600)  # fmt: skip
     assert demo.returncode == 0 and "Traceback" not in demo.stderr, demo.stdout[-2000:] + demo.stderr[-2000:]
+    # said once, although the policies are evaluated in worker processes
     assert demo.stderr.count("run as their ONNX bundles") == 1, demo.stderr
-    assert (tmp_path / "out" / "demo_metrics.json").exists() and (tmp_path / "out" / "demo_pulses.png").exists()
+    metrics = json.loads((tmp_path / "out" / "demo_metrics.json").read_text())
+    assert list(metrics) == ["shipped-residual", "shipped", "pid-kalman", "lqr"]
+    assert all(m["success_rate"] == 1.0 for m in metrics.values()), metrics
+    assert (tmp_path / "out" / "demo.gif").stat().st_size > 10_000 and (tmp_path / "out" / "demo_pulses.png").exists()
 
     check = ("import gymnasium as gym, stewart_gym\n"
              "from gymnasium.utils.env_checker import check_env\n"

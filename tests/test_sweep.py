@@ -196,11 +196,12 @@ def test_a_local_sweep_on_the_batched_backend_runs_a_trial_per_cpu(tmp_path: Pat
 
 
 @pytest.mark.slow
-def test_a_sweep_runs_on_a_two_node_cluster_with_address(tmp_path: Path) -> None:
+def test_a_sweep_runs_on_a_two_node_cluster_with_address(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A head and a worker node (1 CPU each) on this machine; the sweep joins with --address, and its 4 trials
     run on both nodes (each takes 1 CPU: n_envs 1), all results come back, and the best bundle deploys."""
     from ray.cluster_utils import Cluster
 
+    monkeypatch.setenv("RAY_worker_niceness", "0")  # the nodes' workers at the tests' priority, as a local sweep's
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "object_store_memory": 80 * 1024**2})
     try:
         cluster.add_node(num_cpus=1, object_store_memory=80 * 1024**2)

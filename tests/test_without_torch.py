@@ -1,6 +1,7 @@
 """``make demo`` installs the ``demo`` extra only, without torch and Stable-Baselines3: the shipped learned policies
 run as their ONNX bundles there (said once), with the figures of the trained networks. Torch is blocked from
-import here by packages of those names that refuse to load, as in a venv that lacks them."""
+import here by packages of those names that refuse to load, as in a venv that lacks them. ``demo`` itself runs
+in such a venv in ``tests/test_install.py``."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import sg_in
 
 NOTE = "note: torch is not installed here: the shipped learned policies run as their ONNX bundles"
 
@@ -32,10 +34,10 @@ def run(args: list[str], env: dict[str, str] | None = None, cwd: Path | None = N
 
 
 @pytest.mark.parametrize("policy", ["shipped", "shipped-residual"])
-def test_evaluate_runs_a_shipped_policy_as_its_bundle_with_the_networks_figures(blocked: dict[str, str],
-                                                                              policy: str) -> None:  # fmt: skip
+def test_evaluate_runs_a_shipped_policy_as_its_bundle_with_the_networks_figures(
+        blocked: dict[str, str], policy: str, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     args = ["evaluate", "--policy", policy, "--episodes", "2", "--json"]
-    bundle, network = run(args, env=blocked), run(args)
+    bundle, network = run(args, env=blocked), sg_in(capfd, *args)  # the network: here, where torch is
     assert bundle.returncode == 0 and network.returncode == 0, bundle.stderr + network.stderr
     assert bundle.stderr.count(NOTE) == 1 and NOTE not in network.stderr, bundle.stderr
     got, ref = json.loads(bundle.stdout), json.loads(network.stdout)
@@ -53,16 +55,3 @@ def test_a_trained_model_without_torch_is_one_line_naming_the_extra(blocked: dic
     proc = run(["evaluate", "--policy", str(run_dir), "--episodes", "1"], env=blocked)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("error: ") and "stewart_gym[train]" in proc.stderr
-
-
-@pytest.mark.slow
-def test_demo_runs_without_torch(blocked: dict[str, str], tmp_path: Path) -> None:
-    """``stewart-gym demo`` on the demo extra's install: its table, plot and GIF, the note said once although
-    the policies are evaluated in worker processes."""
-    demo = run(["demo", "--episodes", "2", "--out", str(tmp_path / "demo")], env=blocked, cwd=tmp_path)
-    assert demo.returncode == 0 and "Traceback" not in demo.stderr, demo.stderr
-    assert demo.stderr.count(NOTE) == 1, demo.stderr
-    metrics = json.loads((tmp_path / "demo" / "demo_metrics.json").read_text())
-    assert list(metrics) == ["shipped-residual", "shipped", "pid-kalman", "lqr"]
-    assert all(m["success_rate"] == 1.0 for m in metrics.values())
-    assert (tmp_path / "demo" / "demo.gif").stat().st_size > 10_000 and (tmp_path / "demo" / "demo_pulses.png").exists()

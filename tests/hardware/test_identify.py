@@ -19,7 +19,7 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sysid import DEADBAND_GRID, read_log
-from tests.conftest import cli
+from tests.conftest import cli, sg_in
 from tests.hardware.test_virtual_device import Board
 
 SLOW_TWIN = """[servos]
@@ -180,7 +180,7 @@ def test_identify_with_a_stalled_panel_holds_home_and_fails(tmp_path):
 
 
 @pytest.mark.slow
-def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
+def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     """identify --sensor camera through the virtual board's camera stream: the plate moves in height and yaw and
     in large tilt triplets, the log holds the plate pose of each frame, every pulse stays within the channel
     limits and the servos go home; sysid on the log fits each servo's trim, each within four of its stated sigmas
@@ -211,8 +211,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path):
     assert np.mean(tilt > 0.06) > 0.4  # the triplets: large tilts much of the time (without them, about 0.3)
     plate = read_log(log).plate
     assert plate is not None and len(plate.frame_t) > 750
-    fit = subprocess.run([sys.executable, "-m", "stewart_gym", "sysid", str(log), "--out", str(tmp_path / "fit.toml"),
-                          "--json"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    fit = sg_in(capfd, "sysid", str(log), "--out", str(tmp_path / "fit.toml"), "--json")
     assert fit.returncode == 0, fit.stderr
     got = json.loads(fit.stdout)
     fitted = np.array(got["twin"]["servos"]["trim_us"])
