@@ -367,8 +367,8 @@ def connect(address: str | None) -> dict[str, Any]:
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     if address is None:  # "local": a Ray of its own, even where another runs here (ray start, another sweep)
-        # Ray runs its workers at nice 15; the trials are this command's work, and beside anything else busy on the
-        # machine they starved (a 25 s sweep took 8 minutes beside two busy processes on 2 cores, 38 s at nice 0)
+        # Ray runs its workers at nice 15, where any busy process on the machine starves them; the trials are this
+        # command's work (docs: Sweeps)
         os.environ.setdefault("RAY_worker_niceness", "0")
         ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False,
                  object_store_memory=200 * 1024**2, log_to_driver=False, configure_logging=False)  # fmt: skip
