@@ -253,23 +253,23 @@ def test_evaluate_train_and_deploy_take_the_mujoco_backend(tmp_path: Path, devic
     --sensor sim --backend mujoco`` on a fake Maestro."""
     import json
 
-    def sg_here(*args: str) -> subprocess.CompletedProcess:
+    def cli_here(*args: str) -> subprocess.CompletedProcess:
         return sg_in(capfd, *args, cwd=tmp_path)
 
-    ev = sg_here("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
+    ev = cli_here("evaluate", "--backend", "mujoco", "--episodes", "2", "--json")
     assert ev.returncode == 0, ev.stderr
     assert json.loads(ev.stdout.strip().splitlines()[-1])["success_rate"] == 1.0
     hp = tmp_path / "hp.yml"
     hp.write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_timesteps: 64\n  normalize: true\n  policy: MlpPolicy\n"
                   "  n_steps: 32\n  batch_size: 16\n  n_epochs: 1\n  policy_kwargs:\n    net_arch: [8]\n")  # fmt: skip
-    run = sg_here("train", "--backend", "mujoco", "--sensor", "webcam30", "--hyperparams", str(hp), "--run-dir",
+    run = cli_here("train", "--backend", "mujoco", "--sensor", "webcam30", "--hyperparams", str(hp), "--run-dir",
                   str(tmp_path / "run"), "--eval-freq", "32", "--eval-episodes", "1", "--no-progress",
                   "--no-tensorboard")  # fmt: skip
     assert run.returncode == 0, run.stderr
     assert "backend: mujoco" in (tmp_path / "run" / "config.yaml").read_text()
     for extra, world in (((), ("mujoco", "webcam30")), (("--backend", "pybullet", "--sensor", "panel"),
                                                          ("pybullet", "panel"))):  # fmt: skip
-        ev = sg_here("evaluate", "--policy", "run", "--episodes", "1", "--json", *extra)
+        ev = cli_here("evaluate", "--policy", "run", "--episodes", "1", "--json", *extra)
         assert ev.returncode == 0, ev.stderr
         got = json.loads(ev.stdout.strip().splitlines()[-1])
         assert (got["backend"], got["sensor"]) == world and got["episodes"] == 1
