@@ -152,7 +152,7 @@ def test_no_plate_is_said() -> None:
 
 
 # ------------------------------------------------------------- config and CLI
-# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
+# The tests that take it share an xdist group: on `make test`'s workers it is still made once.
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 3 s MJPG clip rendered from the simulator (the ball rolling on a gently rocking plate) and its config."""

@@ -21,7 +21,7 @@ from conftest import Board, FakeDevice
 ROOT = Path(__file__).resolve().parents[1]
 
 
-# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
+# The tests that take it share an xdist group: on `make test`'s workers it is still made once.
 @pytest.fixture(scope="module")
 def dist(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """``python -m build``: the wheel and the sdist, as a release would publish them."""

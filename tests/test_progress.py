@@ -58,6 +58,7 @@ def test_a_bad_progress_interval_is_one_error_line_before_any_work(value: str, m
 def test_the_progress_interval_comes_from_the_variable(monkeypatch: pytest.MonkeyPatch) -> None:
     from stewart_gym.progress import LINE_INTERVAL_S, line_interval_s
 
+    monkeypatch.delenv("STEWART_GYM_PROGRESS_S", raising=False)  # unset, even where the user's shell sets it
     assert line_interval_s() == LINE_INTERVAL_S
     monkeypatch.setenv("STEWART_GYM_PROGRESS_S", " 60 ")
     assert line_interval_s() == 60.0 and Progress(5, "steps", "train").interval_s == 60.0

@@ -17,7 +17,7 @@ import yaml
 
 ray = pytest.importorskip("ray", reason="the [cluster] extra (make test installs it)")
 
-#: `make test` runs the suite on two workers; every Ray cluster of this file starts on the same one.
+#: `make test` runs the suite on several workers; every Ray cluster of this file starts on the same one.
 pytestmark = pytest.mark.xdist_group("ray")
 
 from conftest import sg  # noqa: E402

@@ -52,7 +52,7 @@ def synthetic_log(path, twin: dict, seconds: float, seed: int = 0, dated_at_tick
     env.close()
 
 
-# The tests that take it share an xdist group: with `make test`'s two workers it is still made once.
+# The tests that take it share an xdist group: on `make test`'s workers it is still made once.
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     path = tmp_path_factory.mktemp("sysid") / "log.csv"
