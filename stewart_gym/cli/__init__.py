@@ -15,7 +15,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_signals
+from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_behind, stop_signals
 
 __all__ = ["build_parser", "main"]
 
@@ -45,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; its exit code. A stop signal at any moment (Ctrl-C, SIGTERM, SIGHUP), while the parser and
     the commands' modules load too, is one ``error:`` line and exit code 128 + its number."""
+    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     with stop_signals():
         try:
             args, unknown = build_parser().parse_known_args(argv)
@@ -52,9 +53,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
             return run(args.func, args)
         except KeyboardInterrupt as exc:
-            if "--debug" in (sys.argv[1:] if argv is None else argv):
+            if debug:
                 raise
             return interrupted(exc)
+        except ImportError as exc:  # a stop inside a C extension's import (scipy's, while the parser loads)
+            stop = stop_behind(exc)
+            if stop is None or debug:
+                raise
+            return interrupted(stop)
 
 
 if __name__ == "__main__":

@@ -652,6 +652,39 @@ def test_a_stop_that_a_library_wraps_is_still_a_stop(signum: int, how: str, caps
     assert err.startswith("error: stopped by") and len(err.splitlines()) == 1, err
 
 
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_inside_an_import_while_the_parser_loads_is_one_line(signum: int, monkeypatch: pytest.MonkeyPatch,
+                                                                   capsys: pytest.CaptureFixture) -> None:  # fmt: skip
+    """Ctrl-C while the commands' modules load (before any command runs) can land in a C extension's
+    initialisation (scipy's), which reports ``ImportError: initialization failed`` with the stop behind it:
+    one ``error: stopped by …`` line and 128 + the signal's number. Here the import system raises it, as the
+    C extension does; the command line is the real one."""
+    import importlib.abc
+    import sys
+
+    import stewart_gym.cli.analysis  # noqa: F401 (loaded, so that it can be taken away)
+    from stewart_gym import cli
+    from stewart_gym.errors import Stopped
+
+    class InterruptedExtension(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path, target=None):  # noqa: ANN001, ANN201
+            if name != "stewart_gym.cli.analysis":
+                return None
+            try:
+                raise Stopped(signum, signal.Signals(signum).name) if signum != signal.SIGINT else KeyboardInterrupt
+            except KeyboardInterrupt as stop:
+                raise ImportError("initialization failed") from stop
+
+    monkeypatch.delitem(sys.modules, "stewart_gym.cli.analysis")
+    monkeypatch.delattr(cli, "analysis")
+    monkeypatch.setattr(sys, "meta_path", [InterruptedExtension(), *sys.meta_path])
+    assert cli.main(["ik", "0", "0", "0", "0", "0", "0"]) == 128 + signum
+    err = capsys.readouterr().err
+    assert err.startswith("error: stopped by") and len(err.splitlines()) == 1, err
+    with pytest.raises(ImportError):  # --debug keeps the traceback
+        cli.main(["--debug", "ik", "0", "0", "0", "0", "0", "0"])
+
+
 def test_an_error_with_no_stop_behind_it_is_still_a_bug(capsys: pytest.CaptureFixture) -> None:
     import argparse
 
