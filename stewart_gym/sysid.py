@@ -618,19 +618,25 @@ def _finer_servos(si: int, di: int) -> list[ServoSpec]:
 def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
              start: Twin, lat: float, accel: np.ndarray, fitted: ServoSpec, overhead: float) -> None:  # fmt: skip
     """Held-out prediction errors of the nominal twin (``start``) and the fitted one (``lat``: its latency as the
-    logs date the readings; ``overhead``: what the logs' dates add to a twin's latency)."""
+    logs date the readings; ``overhead``: what the logs' dates add to a twin's latency).
+
+    Each twin finds the ball's start from the past readings alone, in two passes as the fit does: first from rest
+    at the first reading, then from the position and velocity that the past readings give. The second pass
+    matters where the plate turns about its normal (identify's yaw moves with a camera): the ball's path then
+    depends on its own velocity (the Coriolis term), which a correction added afterwards does not carry."""
     rate = logs[0].rate_hz
     dt = 1.0 / rate
     nominal_servo = _servo(start["servos.speed_scale"], start["servos.deadband_us"])
     nominal_lat = start.total_latency_ms / 1e3 + overhead
-    path = _simulate(geo, cal, logs, windows, [nominal_servo, fitted])
     margin = max(LATENCY_GRID)
     u, xy, mask = _readings(logs, windows, margin, margin + PAST_S + max(HORIZONS_S))
     past = mask * (u <= margin + PAST_S)
     errors: dict[float, dict[str, list[float]]] = {h: {"nominal": [], "fitted": []} for h in HORIZONS_S}
     paths: dict[str, list[np.ndarray]] = {"nominal": [], "fitted": []}
-    for ci, (name, lt, acc) in enumerate((("nominal", nominal_lat, np.zeros(2)), ("fitted", lat, accel))):
-        pred = _at(path[:, ci:ci + 1], u - lt, dt)[:, 0] + 0.5 * acc * ((u - margin) ** 2)[:, :, None]
+    for name, servo, lt, acc in (("nominal", nominal_servo, nominal_lat, np.zeros(2)), ("fitted", fitted, lat, accel)):
+        path = _simulate(geo, cal, logs, windows, [servo])
+        path = _simulate(geo, cal, logs, windows, [servo], _start_states(path[:, 0], u, xy, past, dt, lt, acc))
+        pred = _at(path, u - lt, dt)[:, 0] + 0.5 * acc * (u**2)[:, :, None]
         r = xy - pred
         for w in range(len(windows)):  # the ball's start from the past readings only: position and velocity
             sel = past[w] > 0

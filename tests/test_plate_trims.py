@@ -14,7 +14,7 @@ from stewart_gym.actions import ActionMapper
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS
-from stewart_gym.hardware.identify import PLATE_MOVES, Excitation
+from stewart_gym.hardware.identify import PLATE_MOVES, PLATE_RAMP_S, Excitation
 from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, fit_trims, rotation_from_vector
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim import BatchedSim, ServoSpec
@@ -201,8 +201,16 @@ def test_the_excitation_moves_the_plate_within_reach() -> None:
     lift, turn = PLATE_MOVES["z"] * scale[2], PLATE_MOVES["yaw"] * scale[5]
     assert np.all(np.abs(o[:, 2]) <= lift + 1e-12) and np.all(np.abs(o[:, 5]) <= turn + 1e-12)
     assert np.ptp(o[:, 2]) > 0.8 * lift and np.ptp(o[:, 5]) > 0.8 * turn
-    changes = np.flatnonzero(np.any(np.diff(o, axis=0) != 0, axis=1))
-    assert 4 <= len(changes) <= 11 and np.min(np.diff(changes)) >= 49  # a level held 1–2 s at 50 Hz
+    # from one level to the next along a half cosine over PLATE_RAMP_S (no step: the ball would hop and slip),
+    # then held; a move starts every 1–2 s at 50 Hz
+    ramp = int(round(PLATE_RAMP_S * 50))
+    step = np.abs(np.diff(o[:, [2, 5]], axis=0))
+    assert np.all(step <= np.pi / 2 * 2 * np.array([lift, turn]) / ramp + 1e-12)
+    moving = np.r_[True, np.any(step > 0, axis=1)]  # the first tick moves from home
+    starts = np.flatnonzero(moving & ~np.r_[False, moving[:-1]])
+    ends = np.flatnonzero(moving & ~np.r_[moving[1:], False])
+    assert np.all(ends - starts + 1 <= ramp) and np.max(ends - starts + 1) >= ramp - 1
+    assert 4 <= len(starts) <= 11 and np.min(np.diff(starts)) >= 49
     assert np.all(o[:, [0, 1, 3, 4]] == 0.0)
     still = Excitation(Still(), seed=6)
     still.move_plate(mapper)

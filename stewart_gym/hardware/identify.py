@@ -10,7 +10,10 @@ as it was. The controller keeps the ball on the plate while the steps make it ro
 With a camera (:meth:`Excitation.move_plate`), the plate also moves in height and yaw: a level of each, drawn
 uniformly within ``± PLATE_MOVES`` of the pose action's range, held for 1–2 s, through the mapper's pose offset
 (:meth:`~stewart_gym.actions.ActionMapper.set_offset`). Height and yaw change how each servo's angle moves the
-plate, which is what separates each servo's trim from the camera's unknown pose in ``sysid``. The tilt is then
+plate, which is what separates each servo's trim from the camera's unknown pose in ``sysid``. The plate goes from
+one level to the next along a half cosine over ``PLATE_RAMP_S``: a step would drop the plate faster than the
+ball falls and turn it faster than friction turns the ball, so that the ball hops and slips, which neither a
+real build's log nor ``sysid``'s rolling-ball model should hold. The tilt is then
 kept within what the platform reaches at every such offset, so that no tick's pose is out of reach. Half the
 tilt levels become triplets: a large tilt (60–100 % of that reach) one way for 0.10–0.16 s, the other way for
 twice as long, then the first way again. A triplet leaves the ball where it was and as fast, and large tilts are
@@ -30,7 +33,7 @@ import numpy as np
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "PLATE_MOVES", "PLATE_TRIPLETS", "Excitation"]
+__all__ = ["IDENTIFY_MAX_STEP_US_PER_S", "PLATE_MOVES", "PLATE_RAMP_S", "PLATE_TRIPLETS", "Excitation"]
 
 #: ``identify``'s default rate limit, µs/s per channel: a step may move a servo as fast as about 3× the reference
 #: servos' speed, so that the log shows how fast the servos really are (a limit under their speed would hide it).
@@ -39,6 +42,9 @@ IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
 #: (90 % of the platform's reach along the axis), and how long each level is held (s).
 PLATE_MOVES = {"z": 0.35, "yaw": 0.3}
 PLATE_HOLD_S = (1.0, 2.0)
+#: s: how long the plate takes from one height and yaw level to the next (a half cosine: on the reference build
+#: at most about 0.2 m/s² up or down, a fiftieth of gravity, and 6 rad/s² about the vertical).
+PLATE_RAMP_S = 0.5
 #: With a camera, this fraction of the tilt levels are triplets instead (see the module's description): their
 #: size as a fraction of the tilt reached at every height and yaw, and the time of their first part (s).
 PLATE_TRIPLETS = 0.5
@@ -79,7 +85,8 @@ class Excitation:
         self._queue: list[np.ndarray] = []  # the doublet's ticks still to come
         self.offset = np.zeros(2)
         self._mapper: Any = None  # with move_plate: the mapper whose pose offset moves the plate
-        self._plate_left = 0
+        self._plate_left = self._plate_hold = 0
+        self._plate_from = self._plate_to = np.zeros(2)  # (height, yaw) offsets: the level before and the next
         self._max_tilt_action = math.inf  # with move_plate: the longest tilt action reached at every offset
 
     def move_plate(self, mapper: Any) -> None:
@@ -153,9 +160,16 @@ class Excitation:
             self.offset = self._rng.uniform(-self.amplitude, self.amplitude, 2)
 
     def _next_plate_level(self) -> None:
-        self._plate_left = max(1, int(round(self._rng.uniform(*PLATE_HOLD_S) * self.rate_hz)))
+        self._plate_hold = self._plate_left = max(1, int(round(self._rng.uniform(*PLATE_HOLD_S) * self.rate_hz)))
         z, yaw = self._rng.uniform(-1.0, 1.0, 2)
-        self._mapper.set_offset([0.0, 0.0, z * self._lift, 0.0, 0.0, yaw * self._turn])
+        self._plate_from, self._plate_to = self._plate_to, np.array([z * self._lift, yaw * self._turn])
+
+    def _move_plate_on(self) -> None:
+        """This tick's height and yaw offset: along the half cosine from the last level to the next, then held."""
+        ramp = max(1, int(round(PLATE_RAMP_S * self.rate_hz)))
+        done = min((self._plate_hold - self._plate_left) / ramp, 1.0)
+        z, yaw = self._plate_from + (self._plate_to - self._plate_from) * 0.5 * (1.0 - math.cos(math.pi * done))
+        self._mapper.set_offset([0.0, 0.0, z, 0.0, 0.0, yaw])
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         if self._left <= 0:
@@ -165,6 +179,7 @@ class Excitation:
             if self._plate_left <= 0:
                 self._next_plate_level()
             self._plate_left -= 1
+            self._move_plate_on()
         action = np.asarray(self.policy(obs), dtype=np.float64)
         action = np.clip(action + (self._queue.pop(0) if self._queue else self.offset), -1.0, 1.0)
         size = float(np.hypot(*action))
