@@ -43,8 +43,10 @@ IDENTIFY_MAX_STEP_US_PER_S = 10_000.0
 PLATE_MOVES = {"z": 0.35, "yaw": 0.3}
 PLATE_HOLD_S = (1.0, 2.0)
 #: s: how long the plate takes from one height and yaw level to the next (a half cosine: on the reference build
-#: at most about 0.2 m/s² up or down, a fiftieth of gravity, and 6 rad/s² about the vertical).
-PLATE_RAMP_S = 0.5
+#: at most about 1.4 m/s² up or down, a seventh of gravity, and 38 rad/s² about the vertical, which a rolling
+#: ball 0.1 m out follows with under a third of the friction of a 0.6 plate). Slow servos stretch it: the plate
+#: shows their speed.
+PLATE_RAMP_S = 0.2
 #: With a camera, this fraction of the tilt levels are triplets instead (see the module's description): their
 #: size as a fraction of the tilt reached at every height and yaw, and the time of their first part (s).
 PLATE_TRIPLETS = 0.5
