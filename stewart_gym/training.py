@@ -47,7 +47,7 @@ from stewart_gym.inputs import read_yaml
 from stewart_gym.outputs import RUN_GEOMETRY_FILE, model_statistics, run_config
 from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
-from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator
+from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator, worker_start_method
 
 __all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
            "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
@@ -490,8 +490,9 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
     vec_cls = VEC_ENVS[vec_env] if n_envs > 1 else InProcessVecEnv
     full_id = env_id if ":" in env_id else f"stewart_gym:{env_id}"
     wrapper = {"wrapper_class": ResidualAction, "wrapper_kwargs": {"residual": residual}} if residual else {}
+    start = {"vec_env_kwargs": {"start_method": worker_start_method()}} if vec_cls is SubprocVecEnv else {}
     return make_vec_env(full_id, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs or {}, vec_env_cls=vec_cls,
-                        **wrapper)  # fmt: skip
+                        **wrapper, **start)  # fmt: skip
 
 
 class _EvalLog(BaseCallback):

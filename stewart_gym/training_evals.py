@@ -20,6 +20,7 @@ import multiprocessing.context
 import os
 import pickle
 import queue
+import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -28,10 +29,27 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize, sync_envs_normalization
 
-__all__ = ["BackgroundEvaluator", "Evaluation", "InProcessEvaluator", "play"]
+__all__ = ["BackgroundEvaluator", "Evaluation", "InProcessEvaluator", "play", "worker_start_method"]
 
 #: s between checks that the worker process is still alive while waiting for its results
 _POLL_S = 0.5
+#: bytes: the longest path a Unix socket may have (``sun_path``: 108 with its terminating NUL)
+_SOCKET_PATH_MAX = 107
+#: What a forkserver's socket adds to the temporary directory: ``/pymp-XXXXXXXX/listener-XXXXXXXX``.
+_FORKSERVER_SOCKET = len("/pymp-12345678/listener-12345678")
+
+
+def worker_start_method() -> str:
+    """How the worker processes of a training start (the evaluation worker, ``--vec-env subproc``'s envs):
+    ``"forkserver"`` where the platform has it, a warm server from which each worker starts in about 0.1 s; else
+    ``"spawn"``. The server listens on a Unix socket in the temporary directory (``$TMPDIR``), whose path may not
+    be longer than 107 bytes: under a longer temporary directory the workers are spawned instead, which start
+    more slowly but work."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():  # Windows
+        return "spawn"
+    if len(os.fsencode(tempfile.gettempdir())) + _FORKSERVER_SOCKET > _SOCKET_PATH_MAX:
+        return "spawn"
+    return "forkserver"
 
 
 @dataclass(frozen=True)
@@ -116,12 +134,10 @@ class BackgroundEvaluator:
         """Start the worker now, so that it is ready for the first snapshot (else :meth:`submit` starts it)."""
         if self._process is not None:
             return
-        context: multiprocessing.context.BaseContext
-        if "forkserver" in multiprocessing.get_all_start_methods():
-            context = multiprocessing.get_context("forkserver")
+        method = worker_start_method()
+        context: multiprocessing.context.BaseContext = multiprocessing.get_context(method)
+        if method == "forkserver":
             context.set_forkserver_preload(["stewart_gym.training"])  # a warm server: each worker starts in ~0.1 s
-        else:  # Windows
-            context = multiprocessing.get_context("spawn")
         self._tasks, self._answers = context.Queue(), context.Queue()
         self._process = context.Process(target=_serve, args=(*self._spec, self._tasks, self._answers, os.getpid()),
                                         daemon=True, name="stewart-gym evaluations")  # fmt: skip

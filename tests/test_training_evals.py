@@ -18,7 +18,7 @@ import torch
 from stable_baselines3 import PPO
 
 from stewart_gym.cli import main
-from stewart_gym.training_evals import BackgroundEvaluator
+from stewart_gym.training_evals import BackgroundEvaluator, worker_start_method
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -57,6 +57,21 @@ def _broken_env() -> None:
     raise ValueError("no such platform")
 
 
+def test_workers_are_spawned_where_the_temporary_directory_is_too_long_for_a_forkserver_socket(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A forkserver listens on a Unix socket in ``$TMPDIR`` (at most 107 bytes of path, ``pymp-…/listener-…``
+    taking 32): under a longer temporary directory the workers are spawned ("AF_UNIX path too long" otherwise),
+    under a short one they come from the forkserver."""
+    import tempfile
+
+    long = tmp_path / ("t" * max(1, 110 - len(str(tmp_path))))
+    long.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(long))
+    assert worker_start_method() == "spawn"
+    monkeypatch.setattr(tempfile, "tempdir", "/tmp")
+    assert worker_start_method() == "forkserver"
+
+
 def test_a_failing_worker_is_an_error_not_a_hang() -> None:
     evaluator = BackgroundEvaluator(_broken_env, PPO, 2)
     model = PPO("MlpPolicy", "Pendulum-v1", n_steps=64, device="cpu")
@@ -74,7 +89,7 @@ ORPHAN = """
 import functools, sys, time
 from stable_baselines3 import PPO
 from stewart_gym.training import evaluation_env
-from stewart_gym.training_evals import BackgroundEvaluator
+from stewart_gym.training_evals import BackgroundEvaluator, worker_start_method
 evaluator = BackgroundEvaluator(functools.partial(evaluation_env, "StewartBallBalance-v0", 2, 0, {"backend": "batched"}),
                                 PPO, 2)
 evaluator.start()
