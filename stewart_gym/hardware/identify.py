@@ -11,13 +11,12 @@ With a camera (:meth:`Excitation.move_plate`), the plate also moves in height an
 uniformly within ``± PLATE_MOVES`` of the pose action's range, held for 1–2 s, through the mapper's pose offset
 (:meth:`~stewart_gym.actions.ActionMapper.set_offset`). Height and yaw change how each servo's angle moves the
 plate, which is what separates each servo's trim from the camera's unknown pose in ``sysid``. The plate goes from
-one level to the next along a half cosine over ``PLATE_RAMP_S``. A step would drive all six servos at full speed
-at once, the moves where the batched model that ``sysid`` replays the log through is least exact: on such
-steps its plate strays up to about 1.4° from PyBullet's for a few ticks, against 0.45° on the glides. The tilt
-is then kept within what the platform reaches at every such offset, so that no tick's pose is out of reach. Half
-the tilt levels become triplets: a large tilt (60–100 % of that reach) one way for 0.10–0.16 s, the other way
-for twice as long, then the first way again. A triplet leaves the ball where it was and as fast, and large tilts
-are what pins each servo's trim down most.
+one level to the next along a half cosine over ``PLATE_RAMP_S``: a step would drive all six servos at full speed
+at once, the moves where the batched model that ``sysid`` replays the log through strays most from the
+platform. The tilt is then kept within what the platform reaches at every such offset, so that no tick's pose is
+out of reach. Half the tilt levels become triplets: a large tilt (60–100 % of that reach) one way for
+0.10–0.16 s, the other way for twice as long, then the first way again. A triplet leaves the ball where it was
+and as fast, and large tilts are what pins each servo's trim down most.
 
 The run itself is a deploy run
 (:class:`~stewart_gym.hardware.deploy_setup.DeploySetup`): the same safety layer, the same channel limits, the
