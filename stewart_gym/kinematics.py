@@ -29,6 +29,7 @@ from typing import Literal
 
 import numpy as np
 
+from stewart_gym.blas import OneBlasThread
 from stewart_gym.geometry import GeometryError, PlatformGeometry
 
 __all__ = [
@@ -53,24 +54,6 @@ _CHUNK = 8192
 #: wait for each other: 3.5× slower under two busy processes. So the batch runs with one BLAS thread, which
 #: computes every element alike (the same results to the last bit).
 _ONE_THREAD_FROM = 512
-
-
-class _OneBlasThread:
-    """numpy's BLAS limited to one thread for the duration of a ``with`` (threadpoolctl; its controller is made
-    once, at first use)."""
-
-    controller = None
-
-    def __enter__(self) -> None:
-        if _OneBlasThread.controller is None:
-            from threadpoolctl import ThreadpoolController
-
-            _OneBlasThread.controller = ThreadpoolController()
-        self._limit = _OneBlasThread.controller.limit(limits=1, user_api="blas")
-        self._limit.__enter__()
-
-    def __exit__(self, *exc: object) -> None:
-        self._limit.__exit__(*exc)
 
 
 class LegStatus(IntEnum):
@@ -448,7 +431,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
     alpha = np.empty((n, 6)) if k.rotary else None
     aug = np.zeros((min(n, _CHUNK), 3, 7))
     aug[:, :, 4:] = np.eye(3)
-    threads = _OneBlasThread() if n >= _ONE_THREAD_FROM else contextlib.nullcontext()
+    threads = OneBlasThread() if n >= _ONE_THREAD_FROM else contextlib.nullcontext()
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"), threads:
         for start in range(0, n, _CHUNK):
             sl = slice(start, start + _CHUNK)

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.blas import one_blas_thread
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
@@ -136,6 +137,7 @@ def _angles(geometry: PlatformGeometry, calibration: ServoCalibration, log: Plat
     return alpha, times
 
 
+@one_blas_thread  # its solves and replays are hot loops of matrix products (stewart_gym.blas)
 def fit_trims(geometry: PlatformGeometry, calibration: ServoCalibration, logs: Sequence[PlateLog],
               servos: ServoSpec | Sequence[ServoSpec], delay_s: float, plate_top: float) -> TrimFit:  # fmt: skip
     """Fit the trims from ``logs`` (see the module's description).

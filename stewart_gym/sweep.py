@@ -424,7 +424,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
             tuner = tune.Tuner(
                 trainable, param_space=space,
                 tune_config=tune.TuneConfig(search_alg=searcher, scheduler=scheduler, num_samples=samples,
-                                            max_concurrent_trials=spec.max_concurrent),
+                                            max_concurrent_trials=spec.max_concurrent,
+                                            reuse_actors=True),  # a worker that has imported torch trains the next
                 run_config=tune.RunConfig(name="ray", storage_path=str(out), verbose=1,
                                           failure_config=tune.FailureConfig(max_failures=0, fail_fast=False)),
             )  # fmt: skip

@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.blas import one_blas_thread
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS
@@ -458,6 +459,7 @@ def _trims_for(geometry: Any, calibration: ServoCalibration, accel: np.ndarray) 
     return -(mix[0] * shapes[0] + mix[1] * shapes[1])
 
 
+@one_blas_thread  # its solves and replays are hot loops of matrix products (stewart_gym.blas)
 def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibration: ServoCalibration | None = None,
              start: Twin | None = None, holdout: float = 0.3, seed: int = 0,
              on_progress: Any = None, marker_height: float = 0.0) -> FitResult:  # fmt: skip

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.blas import OneBlasThread
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.constants import GRAVITY
 from stewart_gym.kinematics import horn_tips, inverse_kinematics
@@ -329,15 +330,17 @@ class BatchedSim:
 
     # --------------------------------------------------------------- stepping
     def step(self) -> None:
-        """Advance one control period (``substeps`` physics steps)."""
-        self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
-        alphas = self._servo_steps()  # the servos, then the plate's path over the period: neither needs the ball
-        origin, rot = self._plate_frames(self._frames[1], alphas)
-        (o0, r0), (o1, r1) = self._frames
-        origins = np.concatenate([o0[None], o1[None], origin])  # frames k-1, k, then k+1 … k+substeps
-        rots = np.concatenate([r0[None], r1[None], rot])
-        self._roll(origins, rots)
-        self._frames = [(origins[-2], rots[-2]), (origins[-1], rots[-1])]
+        """Advance one control period (``substeps`` physics steps), on one BLAS thread (:mod:`stewart_gym.blas`:
+        the plate's matrix products gain nothing from a second one, which would only take another core)."""
+        with OneBlasThread():
+            self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
+            alphas = self._servo_steps()  # the servos, then the plate's path over the period: neither needs the ball
+            origin, rot = self._plate_frames(self._frames[1], alphas)
+            (o0, r0), (o1, r1) = self._frames
+            origins = np.concatenate([o0[None], o1[None], origin])  # frames k-1, k, then k+1 … k+substeps
+            rots = np.concatenate([r0[None], r1[None], rot])
+            self._roll(origins, rots)
+            self._frames = [(origins[-2], rots[-2]), (origins[-1], rots[-1])]
 
     def step_servos(self) -> np.ndarray:
         """Advance only the servos one control period, for a replay that needs their angles alone (the plate and
