@@ -48,7 +48,8 @@ class EpisodeLog:
     target_xy: list[np.ndarray] = field(default_factory=list)
     pulses: list[np.ndarray] = field(default_factory=list)
     tilt_deg: list[float] = field(default_factory=list)
-    frames: list[np.ndarray] = field(default_factory=list)
+    frames: list[np.ndarray] = field(default_factory=list)  # rendered every ``frame_every`` control steps
+    frame_every: int = 1
     success: bool = False
     fell: bool = False
     plate_half_mm: tuple[float, float] = (150.0, 150.0)  # the plate's half width and depth (its edges), mm
@@ -63,12 +64,17 @@ class EpisodeLog:
 
 
 def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = None,
-                frames: bool = False) -> EpisodeLog:  # fmt: skip
-    """Run one episode to its end; record what the metrics need."""
+                frame_every: int = 0) -> EpisodeLog:  # fmt: skip
+    """Run one episode to its end; record what the metrics need, and with ``frame_every`` k ≥ 1 a rendered frame
+    after every k-th step (rendering is most of an episode's cost: render only what a GIF keeps)."""
+    if isinstance(frame_every, bool) or not isinstance(frame_every, int) or frame_every < 0:
+        raise ValueError(f"frame_every: 0 (no frames) or a whole number of steps, got {frame_every!r}")
     obs, info = env.reset(seed=seed, options=options)
     unwrapped = env.unwrapped
-    log = EpisodeLog(dt=unwrapped.sim.dt, plate_half_mm=tuple(1e3 * float(h) for h in unwrapped.plate_half_extent))
+    log = EpisodeLog(dt=unwrapped.sim.dt, plate_half_mm=tuple(1e3 * float(h) for h in unwrapped.plate_half_extent),
+                     frame_every=max(frame_every, 1))  # fmt: skip
     start = np.array([True])
+    step = 0
     while True:
         action, _ = policy.predict(obs[None], None, start, True)
         start = np.array([False])
@@ -79,7 +85,8 @@ def run_episode(env: gym.Env, policy: Policy, seed: int, options: dict | None = 
         log.pulses.append(np.asarray(info["pulse_widths_us"], dtype=float))
         roll, pitch = info["commanded_tilt_rad"]
         log.tilt_deg.append(math.degrees(math.hypot(roll, pitch)))
-        if frames:
+        step += 1
+        if frame_every and step % frame_every == 0:
             log.frames.append(env.render())
         if terminated or truncated:
             log.success = bool(info["is_success"])
@@ -383,20 +390,20 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     plt.close(fig)
 
 
-def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, every: int = 2, dt: float | None = None,
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, dt: float | None = None,
               caption: str = "") -> None:  # fmt: skip
-    """Write every ``every``-th frame as an animated GIF at ``fps``; with ``dt`` (s between frames) each frame
-    shows its time, after ``caption`` (what the target is, for one)."""
+    """Write ``frames`` as an animated GIF at ``fps``; with ``dt`` (s between frames) each frame shows its time,
+    after ``caption`` (what the target is, for one)."""
     import imageio.v3 as iio
 
-    kept = frames[::every]
+    kept = frames
     if dt is not None:
         from PIL import Image, ImageDraw
 
         stamped = []
         for k, frame in enumerate(kept):
             image = Image.fromarray(np.ascontiguousarray(frame[..., :3]))
-            text = f"t = {k * every * dt:4.1f} s" + (f"   {caption}" if caption else "")
+            text = f"t = {(k + 1) * dt:4.1f} s" + (f"   {caption}" if caption else "")
             draw = ImageDraw.Draw(image)
             draw.rectangle((4, 4, 8 + 6 * len(text), 18), fill=(255, 255, 255))
             draw.text((6, 5), text, fill=(0, 0, 0))

@@ -33,6 +33,8 @@ WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
 #: Engines for training only: a policy trained in one is evaluated, by default, in the default engine (PyBullet),
 #: the reference it must hold up in; ``--backend batched`` still evaluates it there.
 TRAINING_BACKENDS = ("batched",)
+#: Frames per second of an episode's GIF: the episode is rendered at this rate, in real time.
+GIF_FPS = 25
 
 
 @dataclass(frozen=True)
@@ -235,12 +237,13 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
     env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
     try:
         opts = {"ball_position": (settling_offset(env), 0.0), "ball_velocity": (0.0, 0.0)}
-        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frames=bool(gif))
+        every = max(1, round(1.0 / (GIF_FPS * env.unwrapped.sim.dt))) if gif else 0  # the frames the GIF shows
+        log = run_episode(env, policy, seed, None if env.unwrapped.task.moving_target else opts, frame_every=every)
     finally:
         env.close()
     if gif:
         target = "target: the plate's centre" if not env.unwrapped.task.moving_target else "target: moving"
-        write_gif(log.frames, gif, dt=log.dt, caption=target)
+        write_gif(log.frames, gif, fps=GIF_FPS, dt=log.dt * log.frame_every, caption=target)
     if plot:
         plot_episode(log, plot, title)
 

@@ -323,6 +323,38 @@ def test_settled_servo_activity_is_reported() -> None:
     assert 0 < m["settled_pulse_rate_us_per_s"] < 5000 and 0 < m["settled_pulse_p2p_us"] < 400
 
 
+def test_an_episode_renders_only_the_frames_asked_for() -> None:
+    """``run_episode(frame_every=k)``: a frame after every k-th step, each one rendered then (the plate moves
+    between them); none without; a bad k is refused before the episode."""
+    import gymnasium as gym
+
+    from stewart_gym.evaluation import run_episode
+    from stewart_gym.registry import load_for_evaluation
+
+    _, pid, kwargs = load_for_evaluation("pid", "StewartBallBalance-v0", None)
+    env = gym.make("StewartBallBalance-v0", render_mode="rgb_array", episode_s=0.5, **kwargs)
+    rendered = []
+    render = env.render
+
+    def counted():
+        rendered.append(len(rendered))
+        return render()
+
+    env.render = counted
+    try:
+        start = {"ball_position": (0.08, 0.0), "ball_velocity": (0.0, 0.0)}
+        log = run_episode(env, pid, 3, start, frame_every=5)
+        assert len(log.distance_mm) == 25 and log.frame_every == 5
+        assert len(log.frames) == len(rendered) == 5 and log.frames[0].ndim == 3
+        assert not np.array_equal(log.frames[0], log.frames[-1])
+        assert run_episode(env, pid, 3, start).frames == [] and len(rendered) == 5
+        for bad in (-1, 1.5, True):
+            with pytest.raises(ValueError, match="frame_every"):
+                run_episode(env, pid, 3, start, frame_every=bad)
+    finally:
+        env.close()
+
+
 def test_make_results_reproduces_every_recipe_column_of_the_page() -> None:
     """Every recipe column of the committed results.json is one that `make results` evaluates, with the same
     runs: regenerating the page from scratch keeps its columns."""

@@ -864,10 +864,16 @@ def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
 
 @pytest.mark.slow
 def test_evaluate_writes_gif_and_plot(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """The GIF plays the 10 s episode in real time: 25 frames a second, each of them rendered (every other 50 Hz
+    step), none thrown away."""
+    import imageio.v3 as iio
+
     proc = sg_in(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(tmp_path / "pid.gif"), "--plot",
               str(tmp_path / "pid.png"))  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "pid.gif").read_bytes()[:6] == b"GIF89a" and (tmp_path / "pid.png").stat().st_size > 10_000
+    meta = iio.immeta(tmp_path / "pid.gif")
+    assert iio.improps(tmp_path / "pid.gif").shape[0] == 250 and meta["duration"] == pytest.approx(40, abs=1)
 
 
 def test_deploy_pid_leaves_no_temporary_folder(device: FakeDevice, tmp_path: Path) -> None:
