@@ -9,6 +9,7 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from stewart_gym.blas import OneBlasThread, one_blas_thread
+from stewart_gym.sim.batched import BatchedSim
 
 
 def blas_threads() -> list[int]:
@@ -49,8 +50,6 @@ def test_a_failure_inside_still_gives_the_threads_back(two_blas_threads) -> None
 
 def test_the_batched_steps_run_on_one_blas_thread(two_blas_threads, monkeypatch) -> None:
     """What each matrix product of the plate's anchors (``BatchedSim._arms``) saw in a step."""
-    from stewart_gym.sim.batched import BatchedSim
-
     seen: list[list[int]] = []
     arms = BatchedSim._arms
 
@@ -61,10 +60,12 @@ def test_the_batched_steps_run_on_one_blas_thread(two_blas_threads, monkeypatch)
     monkeypatch.setattr(BatchedSim, "_arms", watched)
     sim = BatchedSim(n=64)
     seen.clear()  # the reset's product runs once, outside any loop
+    before = blas_threads()
+    assert 2 in before
     sim.command(np.broadcast_to(sim.calibration.neutral_us + 20.0, (64, 6)))
     sim.step()
-    assert seen and all(threads == [1] * len(threads) for threads in seen)
-    assert blas_threads() == [2] * len(blas_threads())
+    assert seen and all(threads == [1] * len(before) for threads in seen)
+    assert blas_threads() == before
 
 
 def test_the_fits_run_on_one_blas_thread() -> None:
