@@ -126,10 +126,11 @@ def test_the_tilt_offset_gives_trims_that_tilt_the_ball_the_same_way(fitted):
     assert np.allclose(accel, result.tilt_accel, atol=0.1 * np.linalg.norm(result.tilt_accel) + 1e-3)
 
 
-@pytest.mark.xdist_group("sysid_fit")
 @pytest.mark.slow
-def test_sysid_writes_the_twin_and_its_report(fitted, tmp_path, capfd):
-    log, _ = fitted
+def test_sysid_writes_the_twin_and_its_report(tmp_path, capfd):
+    """The command on a log of 20 s (the fit's figures are the tests' above, on 40 s)."""
+    log = tmp_path / "log.csv"
+    synthetic_log(log, TWIN, 20.0)
     code, out, err = cli(capfd, "sysid", str(log), "--out", str(tmp_path / "twin.toml"), "--report",
                          str(tmp_path / "report"))  # fmt: skip
     assert code == 0, err
