@@ -1,5 +1,6 @@
-"""The experiments of ``train/experiments/`` the Control page reports, run as a user runs them: ``python -m
-train.experiments.NAME`` from the repository's root; each refuses bad options in one line before any work."""
+"""The experiments of ``train/experiments/`` the Control page reports: each trains through its ``run(argv)`` (one,
+``memory``, as a user runs it: ``python -m train.experiments.NAME`` from the repository's root), and refuses bad
+options in one line before any work, as a user runs it."""
 
 from __future__ import annotations
 
@@ -20,13 +21,25 @@ def experiment(name: str) -> list[str]:
     return [sys.executable, "-m", f"train.experiments.{name}"]
 
 
-def run_experiment(name: str, args: list[str], out: Path) -> dict:
-    """``python -m train.experiments.<name> ARGS --out OUT`` as a user runs it: exit 0, and the JSON line it wrote."""
+def run_experiment(name: str, args: list[str], out: Path, *, as_user: bool = False) -> dict:
+    """``train.experiments.<name>.run(ARGS + ["--out", OUT])`` in this process (its imports are made already), or
+    with ``as_user`` ``python -m train.experiments.<name> ARGS --out OUT`` as a user runs it (exit 0); the JSON
+    line it wrote."""
     import subprocess
 
-    proc = subprocess.run([*experiment(name), *args, "--out", str(out)], capture_output=True, text=True, timeout=600,
-                          cwd=ROOT)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-2000:]
+    if as_user:
+        proc = subprocess.run([*experiment(name), *args, "--out", str(out)], capture_output=True, text=True,
+                              timeout=600, cwd=ROOT)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    else:
+        import importlib
+        import sys
+
+        sys.path.insert(0, str(ROOT))  # the repository's root, as `python -m train.experiments.…` has it
+        try:
+            importlib.import_module(f"train.experiments.{name}").run([*args, "--out", str(out)])
+        finally:
+            sys.path.remove(str(ROOT))
     return json.loads(out.read_text())
 
 
@@ -37,8 +50,8 @@ def test_memory_experiment_trains_and_evaluates_a_stacked_policy(tmp_path: Path)
     import subprocess
 
     script = experiment("memory")
-    result = run_experiment("memory", ["--stack", "2", "--steps", "256", "--episodes", "1"],
-                            tmp_path / "m.json")  # fmt: skip
+    result = run_experiment("memory", ["--stack", "2", "--steps", "256", "--episodes", "1"], tmp_path / "m.json",
+                            as_user=True)  # fmt: skip
     assert result["stack"] == 2 and result["steps"] == 256 and 0.0 <= result["success_rate"] <= 1.0
     assert result["rms_error_mm"] > 0 and "settled_pulse_p2p_us" in result and "settling_time_s" in result
     bad = subprocess.run([*script, "--stack", "0"], capture_output=True, text=True, timeout=60, cwd=ROOT)
