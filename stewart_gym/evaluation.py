@@ -390,7 +390,7 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     plt.close(fig)
 
 
-def write_gif(frames: list[np.ndarray], path: str | Path, fps: int = 25, dt: float | None = None,
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: float = 25, dt: float | None = None,
               caption: str = "") -> None:  # fmt: skip
     """Write ``frames`` as an animated GIF at ``fps``; with ``dt`` (s between frames) each frame shows its time,
     after ``caption`` (what the target is, for one)."""

@@ -33,7 +33,8 @@ WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
 #: Engines for training only: a policy trained in one is evaluated, by default, in the default engine (PyBullet),
 #: the reference it must hold up in; ``--backend batched`` still evaluates it there.
 TRAINING_BACKENDS = ("batched",)
-#: Frames per second of an episode's GIF: the episode is rendered at this rate, in real time.
+#: Frames per second of an episode's GIF: its frames are rendered this often, to the nearest whole number of
+#: control steps, and played in real time.
 GIF_FPS = 25
 
 
@@ -243,7 +244,8 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
         env.close()
     if gif:
         target = "target: the plate's centre" if not env.unwrapped.task.moving_target else "target: moving"
-        write_gif(log.frames, gif, fps=GIF_FPS, dt=log.dt * log.frame_every, caption=target)
+        frame_dt = log.dt * log.frame_every
+        write_gif(log.frames, gif, fps=1.0 / frame_dt, dt=frame_dt, caption=target)
     if plot:
         plot_episode(log, plot, title)
 
