@@ -24,22 +24,18 @@ import numpy as np
 from stewart_gym.sim.batched import BatchedSim
 from stewart_gym.sim.engines import make_backend
 
-#: the cores each figure of the last :func:`rate` calls used (CPU time / wall time of its best run)
-CORES: dict[str, float] = {}
 
-
-def rate(step, platforms: int, seconds: float = 1.0, name: str = "") -> float:
-    """Best of three: platform-steps per second of ``step()`` run for about ``seconds``; its cores in
-    :data:`CORES` under ``name``."""
-    best = 0.0
+def rate(step, platforms: int, seconds: float = 1.0) -> tuple[float, float]:
+    """Best of three: platform-steps per second of ``step()`` run for about ``seconds``, and the cores that run
+    used (its CPU time over its wall time)."""
+    best = (0.0, 0.0)
     for _ in range(3):
         count, start, cpu = 0, time.perf_counter(), time.process_time()
         while time.perf_counter() - start < seconds:
             step(count)
             count += 1
         wall = time.perf_counter() - start
-        if count * platforms / wall > best:
-            best, CORES[name] = count * platforms / wall, (time.process_time() - cpu) / wall
+        best = max(best, (count * platforms / wall, (time.process_time() - cpu) / wall))
     return best
 
 
@@ -47,7 +43,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args()
-    results: dict[str, float] = {}
+    results: dict[str, tuple[float, float]] = {}
     for engine in ("pybullet", "mujoco"):
         sim = make_backend(engine, "servo-hexapod", ball=True)
         sim.reset()
@@ -57,8 +53,7 @@ def main() -> None:
             sim.command(pulses[i % 2])
             sim.step()
 
-        name = f"{engine}, one simulator"
-        results[name] = rate(one, 1, name=name)
+        results[f"{engine}, one simulator"] = rate(one, 1)
         sim.close()
     for n in (1, 64, 1024, 4096):
         batched = BatchedSim("servo-hexapod", n=n)
@@ -68,22 +63,22 @@ def main() -> None:
             batched.command(pulses[i % 2])
             batched.step()
 
-        name = f"batched, N = {n:,}"
-        results[name] = rate(many, n, name=name)
+        results[f"batched, N = {n:,}"] = rate(many, n)
     envs = env_rates()
     if args.json:
-        print(json.dumps({**{k: round(v) for k, v in {**results, **envs}.items()},
-                          "cores": {k: round(v, 2) for k, v in CORES.items()}}))
+        both = {**results, **envs}
+        cores = {k: round(c, 2) for k, (_, c) in both.items()}
+        print(json.dumps({**{k: round(v) for k, (v, _) in both.items()}, "cores": cores}))
         return
     for title, table, reference in (("simulator", results, "pybullet, one simulator"),
                                     ("env", envs, "pybullet, one env")):  # fmt: skip
         print(f"{title:<40}{'steps/s':>12}{'× PyBullet':>12}{'cores':>8}")
         for name, value in table.items():
-            print(f"{name:<40}{value:>12,.0f}{value / table[reference]:>12.1f}{CORES[name]:>8.2f}")
+            print(f"{name:<40}{value[0]:>12,.0f}{value[0] / table[reference][0]:>12.1f}{value[1]:>8.2f}")
         print()
 
 
-def env_rates() -> dict[str, float]:
+def env_rates() -> dict[str, tuple[float, float]]:
     """Env steps per second: one PyBullet env, one MuJoCo env, one batched env, and the batched vector env at a
     few sizes; random tilt actions (±0.3), each episode reset when it ends."""
     import gymnasium as gym
@@ -91,7 +86,7 @@ def env_rates() -> dict[str, float]:
     import stewart_gym  # noqa: F401
 
     kwargs = {"randomize": True, "estimator": "kalman"}
-    out: dict[str, float] = {}
+    out: dict[str, tuple[float, float]] = {}
     actions = np.random.default_rng(0).uniform(-0.3, 0.3, (1000, 2)).astype(np.float32)
     for backend in ("pybullet", "mujoco", "batched"):
         env = gym.make("StewartBallBalance-v0", backend=backend, **kwargs)
@@ -102,7 +97,7 @@ def env_rates() -> dict[str, float]:
             if terminated or truncated:
                 env.reset()
 
-        out[f"{backend}, one env"] = rate(single, 1, name=f"{backend}, one env")
+        out[f"{backend}, one env"] = rate(single, 1)
         env.close()
     for sensor, sizes in (("panel", (64, 1024, 4096)), ("camera", (1024,))):
         for n in sizes:
@@ -111,7 +106,7 @@ def env_rates() -> dict[str, float]:
             vector.reset(seed=0)
             batch = np.random.default_rng(1).uniform(-0.3, 0.3, (8, n, 2)).astype(np.float32)
             name = f"batched vector env, N = {n:,}" + (", cameras" if sensor == "camera" else "")
-            out[name] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0, name=name)
+            out[name] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
             vector.close()
     return out
 

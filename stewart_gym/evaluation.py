@@ -22,7 +22,7 @@ import numpy as np
 from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
-__all__ = ["PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
+__all__ = ["GIF_FPS", "PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
            "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "pooled_rms", "run_episode",
            "same_seeds", "settling_offset", "summarise", "write_gif"]  # fmt: skip
 
@@ -36,6 +36,11 @@ def settling_offset(env: gym.Env) -> float:
 class Policy(Protocol):
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]: ...  # fmt: skip
+
+
+#: Frames per second of an episode's GIF: its frames are rendered this often, to the nearest whole number of
+#: control steps, and played in real time.
+GIF_FPS = 25
 
 
 @dataclass
@@ -390,7 +395,7 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     plt.close(fig)
 
 
-def write_gif(frames: list[np.ndarray], path: str | Path, fps: float = 25, dt: float | None = None,
+def write_gif(frames: list[np.ndarray], path: str | Path, fps: float = GIF_FPS, dt: float | None = None,
               caption: str = "") -> None:  # fmt: skip
     """Write ``frames`` as an animated GIF at ``fps``; with ``dt`` (s between frames) each frame shows its time,
     after ``caption`` (what the target is, for one)."""

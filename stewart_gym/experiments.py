@@ -33,9 +33,6 @@ WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
 #: Engines for training only: a policy trained in one is evaluated, by default, in the default engine (PyBullet),
 #: the reference it must hold up in; ``--backend batched`` still evaluates it there.
 TRAINING_BACKENDS = ("batched",)
-#: Frames per second of an episode's GIF: its frames are rendered this often, to the nearest whole number of
-#: control steps, and played in real time.
-GIF_FPS = 25
 
 
 @dataclass(frozen=True)
@@ -233,7 +230,7 @@ def episode_figures(env_id: str, policy: object, env_kwargs: dict, seed: int, ra
     ball-path and pulse-width plot, titled ``title`` (the policy and where it ran)."""
     import gymnasium as gym
 
-    from stewart_gym.evaluation import plot_episode, run_episode, settling_offset, write_gif
+    from stewart_gym.evaluation import GIF_FPS, plot_episode, run_episode, settling_offset, write_gif
 
     env = gym.make(env_id, randomize=randomize, render_mode="rgb_array" if gif else None, **env_kwargs)
     try:
