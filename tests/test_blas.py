@@ -18,9 +18,12 @@ def blas_threads() -> list[int]:
 
 @pytest.fixture
 def two_blas_threads():
-    """BLAS on two threads for the test (whatever the machine's cores), as OpenBLAS starts on a 2-core machine."""
-    assert blas_threads(), "numpy has no BLAS that threadpoolctl sees"
+    """BLAS on two threads for the test (whatever the machine's cores), as OpenBLAS starts on a 2-core machine.
+    Where numpy's BLAS has no threads to limit (one threadpoolctl cannot see, such as Apple's Accelerate, or a
+    single-threaded build) there is nothing to hold to one thread, and the tests that need it do not apply."""
     with threadpool_limits(limits=2, user_api="blas"):
+        if 2 not in blas_threads():
+            pytest.skip("numpy's BLAS here has no threads that threadpoolctl can set")
         yield
 
 
