@@ -12,6 +12,7 @@ element alike, so the results are the same to the last bit.
 from __future__ import annotations
 
 import functools
+import sys
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -21,18 +22,22 @@ F = TypeVar("F", bound=Callable[..., Any])
 
 
 class OneBlasThread:
-    """A ``with`` during which numpy's BLAS runs on one thread (threadpoolctl; its controller is made once, at
-    first use, after numpy has loaded its BLAS). Entering and leaving costs a few microseconds; nested uses keep
-    the one thread."""
+    """A ``with`` during which every BLAS loaded (numpy's, and any other, such as SciPy's own) runs on one thread
+    (threadpoolctl). Its controller, which finds the loaded libraries, is made again only after a module has been
+    imported since it was last made (an import is what loads another BLAS), so that entering and leaving costs a
+    few microseconds; nested uses keep the one thread."""
 
     controller: Any = None
+    #: ``len(sys.modules)`` when the controller was made
+    modules_seen = -1
 
     def __enter__(self) -> None:
-        if OneBlasThread.controller is None:
+        if len(sys.modules) != OneBlasThread.modules_seen:
             import numpy  # noqa: F401  (the controller finds the BLAS numpy has loaded)
             from threadpoolctl import ThreadpoolController
 
             OneBlasThread.controller = ThreadpoolController()
+            OneBlasThread.modules_seen = len(sys.modules)
         self._limit = OneBlasThread.controller.limit(limits=1, user_api="blas")
         self._limit.__enter__()
 

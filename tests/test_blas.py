@@ -52,7 +52,8 @@ def test_a_failure_inside_still_gives_the_threads_back(two_blas_threads) -> None
 
 
 def test_the_batched_steps_run_on_one_blas_thread(two_blas_threads, monkeypatch) -> None:
-    """What each matrix product of the plate's anchors (``BatchedSim._arms``) saw in a step."""
+    """What each matrix product of the plate's anchors (``BatchedSim._arms``) saw in a step of the NumPy kernel (the
+    compiled one makes no BLAS calls)."""
     seen: list[list[int]] = []
     arms = BatchedSim._arms
 
@@ -61,7 +62,7 @@ def test_the_batched_steps_run_on_one_blas_thread(two_blas_threads, monkeypatch)
         return arms(self, rot)
 
     monkeypatch.setattr(BatchedSim, "_arms", watched)
-    sim = BatchedSim(n=64)
+    sim = BatchedSim(n=64, kernel="numpy")
     seen.clear()  # the reset's product runs once, outside any loop
     before = blas_threads()
     assert 2 in before

@@ -5,32 +5,31 @@ of them in a step. Where every copy's task uses :class:`~stewart_gym.envs.task.B
 done as arrays: the fixed target at the centre, no disturbance, no info, and the reward (but with
 ``charge_until_settled``, whose count of steps inside is per copy). Any other hook (a moving target, a push, a
 task's own reward or info) is asked of each copy's task in turn, as its env would ask it. The results are each
-task's own to the last bit (the reward's exponential is Python's ``math.exp``, as the task's).
+task's own to the last bit (the reward's exponential is the C library's ``exp``, as Python's ``math.exp`` in the
+task's: :func:`~stewart_gym.compiled.exp_each`).
 
-Which hooks a task overrides (in its class or on the instance) is looked up once, when the array is made; the
-reward's parameters (``success_radius``, ``near_scale``, the penalties, ``FALL_PENALTY``,
-``charge_until_settled``) are read at every step, so that a change made between steps (a curriculum's) counts
-at once, as it does for one env.
+Which hooks a task overrides (in its class or on the instance) is looked up once, when the array is made. The
+reward's parameters (:data:`BallTask.REWARD_PARAMETERS <stewart_gym.envs.task.BallTask.REWARD_PARAMETERS>`:
+``success_radius``, ``near_scale``, the penalties, ``FALL_PENALTY``, ``charge_until_settled``) are read again
+whenever one has been set on any ball task, or a task class's ``FALL_PENALTY`` has changed, since the last read:
+a change made between steps (a curriculum's) counts at once, as it does for one env.
 """
 
 from __future__ import annotations
 
-import math
 import operator
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from stewart_gym.compiled import exp_each
 from stewart_gym.envs.task import BallTask, Task
 
 __all__ = ["TaskArray"]
 
-#: A getter of the :class:`BallTask` attributes its reward reads, as a tuple (:meth:`TaskArray.rewards` reads them
-#: at each step).
-_REWARD_PARAMETERS = operator.attrgetter(
-    "success_radius", "plate_half", "near_scale", "rate_penalty", "settled_rate_penalty", "outside_penalty",
-    "FALL_PENALTY", "charge_until_settled")  # fmt: skip
+#: A getter of the :class:`BallTask` attributes its reward reads, as a tuple.
+_REWARD_PARAMETERS = operator.attrgetter(*BallTask.REWARD_PARAMETERS)
 
 
 def _inherited(tasks: Sequence[Task], hook: str) -> bool:
@@ -59,6 +58,9 @@ class TaskArray:
         #: whether every task rewards with :class:`BallTask`'s own reward: then :meth:`rewards` finds the rewards
         #: as arrays, unless a task counts its steps inside (``charge_until_settled``)
         self.ball_rewards = _inherited(self.tasks, "reward")
+        self._task_classes = list({type(task) for task in self.tasks})
+        self._parameters_read: tuple[int, list[float]] | None = None  # (writes counted, class FALL_PENALTYs) then
+        self._parameters = np.empty((len(BallTask.REWARD_PARAMETERS), self.n))
 
     def before_step(self, times: np.ndarray, backends: Sequence[Any]) -> None:
         """Let each task act on its copy's physics (``backends[i]``) before the period that starts at ``times[i]``."""
@@ -80,17 +82,25 @@ class TaskArray:
     def rewards(self, distances: np.ndarray, rates: np.ndarray, fell: np.ndarray) -> np.ndarray:
         """Each copy's reward (n,) for its ball-to-target distance (m), action rate and whether the ball fell."""
         if self.ball_rewards:
-            columns = np.array(list(map(_REWARD_PARAMETERS, self.tasks)), dtype=np.float64).T
-            radius, half, near_scale, rate_penalty, settled, outside_penalty, fall_penalty, charged = columns
+            radius, half, near_scale, rate_penalty, settled, outside_penalty, fall_penalty, charged = self._columns()
             if not charged.any():
                 inside = distances <= radius
                 weight = rate_penalty + np.where(inside, settled, 0.0)
                 outside = np.where(inside, 0.0, outside_penalty)
-                near = np.array([math.exp(v) for v in (-distances / near_scale).tolist()], dtype=np.float64)
+                near = exp_each(-distances / near_scale)
                 return (1.0 - np.minimum(distances, 2 * half) / half + near - weight * rates - outside
                         - np.where(fell, fall_penalty, 0.0))  # fmt: skip
         return np.array([task.reward(d, r, f) for task, d, r, f in zip(
             self.tasks, distances.tolist(), rates.tolist(), fell.tolist())], dtype=np.float64)  # fmt: skip
+
+    def _columns(self) -> np.ndarray:
+        """The tasks' reward parameters, a row per parameter and a column per copy: read again only where one may
+        have changed since the last read (a parameter set on a task, or a class's ``FALL_PENALTY``)."""
+        now = (BallTask.reward_parameter_writes, [cls.FALL_PENALTY for cls in self._task_classes])
+        if now != self._parameters_read:
+            self._parameters = np.array(list(map(_REWARD_PARAMETERS, self.tasks)), dtype=np.float64).T
+            self._parameters_read = now
+        return self._parameters
 
     def infos(self) -> dict[str, np.ndarray]:
         """The tasks' info entries, one array per key with a row per copy (none where the tasks add none)."""

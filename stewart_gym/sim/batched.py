@@ -41,7 +41,10 @@ from stewart_gym.kinematics import horn_tips, inverse_kinematics
 from stewart_gym.sim.backend import BallSpec, check_rates
 from stewart_gym.sim.servo_model import ServoSpec
 
-__all__ = ["BatchedSim"]
+__all__ = ["KERNELS", "BatchedSim"]
+
+#: The ways :class:`BatchedSim` computes a control period (its ``kernel`` argument).
+KERNELS = ("auto", "numba", "numpy")
 
 #: Newton steps that close the chains at each physics step (:meth:`BatchedSim._plate_frames`). On 6° tilt
 #: sinusoids they leave at most about 2 µm of rod length error, and the ball's path over 3 s within 0.06 mm of
@@ -103,11 +106,15 @@ class BatchedSim:
         ball_spec: The nominal ball; :meth:`reset` may give each platform its own.
         servo_spec: The nominal servos; :meth:`reset` may give each platform its own.
         plate_top: m, height of the plate's surface above the platform frame origin.
+        kernel: How a control period is computed: ``"numba"``, one compiled loop over the platforms
+            (:mod:`stewart_gym.sim.batched_kernel`); ``"numpy"``, arrays of all platforms at once; ``"auto"``
+            (default), numba where it is installed. The two agree to rounding.
     """
 
     def __init__(self, geometry: Any = "servo-hexapod", n: int = 1, calibration: ServoCalibration | None = None,
                  physics_hz: int = 200, control_hz: int = 50, *, ball_spec: BallSpec | None = None,
-                 servo_spec: ServoSpec | None = None, plate_top: float | None = None) -> None:  # fmt: skip
+                 servo_spec: ServoSpec | None = None, plate_top: float | None = None,
+                 kernel: str = "auto") -> None:  # fmt: skip
         from stewart_gym.errors import ConfigError
         from stewart_gym.presets import load_geometry
         from stewart_gym.sim.urdf import MechanismSpec
@@ -115,6 +122,15 @@ class BatchedSim:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 10_000_000:
             raise ConfigError(f"n: a whole number of platforms, 1 to 10,000,000, got {n!r}")
         check_rates(physics_hz, control_hz)
+        if kernel not in KERNELS:
+            raise ConfigError(f"kernel: one of {', '.join(KERNELS)}, got {kernel!r}")
+        from stewart_gym.sim import batched_kernel
+
+        if kernel == "numba" and not batched_kernel.AVAILABLE:
+            raise ConfigError("kernel 'numba' needs numba: pip install numba (or use kernel 'numpy')")
+        #: the kernel in use: "numba" or "numpy"
+        self.kernel = "numba" if kernel == "numba" or (kernel == "auto" and batched_kernel.AVAILABLE) else "numpy"
+        self._advance = batched_kernel.advance
         self.geometry = load_geometry(geometry)
         if not self.geometry.is_rotary:
             raise ConfigError(f"the batched simulator models rotary servos; {self.geometry.name!r} is linear")
@@ -129,6 +145,8 @@ class BatchedSim:
         self.ball_spec = ball_spec or BallSpec()
         self.servo_spec = servo_spec or ServoSpec()
         self._home_alpha = inverse_kinematics(self.geometry, np.zeros(6)).servo_angles
+        self._cos_beta, self._sin_beta = np.cos(self.geometry.servo_beta), np.sin(self.geometry.servo_beta)
+        self._rod_lengths = np.broadcast_to(np.asarray(self.geometry.rod_length, dtype=np.float64), (6,)).copy()
         width, depth = self.geometry.plate_extent
         self.plate_half_extent = (width / 2, depth / 2)
         self.reset()
@@ -332,6 +350,9 @@ class BatchedSim:
     def step(self) -> None:
         """Advance one control period (``substeps`` physics steps), on one BLAS thread (:mod:`stewart_gym.blas`:
         the plate's matrix products gain nothing from a second one, which would only take another core)."""
+        if self.kernel == "numba":
+            self._step_compiled()
+            return
         with OneBlasThread():
             self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
             alphas = self._servo_steps()  # the servos, then the plate's path over the period: neither needs the ball
@@ -342,6 +363,18 @@ class BatchedSim:
             self._roll(origins, rots)
             self._frames = [(origins[-2], rots[-2]), (origins[-1], rots[-1])]
 
+    def _step_compiled(self) -> None:
+        """:meth:`step` by the compiled kernel, which updates the state arrays in place."""
+        targets = self._servo_targets()
+        (o0, r0), (o1, r1) = self._frames = [tuple(np.ascontiguousarray(a) for a in frame) for frame in self._frames]
+        self.alpha, self._last_step = np.ascontiguousarray(self.alpha), np.ascontiguousarray(self._last_step)
+        self.ball_xy, self.ball_velocity = np.ascontiguousarray(self.ball_xy), np.ascontiguousarray(self.ball_velocity)
+        g = self.geometry
+        self._advance(targets, self.alpha, self._last_step, self._gain[:, 0], self._max_step[:, 0],
+                      self._max_change[:, 0], o0, r0, o1, r1, self.ball_xy, self.ball_velocity, self._beta,
+                      self._radius, g.base_anchors, g.horn_length, self._cos_beta, self._sin_beta, g.platform_anchors,
+                      self._rod_lengths, self.plate_top, GRAVITY, 1.0 / self.physics_hz, NEWTON_STEPS)  # fmt: skip
+
     def step_servos(self) -> np.ndarray:
         """Advance only the servos one control period, for a replay that needs their angles alone (the plate and
         the balls stay as they were, out of step with them, until :meth:`reset`): the angles (``substeps``, n, 6)
@@ -351,20 +384,28 @@ class BatchedSim:
     def _servo_steps(self) -> np.ndarray:
         """Send what was commanded and turn the servos through the period's physics steps; their angles
         (substeps, n, 6) after each."""
-        self._send_pending()
-        targets = self._targets()
         alpha, last = self.alpha, self._last_step
         alphas = np.empty((self.substeps, self.n, 6))
-        for j in range(self.substeps):
-            if self._update_held():
-                targets = self._targets()
+        for j, targets in enumerate(self._servo_targets()):
             wanted = np.clip(self._gain * (targets - alpha), -self._max_step, self._max_step)
             last = np.clip(wanted, last - self._max_change, last + self._max_change)
             alpha = alpha + last
             alphas[j] = alpha
-            self._step_count += 1
         self.alpha, self._last_step = alpha, last
         return alphas
+
+    def _servo_targets(self) -> np.ndarray:
+        """Send what was commanded and count the period's physics steps: the servos' target angles (substeps, n,
+        6) rad over each, as the pulses held then (after lag and dead band) give them."""
+        self._send_pending()
+        targets = self._targets()
+        out = np.empty((self.substeps, self.n, 6))
+        for j in range(self.substeps):
+            if self._update_held():
+                targets = self._targets()
+            out[j] = targets
+            self._step_count += 1
+        return out
 
     def _roll(self, origins: np.ndarray, rots: np.ndarray) -> None:
         """Advance the balls over the period's physics steps on the plate, whose frames, origins (s + 2, n, 3) and

@@ -89,6 +89,20 @@ def test_a_reward_parameter_changed_between_steps_counts_at_once() -> None:
                                                                             rate.tolist())])  # fmt: skip
 
 
+def test_a_task_class_fall_penalty_changed_between_steps_counts_at_once(monkeypatch) -> None:
+    """The array keeps the parameters it read until one may have changed: a class's ``FALL_PENALTY`` too."""
+    from stewart_gym.envs.tasks.balance import BalanceTask
+
+    tasks = [load_task("balance") for _ in range(2)]
+    array = TaskArray(tasks)
+    d, rate, fell = np.array([0.004, 0.02]), np.zeros(2), np.array([True, False])
+    before = array.rewards(d, rate, fell)
+    monkeypatch.setattr(BalanceTask, "FALL_PENALTY", 80.0)
+    after = array.rewards(d, rate, fell)
+    assert after[0] == before[0] - 30.0 and after[1] == before[1]
+    np.testing.assert_array_equal(after, [t.reward(a, 0.0, f) for t, a, f in zip(tasks, d.tolist(), fell.tolist())])
+
+
 def test_targets_pushes_and_infos_are_each_tasks_own() -> None:
     """Moving targets (track) and pushes with their info (disturbance), each copy's at its own time."""
     rng = np.random.default_rng(3)
