@@ -1,7 +1,8 @@
 """Steps per second of the simulators and of the envs on them, in one run.
 
 * simulators (one control step of one platform with its ball): one PyBullet simulator, one MuJoCo simulator,
-  and the batched NumPy simulator at N = 1, 64, 1,024 and 4,096;
+  and the batched simulator at N = 1, 64, 1,024 and 4,096 (its compiled kernel, numba's; and its NumPy kernel at
+  N = 4,096, for comparison);
 * envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random tilt actions of ±0.3, an
   episode reset when it ends): one PyBullet, one MuJoCo and one batched env (``gym.make``), and the batched
   vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096, and at
@@ -55,15 +56,16 @@ def main() -> None:
 
         results[f"{engine}, one simulator"] = rate(one, 1)
         sim.close()
-    for n in (1, 64, 1024, 4096):
-        batched = BatchedSim("servo-hexapod", n=n)
+    for n, kernel in ((1, "auto"), (64, "auto"), (1024, "auto"), (4096, "auto"), (4096, "numpy")):
+        batched = BatchedSim("servo-hexapod", n=n, kernel=kernel)
         pulses = [np.broadcast_to(batched.calibration.neutral_us + d, (n, 6)) for d in (0.0, 20.0)]
 
         def many(i: int, batched=batched, pulses=pulses) -> None:
             batched.command(pulses[i % 2])
             batched.step()
 
-        results[f"batched, N = {n:,}"] = rate(many, n)
+        many(0)  # the compiled kernel loads (or compiles, once per checkout) at its first step
+        results[f"batched, N = {n:,}" + (", NumPy kernel" if kernel == "numpy" else "")] = rate(many, n)
     envs = env_rates()
     if args.json:
         both = {**results, **envs}
