@@ -110,9 +110,31 @@ class StewartBallVectorEnv(VectorEnv):
         """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
         observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
         batched = self._gymnasium_info(info)
-        for i, (final_obs, final_info) in finals.items():  # as Gymnasium's SyncVectorEnv does in SAME_STEP mode
-            batched = self._add_info(batched, {"final_obs": final_obs, "final_info": final_info}, i)
+        if finals:
+            batched.update(self._final_infos(finals))
         return observations, rewards, terminations, truncations, batched
+
+    def _final_infos(self, finals: dict[int, tuple[np.ndarray, dict[str, Any]]]) -> dict[str, Any]:
+        """``final_obs`` and ``final_info`` of the copies whose episode ended, with their masks, all at once: what
+        Gymnasium's ``_add_info`` makes of them one copy at a time (as its SyncVectorEnv in SAME_STEP mode)."""
+        rows = list(finals)
+        mask = np.zeros(self.num_envs, dtype=np.bool_)
+        mask[rows] = True
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i, (obs, _) in finals.items():
+            final_obs[i] = obs
+        final_info: dict[str, Any] = {}
+        for key, first in finals[rows[0]][1].items():
+            if type(first) in (int, float, bool) or isinstance(first, np.number):
+                column = np.zeros(self.num_envs, dtype=type(first))
+            elif isinstance(first, np.ndarray):
+                column = np.zeros((self.num_envs, *first.shape), dtype=first.dtype)
+            else:  # anything else (a NumPy bool among them) in an object array, as Gymnasium does
+                column = np.full(self.num_envs, None, dtype=object)
+            for i in rows:
+                column[i] = finals[i][1][key]
+            final_info[key], final_info[f"_{key}"] = column, mask.copy()
+        return {"final_obs": final_obs, "_final_obs": mask, "final_info": final_info, "_final_info": mask.copy()}
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                          dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip

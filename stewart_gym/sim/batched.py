@@ -1,4 +1,4 @@
-"""N Stewart platforms with a ball each, advanced together as NumPy arrays: the reduced model.
+"""N Stewart platforms with a ball each, advanced together: the reduced model.
 
 A ball on a plate held by six servos needs no general contact solver. :class:`BatchedSim` advances, for N
 platforms at once and at the physics rate:
@@ -25,6 +25,10 @@ torque on these builds; the rotor's inertia alone limits the acceleration), the 
 and spinning friction (1e-5 m in the PyBullet model: about 0.005 m/s² of deceleration), slip (the ball rolls
 without slipping whatever the friction), a ball leaving the plate's surface, and the plate's edge. Arrays are
 float64, shape (N, …).
+
+A control period runs as one compiled loop over the platforms where numba is installed
+(:mod:`stewart_gym.sim.batched_kernel`), else as NumPy arrays of all of them (``kernel="numpy"``): the same
+model, to rounding.
 """
 
 from __future__ import annotations
@@ -180,7 +184,6 @@ class BatchedSim:
         self.plate_loads: list[Any] = [None] * n
         for i in range(n):
             self._set_platform(i, servos[i], balls[i])
-        self._jacobian_inverse = self._inverse_jacobian(*self._frames[1], self.alpha)
 
     def reset_platform(self, i: int, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None) -> None:
         """Platform ``i`` alone back at home with its servos holding neutral (commands sent to it before are
@@ -348,8 +351,9 @@ class BatchedSim:
 
     # --------------------------------------------------------------- stepping
     def step(self) -> None:
-        """Advance one control period (``substeps`` physics steps), on one BLAS thread (:mod:`stewart_gym.blas`:
-        the plate's matrix products gain nothing from a second one, which would only take another core)."""
+        """Advance one control period (``substeps`` physics steps): by the compiled kernel, or by the NumPy one on
+        one BLAS thread (:mod:`stewart_gym.blas`: the plate's matrix products gain nothing from a second one, which
+        would only take another core)."""
         if self.kernel == "numba":
             self._step_compiled()
             return

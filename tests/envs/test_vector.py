@@ -92,6 +92,41 @@ def assert_info_row(batched: dict, i: int, single: dict) -> None:
         assert batched[f"_{key}"][i]
 
 
+def test_ended_episodes_are_reported_as_gymnasium_reports_them() -> None:
+    """``info["final_obs"]``, ``info["final_info"]`` and their masks: keys, dtypes, shapes and values as Gymnasium's
+    own ``VectorEnv._add_info`` makes them, copy by copy, from the same step's ended copies."""
+    from gymnasium.vector import VectorEnv
+
+    kwargs = {"num_envs": 6, "vectorization_mode": "vector_entry_point", "episode_s": 0.3, "randomize": True}
+    ours, reference = (gym.make_vec("StewartBallBalance-v0", **kwargs) for _ in range(2))
+    ours.reset(seed=3)
+    reference.reset(seed=3)
+    actions = np.random.default_rng(2).uniform(-1, 1, (20, 6, 2)).astype(np.float32)
+    checked = 0
+    for a in actions:
+        info = ours.step(a)[4]
+        finals = reference.step_arrays(a)[5]
+        expected: dict = {}
+        for i, (final_obs, final_info) in finals.items():
+            expected = VectorEnv._add_info(reference, expected, {"final_obs": final_obs, "final_info": final_info}, i)
+        assert set(expected) == {key for key in info if "final" in key}
+        for key in ("_final_obs", "_final_info"):
+            np.testing.assert_array_equal(info.get(key), expected.get(key))
+        if not finals:
+            continue
+        checked += len(finals)
+        for i in range(6):
+            assert (info["final_obs"][i] is None) == (expected["final_obs"][i] is None)
+            if expected["final_obs"][i] is not None:
+                np.testing.assert_array_equal(info["final_obs"][i], expected["final_obs"][i])
+        assert list(info["final_info"]) == list(expected["final_info"])
+        for key, column in expected["final_info"].items():
+            got = info["final_info"][key]
+            assert got.dtype == column.dtype and got.shape == column.shape, key
+            np.testing.assert_array_equal(got, column)
+    assert checked >= 6  # every copy ended at least once (15-step episodes)
+
+
 def test_bad_arguments_are_one_clear_error() -> None:
     with pytest.raises(ConfigError, match="num_envs"):
         gym.make_vec("StewartBallBalance-v0", num_envs=0, vectorization_mode="vector_entry_point")
