@@ -77,7 +77,7 @@ def test_a_platform_computes_the_same_whatever_its_neighbours() -> None:
     start = rng.uniform(-0.02, 0.02, (16, 2))
     many.place_ball(start)
     one.place_ball(start[5:6])
-    for k in range(60):
+    for _ in range(60):
         pulses = many.calibration.neutral_us + rng.uniform(-90.0, 90.0, (16, 6))
         many.command(pulses)
         one.command(pulses[5:6])
