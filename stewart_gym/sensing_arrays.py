@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
+from stewart_gym.compiled import exp_each
 from stewart_gym.constants import GRAVITY
 from stewart_gym.sensing import (
     BallKalmanFilter,
@@ -444,7 +445,7 @@ class KalmanArray:
         interval of 0 leaves a row exactly as it is."""
         tau, gain = self.spec.tilt_lag_s, self.spec.rolling_factor * GRAVITY
         h = np.round(h, 6)  # the one-env filter's transitions are per µs of interval
-        e = np.exp(-h / tau)
+        e = exp_each(-h / tau)  # math.exp's numbers, as the one-env filter's (np.exp's SIMD code can differ)
         lag = tau * (1.0 - e)
         c = tau * h - tau * lag
         half_h2 = 0.5 * h * h

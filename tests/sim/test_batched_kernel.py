@@ -104,3 +104,28 @@ def test_exp_each_is_math_exp_to_the_last_bit() -> None:
     expected = np.array([math.exp(v) for v in x.tolist()])
     np.testing.assert_array_equal(got, expected)  # NaN where NaN, every other number bit for bit
     assert np.array_equal(got.view(np.int64)[~np.isnan(x)], expected.view(np.int64)[~np.isnan(x)])
+
+
+def test_without_numba_the_batched_envs_run_on_the_numpy_kernel() -> None:
+    """Where numba is not installed (its import blocked here, in a fresh process): the batched simulator takes
+    the NumPy kernel, the vector env steps, and its rewards take ``math.exp``'s numbers from Python."""
+    import subprocess
+    import sys
+
+    script = """
+import sys
+sys.modules["numba"] = None  # as if numba were not installed: importing it raises ImportError
+import gymnasium as gym, numpy as np, stewart_gym
+from stewart_gym import compiled
+from stewart_gym.sim.batched import BatchedSim
+assert not compiled.AVAILABLE and compiled.compiled(len) is None
+assert BatchedSim(n=2).kernel == "numpy"
+env = gym.make_vec("StewartBallBalance-v0", num_envs=4, vectorization_mode="vector_entry_point")
+env.reset(seed=0)
+for _ in range(5):
+    obs, reward, *_ = env.step(np.zeros((4, 2), np.float32))
+assert env.unwrapped.sim.kernel == "numpy" and np.isfinite(reward).all() and np.isfinite(obs).all()
+print("ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
