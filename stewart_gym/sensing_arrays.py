@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
-from stewart_gym.compiled import exp_each
+from stewart_gym.compiled import compiled, exp_each
 from stewart_gym.constants import GRAVITY
 from stewart_gym.sensing import (
     BallKalmanFilter,
@@ -292,10 +292,95 @@ class CameraRow(SensorRow):
         self.sensors.ball_radius[self.i] = float(value)
 
 
-class KalmanArray:
-    """``n`` :class:`~stewart_gym.sensing.BallKalmanFilter` of one spec, with their reading-noise estimates."""
+def _acting(when: np.ndarray, inputs: np.ndarray, count: np.ndarray, i: int,
+            at: float) -> tuple[float, float]:  # fmt: skip  # pragma: no cover - compiled
+    """Row ``i``'s input acting at ``at``: its last command acting by then (within 1 ns), else none."""
+    for k in range(count[i] - 1, -1, -1):
+        if when[i, k] <= at + 1e-9:
+            return inputs[i, k, 0], inputs[i, k, 1]
+    return 0.0, 0.0
 
-    def __init__(self, n: int, spec: KalmanSpec | None = None) -> None:
+
+def _carry(state: np.ndarray, cov: np.ndarray, with_cov: bool, i: int, h: float, ux: float, uy: float, tau: float,
+           gain: float, qa: float, qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """Row ``i`` of :meth:`KalmanArray._advance`, the same operations in the same order (so the same bits)."""
+    h = np.rint(h * 1e6) / 1e6  # np.round(h, 6)
+    e = math.exp(-h / tau)
+    lag = tau * (1.0 - e)
+    c = tau * h - tau * lag
+    half_h2 = 0.5 * h * h
+    gp, gv, ga = gain * (0.5 * h * h - tau * h + tau * lag), gain * (h - lag), gain * (1.0 - e)
+    px, py, vx, vy, ax, ay, bx, by = (state[i, 0], state[i, 1], state[i, 2], state[i, 3], state[i, 4], state[i, 5],
+                                      state[i, 6], state[i, 7])  # fmt: skip
+    state[i, 0] = px + h * vx + c * ax + half_h2 * bx + gp * ux
+    state[i, 1] = py + h * vy + c * ay + half_h2 * by + gp * uy
+    state[i, 2] = vx + lag * ax + h * bx + gv * ux
+    state[i, 3] = vy + lag * ay + h * by + gv * uy
+    state[i, 4] = e * ax + ga * ux
+    state[i, 5] = e * ay + ga * uy
+    if not with_cov:
+        return
+    q0, q1, q2 = (h * qa * h + half_h2 * qb * half_h2) * h, (h * qa + half_h2 * qb * h) * h, half_h2 * qb * h
+    q3, q4, q5 = (qa + h * qb * h) * h, h * qb * h, qb * h
+    pp, pv, pa, pb, vv, va, vb, aa, ab, bb = (cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5],
+                                              cov[i, 6], cov[i, 7], cov[i, 8], cov[i, 9])  # fmt: skip
+    m00 = pp + h * pv + c * pa + half_h2 * pb
+    m01 = pv + h * vv + c * va + half_h2 * vb
+    m02 = pa + h * va + c * aa + half_h2 * ab
+    m03 = pb + h * vb + c * ab + half_h2 * bb
+    m11, m12, m13 = vv + lag * va + h * vb, va + lag * aa + h * ab, vb + lag * ab + h * bb
+    cov[i, 0] = m00 + h * m01 + c * m02 + half_h2 * m03 + q0
+    cov[i, 1] = m01 + lag * m02 + h * m03 + q1
+    cov[i, 2] = e * m02
+    cov[i, 3] = m03 + q2
+    cov[i, 4] = m11 + lag * m12 + h * m13 + q3
+    cov[i, 5] = e * m12
+    cov[i, 6] = m13 + q4
+    cov[i, 7] = e * e * aa
+    cov[i, 8] = e * ab
+    cov[i, 9] = bb + q5
+
+
+def _propagate_rows(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
+                    count: np.ndarray, t0: np.ndarray, t1: np.ndarray, tau: float, gain: float, qa: float,
+                    qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`KalmanArray._propagate` row by row, in place: an interval per command that acts between ``t0[i]`` and
+    ``t1[i]`` (in time order), then the rest up to ``t1[i]``."""
+    for i in range(state.shape[0]):
+        now = t0[i]
+        for j in range(count[i]):
+            w = when[i, j]
+            if w > t0[i] and w < t1[i]:
+                ux, uy = _acting(when, inputs, count, i, now)
+                _carry(state, cov, with_cov, i, w - now, ux, uy, tau, gain, qa, qb)
+                now = w
+        h = t1[i] - now
+        if h < 0.0:  # as np.maximum(h, 0.0): NaN stays NaN
+            h = 0.0
+        ux, uy = _acting(when, inputs, count, i, now)
+        _carry(state, cov, with_cov, i, h, ux, uy, tau, gain, qa, qb)
+
+
+_acting, _carry = (compiled(f) or f for f in (_acting, _carry))
+#: :func:`_propagate_rows` compiled (None without numba: :class:`KalmanArray` then propagates as arrays)
+_propagate_compiled = compiled(_propagate_rows)
+
+
+class KalmanArray:
+    """``n`` :class:`~stewart_gym.sensing.BallKalmanFilter` of one spec, with their reading-noise estimates.
+
+    Args:
+        n: How many filters.
+        spec: Their spec.
+        kernel: ``"auto"`` (default): the filters propagate row by row in a loop compiled with numba where it is
+            installed, else as arrays; ``"numpy"``: as arrays. The two give the same numbers to the last bit.
+    """
+
+    def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
+        if kernel not in ("auto", "numpy"):
+            raise ValueError(f"kernel: 'auto' or 'numpy', got {kernel!r}")
+        #: the row-by-row propagation in use (None: as arrays)
+        self.compiled_propagation = _propagate_compiled if kernel == "auto" else None
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:
@@ -421,6 +506,11 @@ class KalmanArray:
         exact step per interval of constant input, the intervals' ends being the times the commands act."""
         state = state.copy()
         cov = None if cov is None else cov.copy()
+        if self.compiled_propagation is not None:
+            self.compiled_propagation(state, state if cov is None else cov, cov is not None, self.cmd_t[rows],
+                                      self.cmd_u[rows], self.cmd_n[rows], t0, t1, self.spec.tilt_lag_s,
+                                      self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b)  # fmt: skip
+            return state, cov
         when, inputs, count = self.cmd_t[rows], self.cmd_u[rows], self.cmd_n[rows]
         valid = np.arange(self._slots)[None, :] < count[:, None]
         edges = valid & (when > t0[:, None]) & (when < t1[:, None])

@@ -15,6 +15,7 @@ from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpe
 from stewart_gym.sensing_arrays import (
     CameraArray,
     CameraRow,
+    KalmanArray,
     ObserverArray,
     ObserverRow,
     PanelArray,
@@ -199,3 +200,42 @@ def test_readings_are_judged_valid_as_one_by_one() -> None:
     got = readings_are_valid(xy, ts, HALF)
     want = [reading_is_valid(((x, y), t), HALF) for (x, y), t in zip(xy.tolist(), ts.tolist())]
     assert got.tolist() == want and 0 < sum(want) < len(want)
+
+
+def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
+    """:class:`KalmanArray`'s row-by-row propagation (compiled with numba) and its array one give the same states,
+    covariances and estimates to the last bit, through regular and irregular command times (several pending at
+    once), late and missing readings and rows left out of a step."""
+    n = 64
+    rng = np.random.default_rng(0)
+    filters = KalmanArray(n), KalmanArray(n, kernel="numpy")
+    assert filters[0].compiled_propagation is not None and filters[1].compiled_propagation is None
+    for k in filters:
+        for i in range(n):
+            k.reset_row(i, 0.0, (0.05 * i / n, -0.02))
+    t = np.zeros(n)
+    pending = 0
+    for step in range(300):
+        rows = np.flatnonzero(rng.random(n) < 0.9)
+        if step < 150:  # steps of half the dead time: a command acts at a step's time, to rounding (the 1 ns rule)
+            now = t[rows] + filters[0].spec.dead_time_s / 2
+        else:
+            now = t[rows] + 0.02 * rng.uniform(0.3, 1.7, len(rows))
+        tilt = rng.uniform(-0.1, 0.1, (len(rows), 2))
+        has = rng.random(len(rows)) < 0.8
+        got, ts = rows[has], now[has] - rng.uniform(0.0, 0.03, int(has.sum()))
+        xy = rng.normal(0.0, 0.01, (len(got), 2))
+        estimates = []
+        for k in filters:
+            k.command(rows, t[rows].copy(), tilt)
+            k.update(got, ts, xy)
+            estimates.append(k.estimate(rows, now))
+        pending = max(pending, int(filters[0].cmd_n.max()))
+        t[rows] = now
+        for a, b in zip(*estimates):
+            np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(filters[0].state, filters[1].state)
+    np.testing.assert_array_equal(filters[0].cov, filters[1].cov)
+    assert pending >= 2 and np.abs(filters[0].state[:, 2:4]).max() > 0.01  # commands overlapped; the balls moved
+    with pytest.raises(ValueError, match="kernel"):
+        KalmanArray(2, kernel="fast")
