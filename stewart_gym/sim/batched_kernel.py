@@ -4,7 +4,7 @@
 NumPy path does for all at once: the servos' physics steps, the plate frames that close the six chains (the chord
 method from the period's first frame), and the ball rolling on the moving plate. It takes the servos' targets for
 each physics step, so that the pulses' lag and dead band stay with the simulator. Each platform's numbers stay in
-registers and small scratch arrays instead of (N, …) temporaries: at N = 4,096 a period costs a tenth of the NumPy
+registers and small scratch arrays instead of (N, …) temporaries: at N = 4,096 a period costs a fifth of the NumPy
 path's time (``bench/bench_batched.py``). The two agree to rounding (``tests/sim/test_batched_kernel.py``).
 
 Without numba (:mod:`stewart_gym.compiled`) :data:`AVAILABLE` is False and the simulator uses its NumPy path.
