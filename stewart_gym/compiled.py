@@ -26,10 +26,16 @@ AVAILABLE = numba is not None
 
 
 def compiled(function: Callable[..., Any]) -> Callable[..., Any] | None:
-    """``function`` compiled by numba, or None without numba: cached on disk, the GIL released while it runs, and
-    floating-point arithmetic as NumPy's (a division by zero gives inf or NaN, as in the NumPy path, instead of
-    raising ``ZeroDivisionError``)."""
-    return numba.njit(cache=True, nogil=True, error_model="numpy")(function) if AVAILABLE else None
+    """``function`` compiled by numba, or None without numba: cached on disk (where numba finds nowhere writable
+    to cache, such as a read-only install with no writable home, it compiles in each process instead), the GIL
+    released while it runs, and floating-point arithmetic as NumPy's (a division by zero gives inf or NaN, as in
+    the NumPy path, instead of raising ``ZeroDivisionError``)."""
+    if not AVAILABLE:
+        return None
+    try:
+        return numba.njit(cache=True, nogil=True, error_model="numpy")(function)
+    except RuntimeError:  # "cannot cache function …: no locator available"
+        return numba.njit(cache=False, nogil=True, error_model="numpy")(function)
 
 
 def _exp_into(x: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover - compiled

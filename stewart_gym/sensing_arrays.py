@@ -25,6 +25,7 @@ import numpy as np
 from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
 from stewart_gym.compiled import compiled, exp_each
 from stewart_gym.constants import GRAVITY
+from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import (
     BallKalmanFilter,
     BallObserver,
@@ -372,15 +373,18 @@ class KalmanArray:
     Args:
         n: How many filters.
         spec: Their spec.
-        kernel: ``"auto"`` (default): the filters propagate row by row in a loop compiled with numba where it is
-            installed, else as arrays; ``"numpy"``: as arrays. The two give the same numbers to the last bit.
+        kernel: ``"numba"``: the filters propagate row by row in a loop compiled with numba; ``"numpy"``: as
+            arrays; ``"auto"`` (default): numba where it is installed. The two give the same numbers to the last
+            bit.
     """
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
-        if kernel not in ("auto", "numpy"):
-            raise ValueError(f"kernel: 'auto' or 'numpy', got {kernel!r}")
+        if kernel not in ("auto", "numba", "numpy"):
+            raise ConfigError(f"kernel: one of auto, numba, numpy, got {kernel!r}")
+        if kernel == "numba" and _propagate_compiled is None:
+            raise ConfigError("kernel 'numba' needs numba: pip install numba (or use kernel 'numpy')")
         #: the row-by-row propagation in use (None: as arrays)
-        self.compiled_propagation = _propagate_compiled if kernel == "auto" else None
+        self.compiled_propagation = None if kernel == "numpy" else _propagate_compiled
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:

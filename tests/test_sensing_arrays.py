@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
+from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpec
 from stewart_gym.sensing_arrays import (
     CameraArray,
@@ -237,5 +238,6 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
     np.testing.assert_array_equal(filters[0].state, filters[1].state)
     np.testing.assert_array_equal(filters[0].cov, filters[1].cov)
     assert pending >= 2 and np.abs(filters[0].state[:, 2:4]).max() > 0.01  # commands overlapped; the balls moved
-    with pytest.raises(ValueError, match="kernel"):
+    with pytest.raises(ConfigError, match="kernel: one of auto, numba, numpy, got 'fast'"):
         KalmanArray(2, kernel="fast")
+    assert KalmanArray(2, kernel="numba").compiled_propagation is filters[0].compiled_propagation

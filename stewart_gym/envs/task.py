@@ -101,8 +101,9 @@ class BallTask:
     REWARD_PARAMETERS: ClassVar[tuple[str, ...]] = ("success_radius", "plate_half", "near_scale", "rate_penalty",
                                                     "settled_rate_penalty", "outside_penalty", "FALL_PENALTY",
                                                     "charge_until_settled")  # fmt: skip
-    #: How many times an attribute of :data:`REWARD_PARAMETERS` has been set on any ball task: the batched vector
-    #: env (:class:`~stewart_gym.envs.task_array.TaskArray`) reads its copies' parameters again when it changes.
+    #: How many times an attribute of :data:`REWARD_PARAMETERS` has been set or deleted on any ball task: the batched
+    #: vector env (:class:`~stewart_gym.envs.task_array.TaskArray`) reads its copies' parameters again when it
+    #: changes.
     reward_parameter_writes: ClassVar[int] = 0
     moving_target: ClassVar[bool] = False
     default_success_radius: ClassVar[float] = 0.010
@@ -134,9 +135,14 @@ class BallTask:
         self._steps_inside = 0  # since the ball last entered the success radius (charge_until_settled)
 
     def __setattr__(self, name: str, value: Any) -> None:
+        object.__setattr__(self, name, value)
         if name in BallTask.REWARD_PARAMETERS:
             BallTask.reward_parameter_writes += 1
-        object.__setattr__(self, name, value)
+
+    def __delattr__(self, name: str) -> None:
+        object.__delattr__(self, name)
+        if name in BallTask.REWARD_PARAMETERS:
+            BallTask.reward_parameter_writes += 1
 
     def reset(self, rng: np.random.Generator, backend: PhysicsBackend) -> None:
         """Nothing to draw for a fixed target at the centre; the reward's count of steps inside starts again.

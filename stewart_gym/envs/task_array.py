@@ -11,8 +11,10 @@ task's: :func:`~stewart_gym.compiled.exp_each`).
 Which hooks a task overrides (in its class or on the instance) is looked up once, when the array is made. The
 reward's parameters (:data:`BallTask.REWARD_PARAMETERS <stewart_gym.envs.task.BallTask.REWARD_PARAMETERS>`:
 ``success_radius``, ``near_scale``, the penalties, ``FALL_PENALTY``, ``charge_until_settled``) are read again
-whenever one has been set on any ball task, or a task class's ``FALL_PENALTY`` has changed, since the last read:
-a change made between steps (a curriculum's) counts at once, as it does for one env.
+whenever one has been set or deleted on any ball task, or a task class's ``FALL_PENALTY`` has changed, since the
+last read: a change made between steps (a curriculum's) counts at once, as it does for one env. Where a task's
+class computes one of them (a property), they are read at every step. A change written into a task's
+``__dict__`` directly is not seen until one of those happens.
 """
 
 from __future__ import annotations
@@ -59,6 +61,9 @@ class TaskArray:
         #: as arrays, unless a task counts its steps inside (``charge_until_settled``)
         self.ball_rewards = _inherited(self.tasks, "reward")
         self._task_classes = list({type(task) for task in self.tasks})
+        #: whether a task's class computes a reward parameter (a property or other descriptor): then no cache
+        self.computed_parameters = any(hasattr(getattr(cls, name, None), "__get__") for cls in self._task_classes
+                                       for name in BallTask.REWARD_PARAMETERS)  # fmt: skip
         self._parameters_read: tuple[int, list[float]] | None = None  # (writes counted, class FALL_PENALTYs) then
         self._parameters = np.empty((len(BallTask.REWARD_PARAMETERS), self.n))
 
@@ -97,7 +102,7 @@ class TaskArray:
         """The tasks' reward parameters, a row per parameter and a column per copy: read again only where one may
         have changed since the last read (a parameter set on a task, or a class's ``FALL_PENALTY``)."""
         now = (BallTask.reward_parameter_writes, [cls.FALL_PENALTY for cls in self._task_classes])
-        if now != self._parameters_read:
+        if now != self._parameters_read or self.computed_parameters:
             self._parameters = np.array(list(map(_REWARD_PARAMETERS, self.tasks)), dtype=np.float64).T
             self._parameters_read = now
         return self._parameters

@@ -125,6 +125,12 @@ class StewartBallVectorEnv(VectorEnv):
             final_obs[i] = obs
         final_info: dict[str, Any] = {}
         for key, first in finals[rows[0]][1].items():
+            if isinstance(first, dict):  # a task's nested entry: Gymnasium's own way, copy by copy
+                nested: dict[str, Any] = {}
+                for i in rows:
+                    nested = self._add_info(nested, finals[i][1][key], i)
+                final_info[key], final_info[f"_{key}"] = nested, mask.copy()
+                continue
             if type(first) in (int, float, bool) or isinstance(first, np.number):
                 column = np.zeros(self.num_envs, dtype=type(first))
             elif isinstance(first, np.ndarray):

@@ -103,6 +103,42 @@ def test_a_task_class_fall_penalty_changed_between_steps_counts_at_once(monkeypa
     np.testing.assert_array_equal(after, [t.reward(a, 0.0, f) for t, a, f in zip(tasks, d.tolist(), fell.tolist())])
 
 
+def test_a_deleted_override_and_a_computed_parameter_count_at_once() -> None:
+    """An instance's override deleted between steps, and a parameter a task class computes (a property, here a
+    success radius that widens with a curriculum's stage): the next step's rewards are the tasks' own."""
+    from stewart_gym.envs.task import BallTask
+
+    class Staged(BallTask):
+        stage = 0
+
+        @property
+        def success_radius(self) -> float:
+            return 0.01 if Staged.stage == 0 else 0.08
+
+        @success_radius.setter
+        def success_radius(self, value: float) -> None:
+            pass
+
+    d, rate, fell = np.array([0.05, 0.05]), np.zeros(2), np.array([True, False])
+
+    def own(tasks: list) -> list[float]:
+        return [t.reward(a, 0.0, f) for t, a, f in zip(tasks, d.tolist(), fell.tolist())]
+
+    tasks = [BallTask(), BallTask()]
+    array = TaskArray(tasks)
+    tasks[0].FALL_PENALTY = 100.0
+    np.testing.assert_array_equal(array.rewards(d, rate, fell), own(tasks))
+    del tasks[0].FALL_PENALTY
+    np.testing.assert_array_equal(array.rewards(d, rate, fell), own(tasks))
+    staged = [Staged(outside_penalty=1.0), Staged(outside_penalty=1.0)]
+    array = TaskArray(staged)
+    before = array.rewards(d, rate, fell)
+    Staged.stage = 1
+    after = array.rewards(d, rate, fell)
+    assert array.computed_parameters and (after > before).all()
+    np.testing.assert_array_equal(after, own(staged))
+
+
 def test_targets_pushes_and_infos_are_each_tasks_own() -> None:
     """Moving targets (track) and pushes with their info (disturbance), each copy's at its own time."""
     rng = np.random.default_rng(3)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import stewart_gym  # noqa: F401  (registers the ids)
+from stewart_gym.envs.tasks.balance import BalanceTask
 from stewart_gym.envs.vector import StewartBallVectorEnv
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing_arrays import CameraArray, PanelArray
@@ -92,12 +93,22 @@ def assert_info_row(batched: dict, i: int, single: dict) -> None:
         assert batched[f"_{key}"][i]
 
 
-def test_ended_episodes_are_reported_as_gymnasium_reports_them() -> None:
+class NestedInfoTask(BalanceTask):
+    """A task whose info has a nested entry (``tests.envs.test_vector:NestedInfoTask``)."""
+
+    def info(self) -> dict:
+        return {"stage": {"level": 2.0, "name": "start"}}
+
+
+@pytest.mark.parametrize("task", ["balance", "tests.envs.test_vector:NestedInfoTask"])
+def test_ended_episodes_are_reported_as_gymnasium_reports_them(task: str) -> None:
     """``info["final_obs"]``, ``info["final_info"]`` and their masks: keys, dtypes, shapes and values as Gymnasium's
-    own ``VectorEnv._add_info`` makes them, copy by copy, from the same step's ended copies."""
+    own ``VectorEnv._add_info`` makes them, copy by copy, from the same step's ended copies (a task's nested info
+    entry too)."""
     from gymnasium.vector import VectorEnv
 
-    kwargs = {"num_envs": 6, "vectorization_mode": "vector_entry_point", "episode_s": 0.3, "randomize": True}
+    kwargs = {"num_envs": 6, "vectorization_mode": "vector_entry_point", "episode_s": 0.3, "randomize": True,
+              "task": task}  # fmt: skip
     ours, reference = (gym.make_vec("StewartBallBalance-v0", **kwargs) for _ in range(2))
     ours.reset(seed=3)
     reference.reset(seed=3)
@@ -122,6 +133,12 @@ def test_ended_episodes_are_reported_as_gymnasium_reports_them() -> None:
         assert list(info["final_info"]) == list(expected["final_info"])
         for key, column in expected["final_info"].items():
             got = info["final_info"][key]
+            if isinstance(column, dict):
+                assert list(got) == list(column), key
+                for inner, values in column.items():
+                    assert got[inner].dtype == values.dtype
+                    np.testing.assert_array_equal(got[inner], values)
+                continue
             assert got.dtype == column.dtype and got.shape == column.shape, key
             np.testing.assert_array_equal(got, column)
     assert checked >= 6  # every copy ended at least once (15-step episodes)

@@ -129,3 +129,26 @@ print("ok")
 """
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
+
+
+def test_with_nowhere_to_cache_the_loops_compile_in_each_process() -> None:
+    """Where numba finds no writable place for its cache (a read-only install with no writable home: here numba's
+    cache locators are emptied before the package loads), importing the package still works and the compiled
+    loops run, compiled in the process."""
+    import subprocess
+    import sys
+
+    script = """
+import numba.core.caching as caching
+caching.CacheImpl._locator_classes = []  # numba finds no cache location, as in a read-only install
+import numpy as np
+from stewart_gym.compiled import exp_each
+from stewart_gym.sim.batched import BatchedSim
+sim = BatchedSim(n=3)
+sim.command(np.broadcast_to(sim.calibration.neutral_us + 30.0, (3, 6)))
+sim.step()
+assert sim.kernel == "numba" and np.isfinite(sim.ball_xy).all() and exp_each(np.zeros(2)).tolist() == [1.0, 1.0]
+print("ok")
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
