@@ -139,8 +139,8 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
         # the chord method's Jacobian at the period's first frame, with the servo angles it started from
         for r in range(3):
             origins[0, r], origins[1, r] = origin0[i, r], origin1[i, r]
-            for c in range(3):
-                rots[0, r, c], rots[1, r, c] = rot0[i, r, c], rot1[i, r, c]
+            for col in range(3):
+                rots[0, r, col], rots[1, r, col] = rot0[i, r, col], rot1[i, r, col]
         _tips(cosines, sines, 0, base, horn, cos_beta, sin_beta, tips)
         for k in range(6):
             for r in range(3):
@@ -162,8 +162,8 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
             q = j + 2
             for r in range(3):
                 origins[q, r] = origin1[i, r]
-                for c in range(3):
-                    rots[q, r, c] = rot1[i, r, c]
+                for col in range(3):
+                    rots[q, r, col] = rot1[i, r, col]
             for _ in range(newton_steps):
                 for k in range(6):
                     p0, p1, p2 = anchors[k, 0], anchors[k, 1], anchors[k, 2]
@@ -223,8 +223,8 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
         xy[i, 0], xy[i, 1], v[i, 0], v[i, 1] = x, y, vx, vy
         for r in range(3):
             origin0[i, r], origin1[i, r] = origins[s, r], origins[s + 1, r]
-            for c in range(3):
-                rot0[i, r, c], rot1[i, r, c] = rots[s, r, c], rots[s + 1, r, c]
+            for col in range(3):
+                rot0[i, r, col], rot1[i, r, col] = rots[s, r, col], rots[s + 1, r, col]
 
 
 _solve6, _factor6, _tips, _turn, _rotate_by = (compiled(f) or f for f in (_solve6, _factor6, _tips, _turn, _rotate_by))
