@@ -5,19 +5,22 @@
   N = 4,096, for comparison);
 * envs (``StewartBallBalance-v0``, randomised, behind the Kalman observer, random tilt actions of ±0.3, an
   episode reset when it ends): one PyBullet, one MuJoCo and one batched env (``gym.make``), and the batched
-  vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096, and at
-  N = 1,024 with cameras (``sensor="camera"``: a preset drawn per episode) instead of touch panels.
+  vector env (``gym.make_vec(..., vectorization_mode="vector_entry_point")``) at N = 64, 1,024 and 4,096, at
+  N = 1,024 with cameras (``sensor="camera"``: a preset drawn per episode) instead of touch panels, and split over
+  2 processes (``workers=2``) at N = 4,096 and 8,192.
 
 Run: ``.venv/bin/python bench/bench_batched.py [--json]``. Each figure is the best of three timed runs; the
 ratio column is against the PyBullet simulator, or the PyBullet env, of the same run. The threads are left as a
 user's program has them (no ``OMP_NUM_THREADS`` or ``OPENBLAS_NUM_THREADS`` set here), and the cores column is
-this process's CPU time over the wall time of the best run: a figure bought with a second busy core shows there.
+this process's CPU time (and its worker processes', on Linux) over the wall time of the best run: a figure bought
+with a second busy core shows there.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import numpy as np
@@ -26,17 +29,30 @@ from stewart_gym.sim.batched import BatchedSim
 from stewart_gym.sim.engines import make_backend
 
 
-def rate(step, platforms: int, seconds: float = 1.0) -> tuple[float, float]:
+def worker_cpu(pids: list[int]) -> float:
+    """CPU seconds the processes ``pids`` have used so far (Linux's ``/proc``; 0 elsewhere)."""
+    total = 0.0
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime + stime
+    return total
+
+
+def rate(step, platforms: int, seconds: float = 1.0, pids: list[int] = ()) -> tuple[float, float]:
     """Best of three: platform-steps per second of ``step()`` run for about ``seconds``, and the cores that run
-    used (its CPU time over its wall time)."""
+    used (its CPU time, and that of the worker processes ``pids``, over its wall time)."""
     best = (0.0, 0.0)
     for _ in range(3):
-        count, start, cpu = 0, time.perf_counter(), time.process_time()
+        count, start, cpu = 0, time.perf_counter(), time.process_time() + worker_cpu(pids)
         while time.perf_counter() - start < seconds:
             step(count)
             count += 1
         wall = time.perf_counter() - start
-        best = max(best, (count * platforms / wall, (time.process_time() - cpu) / wall))
+        best = max(best, (count * platforms / wall, (time.process_time() + worker_cpu(pids) - cpu) / wall))
     return best
 
 
@@ -101,14 +117,17 @@ def env_rates() -> dict[str, tuple[float, float]]:
 
         out[f"{backend}, one env"] = rate(single, 1)
         env.close()
-    for sensor, sizes in (("panel", (64, 1024, 4096)), ("camera", (1024,))):
+    for sensor, sizes, workers in (("panel", (64, 1024, 4096), 1), ("camera", (1024,), 1),
+                                   ("panel", (4096, 8192), 2)):  # fmt: skip
         for n in sizes:
             vector = gym.make_vec("StewartBallBalance-v0", num_envs=n, vectorization_mode="vector_entry_point",
-                                  sensor=sensor, **kwargs)  # fmt: skip
+                                  sensor=sensor, workers=workers, **kwargs)  # fmt: skip
             vector.reset(seed=0)
             batch = np.random.default_rng(1).uniform(-0.3, 0.3, (8, n, 2)).astype(np.float32)
-            name = f"batched vector env, N = {n:,}" + (", cameras" if sensor == "camera" else "")
-            out[name] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0)
+            name = (f"batched vector env, N = {n:,}" + (", cameras" if sensor == "camera" else "")
+                    + (f", {workers} workers" if workers > 1 else ""))  # fmt: skip
+            out[name] = rate(lambda i, v=vector, b=batch: v.step(b[i % 8]), n, seconds=2.0,
+                             pids=getattr(vector, "pids", []))  # fmt: skip
             vector.close()
     return out
 

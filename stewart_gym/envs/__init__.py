@@ -11,8 +11,9 @@ __all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "VECTOR_ENTRY_POINT", "env_table", "reg
            "trajectory_env_ids"]
 
 ENV_ENTRY_POINT = "stewart_gym.envs.ball_env:StewartBallEnv"
-#: ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")``: the batched vector env.
-VECTOR_ENTRY_POINT = "stewart_gym.envs.vector:StewartBallVectorEnv"
+#: ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")``: the batched vector env (``workers=k``: split
+#: over k processes).
+VECTOR_ENTRY_POINT = "stewart_gym.envs.split_vector:batched_vector_env"
 
 #: id → (task, episode length in s): the task is a "module:Class" path (see stewart_gym.envs.task). An episode is a
 #: duration: at the default 50 Hz, 500 steps for balance, 1000 for track; at ``control_hz=25``, half as many.

@@ -1,0 +1,236 @@
+"""The batched vector env split over worker processes, one core each: ``gym.make_vec(id, num_envs, vectorization_mode=
+"vector_entry_point", workers=k)``.
+
+:class:`SplitVectorEnv` splits the copies into ``workers`` shares, as equal as can be. This process steps the first
+share itself, a :class:`~stewart_gym.envs.vector.StewartBallVectorEnv`, while each of ``workers`` − 1 worker
+processes steps one of the others: every step sends each worker its actions, steps the first share meanwhile, and
+gathers what the workers return. Copy i is exactly copy i of one ``StewartBallVectorEnv`` of all the copies,
+seeded alike (copy i with ``seed + i``), so the split changes the speed, not the numbers. The info is gathered as
+Gymnasium batches it: each key a row per copy, with its ``_key`` mask, and ``final_obs`` and ``final_info`` where a
+copy's episode ended in the step.
+
+A worker is a fresh Python running ``python -m stewart_gym.envs.split_vector FD_IN FD_OUT`` (a subprocess, not a fork
+of the caller, so that it neither copies the caller's threads nor imports the caller's script again: no ``if
+__name__ == "__main__"`` is needed, but a task must be importable, not defined in the script itself); it starts in
+about a second. Messages go as pickles over two pipes. A worker that fails (its env raising, or the process dying)
+makes the call raise :class:`~stewart_gym.errors.ConfigError` with its message; :meth:`close` ends the workers (and
+kills any that do not end within 10 s).
+"""
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+import traceback
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from stewart_gym.envs.vector import MAX_NUM_ENVS, StewartBallVectorEnv
+from stewart_gym.errors import ConfigError
+
+__all__ = ["SplitVectorEnv", "batched_vector_env"]
+
+#: The most worker processes one split env starts.
+MAX_WORKERS = 256
+
+
+def batched_vector_env(num_envs: int = 1, *, workers: int = 1, **kwargs: Any) -> VectorEnv:
+    """The batched vector env (Gymnasium's ``vector_entry_point``): one :class:`StewartBallVectorEnv` in this
+    process (``workers=1``, the default), or a :class:`SplitVectorEnv` over ``workers`` processes."""
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or not 1 <= workers <= MAX_WORKERS:
+        raise ConfigError(f"workers must be a whole number from 1 to {MAX_WORKERS}, got {workers!r}")
+    if workers == 1:
+        return StewartBallVectorEnv(num_envs, **kwargs)
+    return SplitVectorEnv(num_envs, workers=int(workers), **kwargs)
+
+
+def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a child process
+    """A worker: make its share of the copies (the first message: its ``num_envs`` and keywords), then answer
+    ``(command, argument)`` messages from ``inbox`` on ``conn`` until ``close``."""
+    try:
+        num_envs, kwargs = inbox.recv()
+        env = StewartBallVectorEnv(num_envs, **kwargs)
+        conn.send(("ok", (env.single_observation_space, env.single_action_space, env.metadata)))
+    except Exception as exc:  # noqa: BLE001 - the parent reports it
+        conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
+        return
+    while True:
+        try:
+            command, argument = inbox.recv()
+        except EOFError:  # the parent has gone
+            env.close()
+            return
+        try:
+            if command == "reset":
+                result: Any = env.reset(**argument)
+            elif command == "step":
+                result = env.step(argument)
+            else:  # close
+                env.close()
+                conn.send(("ok", None))
+                return
+            conn.send(("ok", result))
+        except Exception as exc:  # noqa: BLE001 - the parent reports it
+            conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
+
+
+def _joined(parts: list[dict[str, Any]], sizes: list[int]) -> dict[str, Any]:
+    """The workers' batched infos as one: each key's rows in worker order; a key a worker lacks (no copy of its
+    ended, say) has its rows as Gymnasium leaves them (zeros, None, a False mask)."""
+    out: dict[str, Any] = {}
+    keys = list(dict.fromkeys(key for part in parts for key in part))
+    for key in keys:
+        values = [part.get(key) for part in parts]
+        present = next(v for v in values if v is not None)
+        if isinstance(present, dict):
+            out[key] = _joined([v if v is not None else {} for v in values], sizes)
+            continue
+        rows = []
+        for value, size in zip(values, sizes):
+            if value is None:
+                value = (np.full(size, None, dtype=object) if present.dtype == object
+                         else np.zeros((size, *present.shape[1:]), dtype=present.dtype))  # fmt: skip
+            rows.append(value)
+        out[key] = np.concatenate(rows)
+    return out
+
+
+class SplitVectorEnv(VectorEnv):
+    """``num_envs`` copies of one env id on ``workers`` processes (their shares as equal as can be): this one, which
+    steps the first share itself while the ``workers`` − 1 others step theirs.
+
+    Args:
+        num_envs: How many copies in all.
+        workers: How many processes (at most ``num_envs``).
+        **kwargs: :class:`~stewart_gym.envs.vector.StewartBallVectorEnv`'s keywords, each worker's the same.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 2, *, workers: int = 2, **kwargs: Any) -> None:
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+            raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+        if not 1 <= workers <= num_envs:
+            raise ConfigError(f"workers must be from 1 to num_envs ({num_envs}), got {workers}")
+        self.num_envs, self.workers = int(num_envs), int(workers)
+        base, extra = divmod(self.num_envs, self.workers)
+        self.sizes = [base + (w < extra) for w in range(self.workers)]
+        self.starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(int).tolist()
+        self._outboxes: list[Connection] = []
+        self._conns: list[Connection] = []
+        self._processes: list[subprocess.Popen] = []
+        environment = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # what this one imports
+        for _ in self.sizes[1:]:
+            to_child, from_parent = os.pipe()[::-1]  # (write end, read end)
+            to_parent, from_child = os.pipe()[::-1]
+            process = subprocess.Popen([sys.executable, "-m", "stewart_gym.envs.split_vector", str(from_parent),
+                                        str(to_parent)], pass_fds=(from_parent, to_parent), env=environment)  # fmt: skip
+            os.close(from_parent)
+            os.close(to_parent)
+            self._outboxes.append(Connection(to_child, readable=False))
+            self._conns.append(Connection(from_child, writable=False))
+            self._processes.append(process)
+        try:
+            self._send([(size, kwargs) for size in self.sizes[1:]])
+            #: the first share, stepped in this process
+            self.own = StewartBallVectorEnv(self.sizes[0], **kwargs)
+            self._gather()
+        except Exception:
+            self.close_extras(terminate=True)
+            raise
+        self.single_observation_space = self.own.single_observation_space
+        self.single_action_space = self.own.single_action_space
+        metadata = self.own.metadata
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.metadata = {**self.metadata, "render_fps": metadata.get("render_fps")}
+        self.render_mode = None
+        self.spec = None
+
+    @property
+    def pids(self) -> list[int]:
+        """The process ids of the other workers (this process steps the first share)."""
+        return [process.pid for process in self._processes]
+
+    def _gather(self) -> list[Any]:
+        """Every other worker's answer, in order; raises :class:`ConfigError` with the first failure."""
+        answers, failure = [], None
+        for w, conn in enumerate(self._conns):
+            try:
+                status, value = conn.recv()
+            except (EOFError, OSError):
+                status, value = "error", f"worker {w} stopped (exit code {self._processes[w].poll()})"
+            if status != "ok" and failure is None:
+                failure = value
+            answers.append(value)
+        if failure is not None:
+            raise ConfigError(f"a worker of the split vector env failed: {failure.strip()}")
+        return answers
+
+    def _send(self, messages: list[Any]) -> None:
+        for w, (outbox, message) in enumerate(zip(self._outboxes, messages)):
+            try:
+                outbox.send(message)
+            except (pickle.PicklingError, TypeError, AttributeError) as exc:
+                raise ConfigError(f"the split vector env's keywords must pickle to reach its workers: {exc}") from None
+            except (BrokenPipeError, OSError):
+                raise ConfigError(f"worker {w} of the split vector env has stopped "
+                                  f"(exit code {self._processes[w].poll()})") from None  # fmt: skip
+
+    def reset(self, *, seed: int | list[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+        """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
+        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+        if seed is None or isinstance(seed, int):
+            seeds: list[Any] = [None if seed is None else seed + start for start in self.starts]
+        else:
+            if len(seed) != self.num_envs:
+                raise ConfigError(f"reset: {len(seed)} seeds for {self.num_envs} envs")
+            seeds = [list(seed[start:start + size]) for start, size in zip(self.starts, self.sizes)]
+        self._send([("reset", {"seed": s, "options": options}) for s in seeds[1:]])
+        answers = [self.own.reset(seed=seeds[0], options=options), *self._gather()]
+        return np.concatenate([obs for obs, _ in answers]), _joined([info for _, info in answers], self.sizes)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
+        actions = np.asarray(actions)
+        if actions.shape[:1] != (self.num_envs,):
+            raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
+        self._send([("step", actions[start:start + size]) for start, size in zip(self.starts[1:], self.sizes[1:])])
+        answers = [self.own.step(actions[:self.sizes[0]]), *self._gather()]
+        observations, rewards, terminations, truncations, infos = zip(*answers)
+        return (np.concatenate(observations), np.concatenate(rewards), np.concatenate(terminations),
+                np.concatenate(truncations), _joined(list(infos), self.sizes))  # fmt: skip
+
+    def close_extras(self, terminate: bool = False, **kwargs: Any) -> None:
+        """End the workers (each closes its env); kill any that do not end within 10 s."""
+        if not terminate:
+            for outbox in getattr(self, "_outboxes", []):
+                try:
+                    outbox.send(("close", None))
+                except (BrokenPipeError, OSError):
+                    pass
+        for process in getattr(self, "_processes", []):
+            try:
+                process.wait(timeout=0.1 if terminate else 10.0)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait(timeout=5.0)
+        for conn in [*getattr(self, "_outboxes", []), *getattr(self, "_conns", [])]:
+            conn.close()
+        self._outboxes, self._conns, self._processes = [], [], []
+        if getattr(self, "own", None) is not None:
+            self.own.close()
+
+
+if __name__ == "__main__":  # pragma: no cover - a worker, started by SplitVectorEnv
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle: it closes the workers, or they
+    # read the end of their pipe when it exits
+    _work(Connection(int(sys.argv[1]), writable=False), Connection(int(sys.argv[2]), readable=False))
