@@ -172,6 +172,18 @@ class SplitVectorEnv(VectorEnv):
             raise ConfigError(f"a worker of the split vector env failed: {failure.strip()}")
         return answers
 
+    def _own(self, method: Any, *args: Any, **kwargs: Any) -> Any:
+        """The first share's ``method(*args, **kwargs)``, the others' being under way: if it raises, their answers
+        are read (and dropped) first, so that the next call reads its own."""
+        try:
+            return method(*args, **kwargs)
+        except BaseException:
+            try:
+                self._gather()
+            except ConfigError:
+                pass
+            raise
+
     def _send(self, messages: list[Any]) -> None:
         for w, (outbox, message) in enumerate(zip(self._outboxes, messages)):
             try:
@@ -193,7 +205,7 @@ class SplitVectorEnv(VectorEnv):
                 raise ConfigError(f"reset: {len(seed)} seeds for {self.num_envs} envs")
             seeds = [list(seed[start:start + size]) for start, size in zip(self.starts, self.sizes)]
         self._send([("reset", {"seed": s, "options": options}) for s in seeds[1:]])
-        answers = [self.own.reset(seed=seeds[0], options=options), *self._gather()]
+        answers = [self._own(self.own.reset, seed=seeds[0], options=options), *self._gather()]
         return np.concatenate([obs for obs, _ in answers]), _joined([info for _, info in answers], self.sizes)
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
@@ -202,7 +214,7 @@ class SplitVectorEnv(VectorEnv):
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
         self._send([("step", actions[start:start + size]) for start, size in zip(self.starts[1:], self.sizes[1:])])
-        answers = [self.own.step(actions[:self.sizes[0]]), *self._gather()]
+        answers = [self._own(self.own.step, actions[:self.sizes[0]]), *self._gather()]
         observations, rewards, terminations, truncations, infos = zip(*answers)
         return (np.concatenate(observations), np.concatenate(rewards), np.concatenate(terminations),
                 np.concatenate(truncations), _joined(list(infos), self.sizes))  # fmt: skip

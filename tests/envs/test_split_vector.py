@@ -100,3 +100,23 @@ def test_a_dead_worker_is_one_error_and_close_ends_the_others() -> None:
     for pid in (first, second):  # both ended and reaped
         with pytest.raises(ProcessLookupError):
             os.kill(pid, 0)
+
+
+def test_an_action_the_env_refuses_leaves_the_workers_in_step() -> None:
+    """A NaN action, refused by the env in this process and in the workers: the error, then the next step's
+    answers are the next step's (the refused step's are not read in their place)."""
+    split, one = make(4, workers=2), make(4)
+    try:
+        split.reset(seed=1)
+        one.reset(seed=1)
+        bad = np.full((4, 2), np.nan, np.float32)
+        with pytest.raises(Exception) as refused:
+            split.step(bad)
+        with pytest.raises(type(refused.value)):
+            one.step(bad)
+        a = np.full((4, 2), 0.2, np.float32)
+        for x, y in zip(split.step(a)[:4], one.step(a)[:4]):
+            np.testing.assert_array_equal(x, y)
+    finally:
+        split.close()
+        one.close()
