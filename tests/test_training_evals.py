@@ -144,7 +144,7 @@ def test_a_stopped_training_exits_and_leaves_no_worker(sig: signal.Signals, tmp_
         else:
             proc.send_signal(sig)
         _, err = proc.communicate(timeout=30)
-        assert proc.returncode == 128 + sig
+        assert proc.returncode == 128 + sig, err[-3000:]  # what the training said, if it ended otherwise
         assert err.strip().splitlines()[-1].startswith("error: stopped by")
         deadline = time.monotonic() + 10
         while (left := subprocess.run(["pgrep", "-a", "-g", str(proc.pid)], capture_output=True,
