@@ -14,7 +14,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["AVAILABLE", "compiled", "exp_each"]
+from stewart_gym.errors import ConfigError
+
+__all__ = ["AVAILABLE", "KERNELS", "compiled", "exp_each", "use_compiled"]
 
 try:
     import numba
@@ -23,6 +25,21 @@ except ImportError:  # pragma: no cover - the dev install has numba
 
 #: Whether numba imports, so that :func:`compiled` compiles.
 AVAILABLE = numba is not None
+
+
+#: The ways a hot loop can run (a ``kernel`` argument): ``"numba"``, compiled; ``"numpy"``, as arrays; ``"auto"``,
+#: compiled where numba is installed.
+KERNELS = ("auto", "numba", "numpy")
+
+
+def use_compiled(kernel: str, available: bool) -> bool:
+    """Whether a ``kernel`` argument (:data:`KERNELS`) runs the compiled loop, which is ``available`` or not;
+    raises :class:`~stewart_gym.errors.ConfigError` for an unknown kernel, or ``"numba"`` where it is not."""
+    if kernel not in KERNELS:
+        raise ConfigError(f"kernel: one of {', '.join(KERNELS)}, got {kernel!r}")
+    if kernel == "numba" and not available:
+        raise ConfigError("kernel 'numba' needs numba: pip install numba (or use kernel 'numpy')")
+    return kernel != "numpy" and available
 
 
 def compiled(function: Callable[..., Any]) -> Callable[..., Any] | None:

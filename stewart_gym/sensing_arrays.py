@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 
 from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
-from stewart_gym.compiled import compiled, exp_each
+from stewart_gym.compiled import compiled, exp_each, use_compiled
 from stewart_gym.constants import GRAVITY
-from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import (
     BallKalmanFilter,
     BallObserver,
@@ -379,12 +378,9 @@ class KalmanArray:
     """
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
-        if kernel not in ("auto", "numba", "numpy"):
-            raise ConfigError(f"kernel: one of auto, numba, numpy, got {kernel!r}")
-        if kernel == "numba" and _propagate_compiled is None:
-            raise ConfigError("kernel 'numba' needs numba: pip install numba (or use kernel 'numpy')")
         #: the row-by-row propagation in use (None: as arrays)
-        self.compiled_propagation = None if kernel == "numpy" else _propagate_compiled
+        self.compiled_propagation = (_propagate_compiled if use_compiled(kernel, _propagate_compiled is not None)
+                                     else None)  # fmt: skip
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:

@@ -45,10 +45,7 @@ from stewart_gym.kinematics import horn_tips, inverse_kinematics
 from stewart_gym.sim.backend import BallSpec, check_rates
 from stewart_gym.sim.servo_model import ServoSpec
 
-__all__ = ["KERNELS", "BatchedSim"]
-
-#: The ways :class:`BatchedSim` computes a control period (its ``kernel`` argument).
-KERNELS = ("auto", "numba", "numpy")
+__all__ = ["BatchedSim"]
 
 #: Newton steps that close the chains at each physics step (:meth:`BatchedSim._plate_frames`). On 6° tilt
 #: sinusoids they leave at most about 2 µm of rod length error, and the ball's path over 3 s within 0.06 mm of
@@ -126,14 +123,11 @@ class BatchedSim:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= 10_000_000:
             raise ConfigError(f"n: a whole number of platforms, 1 to 10,000,000, got {n!r}")
         check_rates(physics_hz, control_hz)
-        if kernel not in KERNELS:
-            raise ConfigError(f"kernel: one of {', '.join(KERNELS)}, got {kernel!r}")
+        from stewart_gym.compiled import use_compiled
         from stewart_gym.sim import batched_kernel
 
-        if kernel == "numba" and not batched_kernel.AVAILABLE:
-            raise ConfigError("kernel 'numba' needs numba: pip install numba (or use kernel 'numpy')")
         #: the kernel in use: "numba" or "numpy"
-        self.kernel = "numba" if kernel == "numba" or (kernel == "auto" and batched_kernel.AVAILABLE) else "numpy"
+        self.kernel = "numba" if use_compiled(kernel, batched_kernel.AVAILABLE) else "numpy"
         self._advance = batched_kernel.advance
         self.geometry = load_geometry(geometry)
         if not self.geometry.is_rotary:
@@ -370,9 +364,7 @@ class BatchedSim:
     def _step_compiled(self) -> None:
         """:meth:`step` by the compiled kernel, which updates the state arrays in place."""
         targets = self._servo_targets()
-        (o0, r0), (o1, r1) = self._frames = [tuple(np.ascontiguousarray(a) for a in frame) for frame in self._frames]
-        self.alpha, self._last_step = np.ascontiguousarray(self.alpha), np.ascontiguousarray(self._last_step)
-        self.ball_xy, self.ball_velocity = np.ascontiguousarray(self.ball_xy), np.ascontiguousarray(self.ball_velocity)
+        (o0, r0), (o1, r1) = self._frames
         g = self.geometry
         self._advance(targets, self.alpha, self._last_step, self._gain[:, 0], self._max_step[:, 0],
                       self._max_change[:, 0], o0, r0, o1, r1, self.ball_xy, self.ball_velocity, self._beta,
