@@ -30,7 +30,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.vector import MAX_NUM_ENVS, StewartBallVectorEnv
+from stewart_gym.envs.vector import StewartBallVectorEnv, check_num_envs
 from stewart_gym.errors import ConfigError
 
 __all__ = ["SplitVectorEnv", "batched_vector_env"]
@@ -55,7 +55,7 @@ def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a 
     try:
         num_envs, kwargs = inbox.recv()
         env = StewartBallVectorEnv(num_envs, **kwargs)
-        conn.send(("ok", (env.single_observation_space, env.single_action_space, env.metadata)))
+        conn.send(("ok", None))
     except Exception as exc:  # noqa: BLE001 - the parent reports it
         conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
         return
@@ -113,8 +113,7 @@ class SplitVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 2, *, workers: int = 2, **kwargs: Any) -> None:
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
-            raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+        check_num_envs(num_envs)
         if not 1 <= workers <= num_envs:
             raise ConfigError(f"workers must be from 1 to num_envs ({num_envs}), got {workers}")
         self.num_envs, self.workers = int(num_envs), int(workers)
@@ -145,10 +144,9 @@ class SplitVectorEnv(VectorEnv):
             raise
         self.single_observation_space = self.own.single_observation_space
         self.single_action_space = self.own.single_action_space
-        metadata = self.own.metadata
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.metadata = {**self.metadata, "render_fps": metadata.get("render_fps")}
+        self.metadata = {**self.metadata, "render_fps": self.own.metadata["render_fps"]}
         self.render_mode = None
         self.spec = None
 

@@ -65,7 +65,7 @@ class TaskArray:
         self.computed_parameters = any(hasattr(getattr(cls, name, None), "__get__") for cls in self._task_classes
                                        for name in BallTask.REWARD_PARAMETERS)  # fmt: skip
         self._parameters_read: tuple[int, list[float]] | None = None  # (writes counted, class FALL_PENALTYs) then
-        self._parameters = np.empty((len(BallTask.REWARD_PARAMETERS), self.n))
+        self._parameters: np.ndarray | None = None  # a row per parameter, a column per copy (:meth:`_columns`)
 
     def before_step(self, times: np.ndarray, backends: Sequence[Any]) -> None:
         """Let each task act on its copy's physics (``backends[i]``) before the period that starts at ``times[i]``."""

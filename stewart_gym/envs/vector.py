@@ -31,10 +31,16 @@ from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, Ob
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
-__all__ = ["MAX_NUM_ENVS", "StewartBallVectorEnv"]
+__all__ = ["MAX_NUM_ENVS", "StewartBallVectorEnv", "check_num_envs"]
 
 #: The most copies one vector env holds.
 MAX_NUM_ENVS = 1_000_000
+
+
+def check_num_envs(num_envs: object) -> None:
+    """Raise :class:`ConfigError` unless ``num_envs`` is a whole number from 1 to :data:`MAX_NUM_ENVS`."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+        raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
 
 
 class StewartBallVectorEnv(VectorEnv):
@@ -53,8 +59,7 @@ class StewartBallVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, *, backend: str = "batched", render_mode: str | None = None,
                  geometry: Any = "servo-hexapod", control_hz: int = 50, physics_hz: int | None = None,
                  ball: Any = None, servo: Any = None, **kwargs: Any) -> None:  # fmt: skip
-        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
-            raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+        check_num_envs(num_envs)
         if backend != "batched":
             raise ConfigError(f"the vector entry point steps the batched backend; got backend {backend!r} (for "
                               "PyBullet or MuJoCo copies use vectorization_mode='sync' or 'async')")  # fmt: skip
