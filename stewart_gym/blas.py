@@ -1,10 +1,10 @@
 """numpy's BLAS held to one thread while a hot loop runs.
 
 OpenBLAS splits a large enough matrix product over every core, and its threads then spin while they wait for
-the next one. On the products of the batched loops here (a few thousand 3 × 3 rotations times the six plate
-anchors, many times a second) the second thread gains next to nothing, and it takes a core that the training,
-an evaluation worker or another process wanted: the batched vector env at N = 4,096 keeps both cores of a
-2-core machine busy for the steps that one core gives alone. :class:`OneBlasThread` limits the BLAS to one
+the next one. On the products of the batched loops here (the batched simulator's NumPy kernel: a few thousand
+3 × 3 rotations times the six plate anchors, many times a second; the fits) the second thread gains next to
+nothing, and it takes a core that the training, an evaluation worker or another process wanted: it would keep both
+cores of a 2-core machine busy for the steps that one core gives alone. :class:`OneBlasThread` limits the BLAS to one
 thread for the duration of a ``with`` (:func:`one_blas_thread`: of a function); a thread computes every
 element alike, so the results are the same to the last bit.
 """
