@@ -27,10 +27,10 @@ from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
-from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.vector import StewartBallVectorEnv, check_num_envs
+from stewart_gym.envs.vector import ArrayVectorEnv, StewartBallVectorEnv, check_num_envs
 from stewart_gym.errors import ConfigError
 
 __all__ = ["SplitVectorEnv", "batched_vector_env"]
@@ -67,9 +67,9 @@ def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a 
             return
         try:
             if command == "reset":
-                result: Any = env.reset(**argument)
+                result: Any = env.reset_arrays(**argument)
             elif command == "step":
-                result = env.step(argument)
+                result = env.step_arrays(argument)
             else:  # close
                 env.close()
                 conn.send(("ok", None))
@@ -79,28 +79,12 @@ def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a 
             conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
 
 
-def _joined(parts: list[dict[str, Any]], sizes: list[int]) -> dict[str, Any]:
-    """The workers' batched infos as one: each key's rows in worker order; a key a worker lacks (no copy of its
-    ended, say) has its rows as Gymnasium leaves them (zeros, None, a False mask)."""
-    out: dict[str, Any] = {}
-    keys = list(dict.fromkeys(key for part in parts for key in part))
-    for key in keys:
-        values = [part.get(key) for part in parts]
-        present = next(v for v in values if v is not None)
-        if isinstance(present, dict):
-            out[key] = _joined([v if v is not None else {} for v in values], sizes)
-            continue
-        rows = []
-        for value, size in zip(values, sizes):
-            if value is None:
-                value = (np.full(size, None, dtype=object) if present.dtype == object
-                         else np.zeros((size, *present.shape[1:]), dtype=present.dtype))  # fmt: skip
-            rows.append(value)
-        out[key] = np.concatenate(rows)
-    return out
+def _columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """The shares' infos (one array per key, a row per copy) as one: each key's rows in share order."""
+    return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
 
 
-class SplitVectorEnv(VectorEnv):
+class SplitVectorEnv(ArrayVectorEnv):
     """``num_envs`` copies of one env id on ``workers`` processes (their shares as equal as can be): this one, which
     steps the first share itself while the ``workers`` − 1 others step theirs.
 
@@ -109,8 +93,6 @@ class SplitVectorEnv(VectorEnv):
         workers: How many processes (at most ``num_envs``).
         **kwargs: :class:`~stewart_gym.envs.vector.StewartBallVectorEnv`'s keywords, each worker's the same.
     """
-
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 2, *, workers: int = 2, **kwargs: Any) -> None:
         check_num_envs(num_envs)
@@ -192,10 +174,8 @@ class SplitVectorEnv(VectorEnv):
                 raise ConfigError(f"worker {w} of the split vector env has stopped "
                                   f"(exit code {self._processes[w].poll()})") from None  # fmt: skip
 
-    def reset(self, *, seed: int | list[int | None] | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
-        """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
-        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+    def reset_arrays(self, *, seed: int | list[int | None] | None = None,
+                     options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
         if seed is None or isinstance(seed, int):
             seeds: list[Any] = [None if seed is None else seed + start for start in self.starts]
         else:
@@ -203,19 +183,20 @@ class SplitVectorEnv(VectorEnv):
                 raise ConfigError(f"reset: {len(seed)} seeds for {self.num_envs} envs")
             seeds = [list(seed[start:start + size]) for start, size in zip(self.starts, self.sizes)]
         self._send([("reset", {"seed": s, "options": options}) for s in seeds[1:]])
-        answers = [self._own(self.own.reset, seed=seeds[0], options=options), *self._gather()]
-        return np.concatenate([obs for obs, _ in answers]), _joined([info for _, info in answers], self.sizes)
+        parts = [self._own(self.own.reset_arrays, seed=seeds[0], options=options), *self._gather()]
+        return np.concatenate([obs for obs, _ in parts]), _columns([info for _, info in parts])
 
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
+    def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
         actions = np.asarray(actions)
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
         self._send([("step", actions[start:start + size]) for start, size in zip(self.starts[1:], self.sizes[1:])])
-        answers = [self._own(self.own.step, actions[:self.sizes[0]]), *self._gather()]
-        observations, rewards, terminations, truncations, infos = zip(*answers)
+        parts = [self._own(self.own.step_arrays, actions[:self.sizes[0]]), *self._gather()]
+        observations, rewards, terminations, truncations, infos, finals = zip(*parts)
+        ended = {start + i: final for start, part in zip(self.starts, finals) for i, final in part.items()}
         return (np.concatenate(observations), np.concatenate(rewards), np.concatenate(terminations),
-                np.concatenate(truncations), _joined(list(infos), self.sizes))  # fmt: skip
+                np.concatenate(truncations), _columns(list(infos)), ended)  # fmt: skip
 
     def close_extras(self, terminate: bool = False, **kwargs: Any) -> None:
         """End the workers (each closes its env); kill any that do not end within 10 s."""

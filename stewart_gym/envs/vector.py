@@ -31,7 +31,7 @@ from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, Ob
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
-__all__ = ["MAX_NUM_ENVS", "StewartBallVectorEnv", "check_num_envs"]
+__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "StewartBallVectorEnv", "check_num_envs"]
 
 #: The most copies one vector env holds.
 MAX_NUM_ENVS = 1_000_000
@@ -43,7 +43,88 @@ def check_num_envs(num_envs: object) -> None:
         raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
 
 
-class StewartBallVectorEnv(VectorEnv):
+class ArrayVectorEnv(VectorEnv):
+    """A vector env that finds its copies' resets and steps as arrays (:meth:`reset_arrays`, :meth:`step_arrays`)
+    and batches their infos here as Gymnasium's ``SyncVectorEnv`` does in ``SAME_STEP`` autoreset mode: each key
+    with ``_key``, the copies that have it, and ``final_obs`` and ``final_info`` where a copy's episode ended."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def reset_arrays(self, *, seed: int | list[int | None] | None = None,
+                     options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
+        """Reset every copy (copy i with ``seed + i``, or ``seed[i]``), each with ``options``: the first
+        observations, and the infos as one array per key, a row per copy."""
+        raise NotImplementedError
+
+    def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
+        """:meth:`step` with the info as one array per key (a row per copy) and ``{i: (last observation, last
+        info)}`` of the copies whose episode ended (and which were reset in this step: their rows hold the new
+        episode's first observation and info)."""
+        raise NotImplementedError
+
+    def reset(self, *, seed: int | list[int | None] | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
+        """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
+        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+        observations, columns = self.reset_arrays(seed=seed, options=options)
+        return observations, self._gymnasium_info(columns)
+
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
+        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
+        batched = self._gymnasium_info(info)
+        if finals:
+            batched.update(self._final_infos(finals))
+        return observations, rewards, terminations, truncations, batched
+
+    def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
+        """:meth:`step_arrays` with each copy's info as its own dict: the form Stable-Baselines3's VecEnv
+        returns."""
+        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
+        keys = list(info)
+        infos = [dict(zip(keys, row)) for row in zip(*(info[key] for key in keys))]
+        return observations, rewards, terminations, truncations, infos, finals
+
+    def _gymnasium_info(self, columns: dict[str, np.ndarray]) -> dict[str, Any]:
+        """One array per key as Gymnasium batches infos: each key with ``_key``, the copies that have it (all)."""
+        out: dict[str, Any] = {}
+        for key, value in columns.items():
+            out[key] = value
+            out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
+        return out
+
+    def _final_infos(self, finals: dict[int, tuple[np.ndarray, dict[str, Any]]]) -> dict[str, Any]:
+        """``final_obs`` and ``final_info`` of the copies whose episode ended, with their masks, all at once: what
+        Gymnasium's ``_add_info`` makes of them one copy at a time (as its SyncVectorEnv in SAME_STEP mode)."""
+        rows = list(finals)
+        mask = np.zeros(self.num_envs, dtype=np.bool_)
+        mask[rows] = True
+        final_obs = np.full(self.num_envs, None, dtype=object)
+        for i, (obs, _) in finals.items():
+            final_obs[i] = obs
+        final_info: dict[str, Any] = {}
+        for key, first in finals[rows[0]][1].items():
+            if isinstance(first, dict):  # a task's nested entry: Gymnasium's own way, copy by copy
+                nested: dict[str, Any] = {}
+                for i in rows:
+                    nested = self._add_info(nested, finals[i][1][key], i)
+                final_info[key], final_info[f"_{key}"] = nested, mask.copy()
+                continue
+            if type(first) in (int, float, bool) or isinstance(first, np.number):
+                column = np.zeros(self.num_envs, dtype=type(first))
+            elif isinstance(first, np.ndarray):
+                column = np.zeros((self.num_envs, *first.shape), dtype=first.dtype)
+            else:  # anything else (a NumPy bool among them) in an object array, as Gymnasium does
+                column = np.full(self.num_envs, None, dtype=object)
+            for i in rows:
+                column[i] = finals[i][1][key]
+            final_info[key], final_info[f"_{key}"] = column, mask.copy()
+        return {"final_obs": final_obs, "_final_obs": mask, "final_info": final_info, "_final_info": mask.copy()}
+
+
+class StewartBallVectorEnv(ArrayVectorEnv):
     """``num_envs`` copies of one env id on one batched simulator.
 
     Args:
@@ -53,8 +134,6 @@ class StewartBallVectorEnv(VectorEnv):
         **kwargs: The env's keywords, as ``gym.make`` takes them (``task``, ``action_mode``, ``randomize``,
             ``geometry``, ``sensor``, ``estimator``, …); each copy gets the same.
     """
-
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 1, *, backend: str = "batched", render_mode: str | None = None,
                  geometry: Any = "servo-hexapod", control_hz: int = 50, physics_hz: int | None = None,
@@ -93,10 +172,8 @@ class StewartBallVectorEnv(VectorEnv):
         self.spec = None
         self.metadata = {**self.metadata, "render_fps": int(control_hz)}
 
-    def reset(self, *, seed: int | list[int | None] | None = None,
-              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
-        """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
-        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+    def reset_arrays(self, *, seed: int | list[int | None] | None = None,
+                     options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
         if seed is None or isinstance(seed, int):
             seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
         else:
@@ -109,49 +186,10 @@ class StewartBallVectorEnv(VectorEnv):
             self.copy_steps.reset_row(i, obs)
             observations.append(obs)
             infos.append(info)
-        return np.stack(observations), self._gymnasium_info(self._columns(infos))
-
-    def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
-        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
-        batched = self._gymnasium_info(info)
-        if finals:
-            batched.update(self._final_infos(finals))
-        return observations, rewards, terminations, truncations, batched
-
-    def _final_infos(self, finals: dict[int, tuple[np.ndarray, dict[str, Any]]]) -> dict[str, Any]:
-        """``final_obs`` and ``final_info`` of the copies whose episode ended, with their masks, all at once: what
-        Gymnasium's ``_add_info`` makes of them one copy at a time (as its SyncVectorEnv in SAME_STEP mode)."""
-        rows = list(finals)
-        mask = np.zeros(self.num_envs, dtype=np.bool_)
-        mask[rows] = True
-        final_obs = np.full(self.num_envs, None, dtype=object)
-        for i, (obs, _) in finals.items():
-            final_obs[i] = obs
-        final_info: dict[str, Any] = {}
-        for key, first in finals[rows[0]][1].items():
-            if isinstance(first, dict):  # a task's nested entry: Gymnasium's own way, copy by copy
-                nested: dict[str, Any] = {}
-                for i in rows:
-                    nested = self._add_info(nested, finals[i][1][key], i)
-                final_info[key], final_info[f"_{key}"] = nested, mask.copy()
-                continue
-            if type(first) in (int, float, bool) or isinstance(first, np.number):
-                column = np.zeros(self.num_envs, dtype=type(first))
-            elif isinstance(first, np.ndarray):
-                column = np.zeros((self.num_envs, *first.shape), dtype=first.dtype)
-            else:  # anything else (a NumPy bool among them) in an object array, as Gymnasium does
-                column = np.full(self.num_envs, None, dtype=object)
-            for i in rows:
-                column[i] = finals[i][1][key]
-            final_info[key], final_info[f"_{key}"] = column, mask.copy()
-        return {"final_obs": final_obs, "_final_obs": mask, "final_info": final_info, "_final_info": mask.copy()}
+        return np.stack(observations), {key: np.array([info[key] for info in infos]) for key in infos[0]}
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                          dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
-        """:meth:`step` with the info as one array per key (a row per copy) and ``{i: (last observation, last
-        info)}`` of the copies whose episode ended (and which were reset in this step: their rows hold the new
-        episode's first observation and info)."""
         actions = np.asarray(actions)
         if actions.shape[0] != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
@@ -169,27 +207,6 @@ class StewartBallVectorEnv(VectorEnv):
                 for key, value in info.items():
                     value[i] = reset_info[key]
         return observations, rewards, terminations, truncations, info, finals
-
-    def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
-        """:meth:`step_arrays` with each copy's info as its own dict: the form Stable-Baselines3's VecEnv
-        returns."""
-        observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
-        keys = list(info)
-        infos = [dict(zip(keys, row)) for row in zip(*(info[key] for key in keys))]
-        return observations, rewards, terminations, truncations, infos, finals
-
-    def _columns(self, infos: list[dict[str, Any]]) -> dict[str, np.ndarray]:
-        """The copies' infos (every copy's with the same keys) as one array per key, a row per copy."""
-        return {key: np.array([info[key] for info in infos]) for key in infos[0]}
-
-    def _gymnasium_info(self, columns: dict[str, np.ndarray]) -> dict[str, Any]:
-        """One array per key as Gymnasium batches infos: each key with ``_key``, the copies that have it (all)."""
-        out: dict[str, Any] = {}
-        for key, value in columns.items():
-            out[key] = value
-            out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
-        return out
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments
