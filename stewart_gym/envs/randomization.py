@@ -88,32 +88,38 @@ class EpisodeParams:
                sensor: TouchPanelSpec | CameraSpec | tuple[CameraSpec, ...]) -> EpisodeParams:  # fmt: skip
         """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor`` (a tuple of
         cameras: one of them, drawn uniformly, then varied)."""
-        u = rng.uniform
         r = ranges
-        radius = round(ball.radius * u(*r.ball_radius_scale), 4)
-        ball_ep = replace(ball, radius=radius, mass=ball.mass * u(*r.ball_mass_scale),
-                          rolling_friction=u(*r.ball_rolling_friction))  # fmt: skip
-        control_latency = u(*r.control_latency_s)
-        servo_ep = replace(
-            servo,
-            max_speed=servo.max_speed * u(*r.servo_speed_scale),
-            trim_error_us=tuple(u(-r.servo_trim_us, r.servo_trim_us, 6)),
-            deadband_us=u(*r.servo_deadband_us),
-            lag_s=servo.lag_s + control_latency,
-        )
+        # The draws come from one generator call per run of them (:func:`_uniform`): the numbers a call of
+        # ``rng.uniform(low, high)`` per draw gives, to the last bit (tests/envs/test_randomization.py), at a
+        # seventh of the cost. First the ball's radius, mass and rolling friction, the control latency, the
+        # servos' speed, their six trims and their dead band.
+        trim = (-r.servo_trim_us, r.servo_trim_us)
+        radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = _uniform(
+            rng, (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
+                  r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us))  # fmt: skip
+        ball_ep = replace(ball, radius=round(ball.radius * radius_scale, 4), mass=ball.mass * mass_scale,
+                          rolling_friction=rolling)  # fmt: skip
+        servo_ep = replace(servo, max_speed=servo.max_speed * speed_scale, trim_error_us=tuple(trims),
+                           deadband_us=deadband, lag_s=servo.lag_s + control_latency)  # fmt: skip
         if isinstance(sensor, tuple):
             sensor = sensor[int(rng.integers(len(sensor)))]
-        if isinstance(sensor, TouchPanelSpec):
-            sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=u(*r.sensor_noise_mm),
-                                                                    rate_hz=sensor.rate_hz,
-                                                                    latency_s=u(*r.sensor_latency_s))  # fmt: skip
+        # then the sensor's two (a touch panel: noise, latency) or three (a camera: latency, noise, misses), the
+        # plate load's angle, distance and mass, and the plate friction
+        panel = isinstance(sensor, TouchPanelSpec)
+        sensor_ranges = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
+                         else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
+        *draws, angle, dist_squared, load_kg, friction = _uniform(
+            rng, (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction))
+        if panel:
+            sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=draws[0], rate_hz=sensor.rate_hz,
+                                                                    latency_s=draws[1])  # fmt: skip
         else:
-            sensor_ep = replace(sensor, latency_s=sensor.latency_s * u(*r.camera_latency_scale),
-                                centroid_noise_px=sensor.centroid_noise_px * u(*r.camera_noise_scale),
-                                miss_rate=min(0.5, sensor.miss_rate * u(*r.camera_miss_scale)))  # fmt: skip
-        angle, dist = u(0, 2 * math.pi), r.plate_load_radius * math.sqrt(u(0, 1))
-        load = (u(*r.plate_load_kg), np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
-        return cls(ball_ep, servo_ep, sensor_ep, u(*r.plate_friction), load)
+            sensor_ep = replace(sensor, latency_s=sensor.latency_s * draws[0],
+                                centroid_noise_px=sensor.centroid_noise_px * draws[1],
+                                miss_rate=min(0.5, sensor.miss_rate * draws[2]))  # fmt: skip
+        dist = r.plate_load_radius * math.sqrt(dist_squared)
+        load = (load_kg, np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
+        return cls(ball_ep, servo_ep, sensor_ep, friction, load)
 
     @classmethod
     def from_twin(cls, twin: Twin, ball: BallSpec, servo: ServoSpec, sensor: TouchPanelSpec | CameraSpec | tuple,
@@ -157,3 +163,9 @@ class EpisodeParams:
         load_kg = value("plate.load_kg", 0.0, 2.0, ranges.plate_load_kg)
         load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
         return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0, ranges.plate_friction), load)
+
+
+def _uniform(rng: np.random.Generator, ranges: tuple[tuple[float, float], ...]) -> list[float]:
+    """One uniform draw within each (low, high) of ``ranges``, in order: the numbers ``rng.uniform(low, high)``
+    would give called once for each (NumPy's uniform is low + (high − low) · ``random()``)."""
+    return [low + (high - low) * d for (low, high), d in zip(ranges, rng.random(len(ranges)).tolist())]

@@ -61,8 +61,10 @@ class ServoSpec:
         for key in ("deadband_us", "resolution_us", "lag_s"):
             if not getattr(self, key) >= 0:
                 raise ValueError(f"{key}: must be non-negative, got {getattr(self, key)!r}")
-        trim = tuple(float(v) for v in np.broadcast_to(np.asarray(self.trim_error_us, dtype=float), (6,)))
-        object.__setattr__(self, "trim_error_us", trim)
+        trim = self.trim_error_us
+        if not (type(trim) is tuple and len(trim) == 6 and all(type(v) is float for v in trim)):  # else as it is
+            trim = tuple(float(v) for v in np.broadcast_to(np.asarray(trim, dtype=float), (6,)))
+            object.__setattr__(self, "trim_error_us", trim)
 
 
 #: An RC linear actuator (Actuonix-style: 1000 µs retracted, 2000 µs extended): speed in m/s, force in N.

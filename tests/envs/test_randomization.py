@@ -1,0 +1,59 @@
+"""Domain randomisation's draws (:class:`~stewart_gym.envs.randomization.EpisodeParams`): one generator call per
+run of draws gives, to the last bit, the episodes that one ``rng.uniform`` call per draw gives, in the documented
+order, for a touch panel, a camera and a set of cameras to draw from."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from stewart_gym.camera import CAMERA_PRESETS, CameraSpec
+from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.sensing import TouchPanelSpec
+from stewart_gym.sim import BallSpec, ServoSpec
+
+
+def one_call_per_draw(rng: np.random.Generator, r: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
+                      sensor: TouchPanelSpec | CameraSpec | tuple[CameraSpec, ...]) -> EpisodeParams:  # fmt: skip
+    """The draws written out one ``rng.uniform`` at a time, in the order the ranges' docs give them."""
+    u = rng.uniform
+    ball_ep = replace(ball, radius=round(ball.radius * u(*r.ball_radius_scale), 4), mass=ball.mass * u(*r.ball_mass_scale),
+                      rolling_friction=u(*r.ball_rolling_friction))  # fmt: skip
+    latency = u(*r.control_latency_s)
+    speed = u(*r.servo_speed_scale)
+    trims = tuple(u(-r.servo_trim_us, r.servo_trim_us) for _ in range(6))
+    servo_ep = replace(servo, max_speed=servo.max_speed * speed, trim_error_us=trims, deadband_us=u(*r.servo_deadband_us),
+                       lag_s=servo.lag_s + latency)  # fmt: skip
+    if isinstance(sensor, tuple):
+        sensor = sensor[int(rng.integers(len(sensor)))]
+    if isinstance(sensor, TouchPanelSpec):
+        sensor_ep = TouchPanelSpec(noise_mm=u(*r.sensor_noise_mm), rate_hz=sensor.rate_hz, latency_s=u(*r.sensor_latency_s))
+    else:
+        sensor_ep = replace(sensor, latency_s=sensor.latency_s * u(*r.camera_latency_scale),
+                            centroid_noise_px=sensor.centroid_noise_px * u(*r.camera_noise_scale),
+                            miss_rate=min(0.5, sensor.miss_rate * u(*r.camera_miss_scale)))  # fmt: skip
+    angle, dist = u(0, 2 * math.pi), r.plate_load_radius * math.sqrt(u(0, 1))
+    load = (u(*r.plate_load_kg), np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
+    return EpisodeParams(ball_ep, servo_ep, sensor_ep, u(*r.plate_friction), load)
+
+
+CAMERAS = tuple(CAMERA_PRESETS.values())
+CUSTOM = RandomizationRanges(servo_trim_us=0.0, plate_friction=(0.5, 0.5), ball_mass_scale=(0.5, 3.0))
+
+
+@pytest.mark.parametrize("sensor", [TouchPanelSpec(), CAMERAS[0], CAMERAS], ids=["panel", "camera", "cameras"])
+@pytest.mark.parametrize("ranges", [RandomizationRanges(), CUSTOM], ids=["defaults", "custom"])
+def test_the_draws_are_one_uniform_call_per_draw(sensor: object, ranges: RandomizationRanges) -> None:
+    for seed in range(300):
+        got_rng, want_rng = np.random.default_rng(seed), np.random.default_rng(seed)
+        got = EpisodeParams.sample(got_rng, ranges, BallSpec(), ServoSpec(), sensor)
+        want = one_call_per_draw(want_rng, ranges, BallSpec(), ServoSpec(), sensor)
+        assert (got.ball, got.servo, got.sensor, got.plate_friction) == (want.ball, want.servo, want.sensor,
+                                                                         want.plate_friction)  # fmt: skip
+        assert all(type(v) is float for v in got.servo.trim_error_us)
+        assert got.plate_load[0] == want.plate_load[0]
+        np.testing.assert_array_equal(got.plate_load[1], want.plate_load[1])
+        assert got_rng.random() == want_rng.random()  # the generator is left where one call per draw leaves it
