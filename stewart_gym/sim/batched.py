@@ -128,12 +128,14 @@ class BatchedSim:
 
         #: the kernel in use: "numba" or "numpy"
         self.kernel = "numba" if use_compiled(kernel, batched_kernel.AVAILABLE) else "numpy"
-        self._advance = batched_kernel.advance
+        self._advance, self._held_targets = batched_kernel.advance, batched_kernel.held_targets
         self.geometry = load_geometry(geometry)
         if not self.geometry.is_rotary:
             raise ConfigError(f"the batched simulator models rotary servos; {self.geometry.name!r} is linear")
         self.n = int(n)
         self.calibration = calibration or ServoCalibration.default(self.geometry)
+        c = self.calibration
+        self._home_angle, self._per_rad = c.home_angle, c.direction * c.us_per_rad  # angles = home + (w − neutral) / per_rad
         self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
         self.substeps = self.physics_hz // self.control_hz
         self.dt = 1.0 / self.control_hz
@@ -363,7 +365,15 @@ class BatchedSim:
 
     def _step_compiled(self) -> None:
         """:meth:`step` by the compiled kernel, which updates the state arrays in place."""
-        targets = self._servo_targets()
+        self._send_pending()
+        sent = self._sent
+        targets = np.empty((self.substeps, self.n, 6))
+        self._held_targets(np.array([at for at, _, _ in sent], dtype=np.int64).reshape(len(sent)),
+                           np.array([pulses for _, pulses, _ in sent], dtype=np.float64).reshape(len(sent), self.n, 6),
+                           np.array([which for _, _, which in sent], dtype=bool).reshape(len(sent), self.n), self._delay,
+                           self._since, self._band[:, 0], self._held, self._trim, self._home_angle,
+                           self.calibration.neutral_us, self._per_rad, self._step_count, targets)  # fmt: skip
+        self._step_count += self.substeps
         (o0, r0), (o1, r1) = self._frames
         g = self.geometry
         self._advance(targets, self.alpha, self._last_step, self._gain[:, 0], self._max_step[:, 0],

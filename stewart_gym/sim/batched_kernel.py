@@ -3,7 +3,7 @@
 :func:`advance` does for each platform what :meth:`BatchedSim.step <stewart_gym.sim.batched.BatchedSim.step>`'s
 NumPy path does for all at once: the servos' physics steps, the plate frames that close the six chains (the chord
 method from the period's first frame), and the ball rolling on the moving plate. It takes the servos' targets for
-each physics step, so that the pulses' lag and dead band stay with the simulator. Each platform's numbers stay in
+each physics step, which :func:`held_targets` finds first from the commands sent (their lag and dead band). Each platform's numbers stay in
 registers and small scratch arrays instead of (N, …) temporaries: at N = 4,096 a period costs a fifth of the NumPy
 path's time (``bench/bench_batched.py``). The two agree to rounding (``tests/sim/test_batched_kernel.py``).
 
@@ -18,7 +18,7 @@ import numpy as np
 
 from stewart_gym.compiled import AVAILABLE, compiled
 
-__all__ = ["AVAILABLE", "advance"]
+__all__ = ["AVAILABLE", "advance", "held_targets"]
 
 # the series' coefficients as products, not divisions (a division costs several multiplications)
 _1_6, _1_12, _1_20, _1_24, _1_30, _1_42, _1_56, _1_72 = (1.0 / k for k in (6, 12, 20, 24, 30, 42, 56, 72))
@@ -103,6 +103,35 @@ def _rotate_by(v0: float, v1: float, v2: float, rots: np.ndarray, j: int) -> Non
         rots[j, 0, col] = m00 * r0 + m01 * r1 + m02 * r2
         rots[j, 1, col] = m10 * r0 + m11 * r1 + m12 * r2
         rots[j, 2, col] = m20 * r0 + m21 * r1 + m22 * r2
+
+
+def _held_targets(sent_at, sent_pulses, sent_which, delay, since, band, held, trim, home, neutral, per_rad, first_step,
+                  out):  # pragma: no cover - compiled
+    """The pulses each platform's servos hold over a control period's physics steps, and their target angles.
+
+    For each platform i and each physics step j (``first_step`` + j) of the period (``out`` (s, n, 6)): the latest
+    command sent to it since its reset (``since`` (n,)) that its lag (``delay`` (n,) physics steps) has made due is
+    taken, servo by servo where it differs from the held pulse by more than the dead band (``band`` (n,) µs), into
+    ``held`` (n, 6) µs in place; ``out[j, i]`` is then the angles those pulses give, less the trims (``trim`` (n, 6)
+    µs), as :meth:`ServoCalibration.angles <stewart_gym.calibration.ServoCalibration.angles>` finds them (``home``
+    rad, ``neutral`` µs and ``per_rad`` µs/rad with its sign, (6,) each). The commands sent are ``sent_at`` (m,) the
+    physics step each was sent at, ``sent_pulses`` (m, n, 6) µs and ``sent_which`` (m, n) the platforms each went
+    to, oldest first."""
+    s, n, m = out.shape[0], out.shape[1], sent_at.shape[0]
+    for i in range(n):
+        for j in range(s):
+            step = first_step + j
+            due = -1
+            for e in range(m):  # oldest first: the last one due wins
+                if sent_which[e, i] and sent_at[e] + delay[i] <= step and sent_at[e] >= since[i]:
+                    due = e
+            if due >= 0:
+                for k in range(6):
+                    pulse = sent_pulses[due, i, k]
+                    if abs(pulse - held[i, k]) > band[i]:
+                        held[i, k] = pulse
+            for k in range(6):
+                out[j, i, k] = home[k] + (held[i, k] - trim[i, k] - neutral[k]) / per_rad[k]
 
 
 def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, origin1, rot1, xy, v, beta, radius,
@@ -230,3 +259,5 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
 _solve6, _factor6, _tips, _turn, _rotate_by = (compiled(f) or f for f in (_solve6, _factor6, _tips, _turn, _rotate_by))
 #: :func:`_advance` compiled (None without numba)
 advance = compiled(_advance)
+#: :func:`_held_targets` compiled (None without numba)
+held_targets = compiled(_held_targets)

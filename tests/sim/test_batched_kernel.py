@@ -50,6 +50,7 @@ def run_both(physics_hz: int, control_hz: int, seed: int) -> tuple[BatchedSim, B
                 sim.command_one(k % N, pulses[k % N])
             sim.step()
         a, b = sims
+        np.testing.assert_array_equal(a.held_pulses(), b.held_pulses())  # the lags and dead bands alike, exactly
         differences.append(np.array([np.abs(a.ball_xy - b.ball_xy).max(),
                                      np.abs(a.platform_pose() - b.platform_pose()).max(),
                                      np.abs(a.alpha - b.alpha).max()]))  # fmt: skip
