@@ -341,29 +341,95 @@ def _carry(state: np.ndarray, cov: np.ndarray, with_cov: bool, i: int, h: float,
     cov[i, 9] = bb + q5
 
 
+def _propagate_row(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
+                   count: np.ndarray, i: int, t0: float, t1: float, tau: float, gain: float, qa: float,
+                   qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`KalmanArray._propagate` of row ``i`` of ``state`` (and ``cov``) in place, its commands being row ``i``
+    of ``when``, ``inputs`` and ``count``: an interval per command that acts between ``t0`` and ``t1`` (in time
+    order), then the rest up to ``t1``."""
+    now = t0
+    for j in range(count[i]):
+        w = when[i, j]
+        if w > t0 and w < t1:
+            ux, uy = _acting(when, inputs, count, i, now)
+            _carry(state, cov, with_cov, i, w - now, ux, uy, tau, gain, qa, qb)
+            now = w
+    h = t1 - now
+    if h < 0.0:  # as np.maximum(h, 0.0): NaN stays NaN
+        h = 0.0
+    ux, uy = _acting(when, inputs, count, i, now)
+    _carry(state, cov, with_cov, i, h, ux, uy, tau, gain, qa, qb)
+
+
 def _propagate_rows(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
                     count: np.ndarray, t0: np.ndarray, t1: np.ndarray, tau: float, gain: float, qa: float,
                     qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
-    """:meth:`KalmanArray._propagate` row by row, in place: an interval per command that acts between ``t0[i]`` and
-    ``t1[i]`` (in time order), then the rest up to ``t1[i]``."""
+    """:func:`_propagate_row` of every row, from ``t0[i]`` to ``t1[i]``."""
     for i in range(state.shape[0]):
-        now = t0[i]
-        for j in range(count[i]):
-            w = when[i, j]
-            if w > t0[i] and w < t1[i]:
-                ux, uy = _acting(when, inputs, count, i, now)
-                _carry(state, cov, with_cov, i, w - now, ux, uy, tau, gain, qa, qb)
-                now = w
-        h = t1[i] - now
-        if h < 0.0:  # as np.maximum(h, 0.0): NaN stays NaN
-            h = 0.0
-        ux, uy = _acting(when, inputs, count, i, now)
-        _carry(state, cov, with_cov, i, h, ux, uy, tau, gain, qa, qb)
+        _propagate_row(state, cov, with_cov, when, inputs, count, i, t0[i], t1[i], tau, gain, qa, qb)
 
 
-_acting, _carry = (compiled(f) or f for f in (_acting, _carry))
+def _update_rows(rows: np.ndarray, ts: np.ndarray, xy: np.ndarray, state: np.ndarray, cov: np.ndarray,
+                 t: np.ndarray, r: np.ndarray, noise_t: np.ndarray, noise_x: np.ndarray, noise_y: np.ndarray,
+                 noise_n: np.ndarray, noise_count: np.ndarray, variance: np.ndarray, when: np.ndarray,
+                 inputs: np.ndarray, count: np.ndarray, prior_readings: float, window: float, min_variance: float,
+                 tau: float, gain: float, qa: float, qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`KalmanArray.update` row by row, in place, for rows ``rows`` whose readings ``xy`` (rows × 2) were
+    taken at ``ts``, all later than their filters' times: the same operations in the same order as its array path
+    (so the same bits), on the filters' own arrays."""
+    for j in range(rows.shape[0]):
+        i, at, x, y = rows[j], ts[j], xy[j, 0], xy[j, 1]
+        # the reading noise (ReadingNoise.update)
+        c = noise_n[i]
+        prev, prev2 = noise_t[i, max(c - 1, 0)], noise_t[i, max(c - 2, 0)]
+        if c >= 2 and abs((at - prev) - (prev - prev2)) > 0.25 * (at - prev):  # keep only the newest
+            noise_t[i, 0], noise_x[i, 0], noise_y[i, 0] = noise_t[i, c - 1], noise_x[i, c - 1], noise_y[i, c - 1]
+            c = 1
+        noise_t[i, c], noise_x[i, c], noise_y[i, c] = at, x, y
+        c += 1
+        if c == 4:
+            dx = noise_x[i, 3] - 3 * noise_x[i, 2] + 3 * noise_x[i, 1] - noise_x[i, 0]
+            dy = noise_y[i, 3] - 3 * noise_y[i, 2] + 3 * noise_y[i, 1] - noise_y[i, 0]
+            if math.isfinite(dx) and math.isfinite(dy):
+                noise_count[i] += 1
+                weight = 1.0 / (noise_count[i] + prior_readings)
+                if weight < 1.0 / window:
+                    weight = 1.0 / window
+                variance[i] += weight * ((dx * dx + dy * dy) / 40.0 - variance[i])
+            for k in range(3):
+                noise_t[i, k], noise_x[i, k], noise_y[i, k] = noise_t[i, k + 1], noise_x[i, k + 1], noise_y[i, k + 1]
+            c = 3
+        noise_n[i] = c
+        r[i] = min_variance if variance[i] < min_variance else variance[i]  # as np.maximum: NaN stays NaN
+        # the filter: carried to the reading's time, then corrected by it
+        _propagate_row(state, cov, True, when, inputs, count, i, t[i], at, tau, gain, qa, qb)
+        t[i] = at
+        pp, pv, pa, pb = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3]
+        s = pp + r[i]
+        k0, k1, k2, k3 = pp / s, pv / s, pa / s, pb / s
+        ex, ey = x - state[i, 0], y - state[i, 1]
+        state[i, 0] += k0 * ex
+        state[i, 1] += k0 * ey
+        state[i, 2] += k1 * ex
+        state[i, 3] += k1 * ey
+        state[i, 4] += k2 * ex
+        state[i, 5] += k2 * ey
+        state[i, 6] += k3 * ex
+        state[i, 7] += k3 * ey
+        cov[i, 4] -= k1 * pv
+        cov[i, 5] -= k1 * pa
+        cov[i, 6] -= k1 * pb
+        cov[i, 7] -= k2 * pa
+        cov[i, 8] -= k2 * pb
+        cov[i, 9] -= k3 * pb
+        cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3] = pp - k0 * pp, pv - k0 * pv, pa - k0 * pa, pb - k0 * pb
+
+
+_acting, _carry, _propagate_row = (compiled(f) or f for f in (_acting, _carry, _propagate_row))
 #: :func:`_propagate_rows` compiled (None without numba: :class:`KalmanArray` then propagates as arrays)
 _propagate_compiled = compiled(_propagate_rows)
+#: :func:`_update_rows` compiled (None without numba: :class:`KalmanArray` then updates as arrays)
+_update_compiled = compiled(_update_rows)
 
 
 class KalmanArray:
@@ -372,15 +438,16 @@ class KalmanArray:
     Args:
         n: How many filters.
         spec: Their spec.
-        kernel: ``"numba"``: the filters propagate row by row in a loop compiled with numba; ``"numpy"``: as
-            arrays; ``"auto"`` (default): numba where it is installed. The two give the same numbers to the last
-            bit.
+        kernel: ``"numba"``: the filters propagate and update row by row in loops compiled with numba;
+            ``"numpy"``: as arrays; ``"auto"`` (default): numba where it is installed. The two give the same
+            numbers to the last bit.
     """
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
-        #: the row-by-row propagation in use (None: as arrays)
-        self.compiled_propagation = (_propagate_compiled if use_compiled(kernel, _propagate_compiled is not None)
-                                     else None)  # fmt: skip
+        compiled_rows = use_compiled(kernel, _propagate_compiled is not None)
+        #: the row-by-row propagation and update in use (None: as arrays)
+        self.compiled_propagation = _propagate_compiled if compiled_rows else None
+        self.compiled_update = _update_compiled if compiled_rows else None
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:
@@ -481,6 +548,14 @@ class KalmanArray:
         later = ts > self.t[rows]
         rows, ts, xy = rows[later], ts[later], xy[later]
         if not len(rows):
+            return
+        if self.compiled_update is not None:
+            self.compiled_update(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(ts, dtype=np.float64),
+                                 np.ascontiguousarray(xy, dtype=np.float64), self.state, self.cov, self.t, self.r,
+                                 self.noise_t, self.noise_x, self.noise_y, self.noise_n, self.noise_count,
+                                 self.variance, self.cmd_t, self.cmd_u, self.cmd_n, float(self.prior_readings),
+                                 float(self.window), BallKalmanFilter.MIN_NOISE_M**2, self.spec.tilt_lag_s,
+                                 self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b)  # fmt: skip
             return
         self.r[rows] = np.maximum(self._noise_update(rows, ts, xy), BallKalmanFilter.MIN_NOISE_M**2)
         state, cov = self._propagate(rows, self.state[rows], self.cov[rows], self.t[rows], ts)

@@ -204,13 +204,13 @@ def test_readings_are_judged_valid_as_one_by_one() -> None:
 
 
 def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
-    """:class:`KalmanArray`'s row-by-row propagation (compiled with numba) and its array one give the same states,
-    covariances and estimates to the last bit, through regular and irregular command times (several pending at
-    once), late and missing readings and rows left out of a step."""
+    """:class:`KalmanArray`'s row-by-row propagation and update (compiled with numba) and its array ones give the
+    same states, covariances, reading-noise estimates and estimates to the last bit, through regular and irregular
+    command times (several pending at once), regular, late and missing readings and rows left out of a step."""
     n = 64
     rng = np.random.default_rng(0)
     filters = KalmanArray(n), KalmanArray(n, kernel="numpy")
-    assert filters[0].compiled_propagation is not None and filters[1].compiled_propagation is None
+    assert filters[0].compiled_update is not None and filters[1].compiled_update is None
     for k in filters:
         for i in range(n):
             k.reset_row(i, 0.0, (0.05 * i / n, -0.02))
@@ -224,7 +224,8 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
             now = t[rows] + 0.02 * rng.uniform(0.3, 1.7, len(rows))
         tilt = rng.uniform(-0.1, 0.1, (len(rows), 2))
         has = rng.random(len(rows)) < 0.8
-        got, ts = rows[has], now[has] - rng.uniform(0.0, 0.03, int(has.sum()))
+        got = rows[has]
+        ts = now[has] - (rng.uniform(0.0, 0.03, len(got)) if step % 100 >= 60 else 0.0)  # regular, then jittered
         xy = rng.normal(0.0, 0.01, (len(got), 2))
         estimates = []
         for k in filters:
@@ -235,8 +236,9 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
         t[rows] = now
         for a, b in zip(*estimates):
             np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(filters[0].state, filters[1].state)
-    np.testing.assert_array_equal(filters[0].cov, filters[1].cov)
+    for name in ("state", "cov", "t", "r", "variance", "noise_count", "noise_n", "noise_t", "noise_x", "noise_y"):
+        np.testing.assert_array_equal(getattr(filters[0], name), getattr(filters[1], name), err_msg=name)
+    assert filters[0].noise_count.min() > 0  # every row's noise estimate took whole windows of readings
     assert pending >= 2 and np.abs(filters[0].state[:, 2:4]).max() > 0.01  # commands overlapped; the balls moved
     with pytest.raises(ConfigError, match="kernel: one of auto, numba, numpy, got 'fast'"):
         KalmanArray(2, kernel="fast")

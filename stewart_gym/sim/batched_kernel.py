@@ -3,9 +3,10 @@
 :func:`advance` does for each platform what :meth:`BatchedSim.step <stewart_gym.sim.batched.BatchedSim.step>`'s
 NumPy path does for all at once: the servos' physics steps, the plate frames that close the six chains (the chord
 method from the period's first frame), and the ball rolling on the moving plate. It takes the servos' targets for
-each physics step, which :func:`held_targets` finds first from the commands sent (their lag and dead band). Each platform's numbers stay in
-registers and small scratch arrays instead of (N, …) temporaries: at N = 4,096 a period costs a fifth of the NumPy
-path's time (``bench/bench_batched.py``). The two agree to rounding (``tests/sim/test_batched_kernel.py``).
+each physics step, which :func:`held_targets` finds first from the commands sent (their lag and dead band). Each
+platform's numbers stay in registers and small scratch arrays instead of (N, …) temporaries: at N = 4,096 a period
+costs a fifth of the NumPy path's time (``bench/bench_batched.py``). The two agree to rounding
+(``tests/sim/test_batched_kernel.py``).
 
 Without numba (:mod:`stewart_gym.compiled`) :data:`AVAILABLE` is False and the simulator uses its NumPy path.
 """
