@@ -42,6 +42,45 @@ __all__ = ["CameraArray", "CameraRow", "HistoryArray", "ObserverArray", "Observe
 DRAW_BLOCK = 128
 
 
+def _history_record(rows: np.ndarray, t: np.ndarray, x: np.ndarray, y: np.ndarray, on: np.ndarray, ht: np.ndarray,
+                    hx: np.ndarray, hy: np.ndarray, hon: np.ndarray) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`HistoryArray.record` row by row: each row of ``rows`` shifts its history one column older and takes
+    ``t``, ``x``, ``y``, ``on`` as its newest."""
+    last = ht.shape[1] - 1
+    for j in range(rows.shape[0]):
+        r = rows[j]
+        for c in range(last):
+            ht[r, c], hx[r, c], hy[r, c], hon[r, c] = ht[r, c + 1], hx[r, c + 1], hy[r, c + 1], hon[r, c + 1]
+        ht[r, last], hx[r, last], hy[r, last], hon[r, last] = t[j], x[j], y[j], on[j]
+
+
+def _history_at(index: np.ndarray, ts: np.ndarray, ht: np.ndarray, hx: np.ndarray, hy: np.ndarray, hon: np.ndarray,
+                x: np.ndarray, y: np.ndarray, on: np.ndarray) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`HistoryArray.at` row by row into ``x``, ``y`` and ``on``: the same operations as its array path (a
+    weight of 0 included, so that the same bits come out)."""
+    last = ht.shape[1] - 1
+    for j in range(index.shape[0]):
+        r, t = index[j], ts[j]
+        count = 0
+        for c in range(last + 1):
+            if ht[r, c] <= t:
+                count += 1
+        i = max(count - 1, 0)
+        k = min(i + 1, last)
+        x0, y0 = hx[r, i], hy[r, i]
+        if i < last:
+            t0, t1 = ht[r, i], ht[r, k]
+            w = (t - t0) / (t1 - t0) if t1 > t0 else 0.0
+            x[j], y[j] = x0 + w * (hx[r, k] - x0), y0 + w * (hy[r, k] - y0)
+        else:
+            x[j], y[j] = x0, y0
+        on[j] = hon[r, i] and hon[r, k]
+
+
+#: :func:`_history_record` and :func:`_history_at` compiled (None without numba)
+_history_record_compiled, _history_at_compiled = compiled(_history_record), compiled(_history_at)
+
+
 class HistoryArray:
     """The true ball positions recorded for ``n`` simulated sensors, the newest ``columns`` per row, oldest first
     (column -1 the newest), read as :class:`~stewart_gym.sensing.BallHistory` reads them.
@@ -49,9 +88,13 @@ class HistoryArray:
     Args:
         n: How many rows.
         columns: How many recorded positions a row keeps at first (:meth:`keep` makes room for more).
+        kernel: ``"numba"``: recorded and read row by row in loops compiled with numba; ``"numpy"``: as arrays;
+            ``"auto"`` (default): numba where it is installed. The two give the same numbers to the last bit.
     """
 
-    def __init__(self, n: int, columns: int = 8) -> None:
+    def __init__(self, n: int, columns: int = 8, kernel: str = "auto") -> None:
+        #: whether the rows are recorded and read by the compiled loops
+        self.compiled = use_compiled(kernel, _history_at_compiled is not None)
         self.n, self.columns = int(n), int(columns)
         self.t = np.zeros((self.n, self.columns))
         self.x, self.y = np.zeros((self.n, self.columns)), np.zeros((self.n, self.columns))
@@ -73,6 +116,12 @@ class HistoryArray:
 
     def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
+        if self.compiled:
+            xy = np.asarray(xy, dtype=np.float64)
+            _history_record_compiled(np.arange(self.n)[rows], np.asarray(t, dtype=np.float64),
+                                     np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                                     np.asarray(on_plate, dtype=bool), self.t, self.x, self.y, self.on)  # fmt: skip
+            return
         for history, value in ((self.t, t), (self.x, xy[:, 0]), (self.y, xy[:, 1]), (self.on, on_plate)):
             history[rows, :-1] = history[rows, 1:]
             history[rows, -1] = value
@@ -80,6 +129,11 @@ class HistoryArray:
     def at(self, index: np.ndarray, ts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rows ``index``'s (x, y, touching) at times ``ts``: linear between the positions around it, the newest
         after it, and touching only if both neighbours were."""
+        if self.compiled:
+            x, y, on = np.empty(len(index)), np.empty(len(index)), np.empty(len(index), dtype=bool)
+            _history_at_compiled(np.asarray(index, dtype=np.int64), np.asarray(ts, dtype=np.float64), self.t, self.x,
+                                 self.y, self.on, x, y, on)  # fmt: skip
+            return x, y, on
         ht, hx, hy, hon = self.t[index], self.x[index], self.y[index], self.on[index]
         last = ht.shape[1] - 1
         i = np.maximum((ht <= ts[:, None]).sum(axis=1) - 1, 0)

@@ -16,6 +16,7 @@ from stewart_gym.sensing import BallObserver, SimulatedTouchPanel, TouchPanelSpe
 from stewart_gym.sensing_arrays import (
     CameraArray,
     CameraRow,
+    HistoryArray,
     KalmanArray,
     ObserverArray,
     ObserverRow,
@@ -243,3 +244,37 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
     with pytest.raises(ConfigError, match="kernel: one of auto, numba, numpy, got 'fast'"):
         KalmanArray(2, kernel="fast")
     assert KalmanArray(2, kernel="numba").compiled_propagation is filters[0].compiled_propagation
+
+
+def test_the_histories_record_and_read_alike_compiled_and_as_arrays() -> None:
+    """:class:`HistoryArray`'s compiled loops and its array path keep the same histories and read the same positions
+    to the last bit: between two records, at one, before the oldest, after the newest, at a repeated time (a
+    reset's), at NaN, with lifts, for some rows at a time."""
+    n = 40
+    rng = np.random.default_rng(7)
+    histories = HistoryArray(n), HistoryArray(n, kernel="numpy")
+    assert histories[0].compiled and not histories[1].compiled
+    for h in histories:
+        h.keep(11)
+        for i in range(n):
+            h.reset_row(i, -1.3, 0.0, (0.01 * i, -0.02))
+    t = np.zeros(n)
+    for _ in range(200):
+        rows = np.flatnonzero(rng.random(n) < 0.8)
+        t[rows] += rng.choice([0.0, 0.004, 0.02], len(rows))  # a repeated time now and then
+        xy = rng.normal(0.0, 0.05, (len(rows), 2))
+        xy[::7] = -0.0  # a signed zero: the weight-0 sum must keep its sign as the arrays do
+        on = rng.random(len(rows)) < 0.9
+        ts = t[rows] - rng.choice([0.0, 0.003, 0.05, 2.0, -0.01, math.nan], len(rows))
+        for h in histories:
+            h.record(t[rows].copy(), xy, on, rows)
+        got, want = histories[0].at(rows, ts), histories[1].at(rows, ts)
+        for a, b in zip(got, want):
+            assert a.dtype == b.dtype
+            np.testing.assert_array_equal(a, b)
+            assert np.array_equal(np.signbit(a), np.signbit(b))
+    for name in ("t", "x", "y", "on"):
+        np.testing.assert_array_equal(getattr(histories[0], name), getattr(histories[1], name))
+    with pytest.raises(ConfigError, match="kernel"):
+        HistoryArray(2, kernel="jit")
+
