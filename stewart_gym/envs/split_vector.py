@@ -4,15 +4,16 @@
 :class:`SplitVectorEnv` splits the copies into ``workers`` shares, as equal as can be. This process steps the first
 share itself, a :class:`~stewart_gym.envs.vector.StewartBallVectorEnv`, while each of ``workers`` − 1 worker
 processes steps one of the others: every step sends each worker its actions, steps the first share meanwhile, and
-gathers what the workers return. Copy i is exactly copy i of one ``StewartBallVectorEnv`` of all the copies,
-seeded alike (copy i with ``seed + i``), so the split changes the speed, not the numbers. The info is gathered as
-Gymnasium batches it: each key a row per copy, with its ``_key`` mask, and ``final_obs`` and ``final_info`` where a
-copy's episode ended in the step.
+gathers what the workers return: their shares' arrays (:meth:`~stewart_gym.envs.vector.ArrayVectorEnv.step_arrays`),
+which this process joins and batches once as Gymnasium batches infos (:class:`~stewart_gym.envs.vector.ArrayVectorEnv`).
+Copy i is exactly copy i of one ``StewartBallVectorEnv`` of all the copies, seeded alike (copy i with ``seed + i``),
+so the split changes the speed, not the numbers.
 
 A worker is a fresh Python running ``python -m stewart_gym.envs.split_vector FD_IN FD_OUT`` (a subprocess, not a fork
 of the caller, so that it neither copies the caller's threads nor imports the caller's script again: no ``if
 __name__ == "__main__"`` is needed, but a task must be importable, not defined in the script itself); it starts in
-about a second. Messages go as pickles over two pipes. A worker that fails (its env raising, or the process dying)
+about a second. Messages go as pickles over two pipes (a worker's widened, where Linux allows, to hold a step's
+answer). A worker that fails (its env raising, or the process dying)
 makes the call raise :class:`~stewart_gym.errors.ConfigError` with its message; :meth:`close` ends the workers (and
 kills any that do not end within 10 s).
 """
@@ -35,7 +36,7 @@ import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.vector import ArrayVectorEnv, StewartBallVectorEnv, check_num_envs
+from stewart_gym.envs.vector import ArrayVectorEnv, Finals, StewartBallVectorEnv, check_num_envs
 from stewart_gym.errors import ConfigError
 
 __all__ = ["SplitVectorEnv", "batched_vector_env"]
@@ -206,16 +207,15 @@ class SplitVectorEnv(ArrayVectorEnv):
         return np.concatenate([obs for obs, _ in parts]), _columns([info for _, info in parts])
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
+                                                         dict[str, np.ndarray], Finals]:  # fmt: skip
         actions = np.asarray(actions)
         if actions.shape[:1] != (self.num_envs,):
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
         self._send([("step", actions[start:start + size]) for start, size in zip(self.starts[1:], self.sizes[1:])])
         parts = [self._own(self.own.step_arrays, actions[:self.sizes[0]]), *self._gather()]
         observations, rewards, terminations, truncations, infos, finals = zip(*parts)
-        ended = {start + i: final for start, part in zip(self.starts, finals) for i, final in part.items()}
         return (np.concatenate(observations), np.concatenate(rewards), np.concatenate(terminations),
-                np.concatenate(truncations), _columns(list(infos)), ended)  # fmt: skip
+                np.concatenate(truncations), _columns(list(infos)), Finals.joined(finals, self.starts))  # fmt: skip
 
     def close_extras(self, terminate: bool = False, **kwargs: Any) -> None:
         """End the workers (each closes its env); kill any that do not end within 10 s."""

@@ -16,6 +16,8 @@ and ``info["final_info"]`` hold its last observation and info.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -31,7 +33,7 @@ from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, Ob
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
-__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "StewartBallVectorEnv", "check_num_envs"]
+__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "Finals", "StewartBallVectorEnv", "check_num_envs"]
 
 #: The most copies one vector env holds.
 MAX_NUM_ENVS = 1_000_000
@@ -41,6 +43,37 @@ def check_num_envs(num_envs: object) -> None:
     """Raise :class:`ConfigError` unless ``num_envs`` is a whole number from 1 to :data:`MAX_NUM_ENVS`."""
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
         raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+
+
+@dataclass
+class Finals:
+    """The copies whose episode ended in a step, as they were before their reset: their rows, their last
+    observations (a row each) and their last infos (one array per key, a row each)."""
+
+    rows: np.ndarray
+    observations: np.ndarray
+    info: dict[str, np.ndarray]
+
+    @classmethod
+    def of(cls, rows: np.ndarray, observations: np.ndarray, info: dict[str, np.ndarray]) -> Finals:
+        """Copies of ``rows`` of a step's ``observations`` and ``info`` (before the rows are reset)."""
+        return cls(rows.copy(), observations[rows], {key: value[rows] for key, value in info.items()})
+
+    @classmethod
+    def joined(cls, parts: Sequence[Finals], starts: Sequence[int]) -> Finals:
+        """Shares' finals as one, share k's rows offset by ``starts[k]``."""
+        return cls(np.concatenate([part.rows + start for part, start in zip(parts, starts)]),
+                   np.concatenate([part.observations for part in parts]),
+                   {key: np.concatenate([part.info[key] for part in parts]) for key in parts[0].info})  # fmt: skip
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def items(self) -> Iterator[tuple[int, tuple[np.ndarray, dict[str, Any]]]]:
+        """Each ended copy's (row, (last observation, last info)), the info as one env's step gives it."""
+        keys = list(self.info)
+        for j, i in enumerate(self.rows.tolist()):
+            yield i, (self.observations[j], {key: self.info[key][j] for key in keys})
 
 
 class ArrayVectorEnv(VectorEnv):
@@ -57,10 +90,10 @@ class ArrayVectorEnv(VectorEnv):
         raise NotImplementedError
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
-        """:meth:`step` with the info as one array per key (a row per copy) and ``{i: (last observation, last
-        info)}`` of the copies whose episode ended (and which were reset in this step: their rows hold the new
-        episode's first observation and info)."""
+                                                         dict[str, np.ndarray], Finals]:  # fmt: skip
+        """:meth:`step` with the info as one array per key (a row per copy), and the :class:`Finals` of the copies
+        whose episode ended (and which were reset in this step: their rows hold the new episode's first
+        observation and info)."""
         raise NotImplementedError
 
     def reset(self, *, seed: int | list[int | None] | None = None,
@@ -74,12 +107,12 @@ class ArrayVectorEnv(VectorEnv):
         """Every copy's action (num_envs, …); a copy whose episode ended is reset in this step."""
         observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
         batched = self._gymnasium_info(info)
-        if finals:
+        if len(finals):
             batched.update(self._final_infos(finals))
         return observations, rewards, terminations, truncations, batched
 
     def step_each(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                       list[dict[str, Any]], dict[int, tuple[Any, dict]]]:  # fmt: skip
+                                                       list[dict[str, Any]], Finals]:  # fmt: skip
         """:meth:`step_arrays` with each copy's info as its own dict: the form Stable-Baselines3's VecEnv
         returns."""
         observations, rewards, terminations, truncations, info, finals = self.step_arrays(actions)
@@ -95,31 +128,34 @@ class ArrayVectorEnv(VectorEnv):
             out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
         return out
 
-    def _final_infos(self, finals: dict[int, tuple[np.ndarray, dict[str, Any]]]) -> dict[str, Any]:
+    def _final_infos(self, finals: Finals) -> dict[str, Any]:
         """``final_obs`` and ``final_info`` of the copies whose episode ended, with their masks, all at once: what
         Gymnasium's ``_add_info`` makes of them one copy at a time (as its SyncVectorEnv in SAME_STEP mode)."""
-        rows = list(finals)
+        rows = finals.rows.tolist()
         mask = np.zeros(self.num_envs, dtype=np.bool_)
         mask[rows] = True
         final_obs = np.full(self.num_envs, None, dtype=object)
-        for i, (obs, _) in finals.items():
-            final_obs[i] = obs
+        for j, i in enumerate(rows):
+            final_obs[i] = finals.observations[j]
         final_info: dict[str, Any] = {}
-        for key, first in finals[rows[0]][1].items():
+        for key, values in finals.info.items():
+            first = values[0]
             if isinstance(first, dict):  # a task's nested entry: Gymnasium's own way, copy by copy
                 nested: dict[str, Any] = {}
-                for i in rows:
-                    nested = self._add_info(nested, finals[i][1][key], i)
+                for j, i in enumerate(rows):
+                    nested = self._add_info(nested, values[j], i)
                 final_info[key], final_info[f"_{key}"] = nested, mask.copy()
                 continue
-            if type(first) in (int, float, bool) or isinstance(first, np.number):
+            if isinstance(first, np.number) or values.ndim > 1:  # numbers, or arrays: a column of their dtype
+                column = np.zeros((self.num_envs, *values.shape[1:]), dtype=values.dtype)
+                column[rows] = values
+            elif type(first) in (int, float, bool):  # Python numbers (in an object array): a column of their type
                 column = np.zeros(self.num_envs, dtype=type(first))
-            elif isinstance(first, np.ndarray):
-                column = np.zeros((self.num_envs, *first.shape), dtype=first.dtype)
+                column[rows] = values
             else:  # anything else (a NumPy bool among them) in an object array, as Gymnasium does
                 column = np.full(self.num_envs, None, dtype=object)
-            for i in rows:
-                column[i] = finals[i][1][key]
+                for j, i in enumerate(rows):
+                    column[i] = values[j]
             final_info[key], final_info[f"_{key}"] = column, mask.copy()
         return {"final_obs": final_obs, "_final_obs": mask, "final_info": final_info, "_final_info": mask.copy()}
 
@@ -189,15 +225,14 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         return np.stack(observations), {key: np.array([info[key] for info in infos]) for key in infos[0]}
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                                         dict[str, np.ndarray], dict[int, tuple[Any, dict]]]:  # fmt: skip
+                                                         dict[str, np.ndarray], Finals]:  # fmt: skip
         actions = np.asarray(actions)
         if actions.shape[0] != self.num_envs:
             raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
         observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
-        finals: dict[int, tuple[np.ndarray, dict]] = {}
         ended = np.flatnonzero(terminations | truncations)
+        finals = Finals.of(ended, observations, info)
         for i in ended.tolist():
-            finals[i] = (observations[i].copy(), {key: value[i].copy() for key, value in info.items()})
             self.envs[i].begin_reset()
         if ended.size:  # the reset copies' first observations, all at once
             for i, first in zip(ended.tolist(), self.copy_steps.first_observations(ended)):
