@@ -395,10 +395,10 @@ def _carry(state: np.ndarray, cov: np.ndarray, with_cov: bool, i: int, h: float,
     cov[i, 9] = bb + q5
 
 
-def _propagate_row(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
+def _propagate_row(state: np.ndarray, cov: np.ndarray, with_cov: bool, s: int, when: np.ndarray, inputs: np.ndarray,
                    count: np.ndarray, i: int, t0: float, t1: float, tau: float, gain: float, qa: float,
                    qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
-    """:meth:`KalmanArray._propagate` of row ``i`` of ``state`` (and ``cov``) in place, its commands being row ``i``
+    """:meth:`KalmanArray._propagate` of row ``s`` of ``state`` (and ``cov``) in place, its commands being row ``i``
     of ``when``, ``inputs`` and ``count``: an interval per command that acts between ``t0`` and ``t1`` (in time
     order), then the rest up to ``t1``."""
     now = t0
@@ -406,13 +406,13 @@ def _propagate_row(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.
         w = when[i, j]
         if w > t0 and w < t1:
             ux, uy = _acting(when, inputs, count, i, now)
-            _carry(state, cov, with_cov, i, w - now, ux, uy, tau, gain, qa, qb)
+            _carry(state, cov, with_cov, s, w - now, ux, uy, tau, gain, qa, qb)
             now = w
     h = t1 - now
     if h < 0.0:  # as np.maximum(h, 0.0): NaN stays NaN
         h = 0.0
     ux, uy = _acting(when, inputs, count, i, now)
-    _carry(state, cov, with_cov, i, h, ux, uy, tau, gain, qa, qb)
+    _carry(state, cov, with_cov, s, h, ux, uy, tau, gain, qa, qb)
 
 
 def _propagate_rows(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
@@ -420,7 +420,7 @@ def _propagate_rows(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np
                     qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
     """:func:`_propagate_row` of every row, from ``t0[i]`` to ``t1[i]``."""
     for i in range(state.shape[0]):
-        _propagate_row(state, cov, with_cov, when, inputs, count, i, t0[i], t1[i], tau, gain, qa, qb)
+        _propagate_row(state, cov, with_cov, i, when, inputs, count, i, t0[i], t1[i], tau, gain, qa, qb)
 
 
 def _update_rows(rows: np.ndarray, ts: np.ndarray, xy: np.ndarray, state: np.ndarray, cov: np.ndarray,
@@ -456,7 +456,7 @@ def _update_rows(rows: np.ndarray, ts: np.ndarray, xy: np.ndarray, state: np.nda
         noise_n[i] = c
         r[i] = min_variance if variance[i] < min_variance else variance[i]  # as np.maximum: NaN stays NaN
         # the filter: carried to the reading's time, then corrected by it
-        _propagate_row(state, cov, True, when, inputs, count, i, t[i], at, tau, gain, qa, qb)
+        _propagate_row(state, cov, True, i, when, inputs, count, i, t[i], at, tau, gain, qa, qb)
         t[i] = at
         pp, pv, pa, pb = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3]
         s = pp + r[i]
@@ -479,11 +479,50 @@ def _update_rows(rows: np.ndarray, ts: np.ndarray, xy: np.ndarray, state: np.nda
         cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3] = pp - k0 * pp, pv - k0 * pv, pa - k0 * pa, pb - k0 * pb
 
 
+def _estimate_rows(rows: np.ndarray, t: np.ndarray, state: np.ndarray, kt: np.ndarray, when: np.ndarray,
+                   inputs: np.ndarray, count: np.ndarray, tau: float, gain: float, qa: float, qb: float,
+                   out: np.ndarray) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`KalmanArray.estimate` row by row: each row of ``rows``'s state carried from its time ``kt`` to ``t``
+    (not before its time) into ``out`` (rows × 8), the filters left as they are."""
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        for k in range(8):
+            out[j, k] = state[i, k]
+        t1 = kt[i] if t[j] < kt[i] or kt[i] != kt[i] else t[j]  # as np.maximum: NaN from either side
+        _propagate_row(out, out, False, j, when, inputs, count, i, kt[i], t1, tau, gain, qa, qb)
+
+
+def _command_rows(rows: np.ndarray, t: np.ndarray, u: np.ndarray, again: np.ndarray, dead_time: float,
+                  when: np.ndarray, inputs: np.ndarray, count: np.ndarray, last_issued: np.ndarray,
+                  kt: np.ndarray) -> None:  # fmt: skip  # pragma: no cover - compiled
+    """:meth:`KalmanArray.command` row by row, in place, its slots grown already: each row of ``rows`` takes input
+    ``u`` at ``t`` (as its last command again where ``again``), then drops the commands spent before its time
+    ``kt``, shifting its whole row of slots as the array path does."""
+    slots = when.shape[1]
+    for j in range(rows.shape[0]):
+        i = rows[j]
+        c = count[i]
+        if again[j]:
+            inputs[i, c - 1, 0], inputs[i, c - 1, 1] = u[j, 0], u[j, 1]
+        else:
+            last_issued[i] = t[j]
+            when[i, c] = t[j] + dead_time
+            inputs[i, c, 0], inputs[i, c, 1] = u[j, 0], u[j, 1]
+            count[i] = c + 1
+        while count[i] > 1 and when[i, 1] <= kt[i]:
+            for k in range(slots - 1):
+                when[i, k] = when[i, k + 1]
+                inputs[i, k, 0], inputs[i, k, 1] = inputs[i, k + 1, 0], inputs[i, k + 1, 1]
+            count[i] -= 1
+
+
 _acting, _carry, _propagate_row = (compiled(f) or f for f in (_acting, _carry, _propagate_row))
 #: :func:`_propagate_rows` compiled (None without numba: :class:`KalmanArray` then propagates as arrays)
 _propagate_compiled = compiled(_propagate_rows)
 #: :func:`_update_rows` compiled (None without numba: :class:`KalmanArray` then updates as arrays)
 _update_compiled = compiled(_update_rows)
+#: :func:`_estimate_rows` and :func:`_command_rows` compiled (None without numba)
+_estimate_compiled, _command_compiled = compiled(_estimate_rows), compiled(_command_rows)
 
 
 class KalmanArray:
@@ -492,16 +531,14 @@ class KalmanArray:
     Args:
         n: How many filters.
         spec: Their spec.
-        kernel: ``"numba"``: the filters propagate and update row by row in loops compiled with numba;
+        kernel: ``"numba"``: the filters command, propagate, update and estimate row by row in loops compiled with numba;
             ``"numpy"``: as arrays; ``"auto"`` (default): numba where it is installed. The two give the same
             numbers to the last bit.
     """
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
-        compiled_rows = use_compiled(kernel, _propagate_compiled is not None)
-        #: the row-by-row propagation and update in use (None: as arrays)
-        self.compiled_propagation = _propagate_compiled if compiled_rows else None
-        self.compiled_update = _update_compiled if compiled_rows else None
+        #: whether the filters command, propagate, update and estimate row by row in compiled loops (else as arrays)
+        self.compiled = use_compiled(kernel, _propagate_compiled is not None)
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:
@@ -541,17 +578,21 @@ class KalmanArray:
         u = np.stack([np.sin(roll_pitch[:, 1]), -np.sin(roll_pitch[:, 0])], axis=1)
         count = self.cmd_n[rows]
         again = (count > 0) & (t <= self.last_issued[rows])
+        if self.compiled:
+            new = ~again
+            if new.any() and int(count[new].max()) >= self._slots:
+                self._grow()
+            _command_compiled(np.asarray(rows, dtype=np.int64), np.asarray(t, dtype=np.float64), u, again,
+                              self.spec.dead_time_s, self.cmd_t, self.cmd_u, self.cmd_n, self.last_issued, self.t)
+            return
         if again.any():
             r = rows[again]
             self.cmd_u[r, self.cmd_n[r] - 1] = u[again]
         new = ~again
         if new.any():
             r, tn = rows[new], t[new]
-            if int(self.cmd_n[r].max()) >= self._slots:  # more commands pending than slots: twice the slots
-                grow = self._slots
-                self.cmd_t = np.concatenate([self.cmd_t, np.zeros((self.n, grow))], axis=1)
-                self.cmd_u = np.concatenate([self.cmd_u, np.zeros((self.n, grow, 2))], axis=1)
-                self._slots += grow
+            if int(self.cmd_n[r].max()) >= self._slots:
+                self._grow()
             self.last_issued[r] = tn
             self.cmd_t[r, self.cmd_n[r]] = tn + self.spec.dead_time_s
             self.cmd_u[r, self.cmd_n[r]] = u[new]
@@ -563,6 +604,13 @@ class KalmanArray:
             self.cmd_t[spent, :-1] = self.cmd_t[spent, 1:]
             self.cmd_u[spent, :-1] = self.cmd_u[spent, 1:]
             self.cmd_n[spent] -= 1
+
+    def _grow(self) -> None:
+        """More commands pending than slots: twice the slots."""
+        grow = self._slots
+        self.cmd_t = np.concatenate([self.cmd_t, np.zeros((self.n, grow))], axis=1)
+        self.cmd_u = np.concatenate([self.cmd_u, np.zeros((self.n, grow, 2))], axis=1)
+        self._slots += grow
 
     def _noise_update(self, rows: np.ndarray, ts: np.ndarray, xy: np.ndarray) -> np.ndarray:
         """:meth:`ReadingNoise.update <stewart_gym.sensing.ReadingNoise.update>` of ``rows``; their variances."""
@@ -603,8 +651,8 @@ class KalmanArray:
         rows, ts, xy = rows[later], ts[later], xy[later]
         if not len(rows):
             return
-        if self.compiled_update is not None:
-            self.compiled_update(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(ts, dtype=np.float64),
+        if self.compiled:
+            _update_compiled(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(ts, dtype=np.float64),
                                  np.ascontiguousarray(xy, dtype=np.float64), self.state, self.cov, self.t, self.r,
                                  self.noise_t, self.noise_x, self.noise_y, self.noise_n, self.noise_count,
                                  self.variance, self.cmd_t, self.cmd_u, self.cmd_n, float(self.prior_readings),
@@ -626,6 +674,12 @@ class KalmanArray:
 
     def estimate(self, rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted positions and velocities (rows × 2) of ``rows`` at times ``t``."""
+        if self.compiled:
+            state = np.empty((len(rows), 8))
+            _estimate_compiled(np.asarray(rows, dtype=np.int64), np.asarray(t, dtype=np.float64), self.state, self.t,
+                               self.cmd_t, self.cmd_u, self.cmd_n, self.spec.tilt_lag_s,
+                               self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b, state)  # fmt: skip
+            return state[:, 0:2], state[:, 2:4]
         state, _ = self._propagate(rows, self.state[rows], None, self.t[rows], np.maximum(t, self.t[rows]))
         return state[:, 0:2], state[:, 2:4]
 
@@ -635,8 +689,8 @@ class KalmanArray:
         exact step per interval of constant input, the intervals' ends being the times the commands act."""
         state = state.copy()
         cov = None if cov is None else cov.copy()
-        if self.compiled_propagation is not None:
-            self.compiled_propagation(state, state if cov is None else cov, cov is not None, self.cmd_t[rows],
+        if self.compiled:
+            _propagate_compiled(state, state if cov is None else cov, cov is not None, self.cmd_t[rows],
                                       self.cmd_u[rows], self.cmd_n[rows], t0, t1, self.spec.tilt_lag_s,
                                       self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b)  # fmt: skip
             return state, cov

@@ -205,13 +205,14 @@ def test_readings_are_judged_valid_as_one_by_one() -> None:
 
 
 def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
-    """:class:`KalmanArray`'s row-by-row propagation and update (compiled with numba) and its array ones give the
-    same states, covariances, reading-noise estimates and estimates to the last bit, through regular and irregular
-    command times (several pending at once), regular, late and missing readings and rows left out of a step."""
+    """:class:`KalmanArray`'s row-by-row commands, propagation, update and estimates (compiled with numba) and its
+    array ones give the same states, covariances, reading-noise estimates, pending commands and estimates to the
+    last bit, through regular and irregular command times (several pending at once), regular, late and missing
+    readings and rows left out of a step."""
     n = 64
     rng = np.random.default_rng(0)
     filters = KalmanArray(n), KalmanArray(n, kernel="numpy")
-    assert filters[0].compiled_update is not None and filters[1].compiled_update is None
+    assert filters[0].compiled and not filters[1].compiled
     for k in filters:
         for i in range(n):
             k.reset_row(i, 0.0, (0.05 * i / n, -0.02))
@@ -219,8 +220,10 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
     pending = 0
     for step in range(300):
         rows = np.flatnonzero(rng.random(n) < 0.9)
-        if step < 150:  # steps of half the dead time: a command acts at a step's time, to rounding (the 1 ns rule)
+        if step < 100:  # steps of half the dead time: a command acts at a step's time, to rounding (the 1 ns rule)
             now = t[rows] + filters[0].spec.dead_time_s / 2
+        elif step < 150:  # steps of the dead time: a command acts exactly at the next step's time
+            now = t[rows] + filters[0].spec.dead_time_s
         else:
             now = t[rows] + 0.02 * rng.uniform(0.3, 1.7, len(rows))
         tilt = rng.uniform(-0.1, 0.1, (len(rows), 2))
@@ -237,13 +240,15 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
         t[rows] = now
         for a, b in zip(*estimates):
             np.testing.assert_array_equal(a, b)
-    for name in ("state", "cov", "t", "r", "variance", "noise_count", "noise_n", "noise_t", "noise_x", "noise_y"):
+        np.testing.assert_array_equal(filters[0].cmd_n, filters[1].cmd_n)  # the same commands pending
+    for name in ("state", "cov", "t", "r", "variance", "noise_count", "noise_n", "noise_t", "noise_x", "noise_y",
+                 "cmd_t", "cmd_u", "cmd_n", "last_issued"):
         np.testing.assert_array_equal(getattr(filters[0], name), getattr(filters[1], name), err_msg=name)
     assert filters[0].noise_count.min() > 0  # every row's noise estimate took whole windows of readings
     assert pending >= 2 and np.abs(filters[0].state[:, 2:4]).max() > 0.01  # commands overlapped; the balls moved
     with pytest.raises(ConfigError, match="kernel: one of auto, numba, numpy, got 'fast'"):
         KalmanArray(2, kernel="fast")
-    assert KalmanArray(2, kernel="numba").compiled_propagation is filters[0].compiled_propagation
+    assert KalmanArray(2, kernel="numba").compiled
 
 
 def test_the_histories_record_and_read_alike_compiled_and_as_arrays() -> None:
