@@ -15,6 +15,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env import VecEnv
 
+from stewart_gym.errors import ConfigError
 from stewart_gym.sb3_models import check_residual, residual_base, residual_mix
 
 __all__ = ["BatchedVecEnv"]
@@ -34,6 +35,10 @@ class BatchedVecEnv(VecEnv):
     def __init__(self, env_id: str, num_envs: int, env_kwargs: dict[str, Any] | None = None,
                  residual: dict[str, Any] | None = None) -> None:  # fmt: skip
         kwargs = {k: v for k, v in (env_kwargs or {}).items() if k != "backend"}
+        if kwargs.get("workers", 1) != 1:
+            raise ConfigError(f"env_kwargs.workers: training steps its batched copies in one process (got "
+                              f"{kwargs['workers']!r}); leave workers out, or use gym.make_vec(..., workers=k) "
+                              "outside training")  # fmt: skip
         self.venv = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs)
         super().__init__(num_envs, self.venv.single_observation_space, self.venv.single_action_space)
         self._actions: np.ndarray | None = None

@@ -4,9 +4,11 @@ with.
 :class:`PanelArray` is N :class:`~stewart_gym.sensing.SimulatedTouchPanel`, :class:`CameraArray` N
 :class:`~stewart_gym.camera.SimulatedCamera` and :class:`ObserverArray` N :class:`~stewart_gym.sensing.BallObserver`
 (the low-pass or the Kalman estimator, with the error integral or without), one row each, advanced for every row
-with one NumPy operation per step of the arithmetic instead of one Python call per env. They follow the one-env
-classes step for step: the same sample times, the same noise and missed frames (drawn from each row's own
-generator, in the same order), the same filter equations; the results agree to rounding
+with one NumPy operation per step of the arithmetic instead of one Python call per env, or, where numba is
+installed, in compiled loops over the rows (the histories and the Kalman filters: the same operations in the same
+order, so the same bits). They follow the one-env classes step for step: the same sample times, the same noise and
+missed frames (drawn from each row's own generator, in the same order), the same filter equations; the results
+agree to rounding
 (``tests/test_sensing_arrays.py``).
 
 Each env of the vector env reads and resets its own row through :class:`PanelRow`, :class:`CameraRow` and
@@ -117,10 +119,11 @@ class HistoryArray:
     def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
         if self.compiled:
-            xy = np.asarray(xy, dtype=np.float64)
-            _history_record_compiled(np.arange(self.n)[rows], np.asarray(t, dtype=np.float64),
-                                     np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
-                                     np.asarray(on_plate, dtype=bool), self.t, self.x, self.y, self.on)  # fmt: skip
+            index = np.atleast_1d(np.arange(self.n)[rows])
+            xy = np.broadcast_to(np.asarray(xy, dtype=np.float64), (len(index), 2))
+            _history_record_compiled(index, np.broadcast_to(np.asarray(t, dtype=np.float64), len(index)),
+                                     xy[:, 0], xy[:, 1], np.broadcast_to(np.asarray(on_plate, dtype=bool), len(index)),
+                                     self.t, self.x, self.y, self.on)  # fmt: skip
             return
         for history, value in ((self.t, t), (self.x, xy[:, 0]), (self.y, xy[:, 1]), (self.on, on_plate)):
             history[rows, :-1] = history[rows, 1:]
@@ -130,8 +133,9 @@ class HistoryArray:
         """Rows ``index``'s (x, y, touching) at times ``ts``: linear between the positions around it, the newest
         after it, and touching only if both neighbours were."""
         if self.compiled:
+            index = np.arange(self.n)[index]  # row numbers, checked (a mask or a slice as the rows it picks)
             x, y, on = np.empty(len(index)), np.empty(len(index)), np.empty(len(index), dtype=bool)
-            _history_at_compiled(np.asarray(index, dtype=np.int64), np.asarray(ts, dtype=np.float64), self.t, self.x,
+            _history_at_compiled(index, np.broadcast_to(np.asarray(ts, dtype=np.float64), len(index)), self.t, self.x,
                                  self.y, self.on, x, y, on)  # fmt: skip
             return x, y, on
         ht, hx, hy, hon = self.t[index], self.x[index], self.y[index], self.on[index]
@@ -415,14 +419,6 @@ def _propagate_row(state: np.ndarray, cov: np.ndarray, with_cov: bool, s: int, w
     _carry(state, cov, with_cov, s, h, ux, uy, tau, gain, qa, qb)
 
 
-def _propagate_rows(state: np.ndarray, cov: np.ndarray, with_cov: bool, when: np.ndarray, inputs: np.ndarray,
-                    count: np.ndarray, t0: np.ndarray, t1: np.ndarray, tau: float, gain: float, qa: float,
-                    qb: float) -> None:  # fmt: skip  # pragma: no cover - compiled
-    """:func:`_propagate_row` of every row, from ``t0[i]`` to ``t1[i]``."""
-    for i in range(state.shape[0]):
-        _propagate_row(state, cov, with_cov, i, when, inputs, count, i, t0[i], t1[i], tau, gain, qa, qb)
-
-
 def _update_rows(rows: np.ndarray, ts: np.ndarray, xy: np.ndarray, state: np.ndarray, cov: np.ndarray,
                  t: np.ndarray, r: np.ndarray, noise_t: np.ndarray, noise_x: np.ndarray, noise_y: np.ndarray,
                  noise_n: np.ndarray, noise_count: np.ndarray, variance: np.ndarray, when: np.ndarray,
@@ -517,12 +513,10 @@ def _command_rows(rows: np.ndarray, t: np.ndarray, u: np.ndarray, again: np.ndar
 
 
 _acting, _carry, _propagate_row = (compiled(f) or f for f in (_acting, _carry, _propagate_row))
-#: :func:`_propagate_rows` compiled (None without numba: :class:`KalmanArray` then propagates as arrays)
-_propagate_compiled = compiled(_propagate_rows)
-#: :func:`_update_rows` compiled (None without numba: :class:`KalmanArray` then updates as arrays)
-_update_compiled = compiled(_update_rows)
-#: :func:`_estimate_rows` and :func:`_command_rows` compiled (None without numba)
-_estimate_compiled, _command_compiled = compiled(_estimate_rows), compiled(_command_rows)
+#: :func:`_command_rows`, :func:`_update_rows` and :func:`_estimate_rows` compiled (None without numba:
+#: :class:`KalmanArray` then works as arrays)
+_command_compiled, _update_compiled = compiled(_command_rows), compiled(_update_rows)
+_estimate_compiled = compiled(_estimate_rows)
 
 
 class KalmanArray:
@@ -538,7 +532,7 @@ class KalmanArray:
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:
         #: whether the filters command, propagate, update and estimate row by row in compiled loops (else as arrays)
-        self.compiled = use_compiled(kernel, _propagate_compiled is not None)
+        self.compiled = use_compiled(kernel, _update_compiled is not None)
         self.spec = spec or KalmanSpec()
         c = self.spec
         if not c.noise_window:
@@ -575,6 +569,7 @@ class KalmanArray:
 
     def command(self, rows: np.ndarray, t: np.ndarray, roll_pitch: np.ndarray) -> None:
         """:meth:`BallKalmanFilter.command <stewart_gym.sensing.BallKalmanFilter.command>` of ``rows``."""
+        rows = np.arange(self.n)[rows]  # row numbers, checked (a mask or a slice as the rows it picks)
         u = np.stack([np.sin(roll_pitch[:, 1]), -np.sin(roll_pitch[:, 0])], axis=1)
         count = self.cmd_n[rows]
         again = (count > 0) & (t <= self.last_issued[rows])
@@ -582,7 +577,7 @@ class KalmanArray:
             new = ~again
             if new.any() and int(count[new].max()) >= self._slots:
                 self._grow()
-            _command_compiled(np.asarray(rows, dtype=np.int64), np.asarray(t, dtype=np.float64), u, again,
+            _command_compiled(rows, np.asarray(t, dtype=np.float64), u, again,
                               self.spec.dead_time_s, self.cmd_t, self.cmd_u, self.cmd_n, self.last_issued, self.t)
             return
         if again.any():
@@ -647,12 +642,13 @@ class KalmanArray:
 
     def update(self, rows: np.ndarray, ts: np.ndarray, xy: np.ndarray) -> None:
         """:meth:`BallKalmanFilter.update <stewart_gym.sensing.BallKalmanFilter.update>` of ``rows``."""
+        rows = np.arange(self.n)[rows]
         later = ts > self.t[rows]
         rows, ts, xy = rows[later], ts[later], xy[later]
         if not len(rows):
             return
         if self.compiled:
-            _update_compiled(np.ascontiguousarray(rows, dtype=np.int64), np.ascontiguousarray(ts, dtype=np.float64),
+            _update_compiled(rows, np.ascontiguousarray(ts, dtype=np.float64),
                                  np.ascontiguousarray(xy, dtype=np.float64), self.state, self.cov, self.t, self.r,
                                  self.noise_t, self.noise_x, self.noise_y, self.noise_n, self.noise_count,
                                  self.variance, self.cmd_t, self.cmd_u, self.cmd_n, float(self.prior_readings),
@@ -674,9 +670,10 @@ class KalmanArray:
 
     def estimate(self, rows: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted positions and velocities (rows × 2) of ``rows`` at times ``t``."""
+        rows = np.arange(self.n)[rows]
         if self.compiled:
             state = np.empty((len(rows), 8))
-            _estimate_compiled(np.asarray(rows, dtype=np.int64), np.asarray(t, dtype=np.float64), self.state, self.t,
+            _estimate_compiled(rows, np.broadcast_to(np.asarray(t, dtype=np.float64), len(rows)), self.state, self.t,
                                self.cmd_t, self.cmd_u, self.cmd_n, self.spec.tilt_lag_s,
                                self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b, state)  # fmt: skip
             return state[:, 0:2], state[:, 2:4]
@@ -689,11 +686,6 @@ class KalmanArray:
         exact step per interval of constant input, the intervals' ends being the times the commands act."""
         state = state.copy()
         cov = None if cov is None else cov.copy()
-        if self.compiled:
-            _propagate_compiled(state, state if cov is None else cov, cov is not None, self.cmd_t[rows],
-                                      self.cmd_u[rows], self.cmd_n[rows], t0, t1, self.spec.tilt_lag_s,
-                                      self.spec.rolling_factor * GRAVITY, self.qc_a, self.qc_b)  # fmt: skip
-            return state, cov
         when, inputs, count = self.cmd_t[rows], self.cmd_u[rows], self.cmd_n[rows]
         valid = np.arange(self._slots)[None, :] < count[:, None]
         edges = valid & (when > t0[:, None]) & (when < t1[:, None])

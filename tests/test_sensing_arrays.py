@@ -245,6 +245,10 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
                  "cmd_t", "cmd_u", "cmd_n", "last_issued"):
         np.testing.assert_array_equal(getattr(filters[0], name), getattr(filters[1], name), err_msg=name)
     assert filters[0].noise_count.min() > 0  # every row's noise estimate took whole windows of readings
+    mask = np.arange(n) % 4 == 1  # rows as a mask: the rows it picks, on both paths
+    for a, b in zip(filters[0].estimate(mask, t[mask] + 0.01), filters[1].estimate(mask, t[mask] + 0.01)):
+        assert len(a) == mask.sum()
+        np.testing.assert_array_equal(a, b)
     assert pending >= 2 and np.abs(filters[0].state[:, 2:4]).max() > 0.01  # commands overlapped; the balls moved
     with pytest.raises(ConfigError, match="kernel: one of auto, numba, numpy, got 'fast'"):
         KalmanArray(2, kernel="fast")
@@ -280,6 +284,15 @@ def test_the_histories_record_and_read_alike_compiled_and_as_arrays() -> None:
             assert np.array_equal(np.signbit(a), np.signbit(b))
     for name in ("t", "x", "y", "on"):
         np.testing.assert_array_equal(getattr(histories[0], name), getattr(histories[1], name))
+    mask = np.arange(n) % 3 == 0  # recorded through a mask, one time and lift for all: both paths alike
+    for h in histories:
+        h.record(float(t.max()) + 0.01, np.tile([0.01, 0.02], (int(mask.sum()), 1)), True, mask)
+    when = np.full(int(mask.sum()), t.max())
+    for a, b in zip(histories[0].at(np.flatnonzero(mask), when), histories[1].at(np.flatnonzero(mask), when)):
+        np.testing.assert_array_equal(a, b)
+    for h in histories:
+        with pytest.raises(IndexError):
+            h.at(np.array([n]), np.zeros(1))  # a row it does not have
     with pytest.raises(ConfigError, match="kernel"):
         HistoryArray(2, kernel="jit")
 

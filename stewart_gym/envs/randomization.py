@@ -41,26 +41,31 @@ class RandomizationRanges:
     plate_load_kg: tuple[float, float] = (0.0, 0.05)
     plate_load_radius: float = 0.10  # m, offset of the load from the plate centre
 
+    def __post_init__(self) -> None:
+        """Every range two finite numbers, low ≤ high, and every single value (a trim's or a load's reach) a finite
+        number ≥ 0, all as Python floats; else :class:`ConfigError` naming the field."""
+        for f in fields(self):
+            value = getattr(self, f.name)
+            pair = isinstance(f.default, tuple)
+            items = list(value) if pair and isinstance(value, (list, tuple)) else [value]
+            ok = len(items) == (2 if pair else 1) and all(
+                not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
+                for v in items)  # fmt: skip
+            if not ok or (items[0] > items[1] if pair else items[0] < 0):
+                want = "[lo, hi] with finite lo ≤ hi" if pair else "a finite number ≥ 0"
+                raise ConfigError(f"randomization.{f.name} must be {want}, got {value!r}")
+            object.__setattr__(self, f.name, (float(items[0]), float(items[1])) if pair else float(items[0]))
+
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> RandomizationRanges:
         """The defaults with some fields replaced, e.g. from a YAML ``env_kwargs: {randomization: {...}}``; a
-        range is ``[lo, hi]`` (finite, lo ≤ hi), a single value a finite number. Raises :class:`ConfigError`
-        naming the field."""
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(values) - set(known))
+        range is ``[lo, hi]`` (finite, lo ≤ hi), a single value a finite number ≥ 0 (:meth:`__post_init__`). Raises
+        :class:`ConfigError` naming the field."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(values) - known)
         if unknown:
             raise ConfigError(f"randomization: unknown field(s) {unknown}; fields: {sorted(known)}")
-        out: dict[str, Any] = {}
-        for name, value in values.items():
-            pair = isinstance(getattr(cls, name), tuple)
-            items = list(value) if pair and isinstance(value, (list, tuple)) else [value]
-            ok = len(items) == (2 if pair else 1) and all(
-                not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) for v in items)
-            if not ok or (pair and items[0] > items[1]):
-                want = "[lo, hi] with finite lo ≤ hi" if pair else "a finite number"
-                raise ConfigError(f"randomization.{name} must be {want}, got {value!r}")
-            out[name] = (float(items[0]), float(items[1])) if pair else float(items[0])
-        return cls(**out)
+        return cls(**dict(values))  # checked field by field as it is made
 
 
 #: ``randomize`` around a twin: each value is drawn uniformly within ± max(2 σ of its fit, this floor), where

@@ -90,17 +90,26 @@ def _columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
 
 
-def _widen(pipe: int) -> None:
-    """Let ``pipe`` hold a whole step's answer where the system allows (Linux: up to ``/proc/sys/fs/pipe-max-size``,
-    1 MiB by default), so that a worker writes it at once instead of waiting for the caller to read each 64 KiB."""
+#: bytes a worker's answer takes per copy of its share, about (its observation, reward, ends and info)
+ANSWER_BYTES_PER_COPY = 256
+#: bytes of pipe one split env asks for in all, at most: the system counts a user's pipes together (Linux:
+#: ``/proc/sys/fs/pipe-user-pages-soft``, 64 MiB by default), and the user's other pipes need their share too
+PIPE_BUDGET_BYTES = 4 << 20
+
+
+def _widen(pipe: int, wanted: int) -> None:
+    """Let ``pipe`` hold ``wanted`` bytes where the system allows (Linux's ``F_SETPIPE_SZ``, up to
+    ``/proc/sys/fs/pipe-max-size``), so that a worker writes a step's answer at once instead of waiting for the
+    caller to read each 64 KiB of it. Elsewhere, or where it is refused, the pipe keeps its size: slower, not
+    wrong."""
     setting = getattr(fcntl, "F_SETPIPE_SZ", None) if fcntl is not None else None
-    if setting is None:
+    if setting is None or wanted <= 1 << 16:
         return
     try:
         with open("/proc/sys/fs/pipe-max-size") as f:
-            fcntl.fcntl(pipe, setting, int(f.read()))
+            fcntl.fcntl(pipe, setting, min(wanted, int(f.read())))
     except (OSError, ValueError):
-        pass  # the default size: slower, not wrong
+        pass
 
 
 class SplitVectorEnv(ArrayVectorEnv):
@@ -125,10 +134,10 @@ class SplitVectorEnv(ArrayVectorEnv):
         self._conns: list[Connection] = []
         self._processes: list[subprocess.Popen] = []
         environment = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # what this one imports
-        for _ in self.sizes[1:]:
+        for size in self.sizes[1:]:
             to_child, from_parent = os.pipe()[::-1]  # (write end, read end)
             to_parent, from_child = os.pipe()[::-1]
-            _widen(to_parent)
+            _widen(to_parent, min(ANSWER_BYTES_PER_COPY * size, PIPE_BUDGET_BYTES // (self.workers - 1)))
             process = subprocess.Popen([sys.executable, "-m", "stewart_gym.envs.split_vector", str(from_parent),
                                         str(to_parent)], pass_fds=(from_parent, to_parent), env=environment)  # fmt: skip
             os.close(from_parent)

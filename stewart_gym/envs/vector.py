@@ -78,8 +78,9 @@ class Finals:
 
 class ArrayVectorEnv(VectorEnv):
     """A vector env that finds its copies' resets and steps as arrays (:meth:`reset_arrays`, :meth:`step_arrays`)
-    and batches their infos here as Gymnasium's ``SyncVectorEnv`` does in ``SAME_STEP`` autoreset mode: each key
-    with ``_key``, the copies that have it, and ``final_obs`` and ``final_info`` where a copy's episode ended."""
+    and batches their infos here in Gymnasium's ``SAME_STEP`` autoreset form: each key a row per copy with
+    ``_key``, the copies that have it (all), and ``final_obs`` and ``final_info`` where a copy's episode ended, as
+    Gymnasium's ``_add_info`` makes them."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
 
@@ -146,14 +147,16 @@ class ArrayVectorEnv(VectorEnv):
                     nested = self._add_info(nested, values[j], i)
                 final_info[key], final_info[f"_{key}"] = nested, mask.copy()
                 continue
-            if isinstance(first, np.number) or values.ndim > 1:  # numbers, or arrays: a column of their dtype
-                column = np.zeros((self.num_envs, *values.shape[1:]), dtype=values.dtype)
-                column[rows] = values
-            elif type(first) in (int, float, bool):  # Python numbers (in an object array): a column of their type
+            # the column as Gymnasium makes it from the first copy's value
+            if type(first) in (int, float, bool) or isinstance(first, np.number):
                 column = np.zeros(self.num_envs, dtype=type(first))
-                column[rows] = values
-            else:  # anything else (a NumPy bool among them) in an object array, as Gymnasium does
+            elif isinstance(first, np.ndarray):
+                column = np.zeros((self.num_envs, *first.shape), dtype=first.dtype)
+            else:  # anything else (a NumPy bool among them) in an object array
                 column = np.full(self.num_envs, None, dtype=object)
+            if values.dtype != object and column.dtype != object:  # numbers or arrays: all rows at once
+                column[rows] = values
+            else:
                 for j, i in enumerate(rows):
                     column[i] = values[j]
             final_info[key], final_info[f"_{key}"] = column, mask.copy()

@@ -51,6 +51,7 @@ __all__ = ["BatchedSim"]
 #: sinusoids they leave at most about 2 µm of rod length error, and the ball's path over 3 s within 0.06 mm of
 #: the exactly closed chains'.
 NEWTON_STEPS = 2
+_IDENTITY = np.eye(3)
 
 
 def _rodrigues(v: np.ndarray) -> np.ndarray:
@@ -134,8 +135,6 @@ class BatchedSim:
             raise ConfigError(f"the batched simulator models rotary servos; {self.geometry.name!r} is linear")
         self.n = int(n)
         self.calibration = calibration or ServoCalibration.default(self.geometry)
-        c = self.calibration
-        self._home_angle, self._per_rad = c.home_angle, c.direction * c.us_per_rad  # angles = home + (w − neutral) / per_rad
         self.physics_hz, self.control_hz = int(physics_hz), int(control_hz)
         self.substeps = self.physics_hz // self.control_hz
         self.dt = 1.0 / self.control_hz
@@ -188,7 +187,7 @@ class BatchedSim:
         self._since[i] = self._step_count
         self._pending_mask[i] = False
         for frame in self._frames:
-            frame[0][i], frame[1][i] = self.geometry.home_position, np.eye(3)
+            frame[0][i], frame[1][i] = self.geometry.home_position, _IDENTITY
 
     def _set_platform(self, i: int, servo: ServoSpec, ball: BallSpec) -> None:
         phys_dt = 1.0 / self.physics_hz
@@ -368,11 +367,12 @@ class BatchedSim:
         self._send_pending()
         sent = self._sent
         targets = np.empty((self.substeps, self.n, 6))
+        c = self.calibration  # its angles: home + (w − neutral) / (direction · µs per rad)
         self._held_targets(np.array([at for at, _, _ in sent], dtype=np.int64).reshape(len(sent)),
                            np.array([pulses for _, pulses, _ in sent], dtype=np.float64).reshape(len(sent), self.n, 6),
                            np.array([which for _, _, which in sent], dtype=bool).reshape(len(sent), self.n), self._delay,
-                           self._since, self._band[:, 0], self._held, self._trim, self._home_angle,
-                           self.calibration.neutral_us, self._per_rad, self._step_count, targets)  # fmt: skip
+                           self._since, self._band[:, 0], self._held, self._trim, c.home_angle, c.neutral_us,
+                           c.direction * c.us_per_rad, self._step_count, targets)  # fmt: skip
         self._step_count += self.substeps
         (o0, r0), (o1, r1) = self._frames
         g = self.geometry

@@ -12,6 +12,7 @@ import pytest
 
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 
@@ -57,3 +58,22 @@ def test_the_draws_are_one_uniform_call_per_draw(sensor: object, ranges: Randomi
         assert got.plate_load[0] == want.plate_load[0]
         np.testing.assert_array_equal(got.plate_load[1], want.plate_load[1])
         assert got_rng.random() == want_rng.random()  # the generator is left where one call per draw leaves it
+
+
+@pytest.mark.parametrize(("field", "value"), [("servo_deadband_us", (5.0, 3.0)), ("plate_friction", (0.0, math.inf)),
+                                              ("ball_mass_scale", (math.nan, 1.0)), ("servo_trim_us", -1.0),
+                                              ("plate_load_radius", math.inf), ("sensor_noise_mm", (1.0,)),
+                                              ("control_latency_s", ("0", "1"))])  # fmt: skip
+def test_bad_ranges_are_refused_naming_the_field(field: str, value: object) -> None:
+    """A range or value the draws cannot use is one clear error, made directly or from a mapping (a YAML
+    ``randomization:`` table)."""
+    with pytest.raises(ConfigError, match=f"randomization.{field} must be"):
+        RandomizationRanges(**{field: value})
+    with pytest.raises(ConfigError, match=f"randomization.{field} must be"):
+        RandomizationRanges.from_mapping({field: list(value) if isinstance(value, tuple) else value})
+
+
+def test_ranges_are_kept_as_python_floats() -> None:
+    ranges = RandomizationRanges(ball_mass_scale=(np.float32(0.9), 1), servo_trim_us=np.int64(3))
+    assert ranges.ball_mass_scale == (float(np.float32(0.9)), 1.0) and ranges.servo_trim_us == 3.0
+    assert all(type(v) is float for v in (*ranges.ball_mass_scale, ranges.servo_trim_us))

@@ -144,6 +144,34 @@ def test_ended_episodes_are_reported_as_gymnasium_reports_them(task: str) -> Non
     assert checked >= 6  # every copy ended at least once (15-step episodes)
 
 
+def test_final_info_columns_take_their_type_from_the_values() -> None:
+    """A task info column of mixed Python objects (NumPy scalars and arrays among ``None``, say) reaches
+    ``final_info`` as Gymnasium's ``_add_info`` makes it from the ended copies' own values."""
+    from gymnasium.vector import VectorEnv
+
+    from stewart_gym.envs.vector import Finals
+
+    env = gym.make_vec("StewartBallBalance-v0", num_envs=4, vectorization_mode="vector_entry_point")
+    objects = np.empty(2, dtype=object)
+    objects[:] = [np.float32(0.5), np.float32(1.5)]
+    arrays = np.empty(2, dtype=object)
+    arrays[0], arrays[1] = np.array([0.0, 1.0]), np.array([2.0, 3.0])
+    info = {"score": objects, "pair": arrays, "flag": np.array([True, False]), "x": np.array([1.0, 2.0]),
+            "count": np.array([3, 4]), "xy": np.array([[1.0, 2.0], [3.0, 4.0]], dtype=np.float32)}  # fmt: skip
+    finals = Finals(np.array([1, 3]), np.zeros((2, *env.single_observation_space.shape), np.float32), info)
+    got = env._final_infos(finals)["final_info"]
+    want: dict = {}
+    for i, (_, final_info) in finals.items():
+        want = VectorEnv._add_info(env, want, final_info, i)
+    assert list(got) == list(want)
+    for key, column in want.items():
+        assert got[key].dtype == column.dtype and got[key].shape == column.shape, key
+        for a, b in zip(got[key], column):
+            assert type(a) is type(b), key
+            np.testing.assert_array_equal(a, b)
+    env.close()
+
+
 def test_bad_arguments_are_one_clear_error() -> None:
     with pytest.raises(ConfigError, match="num_envs"):
         gym.make_vec("StewartBallBalance-v0", num_envs=0, vectorization_mode="vector_entry_point")
@@ -151,6 +179,10 @@ def test_bad_arguments_are_one_clear_error() -> None:
         gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point", backend="pybullet")
     with pytest.raises(ConfigError, match="render"):
         gym.make("StewartBallBalance-v0", backend="batched", render_mode="rgb_array")
+    from stewart_gym.sb3_vec import BatchedVecEnv
+
+    with pytest.raises(ConfigError, match="env_kwargs.workers: training steps its batched copies in one process"):
+        BatchedVecEnv("StewartBallBalance-v0", 4, {"backend": "batched", "workers": 2})
 
 
 def test_the_single_batched_env_passes_the_env_checkers() -> None:
