@@ -51,6 +51,9 @@ __all__ = ["BatchedSim"]
 #: sinusoids they leave at most about 2 µm of rod length error, and the ball's path over 3 s within 0.06 mm of
 #: the exactly closed chains'.
 NEWTON_STEPS = 2
+#: Commands kept in flight beyond which the simulator looks for those no platform can act on again (commands to
+#: some platforms only leave older ones that the cheap check, a later command to all, does not drop).
+PRUNE_FROM = 16
 _IDENTITY = np.eye(3)
 
 
@@ -316,6 +319,26 @@ class BatchedSim:
         keep = int(self._delay.max()) + 1
         while len(self._sent) > 1 and self._sent[1][0] + keep <= self._step_count and self._sent[1][2].all():
             self._sent.popleft()  # older than a command to every platform that is already due everywhere
+        if len(self._sent) > PRUNE_FROM:  # commands to some platforms only: drop those none can act on again
+            self._prune_sent()
+
+    def _prune_sent(self) -> None:
+        """Keep only the commands sent that a platform can still act on: for each platform, its newest command
+        due now (which stays due) and those not yet due, since its reset."""
+        sent = self._sent
+        at = np.array([a for a, _, _ in sent])
+        live = np.array([which for _, _, which in sent]) & (at[:, None] >= self._since)  # (commands, platforms)
+        due = live & (at[:, None] + self._delay <= self._step_count)
+        order = np.arange(len(at))
+        newest_due = np.where(due, order[:, None], -1).max(axis=0)  # per platform; -1 where none
+        needed = (order[:, None] == newest_due).any(axis=1) | (live & ~due).any(axis=1)
+        if not needed.all():
+            self._sent = deque(command for command, keep in zip(sent, needed.tolist()) if keep)
+
+    @property
+    def commands_in_flight(self) -> int:
+        """How many of the commands sent the simulator keeps: those a platform may still act on."""
+        return len(self._sent)
 
     def held_pulses(self) -> np.ndarray:
         """(n, 6) µs: the pulses the servos act on now (after lag and dead band)."""

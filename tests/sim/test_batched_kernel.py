@@ -153,3 +153,34 @@ print("ok")
 """
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and proc.stdout.strip() == "ok", proc.stderr[-2000:]
+
+
+@pytest.mark.parametrize("kernel", ["numba", "numpy"])
+def test_commands_to_some_platforms_only_do_not_pile_up(monkeypatch, kernel: str) -> None:
+    """Commands sent to one platform at a time (``command_one``), with long and short lags and resets: the
+    simulator keeps only the commands a platform can still act on, and moves exactly as one that keeps them all."""
+    from stewart_gym.sim import batched
+
+    rng = np.random.default_rng(6)
+    servos = [ServoSpec(lag_s=float(lag)) for lag in rng.choice([0.0, 0.02, 0.2], 6)]
+    sims, limit = [], batched.PRUNE_FROM
+    for prune_from in (limit, 10**9):  # the second keeps every command: the reference
+        monkeypatch.setattr(batched, "PRUNE_FROM", prune_from)
+        sim = BatchedSim("servo-hexapod", n=6, kernel=kernel)
+        sim.reset(servo_specs=servos)
+        sims.append(sim)
+        kept = []
+        for k in range(240):
+            if k == 100:
+                sim.reset_platform(2, servos[3])
+            i = int(rng.integers(4)) if k < 200 else 0  # platforms 4 and 5 get nothing; at the end only 0
+            sim.command_one(i, sim.calibration.neutral_us + rng.uniform(-80.0, 80.0, 6))
+            sim.step()
+            kept.append(sim.commands_in_flight)
+        rng = np.random.default_rng(6)
+        rng.choice([0.0, 0.02, 0.2], 6)  # the same draws again for the reference
+        sims[-1].kept = kept
+    pruned, everything = sims
+    np.testing.assert_array_equal(pruned.held_pulses(), everything.held_pulses())
+    np.testing.assert_array_equal(pruned.alpha, everything.alpha)
+    assert max(pruned.kept) <= limit + 1 < max(everything.kept)
