@@ -8,8 +8,7 @@ with one NumPy operation per step of the arithmetic instead of one Python call p
 installed, in compiled loops over the rows (the histories and the Kalman filters: the same operations in the same
 order, so the same bits). They follow the one-env classes step for step: the same sample times, the same noise and
 missed frames (drawn from each row's own generator, in the same order), the same filter equations; the results
-agree to rounding
-(``tests/test_sensing_arrays.py``).
+agree to rounding (``tests/test_sensing_arrays.py``).
 
 Each env of the vector env reads and resets its own row through :class:`PanelRow`, :class:`CameraRow` and
 :class:`ObserverRow`, which follow the one-env classes' interface, so that an env resets and observes alone exactly
@@ -525,9 +524,9 @@ class KalmanArray:
     Args:
         n: How many filters.
         spec: Their spec.
-        kernel: ``"numba"``: the filters command, propagate, update and estimate row by row in loops compiled with numba;
-            ``"numpy"``: as arrays; ``"auto"`` (default): numba where it is installed. The two give the same
-            numbers to the last bit.
+        kernel: ``"numba"``: the filters command, propagate, update and estimate row by row in loops compiled
+            with numba; ``"numpy"``: as arrays; ``"auto"`` (default): numba where it is installed. The two give
+            the same numbers to the last bit.
     """
 
     def __init__(self, n: int, spec: KalmanSpec | None = None, kernel: str = "auto") -> None:

@@ -13,9 +13,9 @@ A worker is a fresh Python running ``python -m stewart_gym.envs.split_vector FD_
 of the caller, so that it neither copies the caller's threads nor imports the caller's script again: no ``if
 __name__ == "__main__"`` is needed, but a task must be importable, not defined in the script itself); it starts in
 about a second. Messages go as pickles over two pipes (a worker's widened, where Linux allows, to hold a step's
-answer). A worker that fails (its env raising, or the process dying)
-makes the call raise :class:`~stewart_gym.errors.ConfigError` with its message; :meth:`close` ends the workers (and
-kills any that do not end within 10 s).
+answer). A worker that fails (its env raising, or the process dying) makes the call raise
+:class:`~stewart_gym.errors.ConfigError` with its message; :meth:`close` ends the workers (and kills any that do not
+end within 10 s).
 """
 from __future__ import annotations
 
