@@ -325,15 +325,22 @@ class BatchedSim:
     def _prune_sent(self) -> None:
         """Keep only the commands sent that a platform can still act on: for each platform, its newest command
         due now (which stays due) and those not yet due, since its reset."""
-        sent = self._sent
-        at = np.array([a for a, _, _ in sent])
-        live = np.array([which for _, _, which in sent]) & (at[:, None] >= self._since)  # (commands, platforms)
+        at, _, which = self._sent_arrays()
+        live = which & (at[:, None] >= self._since)  # (commands, platforms)
         due = live & (at[:, None] + self._delay <= self._step_count)
         order = np.arange(len(at))
         newest_due = np.where(due, order[:, None], -1).max(axis=0)  # per platform; -1 where none
         needed = (order[:, None] == newest_due).any(axis=1) | (live & ~due).any(axis=1)
         if not needed.all():
-            self._sent = deque(command for command, keep in zip(sent, needed.tolist()) if keep)
+            self._sent = deque(command for command, keep in zip(self._sent, needed.tolist()) if keep)
+
+    def _sent_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The commands in flight as arrays, oldest first: the physics step each was sent at (m,), its pulses
+        (m, n, 6) µs and the platforms it went to (m, n)."""
+        sent, m = self._sent, len(self._sent)
+        return (np.array([at for at, _, _ in sent], dtype=np.int64).reshape(m),
+                np.array([pulses for _, pulses, _ in sent], dtype=np.float64).reshape(m, self.n, 6),
+                np.array([which for _, _, which in sent], dtype=bool).reshape(m, self.n))  # fmt: skip
 
     @property
     def commands_in_flight(self) -> int:
@@ -388,14 +395,10 @@ class BatchedSim:
     def _step_compiled(self) -> None:
         """:meth:`step` by the compiled kernel, which updates the state arrays in place."""
         self._send_pending()
-        sent = self._sent
         targets = np.empty((self.substeps, self.n, 6))
         c = self.calibration  # its angles: home + (w − neutral) / (direction · µs per rad)
-        self._held_targets(np.array([at for at, _, _ in sent], dtype=np.int64).reshape(len(sent)),
-                           np.array([pulses for _, pulses, _ in sent], dtype=np.float64).reshape(len(sent), self.n, 6),
-                           np.array([which for _, _, which in sent], dtype=bool).reshape(len(sent), self.n), self._delay,
-                           self._since, self._band[:, 0], self._held, self._trim, c.home_angle, c.neutral_us,
-                           c.direction * c.us_per_rad, self._step_count, targets)  # fmt: skip
+        self._held_targets(*self._sent_arrays(), self._delay, self._since, self._band[:, 0], self._held, self._trim,
+                           c.home_angle, c.neutral_us, c.direction * c.us_per_rad, self._step_count, targets)
         self._step_count += self.substeps
         (o0, r0), (o1, r1) = self._frames
         g = self.geometry
