@@ -319,18 +319,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self._radius = params.ball.radius
         self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
                        plate_load=params.plate_load)  # fmt: skip
-        if "ball_position" in options:
-            xy = options["ball_position"]
-        elif self.start_distance is not None:
-            radius, ang = rng.uniform(*self.start_distance), rng.uniform(0, 2 * math.pi)
-            xy = np.array([radius * math.cos(ang), radius * math.sin(ang)])
-        else:
-            xy = rng.uniform(-1.0, 1.0, 2) * self.START_FRACTION * np.array(self.plate_half_extent)
-        if "ball_velocity" in options:
-            vel = options["ball_velocity"]
-        else:
-            ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
-            vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
+        xy, vel = self._start(rng, options)
         self.sim.place_ball(xy, vel)
         self.task.reset(rng, self.sim)
         if type(params.sensor) is not type(self.sensor_model.spec):
@@ -342,6 +331,27 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.observer.reset(0.0, xy)
         self._reset_episode_state()
         self._start_xy = xy
+
+    def _start(self, rng: np.random.Generator, options: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The ball's start (x, y) m and velocity m/s: from ``options`` where given, else drawn (see Starting
+        State). The draws take one generator call, ``rng.random(k)``: each number is low + (high − low) · d, what a
+        call of ``rng.uniform(low, high)`` per number gives, to the last bit (``tests/envs/test_envs.py``)."""
+        position, velocity = options.get("ball_position"), options.get("ball_velocity")
+        draws = rng.random((2 if position is None else 0) + (2 if velocity is None else 0)).tolist()
+        if position is None:
+            d0, d1 = draws[0], draws[1]
+            del draws[:2]
+            if self.start_distance is not None:  # a distance within the range, in a uniform direction
+                low, high = self.start_distance
+                radius, ang = low + (high - low) * d0, 2 * math.pi * d1
+                position = np.array([radius * math.cos(ang), radius * math.sin(ang)])
+            else:  # uniform in a square of START_FRACTION of the plate
+                (hx, hy), f = self.plate_half_extent, self.START_FRACTION
+                position = np.array([(-1.0 + 2.0 * d0) * f * hx, (-1.0 + 2.0 * d1) * f * hy])
+        if velocity is None:  # up to 0.1 m/s in a uniform direction
+            ang, speed = 2 * math.pi * draws[0], 0.1 * draws[1]
+            velocity = np.array([speed * math.cos(ang), speed * math.sin(ang)])
+        return position, velocity
 
     def end_reset(self, obs: np.ndarray) -> tuple[np.ndarray, dict]:
         """The end of :meth:`reset` (after :meth:`begin_reset`), given the episode's first observation: what

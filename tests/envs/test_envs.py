@@ -338,3 +338,44 @@ def test_rendered_frames_mark_the_target_on_the_plate() -> None:
         env.step(np.zeros(2, dtype=np.float32))
     assert np.linalg.norm(red_centre() - first) > 5  # pixels
     env.close()
+
+
+def _reference_start(rng: np.random.Generator, env: StewartBallEnv, options: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The ball's start as one ``rng.uniform`` call per draw, independently of ``StewartBallEnv._start``."""
+    if "ball_position" in options:
+        xy = np.asarray(options["ball_position"], dtype=float)
+    elif env.start_distance is not None:
+        radius, ang = rng.uniform(*env.start_distance), rng.uniform(0, 2 * math.pi)
+        xy = np.array([radius * math.cos(ang), radius * math.sin(ang)])
+    else:
+        xy = rng.uniform(-1.0, 1.0, 2) * env.START_FRACTION * np.array(env.plate_half_extent)
+    if "ball_velocity" in options:
+        vel = np.asarray(options["ball_velocity"], dtype=float)
+    else:
+        ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
+        vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
+    return xy, vel
+
+
+@pytest.mark.parametrize("start_distance", [None, (0.02, 0.09)])
+@pytest.mark.parametrize("options", [None, {"ball_position": (0.01, -0.02)}, {"ball_velocity": (0.05, 0.0)}])
+def test_the_start_draws_are_one_uniform_call_per_number(start_distance: tuple | None, options: dict | None) -> None:
+    """The start's draws, taken in one generator call, are to the last bit those of one ``rng.uniform`` call per
+    number, with or without ``start_distance`` and either option, and use as many numbers."""
+    from gymnasium.utils import seeding
+
+    env = StewartBallEnv(backend="batched", start_distance=start_distance)
+    try:
+        for seed in range(20):
+            env.reset(seed=seed, options=options)
+            rng = seeding.np_random(seed)[0]
+            xy, vel = _reference_start(rng, env, options or {})
+            position, velocity = env.sim.ball_state()
+            assert position[:2].tolist() == xy.tolist() and velocity[:2].tolist() == vel.tolist()
+            ours, reference = seeding.np_random(seed)[0], seeding.np_random(seed)[0]  # the draws alone
+            checked = env._check_options(options)
+            assert [v.tolist() for v in env._start(ours, checked)] == [v.tolist() for v in
+                                                                       _reference_start(reference, env, checked)]
+            assert ours.random() == reference.random()  # as many numbers used
+    finally:
+        env.close()
