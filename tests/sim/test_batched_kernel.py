@@ -71,21 +71,27 @@ def test_the_compiled_and_numpy_kernels_move_alike(physics_hz: int, control_hz: 
 
 
 def test_a_platform_computes_the_same_whatever_its_neighbours() -> None:
-    """The compiled kernel gives platform i the same numbers to the last bit alone (N = 1) or among others: the
-    batched vector env's copies equal one env's to the last bit."""
+    """The compiled kernel gives platform i the same numbers to the last bit alone (N = 1) or among others, in a
+    full group of lanes or in the last, partial one (19 = 8 + 8 + 3): the batched vector env's copies equal one
+    env's to the last bit."""
+    assert batched_kernel.LANES == 8
     rng = np.random.default_rng(4)
-    many, one = BatchedSim(n=16), BatchedSim(n=1)
-    start = rng.uniform(-0.02, 0.02, (16, 2))
+    many, alone = BatchedSim(n=19), {i: BatchedSim(n=1) for i in (5, 8, 17)}
+    start = rng.uniform(-0.02, 0.02, (19, 2))
     many.place_ball(start)
-    one.place_ball(start[5:6])
+    for i, one in alone.items():
+        one.place_ball(start[i : i + 1])
     for _ in range(60):
-        pulses = many.calibration.neutral_us + rng.uniform(-90.0, 90.0, (16, 6))
+        pulses = many.calibration.neutral_us + rng.uniform(-90.0, 90.0, (19, 6))
         many.command(pulses)
-        one.command(pulses[5:6])
         many.step()
-        one.step()
-    np.testing.assert_array_equal(many.ball_xy[5], one.ball_xy[0])
-    np.testing.assert_array_equal(many.platform_pose()[5], one.platform_pose()[0])
+        for i, one in alone.items():
+            one.command(pulses[i : i + 1])
+            one.step()
+    for i, one in alone.items():
+        np.testing.assert_array_equal(many.ball_xy[i], one.ball_xy[0])
+        np.testing.assert_array_equal(many.platform_pose()[i], one.platform_pose()[0])
+        np.testing.assert_array_equal(many.alpha[i], one.alpha[0])
 
 
 def test_the_kernel_is_checked_and_auto_falls_back_to_numpy(monkeypatch) -> None:
