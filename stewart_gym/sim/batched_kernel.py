@@ -6,7 +6,7 @@ method from the period's first frame), and the ball rolling on the moving plate.
 each physics step, which :func:`held_targets` finds first from the commands sent (their lag and dead band). The
 platforms' numbers stay in registers and small scratch arrays instead of (N, …) temporaries, and the plates of
 :data:`LANES` platforms are solved together, so that the compiler makes that part vector arithmetic: at N = 4,096 a
-period costs about a seventh of the NumPy path's time (``bench/bench_batched.py``). The two agree to rounding, and
+period costs about an eighth of the NumPy path's time (``bench/bench_batched.py``). The two agree to rounding, and
 a platform's numbers do not depend on the others' (``tests/sim/test_batched_kernel.py``).
 
 Without numba (:mod:`stewart_gym.compiled`) :data:`AVAILABLE` is False and the simulator uses its NumPy path.
