@@ -567,8 +567,10 @@ class KalmanArray:
         self.last_issued[i] = -np.inf
 
     def command(self, rows: np.ndarray, t: np.ndarray, roll_pitch: np.ndarray) -> None:
-        """:meth:`BallKalmanFilter.command <stewart_gym.sensing.BallKalmanFilter.command>` of ``rows``."""
+        """:meth:`BallKalmanFilter.command <stewart_gym.sensing.BallKalmanFilter.command>` of ``rows``, issued at
+        times ``t`` (s, taken as float64 whatever their type, as the filters' own times are)."""
         rows = np.arange(self.n)[rows]  # row numbers, checked (a mask or a slice as the rows it picks)
+        t = np.asarray(t, dtype=np.float64)
         u = np.stack([np.sin(roll_pitch[:, 1]), -np.sin(roll_pitch[:, 0])], axis=1)
         count = self.cmd_n[rows]
         again = (count > 0) & (t <= self.last_issued[rows])
@@ -576,7 +578,7 @@ class KalmanArray:
             new = ~again
             if new.any() and int(count[new].max()) >= self._slots:
                 self._grow()
-            _command_compiled(rows, np.asarray(t, dtype=np.float64), u, again,
+            _command_compiled(rows, t, u, again,
                               self.spec.dead_time_s, self.cmd_t, self.cmd_u, self.cmd_n, self.last_issued, self.t)
             return
         if again.any():

@@ -255,6 +255,21 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
     assert KalmanArray(2, kernel="numba").compiled
 
 
+def test_kalman_commands_take_their_times_as_float64_on_both_paths() -> None:
+    """Command times given as float32 are taken as float64, on the compiled path and the array path alike: the
+    dead time is added in float64, as to the filters' own times."""
+    for kernel in ("numba", "numpy"):
+        single, double = KalmanArray(3, kernel=kernel), KalmanArray(3, kernel=kernel)
+        times = np.array([0.01, 0.02, 0.1], dtype=np.float32)
+        tilt = np.full((3, 2), 0.05)
+        single.command(slice(None), times, tilt)
+        double.command(slice(None), times.astype(np.float64), tilt)
+        np.testing.assert_array_equal(single.cmd_t, double.cmd_t, err_msg=kernel)
+        np.testing.assert_array_equal(single.last_issued, double.last_issued, err_msg=kernel)
+        dead_time = single.spec.dead_time_s
+        assert single.cmd_t.dtype == np.float64 and single.cmd_t[0, 0] == np.float64(np.float32(0.01)) + dead_time
+
+
 def test_the_histories_record_and_read_alike_compiled_and_as_arrays() -> None:
     """:class:`HistoryArray`'s compiled loops and its array path keep the same histories and read the same positions
     to the last bit: between two records, at one, before the oldest, after the newest, at a repeated time (a
