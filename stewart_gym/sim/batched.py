@@ -11,7 +11,8 @@ platforms at once and at the physics rate:
    full speed;
 2. **the plate**: its pose from the six servo angles by Newton's method on the six rod lengths, as
    :func:`~stewart_gym.kinematics.forward_kinematics` finds it, for all the physics steps of a control period at
-   once from the period's first pose, so the closed chains hold to a few µm of rod length (:data:`NEWTON_STEPS`);
+   once from the period's first pose, so the closed chains hold to a few µm of rod length under tilt commands
+   (:data:`NEWTON_STEPS`);
 3. **the ball**: a sphere rolling without slipping on the moving plate. Its acceleration along the plate is
    that of gravity, less the acceleration of the plate point under it (the plate's own acceleration, angular
    acceleration and rotation), less the Coriolis term, with the sphere's rotational inertia and the plate's
@@ -50,8 +51,7 @@ __all__ = ["BatchedSim"]
 #: Newton steps that close the chains at each physics step (:meth:`BatchedSim._plate_frames`). On 6° tilt
 #: sinusoids they leave at most about 2 µm of rod length error, and the ball's path over 3 s within 0.06 mm of
 #: the exactly closed chains'; under a random full-range tilt action every period, about 6 µm and 0.06 mm. Pulses
-#: that jump by ±150 µs every period leave about 30 µm and 1 mm (3 steps: 5 µm and 0.06 mm). One step from the
-#: last physics step's frame instead leaves 10 to 50 times as much rod length error.
+#: that jump by up to ±150 µs every period leave up to about 40 µm and 1 mm (3 steps: 5 µm and 0.06 mm).
 NEWTON_STEPS = 2
 #: Commands kept in flight beyond which the simulator looks for those no platform can act on again (commands to
 #: some platforms only leave older ones that the cheap check, a later command to all, does not drop).

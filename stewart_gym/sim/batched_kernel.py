@@ -92,21 +92,25 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
     anchors (6, 3), horn length, the horns' cos β and sin β (6,), platform anchors (6, 3), rod lengths (6,), the
     plate's top; gravity m/s², and the Newton steps per physics step.
 
-    The platforms go :data:`LANES` at a time: each one's servos and the factors of its Jacobian, then the plates
-    of all of them together, a lane each (every loop of that part runs across the lanes), then each ball. A lane
-    does the operations its platform alone would, in the same order, so a platform's numbers do not depend on its
-    neighbours. (One function: numba's inlining of helpers here costs the loops their vector arithmetic.)"""
+    The platforms go :data:`LANES` at a time: each one's servos, horn tips and Jacobian, one by one; then, for all
+    of them together, a lane each (every loop of that part runs across the lanes), the Jacobians' LU factors and
+    the plates' frames; then each ball. A lane does the operations its platform alone would, in the same order,
+    so a platform's numbers do not depend on its neighbours."""
     s, n = targets.shape[0], targets.shape[1]
     cosines, sines = np.empty((s + 1, 6)), np.empty((s + 1, 6))  # of the angles at the start and after each step
     tips, arm = np.empty((6, 3)), np.empty((6, 3))
-    pivot, inv_pivot = np.empty(LANES, dtype=np.int64), np.empty(LANES)
-    # the lanes': the platform last
-    lane_tips = np.empty((s, 6, 3, LANES))  # horn tips after each physics step
-    lane_lu = np.empty((6, 6, LANES))  # the Jacobian's LU factors
-    lane_order = np.empty((6, LANES), dtype=np.int64)  # row k of the factored system is row lane_order[k]
-    origins, rots = np.empty((s + 2, 3, LANES)), np.empty((s + 2, 3, 3, LANES))  # the frames, from a step before
-    err, x = np.empty((6, LANES)), np.empty((6, LANES))
-    theta2, sin_over, cos_over = np.empty(LANES), np.empty(LANES), np.empty(LANES)
+    pivot, inv_pivot = np.zeros(LANES, dtype=np.int64), np.zeros(LANES)
+    # the lanes' numbers, the lane the last axis. The loops over the lanes take only + − × ÷ and √, which give the
+    # same bits whether the compiler makes them vector arithmetic or not, but for sin and cos: their loop runs over
+    # all LANES lanes in every group (a partial last group's spare lanes compute on what the previous group, or these
+    # zeros, left there, and nothing reads them back), so that a vector sin or cos, where the compiler has one,
+    # serves every lane the same.
+    lane_tips = np.zeros((s, 6, 3, LANES))  # horn tips after each physics step
+    lane_lu = np.zeros((6, 6, LANES))  # the Jacobian's LU factors
+    lane_order = np.zeros((6, LANES), dtype=np.int64)  # row k of the factored system is row lane_order[k]
+    origins, rots = np.zeros((s + 2, 3, LANES)), np.zeros((s + 2, 3, 3, LANES))  # the frames, from a step before
+    err, x = np.zeros((6, LANES)), np.zeros((6, LANES))
+    theta2, sin_over, cos_over = np.zeros(LANES), np.zeros(LANES), np.zeros(LANES)
     for first in range(0, n, LANES):
         lanes = min(LANES, n - first)
         for b in range(lanes):
@@ -228,7 +232,7 @@ def _advance(targets, alpha, last, gain, max_step, max_change, origin0, rot0, or
                     theta2[b] = t2
                     sin_over[b] = 1.0 - t2 * _1_6 * (1.0 - t2 * _1_20 * (1.0 - t2 * _1_42))
                     cos_over[b] = 0.5 - t2 * _1_24 * (1.0 - t2 * _1_30 * (1.0 - t2 * _1_56))
-                for b in range(lanes):
+                for b in range(LANES):  # all lanes, whatever the group (see the lanes' arrays)
                     if theta2[b] >= 1e-4:
                         theta = math.sqrt(theta2[b])
                         sin_over[b], cos_over[b] = math.sin(theta) / theta, (1.0 - math.cos(theta)) / theta2[b]
