@@ -122,9 +122,15 @@ class ArrayVectorEnv(VectorEnv):
         return observations, rewards, terminations, truncations, infos, finals
 
     def _gymnasium_info(self, columns: dict[str, np.ndarray]) -> dict[str, Any]:
-        """One array per key as Gymnasium batches infos: each key with ``_key``, the copies that have it (all)."""
+        """One array per key as Gymnasium batches infos: each key with ``_key``, the copies that have it (all); a
+        task's nested entry (a dict per copy) as a dict of such arrays, as Gymnasium's ``_add_info`` makes it."""
         out: dict[str, Any] = {}
         for key, value in columns.items():
+            if value.dtype == object and len(value) and isinstance(value[0], dict):
+                nested: dict[str, Any] = {}
+                for i, entry in enumerate(value):
+                    nested = self._add_info(nested, entry, i)
+                value = nested
             out[key] = value
             out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
         return out

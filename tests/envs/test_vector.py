@@ -144,6 +144,29 @@ def test_ended_episodes_are_reported_as_gymnasium_reports_them(task: str) -> Non
     assert checked >= 6  # every copy ended at least once (15-step episodes)
 
 
+def test_a_nested_task_info_is_batched_as_gymnasium_batches_it() -> None:
+    """A task's nested info entry reaches each step's info as Gymnasium's ``_add_info`` makes it from each copy's
+    info (a dict of arrays, each with its mask), as in ``SyncVectorEnv``; the other entries stay one array each."""
+    from gymnasium.vector import VectorEnv
+
+    kwargs = {"num_envs": 3, "task": "tests.envs.test_vector:NestedInfoTask"}
+    ours = gym.make_vec("StewartBallBalance-v0", vectorization_mode="vector_entry_point", **kwargs)
+    sync = gym.make_vec("StewartBallBalance-v0", vectorization_mode="sync", backend="batched", **kwargs)
+    for info in (ours.reset(seed=0)[1], ours.step(np.zeros((3, 2), np.float32))[4]):
+        want: dict = {}
+        for i in range(3):
+            want = VectorEnv._add_info(ours, want, {"stage": {"level": 2.0, "name": "start"}}, i)
+        assert list(info["stage"]) == list(want["stage"]) == ["level", "_level", "name", "_name"]
+        for key, column in want["stage"].items():
+            assert info["stage"][key].dtype == column.dtype, key
+            np.testing.assert_array_equal(info["stage"][key], column)
+        assert info["_stage"].all() and info["distance_mm"].shape == (3,)
+    synced = sync.reset(seed=0)[1]
+    assert list(synced["stage"]) == list(info["stage"]) and synced["stage"]["level"].dtype == np.float64
+    for env in (ours, sync):
+        env.close()
+
+
 def test_final_info_columns_take_their_type_from_the_values() -> None:
     """A task info column of mixed Python objects (NumPy scalars and arrays among ``None``, say) reaches
     ``final_info`` as Gymnasium's ``_add_info`` makes it from the ended copies' own values."""
