@@ -268,8 +268,9 @@ def hand_vectorised_servo_ik(geo: PlatformGeometry, poses: np.ndarray) -> np.nda
 
 def test_batched_ik_keeps_its_speed_on_a_busy_machine() -> None:
     """With two processes keeping the cores busy, the batched IK still runs at least 0.7× the speed of the
-    hand-vectorised reference, timed in the same run, best of five alternating tries each (its product runs on one
-    BLAS thread: threads that wait for each other made it 0.3–0.5× here). The answers agree first."""
+    hand-vectorised reference, timed in the same run, the best of alternating tries each, up to 15 (its product
+    runs on one BLAS thread: threads that wait for each other made it 0.3–0.5× here, try after try, where a busy
+    machine's noise alone can leave five tries short). The answers agree first."""
     import subprocess
     import sys
     import time
@@ -283,12 +284,14 @@ def test_batched_ik_keeps_its_speed_on_a_busy_machine() -> None:
     try:
         time.sleep(0.5)
         best = {"ours": math.inf, "reference": math.inf}
-        for _ in range(5):
+        for _ in range(15):
             for name, run in (("ours", lambda: inverse_kinematics(geo, poses)),
                               ("reference", lambda: hand_vectorised_servo_ik(geo, poses))):  # fmt: skip
                 t0 = time.perf_counter()
                 run()
                 best[name] = min(best[name], time.perf_counter() - t0)
+            if best["reference"] / best["ours"] >= 0.7:
+                break
     finally:
         for proc in busy:
             proc.kill()
