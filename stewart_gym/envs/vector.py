@@ -127,13 +127,18 @@ class ArrayVectorEnv(VectorEnv):
         out: dict[str, Any] = {}
         for key, value in columns.items():
             if value.dtype == object and len(value) and isinstance(value[0], dict):
-                nested: dict[str, Any] = {}
-                for i, entry in enumerate(value):
-                    nested = self._add_info(nested, entry, i)
-                value = nested
+                value = self._nested(value, range(self.num_envs))
             out[key] = value
             out[f"_{key}"] = np.ones(self.num_envs, dtype=bool)
         return out
+
+    def _nested(self, entries: np.ndarray, rows: Sequence[int]) -> dict[str, Any]:
+        """A task's nested info entries (a dict each) of copies ``rows`` as Gymnasium batches them, copy by copy
+        with its ``_add_info``: a dict of arrays, each with its mask."""
+        nested: dict[str, Any] = {}
+        for entry, i in zip(entries, rows):
+            nested = self._add_info(nested, entry, i)
+        return nested
 
     def _final_infos(self, finals: Finals) -> dict[str, Any]:
         """``final_obs`` and ``final_info`` of the copies whose episode ended, with their masks, all at once: what
@@ -147,11 +152,8 @@ class ArrayVectorEnv(VectorEnv):
         final_info: dict[str, Any] = {}
         for key, values in finals.info.items():
             first = values[0]
-            if isinstance(first, dict):  # a task's nested entry: Gymnasium's own way, copy by copy
-                nested: dict[str, Any] = {}
-                for j, i in enumerate(rows):
-                    nested = self._add_info(nested, values[j], i)
-                final_info[key], final_info[f"_{key}"] = nested, mask.copy()
+            if isinstance(first, dict):  # a task's nested entry
+                final_info[key], final_info[f"_{key}"] = self._nested(values, rows), mask.copy()
                 continue
             # the column as Gymnasium makes it from the first copy's value
             if type(first) in (int, float, bool) or isinstance(first, np.number):
