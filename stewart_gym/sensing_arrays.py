@@ -109,11 +109,12 @@ class HistoryArray:
                                                for a in (self.t, self.x, self.y, self.on))  # fmt: skip
             self.columns = columns
 
-    def reset_row(self, i: int, before: float, t: float, xy: Sequence[float]) -> None:
-        """Row ``i`` starts over: the ball at rest at ``xy`` from time ``before`` to ``t`` (s), touching."""
-        self.t[i, :-1] = before
-        self.t[i, -1] = t
-        self.x[i], self.y[i], self.on[i] = float(xy[0]), float(xy[1]), True
+    def reset_rows(self, rows: np.ndarray, before: np.ndarray, t: float, xy: np.ndarray) -> None:
+        """``rows`` start over: each row's ball at rest at its ``xy`` (rows × 2, m) from its time ``before`` to ``t``
+        (s), touching."""
+        self.t[rows, :-1] = np.asarray(before, dtype=np.float64)[:, None]
+        self.t[rows, -1] = t
+        self.x[rows], self.y[rows], self.on[rows] = xy[:, :1], xy[:, 1:2], True
 
     def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
@@ -172,17 +173,27 @@ class PanelArray:
 
     def set_spec(self, i: int, spec: TouchPanelSpec) -> None:
         """Row ``i``'s panel from now on."""
-        self.specs[i] = spec
-        self.noise_m[i], self.rate[i], self.latency[i] = spec.noise_mm * 1e-3, spec.rate_hz, spec.latency_s
-        self.history.keep(int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt)) + 3)
+        self.set_specs(np.array([i]), [spec])
 
-    def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
-        """:meth:`SimulatedTouchPanel.reset <stewart_gym.sensing.SimulatedTouchPanel.reset>` of row ``i``."""
-        spec = self.specs[i]
-        self.history.reset_row(i, t - spec.latency_s - 1.0 / spec.rate_hz - 1.0, t, xy)  # at rest there before t
-        self.last_k[i] = np.iinfo(np.int64).min
-        self.left[i] = 0
-        self.rngs[i] = rng
+    def set_specs(self, rows: np.ndarray, specs: Sequence[TouchPanelSpec]) -> None:
+        """Row ``rows[k]``'s panel is ``specs[k]`` from now on."""
+        for i, spec in zip(rows.tolist(), specs):
+            self.specs[i] = spec
+        self.noise_m[rows] = [spec.noise_mm * 1e-3 for spec in specs]
+        self.rate[rows] = [spec.rate_hz for spec in specs]
+        self.latency[rows] = [spec.latency_s for spec in specs]
+        self.history.keep(max(int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt))
+                              for spec in specs) + 3)  # fmt: skip
+
+    def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
+        """:meth:`SimulatedTouchPanel.reset <stewart_gym.sensing.SimulatedTouchPanel.reset>` of each of ``rows``: its
+        ball at ``xy`` (rows × 2, m) at time ``t``, its noise drawn from ``rngs[k]`` from now on."""
+        # at rest there from before the first sample the panel can take
+        self.history.reset_rows(rows, t - self.latency[rows] - 1.0 / self.rate[rows] - 1.0, t, xy)
+        self.last_k[rows] = np.iinfo(np.int64).min
+        self.left[rows] = 0
+        for i, rng in zip(rows.tolist(), rngs):
+            self.rngs[i] = rng
 
     def record(self, t: np.ndarray, xy: np.ndarray, on_plate: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
@@ -230,7 +241,7 @@ class CameraArray:
         #: m, each row's ball radius: its centre's height above the plate, and the plane the pipeline maps onto
         self.ball_radius = np.full(self.n, float(ball_radius))
         self.history = HistoryArray(self.n)
-        self._take(slice(None), spec)
+        self._take(slice(None), [spec] * self.n)
         self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the frame in self.frame
         self.frame = np.zeros((self.n, 2))
         self.found = np.zeros(self.n, dtype=bool)  # whether that frame found the ball
@@ -240,24 +251,34 @@ class CameraArray:
 
     def set_spec(self, i: int, spec: CameraSpec) -> None:
         """Row ``i``'s camera from now on."""
-        self.specs[i] = spec
-        self._take(i, spec)
+        self.set_specs(np.array([i]), [spec])
 
-    def _take(self, rows: Any, spec: CameraSpec) -> None:
-        """``rows`` see with ``spec``'s numbers from now on, with the history it needs."""
-        self.fps[rows], self.latency[rows], self.noise_px[rows], self.miss_rate[rows] = (
-            spec.fps, spec.latency_s, spec.centroid_noise_px, spec.miss_rate)  # fmt: skip
-        self.focal[rows], self.camera_z[rows], self.corrected[rows] = (spec.focal_px, camera_height(spec),
-                                                                       spec.parallax_corrected)  # fmt: skip
-        self.history.keep(int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt)) + 3)
+    def set_specs(self, rows: np.ndarray, specs: Sequence[CameraSpec]) -> None:
+        """Row ``rows[k]`` sees with camera ``specs[k]`` from now on, with the history it needs."""
+        for i, spec in zip(rows.tolist(), specs):
+            self.specs[i] = spec
+        self._take(rows, specs)
 
-    def reset_row(self, i: int, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
-        """:meth:`SimulatedCamera.reset <stewart_gym.camera.SimulatedCamera.reset>` of row ``i``."""
-        spec = self.specs[i]
-        self.history.reset_row(i, t - spec.latency_s - 2.0 / spec.fps - 1.0, t, xy)
-        self.last_k[i] = np.iinfo(np.int64).min
-        self.drawn[i] = FRAME_DRAWS
-        self.rngs[i] = rng
+    def _take(self, rows: Any, specs: Sequence[CameraSpec]) -> None:
+        """``rows`` see with ``specs``' numbers (one spec per row) from now on, with the history they need."""
+        self.fps[rows] = [spec.fps for spec in specs]
+        self.latency[rows] = [spec.latency_s for spec in specs]
+        self.noise_px[rows] = [spec.centroid_noise_px for spec in specs]
+        self.miss_rate[rows] = [spec.miss_rate for spec in specs]
+        self.focal[rows] = [spec.focal_px for spec in specs]
+        self.camera_z[rows] = [camera_height(spec) for spec in specs]
+        self.corrected[rows] = [spec.parallax_corrected for spec in specs]
+        self.history.keep(max(int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt))
+                              for spec in specs) + 3)  # fmt: skip
+
+    def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
+        """:meth:`SimulatedCamera.reset <stewart_gym.camera.SimulatedCamera.reset>` of each of ``rows``: its ball at
+        ``xy`` (rows × 2, m) at time ``t``, its frames' misses and noise drawn from ``rngs[k]`` from now on."""
+        self.history.reset_rows(rows, t - self.latency[rows] - 2.0 / self.fps[rows] - 1.0, t, xy)
+        self.last_k[rows] = np.iinfo(np.int64).min
+        self.drawn[rows] = FRAME_DRAWS
+        for i, rng in zip(rows.tolist(), rngs):
+            self.rngs[i] = rng
 
     def record(self, t: np.ndarray, xy: np.ndarray, touching: np.ndarray, rows: Any = slice(None)) -> None:
         """The true positions ``xy`` (m, rows × 2) at times ``t`` (s) of ``rows``."""
@@ -311,7 +332,7 @@ class SensorRow:
         self.sensors.set_spec(self.i, value)
 
     def reset(self, t: float, xy: Sequence[float], rng: np.random.Generator) -> None:
-        self.sensors.reset_row(self.i, t, xy, rng)
+        self.sensors.reset_rows(np.array([self.i]), t, np.array([[float(xy[0]), float(xy[1])]]), [rng])
 
     def record(self, t: float, xy: Sequence[float], touching: bool) -> None:
         self.sensors.record(np.array([t]), np.array([[xy[0], xy[1]]], dtype=np.float64), np.array([touching]),
@@ -557,14 +578,17 @@ class KalmanArray:
         self.window, self.prior_readings = template.window, template.prior_readings
         self.qc_a, self.qc_b = c.accel_noise**2, c.bias_noise**2
 
-    def reset_row(self, i: int, t: float, xy: Sequence[float]) -> None:
-        self.noise_n[i], self.noise_count[i], self.variance[i] = 0, 0, self.prior
-        self.r[i] = self.prior
-        self.state[i] = (float(xy[0]), float(xy[1]), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self.cov[i] = (self.prior, 0.0, 0.0, 0.0, 0.1**2, 0.0, 0.0, 0.5**2, 0.0, 0.5**2)
-        self.t[i] = float(t)
-        self.cmd_n[i] = 0
-        self.last_issued[i] = -np.inf
+    def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray) -> None:
+        """:meth:`BallKalmanFilter.reset <stewart_gym.sensing.BallKalmanFilter.reset>` of each of ``rows``: its ball
+        at ``xy`` (rows × 2, m) at rest at time ``t`` (s)."""
+        self.noise_n[rows], self.noise_count[rows], self.variance[rows] = 0, 0, self.prior
+        self.r[rows] = self.prior
+        self.state[rows] = 0.0
+        self.state[rows, :2] = xy
+        self.cov[rows] = (self.prior, 0.0, 0.0, 0.0, 0.1**2, 0.0, 0.0, 0.5**2, 0.0, 0.5**2)
+        self.t[rows] = float(t)
+        self.cmd_n[rows] = 0
+        self.last_issued[rows] = -np.inf
 
     def command(self, rows: np.ndarray, t: np.ndarray, roll_pitch: np.ndarray) -> None:
         """:meth:`BallKalmanFilter.command <stewart_gym.sensing.BallKalmanFilter.command>` of ``rows``, issued at
@@ -763,14 +787,16 @@ class ObserverArray:
         self.tau = 1.0 / (2 * math.pi * velocity_cutoff_hz)
         self.velocity, self.velocity_t, self.velocity_xy = np.zeros((self.n, 2)), np.zeros(self.n), np.zeros((self.n, 2))
 
-    def reset_row(self, i: int, t: float, xy: Sequence[float]) -> None:
-        """:meth:`BallObserver.reset <stewart_gym.sensing.BallObserver.reset>` of row ``i``."""
-        self.velocity_t[i], self.velocity_xy[i], self.velocity[i] = float(t), (float(xy[0]), float(xy[1])), 0.0
-        self.reading[i] = (float(xy[0]), float(xy[1]))
-        self.t[i] = float(t)
-        self.error_integral[i], self.integral_t[i] = 0.0, float(t)
+    def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray) -> None:
+        """:meth:`BallObserver.reset <stewart_gym.sensing.BallObserver.reset>` of each of ``rows``: its ball at
+        ``xy`` (rows × 2, m) at time ``t`` (s)."""
+        t = float(t)
+        self.velocity_t[rows], self.velocity_xy[rows], self.velocity[rows] = t, xy, 0.0
+        self.reading[rows] = xy
+        self.t[rows] = t
+        self.error_integral[rows], self.integral_t[rows] = 0.0, t
         if self.kalman is not None:
-            self.kalman.reset_row(i, t, xy)
+            self.kalman.reset_rows(rows, t, xy)
 
     def observe(self, rows: np.ndarray, has: np.ndarray, xy: np.ndarray, ts: np.ndarray, target_xy: np.ndarray,
                 target_velocity: np.ndarray, roll_pitch: np.ndarray, previous_action: np.ndarray,
@@ -821,7 +847,7 @@ class ObserverRow:
         return int(self.observers.invalid_readings[self.i])
 
     def reset(self, t: float, xy: Sequence[float]) -> None:
-        self.observers.reset_row(self.i, t, xy)
+        self.observers.reset_rows(np.array([self.i]), t, np.array([[float(xy[0]), float(xy[1])]]))
 
     def observe(self, reading: tuple[tuple[float, float], float] | None, target_xy: Sequence[float],
                 target_velocity: Sequence[float], roll_pitch: Sequence[float], previous_action: Sequence[float],

@@ -147,8 +147,8 @@ def test_the_observer_rows_observe_as_single_observers(estimator: str, integral:
     observers = ObserverArray(n, 2, HALF, estimator, integral)
     singles = [BallObserver(2, plate_half=HALF, estimator=estimator, integral=integral) for _ in range(n)]
     start = rng.uniform(-0.05, 0.05, (n, 2))
+    observers.reset_rows(np.arange(n), 0.0, start)
     for i in range(n):
-        observers.reset_row(i, 0.0, start[i])
         singles[i].reset(0.0, start[i])
     latency = rng.uniform(0.005, 0.05, n)
     for k in range(steps):  # the first at the reset's time, as an env's reset observes
@@ -214,8 +214,7 @@ def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:
     filters = KalmanArray(n), KalmanArray(n, kernel="numpy")
     assert filters[0].compiled and not filters[1].compiled
     for k in filters:
-        for i in range(n):
-            k.reset_row(i, 0.0, (0.05 * i / n, -0.02))
+        k.reset_rows(np.arange(n), 0.0, np.stack([0.05 * np.arange(n) / n, np.full(n, -0.02)], axis=1))
     t = np.zeros(n)
     pending = 0
     for step in range(300):
@@ -280,8 +279,7 @@ def test_the_histories_record_and_read_alike_compiled_and_as_arrays() -> None:
     assert histories[0].compiled and not histories[1].compiled
     for h in histories:
         h.keep(11)
-        for i in range(n):
-            h.reset_row(i, -1.3, 0.0, (0.01 * i, -0.02))
+        h.reset_rows(np.arange(n), np.full(n, -1.3), 0.0, np.stack([0.01 * np.arange(n), np.full(n, -0.02)], axis=1))
     t = np.zeros(n)
     for _ in range(200):
         rows = np.flatnonzero(rng.random(n) < 0.8)

@@ -288,18 +288,34 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
         self._episode: tuple[dict, Any, list[np.ndarray]] | None = None
-        self._start_xy = np.zeros(2)  # m: where the episode's ball started (begin_reset → end_reset)
         self._reset_episode_state()
 
     # ------------------------------------------------------------------ API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        self.begin_reset(seed=seed, options=options)
-        return self.end_reset(self._observe(0.0))
+        xy, velocity = self.draw_episode(seed=seed, options=options)
+        params, rng = self.params, self.np_random
+        self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
+                       plate_load=params.plate_load)  # fmt: skip
+        self.sim.place_ball(xy, velocity)
+        self.task.reset(rng, self.sim)
+        if type(params.sensor) is not type(self.sensor_model.spec):
+            self.sensor_model = sensor_model(params.sensor, params.ball.radius)
+        self.sensor_model.spec = params.sensor
+        if isinstance(params.sensor, CameraSpec):
+            self.sensor_model.ball_radius = params.ball.radius
+        self.sensor_model.reset(0.0, xy, rng)
+        self.observer.reset(0.0, xy)
+        obs = self._last_obs = self._observe(0.0)
+        target_xy, _ = self.task.target(0.0)
+        return obs, self._info(xy.copy(), target_xy, distance(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 
-    def begin_reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> None:
-        """:meth:`reset` up to the first observation: the episode's parameters, the physics, the ball, the task, the
-        sensor and the observer. :meth:`end_reset` takes the first observation; the batched vector env finds it
-        for all the copies it resets in a step at once, in between."""
+    def draw_episode(self, *, seed: int | None = None,
+                     options: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """The start of :meth:`reset`: seed the generator (``seed``), check ``options``, draw the episode's
+        parameters (:attr:`params`) and the ball's start, and start this env's own count of the episode. Returns the
+        ball's start, (x, y) m and velocity m/s. The rest of the reset (the physics, the task's draws, the sensor, the
+        observer and the first observation) follows in :meth:`reset`, or, for the batched vector env's copies, for all
+        the copies it resets at once (:class:`~stewart_gym.envs.vector.StewartBallVectorEnv`)."""
         super().reset(seed=seed)
         rng = self.np_random
         #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since
@@ -315,22 +331,12 @@ class StewartBallEnv(gym.Env, EzPickle):
         else:
             nominal = self.nominal_sensor[0] if isinstance(self.nominal_sensor, tuple) else self.nominal_sensor
             params = EpisodeParams(self.nominal_ball, self.nominal_servo, nominal, 0.6, None)
+        #: this episode's physical parameters
         self.params = params
         self._radius = params.ball.radius
-        self.sim.reset(servo_spec=params.servo, ball_spec=params.ball, plate_friction=params.plate_friction,
-                       plate_load=params.plate_load)  # fmt: skip
-        xy, vel = self._start(rng, options)
-        self.sim.place_ball(xy, vel)
-        self.task.reset(rng, self.sim)
-        if type(params.sensor) is not type(self.sensor_model.spec):
-            self.sensor_model = sensor_model(params.sensor, params.ball.radius)
-        self.sensor_model.spec = params.sensor
-        if isinstance(params.sensor, CameraSpec):
-            self.sensor_model.ball_radius = params.ball.radius
-        self.sensor_model.reset(0.0, xy, rng)
-        self.observer.reset(0.0, xy)
+        xy, velocity = self._start(rng, options)
         self._reset_episode_state()
-        self._start_xy = xy
+        return xy, velocity
 
     def _start(self, rng: np.random.Generator, options: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The ball's start (x, y) m and velocity m/s: from ``options`` where given, else drawn (see Starting
@@ -352,14 +358,6 @@ class StewartBallEnv(gym.Env, EzPickle):
             ang, speed = 2 * math.pi * draws[0], 0.1 * draws[1]
             velocity = np.array([speed * math.cos(ang), speed * math.sin(ang)])
         return position, velocity
-
-    def end_reset(self, obs: np.ndarray) -> tuple[np.ndarray, dict]:
-        """The end of :meth:`reset` (after :meth:`begin_reset`), given the episode's first observation: what
-        :meth:`reset` returns."""
-        self._last_obs = obs
-        xy = self._start_xy
-        target_xy, _ = self.task.target(0.0)
-        return obs, self._info(xy.copy(), target_xy, distance(xy[0] - target_xy[0], xy[1] - target_xy[1]))
 
     #: The ball starts within this fraction of the plate's half size of the centre (0.10 m on the 300 mm plate).
     START_FRACTION = 2.0 / 3.0

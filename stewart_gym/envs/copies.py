@@ -7,8 +7,8 @@ IK pass), let each task act, send every copy's pulses, advance the shared simula
 (:class:`~stewart_gym.sensing_arrays.ObserverArray`), and end the step: reward, success, termination and truncation,
 and the info as arrays. It carries, per copy, what the env carries from step to step (the last action, the commanded
 tilt, the steps taken and the steps in a row within the success radius); the copies' tasks are asked through a
-:class:`~stewart_gym.envs.task_array.TaskArray`, and each copy's own env resets it, but for the first observations
-of the copies reset in a step, which are found together (:meth:`CopySteps.first_observations`). The results equal
+:class:`~stewart_gym.envs.task_array.TaskArray`. The copies reset in a step start together: their first observations
+(:meth:`CopySteps.first_observations`) and infos (:meth:`CopySteps.reset_rows`) as arrays. The results equal
 each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for
 ``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
 
@@ -62,18 +62,37 @@ class CopySteps:
         self.pulses = np.tile(sim.calibration.neutral_us, (self.n, 1))
         self.last_obs = np.zeros((self.n, *first.observation_space.shape), dtype=np.float32)
 
-    def reset_row(self, i: int, obs: np.ndarray) -> None:
-        """Copy ``i`` has started an episode (its env's reset), observing ``obs``."""
-        self.steps[i] = self.inside[i] = self.unreachable[i] = 0
-        self.previous_action[i] = 0.0
-        self.roll_pitch[i] = 0.0
-        self.pulses[i] = self.sim.calibration.neutral_us
-        self.last_obs[i] = obs
+    def reset_rows(self, rows: np.ndarray, observations: np.ndarray, start_xy: np.ndarray) -> dict[str, np.ndarray]:
+        """Copies ``rows`` have started an episode with their balls at ``start_xy`` (rows × 2, m), observing
+        ``observations`` (rows × size): their first infos as arrays, a row each, as each env's
+        :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.reset` gives them."""
+        k = len(rows)
+        self.steps[rows] = self.inside[rows] = self.unreachable[rows] = 0
+        self.previous_action[rows] = 0.0
+        self.roll_pitch[rows] = 0.0
+        self.pulses[rows] = self.sim.calibration.neutral_us
+        self.last_obs[rows] = observations
+        targets, _ = self.tasks.targets(np.zeros(k), rows)
+        offset = start_xy - targets
+        distances = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
+        info = {
+            "is_success": np.zeros(k, dtype=bool),
+            "distance_mm": distances * 1e3,
+            "ball_xy_m": start_xy.copy(),
+            "target_xy_m": targets,
+            "pulse_widths_us": self.pulses[rows],
+            "commanded_tilt_rad": np.zeros((k, 2)),
+            "action_scaled": np.zeros(k, dtype=bool),
+            "unreachable_count": np.zeros(k, dtype=np.int64),
+            "physics_error": np.zeros(k, dtype=bool),
+        }
+        info.update(self.tasks.infos(rows))
+        return info
 
     def first_observations(self, rows: np.ndarray) -> np.ndarray:
-        """The first observation (rows × size) of each copy of ``rows``, which their envs have just begun to reset
-        (:meth:`StewartBallEnv.begin_reset <stewart_gym.envs.ball_env.StewartBallEnv.begin_reset>`): what each
-        env's own reset observes at time 0, for all of them at once."""
+        """The first observation (rows × size) of each copy of ``rows``, whose physics, sensors and observers have
+        just been reset: what each env's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.reset` observes at
+        time 0, for all of them at once."""
         t = np.zeros(len(rows))
         reading, sample_t, has = self.sensors.read(t, rows)
         targets, target_velocities = self.tasks.targets(t, rows)
@@ -82,7 +101,7 @@ class CopySteps:
 
     def step(self, actions: np.ndarray) -> StepArrays:
         """Every copy's step with its action (n × action size): observations, rewards, terminated, truncated and
-        the info as arrays. A copy whose episode ends is left for the caller to reset (then :meth:`reset_row`)."""
+        the info as arrays. A copy whose episode ends is left for the caller to reset (then :meth:`reset_rows`)."""
         sim = self.sim
         mapped = self.mapper.map_arrays(actions)
         self.tasks.before_step(sim.platform_times(), self.platforms)

@@ -107,9 +107,10 @@ class TaskArray:
             self._parameters_read = now
         return self._parameters
 
-    def infos(self) -> dict[str, np.ndarray]:
-        """The tasks' info entries, one array per key with a row per copy (none where the tasks add none)."""
+    def infos(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """The tasks' info entries, one array per key with a row per copy, or per copy of ``rows`` (none where the
+        tasks add none)."""
         if not self.adds_info:
             return {}
-        each = [task.info() for task in self.tasks]
+        each = [task.info() for task in (self.tasks if rows is None else [self.tasks[i] for i in rows.tolist()])]
         return {key: np.array([entry[key] for entry in each]) for key in each[0]}

@@ -11,7 +11,9 @@ copies' actions are mapped in one IK pass, their sensors (touch panels or camera
 (:class:`~stewart_gym.envs.copies.CopySteps`), its task's target, reward and info included
 (:class:`~stewart_gym.envs.task_array.TaskArray`: as arrays where the task uses the built-in hooks, else copy by
 copy). An episode that ends is reset in the same step (Gymnasium's ``AutoresetMode.SAME_STEP``): ``info["final_obs"]``
-and ``info["final_info"]`` hold its last observation and info.
+and ``info["final_info"]`` hold its last observation and info. The copies reset together: each draws its episode
+from its own generator, as its env's reset would, and their physics, sensors, observers, first observations and
+infos are then set as arrays.
 """
 
 from __future__ import annotations
@@ -227,13 +229,7 @@ class StewartBallVectorEnv(ArrayVectorEnv):
             seeds = list(seed)
             if len(seeds) != self.num_envs:
                 raise ConfigError(f"reset: {len(seeds)} seeds for {self.num_envs} envs")
-        observations, infos = [], []
-        for i, (env, s) in enumerate(zip(self.envs, seeds)):
-            obs, info = env.reset(seed=s, options=options)
-            self.copy_steps.reset_row(i, obs)
-            observations.append(obs)
-            infos.append(info)
-        return np.stack(observations), {key: np.array([info[key] for info in infos]) for key in infos[0]}
+        return self._reset_copies(np.arange(self.num_envs), seeds, options)
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                          dict[str, np.ndarray], Finals]:  # fmt: skip
@@ -243,16 +239,36 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
         ended = np.flatnonzero(terminations | truncations)
         finals = Finals.of(ended, observations, info)
-        for i in ended.tolist():
-            self.envs[i].begin_reset()
-        if ended.size:  # the reset copies' first observations, all at once
-            for i, first in zip(ended.tolist(), self.copy_steps.first_observations(ended)):
-                obs, reset_info = self.envs[i].end_reset(first)
-                self.copy_steps.reset_row(i, obs)
-                observations[i] = obs
-                for key, value in info.items():
-                    value[i] = reset_info[key]
+        if ended.size:
+            observations[ended], first_info = self._reset_copies(ended)
+            for key, value in info.items():
+                value[ended] = first_info[key]
         return observations, rewards, terminations, truncations, info, finals
+
+    def _reset_copies(self, rows: np.ndarray, seeds: Sequence[int | None] | None = None,
+                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
+        """Reset copies ``rows`` (copy ``rows[k]`` seeded ``seeds[k]``), each as its env's own :meth:`reset
+        <stewart_gym.envs.ball_env.StewartBallEnv.reset>` would with ``options``: their first observations and infos
+        (a row each). Each copy draws its episode from its own generator
+        (:meth:`~stewart_gym.envs.ball_env.StewartBallEnv.draw_episode`), then its task draws; the physics, the
+        sensors, the observers and the first observations are set for all of them at once."""
+        envs = [self.envs[i] for i in rows.tolist()]
+        starts = [env.draw_episode(seed=s, options=options) for env, s in zip(envs, seeds or [None] * len(envs))]
+        params = [env.params for env in envs]
+        xy = np.array([start for start, _ in starts], dtype=np.float64)
+        self.sim.reset_platforms(rows, [p.servo for p in params], [p.ball for p in params],
+                                 [p.plate_load for p in params])  # fmt: skip
+        self.sim.ball_xy[rows] = xy
+        self.sim.ball_velocity[rows] = [velocity for _, velocity in starts]
+        for env in envs:  # after the physics, as an env's own reset: a task may act on it
+            env.task.reset(env.np_random, env.sim)
+        self.sensors.set_specs(rows, [p.sensor for p in params])
+        if isinstance(self.sensors, CameraArray):
+            self.sensors.ball_radius[rows] = [p.ball.radius for p in params]
+        self.sensors.reset_rows(rows, 0.0, xy, [env.np_random for env in envs])
+        self.observers.reset_rows(rows, 0.0, xy)
+        observations = self.copy_steps.first_observations(rows)
+        return observations, self.copy_steps.reset_rows(rows, observations, xy)
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments

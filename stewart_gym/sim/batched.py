@@ -35,6 +35,7 @@ model, to rounding.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -181,34 +182,54 @@ class BatchedSim:
         self.alpha = np.zeros((n, 6))
         self.ball_xy = np.zeros((n, 2))
         self.ball_velocity = np.zeros((n, 2))
+        #: each platform's servos, ball and plate load (kg, (3,) m from the plate centre, or None) this episode
+        self.servo_specs: list[ServoSpec] = list(servos)
+        self.ball_specs: list[BallSpec] = list(balls)
         self.plate_loads: list[Any] = [None] * n
-        for i in range(n):
-            self._set_platform(i, servos[i], balls[i])
+        self._set_platforms(np.arange(n), servos, balls)
 
     def reset_platform(self, i: int, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None) -> None:
         """Platform ``i`` alone back at home with its servos holding neutral (commands sent to it before are
         dropped), its ball at rest at the plate centre; with its own servos and ball where given."""
-        self._set_platform(i, servo_spec or self.servo_spec, ball_spec or self.ball_spec)
-        self._since[i] = self._step_count
-        self._pending_mask[i] = False
-        for frame in self._frames:
-            frame[0][i], frame[1][i] = self.geometry.home_position, _IDENTITY
+        self.reset_platforms(np.array([i]), [servo_spec or self.servo_spec], [ball_spec or self.ball_spec])
 
-    def _set_platform(self, i: int, servo: ServoSpec, ball: BallSpec) -> None:
+    def reset_platforms(self, rows: np.ndarray, servo_specs: Sequence[ServoSpec], ball_specs: Sequence[BallSpec],
+                        plate_loads: Sequence[Any] | None = None) -> None:  # fmt: skip
+        """Platforms ``rows`` back at home with their servos holding neutral (commands sent to them before are
+        dropped), their balls at rest at the plate centre; platform ``rows[k]`` with servos ``servo_specs[k]``, ball
+        ``ball_specs[k]`` and plate load ``plate_loads[k]`` (default none)."""
+        rows = np.asarray(rows, dtype=np.int64)
+        self._set_platforms(rows, servo_specs, ball_specs, plate_loads)
+        self._since[rows] = self._step_count
+        self._pending_mask[rows] = False
+        for frame in self._frames:
+            frame[0][rows], frame[1][rows] = self.geometry.home_position, _IDENTITY
+
+    def _set_platforms(self, rows: np.ndarray, servos: Sequence[ServoSpec], balls: Sequence[BallSpec],
+                       loads: Sequence[Any] | None = None) -> None:  # fmt: skip
+        """Platform ``rows[k]``'s servos, ball and plate load; its servos holding neutral and its ball at rest at the
+        centre. Each number is found as a Python float, then stored."""
         phys_dt = 1.0 / self.physics_hz
-        self._gain[i, 0], self._max_step[i, 0] = servo.position_gain, servo.max_speed * phys_dt
-        self._max_change[i, 0] = servo.stall_torque / self._rotor_inertia * phys_dt**2
-        self._last_step[i] = 0.0
-        self._band[i, 0], self._resolution[i, 0] = servo.deadband_us, servo.resolution_us
-        self._resolution_list[i] = float(servo.resolution_us)
-        self._delay[i], self._trim[i] = int(round(servo.lag_s * self.physics_hz)), servo.trim_error_us
-        self._radius[i], self._mass[i] = ball.radius, ball.mass
-        self._beta[i] = ball.inertia / (ball.mass * ball.radius**2)
-        self._held[i] = self.calibration.neutral_us
-        self.alpha[i] = self._home_alpha
-        self.ball_xy[i] = 0.0
-        self.ball_velocity[i] = 0.0
-        self.plate_loads[i] = None
+        self._gain[rows, 0] = [servo.position_gain for servo in servos]
+        self._max_step[rows, 0] = [servo.max_speed * phys_dt for servo in servos]
+        self._max_change[rows, 0] = [servo.stall_torque / self._rotor_inertia * phys_dt**2 for servo in servos]
+        self._last_step[rows] = 0.0
+        self._band[rows, 0] = [servo.deadband_us for servo in servos]
+        resolutions = [float(servo.resolution_us) for servo in servos]
+        self._resolution[rows, 0] = resolutions
+        self._delay[rows] = [int(round(servo.lag_s * self.physics_hz)) for servo in servos]
+        self._trim[rows] = [servo.trim_error_us for servo in servos]
+        self._radius[rows] = [ball.radius for ball in balls]
+        self._mass[rows] = [ball.mass for ball in balls]
+        self._beta[rows] = [ball.inertia / (ball.mass * ball.radius**2) for ball in balls]
+        self._held[rows] = self.calibration.neutral_us
+        self.alpha[rows] = self._home_alpha
+        self.ball_xy[rows] = 0.0
+        self.ball_velocity[rows] = 0.0
+        for k, i in enumerate(rows.tolist()):
+            self._resolution_list[i] = resolutions[k]
+            self.servo_specs[i], self.ball_specs[i] = servos[k], balls[k]
+            self.plate_loads[i] = None if loads is None else loads[k]
 
     @property
     def ball_radius(self) -> np.ndarray:
@@ -496,9 +517,18 @@ class BatchedPlatform:
         self.geometry, self.calibration = sim.geometry, sim.calibration
         self.physics_hz, self.control_hz, self.substeps, self.dt = sim.physics_hz, sim.control_hz, sim.substeps, sim.dt
         self.plate_half_extent, self.plate_top = sim.plate_half_extent, sim.plate_top
-        self.servo_spec, self.ball_spec = sim.servo_spec, sim.ball_spec
         self.has_ball, self.render_mode = True, None
         self._closed = False
+
+    @property
+    def servo_spec(self) -> ServoSpec:
+        """This platform's servos (this episode's)."""
+        return self.batch.servo_specs[self.index]
+
+    @property
+    def ball_spec(self) -> BallSpec:
+        """This platform's ball (this episode's)."""
+        return self.batch.ball_specs[self.index]
 
     @property
     def time(self) -> float:
@@ -513,12 +543,8 @@ class BatchedPlatform:
               plate_friction: float | None = None, plate_load: Any = None) -> None:  # fmt: skip
         """Home, servos at neutral, ball at rest at the centre; the episode's servos and ball where given."""
         self._closed = False
-        if servo_spec is not None:
-            self.servo_spec = servo_spec
-        if ball_spec is not None:
-            self.ball_spec = ball_spec
-        self.batch.reset_platform(self.index, self.servo_spec, self.ball_spec)
-        self.set_plate_load(plate_load)
+        self.batch.reset_platforms(np.array([self.index]), [servo_spec or self.servo_spec],
+                                   [ball_spec or self.ball_spec], [plate_load])  # fmt: skip
 
     def command(self, pulse_widths_us: np.ndarray) -> np.ndarray:
         return self.batch.command_one(self.index, pulse_widths_us)

@@ -77,6 +77,14 @@ def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.Vecto
             np.testing.assert_array_equal(obs[i], o)
             assert_info_row(info, i, inf)
     assert ended >= n
+    for copy, single in zip(vector.unwrapped.envs, singles):  # each copy's own objects hold its episode too
+        single = single.unwrapped
+        assert (copy.params.ball, copy.params.servo, copy.params.sensor) == (single.params.ball, single.params.servo,
+                                                                             single.params.sensor)  # fmt: skip
+        for env in (copy, single):
+            assert (env.sim.servo_spec, env.sim.ball_spec) == (env.params.servo, env.params.ball)
+            assert env.sensor_model.spec == env.params.sensor
+        assert copy.np_random.bit_generator.state == single.np_random.bit_generator.state
     vector.close()
     return vector
 
