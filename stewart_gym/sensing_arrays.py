@@ -182,8 +182,8 @@ class PanelArray:
         self.noise_m[rows] = [spec.noise_mm * 1e-3 for spec in specs]
         self.rate[rows] = [spec.rate_hz for spec in specs]
         self.latency[rows] = [spec.latency_s for spec in specs]
-        self.history.keep(max(int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt))
-                              for spec in specs) + 3)  # fmt: skip
+        self.history.keep(max((int(math.ceil((spec.latency_s + 1.0 / spec.rate_hz) / self.control_dt))
+                               for spec in specs), default=0) + 3)  # fmt: skip
 
     def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
         """:meth:`SimulatedTouchPanel.reset <stewart_gym.sensing.SimulatedTouchPanel.reset>` of each of ``rows``: its
@@ -268,8 +268,8 @@ class CameraArray:
         self.focal[rows] = [spec.focal_px for spec in specs]
         self.camera_z[rows] = [camera_height(spec) for spec in specs]
         self.corrected[rows] = [spec.parallax_corrected for spec in specs]
-        self.history.keep(max(int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt))
-                              for spec in specs) + 3)  # fmt: skip
+        self.history.keep(max((int(math.ceil((spec.latency_s + 1.0 / spec.fps) / self.control_dt))
+                               for spec in specs), default=0) + 3)  # fmt: skip
 
     def reset_rows(self, rows: np.ndarray, t: float, xy: np.ndarray, rngs: Sequence[np.random.Generator]) -> None:
         """:meth:`SimulatedCamera.reset <stewart_gym.camera.SimulatedCamera.reset>` of each of ``rows``: its ball at

@@ -288,6 +288,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
         self._episode: tuple[dict, Any, list[np.ndarray]] | None = None
+        self._last_obs = np.zeros(self.observation_space.shape, dtype=np.float32)  # the last observation returned
         self._reset_episode_state()
 
     # ------------------------------------------------------------------ API
@@ -480,7 +481,13 @@ class StewartBallEnv(gym.Env, EzPickle):
     def __deepcopy__(self, memo: dict) -> StewartBallEnv:
         """An independent env in the same state, mid-episode included: a new env made with the same arguments,
         its own engine, which replays this episode (the same random draws from the reset on, then each action
-        taken since), so that from here both step alike, to the last bit. Before the first reset: a new env."""
+        taken since), so that from here both step alike, to the last bit. Before the first reset: a new env.
+
+        An env made on a backend object (``backend=`` a simulator, as each copy of the batched vector env is) has no
+        engine of its own to copy: a ``TypeError`` says so."""
+        if self._engine is None:
+            raise TypeError(f"copy.deepcopy: this env steps the backend object it was given ({type(self.sim).__name__}), "
+                            "which a copy would share; make the copy with gym.make(id, backend=...) by name")  # fmt: skip
         twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
         memo[id(self)] = twin
         if self._episode is not None:
@@ -528,7 +535,7 @@ class StewartBallEnv(gym.Env, EzPickle):
             "is_success": np.False_,
             "distance_mm": np.float64(dist * 1e3),
             "ball_xy_m": xy,
-            "target_xy_m": np.array(target_xy),
+            "target_xy_m": np.array(target_xy, dtype=np.float64),
             "pulse_widths_us": self._pulses,
             "commanded_tilt_rad": np.array(self._roll_pitch),
             "action_scaled": np.bool_(self._scaled),

@@ -45,7 +45,7 @@ class TaskArray:
     """``tasks[i]`` is copy i's task; each method takes and returns a row per copy.
 
     Args:
-        tasks: The copies' tasks (each copy's env's own, which its resets redraw).
+        tasks: The copies' tasks (each copy's env's own, redrawn at each of its episodes' start).
     """
 
     def __init__(self, tasks: Sequence[Task]) -> None:

@@ -18,6 +18,7 @@ infos are then set as arrays.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -200,8 +201,10 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         self.sim = BatchedSim(geo, n=self.num_envs, control_hz=control_hz,
                               physics_hz=physics_hz or multiple_at_least(PYBULLET_ENV_HZ, control_hz),
                               ball_spec=ball or BallSpec(), servo_spec=servo or ServoSpec())  # fmt: skip
+        task = kwargs.pop("task", "balance")  # a task object: a copy of it for each copy (its draws are per episode)
         self.envs = [StewartBallEnv(backend=BatchedPlatform(self.sim, i, owns_steps=False), ball=ball, servo=servo,
-                                    control_hz=control_hz, **kwargs) for i in range(self.num_envs)]  # fmt: skip
+                                    control_hz=control_hz, task=task if isinstance(task, str) else copy.deepcopy(task),
+                                    **kwargs) for i in range(self.num_envs)]  # fmt: skip
         first = self.envs[0]
         #: the copies' touch panels or cameras, and their observers, as arrays (:mod:`stewart_gym.sensing_arrays`)
         self.sensors = sensor_array(first, self.num_envs, 1.0 / control_hz)
@@ -250,8 +253,9 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         """Reset copies ``rows`` (copy ``rows[k]`` seeded ``seeds[k]``), each as its env's own :meth:`reset
         <stewart_gym.envs.ball_env.StewartBallEnv.reset>` would with ``options``: their first observations and infos
         (a row each). Each copy draws its episode from its own generator
-        (:meth:`~stewart_gym.envs.ball_env.StewartBallEnv.draw_episode`), then its task draws; the physics, the
-        sensors, the observers and the first observations are set for all of them at once."""
+        (:meth:`~stewart_gym.envs.ball_env.StewartBallEnv.draw_episode`); then the platforms are reset for all of
+        them at once, each copy's task draws (after the physics, as in an env's own reset: a task may act on it), and
+        the sensors, the observers, the first observations and the infos are set for all of them at once."""
         envs = [self.envs[i] for i in rows.tolist()]
         starts = [env.draw_episode(seed=s, options=options) for env, s in zip(envs, seeds or [None] * len(envs))]
         params = [env.params for env in envs]

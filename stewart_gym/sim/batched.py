@@ -198,7 +198,10 @@ class BatchedSim:
         """Platforms ``rows`` back at home with their servos holding neutral (commands sent to them before are
         dropped), their balls at rest at the plate centre; platform ``rows[k]`` with servos ``servo_specs[k]``, ball
         ``ball_specs[k]`` and plate load ``plate_loads[k]`` (default none)."""
-        rows = np.asarray(rows, dtype=np.int64)
+        rows = np.arange(self.n)[rows]  # row numbers, checked (a mask or a slice as the rows it picks)
+        for name, given in (("servo_specs", servo_specs), ("ball_specs", ball_specs), ("plate_loads", plate_loads)):
+            if given is not None and len(given) != len(rows):
+                raise ValueError(f"reset_platforms: {len(given)} {name} for {len(rows)} platforms")
         self._set_platforms(rows, servo_specs, ball_specs, plate_loads)
         self._since[rows] = self._step_count
         self._pending_mask[rows] = False
@@ -541,7 +544,8 @@ class BatchedPlatform:
 
     def reset(self, *, servo_spec: ServoSpec | None = None, ball_spec: BallSpec | None = None,
               plate_friction: float | None = None, plate_load: Any = None) -> None:  # fmt: skip
-        """Home, servos at neutral, ball at rest at the centre; the episode's servos and ball where given."""
+        """Home, servos at neutral, ball at rest at the centre, and the plate load ``plate_load`` (none by default);
+        the episode's servos and ball where given, else the last episode's."""
         self._closed = False
         self.batch.reset_platforms(np.array([self.index]), [servo_spec or self.servo_spec],
                                    [ball_spec or self.ball_spec], [plate_load])  # fmt: skip

@@ -60,11 +60,15 @@ def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.Vecto
     singles = [gym.make(env_id, backend="batched", **kwargs) for _ in range(n)]
     rng = np.random.default_rng(1)
     actions = rng.uniform(-1, 1, (steps, n, vector.single_action_space.shape[0])).astype(np.float32)
-    obs, _ = vector.reset(seed=10)
-    single_obs = [env.reset(seed=10 + i)[0] for i, env in enumerate(singles)]
-    np.testing.assert_array_equal(obs, np.stack(single_obs))
     ended = 0
-    for a in actions:
+    for k, a in enumerate(actions):
+        if k in (0, steps // 2):  # a reset with new seeds, also after a run (each copy's generator is a new one)
+            seed = 10 if k == 0 else 70
+            obs, info = vector.reset(seed=seed)
+            for i, env in enumerate(singles):
+                o, inf = env.reset(seed=seed + i)
+                np.testing.assert_array_equal(obs[i], o)
+                assert_info_row(info, i, inf)
         obs, reward, terminated, truncated, info = vector.step(a)
         for i, env in enumerate(singles):
             o, r, te, tr, inf = env.step(a[i])
@@ -84,6 +88,10 @@ def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.Vecto
         for env in (copy, single):
             assert (env.sim.servo_spec, env.sim.ball_spec) == (env.params.servo, env.params.ball)
             assert env.sensor_model.spec == env.params.sensor
+            load, drawn = env.sim.batch.plate_loads[env.sim.index], env.params.plate_load
+            assert (load is None) == (drawn is None)
+            if drawn is not None:
+                assert load[0] == drawn[0] and np.array_equal(load[1], drawn[1])
         assert copy.np_random.bit_generator.state == single.np_random.bit_generator.state
     vector.close()
     return vector
@@ -98,6 +106,8 @@ def assert_info_row(batched: dict, i: int, single: dict) -> None:
             np.testing.assert_allclose(batched[key][i], value, rtol=0, atol=1e-9)
         else:
             np.testing.assert_array_equal(batched[key][i], value, err_msg=key)
+        if not isinstance(value, dict):  # the same NumPy type (a nested entry's values are Gymnasium's)
+            assert np.asarray(batched[key][i]).dtype == np.asarray(value).dtype, key
         assert batched[f"_{key}"][i]
 
 
@@ -261,6 +271,40 @@ def test_a_residual_copy_moves_as_the_residual_wrapper() -> None:
         obs, _, _, _ = venv.step_wait()
         o, *_ = single.step(a)
         np.testing.assert_array_equal(obs[0], o)
+
+
+def test_a_task_object_gives_each_copy_its_own() -> None:
+    """``task=`` an object: each copy draws its own episodes with a copy of it, as single envs each given their own."""
+    from stewart_gym.envs.tasks.track import TrackTask
+
+    vector = gym.make_vec("StewartBallTrack-v0", num_envs=3, vectorization_mode="vector_entry_point",
+                          task=TrackTask(trajectory="mixed"))  # fmt: skip
+    singles = [gym.make("StewartBallTrack-v0", backend="batched", task=TrackTask(trajectory="mixed")) for _ in range(3)]
+    assert len({id(env.task) for env in vector.unwrapped.envs}) == 3
+    obs, info = vector.reset(seed=4)
+    for i, env in enumerate(singles):
+        o, inf = env.reset(seed=4 + i)
+        np.testing.assert_array_equal(obs[i], o)
+        assert_info_row(info, i, inf)
+    assert len({tuple(row) for row in info["target_xy_m"].tolist()}) == 3  # each copy's own drawn path
+    vector.close()
+
+
+def test_a_copy_refuses_a_deepcopy_that_would_share_its_platform() -> None:
+    """A copy runs on the vector env's shared simulator: ``copy.deepcopy`` of it is a clear ``TypeError``, and the
+    vector env's platforms are left as they were."""
+    import copy
+
+    vector = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    vector.reset(seed=0)
+    vector.step(np.full((2, 2), 0.3, dtype=np.float32))
+    sim = vector.unwrapped.sim
+    before = sim.ball_xy.copy(), sim.platform_times()
+    with pytest.raises(TypeError, match="backend object"):
+        copy.deepcopy(vector.unwrapped.envs[1])
+    np.testing.assert_array_equal(sim.ball_xy, before[0])
+    np.testing.assert_array_equal(sim.platform_times(), before[1])
+    vector.close()
 
 
 def test_a_copy_whose_physics_blows_up_ends_alone() -> None:

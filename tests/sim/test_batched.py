@@ -156,3 +156,33 @@ def test_stepping_the_servos_alone_turns_them_as_a_full_step_does() -> None:
         np.testing.assert_array_equal(servos_only.held_pulses(), full.held_pulses())
         moved = max(moved, float(np.abs(full.alpha - start).min(axis=1).max()))
     assert moved > 0.01  # the servos turned: the comparison saw motion, not three platforms at rest
+
+
+def test_platforms_reset_together_as_one_by_one() -> None:
+    """``reset_platforms`` of some rows (numbers or a mask) leaves each as ``reset_platform`` of it alone would, the
+    others untouched; specs not one per row are refused before anything changes."""
+    from stewart_gym.sim import BallSpec
+
+    servos = [ServoSpec(max_speed=5.0 + i, lag_s=0.01 * i, trim_error_us=(float(i),) * 6) for i in range(3)]
+    balls = [BallSpec(radius=0.012 + 0.001 * i, mass=0.05 + 0.01 * i) for i in range(3)]
+    together, alone = BatchedSim(n=5), BatchedSim(n=5)
+    pulses = together.calibration.neutral_us + np.array([30.0, -20.0, 10.0, 0.0, 5.0, -5.0])
+    for sim in (together, alone):
+        sim.command(np.tile(pulses, (5, 1)))
+        sim.step()
+    together.reset_platforms(np.array([False, True, False, True, True]), servos, balls, [None, (0.02, np.zeros(3)), None])
+    for k, i in enumerate([1, 3, 4]):
+        alone.reset_platform(i, servos[k], balls[k])
+    alone.plate_loads[3] = (0.02, np.zeros(3))
+    for sim in (together, alone):
+        sim.command(np.tile(pulses, (5, 1)))
+        sim.step()
+    np.testing.assert_array_equal(together.alpha, alone.alpha)
+    np.testing.assert_array_equal(together.ball_xy, alone.ball_xy)
+    np.testing.assert_array_equal(together.platform_times(), alone.platform_times())
+    assert together.servo_specs == alone.servo_specs and together.ball_specs == alone.ball_specs
+    assert together.plate_loads[3][0] == 0.02 and together.plate_loads[0] is None
+    before = together.alpha.copy()
+    with pytest.raises(ValueError, match="2 ball_specs for 3 platforms"):
+        together.reset_platforms(np.array([0, 1, 2]), servos, balls[:2])
+    np.testing.assert_array_equal(together.alpha, before)
