@@ -241,7 +241,7 @@ class CameraArray:
         #: m, each row's ball radius: its centre's height above the plate, and the plane the pipeline maps onto
         self.ball_radius = np.full(self.n, float(ball_radius))
         self.history = HistoryArray(self.n)
-        self._take(slice(None), [spec] * self.n)
+        self._take(slice(None), [spec])  # one spec: every row's
         self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the frame in self.frame
         self.frame = np.zeros((self.n, 2))
         self.found = np.zeros(self.n, dtype=bool)  # whether that frame found the ball
@@ -260,7 +260,8 @@ class CameraArray:
         self._take(rows, specs)
 
     def _take(self, rows: Any, specs: Sequence[CameraSpec]) -> None:
-        """``rows`` see with ``specs``' numbers (one spec per row) from now on, with the history they need."""
+        """``rows`` see with ``specs``' numbers (one spec per row, or one for all) from now on, with the history
+        they need."""
         self.fps[rows] = [spec.fps for spec in specs]
         self.latency[rows] = [spec.latency_s for spec in specs]
         self.noise_px[rows] = [spec.centroid_noise_px for spec in specs]
