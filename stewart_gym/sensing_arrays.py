@@ -10,9 +10,9 @@ order, so the same bits). They follow the one-env classes step for step: the sam
 missed frames (drawn from each row's own generator, in the same order), the same filter equations; the results
 agree to rounding (``tests/test_sensing_arrays.py``).
 
-Each env of the vector env reads and resets its own row through :class:`PanelRow`, :class:`CameraRow` and
-:class:`ObserverRow`, which follow the one-env classes' interface, so that an env resets and observes alone exactly
-as it would with its own sensor and observer, while the vector env steps every row at once.
+Each env of the vector env holds its own row as :class:`PanelRow`, :class:`CameraRow` and :class:`ObserverRow`, which
+follow the one-env classes' interface, so that an env resets and observes alone exactly as it would with its own
+sensor and observer, while the vector env resets (``set_specs``, ``reset_rows``) and steps many rows at once.
 """
 
 from __future__ import annotations

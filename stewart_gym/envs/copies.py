@@ -8,7 +8,7 @@ IK pass), let each task act, send every copy's pulses, advance the shared simula
 and the info as arrays. It carries, per copy, what the env carries from step to step (the last action, the commanded
 tilt, the steps taken and the steps in a row within the success radius); the copies' tasks are asked through a
 :class:`~stewart_gym.envs.task_array.TaskArray`. The copies reset in a step start together: their first observations
-(:meth:`CopySteps.first_observations`) and infos (:meth:`CopySteps.reset_rows`) as arrays. The results equal
+and infos as arrays (:meth:`CopySteps.reset_rows`). The results equal
 each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for
 ``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
 
@@ -62,17 +62,21 @@ class CopySteps:
         self.pulses = np.tile(sim.calibration.neutral_us, (self.n, 1))
         self.last_obs = np.zeros((self.n, *first.observation_space.shape), dtype=np.float32)
 
-    def reset_rows(self, rows: np.ndarray, observations: np.ndarray, start_xy: np.ndarray) -> dict[str, np.ndarray]:
-        """Copies ``rows`` have started an episode with their balls at ``start_xy`` (rows × 2, m), observing
-        ``observations`` (rows × size): their first infos as arrays, a row each, as each env's
-        :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.reset` gives them."""
+    def reset_rows(self, rows: np.ndarray, start_xy: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Copies ``rows`` start an episode with their balls at ``start_xy`` (rows × 2, m), their physics, sensors and
+        observers just reset: their first observations (rows × size) and infos (arrays, a row each), what each env's
+        own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.reset` gives at time 0, for all of them at once."""
         k = len(rows)
+        t = np.zeros(k)
+        reading, sample_t, has = self.sensors.read(t, rows)
+        targets, target_velocities = self.tasks.targets(t, rows)
+        observations = self.observers.observe(rows, has, reading, sample_t, targets, target_velocities,
+                                              np.zeros((k, 2)), np.zeros((k, self.mapper.size)), t)  # fmt: skip
         self.steps[rows] = self.inside[rows] = self.unreachable[rows] = 0
         self.previous_action[rows] = 0.0
         self.roll_pitch[rows] = 0.0
         self.pulses[rows] = self.sim.calibration.neutral_us
         self.last_obs[rows] = observations
-        targets, _ = self.tasks.targets(np.zeros(k), rows)
         offset = start_xy - targets
         distances = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
         info = {
@@ -87,17 +91,7 @@ class CopySteps:
             "physics_error": np.zeros(k, dtype=bool),
         }
         info.update(self.tasks.infos(rows))
-        return info
-
-    def first_observations(self, rows: np.ndarray) -> np.ndarray:
-        """The first observation (rows × size) of each copy of ``rows``, whose physics, sensors and observers have
-        just been reset: what each env's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.reset` observes at
-        time 0, for all of them at once."""
-        t = np.zeros(len(rows))
-        reading, sample_t, has = self.sensors.read(t, rows)
-        targets, target_velocities = self.tasks.targets(t, rows)
-        return self.observers.observe(rows, has, reading, sample_t, targets, target_velocities,
-                                      np.zeros((len(rows), 2)), np.zeros((len(rows), self.mapper.size)), t)  # fmt: skip
+        return observations, info
 
     def step(self, actions: np.ndarray) -> StepArrays:
         """Every copy's step with its action (n × action size): observations, rewards, terminated, truncated and

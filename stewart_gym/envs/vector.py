@@ -271,8 +271,7 @@ class StewartBallVectorEnv(ArrayVectorEnv):
             self.sensors.ball_radius[rows] = [p.ball.radius for p in params]
         self.sensors.reset_rows(rows, 0.0, xy, [env.np_random for env in envs])
         self.observers.reset_rows(rows, 0.0, xy)
-        observations = self.copy_steps.first_observations(rows)
-        return observations, self.copy_steps.reset_rows(rows, observations, xy)
+        return self.copy_steps.reset_rows(rows, xy)
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments
