@@ -93,6 +93,14 @@ def reference_servo_angles(geo: PlatformGeometry, pose: np.ndarray, pivot: np.nd
     return out
 
 
+def uniform_draw(rng: np.random.Generator, low: float, high: float) -> float:
+    """One uniform draw in [low, high) from one ``rng.random()``: low + (high − low) · d, in two roundings, as
+    NumPy's ``rng.uniform(low, high)`` computes it on x86-64 and in its Linux arm64 wheels. Its macOS arm64 wheels
+    compute it in one rounding (a fused multiply-add), which can differ in the last bit
+    (``tests/envs/test_randomization.py``): the env's draws are these, on every machine."""
+    return low + (high - low) * rng.random()
+
+
 def random_poses(name: str, n: int, seed: int = 0) -> np.ndarray:
     """n poses uniformly in the preset's WORKSPACE_BOX."""
     t, a = WORKSPACE_BOX[name]

@@ -342,7 +342,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     def _start(self, rng: np.random.Generator, options: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """The ball's start (x, y) m and velocity m/s: from ``options`` where given, else drawn (see Starting
         State). The draws take one generator call, ``rng.random(k)``: each number is low + (high − low) · d, what a
-        call of ``rng.uniform(low, high)`` per number gives, to the last bit (``tests/envs/test_envs.py``)."""
+        call of ``rng.uniform(low, high)`` per number gives, up to NumPy's rounding (as
+        :class:`~stewart_gym.envs.randomization.EpisodeParams`' draws; ``tests/envs/test_envs.py``)."""
         position, velocity = options.get("ball_position"), options.get("ball_velocity")
         draws = rng.random((2 if position is None else 0) + (2 if velocity is None else 0)).tolist()
         if position is None:

@@ -94,10 +94,10 @@ class EpisodeParams:
         """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor`` (a tuple of
         cameras: one of them, drawn uniformly, then varied)."""
         r = ranges
-        # The draws come from one generator call per run of them (:func:`_uniform`): the numbers a call of
-        # ``rng.uniform(low, high)`` per draw gives, to the last bit (tests/envs/test_randomization.py), at a
-        # seventh of the cost. First the ball's radius, mass and rolling friction, the control latency, the
-        # servos' speed, their six trims and their dead band.
+        # The draws come from one generator call per run of them (:func:`_uniform`), at a seventh of the cost of
+        # a ``rng.uniform(low, high)`` call per draw, and are that call's numbers (see :func:`_uniform`). First the
+        # ball's radius, mass and rolling friction, the control latency, the servos' speed, their six trims and
+        # their dead band.
         trim = (-r.servo_trim_us, r.servo_trim_us)
         radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = _uniform(
             rng, (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
@@ -171,6 +171,8 @@ class EpisodeParams:
 
 
 def _uniform(rng: np.random.Generator, ranges: tuple[tuple[float, float], ...]) -> list[float]:
-    """One uniform draw within each (low, high) of ``ranges``, in order: the numbers ``rng.uniform(low, high)``
-    would give called once for each (NumPy's uniform is low + (high − low) · ``random()``)."""
+    """One uniform draw within each (low, high) of ``ranges``, in order, from one ``rng.random(k)`` call: low +
+    (high − low) · d, the same numbers on every machine. They are those of a ``rng.uniform(low, high)`` call for
+    each, to the last bit where NumPy rounds that product and sum apart (x86-64, Linux arm64), and within one
+    rounding where it fuses them (macOS arm64) (``tests/envs/test_randomization.py``)."""
     return [low + (high - low) * d for (low, high), d in zip(ranges, rng.random(len(ranges)).tolist())]

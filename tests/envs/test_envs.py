@@ -9,6 +9,7 @@ import pickle
 import gymnasium as gym
 import numpy as np
 import pytest
+from conftest import uniform_draw
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -341,27 +342,29 @@ def test_rendered_frames_mark_the_target_on_the_plate() -> None:
 
 
 def _reference_start(rng: np.random.Generator, env: StewartBallEnv, options: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The ball's start as one ``rng.uniform`` call per draw, independently of ``StewartBallEnv._start``."""
+    """The ball's start as one generator call per draw (``uniform_draw``: NumPy's ``rng.uniform`` up to its
+    rounding), independently of ``StewartBallEnv._start``."""
     if "ball_position" in options:
         xy = np.asarray(options["ball_position"], dtype=float)
     elif env.start_distance is not None:
-        radius, ang = rng.uniform(*env.start_distance), rng.uniform(0, 2 * math.pi)
+        radius, ang = uniform_draw(rng, *env.start_distance), uniform_draw(rng, 0, 2 * math.pi)
         xy = np.array([radius * math.cos(ang), radius * math.sin(ang)])
     else:
-        xy = rng.uniform(-1.0, 1.0, 2) * env.START_FRACTION * np.array(env.plate_half_extent)
+        square = np.array([uniform_draw(rng, -1.0, 1.0), uniform_draw(rng, -1.0, 1.0)])
+        xy = square * env.START_FRACTION * np.array(env.plate_half_extent)
     if "ball_velocity" in options:
         vel = np.asarray(options["ball_velocity"], dtype=float)
     else:
-        ang, speed = rng.uniform(0, 2 * math.pi), rng.uniform(0, 0.1)
+        ang, speed = uniform_draw(rng, 0, 2 * math.pi), uniform_draw(rng, 0, 0.1)
         vel = np.array([speed * math.cos(ang), speed * math.sin(ang)])
     return xy, vel
 
 
 @pytest.mark.parametrize("start_distance", [None, (0.02, 0.09)])
 @pytest.mark.parametrize("options", [None, {"ball_position": (0.01, -0.02)}, {"ball_velocity": (0.05, 0.0)}])
-def test_the_start_draws_are_one_uniform_call_per_number(start_distance: tuple | None, options: dict | None) -> None:
-    """The start's draws, taken in one generator call, are to the last bit those of one ``rng.uniform`` call per
-    number, with or without ``start_distance`` and either option, and use as many numbers."""
+def test_the_start_draws_are_one_generator_call_per_number(start_distance: tuple | None, options: dict | None) -> None:
+    """The start's draws, taken in one generator call, are to the last bit those of one call per number
+    (``uniform_draw``), with or without ``start_distance`` and either option, and use as many numbers."""
     from gymnasium.utils import seeding
 
     env = StewartBallEnv(backend="batched", start_distance=start_distance)

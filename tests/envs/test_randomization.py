@@ -1,6 +1,7 @@
 """Domain randomisation's draws (:class:`~stewart_gym.envs.randomization.EpisodeParams`): one generator call per
-run of draws gives, to the last bit, the episodes that one ``rng.uniform`` call per draw gives, in the documented
-order, for a touch panel, a camera and a set of cameras to draw from."""
+run of draws gives, to the last bit, the episodes that one draw per ``rng.random()`` call gives, in the documented
+order, for a touch panel, a camera and a set of cameras to draw from; and each draw, low + (high − low) · d, is
+NumPy's ``rng.uniform(low, high)`` up to NumPy's own rounding of it (``conftest.uniform_draw``)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import uniform_draw
 
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
@@ -19,8 +21,10 @@ from stewart_gym.sim import BallSpec, ServoSpec
 
 def one_call_per_draw(rng: np.random.Generator, r: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
                       sensor: TouchPanelSpec | CameraSpec | tuple[CameraSpec, ...]) -> EpisodeParams:  # fmt: skip
-    """The draws written out one ``rng.uniform`` at a time, in the order the ranges' docs give them."""
-    u = rng.uniform
+    """The draws written out one generator call at a time, in the order the ranges' docs give them."""
+    def u(low: float, high: float) -> float:
+        return uniform_draw(rng, low, high)
+
     ball_ep = replace(ball, radius=round(ball.radius * u(*r.ball_radius_scale), 4), mass=ball.mass * u(*r.ball_mass_scale),
                       rolling_friction=u(*r.ball_rolling_friction))  # fmt: skip
     latency = u(*r.control_latency_s)
@@ -47,7 +51,7 @@ CUSTOM = RandomizationRanges(servo_trim_us=0.0, plate_friction=(0.5, 0.5), ball_
 
 @pytest.mark.parametrize("sensor", [TouchPanelSpec(), CAMERAS[0], CAMERAS], ids=["panel", "camera", "cameras"])
 @pytest.mark.parametrize("ranges", [RandomizationRanges(), CUSTOM], ids=["defaults", "custom"])
-def test_the_draws_are_one_uniform_call_per_draw(sensor: object, ranges: RandomizationRanges) -> None:
+def test_the_draws_are_one_generator_call_per_draw(sensor: object, ranges: RandomizationRanges) -> None:
     for seed in range(300):
         got_rng, want_rng = np.random.default_rng(seed), np.random.default_rng(seed)
         got = EpisodeParams.sample(got_rng, ranges, BallSpec(), ServoSpec(), sensor)
@@ -58,6 +62,28 @@ def test_the_draws_are_one_uniform_call_per_draw(sensor: object, ranges: Randomi
         assert got.plate_load[0] == want.plate_load[0]
         np.testing.assert_array_equal(got.plate_load[1], want.plate_load[1])
         assert got_rng.random() == want_rng.random()  # the generator is left where one call per draw leaves it
+
+
+def test_numpy_uniform_is_the_draw_up_to_its_rounding() -> None:
+    """``rng.uniform(low, high)`` is :func:`uniform_draw`'s number from the same generator state, rounded twice
+    (x86-64, Linux arm64) or, on every draw alike, once (a fused multiply-add: macOS arm64): the env's draws are
+    NumPy's uniform ones to the last bit on the first machines, and within one rounding on the others. The two
+    roundings differ often enough here for the check to tell them apart."""
+    from fractions import Fraction
+
+    twice_all = once_all = True
+    differ = 0
+    for seed in range(200):
+        numpy_rng, ours = np.random.default_rng(seed), np.random.default_rng(seed)
+        for low, high in [(0.9, 1.1), (0.8, 1.25), (-4.0, 4.0), (0.005, 0.03), (0.3, 0.9), (-0.1, 0.2)]:
+            got, d = numpy_rng.uniform(low, high), ours.random()
+            twice = low + (high - low) * d  # uniform_draw's number
+            once = float(Fraction(high - low) * Fraction(d) + Fraction(low))  # exact, then one rounding
+            twice_all &= got == twice
+            once_all &= got == once
+            differ += twice != once
+    assert twice_all or once_all
+    assert differ > 100  # of 1,200 draws: the two roundings are told apart
 
 
 @pytest.mark.parametrize(("field", "value"), [("servo_deadband_us", (5.0, 3.0)), ("plate_friction", (0.0, math.inf)),
