@@ -260,11 +260,13 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.sim: PhysicsBackend = make_backend(
             backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True, ball_spec=self.nominal_ball,
             servo_spec=self.nominal_servo, render_mode=render_mode) if isinstance(backend, str) else backend  # fmt: skip
-        # what this env can render here: "human" is PyBullet's window, which needs a display
+        # what this env can render here: "human" is PyBullet's window, which needs a display; "rgb_array" where the
+        # engine gives frames (not the batched backend's reduced model)
         human = type(self.sim).__name__ == "StewartSim" and (not sys.platform.startswith("linux")
                                                              or bool(os.environ.get("DISPLAY")))  # fmt: skip
+        frames = getattr(self.sim, "renders_frames", True)
         self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz),
-                         "render_modes": ["human", "rgb_array"] if human else ["rgb_array"]}  # fmt: skip
+                         "render_modes": ["human", "rgb_array"] if human else ["rgb_array"] if frames else []}  # fmt: skip
         self.plate_half_extent = tuple(self.sim.plate_half_extent)
         self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,
                                     rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),

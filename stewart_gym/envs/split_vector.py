@@ -36,7 +36,7 @@ import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.vector import ArrayVectorEnv, Finals, StewartBallVectorEnv, check_num_envs
+from stewart_gym.envs.vector import ArrayVectorEnv, Finals, StewartBallVectorEnv, check_num_envs, copy_seeds
 from stewart_gym.errors import ConfigError
 
 __all__ = ["SplitVectorEnv", "batched_vector_env"]
@@ -205,21 +205,17 @@ class SplitVectorEnv(ArrayVectorEnv):
 
     def reset_arrays(self, *, seed: int | list[int | None] | None = None,
                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
-        if seed is None or isinstance(seed, int):
-            seeds: list[Any] = [None if seed is None else seed + start for start in self.starts]
-        else:
-            if len(seed) != self.num_envs:
-                raise ConfigError(f"reset: {len(seed)} seeds for {self.num_envs} envs")
-            seeds = [list(seed[start:start + size]) for start, size in zip(self.starts, self.sizes)]
+        self.check_open()
+        every = copy_seeds(seed, self.num_envs)
+        seeds = [every[start:start + size] for start, size in zip(self.starts, self.sizes)]
         self._send([("reset", {"seed": s, "options": options}) for s in seeds[1:]])
         parts = [self._own(self.own.reset_arrays, seed=seeds[0], options=options), *self._gather()]
+        self.ready = True
         return np.concatenate([obs for obs, _ in parts]), _columns([info for _, info in parts])
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                          dict[str, np.ndarray], Finals]:  # fmt: skip
-        actions = np.asarray(actions)
-        if actions.shape[:1] != (self.num_envs,):
-            raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
+        actions = self.checked_actions(actions)  # before any share moves
         self._send([("step", actions[start:start + size]) for start, size in zip(self.starts[1:], self.sizes[1:])])
         parts = [self._own(self.own.step_arrays, actions[:self.sizes[0]]), *self._gather()]
         observations, rewards, terminations, truncations, infos, finals = zip(*parts)

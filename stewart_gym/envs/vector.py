@@ -25,6 +25,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.error import ClosedEnvironmentError, ResetNeeded
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
@@ -36,7 +37,7 @@ from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, Ob
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
-__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "Finals", "StewartBallVectorEnv", "check_num_envs"]
+__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "Finals", "StewartBallVectorEnv", "check_num_envs", "copy_seeds"]
 
 #: The most copies one vector env holds.
 MAX_NUM_ENVS = 1_000_000
@@ -46,6 +47,23 @@ def check_num_envs(num_envs: object) -> None:
     """Raise :class:`ConfigError` unless ``num_envs`` is a whole number from 1 to :data:`MAX_NUM_ENVS`."""
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
         raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
+
+
+def copy_seeds(seed: object, num_envs: int) -> list[int | None]:
+    """Each copy's seed from a vector env's ``reset(seed=…)``: None (none), a whole number s (copy i: s + i), or a
+    sequence of ``num_envs`` whole numbers or Nones; :class:`ConfigError` otherwise."""
+    def whole(value: object) -> bool:
+        return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and value >= 0
+
+    if seed is None:
+        return [None] * num_envs
+    if whole(seed):
+        return [int(seed) + i for i in range(num_envs)]
+    if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == num_envs and all(s is None or whole(s)
+                                                                                   for s in seed):  # fmt: skip
+        return [None if s is None else int(s) for s in seed]
+    raise ConfigError(f"reset: seed must be a whole number ≥ 0, None, or a list of {num_envs} of them (one per copy), "
+                      f"got {seed!r}")  # fmt: skip
 
 
 @dataclass
@@ -86,6 +104,32 @@ class ArrayVectorEnv(VectorEnv):
     Gymnasium's ``_add_info`` makes them."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    #: whether :meth:`reset_arrays` has run since the env was made: a step before it is refused
+    ready = False
+
+    def check_open(self) -> None:
+        """Raise Gymnasium's ``ClosedEnvironmentError`` if the env is closed."""
+        if self.closed:
+            raise ClosedEnvironmentError("this vector env is closed: make a new one")
+
+    def checked_actions(self, actions: np.ndarray) -> np.ndarray:
+        """``actions`` as an array, checked before any copy moves: the env open and reset, one action of the single
+        action space's shape per copy, every number finite; ``ValueError`` (or Gymnasium's ``ResetNeeded``,
+        ``ClosedEnvironmentError``) otherwise."""
+        self.check_open()
+        if not self.ready:
+            raise ResetNeeded("call reset() before step()")
+        values = np.asarray(actions)
+        wanted = (self.num_envs, *self.single_action_space.shape)
+        if values.shape != wanted:
+            raise ValueError(f"expected actions of shape {wanted} (one per copy), got an array of shape {values.shape}")
+        if not np.issubdtype(values.dtype, np.number):
+            raise ValueError(f"actions must be numbers, got an array of {values.dtype}")
+        finite = np.isfinite(values).reshape(self.num_envs, -1).all(axis=1)
+        if not finite.all():
+            row = int(np.flatnonzero(~finite)[0])
+            raise ValueError(f"action must be finite, got {values[row].tolist()} (copy {row})")
+        return values
 
     def reset_arrays(self, *, seed: int | list[int | None] | None = None,
                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
@@ -181,14 +225,22 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         num_envs: How many copies.
         backend: ``"batched"`` (the only one: the copies share its simulator).
         render_mode: None (the batched simulator does not render).
+        max_episode_steps: Where given, a copy's episode is also truncated after this many steps, as ``gym.make``'s
+            ``max_episode_steps`` truncates one env's (Gymnasium's ``TimeLimit``).
         **kwargs: The env's keywords, as ``gym.make`` takes them (``task``, ``action_mode``, ``randomize``,
             ``geometry``, ``sensor``, ``estimator``, …); each copy gets the same.
     """
 
     def __init__(self, num_envs: int = 1, *, backend: str = "batched", render_mode: str | None = None,
                  geometry: Any = "servo-hexapod", control_hz: int = 50, physics_hz: int | None = None,
-                 ball: Any = None, servo: Any = None, **kwargs: Any) -> None:  # fmt: skip
+                 ball: Any = None, servo: Any = None, max_episode_steps: int | None = None,
+                 **kwargs: Any) -> None:  # fmt: skip
         check_num_envs(num_envs)
+        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
+                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):  # fmt: skip
+            raise ConfigError(f"max_episode_steps must be a whole number ≥ 1, got {max_episode_steps!r}")
+        #: the steps after which a copy's episode is truncated (None: its ``episode_s`` alone)
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         if backend != "batched":
             raise ConfigError(f"the vector entry point steps the batched backend; got backend {backend!r} (for "
                               "PyBullet or MuJoCo copies use vectorization_mode='sync' or 'async')")  # fmt: skip
@@ -226,20 +278,16 @@ class StewartBallVectorEnv(ArrayVectorEnv):
 
     def reset_arrays(self, *, seed: int | list[int | None] | None = None,
                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
-        if seed is None or isinstance(seed, int):
-            seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ConfigError(f"reset: {len(seeds)} seeds for {self.num_envs} envs")
-        return self._reset_copies(np.arange(self.num_envs), seeds, options)
+        self.check_open()
+        out = self._reset_copies(np.arange(self.num_envs), copy_seeds(seed, self.num_envs), options)
+        self.ready = True
+        return out
 
     def step_arrays(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                                          dict[str, np.ndarray], Finals]:  # fmt: skip
-        actions = np.asarray(actions)
-        if actions.shape[0] != self.num_envs:
-            raise ValueError(f"expected {self.num_envs} actions, got an array of shape {actions.shape}")
-        observations, rewards, terminations, truncations, info = self.copy_steps.step(actions)
+        observations, rewards, terminations, truncations, info = self.copy_steps.step(self.checked_actions(actions))
+        if self.max_episode_steps is not None:  # as TimeLimit counts: every step, the one whose physics blew up too
+            truncations |= self.copy_steps.steps + info["physics_error"] >= self.max_episode_steps
         ended = np.flatnonzero(terminations | truncations)
         finals = Finals.of(ended, observations, info)
         if ended.size:

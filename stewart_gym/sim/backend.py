@@ -135,7 +135,8 @@ class SimulatorBase:
     * :meth:`command`, :meth:`held_pulses`: pulses go through :class:`~stewart_gym.sim.servo_model.HobbyServos`;
     * :meth:`platform_pose` from the engine's :meth:`_plate_frame`;
     * the ball's rolling maths (:meth:`_rolling_velocity`, :meth:`_push_change`) and :meth:`set_plate_load`;
-    * optional capabilities, declared: :attr:`renders_camera` says whether :meth:`camera_image` works.
+    * optional capabilities, declared: :attr:`renders_frames` says whether :meth:`render` gives frames,
+      :attr:`renders_camera` whether :meth:`camera_image` works.
 
     A subclass calls :meth:`_setup`, builds its engine, and defines ``_plate_frame``, ``_apply_targets``,
     ``step``, ``reset``, the ball's state and ``close``.
@@ -147,6 +148,8 @@ class SimulatorBase:
     physics_hz: int
     control_hz: int
     _step_count: int
+    #: whether :meth:`render` gives RGB frames (an env's ``rgb_array`` render mode)
+    renders_frames = True
     #: whether :meth:`camera_image` renders what a camera above the plate sees (an optional capability)
     renders_camera = False
     #: whether :meth:`set_plate_load` changes the motion (the servos' torque is modelled)

@@ -511,7 +511,8 @@ class BatchedPlatform:
     rolls).
     """
 
-    renders_camera = False
+    #: the reduced model draws nothing: no frames (the env then offers no render mode), no camera images
+    renders_frames = renders_camera = False
     #: whether :meth:`set_plate_load` changes the motion (the reduced model carries no load on its servos: no)
     models_plate_load = False
 

@@ -40,11 +40,12 @@ def assert_same_info(got: dict, want: dict) -> None:
             np.testing.assert_array_equal(got[key], value)
 
 
-@pytest.mark.parametrize(("num_envs", "workers"), [(7, 3), (4, 2)])
-def test_the_copies_are_one_process_copies(num_envs: int, workers: int) -> None:
+@pytest.mark.parametrize(("num_envs", "workers", "extra"), [(7, 3, {}), (4, 2, {}), (4, 2, {"max_episode_steps": 13})],
+                         ids=["7-on-3", "4-on-2", "time-limit"])  # fmt: skip
+def test_the_copies_are_one_process_copies(num_envs: int, workers: int, extra: dict) -> None:
     """Observations, rewards, ends and infos (ended episodes' final observations and infos included) equal those of
-    one process's vector env to the last bit, through resets, with shares of unequal sizes."""
-    kwargs = {"randomize": True, "estimator": "kalman", "episode_s": 0.4}  # 20-step episodes: every copy resets
+    one process's vector env to the last bit, through resets, with shares of unequal sizes, and with a step limit."""
+    kwargs = {"randomize": True, "estimator": "kalman", "episode_s": 0.4, **extra}  # 20-step episodes: all reset
     split, one = make(num_envs, workers=workers, **kwargs), make(num_envs, **kwargs)
     try:
         assert isinstance(split, SplitVectorEnv) and isinstance(one, StewartBallVectorEnv)
@@ -102,17 +103,19 @@ def test_a_dead_worker_is_one_error_and_close_ends_the_others() -> None:
             os.kill(pid, 0)
 
 
-def test_an_action_the_env_refuses_leaves_the_workers_in_step() -> None:
-    """A NaN action, refused by the env in this process and in the workers: the error, then the next step's
-    answers are the next step's (the refused step's are not read in their place)."""
+@pytest.mark.parametrize("row", [0, 3], ids=["own-share", "worker-share"])
+def test_an_action_the_env_refuses_moves_no_copy(row: int) -> None:
+    """A NaN action in one copy's row, in this process's share or a worker's: the same error as one process's
+    env, raised before any share moves, so that the next step's answers are still those of one process's env."""
     split, one = make(4, workers=2), make(4)
     try:
         split.reset(seed=1)
         one.reset(seed=1)
-        bad = np.full((4, 2), np.nan, np.float32)
-        with pytest.raises(Exception) as refused:
+        bad = np.zeros((4, 2), np.float32)
+        bad[row] = np.nan
+        with pytest.raises(ValueError, match=rf"action must be finite, got \[nan, nan\] \(copy {row}\)"):
             split.step(bad)
-        with pytest.raises(type(refused.value)):
+        with pytest.raises(ValueError, match=rf"\(copy {row}\)"):
             one.step(bad)
         a = np.full((4, 2), 0.2, np.float32)
         for x, y in zip(split.step(a)[:4], one.step(a)[:4]):
@@ -120,3 +123,26 @@ def test_an_action_the_env_refuses_leaves_the_workers_in_step() -> None:
     finally:
         split.close()
         one.close()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_step_before_reset_or_after_close_is_refused(workers: int) -> None:
+    """A step before the first reset is Gymnasium's ``ResetNeeded``; a step or a reset after ``close`` its
+    ``ClosedEnvironmentError``; a seed that is not a whole number ≥ 0, None or one per copy, one clear error."""
+    from gymnasium.error import ClosedEnvironmentError, ResetNeeded
+
+    env = make(4, workers=workers)
+    with pytest.raises(ResetNeeded):
+        env.step(np.zeros((4, 2), np.float32))
+    for seed in ("a", [1, 2], True, 1.5):
+        with pytest.raises(ConfigError, match="seed must be a whole number"):
+            env.reset(seed=seed)
+    obs, _ = env.reset(seed=np.int64(4))
+    np.testing.assert_array_equal(obs, env.reset(seed=[4, 5, 6, 7])[0])
+    with pytest.raises(ValueError, match=r"expected actions of shape \(4, 2\)"):
+        env.step(np.zeros(4, np.float32))
+    env.close()
+    with pytest.raises(ClosedEnvironmentError):
+        env.step(np.zeros((4, 2), np.float32))
+    with pytest.raises(ClosedEnvironmentError):
+        env.reset()
