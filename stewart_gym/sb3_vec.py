@@ -27,7 +27,7 @@ class BatchedVecEnv(VecEnv):
     Args:
         env_id: A registered id.
         num_envs: How many copies.
-        env_kwargs: The env's keywords (``backend`` may be ``"batched"`` or absent).
+        env_kwargs: The env's keywords (``backend`` may be ``"batched"`` or absent; not ``workers``).
         residual: A residual spec (:func:`~stewart_gym.sb3_models.check_residual`): each copy's action corrects
             its own classical controller's.
     """
@@ -35,6 +35,10 @@ class BatchedVecEnv(VecEnv):
     def __init__(self, env_id: str, num_envs: int, env_kwargs: dict[str, Any] | None = None,
                  residual: dict[str, Any] | None = None) -> None:  # fmt: skip
         kwargs = {k: v for k, v in (env_kwargs or {}).items() if k != "backend"}
+        backend = (env_kwargs or {}).get("backend", "batched")
+        if backend != "batched":
+            raise ConfigError(f"env_kwargs.backend: this VecEnv steps the batched backend, got {backend!r} (for "
+                              "PyBullet or MuJoCo copies use DummyVecEnv or SubprocVecEnv)")  # fmt: skip
         if kwargs.get("workers", 1) != 1:
             raise ConfigError(f"env_kwargs.workers: training steps its batched copies in one process (got "
                               f"{kwargs['workers']!r}); leave workers out, or use gym.make_vec(..., workers=k) "
@@ -53,9 +57,18 @@ class BatchedVecEnv(VecEnv):
             self.mixes = [residual_mix(spec, first.plate_half_extent, dt) for _ in range(num_envs)]
 
     def reset(self) -> np.ndarray:
+        """Every copy's first observation: seeded and with the options given since the last reset (``seed``,
+        ``set_options``), as DummyVecEnv resets; each copy's reset info in :attr:`reset_infos`."""
         seeds = list(self._seeds) if any(s is not None for s in self._seeds) else None
-        obs, _ = self.venv.reset(seed=seeds)
+        options = self._options[0] if self._options else {}
+        if any(o != options for o in self._options):
+            raise ConfigError("set_options: the batched copies reset with one set of options; give every copy the "
+                              "same (a dict), or reset them with DummyVecEnv")  # fmt: skip
+        obs, columns = self.venv.reset_arrays(seed=seeds, options=options or None)
+        keys = list(columns)
+        self.reset_infos = [dict(zip(keys, row)) for row in zip(*(columns[key] for key in keys))]
         self._reset_seeds()
+        self._reset_options()
         for base, mix in zip(self.bases, self.mixes):
             base.reset()
             mix.reset()

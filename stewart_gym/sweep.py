@@ -110,21 +110,15 @@ def hyperparam_names(algo: str) -> set[str]:
     return (algo_keywords(algo) | set(RUN_KEYS)) - {"n_envs", "n_timesteps", "eval_freq", "eval_episodes"}
 
 
-def env_keyword_names(env_id: str) -> set[str]:
-    """The keywords ``gym.make(env_id, ...)`` takes: the env's own and its task's (not ``render_mode``)."""
-    from stewart_gym.envs import ENV_IDS
-    from stewart_gym.envs.ball_env import env_keywords
-
-    return env_keywords(ENV_IDS[env_id][0]) - {"render_mode"}
-
-
 def _check_name(name: str, spec: SweepSpec, where: str) -> None:
     """``name`` is a hyperparameter of the algorithm or ``env_kwargs.NAME`` (``env_kwargs.randomization.FIELD``)."""
     from stewart_gym.envs.randomization import RandomizationRanges
 
     parts = name.split(".")
     if parts[0] == "env_kwargs" and len(parts) >= 2:
-        known = env_keyword_names(spec.env)
+        from stewart_gym.envs import make_keywords
+
+        known = make_keywords(spec.env)
         if parts[1] not in known:
             raise ConfigError(f"{where}: {name!r}: {spec.env} takes no keyword {parts[1]!r}; it takes {sorted(known)}")
         if len(parts) == 3 and parts[1] == "randomization":

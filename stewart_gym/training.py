@@ -165,10 +165,28 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
     if "env_wrapper" in hp:
         hp["residual"] = _residual_from_wrapper(hp.pop("env_wrapper"), f"{path}: {env_id}.env_wrapper")
     hp.update(_evaluation_settings(data.get(EVALUATION_SECTION), env_id, path))
+    _check_env_kwargs(hp.get("env_kwargs"), env_id, f"{path}: {env_id}.env_kwargs")
     for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
         if key in hp and (isinstance(hp[key], bool) or not isinstance(hp[key], (int, float)) or not hp[key] >= 1):
             raise ConfigError(f"{path}: {env_id}.{key} must be a number ≥ 1, got {hp[key]!r}")
     return hp
+
+
+def _check_env_kwargs(env_kwargs: Any, env_id: str, where: str) -> None:
+    """A recipe's ``env_kwargs``: a mapping of keywords that ``gym.make(env_id, ...)`` takes; :class:`ConfigError`
+    naming ``where`` otherwise (their values are the env's to check)."""
+    if env_kwargs is None:
+        return
+    if not isinstance(env_kwargs, dict):
+        raise ConfigError(f"{where} must be a mapping of the env's keywords (backend: batched, …), got {env_kwargs!r}")
+    from stewart_gym.envs import ENV_IDS, make_keywords
+
+    if env_id not in ENV_IDS:  # not one of ours: the env says what it takes
+        return
+    known = make_keywords(env_id)
+    unknown = sorted(str(key) for key in env_kwargs if key not in known)
+    if unknown:
+        raise ConfigError(f"{where}: {env_id} takes no keyword {unknown[0]!r}; it takes {', '.join(sorted(known))}")
 
 
 def _residual_from_wrapper(wrapper: Any, where: str) -> dict[str, Any]:

@@ -7,8 +7,8 @@ a task is a task file (see :mod:`stewart_gym.envs.task`) and one line in
 
 from __future__ import annotations
 
-__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "VECTOR_ENTRY_POINT", "env_table", "register_envs", "reward_threshold",
-           "trajectory_env_ids"]
+__all__ = ["ENV_ENTRY_POINT", "ENV_IDS", "VECTOR_ENTRY_POINT", "env_table", "make_keywords", "register_envs",
+           "reward_threshold", "trajectory_env_ids"]
 
 ENV_ENTRY_POINT = "stewart_gym.envs.ball_env:StewartBallEnv"
 #: ``gym.make_vec(id, num_envs, vectorization_mode="vector_entry_point")``: the batched vector env (``workers=k``: split
@@ -25,6 +25,14 @@ ENV_IDS: dict[str, tuple[str, float]] = {
 #: The ids whose return says whether the task is solved (:func:`reward_threshold`): not the pushes, which cost a
 #: held ball return (the PID + Kalman earns about 700 there, under balance's threshold, with every episode a success).
 SOLVED_BY_RETURN = ("StewartBallBalance-v0", "StewartBallTrack-v0")
+
+
+def make_keywords(env_id: str) -> set[str]:
+    """The keywords ``gym.make(env_id, ...)`` takes: the env's own and its task's, and Gymnasium's
+    ``max_episode_steps`` (not ``render_mode``)."""
+    from stewart_gym.envs.ball_env import env_keywords
+
+    return (env_keywords(ENV_IDS[env_id][0]) | {"max_episode_steps"}) - {"render_mode"}
 
 
 def reward_threshold(env_id: str) -> float | None:

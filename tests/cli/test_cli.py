@@ -52,6 +52,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "bad.yml").write_text("ppo: [unclosed\n")
     (d / "other.yml").write_text("SomethingElse-v0:\n  n_envs: 1\n")
     (d / "bad_reward.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: {outside_penalty: -1}\n")
+    (d / "env_kwargs_unknown.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: {backend: batched, bogus: 1}\n")
+    (d / "env_kwargs_list.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: [backend, batched]\n")
     (d / "ppo_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: normal\n  noise_std: 0.1\n")
     (d / "bad_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: pink\n  noise_std: 0.1\n")
     (d / "ppo_keys.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_epochs: 5\n")
@@ -290,6 +292,8 @@ BAD = [
     ["train", "--hyperparams", "{files}/bad.yml", "--run-dir", "{tmp}/r"],
     ["train", "--hyperparams", "{files}/other.yml", "--run-dir", "{tmp}/r"],
     ["train", "--hyperparams", "{files}/bad_reward.yml", "--run-dir", "{tmp}/r"],  # refused before the workers
+    ["train", "--hyperparams", "{files}/env_kwargs_unknown.yml", "--run-dir", "{tmp}/r"],  # a keyword no env takes
+    ["train", "--hyperparams", "{files}/env_kwargs_list.yml", "--run-dir", "{tmp}/r"],
     ["train", "--hyperparams", "{files}/ppo_noise.yml", "--run-dir", "{tmp}/r"],  # action noise is for off-policy
     ["train", "--algo", "td3", "--hyperparams", "{files}/bad_noise.yml", "--run-dir", "{tmp}/r"],
     ["train", "--algo", "sac", "--hyperparams", "{files}/ppo_keys.yml", "--run-dir", "{tmp}/r"],  # PPO's keywords

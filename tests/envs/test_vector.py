@@ -254,6 +254,41 @@ def test_the_sb3_vec_env_reports_ended_episodes_as_dummy_vec_env_does() -> None:
     venv.close()
 
 
+def test_the_sb3_vec_env_takes_options_a_step_limit_and_reports_reset_infos_as_dummy_vec_env_does() -> None:
+    """SB3's ``set_options`` places the balls at the next reset (only that one), as DummyVecEnv's does; the reset
+    infos are each copy's; a recipe's ``max_episode_steps`` truncates the copies; another backend, or options that
+    differ between copies, are one clear error."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from stewart_gym.sb3_vec import BatchedVecEnv
+
+    kwargs = {**KWARGS, "max_episode_steps": 4, "episode_s": 5.0}
+    venv = BatchedVecEnv("StewartBallBalance-v0", 2, {**kwargs, "backend": "batched"})
+    dummy = DummyVecEnv([lambda: gym.make("StewartBallBalance-v0", backend="batched", **kwargs)] * 2)
+    try:
+        for env in (venv, dummy):
+            env.seed(5)
+            env.set_options({"ball_position": (0.05, -0.02)})
+        obs, want = venv.reset(), dummy.reset()
+        np.testing.assert_array_equal(obs, want)
+        assert [info["ball_xy_m"].tolist() for info in venv.reset_infos] == [[0.05, -0.02]] * 2
+        assert [sorted(info) for info in venv.reset_infos] == [sorted(info) for info in dummy.reset_infos]
+        assert not np.allclose(venv.reset()[:, :2], obs[:, :2])  # the options were for one reset
+        for step in range(1, 5):
+            venv.step_async(np.zeros((2, 2), np.float32))
+            _, _, dones, infos = venv.step_wait()
+            assert dones.all() == (step == 4)
+        assert all(info["TimeLimit.truncated"] for info in infos)
+        venv.set_options([{"ball_position": (0.05, 0.0)}, {}])
+        with pytest.raises(ConfigError, match="one set of options"):
+            venv.reset()
+    finally:
+        venv.close()
+        dummy.close()
+    with pytest.raises(ConfigError, match="env_kwargs.backend: this VecEnv steps the batched backend"):
+        BatchedVecEnv("StewartBallBalance-v0", 2, {"backend": "pybullet"})
+
+
 def test_a_residual_copy_moves_as_the_residual_wrapper() -> None:
     """The SB3 VecEnv's residual mixing equals ResidualAction around the single batched env."""
     from stewart_gym.sb3_models import ResidualAction
