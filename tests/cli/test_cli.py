@@ -52,7 +52,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "bad.yml").write_text("ppo: [unclosed\n")
     (d / "other.yml").write_text("SomethingElse-v0:\n  n_envs: 1\n")
     (d / "bad_reward.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: {outside_penalty: -1}\n")
-    (d / "env_kwargs_unknown.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: {backend: batched, bogus: 1}\n")
+    (d / "env_kwargs_unknown.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n"
+                                              "  env_kwargs: {backend: batched, bogus: 1}\n")
     (d / "env_kwargs_list.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  env_kwargs: [backend, batched]\n")
     (d / "ppo_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: normal\n  noise_std: 0.1\n")
     (d / "bad_noise.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  noise_type: pink\n  noise_std: 0.1\n")

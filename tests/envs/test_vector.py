@@ -44,7 +44,8 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
                                     {"sensor": "global90", "estimator": "lowpass"},
                                     {"randomize": True, "outside_penalty": 0.2, "charge_until_settled": True},
                                     {"randomize": True, "max_episode_steps": 7}],
-                         ids=["lowpass", "pose", "pulse", "pixy2", "cameras", "global90", "charged", "time-limit"])  # fmt: skip
+                         ids=["lowpass", "pose", "pulse", "pixy2", "cameras", "global90", "charged",
+                              "time-limit"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
     """The same with the low-pass observer, the error integral, the pose and the pulse actions, with a camera (one
     preset, or a preset drawn per episode; its frames come faster than the steps on ``global90``), all sensed and
