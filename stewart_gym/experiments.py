@@ -217,7 +217,10 @@ def world_line(where: dict[str, str]) -> str:
 
 
 def check_can_render(backend: str | None) -> None:
-    """Before long work: MuJoCo renders GIF frames with OpenGL, which a headless machine may lack."""
+    """Before long work, :class:`ConfigError` where no GIF can be drawn: the batched backend draws nothing, and
+    MuJoCo renders with OpenGL, which a headless machine may lack."""
+    if backend == "batched":
+        raise ConfigError("the batched backend does not render a GIF; use backend pybullet or mujoco to watch")
     if backend == "mujoco":
         from stewart_gym.sim.mujoco_sim import check_rendering
 

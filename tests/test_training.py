@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import cli
 
 from stewart_gym.cli import main
 from stewart_gym.control import CascadedPID, PIDGains
@@ -279,6 +280,17 @@ def test_demo_writes_table_gif_and_plot(tmp_path: Path, capsys: pytest.CaptureFi
     # whose PID holds it (seeds 0 and 1: about 2.0 against 0.6-0.7 mm RMS)
     assert metrics["shipped"]["rms_error_mm"] > 1.5 * metrics["shipped-residual"]["rms_error_mm"]
     assert (tmp_path / "demo.gif").stat().st_size > 50_000 and (tmp_path / "demo_pulses.png").stat().st_size > 20_000
+
+
+def test_demo_on_the_batched_backend_writes_all_but_the_gif_and_says_why(tmp_path: Path,
+                                                                        capfd: pytest.CaptureFixture[str]) -> None:
+    """The batched backend draws nothing: the demo says so at its start and writes the table and the plot."""
+    code, out, err = cli(capfd, "demo", "--backend", "batched", "--episodes", "1", "--workers", "1", "--out",
+                         str(tmp_path))  # fmt: skip
+    assert code == 0, err
+    assert "note: no GIF: the batched backend does not render" in err and "Traceback" not in err
+    assert "(batched)" in out and (tmp_path / "demo_metrics.json").is_file() and (tmp_path / "demo_pulses.png").is_file()
+    assert not (tmp_path / "demo.gif").exists()
 
 
 def test_demo_compares_the_learned_policies_shipped_for_the_build_with_the_strongest_classical_ones() -> None:

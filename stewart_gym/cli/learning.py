@@ -231,7 +231,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         loaded[name] = (policy, kwargs if twin is None else {**kwargs, "twin": twin})
     engine = loaded[names[0]][1].get("backend") or default_backend()
     gif: Path | None = out / "demo.gif"
-    if engine == "mujoco":  # MuJoCo draws with OpenGL, which a headless machine may lack: then no GIF, said why
+    if engine in ("mujoco", "batched"):  # MuJoCo draws with OpenGL, which a headless machine may lack, the batched
+        # backend not at all: then no GIF, said why
         try:
             check_can_render(engine)
         except ConfigError as exc:

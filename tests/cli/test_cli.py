@@ -427,6 +427,7 @@ BAD = [
     ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{files}/emptydir"],
     ["virtual-device", "--geometry", "nope"],
     ["demo", "--episodes", "0"],
+    ["evaluate", "--backend", "batched", "--gif", "{tmp}/x.gif"],  # refused before any episode: nothing to draw
     ["demo", "--out", "{files}/notes.txt"],
     # sweep (the file is checked before Ray starts), the estimator, the LQR
     ["sweep"],
