@@ -401,6 +401,8 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     check_algo_keywords(config.algo, hp)
     check_hyperparameter_values(hp, str(config.hyperparams or f"{config.algo}.yml"))
     check_action_noise(config.algo, hp)
+    backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
+    check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -479,6 +481,28 @@ class InProcessVecEnv(DummyVecEnv):
 #: env step (about 0.5 ms) is cheap next to a round trip to a worker process, and on a 2-core virtual machine
 #: (bench/bench_train.py) PPO trains about 1.3 times faster in process than with 2 worker processes.
 VEC_ENVS: dict[str, type[VecEnv]] = {"dummy": InProcessVecEnv, "subproc": SubprocVecEnv}
+
+
+#: The most training env copies on PyBullet or MuJoCo (each its own engine); the batched backend takes up to
+#: :data:`~stewart_gym.envs.vector.MAX_NUM_ENVS` on one simulator.
+MAX_ENGINE_ENVS = 256
+
+
+def check_copies(n_envs: int, backend: str | None, vec_env: str) -> None:
+    """A run's ``n_envs`` and ``vec_env`` for its backend (:class:`ConfigError` otherwise): up to
+    :data:`MAX_ENGINE_ENVS` engines, or up to ``MAX_NUM_ENVS`` batched copies, which step together in this process
+    (no ``subproc``)."""
+    from stewart_gym.envs.vector import MAX_NUM_ENVS
+
+    if backend == "batched":
+        if n_envs > MAX_NUM_ENVS:
+            raise ConfigError(f"n_envs: the batched backend steps at most {MAX_NUM_ENVS:,} copies, got {n_envs:,}")
+        if vec_env != "dummy":
+            raise ConfigError(f"vec_env {vec_env}: the batched backend steps its copies together in this process; "
+                              "leave --vec-env out")  # fmt: skip
+    elif n_envs > MAX_ENGINE_ENVS:
+        raise ConfigError(f"n_envs: at most {MAX_ENGINE_ENVS} copies on the {backend or 'default'} backend (each is "
+                          f"an engine of its own), got {n_envs:,}; the batched backend takes thousands")  # fmt: skip
 
 
 def check_vec_env(vec_env: str) -> None:

@@ -354,11 +354,13 @@ def register(sub: Any) -> None:
                    help="the run's seed: the network's start, the training envs' (seed … seed + n_envs − 1) and the "
                         "evaluations' episodes (from seed + 10000)")  # fmt: skip
     p.add_argument("--timesteps", type=int_at_least(1, MAX_TIMESTEPS), help="override n_timesteps")
-    p.add_argument("--n-envs", type=int_at_least(1, 256), help="override n_envs")
+    p.add_argument("--n-envs", type=int_at_least(1, 1_000_000),
+                   help="override n_envs: up to 256 on pybullet or mujoco, 1,000,000 on batched")
     p.add_argument("--vec-env", choices=VEC_ENV_CHOICES, default="dummy",
                    help="where the n_envs env copies step: dummy, one after another in this process (default: an "
                         "env step is cheaper than a round trip to another process), or subproc, a worker process "
-                        "each (bench/bench_train.py measures both); the same run either way, to the last bit")
+                        "each (bench/bench_train.py measures both); the same run either way, to the last bit. "
+                        "The batched backend's copies step together in this process (dummy)")
     p.add_argument("--eval-freq", type=int_at_least(1, MAX_TIMESTEPS), help="env steps between evaluations")
     p.add_argument("--eval-episodes", type=int_at_least(1, 10_000),
                    help="episodes per evaluation during training (default: the YAML's evaluation section, else 20)")

@@ -284,6 +284,8 @@ BAD = [
     ["train", "--timesteps", "0"],
     ["train", "--n-envs", "0"],
     ["train", "--vec-env", "threads"],
+    ["train", "--backend", "batched", "--vec-env", "subproc", "--run-dir", "{tmp}/r"],  # its copies step together
+    ["train", "--n-envs", "300", "--run-dir", "{tmp}/r"],  # 300 engines: the batched backend is for thousands
     ["train", "--max-minutes", "0"],
     ["train", "--max-minutes", "nan"],
     ["train", "--algo", "foo"],
