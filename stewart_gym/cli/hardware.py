@@ -225,7 +225,7 @@ def register(sub: Any) -> None:
                    help="where the ball position comes from: the simulated plant (a dry run), the board's touch panel "
                         "or a camera")  # fmt: skip
     p.add_argument("--camera-config", help="camera config TOML (--sensor camera; see stewart-gym camera-check)")
-    add_backend(p, "physics engine of the simulated plant (--sensor sim; default pybullet)")
+    add_backend(p, "physics engine of the simulated plant (--sensor sim; default: PyBullet if installed, else MuJoCo)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
     p.add_argument("--duration", type=positive_float, help="seconds (default: until Ctrl-C)")
     p.add_argument("--rate", type=bounded_float(0.0, 500.0, lo_open=True), default=50.0, help="control rate, Hz (≤ 500)")
@@ -251,7 +251,7 @@ def register(sub: Any) -> None:
 
     p = sub.add_parser("virtual-device", help=cmd_virtual_device.__doc__, description=cmd_virtual_device.__doc__)
     p.add_argument("--protocol", choices=PROTOCOL_CHOICES, default="maestro", help="the serial protocol to answer")
-    add_backend(p, "physics engine of the twin (default pybullet)")
+    add_backend(p, "physics engine of the twin (default: PyBullet if installed, else MuJoCo)")
     add_geometry(p)
     p.add_argument("--calibration", help="calibration TOML: the board's channels and limits")
     p.add_argument("--link", help="make this path a symlink to the pty (e.g. /tmp/stewart0)")

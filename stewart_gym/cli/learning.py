@@ -440,7 +440,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("demo", help=cmd_demo.__doc__, description=cmd_demo.__doc__)
     p.add_argument("--episodes", type=int_at_least(1, MAX_EPISODES), default=20,
                    help="seeded episodes per policy (the same for each)")
-    add_backend(p, "physics engine (default pybullet; the GIF needs OpenGL with mujoco)")
+    add_backend(p, "physics engine (default: PyBullet if installed, else MuJoCo; the GIF needs OpenGL with mujoco)")
     p.add_argument("--geometry", help="the platform (default servo-hexapod; the shipped policy exists for the presets "
                                       "listed by `stewart-gym evaluate --policy shipped --geometry X`)")
     p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help=SEED_HELP)
