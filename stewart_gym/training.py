@@ -13,6 +13,7 @@ mean reward, success rate, the wall time its evaluation came back at) and ``metr
 
 from __future__ import annotations
 
+import copy
 import csv
 import inspect
 import io
@@ -44,7 +45,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.inputs import read_yaml
-from stewart_gym.outputs import RUN_GEOMETRY_FILE, model_statistics, run_config
+from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, model_statistics, run_config
 from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator, worker_start_method
@@ -215,13 +216,36 @@ def _evaluation_settings(section: Any, env_id: str, path: Path) -> dict[str, Any
 
 
 def run_hyperparams(config: TrainConfig) -> dict[str, Any]:
-    """The YAML section of ``config`` with its ``overrides`` applied (``env_kwargs`` merged key by key)."""
-    hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
+    """The YAML section of ``config`` with its ``overrides`` applied (``env_kwargs`` merged key by key). A resumed
+    run without ``--hyperparams`` continues with its own recipe (:func:`resumed_hyperparams`), where it has one."""
+    hp = resumed_hyperparams(config) if config.resume and config.hyperparams is None else None
+    if hp is None:
+        hp = load_hyperparams(config.algo, config.env_id, config.hyperparams)
     for key, value in (config.overrides or {}).items():
         if key == "env_kwargs":
             hp["env_kwargs"] = {**(hp.get("env_kwargs") or {}), **value}
         else:
             hp[key] = value
+    return hp
+
+
+def resumed_hyperparams(config: TrainConfig) -> dict[str, Any] | None:
+    """The hyperparameters the run ``config.resume`` trained with (its ``config.yaml``: its recipe, its env's
+    keywords, its residual), where it trained the same env with the same algorithm; else None. Its geometry file
+    comes back as the run's own copy."""
+    resume = Path(config.resume)
+    model = resume / "model.zip" if resume.is_dir() else resume
+    try:
+        recorded = run_config(model)
+    except (ValueError, ImportError) as exc:
+        raise ConfigError(f"--resume {config.resume}: {exc}") from None
+    if not isinstance(recorded, dict):
+        return None
+    options, hp = recorded.get("options") or {}, recorded.get("hyperparams")
+    if not isinstance(hp, dict) or options.get("env_id") != config.env_id or options.get("algo") != config.algo:
+        return None
+    hp = copy.deepcopy(hp)
+    _check_env_kwargs(hp.get("env_kwargs"), config.env_id, f"--resume {config.resume}: its config.yaml's env_kwargs")
     return hp
 
 
@@ -420,6 +444,9 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
         resume = Path(config.resume)
         model = resume / "model.zip" if resume.is_dir() else resume
         if not model.is_file():
+            if resume.is_dir() and (resume / ENSEMBLE_FILE).is_file():  # e.g. shipped-residual: several runs' mean
+                raise ConfigError(f"--resume {config.resume}: an ensemble of runs, which train one by one; resume one "
+                                  f"of its members, e.g. --resume {resume / 'members' / '0'}")  # fmt: skip
             raise ConfigError(f"--resume {config.resume}: no model at {model}")
         if hp.get("normalize", False) and resume_statistics(resume) is None:
             raise ConfigError(f"--resume {config.resume}: no normalisation statistics beside the model "
@@ -545,7 +572,10 @@ class _EvalLog(BaseCallback):
     statistics (``best/``). :meth:`finish` waits for the evaluations still out."""
 
     def __init__(self, evaluator: InProcessEvaluator | BackgroundEvaluator, eval_freq: int, run: Path,
-                 started: float, on_eval: Callable[[dict[str, float]], None] | None = None) -> None:  # fmt: skip
+                 started: float, on_eval: Callable[[dict[str, float]], None] | None = None,
+                 continued: bool = False) -> None:  # fmt: skip
+        """``continued``: the run folder's learning curve goes on (a run resumed in place): its rows, its
+        ``evaluations.npz`` and its best model stay, and the best is beaten only by a better evaluation."""
         super().__init__()
         self.evaluator, self.eval_freq, self.run, self.started, self.on_eval = evaluator, eval_freq, run, started, on_eval
         self.best_mean_reward = -math.inf
@@ -553,7 +583,16 @@ class _EvalLog(BaseCallback):
         self._history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": [], "successes": []}
         (run / "best").mkdir(parents=True, exist_ok=True)
         (run / "eval").mkdir(parents=True, exist_ok=True)
-        with (run / "eval.csv").open("w", newline="") as fh:
+        curve, history = run / "eval.csv", run / "eval" / "evaluations.npz"
+        if continued and curve.is_file():
+            with curve.open() as fh:
+                rewards = [_number(row["mean_reward"]) for row in csv.DictReader(fh)]
+            self.best_mean_reward = max((r for r in rewards if r is not None), default=-math.inf)
+            if history.is_file():
+                with np.load(history) as saved:
+                    self._history.update({key: list(saved[key]) for key in saved.files if key in self._history})
+            return
+        with curve.open("w", newline="") as fh:
             csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate", "evaluated_s"])
 
     def _on_step(self) -> bool:
@@ -583,6 +622,9 @@ class _EvalLog(BaseCallback):
         with (self.run / "eval.csv").open("a", newline="") as fh:
             csv.writer(fh).writerow(row.values())
         history = self._history
+        if history["results"] and len(history["results"][0]) != len(evaluation.episode_rewards):
+            # a continued run evaluating another number of episodes: SB3's file holds one count; it starts again
+            history.update({key: [] for key in history})
         history["timesteps"].append(evaluation.timesteps)
         history["results"].append(evaluation.episode_rewards)
         history["ep_lengths"].append(evaluation.episode_lengths)
@@ -751,7 +793,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         model.set_logger(make_sb3_logger(str(run), ["stdout"] if config.verbose else []))
     started = time.time()
     deadline = _Deadline(max_wall_s)
-    evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval)
+    in_place = resume is not None and _run_folder(resume).resolve() == run.resolve()
+    evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval, continued=in_place)
     every_callback = CallbackList([
         evaluations,
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),

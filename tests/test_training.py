@@ -95,6 +95,34 @@ def test_train_save_load_evaluate_round_trip(algo: str, tmp_path: Path) -> None:
                                   resume=str(lone / "model.zip")))  # fmt: skip
 
 
+def test_a_resumed_run_goes_on_with_its_own_recipe_and_in_place_with_its_learning_curve(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """``--resume RUN`` without ``--hyperparams`` trains with the run's own recipe (here ppo_batched's copies on
+    the batched backend, not ppo.yml's two PyBullet envs) and says so; resumed in place, the learning curve, its
+    ``evaluations.npz`` and the best model go on instead of starting again."""
+    import csv
+
+    run = tmp_path / "run"
+    common = ["--eval-freq", "4096", "--eval-episodes", "2", "--no-progress", "--no-tensorboard"]
+    code, _, err = cli(capfd, "train", "--hyperparams", "ppo_batched", "--run-dir", str(run), "--timesteps", "8192",
+                       *common)  # fmt: skip
+    assert code == 0, err
+    before = list(csv.DictReader((run / "eval.csv").open()))
+    best = (run / "best" / "best_model.zip").read_bytes()
+    assert [int(r["timesteps"]) for r in before] == [4096, 8192]
+    code, _, err = cli(capfd, "train", "--resume", str(run), "--run-dir", str(run), "--timesteps", "4096", *common)
+    assert code == 0, err
+    assert f"note: --resume {run}: its own recipe (its config.yaml) goes on" in err
+    recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
+    assert recorded["env_kwargs"]["backend"] == "batched" and recorded["n_envs"] == load_hyperparams(
+        "ppo", "StewartBallBalance-v0", "ppo_batched")["n_envs"]  # fmt: skip
+    after = list(csv.DictReader((run / "eval.csv").open()))
+    assert after[:2] == before and [int(r["timesteps"]) for r in after] == [4096, 8192, 12288]
+    assert np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist() == [4096, 8192, 12288]
+    rewards = [float(r["mean_reward"]) for r in after]
+    assert ((run / "best" / "best_model.zip").read_bytes() == best) == (rewards[2] <= max(rewards[:2]))
+
+
 def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
     """Resuming the shipped balance PPO (trained behind the Kalman observer) with hyperparameters that put it
     behind the low-pass one is one error line from the command line, before any run folder; --estimator keeps

@@ -57,6 +57,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         TrainConfig,
         check_run_dir,
         planned_timesteps,
+        resumed_hyperparams,
         run_env_kwargs,
         run_hyperparams,
         train,
@@ -71,6 +72,9 @@ def cmd_train(args: argparse.Namespace) -> int:
                       progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
+    if cfg.resume and cfg.hyperparams is None and resumed_hyperparams(cfg) is not None:
+        print(f"note: --resume {args.resume}: its own recipe (its config.yaml) goes on; --hyperparams gives another",
+              file=sys.stderr)  # fmt: skip
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
     if note:
         print(f"note: {note}", file=sys.stderr)
@@ -371,7 +375,9 @@ def register(sub: Any) -> None:
                    help="env steps between checkpoints (checkpoints/rl_model_<n>_steps.zip, with their statistics; "
                         "default 100000)")  # fmt: skip
     p.add_argument("--resume", help="run folder or checkpoint .zip to continue from, or a shipped policy's name "
-                                    "(shipped, shipped-residual, shipped-camera) to fine-tune it")
+                                    "(shipped, shipped-camera) to fine-tune it; with the run's own hyperparameters "
+                                    "unless --hyperparams is given (its learning curve goes on where --run-dir is "
+                                    "that run)")
     add_twin(p, "a platform's twin (TOML, see stewart-gym sysid): train for it, each episode's physics drawn narrowly "
                 "around its values")
     p.add_argument("--max-minutes", type=positive_float, help="stop after this much wall time")

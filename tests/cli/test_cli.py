@@ -485,6 +485,7 @@ BAD_57 = [
     ["sweep", "{files}/sweep_dup.yaml"],
     ["sweep", "{files}/sweep_arch.yaml"],
     # resume mistakes
+    ["train", "--resume", "shipped-residual", "--run-dir", "{tmp}/r"],  # an ensemble: resume one of its members
     ["train", "--algo", "sac", "--resume", POLICY_BALANCE, "--run-dir", "{tmp}/r"],
     ["train", "--resume", POLICY_BALANCE, "--run-dir", "{files}/run_done"],
     # camera configs
