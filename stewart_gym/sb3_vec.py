@@ -61,7 +61,7 @@ class BatchedVecEnv(VecEnv):
         ``set_options``), as DummyVecEnv resets; each copy's reset info in :attr:`reset_infos`."""
         seeds = list(self._seeds) if any(s is not None for s in self._seeds) else None
         options = self._options[0] if self._options else {}
-        if any(o != options for o in self._options):
+        if not all(_same(o, options) for o in self._options):
             raise ConfigError("set_options: the batched copies reset with one set of options; give every copy the "
                               "same (a dict), or reset them with DummyVecEnv")  # fmt: skip
         obs, columns = self.venv.reset_arrays(seed=seeds, options=options or None)
@@ -111,3 +111,11 @@ class BatchedVecEnv(VecEnv):
     def env_is_wrapped(self, wrapper_class: type, indices: Any = None) -> Sequence[bool]:
         return [False for _ in self._get_indices(indices)]
 
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two copies' reset options are the same (options holding arrays that differ, or cannot be compared
+    as a whole, are not)."""
+    try:
+        return a is b or bool(a == b)
+    except ValueError:  # arrays of several numbers: no one truth value
+        return False

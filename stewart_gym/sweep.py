@@ -36,7 +36,7 @@ import math
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -282,7 +282,7 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
     from ray import tune
 
     from stewart_gym.registry import export_policy, resolve_policy
-    from stewart_gym.training import TrainConfig, train
+    from stewart_gym.training import TrainConfig, run_hyperparams, train
 
     sweep = SweepSpec(**spec)
     run_dir = Path(trials_dir) / tune.get_context().get_trial_id()
@@ -292,8 +292,10 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
                       geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
                       n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
                       overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
-                      vec_env="subproc",  # n_envs worker processes, the CPUs Ray reserves; batched: one process
+                      vec_env="subproc",  # n_envs worker processes, the CPUs Ray reserves
                       background_eval=False)  # fmt: skip  (the trials fill the cores Ray has: no core to spare)
+    if (run_hyperparams(cfg).get("env_kwargs") or {}).get("backend") == "batched":
+        cfg = replace(cfg, vec_env="dummy")  # the batched copies step together in this one process
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:

@@ -59,7 +59,12 @@ def assert_copies_are_single_envs(env_id: str, kwargs: dict) -> gym.vector.Vecto
     n, steps = 3, 60
     kwargs = {**kwargs, "episode_s": 0.6}  # 30 steps: every copy ends and resets once
     vector = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **kwargs)
+    limit = kwargs.pop("max_episode_steps", None)
     singles = [gym.make(env_id, backend="batched", **kwargs) for _ in range(n)]
+    if limit is not None:  # Gymnasium's own TimeLimit: importing rl_zoo3 (tests/test_rl_libraries.py) swaps in its
+        # own in this process, which marks a time limit in the info and not on an episode that ends anyway
+        genuine = next(c for c in gym.wrappers.TimeLimit.__mro__ if c.__module__.startswith("gymnasium."))
+        singles = [genuine(env, limit) for env in singles]
     rng = np.random.default_rng(1)
     actions = rng.uniform(-1, 1, (steps, n, vector.single_action_space.shape[0])).astype(np.float32)
     ended = 0
