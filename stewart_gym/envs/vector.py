@@ -19,6 +19,7 @@ infos are then set as arrays.
 from __future__ import annotations
 
 import copy
+import reprlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -55,6 +56,8 @@ def copy_seeds(seed: object, num_envs: int) -> list[int | None]:
     def whole(value: object) -> bool:
         return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and value >= 0
 
+    if isinstance(seed, np.ndarray) and seed.ndim == 0:
+        seed = seed.item()
     if seed is None:
         return [None] * num_envs
     if whole(seed):
@@ -62,8 +65,8 @@ def copy_seeds(seed: object, num_envs: int) -> list[int | None]:
     if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == num_envs and all(s is None or whole(s)
                                                                                    for s in seed):  # fmt: skip
         return [None if s is None else int(s) for s in seed]
-    raise ConfigError(f"reset: seed must be a whole number ≥ 0, None, or a list of {num_envs} of them (one per copy), "
-                      f"got {seed!r}")  # fmt: skip
+    raise ConfigError(f"reset: seed must be a whole number ≥ 0, None, or a list of {num_envs:,} of them (one per "
+                      f"copy), got {reprlib.repr(seed)}")  # fmt: skip
 
 
 @dataclass
@@ -123,8 +126,8 @@ class ArrayVectorEnv(VectorEnv):
         wanted = (self.num_envs, *self.single_action_space.shape)
         if values.shape != wanted:
             raise ValueError(f"expected actions of shape {wanted} (one per copy), got an array of shape {values.shape}")
-        if not np.issubdtype(values.dtype, np.number):
-            raise ValueError(f"actions must be numbers, got an array of {values.dtype}")
+        if not (np.issubdtype(values.dtype, np.integer) or np.issubdtype(values.dtype, np.floating)):
+            raise ValueError(f"actions must be real numbers, got an array of {values.dtype}")
         if not np.isfinite(values).all():  # (the copy, found only then: a row-wise check costs 20× more)
             row = int(np.flatnonzero(~np.isfinite(values).reshape(self.num_envs, -1).all(axis=1))[0])
             raise ValueError(f"action must be finite, got {values[row].tolist()} (copy {row})")
@@ -146,7 +149,9 @@ class ArrayVectorEnv(VectorEnv):
     def reset(self, *, seed: int | list[int | None] | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:  # fmt: skip
         """Reset every copy: copy i with ``seed + i`` (or ``seed[i]``), each with ``options``."""
-        super().reset(seed=seed if seed is None or isinstance(seed, int) else None)
+        seeds = copy_seeds(seed, self.num_envs)  # checked before anything is seeded
+        one = seed is not None and np.ndim(seed) == 0  # a whole number s: this env's own generator is seeded s too
+        super().reset(seed=seeds[0] if one else None)
         observations, columns = self.reset_arrays(seed=seed, options=options)
         return observations, self._gymnasium_info(columns)
 

@@ -134,11 +134,16 @@ def test_a_step_before_reset_or_after_close_is_refused(workers: int) -> None:
     env = make(4, workers=workers)
     with pytest.raises(ResetNeeded):
         env.step(np.zeros((4, 2), np.float32))
-    for seed in ("a", [1, 2], True, 1.5):
+    for seed in ("a", [1, 2], True, 1.5, -1, [4, 5, 6, -7]):
         with pytest.raises(ConfigError, match="seed must be a whole number"):
             env.reset(seed=seed)
-    obs, _ = env.reset(seed=np.int64(4))
-    np.testing.assert_array_equal(obs, env.reset(seed=[4, 5, 6, 7])[0])
+    for seed in (np.int64(4), np.array(4), np.arange(4, 8)):
+        obs, _ = env.reset(seed=seed)
+        np.testing.assert_array_equal(obs, env.reset(seed=[4, 5, 6, 7])[0])
+    env.reset(seed=np.int64(9))
+    assert env.np_random_seed == 9  # a whole number seeds the vector env's own generator too, of any integer type
+    with pytest.raises(ValueError, match="real numbers"):
+        env.step(np.zeros((4, 2), complex))
     with pytest.raises(ValueError, match=r"expected actions of shape \(4, 2\)"):
         env.step(np.zeros(4, np.float32))
     env.close()

@@ -350,6 +350,30 @@ def test_a_copy_refuses_a_deepcopy_that_would_share_its_platform() -> None:
     vector.close()
 
 
+def test_a_step_limit_counts_the_step_whose_physics_blew_up() -> None:
+    """``max_episode_steps`` ends a copy whose physics blows up on the limit's step as truncated too, as Gymnasium's
+    TimeLimit counts every step (the env's own count of steps leaves that one out)."""
+    limit = 3
+    vector = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                          max_episode_steps=limit, **KWARGS)  # fmt: skip
+    genuine = next(c for c in gym.wrappers.TimeLimit.__mro__ if c.__module__.startswith("gymnasium."))
+    single = genuine(gym.make("StewartBallBalance-v0", backend="batched", **KWARGS), limit)
+    vector.reset(seed=4)
+    single.reset(seed=5)
+    action = np.zeros(2, dtype=np.float32)
+    for _ in range(limit - 1):
+        vector.step(np.stack([action, action]))
+        single.step(action)
+    vector.unwrapped.envs[1].sim.place_ball((math.nan, 0.0))
+    single.unwrapped.sim.place_ball((math.nan, 0.0))
+    _, _, terminated, truncated, info = vector.step(np.stack([action, action]))
+    _, _, te, tr, single_info = single.step(action)
+    assert single_info["physics_error"] and (te, tr) == (True, True)
+    assert info["final_info"]["physics_error"][1] and (terminated[1], truncated[1]) == (te, tr)
+    assert truncated[0] and not terminated[0]
+    vector.close()
+
+
 def test_a_copy_whose_physics_blows_up_ends_alone() -> None:
     """A copy whose ball goes non-finite ends with ``physics_error`` and the reward a single env gives then; the
     other copies step on exactly as single envs."""
