@@ -11,7 +11,8 @@ recipe's ``n_envs``, no evaluation, no TensorBoard), and reports its wall time a
   the steps of both over the wall time of both.
 
 It also checks that ``subproc`` and ``dummy`` train the same network (the SHA-256 of the policy's weights in
-``model.zip``), and that a run side by side trains the same network as alone.
+``model.zip``), and that a run side by side trains the same network as alone. A recipe on the batched backend
+(``--hyperparams ppo_batched``) runs ``dummy`` alone: its copies step together in the training process.
 """
 
 from __future__ import annotations
@@ -59,10 +60,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.timesteps < 1000:
         sys.exit("error: --timesteps must be 1000 or more")
+    from stewart_gym.training import load_hyperparams
+
+    recipe = load_hyperparams("ppo", "StewartBallBalance-v0", args.hyperparams)
+    batched = (recipe.get("env_kwargs") or {}).get("backend") == "batched"  # its copies step together: no subproc
+    reference = "dummy" if batched else "subproc"
     rows: dict[str, dict] = {}
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        for vec_env in ("subproc", "dummy"):
+        for vec_env in ("dummy",) if batched else ("subproc", "dummy"):
             run = root / vec_env
             wall = run_together([train_command(args.hyperparams, args.timesteps, vec_env, 0, run)])
             rows[vec_env] = {"runs": 1, "wall_s": round(wall, 1), "steps_per_s": round(args.timesteps / wall),
@@ -72,17 +78,18 @@ def main() -> None:
                              for seed, run in enumerate(pair)])  # fmt: skip
         rows["dummy, 2 side by side"] = {"runs": 2, "wall_s": round(wall, 1),
                                          "steps_per_s": round(2 * args.timesteps / wall), "weights": weights(pair[0])}
-    same = {name: row["weights"] == rows["subproc"]["weights"] for name, row in rows.items()}
+    same = {name: row["weights"] == rows[reference]["weights"] for name, row in rows.items()}
     if args.json:
         print(json.dumps({"hyperparams": args.hyperparams, "timesteps": args.timesteps, "cores": os.cpu_count(),
                           "runs": {name: {k: v for k, v in row.items() if k != "weights"} | {"same_network": same[name]}
                                    for name, row in rows.items()}}))  # fmt: skip
         return
-    print(f"train --hyperparams {args.hyperparams}: {args.timesteps} steps per run (balance) on {os.cpu_count()} cores")
+    print(f"train --hyperparams {args.hyperparams}: {args.timesteps} steps per run (balance) on {os.cpu_count()} cores"
+          + (" (the batched backend: its copies step together in one process, no subproc)" if batched else ""))
     print(f"{'vec_env':<24} {'runs':>4} {'wall s':>7} {'steps/s':>8}  network (seed 0)")
     for name, row in rows.items():
         print(f"{name:<24} {row['runs']:>4} {row['wall_s']:>7.1f} {row['steps_per_s']:>8}  "
-              f"{'the same as subproc' if same[name] else 'DIFFERENT'}")  # fmt: skip
+              f"{'the same as ' + reference if same[name] else 'DIFFERENT'}")  # fmt: skip
 
 
 if __name__ == "__main__":

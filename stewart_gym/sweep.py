@@ -36,7 +36,7 @@ import math
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -160,7 +160,7 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
     """Read and check a sweep file; raises :class:`ConfigError` naming the key or range that is wrong."""
 
     from stewart_gym.envs import ENV_IDS
-    from stewart_gym.training import ALGOS, check_hyperparameter_values, load_hyperparams
+    from stewart_gym.training import ALGOS, check_copies, check_hyperparameter_values, load_hyperparams
 
     path = Path(path)
     data = read_yaml(path, "sweep file")
@@ -228,6 +228,10 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
     spec.batched = env_kwargs.get("backend") == "batched"
     if spec.batched and "n_envs" not in data:  # the recipe's copies (a batched trial with one copy wastes it)
         spec.n_envs = _whole(base.get("n_envs", 1), "n_envs")
+    try:
+        check_copies(spec.n_envs, env_kwargs.get("backend"), "dummy")
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from None
     check_hyperparameter_values({**base, **{k: v for k, v in spec.fixed.items() if k != "env_kwargs"}}, str(path))
     for name, (kind, values) in spec.search.items():  # every value a trial may be given (a range: its ends)
         if "." not in name:
@@ -282,7 +286,7 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
     from ray import tune
 
     from stewart_gym.registry import export_policy, resolve_policy
-    from stewart_gym.training import TrainConfig, run_hyperparams, train
+    from stewart_gym.training import TrainConfig, train
 
     sweep = SweepSpec(**spec)
     run_dir = Path(trials_dir) / tune.get_context().get_trial_id()
@@ -292,10 +296,9 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
                       geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
                       n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
                       overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
-                      vec_env="subproc",  # n_envs worker processes, the CPUs Ray reserves
+                      # n_envs worker processes, the CPUs Ray reserves; batched copies step together in this one
+                      vec_env="dummy" if sweep.batched else "subproc",
                       background_eval=False)  # fmt: skip  (the trials fill the cores Ray has: no core to spare)
-    if (run_hyperparams(cfg).get("env_kwargs") or {}).get("backend") == "batched":
-        cfg = replace(cfg, vec_env="dummy")  # the batched copies step together in this one process
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:

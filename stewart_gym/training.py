@@ -184,6 +184,9 @@ def _check_env_kwargs(env_kwargs: Any, env_id: str, where: str) -> None:
 
     if env_id not in ENV_IDS:  # not one of ours: the env says what it takes
         return
+    if "workers" in env_kwargs:  # a keyword of gym.make_vec's batched vector env, not of training
+        raise ConfigError(f"{where}: workers: training steps its batched copies in one process; leave workers out "
+                          "(gym.make_vec(..., workers=k) splits copies over processes outside training)")  # fmt: skip
     known = make_keywords(env_id)
     unknown = sorted(str(key) for key in env_kwargs if key not in known)
     if unknown:
@@ -245,8 +248,36 @@ def resumed_hyperparams(config: TrainConfig) -> dict[str, Any] | None:
     if not isinstance(hp, dict) or options.get("env_id") != config.env_id or options.get("algo") != config.algo:
         return None
     hp = copy.deepcopy(hp)
-    _check_env_kwargs(hp.get("env_kwargs"), config.env_id, f"--resume {config.resume}: its config.yaml's env_kwargs")
+    for key in ("n_envs", "eval_freq", "eval_episodes"):  # the run's own command line had them apart
+        if isinstance(options.get(key), int) and not isinstance(options[key], bool):
+            hp[key] = options[key]
+    _check_env_kwargs(hp.get("env_kwargs"), config.env_id, f"{recipe_name(config, resumed=True)}: env_kwargs")
     return hp
+
+
+def recipe_name(config: TrainConfig, resumed: bool | None = None) -> str:
+    """Where a run's hyperparameters come from, for its messages: ``--hyperparams``, the resumed run's
+    ``config.yaml`` (``resumed``: whether :func:`resumed_hyperparams` gives them; None: find out) or the algorithm's
+    own file."""
+    if config.hyperparams:
+        return str(config.hyperparams)
+    if config.resume and (resumed if resumed is not None else resumed_hyperparams(config) is not None):
+        resume = Path(config.resume)
+        model = resume / "model.zip" if resume.is_dir() else resume
+        return str(next(f / "config.yaml" for f in (model.parent, model.parent.parent) if (f / "config.yaml").is_file()))
+    return f"{config.algo}.yml"
+
+
+def resume_note(config: TrainConfig) -> str | None:
+    """What a resumed run without ``--hyperparams`` trains with, in a line; None where nothing is resumed or a
+    recipe is given."""
+    if not config.resume or config.hyperparams:
+        return None
+    if resumed_hyperparams(config) is not None:
+        return f"--resume {config.resume}: its own recipe goes on ({recipe_name(config, resumed=True)}); " \
+               "--hyperparams gives another"
+    return f"--resume {config.resume}: no recipe of its own for {config.env_id} with {config.algo.upper()} " \
+           f"(its config.yaml is missing or is another env's): {config.algo}.yml's; --hyperparams gives another"
 
 
 #: The build a hyperparameter file's distances are written for when its ``env_kwargs`` name no ``geometry``.
@@ -297,13 +328,14 @@ def algo_keywords(algo: str) -> set[str]:
     return set(inspect.signature(ALGOS[algo].__init__).parameters) - SET_BY_TRAIN
 
 
-def check_algo_keywords(algo: str, hp: dict[str, Any]) -> None:
+def check_algo_keywords(algo: str, hp: dict[str, Any], where: str | None = None) -> None:
     """Every key of a hyperparameter section is an RL-Zoo key or a keyword of ``algo`` (raises
-    :class:`ConfigError` naming the others: most often a file written for another algorithm)."""
+    :class:`ConfigError` naming the others, and ``where`` they come from: most often a file written for another
+    algorithm)."""
     unknown = sorted(set(hp) - set(RUN_KEYS) - algo_keywords(algo))
     if unknown:
-        raise ConfigError(f"{unknown} are not {algo.upper()} hyperparameters (a file for another algorithm? "
-                          f"stewart_gym/hyperparams/{algo}.yml is {algo.upper()}'s)")
+        raise ConfigError(f"{where + ': ' if where else ''}{unknown} are not {algo.upper()} hyperparameters (a file "
+                          f"for another algorithm? stewart_gym/hyperparams/{algo}.yml is {algo.upper()}'s)")
 
 
 def _is_number(v: Any) -> bool:
@@ -422,8 +454,8 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     check_vec_env(config.vec_env)
     hp = run_hyperparams(config)
-    check_algo_keywords(config.algo, hp)
-    check_hyperparameter_values(hp, str(config.hyperparams or f"{config.algo}.yml"))
+    check_algo_keywords(config.algo, hp, recipe_name(config))
+    check_hyperparameter_values(hp, recipe_name(config))
     check_action_noise(config.algo, hp)
     backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
     check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)
@@ -564,6 +596,10 @@ def make_env(env_id: str, n_envs: int, seed: int, env_kwargs: dict | None = None
                         **wrapper, **start)  # fmt: skip
 
 
+#: eval.csv's columns (runs made before ``evaluated_s`` lack it; a run continued in place gains it)
+EVAL_COLUMNS = ("timesteps", "wall_s", "mean_reward", "success_rate", "evaluated_s")
+
+
 class _EvalLog(BaseCallback):
     """Every ``eval_freq`` calls, a snapshot of the policy for ``evaluator``; with each evaluation that comes back,
     a row of the learning curve (``eval.csv``: the training's wall time when the snapshot was taken, ``wall_s``,
@@ -573,9 +609,10 @@ class _EvalLog(BaseCallback):
 
     def __init__(self, evaluator: InProcessEvaluator | BackgroundEvaluator, eval_freq: int, run: Path,
                  started: float, on_eval: Callable[[dict[str, float]], None] | None = None,
-                 continued: bool = False) -> None:  # fmt: skip
-        """``continued``: the run folder's learning curve goes on (a run resumed in place): its rows, its
-        ``evaluations.npz`` and its best model stay, and the best is beaten only by a better evaluation."""
+                 continued_from: int | None = None) -> None:  # fmt: skip
+        """``continued_from``: a run resumed in place goes on from a model of that many timesteps; its learning
+        curve goes on from there (later evaluations, of the branch the resume leaves, are dropped), and its best
+        model stays until an evaluation beats it."""
         super().__init__()
         self.evaluator, self.eval_freq, self.run, self.started, self.on_eval = evaluator, eval_freq, run, started, on_eval
         self.best_mean_reward = -math.inf
@@ -583,17 +620,34 @@ class _EvalLog(BaseCallback):
         self._history: dict[str, list] = {"timesteps": [], "results": [], "ep_lengths": [], "successes": []}
         (run / "best").mkdir(parents=True, exist_ok=True)
         (run / "eval").mkdir(parents=True, exist_ok=True)
-        curve, history = run / "eval.csv", run / "eval" / "evaluations.npz"
-        if continued and curve.is_file():
-            with curve.open() as fh:
-                rewards = [_number(row["mean_reward"]) for row in csv.DictReader(fh)]
-            self.best_mean_reward = max((r for r in rewards if r is not None), default=-math.inf)
-            if history.is_file():
-                with np.load(history) as saved:
-                    self._history.update({key: list(saved[key]) for key in saved.files if key in self._history})
-            return
-        with curve.open("w", newline="") as fh:
-            csv.writer(fh).writerow(["timesteps", "wall_s", "mean_reward", "success_rate", "evaluated_s"])
+        rows = self._continue(continued_from) if continued_from is not None else []
+        with (run / "eval.csv").open("w", newline="") as fh:  # (an older run's rows too: in this layout)
+            writer = csv.writer(fh)
+            writer.writerow(EVAL_COLUMNS)
+            writer.writerows([row.get(column, "") for column in EVAL_COLUMNS] for row in rows)
+
+    def _continue(self, timesteps: int) -> list[dict[str, str]]:
+        """The run folder's learning curve up to ``timesteps``: its eval.csv rows (returned), its SB3 history, and
+        the best reward to beat, where ``best/`` holds a model of those evaluations."""
+        curve, history = self.run / "eval.csv", self.run / "eval" / "evaluations.npz"
+        if not curve.is_file():
+            return []
+        with curve.open() as fh:
+            rows = [row for row in csv.DictReader(fh) if row.get("timesteps", "").isdigit()]
+        kept = [row for row in rows if int(row["timesteps"]) <= timesteps]
+        if history.is_file():
+            with np.load(history) as saved:
+                if "timesteps" in saved.files:
+                    keep = saved["timesteps"] <= timesteps
+                    self._history.update({key: list(saved[key][keep]) for key in saved.files
+                                          if key in self._history and len(saved[key]) == len(keep)})
+        rewards = [_number(row["mean_reward"]) for row in rows]
+        kept_rewards = [r for r in rewards[:len(kept)] if r is not None] if kept == rows[:len(kept)] else []
+        if kept_rewards and (self.run / "best" / "best_model.zip").is_file() and max(kept_rewards) == max(
+                r for r in rewards if r is not None):  # fmt: skip  (best/ holds one of the kept evaluations)
+            exact = [float(np.mean(r)) for r in self._history["results"]]
+            self.best_mean_reward = max(exact) if len(exact) == len(kept) else max(kept_rewards)
+        return kept
 
     def _on_step(self) -> bool:
         if self.n_calls % self.eval_freq == 0:
@@ -794,7 +848,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     started = time.time()
     deadline = _Deadline(max_wall_s)
     in_place = resume is not None and _run_folder(resume).resolve() == run.resolve()
-    evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval, continued=in_place)
+    evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval,
+                           continued_from=int(model.num_timesteps) if in_place else None)  # fmt: skip
     every_callback = CallbackList([
         evaluations,
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
@@ -840,7 +895,9 @@ def _cores() -> int:
 
 
 def _number(text: str) -> int | float | None:
-    """A CSV cell as a JSON number (None for NaN: strict JSON has no NaN)."""
+    """A CSV cell as a JSON number (None for NaN, and for an empty cell: strict JSON has no NaN)."""
+    if not text:
+        return None
     value = float(text)
     if value != value:
         return None

@@ -71,6 +71,7 @@ def check_bundle_deploys(bundle: Path) -> None:
     ({"algo": "a2c"}, "algo"),
     ({"geometry": "no-such-preset"}, "no-such-preset"),
     ({"eval_freq": 10**9}, "eval_freq"),
+    ({"n_envs": 300}, "n_envs: at most 256 copies"),  # engines; the batched backend takes thousands
 ])  # fmt: skip
 def test_a_malformed_sweep_file_is_refused_naming_the_key(tmp_path: Path, entries: dict, named: str) -> None:
     with pytest.raises(ConfigError, match=named.replace(".", r"\.")):

@@ -112,7 +112,7 @@ def test_a_resumed_run_goes_on_with_its_own_recipe_and_in_place_with_its_learnin
     assert [int(r["timesteps"]) for r in before] == [4096, 8192]
     code, _, err = cli(capfd, "train", "--resume", str(run), "--run-dir", str(run), "--timesteps", "4096", *common)
     assert code == 0, err
-    assert f"note: --resume {run}: its own recipe (its config.yaml) goes on" in err
+    assert f"note: --resume {run}: its own recipe goes on ({run / 'config.yaml'})" in err
     recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
     assert recorded["env_kwargs"]["backend"] == "batched" and recorded["n_envs"] == load_hyperparams(
         "ppo", "StewartBallBalance-v0", "ppo_batched")["n_envs"]  # fmt: skip

@@ -57,7 +57,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         TrainConfig,
         check_run_dir,
         planned_timesteps,
-        resumed_hyperparams,
+        resume_note,
         run_env_kwargs,
         run_hyperparams,
         train,
@@ -72,9 +72,9 @@ def cmd_train(args: argparse.Namespace) -> int:
                       progress_bar=False,  # the line or bar below instead of SB3's
                       tensorboard=not args.no_tensorboard)  # fmt: skip
     check_run_dir(cfg, overwrite=args.overwrite)
-    if cfg.resume and cfg.hyperparams is None and resumed_hyperparams(cfg) is not None:
-        print(f"note: --resume {args.resume}: its own recipe (its config.yaml) goes on; --hyperparams gives another",
-              file=sys.stderr)  # fmt: skip
+    resumed = resume_note(cfg)
+    if resumed:
+        print(f"note: {resumed}", file=sys.stderr)
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
     if note:
         print(f"note: {note}", file=sys.stderr)
