@@ -121,6 +121,20 @@ def test_a_resumed_run_goes_on_with_its_own_recipe_and_in_place_with_its_learnin
     assert np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist() == [4096, 8192, 12288]
     rewards = [float(r["mean_reward"]) for r in after]
     assert ((run / "best" / "best_model.zip").read_bytes() == best) == (rewards[2] <= max(rewards[:2]))
+    # the best model resumed in place: the curve goes on from its steps (the later evaluations are dropped), and a
+    # curve in an older layout (no evaluated_s) goes on in this one
+    best_steps = int(after[int(np.argmax(rewards))]["timesteps"])
+    lines = (run / "eval.csv").read_text().splitlines()
+    (run / "eval.csv").write_text("\n".join(",".join(line.split(",")[:4]) for line in lines) + "\n")
+    code, _, err = cli(capfd, "train", "--resume", str(run / "best" / "best_model.zip"), "--run-dir", str(run),
+                       "--timesteps", "4096", *common)  # fmt: skip
+    assert code == 0, err
+    again = list(csv.DictReader((run / "eval.csv").open()))
+    steps = [int(r["timesteps"]) for r in again]
+    assert steps == sorted(set(steps)) and steps[-1] == best_steps + 4096
+    assert list(again[0]) == ["timesteps", "wall_s", "mean_reward", "success_rate", "evaluated_s"]
+    assert np.load(run / "eval" / "evaluations.npz")["timesteps"].tolist() == steps
+    assert json.loads((run / "metrics.json").read_text())["timesteps"] == best_steps + 4096
 
 
 def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
