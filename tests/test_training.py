@@ -137,6 +137,27 @@ def test_a_resumed_run_goes_on_with_its_own_recipe_and_in_place_with_its_learnin
     assert json.loads((run / "metrics.json").read_text())["timesteps"] == best_steps + 4096
 
 
+def test_a_resumed_runs_recipe_is_named_in_its_errors_and_a_run_of_another_env_says_which_recipe_trains(
+        tmp_path: Path) -> None:  # fmt: skip
+    """A mistake in the resumed run's own recipe names its config.yaml (not ppo.yml, which it does not use); a run
+    trained on another env, resumed for this one, says that the algorithm's file trains it."""
+    from stewart_gym.training import check_run_dir, resume_note
+
+    shipped = yaml.safe_load((Path(__file__).resolve().parents[1] / "stewart_gym/policies/balance/config.yaml").read_text())
+    run = tmp_path / "run"
+    run.mkdir()
+    bad = {**shipped, "hyperparams": {**shipped["hyperparams"], "learning_rate": 2.0}}
+    (run / "config.yaml").write_text(yaml.safe_dump(bad))
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(run / 'config.yaml'))}: learning_rate must be"):
+        check_run_dir(TrainConfig(run_dir=str(tmp_path / "new"), resume=str(run)))
+    (run / "config.yaml").write_text(yaml.safe_dump(shipped))
+    assert resume_note(TrainConfig(resume=str(run))) == (f"--resume {run}: its own recipe goes on "
+                                                         f"({run / 'config.yaml'}); --hyperparams gives another")
+    note = resume_note(TrainConfig(env_id="StewartBallTrack-v0", resume=str(run)))
+    assert "no recipe of its own for StewartBallTrack-v0 with PPO" in note and "ppo.yml's" in note
+    assert resume_note(TrainConfig(resume=str(run), hyperparams="ppo_finetune")) is None
+
+
 def test_a_resumed_policy_keeps_its_observer(tmp_path: Path) -> None:
     """Resuming the shipped balance PPO (trained behind the Kalman observer) with hyperparameters that put it
     behind the low-pass one is one error line from the command line, before any run folder; --estimator keeps
