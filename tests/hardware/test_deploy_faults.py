@@ -172,7 +172,10 @@ def test_nan_readings_at_the_start_hold_home_until_good_ones_come(device: FakeDe
     first = [r for r in rows if float(r["t_s"]) < 0.7]
     assert first and all(r["stale"] == "1" and r["homing"] == "1" for r in first)
     late = [r for r in rows if float(r["t_s"]) > 1.2]
-    assert late and all(r["stale"] == "0" and r["invalid"] == "0" and r["homing"] == "0" for r in late)
+    assert late and all(r["stale"] == "0" and r["invalid"] == "0" for r in late)
+    # in control from then on, but for a tick after the loop overran (a busy machine held it): that one goes home
+    assert all(r["homing"] == "0" for r in late if r["missed_deadline"] == "0")
+    assert sum(r["missed_deadline"] == "0" for r in late) >= len(late) // 2
 
 
 @pytest.mark.slow
