@@ -262,9 +262,7 @@ def recipe_name(config: TrainConfig, resumed: bool | None = None) -> str:
     if config.hyperparams:
         return str(config.hyperparams)
     if config.resume and (resumed if resumed is not None else resumed_hyperparams(config) is not None):
-        resume = Path(config.resume)
-        model = resume / "model.zip" if resume.is_dir() else resume
-        return str(next(f / "config.yaml" for f in (model.parent, model.parent.parent) if (f / "config.yaml").is_file()))
+        return str(_run_folder(Path(config.resume)) / "config.yaml")
     return f"{config.algo}.yml"
 
 
@@ -454,8 +452,9 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
             raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
     check_vec_env(config.vec_env)
     hp = run_hyperparams(config)
-    check_algo_keywords(config.algo, hp, recipe_name(config))
-    check_hyperparameter_values(hp, recipe_name(config))
+    recipe = recipe_name(config)
+    check_algo_keywords(config.algo, hp, recipe)
+    check_hyperparameter_values(hp, recipe)
     check_action_noise(config.algo, hp)
     backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
     check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)

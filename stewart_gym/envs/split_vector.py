@@ -36,7 +36,14 @@ import numpy as np
 from gymnasium.vector import VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from stewart_gym.envs.vector import ArrayVectorEnv, Finals, StewartBallVectorEnv, check_num_envs, copy_seeds
+from stewart_gym.envs.vector import (
+    ArrayVectorEnv,
+    Finals,
+    StewartBallVectorEnv,
+    check_num_envs,
+    copy_seeds,
+    whole_number,
+)
 from stewart_gym.errors import ConfigError
 
 __all__ = ["SplitVectorEnv", "batched_vector_env"]
@@ -48,7 +55,7 @@ MAX_WORKERS = 256
 def batched_vector_env(num_envs: int = 1, *, workers: int = 1, **kwargs: Any) -> VectorEnv:
     """The batched vector env (Gymnasium's ``vector_entry_point``): one :class:`StewartBallVectorEnv` in this
     process (``workers=1``, the default), or a :class:`SplitVectorEnv` over ``workers`` processes."""
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or not 1 <= workers <= MAX_WORKERS:
+    if not whole_number(workers, 1, MAX_WORKERS):
         raise ConfigError(f"workers must be a whole number from 1 to {MAX_WORKERS}, got {workers!r}")
     if workers == 1:
         return StewartBallVectorEnv(num_envs, **kwargs)

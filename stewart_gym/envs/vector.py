@@ -19,6 +19,7 @@ infos are then set as arrays.
 from __future__ import annotations
 
 import copy
+import math
 import reprlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -38,32 +39,35 @@ from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, Ob
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
 
-__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "Finals", "StewartBallVectorEnv", "check_num_envs", "copy_seeds"]
+__all__ = ["MAX_NUM_ENVS", "ArrayVectorEnv", "Finals", "StewartBallVectorEnv", "check_num_envs", "copy_seeds",
+           "whole_number"]
 
 #: The most copies one vector env holds.
 MAX_NUM_ENVS = 1_000_000
 
 
+def whole_number(value: object, low: int, high: float = math.inf) -> bool:
+    """Whether ``value`` is a whole number (a Python or NumPy integer, not a bool) from ``low`` to ``high``."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and low <= value <= high
+
+
 def check_num_envs(num_envs: object) -> None:
     """Raise :class:`ConfigError` unless ``num_envs`` is a whole number from 1 to :data:`MAX_NUM_ENVS`."""
-    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or not 1 <= num_envs <= MAX_NUM_ENVS:
+    if not whole_number(num_envs, 1, MAX_NUM_ENVS):
         raise ConfigError(f"num_envs must be a whole number from 1 to {MAX_NUM_ENVS:,}, got {num_envs!r}")
 
 
 def copy_seeds(seed: object, num_envs: int) -> list[int | None]:
     """Each copy's seed from a vector env's ``reset(seed=…)``: None (none), a whole number s (copy i: s + i), or a
     sequence of ``num_envs`` whole numbers or Nones; :class:`ConfigError` otherwise."""
-    def whole(value: object) -> bool:
-        return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)) and value >= 0
-
     if isinstance(seed, np.ndarray) and seed.ndim == 0:
         seed = seed.item()
     if seed is None:
         return [None] * num_envs
-    if whole(seed):
+    if whole_number(seed, 0):
         return [int(seed) + i for i in range(num_envs)]
-    if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == num_envs and all(s is None or whole(s)
-                                                                                   for s in seed):  # fmt: skip
+    if isinstance(seed, (list, tuple, np.ndarray)) and len(seed) == num_envs and all(
+            s is None or whole_number(s, 0) for s in seed):  # fmt: skip
         return [None if s is None else int(s) for s in seed]
     raise ConfigError(f"reset: seed must be a whole number ≥ 0, None, or a list of {num_envs:,} of them (one per "
                       f"copy), got {reprlib.repr(seed)}")  # fmt: skip
@@ -240,8 +244,7 @@ class StewartBallVectorEnv(ArrayVectorEnv):
                  ball: Any = None, servo: Any = None, max_episode_steps: int | None = None,
                  **kwargs: Any) -> None:  # fmt: skip
         check_num_envs(num_envs)
-        if max_episode_steps is not None and (isinstance(max_episode_steps, bool) or not isinstance(
-                max_episode_steps, (int, np.integer)) or max_episode_steps < 1):  # fmt: skip
+        if max_episode_steps is not None and not whole_number(max_episode_steps, 1):
             raise ConfigError(f"max_episode_steps must be a whole number ≥ 1, got {max_episode_steps!r}")
         #: the steps after which a copy's episode is truncated (None: its ``episode_s`` alone)
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
