@@ -259,7 +259,10 @@ class ActionMapper:
         ik = inverse_kinematics(self.geometry, poses)
         pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
         scaled, scales = np.zeros(n, dtype=bool), np.ones(n)
-        for row in np.flatnonzero(~(ik.reachable & np.isfinite(pulses).all(axis=1))):
+        usable = ik.reachable.copy()  # and every pulse finite (column by column: faster than a row's all())
+        for j in range(pulses.shape[1]):
+            usable &= np.isfinite(pulses[:, j])
+        for row in np.flatnonzero(~usable):
             one = self(values[row])
             poses[row], pulses[row], scaled[row], scales[row] = one.pose, one.pulses, one.scaled, one.scale
         return MappedActions(poses, pulses, scaled, scales, clipped)

@@ -63,9 +63,10 @@ def reading_is_valid(reading: Reading, plate_half: Sequence[float]) -> bool:
 
 def readings_are_valid(xy: np.ndarray, ts: np.ndarray, plate_half: Sequence[float]) -> np.ndarray:
     """:func:`reading_is_valid` of many readings at once: ``xy`` (rows × 2) m taken at ``ts`` (rows) s; (rows) bool."""
-    reach = np.array([plate_half[0], plate_half[1]], dtype=np.float64) * (1.0 + READING_MARGIN)
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(xy).all(axis=1) & np.isfinite(ts) & (np.abs(xy) <= reach).all(axis=1)
+    reach = 1.0 + READING_MARGIN
+    x, y = xy[:, 0], xy[:, 1]  # column by column: NumPy's reductions along a row of two are ten times slower
+    # (a NaN or an infinite coordinate fails its comparison)
+    return np.isfinite(ts) & (np.abs(x) <= plate_half[0] * reach) & (np.abs(y) <= plate_half[1] * reach)
 
 
 @runtime_checkable
@@ -616,7 +617,9 @@ class ObservationBuilder:
         """:meth:`build` of many observations at once from their parts laid end to end (rows × size, in the
         layout's order, unscaled): scaled and clipped, (rows × size) float32."""
         highs = self._high_array
-        return np.clip(np.asarray(raw, dtype=np.float64) * self._scale_array, -highs, highs).astype(np.float32)
+        scaled = np.multiply(raw, self._scale_array, dtype=np.float64)
+        np.minimum(np.maximum(scaled, -highs, out=scaled), highs, out=scaled)  # np.clip's numbers, without its overhead
+        return scaled.astype(np.float32)
 
 
 class BallObserver:

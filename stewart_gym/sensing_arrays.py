@@ -26,6 +26,7 @@ import numpy as np
 from stewart_gym.camera import FRAME_DRAWS, CameraSpec, camera_height, detection
 from stewart_gym.compiled import compiled, exp_each, use_compiled
 from stewart_gym.constants import GRAVITY
+from stewart_gym.rows import put_rows
 from stewart_gym.sensing import (
     BallKalmanFilter,
     BallObserver,
@@ -165,8 +166,8 @@ class PanelArray:
         self.specs: list[TouchPanelSpec] = [TouchPanelSpec()] * self.n
         self.noise_m, self.rate, self.latency = np.full(self.n, 1e-3), np.full(self.n, 100.0), np.full(self.n, 0.01)
         self.history = HistoryArray(self.n)
-        self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the sample whose noise is in self.noise
-        self.noise = np.zeros((self.n, 2))
+        self.last_k = np.full(self.n, np.iinfo(np.int64).min)  # the sample whose noise is in noise_x, noise_y
+        self.noise_x, self.noise_y = np.zeros(self.n), np.zeros(self.n)  # m
         self.draws = np.zeros((self.n, DRAW_BLOCK))
         self.left = np.zeros(self.n, dtype=np.int64)  # draws not yet used, taken from the end
         self.rngs: list[np.random.Generator | None] = [None] * self.n
@@ -214,11 +215,11 @@ class PanelArray:
         new = index[fresh]
         if len(new):
             sigma, left = self.noise_m[new], self.left[new]
-            self.noise[new, 0] = sigma * self.draws[new, left - 1]
-            self.noise[new, 1] = sigma * self.draws[new, left - 2]
+            self.noise_x[new] = sigma * self.draws[new, left - 1]
+            self.noise_y[new] = sigma * self.draws[new, left - 2]
             self.left[new] = left - 2
             self.last_k[new] = k[fresh]
-        xy = np.stack([x + self.noise[index, 0], y + self.noise[index, 1]], axis=1)
+        xy = np.stack([x + self.noise_x[index], y + self.noise_y[index]], axis=1)
         return xy, ts, on
 
 
@@ -670,7 +671,7 @@ class KalmanArray:
         """:meth:`BallKalmanFilter.update <stewart_gym.sensing.BallKalmanFilter.update>` of ``rows``."""
         rows = np.arange(self.n)[rows]
         later = ts > self.t[rows]
-        rows, ts, xy = rows[later], ts[later], xy[later]
+        rows, ts, xy = rows[later], ts[later], xy.compress(later, axis=0)
         if not len(rows):
             return
         if self.compiled:
@@ -807,7 +808,8 @@ class ObserverArray:
         valid = has & readings_are_valid(xy, ts, self.plate_half)
         self.invalid_readings[rows[has & ~valid]] += 1
         got = rows[valid]
-        self.reading[got] = xy[valid]
+        xy_got = xy.compress(valid, axis=0)  # (compress and take: NumPy's row indexing, ten times faster)
+        put_rows(self.reading, got, xy_got)
         if self.kalman is None:
             dt = ts[valid] - self.velocity_t[got]
             moved = dt > 0
@@ -819,7 +821,7 @@ class ObserverArray:
             pos, vel = self.reading[rows], self.velocity[rows]
         else:
             self.kalman.command(rows, self.t[rows], roll_pitch)
-            self.kalman.update(got, np.minimum(ts[valid], now[valid]), xy[valid])
+            self.kalman.update(got, np.minimum(ts[valid], now[valid]), xy_got)
             pos, vel = self.kalman.estimate(rows, now)
             self.t[rows] = now
         parts = [pos, vel, target_xy, target_velocity, roll_pitch, previous_action]

@@ -97,31 +97,40 @@ class EpisodeParams:
         # The draws come from one generator call per run of them (:func:`_uniform`), at a seventh of the cost of
         # a ``rng.uniform(low, high)`` call per draw, and are that call's numbers (see :func:`_uniform`). First the
         # ball's radius, mass and rolling friction, the control latency, the servos' speed, their six trims and
-        # their dead band.
+        # their dead band; then (after the camera's draw, from a tuple of them) the sensor's two (a touch panel:
+        # noise, latency) or three (a camera: latency, noise, misses), the plate load's angle, distance and mass,
+        # and the plate friction. Without a camera to draw, both runs come from one call: the same numbers.
         trim = (-r.servo_trim_us, r.servo_trim_us)
-        radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = _uniform(
-            rng, (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
-                  r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us))  # fmt: skip
-        ball_ep = replace(ball, radius=round(ball.radius * radius_scale, 4), mass=ball.mass * mass_scale,
-                          rolling_friction=rolling)  # fmt: skip
-        servo_ep = replace(servo, max_speed=servo.max_speed * speed_scale, trim_error_us=tuple(trims),
-                           deadband_us=deadband, lag_s=servo.lag_s + control_latency)  # fmt: skip
-        if isinstance(sensor, tuple):
-            sensor = sensor[int(rng.integers(len(sensor)))]
-        # then the sensor's two (a touch panel: noise, latency) or three (a camera: latency, noise, misses), the
-        # plate load's angle, distance and mass, and the plate friction
+        first = (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
+                 r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us)  # fmt: skip
+        chosen = isinstance(sensor, tuple)
         panel = isinstance(sensor, TouchPanelSpec)
         sensor_ranges = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
                          else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
-        *draws, angle, dist_squared, load_kg, friction = _uniform(
-            rng, (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction))
+        then = (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction)
+        values = _uniform(rng, first if chosen else first + then)
+        radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = values[:len(first)]
+        ball_ep = _replaced(ball, radius=round(ball.radius * radius_scale, 4), mass=ball.mass * mass_scale,
+                            rolling_friction=rolling)  # fmt: skip
+        servo_ep = _replaced(servo, max_speed=servo.max_speed * speed_scale, trim_error_us=tuple(trims),
+                             deadband_us=deadband, lag_s=servo.lag_s + control_latency)  # fmt: skip
+        if chosen:
+            sensor = sensor[int(rng.integers(len(sensor)))]
+            panel = isinstance(sensor, TouchPanelSpec)
+            sensor_ranges = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
+                             else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
+            values = _uniform(rng, (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg,
+                                    r.plate_friction))  # fmt: skip
+        else:
+            values = values[len(first):]
+        *draws, angle, dist_squared, load_kg, friction = values
         if panel:
             sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=draws[0], rate_hz=sensor.rate_hz,
                                                                     latency_s=draws[1])  # fmt: skip
         else:
-            sensor_ep = replace(sensor, latency_s=sensor.latency_s * draws[0],
-                                centroid_noise_px=sensor.centroid_noise_px * draws[1],
-                                miss_rate=min(0.5, sensor.miss_rate * draws[2]))  # fmt: skip
+            sensor_ep = _replaced(sensor, latency_s=sensor.latency_s * draws[0],
+                                  centroid_noise_px=sensor.centroid_noise_px * draws[1],
+                                  miss_rate=min(0.5, sensor.miss_rate * draws[2]))  # fmt: skip
         dist = r.plate_load_radius * math.sqrt(dist_squared)
         load = (load_kg, np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
         return cls(ball_ep, servo_ep, sensor_ep, friction, load)
@@ -176,3 +185,15 @@ def _uniform(rng: np.random.Generator, ranges: tuple[tuple[float, float], ...]) 
     each, to the last bit where NumPy rounds that product and sum apart (x86-64, Linux arm64), and within one
     rounding where it fuses them (macOS arm64) (``tests/envs/test_randomization.py``)."""
     return [low + (high - low) * d for (low, high), d in zip(ranges, rng.random(len(ranges)).tolist())]
+
+
+def _replaced(spec: Any, **changes: Any) -> Any:
+    """``dataclasses.replace(spec, **changes)`` for a dataclass with a ``__dict__`` and no init-only fields: a copy
+    with ``changes``, checked by its ``__post_init__``, at a sixth of ``replace``'s cost (which looks its fields up
+    each time)."""
+    new = object.__new__(type(spec))
+    new.__dict__.update(spec.__dict__, **changes)  # (a frozen dataclass's fields are its __dict__)
+    check = getattr(new, "__post_init__", None)
+    if check is not None:
+        check()
+    return new

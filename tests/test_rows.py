@@ -1,0 +1,46 @@
+"""``put_rows`` writes what NumPy's ``table[rows] = values`` writes, bit for bit, whatever the rows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from stewart_gym.rows import put_rows
+
+SHAPES = [(2,), (11,), (3, 3), (6,), ()]
+DTYPES = [np.float64, np.float32, np.int64, np.bool_]
+
+
+@settings(max_examples=300, deadline=None)
+@given(n=st.integers(1, 40), shape=st.sampled_from(SHAPES), dtype=st.sampled_from(DTYPES), data=st.data())
+def test_put_rows_writes_what_fancy_indexing_writes(n: int, shape: tuple[int, ...], dtype: type, data) -> None:
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    kind = data.draw(st.sampled_from(["all", "some", "repeats", "reversed", "none"]))
+    rows = {"all": np.arange(n), "some": np.sort(rng.choice(n, rng.integers(1, n + 1), replace=False)),
+            "repeats": rng.integers(0, n, rng.integers(1, 2 * n)), "reversed": np.arange(n)[::-1].copy(),
+            "none": np.zeros(0, dtype=np.int64)}[kind]  # fmt: skip
+    table = (rng.normal(size=(n, *shape)) * 1e3).astype(dtype)
+    table[0, ...] = np.nan if dtype in (np.float64, np.float32) else table[0, ...]  # NaNs move as they are
+    values = (rng.normal(size=(len(rows), *shape)) * 1e3).astype(dtype)
+    expected, got = table.copy(), table.copy()
+    expected[rows] = values
+    put_rows(got, rows, values)
+    assert got.tobytes() == expected.tobytes()
+
+
+@pytest.mark.parametrize("value", [0.5, np.array([1.0, -2.0])])
+def test_put_rows_broadcasts_one_value_to_every_row(value) -> None:
+    table = np.zeros((5, 2))
+    put_rows(table, np.array([1, 3]), value)
+    expected = np.zeros((5, 2))
+    expected[[1, 3]] = value
+    assert np.array_equal(table, expected)
+
+
+def test_put_rows_of_a_strided_table_writes_through_to_it() -> None:
+    base = np.zeros((6, 4))
+    view = base[:, :2]  # not C-contiguous: NumPy's own indexing writes it
+    put_rows(view, np.array([0, 5]), np.ones((2, 2)))
+    assert base[[0, 5], :2].tolist() == [[1.0, 1.0], [1.0, 1.0]] and base[:, 2:].sum() == 0.0
