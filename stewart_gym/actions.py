@@ -21,7 +21,7 @@ import numpy as np
 from stewart_gym.calibration import ServoCalibration, servo_pulses_one
 from stewart_gym.errors import ConfigError, UnreachableError
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.kinematics import axis_ranges, inverse_kinematics
+from stewart_gym.kinematics import axis_ranges, inverse_kinematics, pulses_many
 from stewart_gym.presets import load_geometry
 
 __all__ = ["ACTION_MEANINGS", "ACTION_MODES", "ACTION_SIZES", "ActionMapper", "MappedAction", "MappedActions",
@@ -235,9 +235,10 @@ class ActionMapper:
         return MappedAction(best, pulses, scale < 1.0, scale, tuple(clipped))
 
     def map_arrays(self, actions: np.ndarray) -> MappedActions:
-        """:meth:`__call__` of many actions (rows × :attr:`size`) at once, as arrays: one batched IK pass for the
-        feasible poses (:func:`~stewart_gym.kinematics.inverse_kinematics`), the scalar path for the rest (and for
-        "pulse" mode). Row by row the same results as one call per action, the pulses to rounding."""
+        """:meth:`__call__` of many actions (rows × :attr:`size`) at once, as arrays: one compiled IK pass for the
+        feasible poses (:func:`~stewart_gym.kinematics.pulses_many`; without numba, the batched
+        :func:`~stewart_gym.kinematics.inverse_kinematics`), the scalar path for the rest (and for "pulse" mode).
+        Row by row the same results as one call per action (without numba, the pulses to rounding)."""
         values = np.asarray(actions, dtype=np.float64).reshape(-1, self.size)
         if not np.isfinite(values).all():
             row = int(np.flatnonzero(~np.isfinite(values).all(axis=1))[0])
@@ -256,12 +257,14 @@ class ActionMapper:
             poses = clipped * self.pose_scale
         if self._offset is not None:
             poses = poses + self._offset
-        ik = inverse_kinematics(self.geometry, poses)
-        pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+        each = pulses_many(self.geometry, poses, self.calibration.pulse_map)  # compiled: the scalar path's numbers
+        if each is not None:
+            pulses, usable = each
+        else:  # pragma: no cover - the dev install has numba
+            ik = inverse_kinematics(self.geometry, poses)
+            pulses = self.calibration.pulse_widths(ik.servo_angles, out_of_range="nan")
+            usable = ik.reachable & np.isfinite(pulses).all(axis=1)
         scaled, scales = np.zeros(n, dtype=bool), np.ones(n)
-        usable = ik.reachable.copy()  # and every pulse finite (column by column: faster than a row's all())
-        for j in range(pulses.shape[1]):
-            usable &= np.isfinite(pulses[:, j])
         for row in np.flatnonzero(~usable):
             one = self(values[row])
             poses[row], pulses[row], scaled[row], scales[row] = one.pose, one.pulses, one.scaled, one.scale

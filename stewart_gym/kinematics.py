@@ -30,6 +30,7 @@ from typing import Literal
 import numpy as np
 
 from stewart_gym.blas import OneBlasThread
+from stewart_gym.compiled import compiled
 from stewart_gym.geometry import GeometryError, PlatformGeometry
 
 __all__ = [
@@ -43,6 +44,7 @@ __all__ = [
     "inverse_kinematics",
     "rotation_matrix",
     "axis_ranges",
+    "pulses_many",
     "pulses_one",
     "rotation_matrix_derivatives",
 ]
@@ -404,6 +406,72 @@ def pulses_one(geometry: PlatformGeometry, pose: Sequence[float],
     hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
     k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
     return _ik_scalar(k, pose, pulse_map)
+
+
+def _pulses_rows(poses: np.ndarray, legs: np.ndarray, pulse_map: np.ndarray, lo: float, hi: float, inv_2a: float,
+                 half_l0: float, rotary: bool, out: np.ndarray, ok: np.ndarray) -> None:  # fmt: skip  # pragma: no cover
+    """:func:`_ik_scalar` with a pulse map, row by row (compiled): the pulses of pose ``poses[i]`` into ``out[i]``
+    and ``ok[i]`` True, or ``ok[i]`` False where :func:`_ik_scalar` gives None. ``legs`` (6, 8) and ``pulse_map``
+    (6, 5): :class:`_IKConstants`' legs and the pulse map as arrays. The same operations in the same order (math's
+    cos, sin and atan2 are the C library's, as Python's), so the same bits."""
+    for i in range(poses.shape[0]):
+        x, y, z, roll, pitch, yaw = poses[i, 0], poses[i, 1], poses[i, 2], poses[i, 3], poses[i, 4], poses[i, 5]
+        cr, sr, cp, sp = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch)
+        if yaw == 0.0:  # (a tilt: cos ±0 is 1 and sin ±0 is ±0, exactly, as the C library gives them)
+            cy, sy = 1.0, yaw
+        else:
+            cy, sy = math.cos(yaw), math.sin(yaw)
+        cy_sp, sy_sp = cy * sp, sy * sp
+        r00, r01, r02 = cy * cp, cy_sp * sr - sy * cr, cy_sp * cr + sy * sr
+        r10, r11, r12 = sy * cp, sy_sp * sr + cy * cr, sy_sp * cr - cy * sr
+        r20, r21, r22 = -sp, cp * sr, cp * cr
+        ok[i] = True
+        for j in range(6):
+            px, py, pz, ox, oy, oz, cb, sb = (legs[j, 0], legs[j, 1], legs[j, 2], legs[j, 3], legs[j, 4], legs[j, 5],
+                                              legs[j, 6], legs[j, 7])  # fmt: skip
+            lx = r00 * px + r01 * py + r02 * pz + x + ox
+            ly = r10 * px + r11 * py + r12 * pz + y + oy
+            lz = r20 * px + r21 * py + r22 * pz + z + oz
+            sq = lx * lx + ly * ly + lz * lz
+            if not sq < _HUGE:
+                ok[i] = False
+                break
+            if rotary:
+                big_l = sq * inv_2a - half_l0
+                big_n = lx * cb + ly * sb
+                root2 = lz * lz + big_n * big_n - big_l * big_l
+                if root2 < 0.0:
+                    ok[i] = False
+                    break
+                root = math.sqrt(root2)
+                value = math.atan2(big_l * lz - root * big_n, root * lz + big_l * big_n)
+                inside = lo <= value <= hi
+            else:
+                value = math.sqrt(sq)
+                inside = lz > 0.0 and lo <= value <= hi
+            width = pulse_map[j, 0] + pulse_map[j, 1] * (value - pulse_map[j, 2])
+            if not (inside and pulse_map[j, 3] <= width <= pulse_map[j, 4]):
+                ok[i] = False
+                break
+            out[i, j] = width
+
+
+_pulses_compiled = compiled(_pulses_rows)
+
+
+def pulses_many(geometry: PlatformGeometry, poses: np.ndarray,
+                pulse_map: Sequence[tuple[float, float, float, float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`pulses_one` of each pose (n, 6) in one compiled pass, the same numbers: the pulses (n, 6) µs and
+    whether each pose has them (n,) (where not, its row of pulses is undefined); None without numba."""
+    if _pulses_compiled is None:  # pragma: no cover - the dev install has numba
+        return None
+    hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
+    k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
+    poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 6)
+    out, ok = np.empty((len(poses), 6)), np.empty(len(poses), dtype=np.bool_)
+    _pulses_compiled(poses, np.array(k.legs), np.array(pulse_map, dtype=np.float64), k.lo, k.hi, k.inv_2a, k.half_l0,
+                     k.rotary, out, ok)  # fmt: skip
+    return out, ok
 
 
 def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> IKResult:

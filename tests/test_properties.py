@@ -13,6 +13,8 @@ from stewart_gym.calibration import ServoCalibration, servo_pulses_one
 from stewart_gym.kinematics import (
     forward_kinematics,
     inverse_kinematics,
+    pulses_many,
+    pulses_one,
     rotation_matrix,
 )
 from stewart_gym.presets import load_preset, preset_names
@@ -101,6 +103,30 @@ def test_scalar_one_pose_path_equals_batched_ik(name: str, u: np.ndarray, scale:
         assert pulses is not None and np.allclose(pulses, reference, rtol=0, atol=1e-9)
         assert np.allclose(cal.angles_one(pulses), cal.angles(reference), rtol=0, atol=1e-12)
     assert cal.in_range_one(reference.tolist()) == bool(cal.in_range(reference).all())
+
+
+@settings(max_examples=150, deadline=None)
+@given(name=st.sampled_from(sorted(GEOMETRIES)), us=st.lists(poses_unit, min_size=1, max_size=8),
+       scale=st.sampled_from([0.5, 1.0, 3.0]), yaw_zero=st.booleans(),
+       bad=st.sampled_from([None, math.nan, math.inf, -math.inf, 1e200]))  # fmt: skip
+def test_compiled_pulses_of_many_poses_are_the_scalar_paths_to_the_last_bit(
+        name: str, us: list, scale: float, yaw_zero: bool, bad: float | None) -> None:  # fmt: skip
+    """pulses_many (the compiled pass the vector env maps its actions with) gives, pose by pose, what pulses_one
+    gives: the same pulses to the last bit, and no pulses where it gives None (rotary and linear, a tilt's yaw of
+    ±0, non-finite and absurd poses)."""
+    geo = GEOMETRIES[name]
+    poses = np.array([_pose(name, u) * scale for u in us])
+    if yaw_zero:
+        poses[:, 5] = np.where(np.arange(len(poses)) % 2, 0.0, -0.0)
+    if bad is not None:
+        poses[0, len(us) % 6] = bad
+    cal = ServoCalibration.default(geo)
+    pulses, ok = pulses_many(geo, poses, cal.pulse_map)
+    for pose, row, good in zip(poses, pulses, ok):
+        one = pulses_one(geo, pose.tolist(), cal.pulse_map)
+        assert good == (one is not None)
+        if good:
+            assert row.tolist() == one
 
 
 # ------------------------------------------------------- non-finite poses

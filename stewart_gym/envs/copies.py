@@ -10,7 +10,7 @@ tilt, the steps taken and the steps in a row within the success radius); the cop
 :class:`~stewart_gym.envs.task_array.TaskArray`. The copies reset in a step start together: their first observations
 and infos as arrays (:meth:`CopySteps.reset_rows`). The results equal
 each copy's own :meth:`~stewart_gym.envs.ball_env.StewartBallEnv.step` to the last bit, but for
-``info["pulse_widths_us"]``, which the batched IK gives to rounding (``tests/envs/test_vector.py``)."""
+``info["pulse_widths_us"]`` without numba, which the batched IK then gives to rounding (``tests/envs/test_vector.py``)."""
 
 from __future__ import annotations
 
