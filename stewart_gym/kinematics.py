@@ -461,8 +461,10 @@ _pulses_compiled = compiled(_pulses_rows)
 
 def pulses_many(geometry: PlatformGeometry, poses: np.ndarray,
                 pulse_map: Sequence[tuple[float, float, float, float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`pulses_one` of each pose (n, 6) in one compiled pass, the same numbers: the pulses (n, 6) µs and
-    whether each pose has them (n,) (where not, its row of pulses is undefined); None without numba."""
+    """:func:`pulses_one` of each pose (n, 6) in one compiled pass: the pulses (n, 6) µs and whether each pose has
+    them (n,) (where not, its row of pulses is undefined); None without numba. The same numbers to the last bit
+    where numba's cos, sin and atan2 are the C library's that Python's ``math`` calls (as
+    :func:`~stewart_gym.compiled.exp_each` assumes of exp)."""
     if _pulses_compiled is None:  # pragma: no cover - the dev install has numba
         return None
     hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
@@ -517,7 +519,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
         status[not_finite] = LegStatus.NOT_FINITE
         if alpha is not None:
             alpha[not_finite] = np.nan
-    flagged = status[:, 0].copy()  # any leg's status, column by column: ten times faster than a row's any()
+    flagged = status[:, 0].copy()  # any leg's status, column by column: several times faster than a row's any()
     for j in range(1, 6):
         flagged |= status[:, j]
     reachable = flagged == 0

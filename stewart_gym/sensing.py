@@ -63,10 +63,11 @@ def reading_is_valid(reading: Reading, plate_half: Sequence[float]) -> bool:
 
 def readings_are_valid(xy: np.ndarray, ts: np.ndarray, plate_half: Sequence[float]) -> np.ndarray:
     """:func:`reading_is_valid` of many readings at once: ``xy`` (rows × 2) m taken at ``ts`` (rows) s; (rows) bool."""
-    reach = 1.0 + READING_MARGIN
-    x, y = xy[:, 0], xy[:, 1]  # column by column: NumPy's reductions along a row of two are ten times slower
-    # (a NaN or an infinite coordinate fails its comparison)
-    return np.isfinite(ts) & (np.abs(x) <= plate_half[0] * reach) & (np.abs(y) <= plate_half[1] * reach)
+    reach = np.array([plate_half[0], plate_half[1]], dtype=np.float64) * (1.0 + READING_MARGIN)
+    xy = np.asarray(xy)
+    # column by column (NumPy's reductions along rows of two are several times slower), compared in float64 as
+    # reading_is_valid compares; a NaN or an infinite coordinate fails its comparison
+    return np.isfinite(ts) & (np.abs(xy[:, 0]) <= reach[0]) & (np.abs(xy[:, 1]) <= reach[1])
 
 
 @runtime_checkable

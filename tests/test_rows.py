@@ -44,3 +44,22 @@ def test_put_rows_of_a_strided_table_writes_through_to_it() -> None:
     view = base[:, :2]  # not C-contiguous: NumPy's own indexing writes it
     put_rows(view, np.array([0, 5]), np.ones((2, 2)))
     assert base[[0, 5], :2].tolist() == [[1.0, 1.0], [1.0, 1.0]] and base[:, 2:].sum() == 0.0
+
+
+@pytest.mark.parametrize("rows", [np.array([False, True, True]), np.array([True, True, True]), 1, np.int64(2),
+                                  np.array([[0, 2]]), slice(0, 2), [2, 0]])  # fmt: skip
+def test_put_rows_of_any_other_index_does_what_numpy_does(rows) -> None:
+    """A mask (one that picks every row too), a row number, a 2-D index, a slice or a list: NumPy's own meaning."""
+    expected, got = np.zeros((3, 2)), np.zeros((3, 2))
+    expected[rows] = 7.0
+    put_rows(got, rows, 7.0)
+    assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("rows", [np.arange(3.0), np.array([3]), np.array([0, 1, 2, 5])])
+def test_put_rows_refuses_what_numpy_refuses(rows: np.ndarray) -> None:
+    """Row numbers that are not whole numbers, or past the table's end: NumPy's IndexError, and nothing written."""
+    table = np.zeros((3, 2))
+    with pytest.raises(IndexError):
+        put_rows(table, rows, 1.0)
+    assert not table.any()

@@ -202,6 +202,12 @@ def test_readings_are_judged_valid_as_one_by_one() -> None:
     got = readings_are_valid(xy, ts, HALF)
     want = [reading_is_valid(((x, y), t), HALF) for (x, y), t in zip(xy.tolist(), ts.tolist())]
     assert got.tolist() == want and 0 < sum(want) < len(want)
+    # at the edge, in float32 and as lists too: compared in float64, as one by one
+    edge = np.float32(HALF[0] * 1.1)  # the margin rounded up to float32: past it in float64, on it in float32
+    assert float(edge) > HALF[0] * 1.1
+    for rows in (np.array([[edge, 0.0], [0.0, -edge]], dtype=np.float32), [[0.01, 0.02], [0.3, 0.0]]):
+        want = [reading_is_valid(((float(x), float(y)), 0.5), HALF) for x, y in rows]
+        assert readings_are_valid(rows, np.full(2, 0.5), HALF).tolist() == want
 
 
 def test_the_kalman_filters_propagate_alike_compiled_and_as_arrays() -> None:

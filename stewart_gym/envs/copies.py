@@ -105,7 +105,7 @@ class CopySteps:
         t = sim.platform_times()
         difference = mapped.actions - self.previous_action
         squares = difference * difference
-        # (the sum of a row of two, column by column: NumPy's reduction along a short row is ten times slower)
+        # (the sum of a row of two, column by column: NumPy's reduction along a short row is several times slower)
         rates = (squares[:, 0] + squares[:, 1] if self.mapper.size == 2 else squares.sum(axis=1)) / self.mapper.size
         self.previous_action = mapped.actions
         self.pulses = mapped.pulses
