@@ -1,4 +1,5 @@
-"""``put_rows`` writes what NumPy's ``table[rows] = values`` writes, bit for bit, whatever the rows."""
+"""``put_rows`` writes what NumPy's ``table[rows] = values`` writes, bit for bit, whatever the rows (few, or many:
+through its void view)."""
 
 from __future__ import annotations
 
@@ -7,14 +8,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stewart_gym.rows import put_rows
+from stewart_gym.rows import VOID_FROM, put_rows
 
 SHAPES = [(2,), (11,), (3, 3), (6,), ()]
 DTYPES = [np.float64, np.float32, np.int64, np.bool_]
 
 
 @settings(max_examples=300, deadline=None)
-@given(n=st.integers(1, 40), shape=st.sampled_from(SHAPES), dtype=st.sampled_from(DTYPES), data=st.data())
+@given(n=st.integers(1, 40) | st.integers(VOID_FROM, 3 * VOID_FROM), shape=st.sampled_from(SHAPES),
+       dtype=st.sampled_from(DTYPES), data=st.data())  # fmt: skip
 def test_put_rows_writes_what_fancy_indexing_writes(n: int, shape: tuple[int, ...], dtype: type, data) -> None:
     rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
     kind = data.draw(st.sampled_from(["all", "some", "repeats", "reversed", "none"]))
@@ -30,12 +32,13 @@ def test_put_rows_writes_what_fancy_indexing_writes(n: int, shape: tuple[int, ..
     assert got.tobytes() == expected.tobytes()
 
 
-@pytest.mark.parametrize("value", [0.5, np.array([1.0, -2.0])])
-def test_put_rows_broadcasts_one_value_to_every_row(value) -> None:
-    table = np.zeros((5, 2))
-    put_rows(table, np.array([1, 3]), value)
-    expected = np.zeros((5, 2))
-    expected[[1, 3]] = value
+@pytest.mark.parametrize("n", [5, 3 * VOID_FROM])
+@pytest.mark.parametrize("value", [0.5, np.array([1.0, -2.0]), np.array([[[3.0, 4.0]]])])
+def test_put_rows_broadcasts_one_value_to_every_row(value, n: int) -> None:
+    rows = np.arange(1, n, 2)  # every other row: a few, or many
+    table, expected = np.zeros((n, 2)), np.zeros((n, 2))
+    put_rows(table, rows, value)
+    expected[rows] = value
     assert np.array_equal(table, expected)
 
 
