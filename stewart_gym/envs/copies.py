@@ -119,20 +119,22 @@ class CopySteps:
         on_plate, touching = ball_contact(xy[:, 0], xy[:, 1], z, self.half_extent, sim.plate_top, sim.ball_radius)
         on_plate &= sound
         targets, target_velocities = self.tasks.targets(t)
-        if sound.all():  # (nearly always: every row, without the gathers)
-            good = self.rows
-            self.sensors.record(t, xy, touching, good)
-            reading, sample_t, has = self.sensors.read(t, good)
-            obs = self.observers.observe(good, has, reading, sample_t, targets, target_velocities, self.roll_pitch,
-                                         mapped.actions, t)  # fmt: skip
-        else:
-            good = self.rows[sound]
-            self.sensors.record(t[good], xy.take(good, axis=0), touching[good], good)
-            reading, sample_t, has = self.sensors.read(t[good], good)
+        every = bool(sound.all())  # (nearly always: then every row as it is, without the gathers)
+        good = self.rows if every else self.rows[sound]
+
+        def sound_rows(a: np.ndarray) -> np.ndarray:
+            return a if every else a.take(good, axis=0)
+
+        self.sensors.record(sound_rows(t), sound_rows(xy), sound_rows(touching), good)
+        reading, sample_t, has = self.sensors.read(sound_rows(t), good)
+        observed = self.observers.observe(good, has, reading, sample_t, sound_rows(targets),
+                                          sound_rows(target_velocities), sound_rows(self.roll_pitch),
+                                          sound_rows(mapped.actions), sound_rows(t))  # fmt: skip
+        if every:
+            obs = observed
+        else:  # a blown-up copy keeps its last observation
             obs = self.last_obs.copy()
-            put_rows(obs, good, self.observers.observe(
-                good, has, reading, sample_t, targets.take(good, axis=0), target_velocities.take(good, axis=0),
-                self.roll_pitch.take(good, axis=0), mapped.actions.take(good, axis=0), t[good]))  # fmt: skip
+            put_rows(obs, good, observed)
         self.last_obs = obs
         lost = 2 * self.half_extent[0]  # the distance a step whose physics blew up is scored at
         offset = np.where(sound[:, None], xy - targets, 0.0)  # (a blown-up row: inf or NaN, never inf − inf)

@@ -103,12 +103,14 @@ class EpisodeParams:
         trim = (-r.servo_trim_us, r.servo_trim_us)
         first = (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
                  r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us)  # fmt: skip
+
+        def then(spec: TouchPanelSpec | CameraSpec) -> tuple[tuple[float, float], ...]:
+            measured = ((r.sensor_noise_mm, r.sensor_latency_s) if isinstance(spec, TouchPanelSpec)
+                        else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
+            return (*measured, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction)
+
         chosen = isinstance(sensor, tuple)
-        panel = isinstance(sensor, TouchPanelSpec)
-        sensor_ranges = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
-                         else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
-        then = (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction)
-        values = _uniform(rng, first if chosen else first + then)
+        values = _uniform(rng, first if chosen else first + then(sensor))
         radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = values[:len(first)]
         ball_ep = _replaced(ball, radius=round(ball.radius * radius_scale, 4), mass=ball.mass * mass_scale,
                             rolling_friction=rolling)  # fmt: skip
@@ -116,13 +118,10 @@ class EpisodeParams:
                              deadband_us=deadband, lag_s=servo.lag_s + control_latency)  # fmt: skip
         if chosen:
             sensor = sensor[int(rng.integers(len(sensor)))]
-            panel = isinstance(sensor, TouchPanelSpec)
-            sensor_ranges = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
-                             else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
-            values = _uniform(rng, (*sensor_ranges, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg,
-                                    r.plate_friction))  # fmt: skip
+            values = _uniform(rng, then(sensor))
         else:
             values = values[len(first):]
+        panel = isinstance(sensor, TouchPanelSpec)
         *draws, angle, dist_squared, load_kg, friction = values
         if panel:
             sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=draws[0], rate_hz=sensor.rate_hz,
