@@ -16,7 +16,7 @@ from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
-from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges
+from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges, draw_count
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
@@ -319,13 +319,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         ball's start, (x, y) m and velocity m/s. The rest of the reset (the physics, the task's draws, the sensor, the
         observer and the first observation) follows in :meth:`reset`, or, for the batched vector env's copies, for all
         the copies it resets at once (:class:`~stewart_gym.envs.vector.StewartBallVectorEnv`)."""
-        super().reset(seed=seed)
+        checked = self.begin_episode(seed, options)
         rng = self.np_random
-        #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since
-        self._episode = (rng.bit_generator.state, options, [])
-        options = self._check_options(options)
-        if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
-            self._reopen()
         if self.twin is not None:
             params = EpisodeParams.from_twin(self.twin, self.nominal_ball, self.nominal_servo, self.nominal_sensor,
                                              rng if self.randomize else None, self.ranges)  # fmt: skip
@@ -334,34 +329,82 @@ class StewartBallEnv(gym.Env, EzPickle):
         else:
             nominal = self.nominal_sensor[0] if isinstance(self.nominal_sensor, tuple) else self.nominal_sensor
             params = EpisodeParams(self.nominal_ball, self.nominal_servo, nominal, 0.6, None)
+        self.keep_params(params)
+        xy, velocity = self.ball_starts(self.np_random.random(self.start_draw_count(checked))[None], checked)
+        return xy[0], velocity[0]
+
+    @staticmethod
+    def draw_episodes(envs: Sequence[StewartBallEnv], seeds: Sequence[int | None],
+                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """:meth:`draw_episode` of each of ``envs`` (made with the same arguments), env k seeded ``seeds[k]``: the
+        same draws from each env's own generator, in the same order, and the same episodes; the balls' starts as
+        arrays, (x, y) m and velocities m/s (a row each). Where the parameters are drawn around one sensor
+        (``randomize``, no twin, a touch panel or one camera), each env's draws come from one generator call and
+        their arithmetic is done for all of them at once (:meth:`EpisodeParams.from_draws
+        <stewart_gym.envs.randomization.EpisodeParams.from_draws>`, and the starts')."""
+        first = envs[0] if len(envs) else None
+        if first is None or first.twin is not None or not first.randomize or isinstance(first.nominal_sensor, tuple):
+            starts = [env.draw_episode(seed=s, options=options) for env, s in zip(envs, seeds)]
+            return (np.array([xy for xy, _ in starts], dtype=np.float64).reshape(-1, 2),
+                    np.array([velocity for _, velocity in starts], dtype=np.float64).reshape(-1, 2))  # fmt: skip
+        checked = [env.begin_episode(s, options) for env, s in zip(envs, seeds)]
+        count = draw_count(first.nominal_sensor)
+        draws = np.array([env.np_random.random(count + first.start_draw_count(checked[0])) for env in envs])
+        params = EpisodeParams.from_draws(draws[:, :count], first.ranges, first.nominal_ball, first.nominal_servo,
+                                          first.nominal_sensor)  # fmt: skip
+        for env, p in zip(envs, params):
+            env.keep_params(p)
+        return first.ball_starts(draws[:, count:], checked[0])
+
+    def begin_episode(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, np.ndarray]:
+        """:meth:`draw_episode` before the draws: seed the generator, note what a copy replays, check the options
+        (returned, as arrays) and start a closed engine again."""
+        super().reset(seed=seed)
+        #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since;
+        #: None on a backend object (such an env cannot be copied)
+        self._episode = None if self._engine is None else (self.np_random.bit_generator.state, options, [])
+        checked = self._check_options(options)
+        if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
+            self._reopen()
+        return checked
+
+    def keep_params(self, params: EpisodeParams) -> None:
+        """:meth:`draw_episode` after the parameters' draws: keep ``params`` and start this env's own count of the
+        episode."""
         #: this episode's physical parameters
         self.params = params
         self._radius = params.ball.radius
-        xy, velocity = self._start(rng, options)
         self._reset_episode_state()
-        return xy, velocity
 
-    def _start(self, rng: np.random.Generator, options: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """The ball's start (x, y) m and velocity m/s: from ``options`` where given, else drawn (see Starting
-        State). The draws take one generator call, ``rng.random(k)``: each number is low + (high − low) · d, what a
-        call of ``rng.uniform(low, high)`` per number gives, up to NumPy's rounding (as
+    @staticmethod
+    def start_draw_count(options: dict[str, np.ndarray]) -> int:
+        """How many uniform draws the ball's start takes with ``options`` (checked): two for a position, two for a
+        velocity, each unless given."""
+        return 2 * ("ball_position" not in options) + 2 * ("ball_velocity" not in options)
+
+    def ball_starts(self, draws: np.ndarray, options: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """The balls' starts (x, y) m and velocities m/s (a row each) from ``options`` where given, else from rows of
+        uniform draws in [0, 1) (m × :meth:`start_draw_count`) (see Starting State). Each number is low + (high − low) ·
+        d, what a call of ``rng.uniform(low, high)`` per number gives, up to NumPy's rounding (as
         :class:`~stewart_gym.envs.randomization.EpisodeParams`' draws; ``tests/envs/test_envs.py``)."""
+        m = len(draws)
         position, velocity = options.get("ball_position"), options.get("ball_velocity")
-        draws = rng.random((2 if position is None else 0) + (2 if velocity is None else 0)).tolist()
         if position is None:
-            d0, d1 = draws[0], draws[1]
-            del draws[:2]
+            d0, d1 = draws[:, 0], draws[:, 1]
+            draws = draws[:, 2:]
             if self.start_distance is not None:  # a distance within the range, in a uniform direction
                 low, high = self.start_distance
-                radius, ang = low + (high - low) * d0, 2 * math.pi * d1
-                position = np.array([radius * math.cos(ang), radius * math.sin(ang)])
+                xy = polar(low + (high - low) * d0, 2 * math.pi * d1)
             else:  # uniform in a square of START_FRACTION of the plate
                 (hx, hy), f = self.plate_half_extent, self.START_FRACTION
-                position = np.array([(-1.0 + 2.0 * d0) * f * hx, (-1.0 + 2.0 * d1) * f * hy])
+                xy = np.stack([(-1.0 + 2.0 * d0) * f * hx, (-1.0 + 2.0 * d1) * f * hy], axis=1)
+        else:
+            xy = np.tile(position, (m, 1))
         if velocity is None:  # up to 0.1 m/s in a uniform direction
-            ang, speed = 2 * math.pi * draws[0], 0.1 * draws[1]
-            velocity = np.array([speed * math.cos(ang), speed * math.sin(ang)])
-        return position, velocity
+            velocity = polar(0.1 * draws[:, 1], 2 * math.pi * draws[:, 0])
+        else:
+            velocity = np.tile(velocity, (m, 1))
+        return xy, velocity
 
     #: The ball starts within this fraction of the plate's half size of the centre (0.10 m on the 300 mm plate).
     START_FRACTION = 2.0 / 3.0
@@ -552,6 +595,13 @@ def distance(dx: float, dy: float) -> float:
     """m, the length of (dx, dy) as ``sqrt(dx² + dy²)``: the same bits as NumPy's on arrays (the batched vector env's
     copies, :class:`~stewart_gym.envs.copies.CopySteps`), which ``math.hypot`` is not."""
     return math.sqrt(dx * dx + dy * dy)
+
+
+def polar(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(m, 2): each (r cos a, r sin a) of ``radii`` and ``angles`` (m,), with Python's cosine and sine, which give the
+    same bits on every machine (NumPy's SIMD ones may not)."""
+    return np.array([(r * math.cos(a), r * math.sin(a)) for r, a in zip(radii.tolist(), angles.tolist())],
+                    dtype=np.float64).reshape(-1, 2)  # fmt: skip
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:

@@ -15,7 +15,17 @@ from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 from stewart_gym.sim.twin import Twin
 
-__all__ = ["TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges"]
+__all__ = ["FIRST_DRAWS", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count"]
+
+#: The uniform draws of an episode's parameters before its sensor's (:meth:`EpisodeParams.from_draws`): the ball's
+#: radius, mass and rolling friction, the control latency, the servos' speed, their six trims and their dead band.
+FIRST_DRAWS = 12
+
+
+def draw_count(sensor: TouchPanelSpec | CameraSpec) -> int:
+    """How many uniform draws an episode's parameters take around ``sensor`` (a touch panel or one camera):
+    :data:`FIRST_DRAWS`, the sensor's two or three, and the plate load's three and the plate friction."""
+    return FIRST_DRAWS + (2 if isinstance(sensor, TouchPanelSpec) else 3) + 4
 
 
 @dataclass(frozen=True)
@@ -92,47 +102,76 @@ class EpisodeParams:
     def sample(cls, rng: np.random.Generator, ranges: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
                sensor: TouchPanelSpec | CameraSpec | tuple[CameraSpec, ...]) -> EpisodeParams:  # fmt: skip
         """Draw one episode's parameters around the nominal ``ball``, ``servo`` and ``sensor`` (a tuple of
-        cameras: one of them, drawn uniformly, then varied)."""
-        r = ranges
-        # The draws come from one generator call per run of them (:func:`_uniform`), at a seventh of the cost of
-        # a ``rng.uniform(low, high)`` call per draw, and are that call's numbers (see :func:`_uniform`). First the
-        # ball's radius, mass and rolling friction, the control latency, the servos' speed, their six trims and
-        # their dead band; then (after the camera's draw, from a tuple of them) the sensor's two (a touch panel:
-        # noise, latency) or three (a camera: latency, noise, misses), the plate load's angle, distance and mass,
-        # and the plate friction. Without a camera to draw, both runs come from one call: the same numbers.
-        trim = (-r.servo_trim_us, r.servo_trim_us)
-        first = (r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
-                 r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us)  # fmt: skip
+        cameras: one of them, drawn uniformly, then varied).
 
-        def then(spec: TouchPanelSpec | CameraSpec) -> tuple[tuple[float, float], ...]:
-            measured = ((r.sensor_noise_mm, r.sensor_latency_s) if isinstance(spec, TouchPanelSpec)
-                        else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
-            return (*measured, (0.0, 2 * math.pi), (0.0, 1.0), r.plate_load_kg, r.plate_friction)
-
-        chosen = isinstance(sensor, tuple)
-        values = _uniform(rng, first if chosen else first + then(sensor))
-        radius_scale, mass_scale, rolling, control_latency, speed_scale, *trims, deadband = values[:len(first)]
-        ball_ep = _replaced(ball, radius=round(ball.radius * radius_scale, 4), mass=ball.mass * mass_scale,
-                            rolling_friction=rolling)  # fmt: skip
-        servo_ep = _replaced(servo, max_speed=servo.max_speed * speed_scale, trim_error_us=tuple(trims),
-                             deadband_us=deadband, lag_s=servo.lag_s + control_latency)  # fmt: skip
-        if chosen:
+        The draws come from one generator call, ``rng.random(k)`` (:func:`draw_count`), at a seventh of the cost
+        of a ``rng.uniform(low, high)`` call per draw, and are that call's numbers (:meth:`from_draws`). From a
+        tuple of cameras, the first :data:`FIRST_DRAWS` come first, then the camera's draw (``rng.integers``), then
+        the rest: the order the ranges' docs give."""
+        if isinstance(sensor, tuple):
+            first = rng.random(FIRST_DRAWS)
             sensor = sensor[int(rng.integers(len(sensor)))]
-            values = _uniform(rng, then(sensor))
+            draws = np.concatenate([first, rng.random(draw_count(sensor) - FIRST_DRAWS)])
         else:
-            values = values[len(first):]
+            draws = rng.random(draw_count(sensor))
+        return cls.from_draws(draws[None], ranges, ball, servo, sensor)[0]
+
+    @classmethod
+    def from_draws(cls, draws: np.ndarray, ranges: RandomizationRanges, ball: BallSpec, servo: ServoSpec,
+                   sensor: TouchPanelSpec | CameraSpec) -> list[EpisodeParams]:  # fmt: skip
+        """The episodes of rows of uniform draws in [0, 1) (m × :func:`draw_count` of ``sensor``), around the
+        nominal ``ball``, ``servo`` and ``sensor``, in one pass of array arithmetic: the batched vector env's copies
+        that reset together (:meth:`StewartBallEnv.draw_episodes
+        <stewart_gym.envs.ball_env.StewartBallEnv.draw_episodes>`), and one episode's :meth:`sample`.
+
+        A row's draws are, in order: the ball's radius, mass and rolling friction, the control latency, the servos'
+        speed, their six trims and their dead band (:data:`FIRST_DRAWS`); then the sensor's two (a touch panel:
+        noise, latency) or three (a camera: latency, noise, misses), the plate load's angle, distance and mass, and
+        the plate friction. Each number is low + (high − low) · d of its range, which is NumPy's ``rng.uniform(low,
+        high)`` from the same generator state to the last bit where NumPy rounds that product and sum apart
+        (x86-64, Linux arm64), and within one rounding where it fuses them (macOS arm64)
+        (``tests/envs/test_randomization.py``). The arithmetic is IEEE's + − × and √ on float64 either way, and the
+        radius's rounding, cosine and sine are Python's, so a row gives the same episode alone or among others."""
+        r = ranges
         panel = isinstance(sensor, TouchPanelSpec)
-        *draws, angle, dist_squared, load_kg, friction = values
+        measured = ((r.sensor_noise_mm, r.sensor_latency_s) if panel
+                    else (r.camera_latency_scale, r.camera_noise_scale, r.camera_miss_scale))  # fmt: skip
+        trim = (-r.servo_trim_us, r.servo_trim_us)
+        bounds = np.array([r.ball_radius_scale, r.ball_mass_scale, r.ball_rolling_friction, r.control_latency_s,
+                           r.servo_speed_scale, *[trim] * 6, r.servo_deadband_us, *measured, (0.0, 2 * math.pi),
+                           (0.0, 1.0), r.plate_load_kg, r.plate_friction])  # fmt: skip
+        if draws.ndim != 2 or draws.shape[1] != len(bounds):
+            raise ValueError(f"from_draws: expected rows of {len(bounds)} draws, got an array of shape {draws.shape}")
+        low, high = bounds[:, 0], bounds[:, 1]
+        values = low + (high - low) * draws
+        radii = (ball.radius * values[:, 0]).tolist()
+        masses, rolling = (ball.mass * values[:, 1]).tolist(), values[:, 2].tolist()
+        lags, speeds = (servo.lag_s + values[:, 3]).tolist(), (servo.max_speed * values[:, 4]).tolist()
+        trims, deadbands = values[:, 5:11].tolist(), values[:, 11].tolist()
+        k = FIRST_DRAWS + len(measured)  # the load's and the plate's draws follow the sensor's
         if panel:
-            sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=draws[0], rate_hz=sensor.rate_hz,
-                                                                    latency_s=draws[1])  # fmt: skip
+            sensors = values[:, FIRST_DRAWS:k].tolist()
         else:
-            sensor_ep = _replaced(sensor, latency_s=sensor.latency_s * draws[0],
-                                  centroid_noise_px=sensor.centroid_noise_px * draws[1],
-                                  miss_rate=min(0.5, sensor.miss_rate * draws[2]))  # fmt: skip
-        dist = r.plate_load_radius * math.sqrt(dist_squared)
-        load = (load_kg, np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
-        return cls(ball_ep, servo_ep, sensor_ep, friction, load)
+            scales = values[:, FIRST_DRAWS:k]
+            sensors = np.stack([sensor.latency_s * scales[:, 0], sensor.centroid_noise_px * scales[:, 1],
+                                np.minimum(0.5, sensor.miss_rate * scales[:, 2])], axis=1).tolist()  # fmt: skip
+        angles, dists = values[:, k].tolist(), (r.plate_load_radius * np.sqrt(values[:, k + 1])).tolist()
+        loads, frictions = values[:, k + 2].tolist(), values[:, k + 3].tolist()
+        out = []
+        for j, measures in enumerate(sensors):
+            ball_ep = _replaced(ball, radius=round(radii[j], 4), mass=masses[j], rolling_friction=rolling[j])
+            servo_ep = _replaced(servo, max_speed=speeds[j], trim_error_us=tuple(trims[j]), deadband_us=deadbands[j],
+                                 lag_s=lags[j])  # fmt: skip
+            if panel:
+                sensor_ep: TouchPanelSpec | CameraSpec = TouchPanelSpec(noise_mm=measures[0], rate_hz=sensor.rate_hz,
+                                                                        latency_s=measures[1])  # fmt: skip
+            else:
+                sensor_ep = _replaced(sensor, latency_s=measures[0], centroid_noise_px=measures[1],
+                                      miss_rate=measures[2])  # fmt: skip
+            angle, dist = angles[j], dists[j]
+            load = (loads[j], np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
+            out.append(cls(ball_ep, servo_ep, sensor_ep, frictions[j], load))
+        return out
 
     @classmethod
     def from_twin(cls, twin: Twin, ball: BallSpec, servo: ServoSpec, sensor: TouchPanelSpec | CameraSpec | tuple,
@@ -176,14 +215,6 @@ class EpisodeParams:
         load_kg = value("plate.load_kg", 0.0, 2.0, ranges.plate_load_kg)
         load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
         return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0, ranges.plate_friction), load)
-
-
-def _uniform(rng: np.random.Generator, ranges: tuple[tuple[float, float], ...]) -> list[float]:
-    """One uniform draw within each (low, high) of ``ranges``, in order, from one ``rng.random(k)`` call: low +
-    (high − low) · d, the same numbers on every machine. They are those of a ``rng.uniform(low, high)`` call for
-    each, to the last bit where NumPy rounds that product and sum apart (x86-64, Linux arm64), and within one
-    rounding where it fuses them (macOS arm64) (``tests/envs/test_randomization.py``)."""
-    return [low + (high - low) * d for (low, high), d in zip(ranges, rng.random(len(ranges)).tolist())]
 
 
 def _replaced(spec: Any, **changes: Any) -> Any:

@@ -308,17 +308,16 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         """Reset copies ``rows`` (copy ``rows[k]`` seeded ``seeds[k]``), each as its env's own :meth:`reset
         <stewart_gym.envs.ball_env.StewartBallEnv.reset>` would with ``options``: their first observations and infos
         (a row each). Each copy draws its episode from its own generator
-        (:meth:`~stewart_gym.envs.ball_env.StewartBallEnv.draw_episode`); then the platforms are reset for all of
+        (:meth:`~stewart_gym.envs.ball_env.StewartBallEnv.draw_episodes`); then the platforms are reset for all of
         them at once, each copy's task draws (after the physics, as in an env's own reset: a task may act on it), and
         the sensors, the observers, the first observations and the infos are set for all of them at once."""
         envs = [self.envs[i] for i in rows.tolist()]
-        starts = [env.draw_episode(seed=s, options=options) for env, s in zip(envs, seeds or [None] * len(envs))]
+        xy, velocity = StewartBallEnv.draw_episodes(envs, seeds or [None] * len(envs), options)
         params = [env.params for env in envs]
-        xy = np.array([start for start, _ in starts], dtype=np.float64)
         self.sim.reset_platforms(rows, [p.servo for p in params], [p.ball for p in params],
                                  [p.plate_load for p in params])  # fmt: skip
         self.sim.ball_xy[rows] = xy
-        self.sim.ball_velocity[rows] = [velocity for _, velocity in starts]
+        self.sim.ball_velocity[rows] = velocity
         for env in envs:  # after the physics, as an env's own reset: a task may act on it
             env.task.reset(env.np_random, env.sim)
         self.sensors.set_specs(rows, [p.sensor for p in params])

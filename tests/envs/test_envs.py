@@ -343,7 +343,7 @@ def test_rendered_frames_mark_the_target_on_the_plate() -> None:
 
 def _reference_start(rng: np.random.Generator, env: StewartBallEnv, options: dict) -> tuple[np.ndarray, np.ndarray]:
     """The ball's start as one generator call per draw (``uniform_draw``: NumPy's ``rng.uniform`` up to its
-    rounding), independently of ``StewartBallEnv._start``."""
+    rounding), independently of ``StewartBallEnv.ball_starts``."""
     if "ball_position" in options:
         xy = np.asarray(options["ball_position"], dtype=float)
     elif env.start_distance is not None:
@@ -375,10 +375,10 @@ def test_the_start_draws_are_one_generator_call_per_number(start_distance: tuple
             xy, vel = _reference_start(rng, env, options or {})
             position, velocity = env.sim.ball_state()
             assert position[:2].tolist() == xy.tolist() and velocity[:2].tolist() == vel.tolist()
-            ours, reference = seeding.np_random(seed)[0], seeding.np_random(seed)[0]  # the draws alone
-            checked = env._check_options(options)
-            assert [v.tolist() for v in env._start(ours, checked)] == [v.tolist() for v in
-                                                                       _reference_start(reference, env, checked)]
-            assert ours.random() == reference.random()  # as many numbers used
+            xy, vel = env.draw_episode(seed=seed, options=options)  # the draws alone
+            reference = seeding.np_random(seed)[0]
+            want = _reference_start(reference, env, options or {})
+            assert [xy.tolist(), vel.tolist()] == [v.tolist() for v in want]
+            assert env.np_random.random() == reference.random()  # as many numbers used
     finally:
         env.close()

@@ -44,14 +44,16 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
                                     {"randomize": True, "sensor": "camera", "estimator": "kalman"},
                                     {"sensor": "global90", "estimator": "lowpass"},
                                     {"randomize": True, "outside_penalty": 0.2, "charge_until_settled": True},
-                                    {"randomize": True, "max_episode_steps": 7}],
+                                    {"randomize": True, "max_episode_steps": 7},
+                                    {"randomize": True, "start_distance": (0.02, 0.09)}],
                          ids=["lowpass", "pose", "pulse", "pixy2", "cameras", "global90", "charged",
-                              "time-limit"])  # fmt: skip
+                              "time-limit", "start-distance"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
     """The same with the low-pass observer, the error integral, the pose and the pulse actions, with a camera (one
     preset, or a preset drawn per episode; its frames come faster than the steps on ``global90``), all sensed and
     observed as arrays, and with a reward whose count of steps inside is per copy (each copy's task rewards on its
-    own); and with ``max_episode_steps``, which truncates each copy as ``gym.make``'s truncates one env."""
+    own); with ``max_episode_steps``, which truncates each copy as ``gym.make``'s truncates one env; and with the
+    ball's start drawn at a distance (``start_distance``)."""
     vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
     assert isinstance(vector.unwrapped.sensors, CameraArray if "sensor" in kwargs else PanelArray)
 
