@@ -16,6 +16,7 @@ import numpy as np
 
 import stewart_gym  # noqa: F401  (registers the env ids)
 from stewart_gym import ServoCalibration, inverse_kinematics, load_geometry
+from stewart_gym.cli.common import int_at_least
 from stewart_gym.control import classical_controller, shipped_design
 from stewart_gym.errors import ConfigError
 
@@ -44,7 +45,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--horn", type=float, default=25.0, help="horn length, mm")
     parser.add_argument("--rod", type=float, default=170.0, help="rod length, mm")
     parser.add_argument("--plate", type=float, default=320.0, help="square plate's side, mm")
-    parser.add_argument("--episodes", type=int, default=3)
+    parser.add_argument("--episodes", type=int_at_least(1), default=3)
     parser.add_argument("--out", default="out/my_platform.toml")
     args = parser.parse_args(argv)
 

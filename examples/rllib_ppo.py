@@ -18,15 +18,17 @@ import torch
 from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.columns import Columns
 
+from stewart_gym.cli.common import int_at_least
+
 ENV_ID = "stewart_gym:StewartBallBalance-v0"
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--iterations", type=int, default=50, help="training iterations")
-    parser.add_argument("--batch", type=int, default=4000, help="env steps per iteration")
-    parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes at the end")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--iterations", type=int_at_least(1), default=50, help="training iterations")
+    parser.add_argument("--batch", type=int_at_least(1), default=4000, help="env steps per iteration")
+    parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
     args = parser.parse_args(argv)
     # docs: config start (docs/src/libraries.md shows the lines to the end mark; a test keeps them equal)
     config = (

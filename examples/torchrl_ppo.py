@@ -24,6 +24,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 import stewart_gym  # noqa: F401  (registers the env ids)
+from stewart_gym.cli.common import int_at_least
 
 
 def mlp(n_in: int, n_out: int) -> nn.Sequential:
@@ -32,10 +33,10 @@ def mlp(n_in: int, n_out: int) -> nn.Sequential:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=200_000, help="env steps in all")
-    parser.add_argument("--batch", type=int, default=2048, help="env steps per update")
-    parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes at the end")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frames", type=int_at_least(1), default=200_000, help="env steps in all")
+    parser.add_argument("--batch", type=int_at_least(1), default=2048, help="env steps per update")
+    parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
     args = parser.parse_args(argv)
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its set-up notes; this script prints its own lines
     torch.manual_seed(args.seed)

@@ -18,6 +18,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 import stewart_gym  # noqa: F401  (registers the env ids)
+from stewart_gym.cli.common import int_at_least
 
 ENV_ID = "StewartBallBalance-v0"
 ENV_KWARGS = {"randomize": True, "estimator": "kalman", "rate_penalty": 10.0}
@@ -25,9 +26,9 @@ ENV_KWARGS = {"randomize": True, "estimator": "kalman", "rate_penalty": 10.0}
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--timesteps", type=int, default=150_000, help="env steps to train for")
-    parser.add_argument("--episodes", type=int, default=10, help="evaluation episodes")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--timesteps", type=int_at_least(1), default=150_000, help="env steps to train for")
+    parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes")
+    parser.add_argument("--seed", type=int_at_least(0), default=0)
     args = parser.parse_args(argv)
 
     env = VecNormalize(make_vec_env(ENV_ID, n_envs=2, seed=args.seed, env_kwargs=ENV_KWARGS), gamma=0.98)

@@ -25,8 +25,8 @@ from stewart_gym.errors import ConfigError
 
 __all__ = ["DEMO_CLASSICAL", "DEMO_LEARNED", "EPISODES_PER_PROCESS", "WORLD_DEFAULTS", "EvaluationJob", "World",
            "check_can_render", "check_trajectory", "compare", "compare_setup", "demo_policies", "episode_figures",
-           "evaluate_all", "evaluate_part", "in_world", "process_plan", "resolve_world", "worker_setup", "world",
-           "world_line"]
+           "evaluate_all", "evaluate_part", "in_world", "process_plan", "resolve_world", "trained_world", "worker_setup",
+           "world", "world_line"]
 
 #: The env's physics engine and ball sensor where none is asked for.
 WORLD_DEFAULTS = {"backend": "pybullet", "sensor": "panel"}
@@ -183,10 +183,16 @@ def in_world(env_kwargs: dict, source: Any, backend: str | None, sensor: str | N
     """``env_kwargs`` with the physics engine and the ball sensor asked for, else the ones ``source`` (a resolved
     policy) was trained with (not a :data:`TRAINING_BACKENDS` engine), else the env's defaults (PyBullet, the
     touch panel)."""
-    trained = source.env_kwargs
-    trained_backend = trained.get("backend") if trained.get("backend") not in TRAINING_BACKENDS else None
-    chosen = {"backend": backend or trained_backend, "sensor": sensor or trained.get("sensor")}
+    chosen = {"backend": backend or trained_world(source, "backend"), "sensor": sensor or trained_world(source, "sensor")}
     return {**env_kwargs, **{k: v for k, v in chosen.items() if v is not None}}
+
+
+def trained_world(source: Any, key: str) -> str | None:
+    """The physics engine (``key`` ``"backend"``) or ball sensor (``"sensor"``) a resolved policy (``source``) was
+    trained with and is evaluated in unless told otherwise: None where it names none, or where its engine is one for
+    training only (:data:`TRAINING_BACKENDS`)."""
+    value = source.env_kwargs.get(key)
+    return None if key == "backend" and value in TRAINING_BACKENDS else value
 
 
 def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
@@ -268,8 +274,8 @@ def compare_setup(policies: list[str], env_id: str | None = None, geometry: str 
     geometry = geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
     chosen = {"backend": backend, "sensor": sensor}
     for key in chosen:  # a trained network's world, else the env's default; a classical controller has none
-        trained = {spec: s.env_kwargs.get(key) or WORLD_DEFAULTS[key] for spec, s in sources.items()
-                   if s.env_kwargs.get(key) is not None or s.kind not in CLASSICAL_KINDS}  # fmt: skip
+        trained = {spec: trained_world(s, key) or WORLD_DEFAULTS[key] for spec, s in sources.items()
+                   if trained_world(s, key) is not None or s.kind not in CLASSICAL_KINDS}  # fmt: skip
         if chosen[key] is None and len(set(trained.values())) > 1:
             named = ", ".join(f"{spec} with {value}" for spec, value in trained.items())
             raise ConfigError(f"the policies were trained with different {key}s ({named}): say which to compare "

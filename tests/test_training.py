@@ -491,7 +491,9 @@ def test_the_batched_backend_trains_behind_cameras(tmp_path: Path, capsys: pytes
 def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """``train --hyperparams ppo_batched`` trains on the batched backend (its copies on one batched simulator);
-    the run then evaluates without complaint in PyBullet (the default for it), MuJoCo and the batched backend."""
+    the run then evaluates without complaint in PyBullet (the default for it), MuJoCo and the batched backend, and
+    ``compare`` runs it, beside a classical controller or a PyBullet-trained policy, in PyBullet too unless told
+    otherwise."""
     run = tmp_path / "run"
     assert main(["train", "--hyperparams", "ppo_batched", "--run-dir", str(run), "--n-envs", "16",
                  "--timesteps", "2048", "--eval-freq", "1024", "--eval-episodes", "2"]) == 0  # fmt: skip
@@ -505,3 +507,7 @@ def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
         assert main(["evaluate", "--policy", str(run), "--episodes", "1", "--json", *extra]) == 0
         result = json.loads(capsys.readouterr().out)
         assert result["backend"] == engine and result["episodes"] == 1
+    for other in ("lqr", "shipped"):  # a classical controller; the shipped policy, trained in PyBullet
+        for pair in ([str(run), other], [other, str(run)]):
+            assert main(["compare", *pair, "--episodes", "2", "--json"]) == 0
+            assert json.loads(capsys.readouterr().out)["backend"] == "pybullet", pair

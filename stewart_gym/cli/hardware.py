@@ -123,10 +123,11 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     twin = twin_tables(args.twin)
     if config_out is not None:  # before the board's link appears: a host may read it at once
         config_out.write_text(stream_camera_config(camera, args.camera_stream).to_toml())
+    put_back = None if args.leave_fallen_ball else args.put_ball_back_after
     try:
         device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
                                randomize=not args.no_randomize, link=args.link, env_id=args.env, camera=camera,
-                               camera_stream=args.camera_stream, twin=twin)  # fmt: skip
+                               camera_stream=args.camera_stream, twin=twin, put_ball_back_after_s=put_back)  # fmt: skip
     except BaseException:
         if config_out is not None:  # no board reads that stream
             config_out.unlink(missing_ok=True)
@@ -273,6 +274,10 @@ def register(sub: Any) -> None:
                    help="stop reading the host's bytes S seconds after the first frame (a hung board)")  # fmt: skip
     p.add_argument("--read-rate", type=bounded_float(1.0, 1e7), metavar="BYTES_PER_S",
                    help="read at most this many bytes a second (a board too slow for the frames)")  # fmt: skip
+    p.add_argument("--put-ball-back-after", type=bounded_float(0.0, 1e6), default=2.0, metavar="S",
+                   help="put the ball back, at rest at the plate's centre, S seconds after it falls off, as a person "
+                        "at the bench would (default 2)")  # fmt: skip
+    p.add_argument("--leave-fallen-ball", action="store_true", help="leave the ball where it falls")
     p.add_argument("--camera-stream", metavar="PIPE",
                    help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
     p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",

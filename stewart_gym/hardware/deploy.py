@@ -112,6 +112,17 @@ class SimulatedPlant:
         _, touching = ball_contact(x, y, z, *self._contact)
         self.sensor.record(self.backend.time, (x, y), touching)
 
+    def ball_on_plate(self) -> bool:
+        """Whether the ball is on the plate (over it, resting on it or just above)."""
+        x, y, z = self.backend.ball_position()
+        on_plate, _ = ball_contact(x, y, z, *self._contact)
+        return bool(on_plate)
+
+    def put_ball_back(self) -> None:
+        """The ball back at rest at the plate's centre, as a hand puts it there (its sensor sees it from its next
+        sample)."""
+        self.backend.place_ball(np.zeros(2), (0.0, 0.0))
+
     def ball_error_mm(self) -> float:
         """True distance of the ball from the plate centre, mm (for reports); after :meth:`close`, the last one."""
         if self.final_error_mm is not None:

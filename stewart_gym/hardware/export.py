@@ -66,11 +66,14 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
     net = learned.module if ensemble else deterministic_module(model).eval()
     n_obs = int(model.observation_space.shape[0])
     # torch's current exporter (torch.export, with onnxscript): the same outputs, to the last bit, as the
-    # TorchScript one it replaces, for the shipped policies; its progress lines are kept off the user's screen
+    # TorchScript one it replaces, for the shipped policies; its progress lines are kept off the user's screen. The
+    # weights go inside policy.onnx (external_data=False: no policy.onnx.data beside it), so that the bundle is the
+    # two files the docs name, whatever copies it
     with torch.no_grad(), quiet_exporter():
         torch.onnx.export(net, (torch.zeros(1, n_obs),), str(out / "policy.onnx"), input_names=["obs"],
                           output_names=["action"], dynamic_shapes=({0: torch.export.Dim("batch")},), dynamo=True,
-                          verbose=False)  # fmt: skip
+                          external_data=False, verbose=False)  # fmt: skip
+    (out / "policy.onnx.data").unlink(missing_ok=True)  # an earlier export's weights, which nothing reads now
     sb3 = members[0]
     env_kwargs = dict(env_kwargs or {})
     action_mode = str(env_kwargs.get("action_mode", "tilt"))
@@ -183,13 +186,14 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
 
 
 def export_bundle_copy(bundle_dir: str | Path, out_dir: str | Path) -> Path:
-    """Copy a bundle folder (``bundle.json`` and ``policy.onnx``) to ``out_dir``; checked by loading it."""
+    """Copy a bundle folder (``bundle.json`` and ``policy.onnx``, and the ``policy.onnx.data`` that holds the
+    weights of a bundle exported with them apart) to ``out_dir``; checked by loading it."""
     import shutil
 
     src, out = Path(bundle_dir), Path(out_dir)
     BundlePolicy(src)
     out.mkdir(parents=True, exist_ok=True)
-    for name in ("bundle.json", "policy.onnx"):
+    for name in ("bundle.json", "policy.onnx", "policy.onnx.data"):
         if (src / name).exists() and (src / name).resolve() != (out / name).resolve():
             shutil.copyfile(src / name, out / name)
     return out

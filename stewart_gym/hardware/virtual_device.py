@@ -343,11 +343,14 @@ class VirtualSummary:
     fell_off: bool = False
     unplugged: bool = False
     camera_frames: int = 0
+    balls_put_back: int = 0
 
     def text(self) -> str:
         ball = "never placed" if self.ball_mm is None else (
             f"ended at ({self.ball_mm[0]:.1f}, {self.ball_mm[1]:.1f}) mm, "
             f"{math.hypot(*self.ball_mm):.1f} mm from the centre, " + ("fell off" if self.fell_off else "on the plate"))
+        if self.balls_put_back:
+            ball += f" (put back on the plate {self.balls_put_back} time{'s' if self.balls_put_back > 1 else ''})"
         extra = f", {self.reports} ball reports sent" if self.protocol == "line" else ""
         extra += f", {self.camera_frames} camera frames streamed" if self.camera_frames else ""
         return (f"virtual {self.protocol}: {self.messages} messages received, {self.malformed} malformed, "
@@ -373,6 +376,8 @@ class VirtualDevice:
         camera_stream: a named pipe to stream the camera's view into, as MJPEG.
         twin: the platform's twin (:class:`~stewart_gym.sim.twin.Twin`, its tables or a file): the platform has
             exactly its parameters (``randomize`` is then ignored).
+        put_ball_back_after_s: s (simulated) after the ball leaves the plate when the board puts it back, at rest
+            at the plate's centre, as a person at the bench would; None: it stays where it fell.
 
     Timing: the board reads its input at :data:`POLL_HZ`; the platform is simulated in steps of 1/:data:`TICK_HZ`
     kept within half a step of real time, and a frame acts from the step that starts nearest its arrival; the
@@ -382,12 +387,16 @@ class VirtualDevice:
     def __init__(self, protocol: str, backend: str = "auto", geometry: Any = "servo-hexapod",
                  calibration: ServoCalibration | None = None, faults: Faults | None = None, seed: int = 0,
                  randomize: bool = True, link: str | None = None, env_id: str = "StewartBallBalance-v0",
-                 camera: Any = None, camera_stream: str | None = None, twin: Any = None) -> None:  # fmt: skip
+                 camera: Any = None, camera_stream: str | None = None, twin: Any = None,
+                 put_ball_back_after_s: float | None = 2.0) -> None:  # fmt: skip
         from stewart_gym.hardware.deploy import SimulatedPlant
         from stewart_gym.presets import load_geometry
 
         if protocol not in ("maestro", "ssc32", "line"):
             raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
+        after = put_ball_back_after_s
+        if after is not None and not (isinstance(after, (int, float)) and math.isfinite(after) and 0.0 <= after <= 1e6):
+            raise ConfigError(f"put-ball-back-after must be a number of seconds from 0 to 1e6, got {after!r}")
         if camera_stream:  # the checks first, before anything is built
             from stewart_gym.sim.engines import backend_class
 
@@ -441,6 +450,8 @@ class VirtualDevice:
         self._last_ready = -1.0  # when the last ``ready`` line left
         self._next_report = 0.0  # when the next scheduled panel line is due
         self._last_sample_t: float | None = None  # the sample time of the last panel reading sent
+        self.put_ball_back_after_s = None if after is None else float(after)
+        self._off_since: float | None = None  # the simulated time the ball left the plate (None: on it)
 
     # ----------------------------------------------------------- board
     def _position(self, channel: int, pending: float | None = None) -> float:
@@ -549,6 +560,7 @@ class VirtualDevice:
                             while self._incoming and self._incoming[0][0] <= due:
                                 self._apply_targets(self._incoming.popleft()[1])
                             self.plant.apply(self.held)
+                            self._tend_ball()
                         while self._incoming and self._incoming[0][0] <= now:  # what is left acts from the next
                             self._apply_targets(self._incoming.popleft()[1])
                     if self.stream is not None and self.stream.connected and now >= self._next_frame:
@@ -565,6 +577,21 @@ class VirtualDevice:
         finally:
             self._finish()
         return self.summary
+
+    def _tend_ball(self) -> None:
+        """After a physics tick: once the ball has been off the plate for :attr:`put_ball_back_after_s` of simulated
+        time, put it back at rest at the plate's centre (and count it)."""
+        if self.put_ball_back_after_s is None:
+            return
+        t = self.plant.backend.time
+        if self.plant.ball_on_plate():
+            self._off_since = None
+        elif self._off_since is None:
+            self._off_since = t
+        elif t - self._off_since >= self.put_ball_back_after_s:
+            self.plant.put_ball_back()
+            self._off_since = None
+            self.summary.balls_put_back += 1
 
     def _serve_lines(self, now: float, since: float | None) -> None:
         """The sketch's lines at real time ``now`` (``since``: s since the first frame, None while powered down):

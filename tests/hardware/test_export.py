@@ -51,6 +51,38 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
         assert not list((tmp_path / f"{algo.__name__}_bundle").glob("*.pkl"))  # no pickle in the bundle
 
 
+def test_a_bundle_is_its_two_files(tmp_path: Path) -> None:
+    """An exported network's bundle is ``bundle.json`` and ``policy.onnx`` alone (the weights inside the ONNX
+    file, none in a ``policy.onnx.data`` beside it, even where an earlier export left one): a folder holding a
+    copy of just those two files acts as the original, and ``export --policy BUNDLE`` copies a working bundle."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from stewart_gym.cli import main
+
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("StewartBallBalance-v0", backend="batched")]))
+    model = PPO("MlpPolicy", venv, policy_kwargs={"net_arch": [16, 16]}, device="cpu", seed=0)
+    run = tmp_path / "run"
+    run.mkdir()
+    model.save(run / "model.zip")
+    venv.save(str(run / "vecnormalize.pkl"))
+    venv.close()
+    out = tmp_path / "bundle"
+    out.mkdir()
+    (out / "policy.onnx.data").write_bytes(b"stale")
+    export_sb3(run, out)
+    assert sorted(p.name for p in out.iterdir()) == ["bundle.json", "policy.onnx"]
+    copied = tmp_path / "copied"
+    copied.mkdir()
+    for name in ("bundle.json", "policy.onnx"):
+        (copied / name).write_bytes((out / name).read_bytes())
+    obs = np.random.default_rng(0).normal(0, 1, (50, 12)).astype(np.float32)
+    np.testing.assert_array_equal(BundlePolicy(copied)(obs), BundlePolicy(out)(obs))
+    assert main(["export", "--policy", str(copied), "--out", str(tmp_path / "again")]) == 0
+    np.testing.assert_array_equal(BundlePolicy(tmp_path / "again")(obs), BundlePolicy(out)(obs))
+
+
 def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
     """The deployment side imports onnxruntime and numpy only."""
     import subprocess

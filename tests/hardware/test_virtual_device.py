@@ -189,6 +189,39 @@ def test_a_stalled_panel_sends_the_platform_home(tmp_path: Path) -> None:
     assert last == pytest.approx(ServoCalibration.default("servo-hexapod").neutral_us, abs=1.0)  # home reached
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("leave", [False, True], ids=["put-back", "leave-fallen-ball"])
+def test_a_ball_that_falls_off_is_put_back_on_the_plate(tmp_path: Path, leave: bool) -> None:
+    """The plate held tilted by 0.15 rad: the ball rolls off, and the board puts it back at rest at the plate's
+    centre half a second (simulated) after, where it rolls off again, as often as the tilt lasts, as a person at
+    the bench would; with ``--leave-fallen-ball`` it stays where it fell."""
+    import re
+
+    from stewart_gym.calibration import servo_pulses_one
+    from stewart_gym.hardware.serial_controllers import MaestroController
+    from stewart_gym.presets import load_geometry
+
+    board = Board(tmp_path, "--protocol", "maestro", "--backend", "mujoco",
+                  *(["--leave-fallen-ball"] if leave else ["--put-ball-back-after", "0.5"]))  # fmt: skip
+    cal = ServoCalibration.default("servo-hexapod")
+    tilted = np.array(servo_pulses_one(load_geometry("servo-hexapod"), cal, (0.0, 0.0, 0.0, 0.15, 0.0, 0.0)))
+    controller = MaestroController(str(board.link))
+    try:
+        end = time.monotonic() + 6.0
+        while time.monotonic() < end:
+            controller.send(tilted)
+            time.sleep(0.02)
+    finally:
+        controller.close()
+    code, out, err = board.stop()
+    assert code == 0, out + err
+    put_back = re.search(r"put back on the plate (\d+) times?", out)
+    if leave:
+        assert put_back is None and "fell off" in out, out
+    else:
+        assert put_back is not None and int(put_back.group(1)) >= 2, out
+
+
 def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> None:
     board = Board(tmp_path, "--protocol", "maestro", "--unplug-after", "1.0")
     dep, rows = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "sim",
