@@ -274,10 +274,11 @@ def register(sub: Any) -> None:
                    help="stop reading the host's bytes S seconds after the first frame (a hung board)")  # fmt: skip
     p.add_argument("--read-rate", type=bounded_float(1.0, 1e7), metavar="BYTES_PER_S",
                    help="read at most this many bytes a second (a board too slow for the frames)")  # fmt: skip
-    p.add_argument("--put-ball-back-after", type=bounded_float(0.0, 1e6), default=2.0, metavar="S",
-                   help="put the ball back, at rest at the plate's centre, S seconds after it falls off, as a person "
-                        "at the bench would (default 2)")  # fmt: skip
-    p.add_argument("--leave-fallen-ball", action="store_true", help="leave the ball where it falls")
+    fallen = p.add_mutually_exclusive_group()
+    fallen.add_argument("--put-ball-back-after", type=bounded_float(0.0, 1e6), default=2.0, metavar="S",
+                        help="put the ball back, at rest at the plate's centre, S seconds (half a second or more) "
+                             "after it falls off, as a person at the bench would (default 2)")  # fmt: skip
+    fallen.add_argument("--leave-fallen-ball", action="store_true", help="leave the ball where it falls")
     p.add_argument("--camera-stream", metavar="PIPE",
                    help="also stream the twin's camera view (MJPEG) into this named pipe, for deploy --sensor camera")
     p.add_argument("--camera", choices=("pixy2", "webcam30", "global90"), default="pixy2",

@@ -336,25 +336,48 @@ class StewartBallEnv(gym.Env, EzPickle):
     @staticmethod
     def draw_episodes(envs: Sequence[StewartBallEnv], seeds: Sequence[int | None],
                       options: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-        """:meth:`draw_episode` of each of ``envs`` (made with the same arguments), env k seeded ``seeds[k]``: the
-        same draws from each env's own generator, in the same order, and the same episodes; the balls' starts as
-        arrays, (x, y) m and velocities m/s (a row each). Where the parameters are drawn around one sensor
-        (``randomize``, no twin, a touch panel or one camera), each env's draws come from one generator call and
-        their arithmetic is done for all of them at once (:meth:`EpisodeParams.from_draws
-        <stewart_gym.envs.randomization.EpisodeParams.from_draws>`, and the starts')."""
-        first = envs[0] if len(envs) else None
-        if first is None or first.twin is not None or not first.randomize or isinstance(first.nominal_sensor, tuple):
-            starts = [env.draw_episode(seed=s, options=options) for env, s in zip(envs, seeds)]
-            return (np.array([xy for xy, _ in starts], dtype=np.float64).reshape(-1, 2),
-                    np.array([velocity for _, velocity in starts], dtype=np.float64).reshape(-1, 2))  # fmt: skip
-        checked = [env.begin_episode(s, options) for env, s in zip(envs, seeds)]
-        count = draw_count(first.nominal_sensor)
-        draws = np.array([env.np_random.random(count + first.start_draw_count(checked[0])) for env in envs])
-        params = EpisodeParams.from_draws(draws[:, :count], first.ranges, first.nominal_ball, first.nominal_servo,
-                                          first.nominal_sensor)  # fmt: skip
-        for env, p in zip(envs, params):
-            env.keep_params(p)
-        return first.ball_starts(draws[:, count:], checked[0])
+        """:meth:`draw_episode` of each of ``envs``, env k seeded ``seeds[k]``: the same draws from each env's own
+        generator, in the same order, and the same episodes; the balls' starts as arrays, (x, y) m and velocities
+        m/s (a row each). The envs whose parameters are drawn around one sensor (``randomize``, no twin, a touch
+        panel or one camera) take their draws from one generator call each, and those with the same settings
+        (:meth:`draw_settings`: each env's own, as a curriculum may set them on some) have their arithmetic done
+        together (:meth:`EpisodeParams.from_draws <stewart_gym.envs.randomization.EpisodeParams.from_draws>`, and
+        the starts')."""
+        xy, velocity = np.empty((len(envs), 2)), np.empty((len(envs), 2))
+        groups: list[tuple[tuple, list[int]]] = []  # (settings, the envs with them), in the order first met
+        for k, env in enumerate(envs):
+            settings = env.draw_settings()
+            if settings is None:  # drawn env by env
+                xy[k], velocity[k] = env.draw_episode(seed=seeds[k], options=options)
+                continue
+            for known, members in groups:
+                if known == settings:
+                    members.append(k)
+                    break
+            else:
+                groups.append((settings, [k]))
+        for _, members in groups:
+            together = [envs[k] for k in members]
+            first = together[0]
+            checked = [env.begin_episode(seeds[k], options) for env, k in zip(together, members)]
+            count = draw_count(first.nominal_sensor)
+            draws = np.array([env.np_random.random(count + first.start_draw_count(checked[0])) for env in together])
+            params = EpisodeParams.from_draws(draws[:, :count], first.ranges, first.nominal_ball,
+                                              first.nominal_servo, first.nominal_sensor)  # fmt: skip
+            for env, p in zip(together, params):
+                env.keep_params(p)
+            xy[members], velocity[members] = first.ball_starts(draws[:, count:], checked[0])
+        return xy, velocity
+
+    def draw_settings(self) -> tuple | None:
+        """What this env's episode draws depend on besides its generator, where they come from one generator call
+        (``randomize``, no twin, a touch panel or one camera): its ranges, nominal ball, servos and sensor, the
+        ball's start distance and the plate's size; None otherwise. Envs with equal settings draw together
+        (:meth:`draw_episodes`)."""
+        if self.twin is not None or not self.randomize or isinstance(self.nominal_sensor, tuple):
+            return None
+        return (self.ranges, self.nominal_ball, self.nominal_servo, self.nominal_sensor, self.start_distance,
+                self.plate_half_extent)  # fmt: skip
 
     def begin_episode(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, np.ndarray]:
         """:meth:`draw_episode` before the draws: seed the generator, note what a copy replays, check the options

@@ -24,7 +24,10 @@ FIRST_DRAWS = 12
 
 def draw_count(sensor: TouchPanelSpec | CameraSpec) -> int:
     """How many uniform draws an episode's parameters take around ``sensor`` (a touch panel or one camera):
-    :data:`FIRST_DRAWS`, the sensor's two or three, and the plate load's three and the plate friction."""
+    :data:`FIRST_DRAWS`, the sensor's two or three, and the plate load's three and the plate friction. (From a
+    tuple of cameras, the one drawn: :meth:`EpisodeParams.sample` draws it between the first draws and the rest.)"""
+    if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
+        raise TypeError(f"draw_count takes one touch panel or camera, got {type(sensor).__name__}")
     return FIRST_DRAWS + (2 if isinstance(sensor, TouchPanelSpec) else 3) + 4
 
 
@@ -132,6 +135,8 @@ class EpisodeParams:
         (x86-64, Linux arm64), and within one rounding where it fuses them (macOS arm64)
         (``tests/envs/test_randomization.py``). The arithmetic is IEEE's + − × and √ on float64 either way, and the
         radius's rounding, cosine and sine are Python's, so a row gives the same episode alone or among others."""
+        if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
+            raise TypeError(f"from_draws takes one touch panel or camera, got {type(sensor).__name__}")
         r = ranges
         panel = isinstance(sensor, TouchPanelSpec)
         measured = ((r.sensor_noise_mm, r.sensor_latency_s) if panel

@@ -359,6 +359,11 @@ class VirtualSummary:
                 f"{', unplugged' if self.unplugged else ''}; {self.sim_time_s:.1f} s simulated; ball {ball}")
 
 
+#: s, the soonest the board puts a fallen ball back: the sensor then reports nothing for at least this long, so
+#: that a log (``identify``, then ``sysid``) never shows the ball leaping back to the centre between two readings.
+MIN_PUT_BACK_S = 0.5
+
+
 class VirtualDevice:
     """The board and the twin. Call :meth:`run` (blocks until ``stop()`` returns True), then read :attr:`summary`.
 
@@ -376,8 +381,9 @@ class VirtualDevice:
         camera_stream: a named pipe to stream the camera's view into, as MJPEG.
         twin: the platform's twin (:class:`~stewart_gym.sim.twin.Twin`, its tables or a file): the platform has
             exactly its parameters (``randomize`` is then ignored).
-        put_ball_back_after_s: s (simulated) after the ball leaves the plate when the board puts it back, at rest
-            at the plate's centre, as a person at the bench would; None: it stays where it fell.
+        put_ball_back_after_s: s (simulated, :data:`MIN_PUT_BACK_S` or more) after the ball leaves the plate when
+            the board puts it back, at rest at the plate's centre, as a person at the bench would; None: it stays
+            where it fell.
 
     Timing: the board reads its input at :data:`POLL_HZ`; the platform is simulated in steps of 1/:data:`TICK_HZ`
     kept within half a step of real time, and a frame acts from the step that starts nearest its arrival; the
@@ -395,8 +401,10 @@ class VirtualDevice:
         if protocol not in ("maestro", "ssc32", "line"):
             raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
         after = put_ball_back_after_s
-        if after is not None and not (isinstance(after, (int, float)) and math.isfinite(after) and 0.0 <= after <= 1e6):
-            raise ConfigError(f"put-ball-back-after must be a number of seconds from 0 to 1e6, got {after!r}")
+        if after is not None and (isinstance(after, (bool, np.bool_)) or not isinstance(after, (int, float, np.number))
+                                  or not MIN_PUT_BACK_S <= after <= 1e6):  # fmt: skip
+            raise ConfigError(f"put-ball-back-after must be a number of seconds from {MIN_PUT_BACK_S} to 1e6, got "
+                              f"{after!r}")  # fmt: skip
         if camera_stream:  # the checks first, before anything is built
             from stewart_gym.sim.engines import backend_class
 

@@ -45,15 +45,18 @@ def test_each_copy_is_the_single_batched_env(env_id: str) -> None:
                                     {"sensor": "global90", "estimator": "lowpass"},
                                     {"randomize": True, "outside_penalty": 0.2, "charge_until_settled": True},
                                     {"randomize": True, "max_episode_steps": 7},
-                                    {"randomize": True, "start_distance": (0.02, 0.09)}],
+                                    {"randomize": True, "start_distance": (0.02, 0.09)},
+                                    {"randomize": True, "randomization": {"ball_mass_scale": [0.5, 2.0],
+                                                                          "servo_trim_us": 30.0,
+                                                                          "plate_load_kg": [0.01, 0.08]}}],
                          ids=["lowpass", "pose", "pulse", "pixy2", "cameras", "global90", "charged",
-                              "time-limit", "start-distance"])  # fmt: skip
+                              "time-limit", "start-distance", "ranges"])  # fmt: skip
 def test_each_copy_is_the_single_batched_env_behind_any_observer(kwargs: dict) -> None:
     """The same with the low-pass observer, the error integral, the pose and the pulse actions, with a camera (one
     preset, or a preset drawn per episode; its frames come faster than the steps on ``global90``), all sensed and
     observed as arrays, and with a reward whose count of steps inside is per copy (each copy's task rewards on its
-    own); with ``max_episode_steps``, which truncates each copy as ``gym.make``'s truncates one env; and with the
-    ball's start drawn at a distance (``start_distance``)."""
+    own); with ``max_episode_steps``, which truncates each copy as ``gym.make``'s truncates one env; with the
+    ball's start drawn at a distance (``start_distance``); and with ranges of the user's (``randomization``)."""
     vector = assert_copies_are_single_envs("StewartBallTrack-v0", kwargs)
     assert isinstance(vector.unwrapped.sensors, CameraArray if "sensor" in kwargs else PanelArray)
 
@@ -335,6 +338,33 @@ def test_a_task_object_gives_each_copy_its_own() -> None:
         assert_info_row(info, i, inf)
     assert len({tuple(row) for row in info["target_xy_m"].tolist()}) == 3  # each copy's own drawn path
     vector.close()
+
+
+def test_copies_whose_settings_differ_draw_as_their_own_envs() -> None:
+    """A curriculum sets some copies' start distance or randomisation (SB3's ``set_attr``): each copy's episode is
+    then its own env's with those settings, seeded alike, whatever the others' settings (the copies that draw
+    together share theirs)."""
+    from stewart_gym.sb3_vec import BatchedVecEnv
+
+    venv = BatchedVecEnv("StewartBallBalance-v0", 5, {"randomize": True})
+    far = {"start_distance": (0.08, 0.09)}
+    settings = [{}, {"randomize": False}, far, far, {}]
+    for i, extra in enumerate(settings):
+        for key, value in extra.items():
+            venv.set_attr(key, value, indices=[i])
+    venv.seed(5)
+    venv.reset()
+    for i, extra in enumerate(settings):
+        env = gym.make("StewartBallBalance-v0", backend="batched", **{"randomize": True, **extra})
+        _, info = env.reset(seed=5 + i)
+        np.testing.assert_array_equal(venv.reset_infos[i]["ball_xy_m"], info["ball_xy_m"])
+        copy, single = venv.get_attr("params", [i])[0], env.unwrapped.params
+        assert (copy.ball, copy.servo, copy.sensor, copy.plate_friction) == (single.ball, single.servo, single.sensor,
+                                                                             single.plate_friction), i  # fmt: skip
+        env.close()
+    distances = [float(np.hypot(*venv.reset_infos[i]["ball_xy_m"])) for i in range(5)]
+    assert all(0.08 <= d <= 0.09 for d in distances[2:4]) and venv.get_attr("params", [1])[0].plate_load is None
+    venv.close()
 
 
 def test_a_copy_refuses_a_deepcopy_that_would_share_its_platform() -> None:

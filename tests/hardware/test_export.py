@@ -54,7 +54,8 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
 def test_a_bundle_is_its_two_files(tmp_path: Path) -> None:
     """An exported network's bundle is ``bundle.json`` and ``policy.onnx`` alone (the weights inside the ONNX
     file, none in a ``policy.onnx.data`` beside it, even where an earlier export left one): a folder holding a
-    copy of just those two files acts as the original, and ``export --policy BUNDLE`` copies a working bundle."""
+    copy of just those two files acts as the original, and ``export --policy BUNDLE`` copies a working bundle, its
+    ``policy.onnx.data`` too where it has one."""
     import gymnasium as gym
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
@@ -81,6 +82,17 @@ def test_a_bundle_is_its_two_files(tmp_path: Path) -> None:
     np.testing.assert_array_equal(BundlePolicy(copied)(obs), BundlePolicy(out)(obs))
     assert main(["export", "--policy", str(copied), "--out", str(tmp_path / "again")]) == 0
     np.testing.assert_array_equal(BundlePolicy(tmp_path / "again")(obs), BundlePolicy(out)(obs))
+    # a bundle whose weights lie beside its graph, as torch's exporter wrote them before: copied with them
+    import onnx
+
+    apart = tmp_path / "apart"
+    apart.mkdir()
+    (apart / "bundle.json").write_bytes((out / "bundle.json").read_bytes())
+    onnx.save_model(onnx.load(str(out / "policy.onnx")), str(apart / "policy.onnx"), save_as_external_data=True,
+                    location="policy.onnx.data", size_threshold=0)  # fmt: skip
+    assert main(["export", "--policy", str(apart), "--out", str(tmp_path / "apart_copy")]) == 0
+    assert (tmp_path / "apart_copy" / "policy.onnx.data").is_file()
+    np.testing.assert_array_equal(BundlePolicy(tmp_path / "apart_copy")(obs), BundlePolicy(out)(obs))
 
 
 def test_bundle_loader_needs_no_torch(tmp_path: Path) -> None:
