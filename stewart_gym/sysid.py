@@ -253,8 +253,11 @@ class FitResult:
                        f"{f.servo.max_speed / ServoSpec().max_speed:.2f}× speed, {f.servo.deadband_us:g} µs dead "
                        "band)")  # fmt: skip
         for h, row in self.prediction.items():
+            ratio = row["nominal"] / max(row["fitted"], 1e-9)
+            verdict = (f"{ratio:.1f}× better" if ratio >= 1.0 else
+                       f"{1.0 / ratio:.1f}× worse: the log may be too short or too quiet for the fit; run identify longer")
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
-                       f"{row['fitted']:.2f} mm ({row['nominal'] / max(row['fitted'], 1e-9):.1f}× better)")
+                       f"{row['fitted']:.2f} mm ({verdict})")
         if tw.undetermined:
             out.append("undetermined (the twin keeps these as written):")
             out.extend(f"  {name}: {self.notes.get(name, '')}" for name in tw.undetermined)

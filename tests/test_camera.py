@@ -205,6 +205,10 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
     cv2.imwrite(str(empty), cv2.imread(str(clip / "frame.png"))[:, :, ::-1] * 0 + 255)
     none = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(empty), "--json", cwd=tmp_path)
     assert none.returncode == 1 and json.loads(none.stdout.strip().splitlines()[-1])["ball"] is None
+    text = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(empty), "--out",
+              str(tmp_path / "new_folder" / "none.png"), cwd=tmp_path)  # fmt: skip
+    assert text.returncode == 1 and text.stdout.startswith("no plate: ") and "no ball: no" not in text.stdout
+    assert cv2.imread(str(tmp_path / "new_folder" / "none.png")).shape == (480, 640, 3)  # its folder made for it
     live = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--frames", "10", "--out",
               str(tmp_path / "a.png"), cwd=tmp_path)  # fmt: skip
     assert live.returncode == 0 and "ball found in 10 of 10 frames" in live.stdout, live.stderr

@@ -122,7 +122,7 @@ def test_the_first_hour_tutorial_runs_as_written(tmp_path: Path, monkeypatch: py
 def test_the_reality_gap_page_has_the_steps_it_promises() -> None:
     commands = [v.split()[1] for k, v in steps("reality-gap.md") if k == "run"]
     assert commands == ["virtual-device", "identify", "sysid", "compare", "train", "compare", "export",
-                        "virtual-device", "deploy"]  # fmt: skip
+                        "deploy"]  # fmt: skip
     assert [v.split("\0")[0] for k, v in steps("reality-gap.md") if k == "save"] == ["real.toml"]
 
 
@@ -139,7 +139,7 @@ def test_the_reality_gap_tutorial_runs_as_written(tmp_path: Path, monkeypatch: p
     from stewart_gym.sim.twin import load_twin
 
     ran = run_tutorial("reality-gap.md", tmp_path, monkeypatch)
-    assert len(ran) == 9
+    assert len(ran) == 8
     fitted, real = load_twin(tmp_path / "twin.toml"), load_twin(tmp_path / "real.toml")
     assert abs(fitted.total_latency_ms - real.total_latency_ms) <= 20.0
     assert abs(fitted["servos.speed_scale"] - real["servos.speed_scale"]) <= 0.15

@@ -115,12 +115,16 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     if config_out is not None and (config_out.is_dir() or not config_out.parent.is_dir()):
         raise ConfigError(f"--camera-config-out {config_out}: not a file in an existing folder; give a path such as "
                           "/tmp/camera.toml")  # fmt: skip
+    if config_out is not None and config_out.exists() and not args.overwrite:
+        raise ConfigError(f"--camera-config-out {config_out} exists (your own camera config?): give another path, or "
+                          "--overwrite to replace it")  # fmt: skip
     camera = None
     if args.camera_stream:
         from stewart_gym.camera import camera_preset
 
         camera = camera_preset(args.camera)
     twin = twin_tables(args.twin)
+    ours = config_out is not None and not config_out.exists()  # (an existing one is replaced only with --overwrite)
     if config_out is not None:  # before the board's link appears: a host may read it at once
         config_out.write_text(stream_camera_config(camera, args.camera_stream).to_toml())
     put_back = None if args.leave_fallen_ball else args.put_ball_back_after
@@ -129,7 +133,7 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
                                randomize=not args.no_randomize, link=args.link, env_id=args.env, camera=camera,
                                camera_stream=args.camera_stream, twin=twin, put_ball_back_after_s=put_back)  # fmt: skip
     except BaseException:
-        if config_out is not None:  # no board reads that stream
+        if ours:  # no board reads that stream
             config_out.unlink(missing_ok=True)
         raise
     where = device.path + (f" (link {device.link})" if device.link else "")
@@ -187,7 +191,9 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     if out is None and not args.image:
         out = output_file("camera_check.png", suffixes=(".png",))
     if out is not None:
-        cv2.imwrite(str(out), annotate(frames[-1], config, last))
+        out.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(out), annotate(frames[-1], config, last)):
+            raise ConfigError(f"{out}: the annotated image could not be written (check the folder and the name)")
     if args.json:
         result = last.as_dict()
         if not args.image:
@@ -197,7 +203,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
         if len(detections) > 1:
             print(f"ball found in {sum(d.xy_mm is not None for d in detections)} of {len(detections)} frames")
         print(f"ball at ({last.xy_mm[0]:.1f}, {last.xy_mm[1]:.1f}) mm, {last.markers} markers"
-              if last.xy_mm is not None else f"no ball: {last.reason}")  # fmt: skip
+              if last.xy_mm is not None else last.reason)  # fmt: skip
         if out is not None:
             print(f"annotated image: {out}")
     return EXIT_OK if last.xy_mm is not None else EXIT_FAILED
@@ -285,6 +291,7 @@ def register(sub: Any) -> None:
                    help="the streamed camera's preset: resolution, field of view, frame rate (default pixy2)")
     p.add_argument("--camera-config-out", metavar="FILE",
                    help="write the camera config that reads the stream, for --camera-config of identify and deploy")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --camera-config-out file")
     p.set_defaults(func=cmd_virtual_device, backend="auto")
 
     p = sub.add_parser("camera-check", help=cmd_camera_check.__doc__, description=cmd_camera_check.__doc__)

@@ -53,7 +53,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
           f"PID + Kalman; Ctrl-C stops it and homes the servos", flush=True)  # fmt: skip
     summary = setup.run()
     print(summary.text(), flush=True)
-    print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log} --out twin.toml)", flush=True)
+    markers = " --marker-height-mm H (your markers' thickness)" if args.sensor == "camera" else ""
+    print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log}{markers} --out twin.toml)", flush=True)
     return summary.exit_code
 
 
@@ -112,7 +113,7 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine of the simulated plant (--sensor sim)")
     add_twin(p, "the simulated plant's twin (--sensor sim)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
-    p.add_argument("--duration", type=bounded_float(5.0, 3600.0), default=60.0, help="seconds (default 60)")
+    p.add_argument("--duration", type=bounded_float(5.0, 3600.0), default=60.0, help="seconds, 5 to 3600 (default 60)")
     p.add_argument("--out", required=True, help="the log to write (CSV, the deploy log's columns)")
     p.add_argument("--overwrite", action="store_true", help="allow --out to replace an existing file")
     p.add_argument("--amplitude", type=bounded_float(0.0, 0.6, lo_open=True), default=0.3,

@@ -94,7 +94,12 @@ def load_calibration(path: str | None, geometry: Any, used_for: str = "the polic
                              or not BAUD_RANGE[0] <= baud <= BAUD_RANGE[1]):  # fmt: skip
         raise CalibrationError(f"{path}: hardware.baudrate must be a whole number of baud in "
                                f"{BAUD_RANGE[0]}…{BAUD_RANGE[1]:,}, got {baud!r}")  # fmt: skip
-    return ServoCalibration.from_toml(path, geo), hw
+    try:
+        calibration = ServoCalibration.from_toml(path, geo)
+    except (ConfigError, ValueError) as exc:  # the field named, and the file too
+        text = str(exc)
+        raise CalibrationError(text if text.startswith(str(path)) else f"{path}: {text}") from None
+    return calibration, hw
 
 
 def port_settings(port: str | None, protocol: str | None, baudrate: int | None,

@@ -413,11 +413,17 @@ class VirtualDevice:
                                   "use --backend pybullet")  # fmt: skip
         if link and Path(link).exists() and not Path(link).is_symlink():
             raise ConfigError(f"{link} exists and is not a link: give another --link path")
+        if link and Path(link).is_symlink() and Path(link).exists():  # it leads to a terminal that is open
+            raise ConfigError(f"--link {link} leads to {os.readlink(link)}, which is open: another board (or program) "
+                              "has it; stop that board, or give another --link path")  # fmt: skip
         if link and not Path(link).parent.is_dir():
             raise ConfigError(f"--link {link}: the folder {Path(link).parent} does not exist; create it or link "
                               "elsewhere")  # fmt: skip
         if camera_stream and Path(camera_stream).exists() and not stat.S_ISFIFO(Path(camera_stream).stat().st_mode):
             raise ConfigError(f"--camera-stream {camera_stream} exists and is not a pipe: give another path")
+        if camera_stream and not Path(camera_stream).parent.is_dir():
+            raise ConfigError(f"--camera-stream {camera_stream}: the folder {Path(camera_stream).parent} does not "
+                              "exist; create it or give a path in another folder")  # fmt: skip
         self.protocol = protocol
         self.faults = faults or Faults()
         geo = load_geometry(geometry)
@@ -443,9 +449,15 @@ class VirtualDevice:
         self.link = None
         if link:
             p = Path(link)
-            if p.is_symlink():  # a board's old link
-                p.unlink()
-            p.symlink_to(self.path)
+            try:
+                if p.is_symlink():  # a board's old link
+                    p.unlink()
+                p.symlink_to(self.path)
+            except OSError as exc:
+                for fd in (self._master, slave):
+                    os.close(fd)
+                raise ConfigError(f"--link {link}: the link cannot be made there ({exc.strerror}); give a path in a "
+                                  "folder you can write, such as /tmp/stewart0") from None  # fmt: skip
             self.link = p
         self.camera, self.stream = camera, None
         if camera_stream:
@@ -654,5 +666,5 @@ class VirtualDevice:
         if not s.unplugged:
             self._unplug()
             s.unplugged = False
-        if self.link is not None and self.link.is_symlink():
+        if self.link is not None and self.link.is_symlink() and os.readlink(self.link) == self.path:  # (not another's)
             self.link.unlink()

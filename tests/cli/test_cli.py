@@ -143,6 +143,7 @@ def _inputs_of_issue_57(d: Path) -> None:
     (d / "cal_baud_negative.toml").write_text(cal + "[hardware]\nbaudrate = -9600\n")
     (d / "cal_baud_text.toml").write_text(cal + '[hardware]\nbaudrate = "fast"\n')
     (d / "cal_protocol.toml").write_text(cal + '[hardware]\nprotocol = "i2c"\n')
+    (d / "cal_trim_typo.toml").write_text('geometry = "servo-hexapod"\n' + "[[servo]]\ntrim_uss = 3\n" * 6)
     (d / "cal_other_build.toml").write_text('geometry = "memememe-liverpool"\n' + "[[servo]]\n" * 6)
     (d / "planar_unknown.toml").write_text("L1 = 1\nL2 = 1\nL3 = 1\ngamma = 1\nx1 = 1\nx2 = 1\ny2 = 1\np1 = 1\n"
                                            "p2 = 1\np3 = 1\nextra = 2\n")  # fmt: skip
@@ -428,6 +429,11 @@ BAD = [
     ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{tmp}/no_folder/camera.toml"],
     ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{files}/emptydir"],
     ["virtual-device", "--geometry", "nope"],
+    ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{files}/notes.txt"],  # not replaced
+    ["virtual-device", "--camera-stream", "{tmp}/no_folder/p"],
+    ["virtual-device", "--link", "/proc/no_such_folder/board"],
+    ["virtual-device", "--put-ball-back-after", "0.1"],
+    ["virtual-device", "--put-ball-back-after", "3", "--leave-fallen-ball"],
     ["demo", "--episodes", "0"],
     ["evaluate", "--backend", "batched", "--gif", "{tmp}/x.gif"],  # refused before any episode: nothing to draw
     ["demo", "--out", "{files}/notes.txt"],
@@ -560,6 +566,7 @@ WRONG_BLAME = [
     (["camera-check", "--camera-config", "{files}/cam_id_range.toml"], "0…49", "xx"),
     (["deploy", "--port", DEV, "--policy", "{files}/bundle_obs_mean"], "obs_mean must be 12 finite numbers", "xx"),
     (["deploy", "--port", DEV, "--calibration", "{files}/cal_baud_text.toml"], "hardware.baudrate", "xx"),
+    (["deploy", "--port", DEV, "--calibration", "{files}/cal_trim_typo.toml"], "cal_trim_typo.toml: servo[0]", "xx"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
 ]  # fmt: skip

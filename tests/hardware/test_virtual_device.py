@@ -222,6 +222,37 @@ def test_a_ball_that_falls_off_is_put_back_on_the_plate(tmp_path: Path, leave: b
         assert put_back is not None and int(put_back.group(1)) >= 2, out
 
 
+def test_a_second_board_leaves_a_running_boards_link_alone(tmp_path: Path) -> None:
+    """A board asked for the link of a board that runs is one ``error:`` line, and the first keeps its link; once
+    the first stops, its link is gone and the next board takes the path."""
+    first = Board(tmp_path, "--protocol", "maestro")
+    target = os.readlink(first.link)
+    second = subprocess.run([sys.executable, "-m", "stewart_gym", "virtual-device", "--link", str(first.link)],
+                            capture_output=True, text=True, timeout=120)  # fmt: skip
+    lines = second.stderr.strip().splitlines()
+    assert second.returncode == 1 and len(lines) == 1 and "which is open" in lines[0], second.stderr
+    assert os.readlink(first.link) == target
+    code, _, _ = first.stop()
+    assert code == 0 and not first.link.is_symlink()
+    again = Board(tmp_path, "--protocol", "maestro")
+    assert again.link.is_symlink()
+    assert again.stop()[0] == 0
+
+
+def test_an_existing_camera_config_is_not_replaced(tmp_path: Path) -> None:
+    """``--camera-config-out`` naming a file that exists (the user's own config) is refused and leaves it as it
+    was; ``--overwrite`` replaces it, and a board that then cannot start leaves it in place."""
+    mine = tmp_path / "camera.toml"
+    mine.write_text("# my tuned camera\n")
+    base = [sys.executable, "-m", "stewart_gym", "virtual-device", "--camera-stream", str(tmp_path / "p"),
+            "--camera-config-out", str(mine)]  # fmt: skip
+    refused = subprocess.run(base, capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 1 and "exists" in refused.stderr and mine.read_text() == "# my tuned camera\n"
+    failed = subprocess.run([*base, "--overwrite", "--link", "/proc/no_such_folder/board"], capture_output=True,
+                            text=True, timeout=120)  # fmt: skip
+    assert failed.returncode == 1 and "--link" in failed.stderr and "[camera]" in mine.read_text()
+
+
 def test_an_unplugged_board_ends_the_deploy_within_a_tick(tmp_path: Path) -> None:
     board = Board(tmp_path, "--protocol", "maestro", "--unplug-after", "1.0")
     dep, rows = deploy(tmp_path, board.link, "--policy", "pid", "--protocol", "maestro", "--sensor", "sim",
