@@ -91,6 +91,21 @@ def test_the_fitted_twin_predicts_better_than_the_nominal_one(fitted):
         assert row["fitted"] * 2 <= row["nominal"], f"{horizon} s: {row}"
 
 
+def test_the_report_says_whether_the_fit_predicts_better_or_worse():
+    """Each held-out horizon's line says how many times better the fitted twin predicts than the nominal one, or,
+    where it predicts worse, how many times worse and what to do (a ratio below 1 is never called better)."""
+    from stewart_gym.sysid import FitResult
+
+    def line(nominal: float, fitted: float) -> str:
+        result = FitResult(Twin.from_mapping(TWIN), 50.0, np.zeros(2), 1.0, {1.0: {"nominal": nominal,
+                           "fitted": fitted, "windows": 5}}, 10, 5)  # fmt: skip
+        return next(text for text in result.lines() if "prediction RMS" in text)
+
+    assert line(6.0, 2.0).endswith("(3.0× better)")
+    worse = line(7.53, 9.26)
+    assert "better" not in worse and "1.2× worse" in worse and "run identify longer" in worse
+
+
 @pytest.mark.slow
 def test_the_fitted_twin_predicts_better_where_the_plate_turns_under_the_ball(tmp_path):
     """identify's yaw moves (with a camera) turn the plate under the ball, so that the ball's path depends on its
