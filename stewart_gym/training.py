@@ -164,7 +164,12 @@ def load_hyperparams(algo: str, env_id: str, path: str | Path | None = None) -> 
                      if key != "residual" else f"env_wrapper: {{{RESIDUAL_WRAPPER}: {{residual: …}}}}")
             raise ConfigError(f"{path}: {env_id}.{key}: RL Zoo would pass it to the algorithm; write it as {where}")
     if "env_wrapper" in hp:
-        hp["residual"] = _residual_from_wrapper(hp.pop("env_wrapper"), f"{path}: {env_id}.env_wrapper")
+        where = f"{path}: {env_id}.env_wrapper"
+        hp["residual"] = _residual_from_wrapper(hp.pop("env_wrapper"), where)
+        try:  # its values too, naming the file (training checks the spec again as it starts)
+            check_residual(hp["residual"])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
     hp.update(_evaluation_settings(data.get(EVALUATION_SECTION), env_id, path))
     _check_env_kwargs(hp.get("env_kwargs"), env_id, f"{path}: {env_id}.env_kwargs")
     for key in ("n_envs", "n_timesteps", "eval_freq", "eval_episodes"):
