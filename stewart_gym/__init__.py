@@ -14,7 +14,18 @@ below when they are first used, so that the command line starts quickly and hand
 moments.
 """
 
+import signal as _signal
 import sys as _sys
+import threading as _threading
+
+#: The stop signals (Ctrl-C's SIGINT) that came while this package loaded in a process that started with SIGINT
+#: ignored, as a background job of a script does: the command line stops for them as soon as it runs
+#: (:func:`stewart_gym.cli.main`); in any other program they stay ignored, as the process asked.
+SIGNALS_WHILE_LOADING: list[int] = []
+_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread()
+                     and _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN)  # fmt: skip
+if _IGNORED_AT_START:  # noted, not lost, while the package loads (the command line's first half second)
+    _signal.signal(_signal.SIGINT, lambda signum, frame: SIGNALS_WHILE_LOADING.append(signum))
 
 
 def _stopped_while_loading(kind: type, value: BaseException, tb: object, _previous=_sys.excepthook) -> None:
@@ -76,3 +87,5 @@ if importlib.util.find_spec("gymnasium") is not None:  # without the [sim] extra
     _register()
 
 _sys.excepthook = _stopped_while_loading.__defaults__[0]  # type: ignore[index]
+if _IGNORED_AT_START:
+    _signal.signal(_signal.SIGINT, _signal.SIG_IGN)

@@ -46,8 +46,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; its exit code. A stop signal at any moment (Ctrl-C, SIGTERM, SIGHUP), while the parser and
     the commands' modules load too, is one ``error:`` line and exit code 128 + its number."""
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    from stewart_gym import SIGNALS_WHILE_LOADING
+
     with stop_signals():
         try:
+            if SIGNALS_WHILE_LOADING:  # a stop that came while the package loaded, with SIGINT ignored at start
+                raise KeyboardInterrupt
             args, unknown = build_parser().parse_known_args(argv)
             if unknown:  # named by the subcommand that was given them, which lists what it takes
                 args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")

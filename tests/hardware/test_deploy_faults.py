@@ -123,6 +123,22 @@ def test_ctrl_c_drives_home_even_where_the_process_was_started_with_it_ignored(d
 
 
 @covers("startup_signal")
+@pytest.mark.parametrize("after_s", [0.1, 0.3, 0.6])
+def test_a_ctrl_c_while_the_package_loads_is_not_lost_where_it_started_ignored(after_s: float, device: FakeDevice,
+                                                                              tmp_path: Path) -> None:  # fmt: skip
+    """A background job of a script starts with SIGINT ignored; a Ctrl-C (SIGINT) while the package is still
+    loading is noted and stops the command as soon as it runs: one line, exit 130, and no byte reaches the board
+    (it went on to wait for the board, and then to drive it, when the signal was lost)."""
+    proc = start(device, "--protocol", "line", "--sensor", "panel", "--log", str(tmp_path / "l.csv"), cwd=tmp_path,
+                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
+    time.sleep(after_s)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=HANG_S)
+    assert one_error_line(err).startswith("error: stopped by") and proc.returncode == 130, (proc.returncode, err)
+    assert device.read_all(wait=0.2, timeout=1.0) == b""  # nothing was sent
+
+
+@covers("startup_signal")
 @pytest.mark.parametrize("sig,after_s", [(signal.SIGINT, 0.6), (signal.SIGINT, 1.5), (signal.SIGINT, 2.5),
                                          (signal.SIGTERM, 1.5), (signal.SIGHUP, 2.5)])  # fmt: skip
 def test_a_stop_signal_during_start_up_is_one_line_and_moves_nothing(sig: int, after_s: float, device: FakeDevice,
