@@ -16,7 +16,7 @@ from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
-from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges, draw_count
+from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges, draw_count, polar
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
@@ -361,7 +361,8 @@ class StewartBallEnv(gym.Env, EzPickle):
             first = together[0]
             checked = [env.begin_episode(seeds[k], options) for env, k in zip(together, members)]
             count = draw_count(first.nominal_sensor)
-            draws = np.array([env.np_random.random(count + first.start_draw_count(checked[0])) for env in together])
+            size = count + first.start_draw_count(checked[0])  # (the same options for all)
+            draws = np.array([env.np_random.random(size) for env in together])
             params = EpisodeParams.from_draws(draws[:, :count], first.ranges, first.nominal_ball,
                                               first.nominal_servo, first.nominal_sensor)  # fmt: skip
             for env, p in zip(together, params):
@@ -618,13 +619,6 @@ def distance(dx: float, dy: float) -> float:
     """m, the length of (dx, dy) as ``sqrt(dx² + dy²)``: the same bits as NumPy's on arrays (the batched vector env's
     copies, :class:`~stewart_gym.envs.copies.CopySteps`), which ``math.hypot`` is not."""
     return math.sqrt(dx * dx + dy * dy)
-
-
-def polar(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """(m, 2): each (r cos a, r sin a) of ``radii`` and ``angles`` (m,), with Python's cosine and sine, which give the
-    same bits on every machine (NumPy's SIMD ones may not)."""
-    return np.array([(r * math.cos(a), r * math.sin(a)) for r, a in zip(radii.tolist(), angles.tolist())],
-                    dtype=np.float64).reshape(-1, 2)  # fmt: skip
 
 
 def env_keywords(task: str | Task = "balance") -> set[str]:

@@ -15,7 +15,7 @@ from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 from stewart_gym.sim.twin import Twin
 
-__all__ = ["FIRST_DRAWS", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count"]
+__all__ = ["FIRST_DRAWS", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count", "polar"]
 
 #: The uniform draws of an episode's parameters before its sensor's (:meth:`EpisodeParams.from_draws`): the ball's
 #: radius, mass and rolling friction, the control latency, the servos' speed, their six trims and their dead band.
@@ -160,7 +160,7 @@ class EpisodeParams:
             scales = values[:, FIRST_DRAWS:k]
             sensors = np.stack([sensor.latency_s * scales[:, 0], sensor.centroid_noise_px * scales[:, 1],
                                 np.minimum(0.5, sensor.miss_rate * scales[:, 2])], axis=1).tolist()  # fmt: skip
-        angles, dists = values[:, k].tolist(), (r.plate_load_radius * np.sqrt(values[:, k + 1])).tolist()
+        offsets = polar(r.plate_load_radius * np.sqrt(values[:, k + 1]), values[:, k])  # the loads' (x, y)
         loads, frictions = values[:, k + 2].tolist(), values[:, k + 3].tolist()
         out = []
         for j, measures in enumerate(sensors):
@@ -173,8 +173,7 @@ class EpisodeParams:
             else:
                 sensor_ep = _replaced(sensor, latency_s=measures[0], centroid_noise_px=measures[1],
                                       miss_rate=measures[2])  # fmt: skip
-            angle, dist = angles[j], dists[j]
-            load = (loads[j], np.array([dist * math.cos(angle), dist * math.sin(angle), 0.012]))
+            load = (loads[j], np.array([offsets[j, 0], offsets[j, 1], 0.012]))
             out.append(cls(ball_ep, servo_ep, sensor_ep, frictions[j], load))
         return out
 
@@ -220,6 +219,13 @@ class EpisodeParams:
         load_kg = value("plate.load_kg", 0.0, 2.0, ranges.plate_load_kg)
         load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
         return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0, ranges.plate_friction), load)
+
+
+def polar(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """(m, 2): each (r cos a, r sin a) of ``radii`` and ``angles`` (m,), with Python's cosine and sine, which give the
+    same bits on every machine (NumPy's SIMD ones may not)."""
+    return np.array([(r * math.cos(a), r * math.sin(a)) for r, a in zip(radii.tolist(), angles.tolist())],
+                    dtype=np.float64).reshape(-1, 2)  # fmt: skip
 
 
 def _replaced(spec: Any, **changes: Any) -> Any:
