@@ -22,10 +22,19 @@ import threading as _threading
 #: ignored, as a background job of a script does: the command line stops for them as soon as it runs
 #: (:func:`stewart_gym.cli.main`); in any other program they stay ignored, as the process asked.
 SIGNALS_WHILE_LOADING: list[int] = []
-_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread()
-                     and _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN)  # fmt: skip
-if _IGNORED_AT_START:  # noted, not lost, while the package loads (the command line's first half second)
-    _signal.signal(_signal.SIGINT, lambda signum, frame: SIGNALS_WHILE_LOADING.append(signum))
+#: Whether this process started with SIGINT ignored (read as the package starts loading, in the main thread).
+SIGINT_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread()
+                           and _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN)  # fmt: skip
+
+
+def note_stops_while_loading() -> None:
+    """Where the process started with SIGINT ignored, note a SIGINT in :data:`SIGNALS_WHILE_LOADING` from now on
+    instead of losing it (the command line calls it again as its own modules load, until its handlers are in)."""
+    if SIGINT_IGNORED_AT_START:
+        _signal.signal(_signal.SIGINT, lambda signum, frame: SIGNALS_WHILE_LOADING.append(signum))
+
+
+note_stops_while_loading()  # noted, not lost, while the package loads (the command line's first half second)
 
 
 def _stopped_while_loading(kind: type, value: BaseException, tb: object, _previous=_sys.excepthook) -> None:
@@ -87,5 +96,5 @@ if importlib.util.find_spec("gymnasium") is not None:  # without the [sim] extra
     _register()
 
 _sys.excepthook = _stopped_while_loading.__defaults__[0]  # type: ignore[index]
-if _IGNORED_AT_START:
+if SIGINT_IGNORED_AT_START:  # other programs that import the package keep it ignored
     _signal.signal(_signal.SIGINT, _signal.SIG_IGN)

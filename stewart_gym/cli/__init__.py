@@ -15,7 +15,11 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_behind, stop_signals
+from stewart_gym import note_stops_while_loading
+
+note_stops_while_loading()  # a Ctrl-C while the modules below load is noted too, until main() installs its handlers
+
+from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_behind, stop_signals  # noqa: E402
 
 __all__ = ["build_parser", "main"]
 
@@ -51,6 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     with stop_signals():
         try:
             if SIGNALS_WHILE_LOADING:  # a stop that came while the package loaded, with SIGINT ignored at start
+                SIGNALS_WHILE_LOADING.clear()
                 raise KeyboardInterrupt
             args, unknown = build_parser().parse_known_args(argv)
             if unknown:  # named by the subcommand that was given them, which lists what it takes

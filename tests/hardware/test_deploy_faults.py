@@ -122,30 +122,67 @@ def test_ctrl_c_drives_home_even_where_the_process_was_started_with_it_ignored(d
     assert np.allclose(board.frames[-1], np.round(HOME * 4) / 4), board.frames[-1]
 
 
+#: ``python -c KICK MODULE ARGS…``: the command line (``stewart-gym ARGS…``) with a Ctrl-C (SIGINT) sent to
+#: itself at the moment MODULE starts to load: a signal at an exact moment of the start-up, on any machine.
+KICK = """
+import os, signal, sys
+module = sys.argv.pop(1)
+class Kick:
+    def find_spec(self, name, path=None, target=None):
+        if name == module:
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, Kick())
+from stewart_gym.cli import main
+sys.exit(main())
+"""
+
+
 @covers("startup_signal")
-@pytest.mark.parametrize("after_s", [0.1, 0.3, 0.6])
-def test_a_ctrl_c_while_the_package_loads_is_not_lost_where_it_started_ignored(after_s: float, device: FakeDevice,
+@pytest.mark.parametrize("module", ["stewart_gym.envs", "stewart_gym.cli.common"])
+def test_a_ctrl_c_while_the_package_loads_is_not_lost_where_it_started_ignored(module: str, device: FakeDevice,
                                                                               tmp_path: Path) -> None:  # fmt: skip
-    """A background job of a script starts with SIGINT ignored; a Ctrl-C (SIGINT) while the package is still
-    loading is noted and stops the command as soon as it runs: one line, exit 130, and no byte reaches the board
-    (it went on to wait for the board, and then to drive it, when the signal was lost)."""
-    proc = start(device, "--protocol", "line", "--sensor", "panel", "--log", str(tmp_path / "l.csv"), cwd=tmp_path,
-                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
-    time.sleep(after_s)
-    proc.send_signal(signal.SIGINT)
+    """A background job of a script starts with SIGINT ignored; a Ctrl-C (SIGINT) while the package loads, or the
+    command line's own modules, is noted and stops the command as soon as it runs: one line, exit 130, and no byte
+    reaches the board (it went on to wait for the board, and then to drive it, when the signal was lost)."""
+    proc = subprocess.Popen([sys.executable, "-c", KICK, module, "deploy", "--port", device.path, "--protocol", "line",
+                             "--sensor", "panel", "--log", str(tmp_path / "l.csv")], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))  # fmt: skip
     out, err = proc.communicate(timeout=HANG_S)
     assert one_error_line(err).startswith("error: stopped by") and proc.returncode == 130, (proc.returncode, err)
     assert device.read_all(wait=0.2, timeout=1.0) == b""  # nothing was sent
 
 
+def wait_until_it_handles(proc: subprocess.Popen, sig: int) -> None:
+    """Wait until the process has its own handler for ``sig`` (the SigCgt mask of ``/proc/PID/status``); where
+    there is no ``/proc``, 1.5 s."""
+    status = Path(f"/proc/{proc.pid}/status")
+    if not status.exists():
+        time.sleep(1.5)
+        return
+    deadline = time.monotonic() + HANG_S
+    while True:
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        caught = next(ln for ln in status.read_text().splitlines() if ln.startswith("SigCgt:"))
+        if int(caught.split()[1], 16) >> (sig - 1) & 1:
+            return
+        time.sleep(0.005)
+
+
 @covers("startup_signal")
-@pytest.mark.parametrize("sig,after_s", [(signal.SIGINT, 0.6), (signal.SIGINT, 1.5), (signal.SIGINT, 2.5),
-                                         (signal.SIGTERM, 1.5), (signal.SIGHUP, 2.5)])  # fmt: skip
+@pytest.mark.parametrize("sig,after_s", [(signal.SIGINT, 0.0), (signal.SIGINT, 1.0), (signal.SIGINT, 2.0),
+                                         (signal.SIGTERM, 0.0), (signal.SIGTERM, 1.0), (signal.SIGHUP, 2.0)])  # fmt: skip
 def test_a_stop_signal_during_start_up_is_one_line_and_moves_nothing(sig: int, after_s: float, device: FakeDevice,
                                                                     tmp_path: Path) -> None:  # fmt: skip
-    """Loading the policy, then waiting for the line sketch's ``ready`` (this board never says it): a signal at
-    any of these moments is one line and 128 + its number, and no byte reaches the board."""
-    proc = start(device, "--protocol", "line", "--sensor", "panel", "--log", str(tmp_path / "l.csv"), cwd=tmp_path)
+    """Loading the commands' modules and the policy, then waiting for the line sketch's ``ready`` (this board
+    never says it): a signal at any of these moments, ``after_s`` after the command line has put in its stop
+    handlers, is one line and 128 + its number, and no byte reaches the board. (SIGINT starts at its default, as
+    in a terminal; before the handlers are in, the interpreter's own start-up, a signal ends the process as the
+    operating system's default says, before anything is sent.)"""
+    proc = start(device, "--protocol", "line", "--sensor", "panel", "--log", str(tmp_path / "l.csv"), cwd=tmp_path,
+                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+    wait_until_it_handles(proc, signal.SIGTERM)  # main() is running: its stop handlers are in
     time.sleep(after_s)
     proc.send_signal(sig)
     out, err = proc.communicate(timeout=HANG_S)
