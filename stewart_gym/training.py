@@ -287,6 +287,21 @@ def resume_note(config: TrainConfig) -> str | None:
 RECIPE_GEOMETRY = "servo-hexapod"
 
 
+def env_settings_source(config: TrainConfig) -> str:
+    """Where a run's env keywords come from, for an error about them: the recipe's ``env_kwargs`` (its file and
+    section, or the resumed run's ``config.yaml``) and the options that replace some of them."""
+    if config.resume and config.hyperparams is None and resumed_hyperparams(config) is not None:
+        recipe = f"{config.resume} (its config.yaml)"
+    else:
+        path = hyperparams_path(config.hyperparams) if config.hyperparams else HYPERPARAM_DIR / f"{config.algo}.yml"
+        recipe = f"{path}: {config.env_id}.env_kwargs"
+    options = [f"--{name} {value}" for name in ("geometry", "backend", "sensor", "estimator", "twin")
+               if (value := getattr(config, name)) is not None]  # fmt: skip
+    if (config.overrides or {}).get("env_kwargs"):
+        options.append("the run's env_kwargs overrides")
+    return recipe + (f" with {', '.join(options)}" if options else "")
+
+
 def run_env_kwargs(config: TrainConfig, hp: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
     """The YAML's ``env_kwargs`` on the build the run trains on (``--geometry``, else the YAML's), and a note of what
     that changed, or None.
@@ -797,7 +812,10 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         hp["residual"] = residual  # with the base's design as it is now: a later retune leaves this run alone
     make_eval_env = partial(evaluation_env, config.env_id, eval_episodes, config.seed + EVAL_SEED_OFFSET, env_kwargs,
                             residual)  # fmt: skip
-    eval_env = make_eval_env()  # built here first: a bad env keyword is one error line, before the run folder
+    try:  # built here first: a bad env keyword or value is one error line, before the run folder
+        eval_env = make_eval_env()
+    except ConfigError as exc:
+        raise ConfigError(f"the env of {env_settings_source(config)}: {exc}") from None
     background = config.background_eval if config.background_eval is not None else _cores() >= 2
     run = Path(config.run_dir)
     run.mkdir(parents=True, exist_ok=True)

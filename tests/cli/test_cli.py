@@ -146,6 +146,7 @@ def _inputs_of_issue_57(d: Path) -> None:
     (d / "cal_trim_typo.toml").write_text('geometry = "servo-hexapod"\n' + "[[servo]]\ntrim_uss = 3\n" * 6)
     (d / "residual_scale.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  env_wrapper:\n"
                                           "    - stewart_gym.sb3_models.ResidualAction: {residual: {base: lqr, scale: 5}}\n")
+    (d / "rate_penalty_nan.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  env_kwargs: {rate_penalty: .nan}\n")
     (d / "cal_other_build.toml").write_text('geometry = "memememe-liverpool"\n' + "[[servo]]\n" * 6)
     (d / "planar_unknown.toml").write_text("L1 = 1\nL2 = 1\nL3 = 1\ngamma = 1\nx1 = 1\nx2 = 1\ny2 = 1\np1 = 1\n"
                                            "p2 = 1\np3 = 1\nextra = 2\n")  # fmt: skip
@@ -571,6 +572,9 @@ WRONG_BLAME = [
     (["deploy", "--port", DEV, "--calibration", "{files}/cal_trim_typo.toml"], "cal_trim_typo.toml: servo[0]", "xx"),
     (["train", "--hyperparams", "{files}/residual_scale.yml", "--run-dir", "{tmp}/r"],
      "residual_scale.yml: StewartBallBalance-v0.env_wrapper: residual scale", "Traceback"),
+    (["train", "--hyperparams", "{files}/rate_penalty_nan.yml", "--run-dir", "{tmp}/r", "--backend", "batched"],
+     "rate_penalty_nan.yml: StewartBallBalance-v0.env_kwargs with --backend batched: rate_penalty must be ≥ 0",
+     "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
 ]  # fmt: skip
