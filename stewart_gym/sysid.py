@@ -18,7 +18,7 @@ windows at once.
 - *The plate's tilt offset* (what the servo trims do to the ball): one constant acceleration of the ball in the
   plate frame, fitted by linear least squares over all windows together. The twin's trims are the smallest six
   that tilt the plate that much.
-- *The panel noise*: the spread of the readings around the best fit, less the scatter a moving ball's readings
+- *The reading noise*: the spread of the readings around the best fit, less the scatter a moving ball's readings
   get from their uneven age (:attr:`FlightLog.read_time_var_s2`).
 
 The best candidate is refined between grid points by a parabola through its neighbours. The uncertainties come
@@ -232,17 +232,22 @@ class FitResult:
     notes: dict[str, str] = field(default_factory=dict)
     examples: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
     trim_fit: TrimFit | None = None
+    #: what read the ball in the logs: "panel", "camera", or "panel and camera"
+    sensor: str = "panel"
 
     def lines(self) -> list[str]:
         """The fit as text: each value with its uncertainty, then what could not be determined."""
         tw = self.twin
         s = tw.sigma
+        noise = {"panel": "panel noise", "camera": "camera noise"}.get(self.sensor, "reading noise")
         out = [f"fitted on {self.fit_windows} windows; predictions on {self.heldout_windows} held-out windows",
                f"  total latency  {self.total_latency_ms:6.1f} ms ± {s.get('servos.latency_ms', 0):.1f} "
                f"(sensor {tw['sensor.latency_ms']:.0f} + servos {tw['servos.latency_ms']:.1f})",
                f"  servo speed    {tw['servos.speed_scale']:6.2f} × ± {s.get('servos.speed_scale', 0):.2f}",
                f"  dead band      {tw['servos.deadband_us']:6.1f} µs ± {s.get('servos.deadband_us', 0):.1f}",
-               f"  panel noise    {tw['sensor.noise_mm']:6.2f} mm ± {s.get('sensor.noise_mm', 0):.2f}",
+               f"  {noise:<15}{tw['sensor.noise_mm']:6.2f} mm ± {s.get('sensor.noise_mm', 0):.2f}"
+               + ("" if self.sensor == "panel" else " (a twin's [sensor] table is the touch panel's: a simulated "
+                  "camera keeps its own model's noise)"),
                f"  tilt offset    ball acceleration ({self.tilt_accel[0] * 1e3:+.0f}, {self.tilt_accel[1] * 1e3:+.0f}) "
                f"mm/s²" + ("" if self.trim_fit else f": trims {', '.join(f'{v:+.0f}' for v in tw['servos.trim_us'])} µs")]
         if self.trim_fit is not None:
@@ -531,7 +536,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     sse = (c[:, ci, li] - 2 * best_accel * b[:, ci, li] + best_accel**2 * A[:, None]).sum(axis=1)
 
     def noise_of(weights: np.ndarray) -> float:
-        """The panel noise, mm, from the windows so weighted: the residual's variance less the timing scatter."""
+        """The reading noise, mm, from the windows so weighted: the residual's variance less the timing scatter."""
         dof = max(float(weights @ (2 * n - 4)) - 2, 1.0)
         var = float(weights @ sse) / dof - read_var * float(weights @ speed_sq) / float(weights.sum())
         return math.sqrt(max(var, 0.0)) * 1e3
@@ -595,7 +600,9 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                    ("sensor", "latency_ms"): sensor_ms, ("sensor", "noise_mm"): float(np.clip(noise_mm, 0.0, 20.0))})
     order = [f"{t}.{k}" for t, k in TWIN_FIELDS]
     twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
-    result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes, trim_fit=trim_fit)
+    sensor = "camera" if len(camera) == len(logs) else "panel and camera" if camera else "panel"
+    result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes, trim_fit=trim_fit,
+                       sensor=sensor)  # fmt: skip
     if held_w:
         _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel,
                  trim_fit.servo if plate_chose else servos[ci], overhead)  # fmt: skip

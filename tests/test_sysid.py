@@ -70,6 +70,7 @@ def test_the_fit_recovers_a_known_twin(fitted):
     _, result = fitted
     truth = Twin.from_mapping(TWIN)
     twin = result.twin
+    assert result.sensor == "panel"  # a log without the plate's columns: the touch panel read the ball
     assert result.total_latency_ms == pytest.approx(truth.total_latency_ms, abs=4.0)
     assert twin["servos.speed_scale"] == pytest.approx(0.6, abs=0.1)
     assert twin["servos.deadband_us"] == pytest.approx(10.0, abs=2.5)
@@ -104,6 +105,18 @@ def test_the_report_says_whether_the_fit_predicts_better_or_worse():
     assert line(6.0, 2.0).endswith("(3.0× better)")
     worse = line(7.53, 9.26)
     assert "better" not in worse and "1.2× worse" in worse and "run identify longer" in worse
+
+
+@pytest.mark.parametrize("sensor,label", [("panel", "panel noise"), ("camera", "camera noise"),
+                                          ("panel and camera", "reading noise")])  # fmt: skip
+def test_the_report_names_the_sensor_whose_noise_it_fitted(sensor: str, label: str):
+    """A camera log's reading noise is called the camera's, with a word that the twin's ``[sensor]`` table is the
+    touch panel's (a simulated camera keeps its own model's noise); a panel log's is the panel's, as before."""
+    from stewart_gym.sysid import FitResult
+
+    lines = FitResult(Twin.from_mapping(TWIN), 50.0, np.zeros(2), 1.0, {}, 10, 5, sensor=sensor).lines()
+    noise = next(text for text in lines if "noise" in text)
+    assert noise.strip().startswith(label) and ("touch panel's" in noise) == (sensor != "panel"), noise
 
 
 @pytest.mark.slow

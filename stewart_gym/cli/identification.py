@@ -60,7 +60,7 @@ def cmd_identify(args: argparse.Namespace) -> int:
 
 def cmd_sysid(args: argparse.Namespace) -> int:
     """Fit a platform's twin from its logs (identify's, or any deploy log): the total latency, the servos' speed
-    and dead band, the plate's tilt offset and the panel noise, and from a camera's log each servo's trim, each
+    and dead band, the plate's tilt offset and the readings' noise, and from a camera's log each servo's trim, each
     with its uncertainty; it says what the logs could not determine, and how much better the fitted twin
     predicts the ball on a held-out part of the logs."""
     from stewart_gym.calibration import ServoCalibration
@@ -90,8 +90,8 @@ def cmd_sysid(args: argparse.Namespace) -> int:
         write_report(result, report, args.logs)
     if args.json:
         print(json.dumps(json_safe({"twin": twin.to_mapping(), "total_latency_ms": result.total_latency_ms,
-                                    "noise_mm": result.noise_mm, "prediction": {str(h): v for h, v in
-                                                                               result.prediction.items()},
+                                    "noise_mm": result.noise_mm, "sensor": result.sensor,
+                                    "prediction": {str(h): v for h, v in result.prediction.items()},
                                     "trim_sigma_us": None if result.trim_fit is None else
                                     result.trim_fit.sigma_us.tolist(), "out": str(out)})))  # fmt: skip
     else:

@@ -214,6 +214,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     fit = sg_in(capfd, "sysid", str(log), "--out", str(tmp_path / "fit.toml"), "--json")
     assert fit.returncode == 0, fit.stderr
     got = json.loads(fit.stdout)
+    assert got["sensor"] == "camera"  # its reading noise is the camera's, not a touch panel's
     fitted = np.array(got["twin"]["servos"]["trim_us"])
     sigma = np.array(got["trim_sigma_us"])
     err = fitted - trims
