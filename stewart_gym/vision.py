@@ -46,6 +46,15 @@ def _cv2() -> Any:
     return cv2
 
 
+def open_capture(source: str | int, backend: int | None = None) -> Any:
+    """OpenCV's ``VideoCapture`` of ``source`` (a device index, a file or a stream; through ``backend`` where
+    given), with OpenCV's own log lines off: the caller says in one line what failed (a ``[ WARN ]`` line of
+    OpenCV's came before that line)."""
+    cv2 = _cv2()
+    cv2.setLogLevel(0)  # silent
+    return cv2.VideoCapture(source) if backend is None else cv2.VideoCapture(source, backend)
+
+
 #: The tables of a camera config (TOML) and the keys of each.
 CAMERA_CONFIG_FIELDS = {"camera": ("source", "resolution", "fps", "fov_deg", "min_ball_px"),
                         "markers": ("dictionary", "ids", "centres_mm", "size_mm"),

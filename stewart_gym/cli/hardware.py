@@ -163,7 +163,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     frames from the config's camera or video, writing an annotated image to tune the colour range."""
     import json
 
-    from stewart_gym.vision import CameraConfig, annotate, locate_ball, read_image
+    from stewart_gym.vision import CameraConfig, annotate, locate_ball, open_capture, read_image
 
     config = CameraConfig.from_toml(args.camera_config)
     out = output_file(args.out, suffixes=(".png", ".jpg")) if args.out else None
@@ -172,7 +172,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     if args.image:
         frames = [read_image(args.image)]
     else:
-        cap = cv2.VideoCapture(config.source)
+        cap = open_capture(config.source)
         if not cap.isOpened():
             from stewart_gym.errors import DeviceFailure
 

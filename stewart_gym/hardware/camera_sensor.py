@@ -25,7 +25,7 @@ from collections.abc import Sequence
 
 from stewart_gym.errors import DeviceFailure
 from stewart_gym.sensing import Reading, reading_is_valid
-from stewart_gym.vision import CameraConfig, Detection, locate_ball
+from stewart_gym.vision import CameraConfig, Detection, locate_ball, open_capture
 
 __all__ = ["FIRST_FRAME_TIMEOUT_S", "CameraSensor"]
 
@@ -76,9 +76,9 @@ class CameraSensor:
         source = self.config.source
         if self._live_pipe:  # an MJPEG stream in a named pipe (the virtual device's camera): decode as it comes
             os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg")
-            cap = cv2.VideoCapture(source, cv2.CAP_FFMPEG)
+            cap = open_capture(source, cv2.CAP_FFMPEG)
         else:
-            cap = cv2.VideoCapture(source)
+            cap = open_capture(source)
         if cap.isOpened() and not self._is_file:
             width, height = self.config.resolution
             cap.set(cv2.CAP_PROP_FRAME_WIDTH, width)

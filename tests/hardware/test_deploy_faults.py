@@ -310,11 +310,15 @@ def test_an_unplugged_port_stops_the_run_and_says_it_could_not_home(device: Fake
 @pytest.mark.slow
 @covers("camera_silent")
 def test_a_camera_that_delivers_no_frame_is_refused_before_the_port_opens(device: FakeDevice, tmp_path: Path) -> None:
-    pipe = tmp_path / "camera.mjpeg"
+    """The camera config a virtual board writes for its stream, but nobody writes to the pipe: one error line (no
+    line of OpenCV's before it), exit 2, and the port never written."""
+    from stewart_gym.camera import CAMERA_PRESETS
+    from stewart_gym.hardware.virtual_device import stream_camera_config
+
+    pipe = tmp_path / "camera.mjpg"  # as the docs name it (OpenCV's warning came with this suffix, not .mjpeg)
     os.mkfifo(pipe)  # nobody ever writes to it
     config = tmp_path / "camera.toml"
-    config.write_text(f'[camera]\nsource = "{pipe}"\n[markers]\nids = [0, 1, 2, 3]\n'
-                      "centres_mm = [[-125, 125], [125, 125], [125, -125], [-125, -125]]\nsize_mm = 36\n")  # fmt: skip
+    config.write_text(stream_camera_config(CAMERA_PRESETS["pixy2"], pipe).to_toml())
     board = Board(device)
     began = time.monotonic()
     code, out, err, _ = run(device, "--sensor", "camera", "--camera-config", str(config), "--duration", "2",
