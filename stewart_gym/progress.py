@@ -60,6 +60,10 @@ class Progress:
     ``evaluate: 40/200 episodes (20 %), 0:12 elapsed, about 0:48 left`` at most every ``interval_s`` seconds
     (default :func:`line_interval_s`; the first once that much time has passed, so that a short run prints
     none). ``close()`` ends the bar; a run that stops early says so with :meth:`stopped`.
+
+    The time left is estimated at the pace since the first amount came, not since the start: the time to the
+    first amount holds the run's start-up (building the envs and the model, compiling the batched kernel), which
+    would inflate the estimate many times over. So no line comes before the second amount.
     """
 
     def __init__(self, total: float, unit: str, label: str, stream: TextIO | None = None,
@@ -71,6 +75,7 @@ class Progress:
         self.stream = sys.stderr if stream is None else stream
         self.done = 0.0
         self.started = self.last_line = clock()
+        self.first: tuple[float, float] | None = None  # when the first amount came, and the amount done then
         self.bar = None
         if getattr(self.stream, "isatty", lambda: False)():
             try:
@@ -86,14 +91,21 @@ class Progress:
             self.bar.update(amount)
             return
         now = self.clock()
+        if self.first is None:  # the end of the start-up: the pace is measured from here
+            self.first = (now, self.done)
+            return
         if now - self.last_line >= self.interval_s:
             self.last_line = now
             print(self.line(now), file=self.stream, flush=True)
 
     def line(self, now: float | None = None) -> str:
         """The progress as one line of text."""
-        elapsed = (self.clock() if now is None else now) - self.started
-        left = elapsed * (self.total - self.done) / self.done if self.done > 0 else None
+        now = self.clock() if now is None else now
+        left = None
+        if self.first is not None and self.done > self.first[1]:
+            since, done_then = self.first
+            left = (now - since) * (self.total - self.done) / (self.done - done_then)
+        elapsed = now - self.started
         count = f"{math.floor(self.done):,}/{self.total:,.0f}"  # whole units done (an episode counts once finished)
         return (f"{self.label}: {count} {self.unit} ({100 * self.done / self.total:.0f} %), {duration(elapsed)} "
                 f"elapsed" + (f", about {duration(left)} left" if left is not None else ""))

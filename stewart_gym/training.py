@@ -52,8 +52,8 @@ from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProces
 
 __all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
            "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
-           "check_run_dir", "action_noise", "evaluation_env", "load_hyperparams", "make_env", "planned_timesteps",
-           "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+           "check_rollout", "check_run_dir", "action_noise", "evaluation_env", "load_hyperparams", "make_env",
+           "planned_timesteps", "rollout_note", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -448,6 +448,44 @@ def check_action_noise(algo: str, hp: dict[str, Any]) -> None:
         raise ConfigError(f"noise_std must be a number in (0, 1] (the noise's std in action units), got {std!r}")
 
 
+def _ppo_setting(hp: dict[str, Any], key: str) -> Any:
+    """A PPO keyword as the run gives it: the recipe's, else Stable-Baselines3's default."""
+    return hp[key] if key in hp else inspect.signature(PPO.__init__).parameters[key].default
+
+
+def check_rollout(algo: str, hp: dict[str, Any], n_envs: int, where: str = "hyperparameters") -> None:
+    """PPO's rollout (``n_steps`` per copy × ``n_envs``) and minibatch can normalise advantages (raises
+    :class:`ConfigError`): each holds 2 or more samples where ``normalize_advantage`` is on (the default)."""
+    if algo != "ppo" or not _ppo_setting(hp, "normalize_advantage"):
+        return
+    batch, n_steps = _ppo_setting(hp, "batch_size"), _ppo_setting(hp, "n_steps")
+    if batch < 2:
+        raise ConfigError(f"{where}: batch_size must be 2 or more, got {batch} (PPO normalises each minibatch's "
+                          "advantages), or set normalize_advantage: false")  # fmt: skip
+    if n_steps * n_envs < 2:
+        raise ConfigError(f"{where}: n_steps {n_steps} × n_envs {n_envs} makes a rollout of one sample, whose "
+                          "advantage PPO cannot normalise; give n_steps or --n-envs 2 or more")  # fmt: skip
+
+
+def rollout_note(config: TrainConfig) -> str | None:
+    """A line where a new PPO run's rollout (``n_steps`` × ``n_envs``) is not a whole number of minibatches,
+    which is what each epoch then does; None otherwise (a resumed run keeps its model's own settings)."""
+    if config.algo != "ppo" or config.resume:
+        return None
+    hp = run_hyperparams(config)
+    n_envs = int(config.n_envs or hp.get("n_envs", 1))
+    batch, n_steps = _ppo_setting(hp, "batch_size"), _ppo_setting(hp, "n_steps")
+    rollout = n_steps * n_envs
+    if rollout % batch == 0:
+        return None
+    full = rollout // batch
+    recipe = f"; the recipe has n_envs {hp['n_envs']}" if config.n_envs and hp.get("n_envs", 1) != n_envs else ""
+    minibatches = f"{full:,} minibatch{'es' if full > 1 else ''} of {batch:,} and one of " if full else "one minibatch of "
+    return (f"n_steps {n_steps} × n_envs {n_envs} = a rollout of {rollout:,} samples, which batch_size {batch:,} "
+            f"does not divide: each epoch trains on {minibatches}{rollout % batch:,} (for whole minibatches, make "
+            f"n_steps × n_envs a multiple of batch_size{recipe})")
+
+
 def action_noise(hp: dict[str, Any], n_actions: int) -> ActionNoise | None:
     """The exploration noise that ``noise_type``/``noise_std`` describe (checked by :func:`check_action_noise`)."""
     if "noise_type" not in hp:
@@ -478,6 +516,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     check_action_noise(config.algo, hp)
     backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
     check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)
+    check_rollout(config.algo, hp, int(config.n_envs or hp.get("n_envs", 1)), recipe)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry

@@ -36,9 +36,28 @@ def test_lines_come_every_interval_with_done_total_and_time_left() -> None:
     assert out.getvalue().count("\n") == 1  # not before another 10 s
     clock.now += 5.0
     progress.advance(0.5)
-    assert out.getvalue().splitlines()[-1] == "evaluate: 30/200 episodes (15 %), 0:20 elapsed, about 1:51 left"
+    # the pace since the first half episode (at 0.25 s): 30 episodes in 19.75 s, 169.5 to go
+    assert out.getvalue().splitlines()[-1] == "evaluate: 30/200 episodes (15 %), 0:20 elapsed, about 1:52 left"
     progress.stopped("--max-minutes 1 reached")
     assert out.getvalue().splitlines()[-1] == "evaluate: stopped at 30/200 episodes: --max-minutes 1 reached"
+
+
+def test_the_time_left_leaves_the_start_up_out() -> None:
+    """A run whose first step comes after 15 s of start-up (building the envs and the model, compiling the
+    batched kernel), then 1,000 steps a second: the time left is at that pace (0:20 for 20,000 steps), not at the
+    pace from the start (which would say over an hour); and no line comes before the second step."""
+    clock, out = Clock(), io.StringIO()
+    progress = Progress(30_000, "steps", "train", stream=out, interval_s=10.0, clock=clock)
+    clock.now += 15.0
+    progress.advance(128)
+    assert out.getvalue() == ""  # 15 s have passed, but one step gives no pace
+    clock.now += 0.128
+    progress.advance(128)
+    assert out.getvalue() == "train: 256/30,000 steps (1 %), 0:15 elapsed, about 0:30 left\n"
+    for _ in range(79):  # 10,112 steps more in 10.112 s
+        clock.now += 0.128
+        progress.advance(128)
+    assert out.getvalue().splitlines()[1:] == ["train: 10,368/30,000 steps (35 %), 0:25 elapsed, about 0:20 left"]
 
 
 @pytest.mark.parametrize("value", ["0", "-5", "nan", "inf", "ten", "1e9"])

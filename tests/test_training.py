@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -16,9 +17,9 @@ from stewart_gym.cli import main
 from stewart_gym.control import CascadedPID, PIDGains
 from stewart_gym.errors import ConfigError
 from stewart_gym.evaluation import evaluate, format_table
-from stewart_gym.registry import load_policy
+from stewart_gym.registry import POLICY_DIR, load_policy
 from stewart_gym.sb3_models import load_sb3
-from stewart_gym.training import TrainConfig, load_hyperparams, train
+from stewart_gym.training import TrainConfig, load_hyperparams, rollout_note, train
 
 SMOKE = {
     "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
@@ -365,8 +366,6 @@ def test_demo_compares_the_learned_policies_shipped_for_the_build_with_the_stron
 
 
 def test_shipped_policy_files_are_small_and_complete() -> None:
-    from stewart_gym.registry import POLICY_DIR
-
     folder = POLICY_DIR / "balance"
     for name in ("model.zip", "vecnormalize.pkl", "config.yaml", "metrics.json", "eval.csv", "bundle/policy.onnx",
                  "bundle/bundle.json"):  # fmt: skip
@@ -487,6 +486,22 @@ def test_the_batched_backend_trains_behind_cameras(tmp_path: Path, capsys: pytes
     assert result["sensor"] == "camera" and result["backend"] == "pybullet"
 
 
+def test_the_rollout_note_counts_the_minibatches() -> None:
+    """A rollout that batch_size does not divide is a note that counts the whole minibatches and the rest; one
+    that it divides, a resumed run and an off-policy algorithm none."""
+    def note(**kw: object) -> str | None:
+        return rollout_note(TrainConfig(**{"hyperparams": "ppo_batched", "run_dir": "unused", **kw}))
+
+    assert note(n_envs=100) == ("n_steps 32 × n_envs 100 = a rollout of 3,200 samples, which batch_size 1,024 does not "
+                                "divide: each epoch trains on 3 minibatches of 1,024 and one of 128 (for whole "
+                                "minibatches, make n_steps × n_envs a multiple of batch_size; the recipe has n_envs "
+                                "128)")  # fmt: skip
+    assert "1 minibatch of 1,024 and one of 32 (" in note(n_envs=33)
+    assert note() is None and note(n_envs=96) is None  # 4,096 and 3,072 samples: 4 and 3 minibatches
+    assert note(n_envs=100, resume=str(POLICY_DIR / "balance")) is None
+    assert rollout_note(TrainConfig(algo="sac", run_dir="unused", n_envs=3)) is None
+
+
 @pytest.mark.slow
 def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
@@ -495,8 +510,16 @@ def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
     ``compare`` runs it, beside a classical controller or a PyBullet-trained policy, in PyBullet too unless told
     otherwise."""
     run = tmp_path / "run"
-    assert main(["train", "--hyperparams", "ppo_batched", "--run-dir", str(run), "--n-envs", "16",
-                 "--timesteps", "2048", "--eval-freq", "1024", "--eval-episodes", "2"]) == 0  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["train", "--hyperparams", "ppo_batched", "--run-dir", str(run), "--n-envs", "16",
+                     "--timesteps", "2048", "--eval-freq", "1024", "--eval-episodes", "2"]) == 0  # fmt: skip
+    # 16 copies × 32 steps fill half of one of the recipe's minibatches: a note line says so, SB3's warning not
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("note: ")]
+    assert notes == ["note: n_steps 32 × n_envs 16 = a rollout of 512 samples, which batch_size 1,024 does not "
+                     "divide: each epoch trains on one minibatch of 512 (for whole minibatches, make n_steps × n_envs "
+                     "a multiple of batch_size; the recipe has n_envs 128)"], notes  # fmt: skip
+    assert not [w for w in caught if "mini-batch size" in str(w.message)]
     recorded = yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]
     assert recorded["env_kwargs"]["backend"] == "batched"
     metrics = json.loads((run / "metrics.json").read_text())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +59,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         check_run_dir,
         planned_timesteps,
         resume_note,
+        rollout_note,
         run_env_kwargs,
         run_hyperparams,
         train,
@@ -78,10 +80,16 @@ def cmd_train(args: argparse.Namespace) -> int:
     _, note = run_env_kwargs(cfg, run_hyperparams(cfg))
     if note:
         print(f"note: {note}", file=sys.stderr)
+    uneven = rollout_note(cfg)
+    if uneven:
+        print(f"note: {uneven}", file=sys.stderr)
     total = planned_timesteps(cfg)
     progress = None if args.no_progress else Progress(total, "steps", "train")
-    metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60,
-                    on_progress=None if progress is None else progress.advance)  # fmt: skip
+    with warnings.catch_warnings():
+        if uneven:  # said above, in a line; Stable-Baselines3 says it again in four
+            warnings.filterwarnings("ignore", message="You have specified a mini-batch size", category=UserWarning)
+        metrics = train(cfg, max_wall_s=None if args.max_minutes is None else args.max_minutes * 60,
+                        on_progress=None if progress is None else progress.advance)  # fmt: skip
     if progress is not None:
         progress.close()
     if metrics.get("stopped"):

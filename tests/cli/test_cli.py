@@ -147,6 +147,8 @@ def _inputs_of_issue_57(d: Path) -> None:
     (d / "residual_scale.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  env_wrapper:\n"
                                           "    - stewart_gym.sb3_models.ResidualAction: {residual: {base: lqr, scale: 5}}\n")
     (d / "rate_penalty_nan.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  env_kwargs: {rate_penalty: .nan}\n")
+    (d / "batch_one.yml").write_text("StewartBallBalance-v0:\n  n_envs: 4\n  n_steps: 16\n  batch_size: 1\n")
+    (d / "rollout_one.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_steps: 1\n  batch_size: 2\n")
     (d / "cal_other_build.toml").write_text('geometry = "memememe-liverpool"\n' + "[[servo]]\n" * 6)
     (d / "planar_unknown.toml").write_text("L1 = 1\nL2 = 1\nL3 = 1\ngamma = 1\nx1 = 1\nx2 = 1\ny2 = 1\np1 = 1\n"
                                            "p2 = 1\np3 = 1\nextra = 2\n")  # fmt: skip
@@ -575,6 +577,9 @@ WRONG_BLAME = [
     (["train", "--hyperparams", "{files}/rate_penalty_nan.yml", "--run-dir", "{tmp}/r", "--backend", "batched"],
      "rate_penalty_nan.yml: StewartBallBalance-v0.env_kwargs with --backend batched: rate_penalty must be ≥ 0",
      "Traceback"),
+    (["train", "--hyperparams", "{files}/batch_one.yml", "--run-dir", "{tmp}/r"],
+     "batch_one.yml: batch_size must be 2 or more, got 1", "Traceback"),
+    (["train", "--hyperparams", "{files}/rollout_one.yml", "--run-dir", "{tmp}/r"], "n_steps 1 × n_envs 1", "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
 ]  # fmt: skip
