@@ -479,7 +479,7 @@ def rollout_note(config: TrainConfig) -> str | None:
     if rollout % batch == 0:
         return None
     full = rollout // batch
-    recipe = f"; the recipe has n_envs {hp['n_envs']}" if config.n_envs and hp.get("n_envs", 1) != n_envs else ""
+    recipe = f"; the recipe has n_envs {hp.get('n_envs', 1)}" if config.n_envs and hp.get("n_envs", 1) != n_envs else ""
     minibatches = f"{full:,} minibatch{'es' if full > 1 else ''} of {batch:,} and one of " if full else "one minibatch of "
     return (f"n_steps {n_steps} × n_envs {n_envs} = a rollout of {rollout:,} samples, which batch_size {batch:,} "
             f"does not divide: each epoch trains on {minibatches}{rollout % batch:,} (for whole minibatches, make "

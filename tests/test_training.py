@@ -486,7 +486,7 @@ def test_the_batched_backend_trains_behind_cameras(tmp_path: Path, capsys: pytes
     assert result["sensor"] == "camera" and result["backend"] == "pybullet"
 
 
-def test_the_rollout_note_counts_the_minibatches() -> None:
+def test_the_rollout_note_counts_the_minibatches(tmp_path: Path) -> None:
     """A rollout that batch_size does not divide is a note that counts the whole minibatches and the rest; one
     that it divides, a resumed run and an off-policy algorithm none."""
     def note(**kw: object) -> str | None:
@@ -500,6 +500,10 @@ def test_the_rollout_note_counts_the_minibatches() -> None:
     assert note() is None and note(n_envs=96) is None  # 4,096 and 3,072 samples: 4 and 3 minibatches
     assert note(n_envs=100, resume=str(POLICY_DIR / "balance")) is None
     assert rollout_note(TrainConfig(algo="sac", run_dir="unused", n_envs=3)) is None
+    recipe = tmp_path / "no_n_envs.yml"  # n_envs left to the default (1)
+    recipe.write_text("StewartBallBalance-v0:\n  n_steps: 48\n  batch_size: 64\n")
+    assert note(hyperparams=str(recipe), n_envs=3).endswith("and one of 16 (for whole minibatches, make n_steps × "
+                                                            "n_envs a multiple of batch_size; the recipe has n_envs 1)")
 
 
 @pytest.mark.slow
