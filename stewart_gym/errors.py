@@ -10,7 +10,8 @@ traceback. Each class also derives from the built-in exception it refines, so
 
 from __future__ import annotations
 
-__all__ = ["ConfigError", "DeviceFailure", "PolicyError", "Stopped", "StewartGymError", "UnreachableError"]
+__all__ = ["ConfigError", "DeviceFailure", "PolicyError", "Stopped", "StewartGymError", "TrainingDiverged",
+           "UnreachableError"]
 
 
 class StewartGymError(Exception):
@@ -27,6 +28,11 @@ class PolicyError(StewartGymError, ValueError):
 
 class UnreachableError(StewartGymError, ValueError):
     """A pose the user asked for is outside the platform's workspace."""
+
+
+class TrainingDiverged(StewartGymError, RuntimeError):
+    """A training run's network gave NaN: its hyperparameters (a learning rate or a loss coefficient too large)
+    drove it apart; the message says which to lower and where the run's saved models are."""
 
 
 class DeviceFailure(StewartGymError, RuntimeError):

@@ -113,7 +113,7 @@ def load_sb3(path: str | Path) -> SB3Policy:
             with stats.open("rb") as fh:
                 vec = pickle.load(fh)
             obs_rms, clip_obs = vec.obs_rms, vec.clip_obs
-        except (pickle.UnpicklingError, EOFError, AttributeError) as exc:
+        except Exception as exc:  # noqa: BLE001 (a damaged pickle raises nearly anything)
             raise PolicyError(f"{stats}: unreadable normalisation statistics ({type(exc).__name__})") from None
     return SB3Policy(model, obs_rms, clip_obs)
 

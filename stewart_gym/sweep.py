@@ -38,10 +38,13 @@ import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.inputs import read_yaml
+
+if TYPE_CHECKING:
+    from stewart_gym.training import TrainConfig
 
 __all__ = ["DOMAINS", "SPEC_KEYS", "SweepSpec", "load_sweep", "rank_trials", "run_sweep", "summarise_configs"]
 
@@ -50,6 +53,8 @@ DOMAINS = ("choice", "grid", "uniform", "loguniform")
 SEARCHERS = ("random", "optuna")
 SCHEDULERS = ("asha", "fifo")
 METRICS = ("success_rate", "mean_reward")
+#: The largest seed a trial takes (as ``train --seed``).
+MAX_SEED = 2**31 - 1
 
 
 @dataclass
@@ -185,6 +190,8 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
     if not isinstance(seeds, list) or not seeds:
         raise ConfigError(f"{path}: seeds must be a non-empty list of whole numbers, got {seeds!r}")
     spec.seeds = [_whole(s, "each seed", 0) for s in seeds]
+    if max(spec.seeds) > MAX_SEED:
+        raise ConfigError(f"{path}: each seed must be at most {MAX_SEED:,}, got {max(spec.seeds)!r}")
     if len(set(spec.seeds)) != len(spec.seeds):
         raise ConfigError(f"{path}: seeds repeat: {spec.seeds}")
     for key, allowed in (("searcher", SEARCHERS), ("scheduler", SCHEDULERS), ("metric", METRICS)):
@@ -244,7 +251,26 @@ def load_sweep(path: str | Path, *, num_samples: int | None = None, max_concurre
     if spec.eval_freq is not None and spec.eval_freq > spec.n_timesteps:
         raise ConfigError(f"{path}: eval_freq ({spec.eval_freq}) > n_timesteps ({spec.n_timesteps}): no evaluation "
                           "would be reported")  # fmt: skip
+    _check_trials(spec, path)
     return spec
+
+
+def _check_trials(spec: SweepSpec, path: Path) -> None:
+    """Each value a trial may be given, in a trial beside the other entries' first values: the checks that
+    ``train`` makes of its recipe and options, and one env built as the trial builds it, so that a value the
+    algorithm or the env refuses is one line before Ray starts (a range is checked at its ends)."""
+    from stewart_gym.training import check_recipe, check_run_env
+
+    first = {name: values[0] for name, (_, values) in spec.search.items()}
+    trials = [("", first)] + [(f" search.{name} = {value!r}:", {**first, name: value})
+                              for name, (_, values) in spec.search.items() for value in values[1:]]  # fmt: skip
+    for which, config in trials:
+        cfg = trial_config(spec, {**config, "seed": max(spec.seeds)}, ".")
+        try:
+            check_recipe(cfg)
+            check_run_env(cfg)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}:{which} {exc}") from None
 
 
 # --------------------------------------------------------------------------------------------- the trials
@@ -273,6 +299,19 @@ def trial_seed(spec: SweepSpec, config: dict[str, Any]) -> int:
     return spec.seeds[int(config.get("__trial_index__", 0)) % len(spec.seeds)]
 
 
+def trial_config(spec: SweepSpec, config: dict[str, Any], run_dir: str) -> TrainConfig:
+    """The training run of the trial that Tune gives ``config`` (its sampled values), in ``run_dir``."""
+    from stewart_gym.training import TrainConfig
+
+    return TrainConfig(env_id=spec.env, algo=spec.algo, hyperparams=spec.hyperparams_file, run_dir=run_dir,
+                       geometry=spec.geometry, seed=trial_seed(spec, config), n_timesteps=spec.n_timesteps,
+                       n_envs=spec.n_envs, eval_freq=eval_freq(spec), eval_episodes=spec.eval_episodes,
+                       overrides=trial_overrides(spec, config), progress_bar=False, tensorboard=False,
+                       # n_envs worker processes, the CPUs Ray reserves; batched copies step together in this one
+                       vec_env="dummy" if spec.batched else "subproc",
+                       background_eval=False)  # fmt: skip  (the trials fill the cores Ray has: no core to spare)
+
+
 def eval_freq(spec: SweepSpec) -> int:
     """Env steps between evaluations: ``eval_freq``, else a tenth of the run (a multiple of ``n_envs``)."""
     freq = spec.eval_freq or max(spec.n_timesteps // 10, 1)
@@ -286,19 +325,13 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
     from ray import tune
 
     from stewart_gym.registry import export_policy, resolve_policy
-    from stewart_gym.training import TrainConfig, train
+    from stewart_gym.training import train
 
     sweep = SweepSpec(**spec)
     run_dir = Path(trials_dir) / tune.get_context().get_trial_id()
     node = ray.get_runtime_context().get_node_id()
     host = os.uname().nodename
-    cfg = TrainConfig(env_id=sweep.env, algo=sweep.algo, hyperparams=sweep.hyperparams_file, run_dir=str(run_dir),
-                      geometry=sweep.geometry, seed=trial_seed(sweep, config), n_timesteps=sweep.n_timesteps,
-                      n_envs=sweep.n_envs, eval_freq=eval_freq(sweep), eval_episodes=sweep.eval_episodes,
-                      overrides=trial_overrides(sweep, config), progress_bar=False, tensorboard=False,
-                      # n_envs worker processes, the CPUs Ray reserves; batched copies step together in this one
-                      vec_env="dummy" if sweep.batched else "subproc",
-                      background_eval=False)  # fmt: skip  (the trials fill the cores Ray has: no core to spare)
+    cfg = trial_config(sweep, config, str(run_dir))
     last: dict[str, Any] = {}
 
     def report(row: dict[str, float]) -> None:

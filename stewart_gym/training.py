@@ -23,6 +23,7 @@ import os
 import pickle
 import subprocess
 import time
+import zipfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
@@ -43,17 +44,18 @@ from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
-from stewart_gym.errors import ConfigError
+from stewart_gym.errors import ConfigError, TrainingDiverged
 from stewart_gym.inputs import read_yaml
 from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, model_statistics, run_config
 from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator, worker_start_method
 
-__all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig", "algo_keywords",
-           "check_action_noise", "check_algo_keywords", "check_hyperparameter_values", "check_resumed_observer",
-           "check_rollout", "check_run_dir", "action_noise", "evaluation_env", "load_hyperparams", "make_env",
-           "planned_timesteps", "rollout_note", "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+__all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig",
+           "algo_keywords", "check_action_noise", "check_algo_keywords", "check_hyperparameter_values",
+           "check_resumed_observer", "check_algo_values", "check_recipe", "check_run_dir", "check_run_env",
+           "action_noise", "evaluation_env", "load_hyperparams", "make_env", "planned_timesteps", "rollout_note",
+           "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -364,9 +366,54 @@ def _is_whole(v: Any) -> bool:
     return not isinstance(v, bool) and isinstance(v, int)
 
 
+def _is_auto(v: Any) -> bool:
+    """SAC's and TQC's learned entropy coefficient: ``auto``, or ``auto_`` and its positive start value."""
+    if not isinstance(v, str) or not v.startswith("auto"):
+        return False
+    if v == "auto":
+        return True
+    try:
+        return v.startswith("auto_") and math.isfinite(float(v[5:])) and float(v[5:]) > 0
+    except ValueError:
+        return False
+
+
+#: ``normalize``'s keywords (VecNormalize's) that a recipe may give, and what each must be.
+NORMALIZE_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "norm_obs": (lambda v: isinstance(v, bool), "true or false"),
+    "norm_reward": (lambda v: isinstance(v, bool), "true or false"),
+    "clip_obs": (lambda v: _is_number(v) and v > 0, "a positive number"),
+    "clip_reward": (lambda v: _is_number(v) and v > 0, "a positive number"),
+    "gamma": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+    "epsilon": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
+}
+#: ``policy_kwargs.activation_fn``: the names a recipe may give, and the torch module each stands for.
+ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU", "silu": "SiLU", "gelu": "GELU"}
+#: The ``policy_kwargs`` a recipe may give beside ``net_arch`` and ``log_std_init``: the algorithms that take
+#: each, and what it must be.
+POLICY_KWARG_RULES: dict[str, tuple[tuple[str, ...], Callable[[Any], bool], str]] = {
+    "activation_fn": (("ppo", "sac", "td3", "tqc"), lambda v: isinstance(v, str) and v in ACTIVATIONS,
+                      f"one of {', '.join(ACTIVATIONS)}"),
+    "ortho_init": (("ppo",), lambda v: isinstance(v, bool), "true or false"),
+    "n_critics": (("sac", "td3", "tqc"), lambda v: _is_whole(v) and 1 <= v <= 10, "a whole number from 1 to 10"),
+    "n_quantiles": (("tqc",), lambda v: _is_whole(v) and 1 <= v <= 100, "a whole number from 1 to 100"),
+}
+
+
 #: What each common constructor keyword of the algorithms must be: (test, what to give). Checked before any
 #: training or Ray starts (:func:`check_hyperparameter_values`), so a mistake is one line, not a traceback 25 s in.
 VALUE_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "n_envs": (lambda v: _is_whole(v) and 1 <= v <= 1_000_000, "a whole number from 1 to 1,000,000"),
+    "n_timesteps": (lambda v: _is_whole(v) and 1 <= v <= 1_000_000_000, "a whole number from 1 to 1e9"),
+    "eval_freq": (lambda v: _is_whole(v) and 1 <= v <= 1_000_000_000, "a whole number from 1 to 1e9"),
+    "eval_episodes": (lambda v: _is_whole(v) and 1 <= v <= 10_000, "a whole number from 1 to 10,000"),
+    "target_update_interval": (lambda v: _is_whole(v) and v >= 1, "a whole number ≥ 1"),
+    "use_sde_at_warmup": (lambda v: isinstance(v, bool), "true or false"),
+    "optimize_memory_usage": (lambda v: v is False, "false (the replay buffer keeps time-limit endings apart)"),
+    "rollout_buffer_class": (lambda v: v is None or v == {}, "left out: the algorithm's own buffer serves"),
+    "rollout_buffer_kwargs": (lambda v: v is None or v == {}, "left out: the algorithm's own buffer serves"),
+    "replay_buffer_class": (lambda v: v is None or v == {}, "left out: the algorithm's own buffer serves"),
+    "replay_buffer_kwargs": (lambda v: v is None or v == {}, "left out: the algorithm's own buffer serves"),
     "learning_rate": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
     "batch_size": (lambda v: _is_whole(v) and 1 <= v <= 10_000_000, "a whole number ≥ 1"),
     "n_steps": (lambda v: _is_whole(v) and 1 <= v <= 10_000_000, "a whole number ≥ 1"),
@@ -375,8 +422,9 @@ VALUE_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "gae_lambda": (lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]"),
     "clip_range": (lambda v: _is_number(v) and 0 < v <= 10, "a positive number"),
     "clip_range_vf": (lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
-    "ent_coef": (lambda v: (_is_number(v) and v >= 0) or (isinstance(v, str) and v.startswith("auto")),
-                 "a number ≥ 0 (or 'auto' for SAC and TQC)"),
+    "ent_coef": (lambda v: (_is_number(v) and v >= 0) or _is_auto(v),
+                 "a number ≥ 0 (or, for SAC and TQC, 'auto' or 'auto_' and a positive start value, as auto_0.1)"),
+    "target_entropy": (lambda v: v == "auto" or _is_number(v), "a number or 'auto'"),
     "vf_coef": (lambda v: _is_number(v) and v >= 0, "a number ≥ 0"),
     "max_grad_norm": (lambda v: _is_number(v) and v > 0, "a positive number"),
     "target_kl": (lambda v: v is None or (_is_number(v) and v > 0), "a positive number or null"),
@@ -395,7 +443,8 @@ VALUE_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "use_sde": (lambda v: isinstance(v, bool), "true or false"),
     "sde_sample_freq": (lambda v: _is_whole(v) and v >= -1, "a whole number ≥ -1"),
     "normalize_advantage": (lambda v: isinstance(v, bool), "true or false"),
-    "normalize": (lambda v: isinstance(v, (bool, dict)), "true, false or a mapping of VecNormalize keywords"),
+    "normalize": (lambda v: isinstance(v, (bool, dict)), "true, false or a mapping of VecNormalize keywords "
+                  f"({', '.join(NORMALIZE_RULES)})"),
     "policy": (lambda v: v in ("MlpPolicy", "MultiInputPolicy"), "MlpPolicy"),
     "env_kwargs": (lambda v: isinstance(v, dict), "a mapping of env keywords"),
 }
@@ -418,6 +467,13 @@ def check_hyperparameter_values(hp: dict[str, Any], where: str = "hyperparameter
         rule = VALUE_RULES.get(key)
         if rule is not None and not rule[0](value):
             raise ConfigError(f"{where}: {key} must be {rule[1]}, got {value!r}")
+    for key, value in (hp["normalize"] if isinstance(hp.get("normalize"), dict) else {}).items():
+        rule = NORMALIZE_RULES.get(key)
+        if rule is None:
+            raise ConfigError(f"{where}: normalize.{key} is not a VecNormalize setting here; give "
+                              f"{', '.join(NORMALIZE_RULES)}")  # fmt: skip
+        if not rule[0](value):
+            raise ConfigError(f"{where}: normalize.{key} must be {rule[1]}, got {value!r}")
     kwargs = hp.get("policy_kwargs")
     if kwargs is None:
         return
@@ -453,9 +509,29 @@ def _ppo_setting(hp: dict[str, Any], key: str) -> Any:
     return hp[key] if key in hp else inspect.signature(PPO.__init__).parameters[key].default
 
 
-def check_rollout(algo: str, hp: dict[str, Any], n_envs: int, where: str = "hyperparameters") -> None:
-    """PPO's rollout (``n_steps`` per copy × ``n_envs``) and minibatch can normalise advantages (raises
-    :class:`ConfigError`): each holds 2 or more samples where ``normalize_advantage`` is on (the default)."""
+def check_algo_values(algo: str, hp: dict[str, Any], n_envs: int, where: str = "hyperparameters") -> None:
+    """The values of a recipe that hold for one algorithm only (raises :class:`ConfigError`): the
+    ``policy_kwargs`` it takes (:data:`POLICY_KWARG_RULES`), a learned entropy coefficient for SAC and TQC only,
+    and PPO's rollout (``n_steps`` per copy × ``n_envs``) and minibatch, which hold 2 or more samples each where
+    ``normalize_advantage`` is on (the default)."""
+    kwargs = hp.get("policy_kwargs") if isinstance(hp.get("policy_kwargs"), dict) else {}
+    for key, value in kwargs.items():
+        if key in ("net_arch", "log_std_init"):
+            continue
+        algos, test, what = POLICY_KWARG_RULES.get(key, ((), None, ""))
+        if algo not in algos:
+            takes = ["net_arch", "log_std_init", *(k for k, r in POLICY_KWARG_RULES.items() if algo in r[0])]
+            raise ConfigError(f"{where}: policy_kwargs.{key} is not taken for {algo.upper()}; it takes "
+                              f"{', '.join(takes)}")  # fmt: skip
+        if not test(value):
+            raise ConfigError(f"{where}: policy_kwargs.{key} must be {what}, got {value!r}")
+    quantiles = kwargs.get("n_quantiles", 25)  # TQC's default
+    if algo == "tqc" and hp.get("top_quantiles_to_drop_per_net", 2) >= quantiles:
+        raise ConfigError(f"{where}: top_quantiles_to_drop_per_net must be below policy_kwargs.n_quantiles "
+                          f"({quantiles}), got {hp['top_quantiles_to_drop_per_net']!r}")  # fmt: skip
+    if algo == "ppo" and isinstance(hp.get("ent_coef"), str):
+        raise ConfigError(f"{where}: ent_coef {hp['ent_coef']!r}: a learned entropy coefficient is SAC's and TQC's; "
+                          f"{algo.upper()} takes a number ≥ 0")  # fmt: skip
     if algo != "ppo" or not _ppo_setting(hp, "normalize_advantage"):
         return
     batch, n_steps = _ppo_setting(hp, "batch_size"), _ppo_setting(hp, "n_steps")
@@ -496,18 +572,15 @@ def action_noise(hp: dict[str, Any], n_actions: int) -> ActionNoise | None:
     return OrnsteinUhlenbeckActionNoise(mean, sigma)
 
 
-def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
-    """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
-    the algorithm, the hyperparameter file and section, the options, the run folder (writable; not holding
-    another run's model unless ``overwrite`` or resuming) and the run to resume from."""
-    from stewart_gym.outputs import output_dir
-
+def check_recipe(config: TrainConfig) -> dict[str, Any]:
+    """A run's algorithm, hyperparameter file and section, and options, checked as far as can be without
+    building anything (raises :class:`ConfigError`); returns its hyperparameters."""
     if config.algo not in ALGOS:
         raise ConfigError(f"algo must be one of {sorted(ALGOS)}, got {config.algo!r}")
     for key in ("n_timesteps", "n_envs", "eval_freq", "eval_episodes"):
         value = getattr(config, key)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-            raise ConfigError(f"{key} must be a whole number ≥ 1, got {value!r}")
+        if value is not None and not VALUE_RULES[key][0](value):
+            raise ConfigError(f"{key} must be {VALUE_RULES[key][1]}, got {value!r}")
     check_vec_env(config.vec_env)
     hp = run_hyperparams(config)
     recipe = recipe_name(config)
@@ -516,7 +589,7 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     check_action_noise(config.algo, hp)
     backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
     check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)
-    check_rollout(config.algo, hp, int(config.n_envs or hp.get("n_envs", 1)), recipe)
+    check_algo_values(config.algo, hp, int(config.n_envs or hp.get("n_envs", 1)), recipe)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -529,6 +602,27 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     if hp.get("residual"):  # the base as it will run on this build (a dither it cannot give is refused)
         spec = check_residual(hp["residual"])
         residual_base(spec, geometry) if geometry is not None else residual_base(spec)
+    return hp
+
+
+def check_run_env(config: TrainConfig) -> None:
+    """A run's env as its options and recipe give it: one copy is built and closed (raises
+    :class:`ConfigError` naming where the settings came from, :func:`env_settings_source`)."""
+    hp = run_hyperparams(config)
+    residual = check_residual(hp["residual"]) if hp.get("residual") else None
+    try:
+        evaluation_env(config.env_id, 1, config.seed, training_env_kwargs(config, hp), residual).close()
+    except ConfigError as exc:
+        raise ConfigError(f"the env of {env_settings_source(config)}: {exc}") from None
+
+
+def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
+    """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
+    its recipe and options (:func:`check_recipe`), the run folder (writable; not holding another run's model
+    unless ``overwrite`` or resuming) and the run to resume from."""
+    from stewart_gym.outputs import output_dir
+
+    hp = check_recipe(config)
     run = output_dir(config.run_dir)
     if config.resume:
         resume = Path(config.resume)
@@ -538,10 +632,21 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
                 raise ConfigError(f"--resume {config.resume}: an ensemble of runs, which train one by one; resume one "
                                   f"of its members, e.g. --resume {resume / 'members' / '0'}")  # fmt: skip
             raise ConfigError(f"--resume {config.resume}: no model at {model}")
-        if hp.get("normalize", False) and resume_statistics(resume) is None:
+        if not zipfile.is_zipfile(model):
+            raise ConfigError(f"--resume {config.resume}: {model} is not a Stable-Baselines3 model (not a zip "
+                              "archive); give a run folder or a model .zip")  # fmt: skip
+        stats = resume_statistics(resume)
+        if hp.get("normalize", False) and stats is None:
             raise ConfigError(f"--resume {config.resume}: no normalisation statistics beside the model "
                               "(vecnormalize.pkl); resume from a run folder, its best/best_model.zip or a "
                               "checkpoint")  # fmt: skip
+        if stats is not None:
+            try:
+                with stats.open("rb") as fh:
+                    pickle.load(fh)
+            except Exception as exc:  # noqa: BLE001 (a damaged pickle raises nearly anything)
+                raise ConfigError(f"--resume {config.resume}: {stats}: unreadable normalisation statistics "
+                                  f"({type(exc).__name__})") from None  # fmt: skip
         was = saved_algo(model)
         if was is not None and was != config.algo:
             raise ConfigError(f"--resume {config.resume} is a {was.upper()} model and continues as one: give --algo "
@@ -781,6 +886,20 @@ class _Progress(BaseCallback):
         return True
 
 
+def training_env_kwargs(config: TrainConfig, hp: dict[str, Any]) -> dict[str, Any]:
+    """The env keywords a run trains with: the recipe's (:func:`run_env_kwargs`) with the options' backend,
+    sensor, estimator and twin in their place."""
+    env_kwargs, _ = run_env_kwargs(config, hp)
+    for key in ("backend", "sensor", "estimator"):
+        if getattr(config, key) is not None:
+            env_kwargs[key] = getattr(config, key)
+    if config.twin is not None:
+        from stewart_gym.sim.twin import load_twin
+
+        env_kwargs["twin"] = load_twin(config.twin).to_mapping()
+    return env_kwargs
+
+
 def planned_timesteps(config: TrainConfig) -> int:
     """The env steps ``config`` trains for: ``n_timesteps`` of the options, else of the hyperparameters."""
     return int(config.n_timesteps if config.n_timesteps is not None
@@ -830,21 +949,15 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     n_envs = option(config.n_envs, "n_envs", 1)
     n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
     normalize = hp.get("normalize", False)
-    env_kwargs, _ = run_env_kwargs(config, hp)
-    if config.backend is not None:
-        env_kwargs["backend"] = config.backend
-    if config.sensor is not None:
-        env_kwargs["sensor"] = config.sensor
-    if config.estimator is not None:
-        env_kwargs["estimator"] = config.estimator
-    if config.twin is not None:
-        from stewart_gym.sim.twin import load_twin
-
-        env_kwargs["twin"] = load_twin(config.twin).to_mapping()
+    env_kwargs = training_env_kwargs(config, hp)
     hp["env_kwargs"] = env_kwargs  # config.yaml records what was used: a policy keeps its geometry
     eval_freq = option(config.eval_freq, "eval_freq", 20_000)
     eval_episodes = option(config.eval_episodes, "eval_episodes", 20)
     algo_kwargs = {k: v for k, v in hp.items() if k not in RUN_KEYS}
+    if "activation_fn" in (algo_kwargs.get("policy_kwargs") or {}):  # a name in the recipe, a torch module here
+        name = algo_kwargs["policy_kwargs"]["activation_fn"]
+        algo_kwargs["policy_kwargs"] = {**algo_kwargs["policy_kwargs"],
+                                        "activation_fn": getattr(torch.nn, ACTIVATIONS[name])}  # fmt: skip
     policy = hp.get("policy", "MlpPolicy")
     residual = check_residual(hp["residual"]) if hp.get("residual") else None
     if residual is not None:
@@ -925,6 +1038,12 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
                     reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
         evaluations.finish()
+    except ValueError as exc:  # torch's distributions refuse a NaN mean: the network has come apart
+        if "found invalid values" not in str(exc):
+            raise
+        raise TrainingDiverged(f"training diverged after {model.num_timesteps:,} steps: the network gave NaN; lower "
+                               f"the learning_rate, vf_coef or ent_coef of {recipe_name(config)} (what was saved "
+                               f"before, checkpoints and the best evaluated model, is in {run})") from None
     finally:
         evaluator.close()
     wall = time.time() - started

@@ -72,6 +72,14 @@ def check_bundle_deploys(bundle: Path) -> None:
     ({"geometry": "no-such-preset"}, "no-such-preset"),
     ({"eval_freq": 10**9}, "eval_freq"),
     ({"n_envs": 300}, "n_envs: at most 256 copies"),  # engines; the batched backend takes thousands
+    # what train refuses, refused here before Ray starts (the trial's recipe checks, and one env built)
+    ({"seeds": [2**40]}, "each seed must be at most"),
+    ({"eval_episodes": 10**9}, "eval_episodes must be a whole number from 1 to 10,000"),
+    ({"batch_size": 1}, "batch_size must be 2 or more"),
+    ({"policy_kwargs": {"net_arch": [8], "bogus": 1}}, "policy_kwargs.bogus is not taken for PPO"),
+    ({"env_kwargs": {"rate_penalty": -1.0}}, "rate_penalty must be ≥ 0"),
+    ({"search": {"env_kwargs.rate_penalty": {"choice": [0.0, -1.0]}}}, "search.env_kwargs.rate_penalty = -1.0: the env of"),
+    ({"search": {"ent_coef": {"choice": [0.0, "auto"]}}}, "search.ent_coef = 'auto': ppo.yml: ent_coef 'auto'"),
 ])  # fmt: skip
 def test_a_malformed_sweep_file_is_refused_naming_the_key(tmp_path: Path, entries: dict, named: str) -> None:
     with pytest.raises(ConfigError, match=named.replace(".", r"\.")):
@@ -167,17 +175,18 @@ def test_a_local_rays_trials_run_at_the_sweeps_priority_unless_the_user_sets_ano
 
 @pytest.mark.slow
 def test_a_local_sweep_reports_a_failed_trial_and_carries_on(tmp_path: Path) -> None:
-    """Two trials on a local Ray: one finishes, one's env refuses its max_tilt; the sweep ends normally, the
-    table says which failed and why, and the finished trial's bundle is exported and deploys."""
-    out, stdout, table = local_sweep(tmp_path, search={"env_kwargs.max_tilt": {"grid": [0.15, -1.0]}})
+    """Two trials on a local Ray: one finishes, one comes apart (a value loss weighted 1e300 turns the network
+    to NaN, which no check of the file can foresee); the sweep ends normally, the table says which failed and why,
+    and the finished trial's bundle is exported and deploys."""
+    out, stdout, table = local_sweep(tmp_path, search={"vf_coef": {"grid": [0.5, 1e300]}})
     assert "1 finished, 0 stopped early by the scheduler, 1 failed" in stdout
     assert [r["status"] for r in table] == ["finished", "error"]
-    assert float(table[0]["env_kwargs.max_tilt"]) == 0.15 and int(table[0]["timesteps"]) >= 1024
-    assert "max_tilt" in table[1]["error"]
+    assert float(table[0]["vf_coef"]) == 0.5 and int(table[0]["timesteps"]) >= 1024
+    assert "training diverged" in table[1]["error"]
     run = Path(table[0]["run_dir"])
     for name in ("model.zip", "vecnormalize.pkl", "metrics.json", "eval.csv", "config.yaml", "bundle/bundle.json"):
         assert (run / name).is_file(), name
-    assert yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]["env_kwargs"]["max_tilt"] == 0.15
+    assert yaml.safe_load((run / "config.yaml").read_text())["hyperparams"]["vf_coef"] == 0.5
     assert (out / "configs.csv").is_file() and (out / "sweep.png").stat().st_size > 1000
     check_bundle_deploys(out / "best_bundle")
 

@@ -244,6 +244,8 @@ class StewartBallEnv(gym.Env, EzPickle):
             raise ConfigError(f"episode_s must be a duration in s, more than 0 and at most 3600, got {episode_s!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if not (isinstance(randomize, (bool, np.bool_)) or (type(randomize) is int and randomize in (0, 1))):
+            raise ConfigError(f"randomize must be true or false, got {randomize!r}")
         self.randomize = bool(randomize)
         self.render_mode = render_mode
         self.nominal_ball = ball or BallSpec()

@@ -148,6 +148,16 @@ def _inputs_of_issue_57(d: Path) -> None:
                                           "    - stewart_gym.sb3_models.ResidualAction: {residual: {base: lqr, scale: 5}}\n")
     (d / "rate_penalty_nan.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  env_kwargs: {rate_penalty: .nan}\n")
     (d / "batch_one.yml").write_text("StewartBallBalance-v0:\n  n_envs: 4\n  n_steps: 16\n  batch_size: 1\n")
+    recipe = "StewartBallBalance-v0:\n  n_envs: 2\n  n_steps: 16\n  batch_size: 32\n"
+    for name, line in {"n_envs_inf": "  n_timesteps: .inf\n", "normalize_key": "  normalize: {foo: 1}\n",
+                       "policy_kwarg": "  policy_kwargs: {activation_fn: relu, squash_output: true}\n",
+                       "ent_auto_ppo": "  ent_coef: auto\n", "buffer_kwargs": "  rollout_buffer_kwargs: {foo: 1}\n",
+                       "randomize_text": "  env_kwargs: {randomize: 'no'}\n",
+                       "diverges": "  vf_coef: 1.0e+300\n  n_timesteps: 256\n  env_kwargs: {backend: batched}\n"
+                       }.items():  # fmt: skip
+        (d / f"{name}.yml").write_text(recipe + line)
+    (d / "not_a_model").mkdir()
+    (d / "not_a_model" / "model.zip").write_text("garbage\n")
     (d / "rollout_one.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_steps: 1\n  batch_size: 2\n")
     (d / "cal_other_build.toml").write_text('geometry = "memememe-liverpool"\n' + "[[servo]]\n" * 6)
     (d / "planar_unknown.toml").write_text("L1 = 1\nL2 = 1\nL3 = 1\ngamma = 1\nx1 = 1\nx2 = 1\ny2 = 1\np1 = 1\n"
@@ -580,6 +590,20 @@ WRONG_BLAME = [
     (["train", "--hyperparams", "{files}/batch_one.yml", "--run-dir", "{tmp}/r"],
      "batch_one.yml: batch_size must be 2 or more, got 1", "Traceback"),
     (["train", "--hyperparams", "{files}/rollout_one.yml", "--run-dir", "{tmp}/r"], "n_steps 1 × n_envs 1", "Traceback"),
+    (["train", "--hyperparams", "{files}/n_envs_inf.yml", "--run-dir", "{tmp}/r"],
+     "n_envs_inf.yml: n_timesteps must be a whole number from 1 to 1e9, got inf", "Traceback"),
+    (["train", "--hyperparams", "{files}/normalize_key.yml", "--run-dir", "{tmp}/r"], "normalize.foo", "Traceback"),
+    (["train", "--hyperparams", "{files}/policy_kwarg.yml", "--run-dir", "{tmp}/r"],
+     "policy_kwargs.squash_output is not taken for PPO", "activation_fn is"),
+    (["train", "--hyperparams", "{files}/ent_auto_ppo.yml", "--run-dir", "{tmp}/r"], "SAC's and TQC's", "Traceback"),
+    (["train", "--hyperparams", "{files}/buffer_kwargs.yml", "--run-dir", "{tmp}/r"], "rollout_buffer_kwargs",
+     "Traceback"),
+    (["train", "--hyperparams", "{files}/randomize_text.yml", "--run-dir", "{tmp}/r"],
+     "randomize must be true or false, got 'no'", "Traceback"),
+    (["train", "--resume", "{files}/not_a_model", "--run-dir", "{tmp}/r"], "not a Stable-Baselines3 model",
+     "Traceback"),
+    (["train", "--hyperparams", "{files}/diverges.yml", "--run-dir", "{tmp}/r"],
+     "training diverged after 32 steps: the network gave NaN", "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
 ]  # fmt: skip
