@@ -525,10 +525,10 @@ def check_algo_values(algo: str, hp: dict[str, Any], n_envs: int, where: str = "
                               f"{', '.join(takes)}")  # fmt: skip
         if not test(value):
             raise ConfigError(f"{where}: policy_kwargs.{key} must be {what}, got {value!r}")
-    quantiles = kwargs.get("n_quantiles", 25)  # TQC's default
-    if algo == "tqc" and hp.get("top_quantiles_to_drop_per_net", 2) >= quantiles:
-        raise ConfigError(f"{where}: top_quantiles_to_drop_per_net must be below policy_kwargs.n_quantiles "
-                          f"({quantiles}), got {hp['top_quantiles_to_drop_per_net']!r}")  # fmt: skip
+    quantiles, dropped = kwargs.get("n_quantiles", 25), hp.get("top_quantiles_to_drop_per_net", 2)  # TQC's defaults
+    if algo == "tqc" and dropped >= quantiles:
+        raise ConfigError(f"{where}: top_quantiles_to_drop_per_net ({dropped}) must be below policy_kwargs.n_quantiles "
+                          f"({quantiles})")  # fmt: skip
     if algo == "ppo" and isinstance(hp.get("ent_coef"), str):
         raise ConfigError(f"{where}: ent_coef {hp['ent_coef']!r}: a learned entropy coefficient is SAC's and TQC's; "
                           f"{algo.upper()} takes a number ≥ 0")  # fmt: skip

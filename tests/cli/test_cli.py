@@ -156,6 +156,7 @@ def _inputs_of_issue_57(d: Path) -> None:
                        "diverges": "  vf_coef: 1.0e+300\n  n_timesteps: 256\n  env_kwargs: {backend: batched}\n"
                        }.items():  # fmt: skip
         (d / f"{name}.yml").write_text(recipe + line)
+    (d / "tqc_quantiles.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  policy_kwargs: {n_quantiles: 2}\n")
     (d / "not_a_model").mkdir()
     (d / "not_a_model" / "model.zip").write_text("garbage\n")
     (d / "rollout_one.yml").write_text("StewartBallBalance-v0:\n  n_envs: 1\n  n_steps: 1\n  batch_size: 2\n")
@@ -602,6 +603,8 @@ WRONG_BLAME = [
      "randomize must be true or false, got 'no'", "Traceback"),
     (["train", "--resume", "{files}/not_a_model", "--run-dir", "{tmp}/r"], "not a Stable-Baselines3 model",
      "Traceback"),
+    (["train", "--algo", "tqc", "--hyperparams", "{files}/tqc_quantiles.yml", "--run-dir", "{tmp}/r"],
+     "top_quantiles_to_drop_per_net (2) must be below policy_kwargs.n_quantiles (2)", "Traceback"),
     (["train", "--hyperparams", "{files}/diverges.yml", "--run-dir", "{tmp}/r"],
      "training diverged after 32 steps: the network gave NaN", "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
