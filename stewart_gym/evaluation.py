@@ -414,4 +414,6 @@ def write_gif(frames: list[np.ndarray], path: str | Path, fps: float = GIF_FPS, 
             draw.text((6, 5), text, fill=(0, 0, 0))
             stamped.append(np.asarray(image))
         kept = stamped
-    iio.imwrite(path, np.stack(kept), duration=1000 / fps, loop=0)
+    # encoded in memory, then written: imageio's writer, failing to open a path, fails again when collected
+    data = iio.imwrite("<bytes>", np.stack(kept), extension=".gif", duration=1000 / fps, loop=0)
+    Path(path).write_bytes(data)

@@ -44,7 +44,7 @@ from typing import Any
 
 from stewart_gym.actions import ACTION_SIZES
 from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
-from stewart_gym.errors import PolicyError
+from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, ensemble_members, model_statistics, run_config
 
@@ -104,6 +104,16 @@ class PolicySource:
     env_id: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     bundle: Path | None = None
+
+    def __post_init__(self) -> None:
+        from stewart_gym.envs import ENV_IDS
+
+        if self.env_id not in ENV_IDS:
+            raise PolicyError(f"policy {self.spec!r} was made for env {self.env_id!r}, which stewart_gym does not have "
+                              f"({', '.join(ENV_IDS)}); its bundle.json or config.yaml names the env")  # fmt: skip
+        if not isinstance(self.env_kwargs, dict):
+            raise PolicyError(f"policy {self.spec!r}: its env_kwargs must be a mapping of env keywords, got "
+                              f"{self.env_kwargs!r}")  # fmt: skip
 
     @property
     def action_mode(self) -> str:
@@ -230,6 +240,9 @@ def _sb3_source(spec: str, model_zip: Path) -> PolicySource:
                           "statistics are not beside it (vecnormalize.pkl, or a checkpoint's "
                           "rl_model_vecnormalize_<steps>_steps.pkl); keep the run folder together")  # fmt: skip
     env_kwargs = hp.get("env_kwargs") or {}
+    if not isinstance(env_kwargs, dict):
+        raise PolicyError(f"policy {spec!r}: its config.yaml's hyperparams.env_kwargs must be a mapping of env "
+                          f"keywords, got {env_kwargs!r}")  # fmt: skip
     kept = {k: env_kwargs[k] for k in POLICY_ENV_KEYS + TASK_ENV_KEYS if k in env_kwargs}
     kept.update({k: env_kwargs[k] for k in WORLD_ENV_KEYS if env_kwargs.get(k) is not None})
     kept.setdefault("action_mode", "tilt")
@@ -308,6 +321,9 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
 
 def _bundle_source(spec: str, folder: Path) -> PolicySource:
     meta = _read_json(folder / "bundle.json")
+    if not isinstance(meta.get("env_kwargs") or {}, dict):
+        raise PolicyError(f"{folder / 'bundle.json'}: env_kwargs must be a mapping of env keywords, got "
+                          f"{meta['env_kwargs']!r}; export the policy again")  # fmt: skip
     env_kwargs = dict(meta.get("env_kwargs") or {})
     env_kwargs["action_mode"] = meta.get("action_mode", "tilt")
     if isinstance(meta.get("geometry"), dict):
@@ -462,14 +478,23 @@ def _classical_meta(source: PolicySource) -> dict[str, Any]:
     return classical_meta(source.kind, asdict(controller.gains), source.env_id, source.geometry, source.estimator)
 
 
+#: The files of a bundle folder: ``export`` writes over these, and refuses a folder that holds anything else.
+BUNDLE_FILES = ("bundle.json", "policy.onnx", "policy.onnx.data")
+
+
 def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
     """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder."""
     from stewart_gym.hardware.export import export_bundle_copy, export_sb3
 
+    out = Path(out_dir)
+    other = sorted(p.name for p in out.iterdir() if p.name not in BUNDLE_FILES) if out.is_dir() else []
+    if other:  # a run folder, say: a bundle.json there would take the place of its model
+        raise ConfigError(f"--out {out} holds other files ({', '.join(other[:3])}{', …' if len(other) > 3 else ''}); "
+                          "export into a new or empty folder, or over an earlier bundle")  # fmt: skip
     if source.kind in CLASSICAL_KINDS:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")
+        meta = _classical_meta(source)
+        out.mkdir(parents=True, exist_ok=True)  # once the design is sound: a refusal leaves no folder
+        (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
         return out
     if source.kind == "bundle":
         out = export_bundle_copy(source.path, out_dir)

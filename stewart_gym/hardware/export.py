@@ -171,7 +171,6 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
     """Export the PID baseline's gains (a dict or a gains ``.json``, checked) to a bundle (``kind: "pid"``),
     behind the observer the gains name (``estimator``; the low-pass one if they name none)."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     if isinstance(gains, dict):
         values = gains
     else:
@@ -181,6 +180,7 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
             raise PolicyError(f"{gains}: not valid JSON ({exc})") from None
     estimator = design_estimator(values) or "lowpass"  # the observer the gains name, else the plain PID's
     meta = classical_meta("pid", asdict(checked_design(values, "pid")), env_id, geometry, estimator)
+    out.mkdir(parents=True, exist_ok=True)  # once the gains and the build are sound: a refusal leaves no folder
     (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
     return out
 

@@ -167,7 +167,8 @@ def _inputs_of_issue_57(d: Path) -> None:
     for name, change in {"bundle_obs_mean": {"obs_mean": shipped["obs_mean"][:3]}, "bundle_hz_zero": {"control_hz": 0},
                          "bundle_hz_text": {"control_hz": "fifty"}, "bundle_action_low": {"action_low": [-1.0]},
                          "bundle_var_negative": {"obs_var": [-1.0] * 12}, "bundle_clip_nan": {"clip_obs": math.nan},
-                         "bundle_obs_size": {"obs_size": 11}}.items():  # fmt: skip
+                         "bundle_obs_size": {"obs_size": 11}, "bundle_env_id": {"env_id": "Foo-v0"},
+                         "bundle_env_kwargs": {"env_kwargs": "oops"}}.items():  # fmt: skip
         folder = d / name
         shutil.copytree(POLICY_DIR / "balance" / "bundle", folder)
         (folder / "bundle.json").write_text(json.dumps({**shipped, **change}))
@@ -541,6 +542,10 @@ BAD_57 = [
                    "bundle_clip_nan", "bundle_obs_size")],  # fmt: skip
     ["evaluate", "--policy", "{files}/bundle_obs_mean"],
     ["calibrate", "--port", DEV, "--calibration", "{files}/cal_other_build.toml"],
+    ["evaluate", "--policy", "{files}/bundle_env_id"],
+    ["evaluate", "--policy", "{files}/bundle_env_kwargs"],
+    ["evaluate", "--policy", "pid", "--episodes", "1", "--gif", "/proc/x.gif"],  # imageio's writer said it again
+    ["export", "--policy", "pid", "--out", "{files}/not_a_model"],  # a folder with a model: not a bundle's
 ]
 DEVICE_FAILURES = {("deploy", DEV), ("calibrate", DEV)}  # a missing port is a device failure: exit 2
 #: A few cases also run as real processes (the table runs in this process, through main([...]), for speed).
@@ -603,6 +608,10 @@ WRONG_BLAME = [
      "randomize must be true or false, got 'no'", "Traceback"),
     (["train", "--resume", "{files}/not_a_model", "--run-dir", "{tmp}/r"], "not a Stable-Baselines3 model",
      "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_env_id"], "made for env 'Foo-v0', which stewart_gym does not have",
+     "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_env_kwargs"], "bundle.json: env_kwargs must be a mapping", "Traceback"),
+    (["export", "--policy", "pid", "--out", "{files}/not_a_model"], "holds other files (model.zip)", "Traceback"),
     (["train", "--algo", "tqc", "--hyperparams", "{files}/tqc_quantiles.yml", "--run-dir", "{tmp}/r"],
      "top_quantiles_to_drop_per_net (2) must be below policy_kwargs.n_quantiles (2)", "Traceback"),
     (["train", "--hyperparams", "{files}/diverges.yml", "--run-dir", "{tmp}/r"],
@@ -1182,3 +1191,20 @@ def test_training_records_the_package_revision_not_the_working_directory(tmp_pat
         os.chdir(cwd)
     head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     assert (head and head in text) or "not a git checkout" in text
+
+
+def test_a_refused_export_leaves_no_folder(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """Gains that are refused, or a build the PID cannot run on, are one line and write no ``--out`` folder."""
+    from stewart_gym.presets import load_preset
+
+    gains = tmp_path / "gains.json"
+    gains.write_text(json.dumps({"kp_pos": math.nan, "kp_vel": 3.0}))
+    geometry = tmp_path / "geo.toml"
+    text = load_preset("servo-hexapod").to_toml()
+    geometry.write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [-300.0, 600.0]", text))
+    assert "servo_angle_range = [-300.0, 600.0]" in geometry.read_text()
+    for args, out in ((["--policy", str(gains)], tmp_path / "b1"),
+                      (["--policy", "pid", "--geometry", str(geometry)], tmp_path / "b2")):  # fmt: skip
+        code, _, err = cli(capfd, "export", *args, "--out", str(out), cwd=tmp_path)
+        assert code == 1 and err.startswith("error: ") and err.count("\n") == 1, err
+        assert not out.exists()
