@@ -16,7 +16,7 @@ import numpy as np
 
 from stewart_gym.geometry import GeometryError, PlatformGeometry, home_height_eq10
 
-__all__ = ["PRESETS", "load_geometry", "load_preset", "polar_anchors", "preset_names"]
+__all__ = ["PRESETS", "check_home", "load_geometry", "load_preset", "polar_anchors", "preset_names"]
 
 MM = 1e-3
 DEG = math.pi / 180.0
@@ -192,5 +192,36 @@ def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
         return load_preset(spec)
     path = Path(spec)
     if path.suffix == ".toml" or path.exists():
-        return PlatformGeometry.from_toml(path)
+        geometry = PlatformGeometry.from_toml(path)
+        check_home(geometry, str(path))
+        return geometry
     raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")
+
+
+def check_home(geometry: PlatformGeometry, source: str) -> None:
+    """Raise :class:`GeometryError` (naming ``source``, the file) unless the home pose is inside the actuators'
+    travel: a solution of the IK at home, with each servo angle inside ``servo_angle_range`` (each leg length
+    inside ``leg_length_range``). A build whose home is outside its travel has no neutral pulse to start from."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    key, what = ("servo_angle_range", "servo angles") if geometry.is_rotary else ("leg_length_range", "leg lengths")
+    travel = getattr(geometry, key)
+    values = np.asarray(inverse_kinematics(geometry, np.zeros(6)).actuators, dtype=np.float64)
+    if not np.all(np.isfinite(values)):
+        raise GeometryError(f"{source}: home_height: the chains cannot close at home (no {what} reach it): "
+                            "check home_height, rod_length and the anchors")  # fmt: skip
+    lo, hi = travel
+    tolerance = 1e-9 * max(1.0, abs(lo), abs(hi))
+    outside = np.flatnonzero((values < lo - tolerance) | (values > hi + tolerance))
+    if outside.size:
+        if geometry.is_rotary:
+            def show(v: float) -> str:
+                return f"{v:.4g} rad ({math.degrees(v):.2f}°)"
+        else:
+            def show(v: float) -> str:
+                return f"{v:.4g} m"
+        low, high = float(values[outside].min()), float(values[outside].max())
+        at_home = show(low) if high - low < tolerance else f"{show(low)} to {show(high)}"
+        raise GeometryError(f"{source}: {key}: {show(lo)} to {show(hi)} does not hold the {what} at home "
+                            f"(actuators {outside.tolist()}: {at_home}): widen it to include them, or change "
+                            "home_height")  # fmt: skip

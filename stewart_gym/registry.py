@@ -38,11 +38,12 @@ actually loaded, so deploying a bundle needs numpy and onnxruntime only.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stewart_gym.actions import ACTION_SIZES
+from stewart_gym.actions import ACTION_SIZES, default_max_tilt
 from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.inputs import read_text
@@ -422,9 +423,15 @@ def load_classical(kind: str, path: Path, geometry: str | Any = DEFAULT_GEOMETRY
     design = read_design(path, kind)
     geometry = load_geometry(geometry)  # a bad geometry is the geometry's error, not the gains file's
     try:  # what only the build can tell (a dither against its max tilt)
-        return classical_controller(kind, design, geometry)
+        controller = classical_controller(kind, design, geometry)
     except ValueError as exc:
         raise PolicyError(f"{path}: {exc}") from None
+    given = getattr(getattr(design, "pid", design), "max_tilt", None)
+    used = default_max_tilt(geometry)  # what gains_for_geometry gives the PID
+    if given is not None and not math.isclose(given, used, rel_tol=1e-9):
+        _note_once(f"note: {path}: max_tilt {given:.6g} rad is not used: the controller's tilt at action ±1 is the "
+                   f"env's, {used:.6g} rad on {geometry.name!r} (a PID's max_tilt must match the env's)")  # fmt: skip
+    return controller
 
 
 def read_design(path: Path, kind: str) -> Any:

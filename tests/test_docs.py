@@ -100,8 +100,12 @@ def documented_keys(section: str) -> set[str]:
 def format_keys() -> dict[str, set[str]]:
     """Every key each reader of a configuration file knows, from the code (and, for bundles, what export writes)."""
     import json
+    from dataclasses import fields
 
     from stewart_gym import calibration, geometry, sb3_models, sweep, training, vision
+    from stewart_gym.control import LQRDesign, PIDGains
+    from stewart_gym.control.gains import ESTIMATOR_FIELD
+    from stewart_gym.control.handover import HANDOVER_SIZES
     from stewart_gym.hardware.deploy import log_columns
     from stewart_gym.hardware.export import classical_meta
     from stewart_gym.sim.twin import FIT_KEYS, TWIN_FIELDS
@@ -117,6 +121,8 @@ def format_keys() -> dict[str, set[str]]:
         "sweep": set(sweep.SPEC_KEYS),
         "hyperparameters": (set(training.RUN_KEYS) - internal | {"env_wrapper"} | set(sb3_models.RESIDUAL_FIELDS)),
         "bundle": {key for meta in bundles for key in meta},
+        "gains": ({f.name for cls in (PIDGains, LQRDesign) for f in fields(cls)} | set(HANDOVER_SIZES)
+                  | {"lqr", "pid", ESTIMATOR_FIELD}),
         "twin": {f"{table}.{key}" for table, key in TWIN_FIELDS} | {f"fit.{key}" for key in FIT_KEYS},
         # numbered columns by their first (and, for the pulses, last) name
         "deploy-log": {c for c in log_columns(12, 2, plate=True) if not re.fullmatch(r"(obs|action|pulse)\d+(_us)?", c)}
@@ -142,7 +148,7 @@ def test_the_config_references_examples_load(tmp_path: Path) -> None:
     sections = config_sections()
 
     def example(name: str, suffix: str) -> Path:
-        block = re.search(r"```(?:toml|yaml)\n(.*?)```", sections[name], flags=re.S).group(1)
+        block = re.search(r"```(?:toml|yaml|json)\n(.*?)```", sections[name], flags=re.S).group(1)
         path = tmp_path / f"{name}{suffix}"
         path.write_text(block)
         return path
@@ -163,3 +169,7 @@ def test_the_config_references_examples_load(tmp_path: Path) -> None:
     assert load_twin(example("twin", ".toml")).values == Twin().values
     hp = load_hyperparams("ppo", "StewartBallBalance-v0", str(example("hyperparameters", ".yml")))
     assert hp["residual"]["base"] == "lqr-pid" and hp["eval_freq"] == 25000
+    from stewart_gym.registry import load_classical
+
+    pid = load_classical("pid", example("gains", ".json"))
+    assert (pid.gains.kp_pos, pid.gains.ki_vel, pid.gains.feed_lead) == (2.0, 3.0, 0.06)

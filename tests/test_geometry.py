@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -262,3 +263,25 @@ def test_the_own_platform_pages_symmetric_file_is_servo_hexapod(tmp_path: Path) 
     assert np.max(np.abs(geo.base_anchors - preset.base_anchors)) < 1e-9
     assert np.max(np.abs(geo.platform_anchors - preset.platform_anchors)) < 1e-9
     assert np.max(np.abs(np.angle(np.exp(1j * (geo.servo_beta - preset.servo_beta))))) < 1e-9
+
+
+@pytest.mark.parametrize("name", ["servo-hexapod", "senilov2018"])
+def test_a_file_whose_travel_misses_home_is_refused_naming_the_range(name: str, tmp_path: Path) -> None:
+    """A build's home must be inside its actuators' travel (else it has no neutral pulse): the file and the range
+    are named, for a rotary and a linear build, while every preset loads from its own file."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    geo = load_preset(name)
+    home = inverse_kinematics(geo, np.zeros(6)).actuators
+    key = "servo_angle_range" if geo.is_rotary else "leg_length_range"
+    lo, hi = getattr(geo, key)
+    path = tmp_path / "g.toml"
+    path.write_text(geo.to_toml())
+    assert load_geometry(path) == geo and np.all((lo <= home) & (home <= hi))
+    above = float(home.max()) + 1e-3  # the travel starts just above home
+    text = geo.to_toml()
+    start = text.index(f"{key} = [")
+    end = text.index("]", start) + 1
+    path.write_text(text[:start] + f"{key} = [{above!r}, {hi!r}]" + text[end:])
+    with pytest.raises(GeometryError, match=rf"^{re.escape(str(path))}: {key}: .* does not hold the .* at home"):
+        load_geometry(path)

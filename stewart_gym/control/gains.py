@@ -40,7 +40,13 @@ CLASSICAL_KINDS = ("pid", "lqr", "handover")
 #: Design fields that are bounds, zones, dither or the feed-forward's lead (0 turns them off; a negative one is
 #: refused) and the LQR design's acceptable sizes and servo lag (must be positive).
 NON_NEGATIVE_GAINS = ("integral_limit", "integral_zone", "integral_zone_mm", "dither", "feed_lead")
-POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s")
+POSITIVE_GAINS = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt", "tilt_step", "tilt_lag_s", "kp_pos", "kp_vel",
+                  "max_tilt")  # fmt: skip
+#: The PID's gains a gains file must give (the other fields have defaults: :class:`PIDGains`).
+PID_REQUIRED = ("kp_pos", "kp_vel", "ki_vel")
+#: The largest loop gain a PID gains file may give (1/s or 1/s²): far above any that balances a ball, low enough that
+#: the loop's arithmetic stays finite.
+MAX_LOOP_GAIN = 1e4
 
 
 #: The optional field of a gains or design file that names the observer it was tuned behind (``lowpass`` or
@@ -90,8 +96,21 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDes
     bad = [k for k, v in fields.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
     if bad:
         raise ValueError(f"gains must be finite numbers: {bad}")
+    if cls is PIDGains:
+        missing = [k for k in PID_REQUIRED if k not in values]
+        if missing:
+            raise ValueError(f"a PID's gains need {', '.join(PID_REQUIRED)}; missing: {', '.join(missing)}")
     wrong = [f"{k} must be 0 (off) or more" for k in NON_NEGATIVE_GAINS if k in fields and fields[k] < 0]
     wrong += [f"{k} must be positive" for k in POSITIVE_GAINS if k in fields and fields[k] <= 0]
+    if cls is PIDGains:
+        wrong += [f"{k} must be from 0 to {MAX_LOOP_GAIN:g}, got {fields[k]}" for k in PID_REQUIRED
+                  if not 0 <= fields[k] <= MAX_LOOP_GAIN and f"{k} must be positive" not in wrong]  # fmt: skip
+        if fields["max_tilt"] >= math.pi / 2:
+            wrong.append(f"max_tilt must be below π/2 rad (90°), got {fields['max_tilt']}")
+    if not 0 < fields["rolling_factor"] <= 1:
+        wrong.append(f"rolling_factor must be above 0 and at most 1 (5/7 for a solid ball), got {fields['rolling_factor']}")
+    if cls is LQRDesign and fields["tilt"] > 1:
+        wrong.append(f"tilt (an acceptable sin(tilt)) must be at most 1, got {fields['tilt']}")
     if wrong:
         raise ValueError("; ".join(wrong))
     return design

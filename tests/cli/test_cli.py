@@ -43,6 +43,8 @@ def error_lines(proc: subprocess.CompletedProcess) -> list[str]:
 @pytest.fixture(scope="module")
 def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Malformed and well-formed inputs of every kind the commands read."""
+    from stewart_gym.presets import load_preset
+
     d = tmp_path_factory.mktemp("inputs")
     (d / "binary.toml").write_bytes(bytes(range(256)) * 4)
     (d / "binary.csv").write_bytes(b"\xff\xfe\x00\x81" * 64)
@@ -64,7 +66,14 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "notazip.zip").write_text("not a zip archive\n")
     (d / "bad.json").write_text("{not json")
     (d / "wrong_gains.json").write_text('{"kp": 1}\n')
-    (d / "negative_zone.json").write_text('{"kp_pos": 2, "integral_zone": -0.02}\n')
+    (d / "negative_zone.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "integral_zone": -0.02}\n')
+    (d / "empty_gains.json").write_text('{}\n')
+    (d / "negative_gain.json").write_text('{"kp_pos": -2, "kp_vel": 3, "ki_vel": 1}\n')
+    (d / "huge_gain.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1e308}\n')
+    (d / "rolling_factor.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "rolling_factor": 7}\n')
+    hexapod = load_preset("servo-hexapod").to_toml()  # its servos sit at 0.2992 rad at home
+    (d / "narrow_range.toml").write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [0.3, 1.0]",
+                                                hexapod))  # fmt: skip
     (d / "emptydir").mkdir()
     (d / "unknown_cols.csv").write_text("t,a,b\n0,1,2\n1,2,3\n")
     (d / "text_values.csv").write_text("t_s,x_mm\n0,abc\n")
@@ -576,6 +585,19 @@ def test_bad_input_in_a_real_process_is_one_error_line(args: list[str], files: P
 WRONG_BLAME = [
     # (arguments, what the one line must name, what it must not)
     (["evaluate", "--policy", "pid", "--geometry", "{files}/missing.toml"], "missing.toml", "pid_gains.json"),
+    (["evaluate", "--policy", "pid", "--geometry", "{files}/narrow_range.toml"],
+     "narrow_range.toml: servo_angle_range: 0.3 rad (17.19°) to 1 rad (57.30°) does not hold the servo angles at home",
+     "pid_gains.json"),
+    (["evaluate", "--policy", "lqr", "--geometry", "{files}/narrow_range.toml"], "narrow_range.toml: servo_angle_range",
+     "lqr.json"),
+    (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/narrow_range.toml"],
+     "narrow_range.toml: servo_angle_range", "neutral_us"),
+    (["evaluate", "--policy", "{files}/empty_gains.json"], "empty_gains.json: a PID's gains need kp_pos, kp_vel, ki_vel",
+     "xx"),
+    (["evaluate", "--policy", "{files}/negative_gain.json"], "negative_gain.json: kp_pos must be positive", "xx"),
+    (["evaluate", "--policy", "{files}/huge_gain.json"], "ki_vel must be from 0 to 10000, got 1e+308", "xx"),
+    (["evaluate", "--policy", "{files}/rolling_factor.json"], "rolling_factor must be above 0 and at most 1", "xx"),
+    (["evaluate", "--policy", "{files}/negative_zone.json"], "integral_zone must be 0 (off) or more", "xx"),
     (["train", "--hyperparams", "{files}/section_scalar.yml", "--run-dir", "{tmp}/r"], "must be a mapping", "no section"),
     (["virtual-device", "--link", "{tmp}/missing_dir/board"], "missing_dir", "/dev/pts"),
     (["camera-check", "--camera-config", "{files}/cam_ok.toml", "--image", "{files}/emptydir"], "is a folder",
@@ -1208,3 +1230,21 @@ def test_a_refused_export_leaves_no_folder(tmp_path: Path, capfd: pytest.Capture
         code, _, err = cli(capfd, "export", *args, "--out", str(out), cwd=tmp_path)
         assert code == 1 and err.startswith("error: ") and err.count("\n") == 1, err
         assert not out.exists()
+
+
+def test_a_gains_files_max_tilt_that_is_not_used_is_said(tmp_path: Path, capfd: pytest.CaptureFixture,
+                                                          caplog: pytest.LogCaptureFixture) -> None:  # fmt: skip
+    """The PID's tilt at action ±1 is the env's; a gains file that sets another is noted (on stderr, through the
+    package's logger, which pytest captures in-process) and runs."""
+    gains = json.loads((ROOT / "stewart_gym" / "policies" / "pid_gains.json").read_text())
+    for name, max_tilt in (("same.json", gains["max_tilt"]), ("other.json", 0.3)):
+        (tmp_path / name).write_text(json.dumps({**gains, "max_tilt": max_tilt}))
+        code, out, err = cli(capfd, "evaluate", "--policy", str(tmp_path / name), "--episodes", "1", cwd=tmp_path)
+        assert code == 0 and "success rate" in out, err
+        said = [ln for ln in err.splitlines() + caplog.messages if "max_tilt" in ln]
+        caplog.clear()
+        if name == "same.json":
+            assert not said, err
+        else:
+            assert said == [f"note: {tmp_path / name}: max_tilt 0.3 rad is not used: the controller's tilt at action "
+                            "±1 is the env's, 0.174533 rad on 'servo-hexapod' (a PID's max_tilt must match the env's)"]
