@@ -203,7 +203,9 @@ def world(env_id: str, env_kwargs: dict) -> dict[str, str]:
     from stewart_gym.sim.engines import default_backend
 
     geometry = env_kwargs.get("geometry", "servo-hexapod")
-    out = {"env_id": env_id, "geometry": str(geometry), "geometry_name": load_geometry(geometry).name,
+    name = load_geometry(geometry).name
+    given = geometry if isinstance(geometry, (str, Path)) else name  # (a held geometry, a bundle's: by its name)
+    out = {"env_id": env_id, "geometry": str(given), "geometry_name": name,
            **{k: str(env_kwargs.get(k, v)) for k, v in WORLD_DEFAULTS.items()}}  # fmt: skip
     if "backend" not in env_kwargs or env_kwargs["backend"] == "auto":
         out["backend"] = default_backend()

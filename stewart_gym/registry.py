@@ -46,6 +46,7 @@ from typing import Any
 from stewart_gym.actions import ACTION_SIZES, default_max_tilt
 from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import ConfigError, PolicyError
+from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.inputs import read_text
 from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, ensemble_members, model_statistics, run_config
 
@@ -121,9 +122,17 @@ class PolicySource:
         return str(self.env_kwargs.get("action_mode", "tilt"))
 
     @property
-    def geometry(self) -> str:
-        """The geometry (preset name or TOML path) the policy was trained for."""
-        return str(self.env_kwargs.get("geometry", DEFAULT_GEOMETRY))
+    def geometry(self) -> Any:
+        """The geometry the policy was trained for: a preset name or TOML path, or (a bundle for a build of its own)
+        the :class:`~stewart_gym.geometry.PlatformGeometry` the bundle holds."""
+        geometry = self.env_kwargs.get("geometry", DEFAULT_GEOMETRY)
+        return geometry if isinstance(geometry, PlatformGeometry) else str(geometry)
+
+    @property
+    def geometry_label(self) -> str:
+        """The geometry as a message names it: a preset name or path as given, or a held geometry's name."""
+        geometry = self.geometry
+        return geometry.name if isinstance(geometry, PlatformGeometry) else geometry
 
     @property
     def label(self) -> str:
@@ -321,19 +330,45 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
 
 
 def _bundle_source(spec: str, folder: Path) -> PolicySource:
-    meta = _read_json(folder / "bundle.json")
+    """A bundle folder's policy, its fields checked against each other: its env keywords are ones its env takes,
+    the observer, action mode and integral they name are the bundle's own, and its geometry is the one it holds
+    (a preset's name where it is a preset, else the held geometry itself)."""
+    from stewart_gym.envs import ENV_IDS
+    from stewart_gym.envs.ball_env import SENSOR_NAMES, env_keywords
+    from stewart_gym.hardware.export import bundle_geometry
+    from stewart_gym.presets import PRESETS, load_preset
+    from stewart_gym.sim.engines import BACKEND_NAMES
+
+    meta_path = folder / "bundle.json"
+    meta = _read_json(meta_path)
     if not isinstance(meta.get("env_kwargs") or {}, dict):
-        raise PolicyError(f"{folder / 'bundle.json'}: env_kwargs must be a mapping of env keywords, got "
+        raise PolicyError(f"{meta_path}: env_kwargs must be a mapping of env keywords, got "
                           f"{meta['env_kwargs']!r}; export the policy again")  # fmt: skip
     env_kwargs = dict(meta.get("env_kwargs") or {})
+    env_id = meta.get("env_id", DEFAULT_ENV)
+    if isinstance(env_id, str) and env_id in ENV_IDS:  # (else PolicySource names the env)
+        unknown = sorted(set(env_kwargs) - env_keywords(ENV_IDS[env_id][0]) - {"residual"})
+        if unknown:
+            raise PolicyError(f"{meta_path}: env_kwargs: {env_id} takes no keyword(s) {unknown}; export the policy "
+                              "again")  # fmt: skip
+    for key, names in (("backend", (*BACKEND_NAMES, "auto")), ("sensor", SENSOR_NAMES)):  # the world evaluate starts from
+        if key in env_kwargs and env_kwargs[key] not in names:
+            raise PolicyError(f"{meta_path}: env_kwargs.{key} must be one of {list(names)}, got {env_kwargs[key]!r}; "
+                              "export the policy again")  # fmt: skip
+    for key in ("action_mode", "estimator", "integral", "control_hz", "max_tilt"):
+        if env_kwargs.get(key) is not None and key in meta and env_kwargs[key] != meta[key]:
+            raise PolicyError(f"{meta_path}: env_kwargs.{key} {env_kwargs[key]!r} is not the bundle's {key} "
+                              f"{meta[key]!r}; export the policy again")  # fmt: skip
     env_kwargs["action_mode"] = meta.get("action_mode", "tilt")
-    if isinstance(meta.get("geometry"), dict):
-        env_kwargs["geometry"] = str(meta["geometry"].get("name", DEFAULT_GEOMETRY))
+    if "geometry" in meta:
+        geometry = bundle_geometry(meta, meta_path)
+        preset = geometry.name in PRESETS and load_preset(geometry.name) == geometry
+        env_kwargs["geometry"] = geometry.name if preset else geometry
     if "estimator" in meta:
         env_kwargs["estimator"] = str(meta["estimator"])
     if meta.get("integral") is True:
         env_kwargs["integral"] = True
-    return PolicySource(spec, "bundle", folder, str(meta.get("env_id", DEFAULT_ENV)), env_kwargs, folder)
+    return PolicySource(spec, "bundle", folder, str(env_id), env_kwargs, folder)
 
 
 # ---------------------------------------------------------------- loading
@@ -400,8 +435,9 @@ def load_for_evaluation(spec: str, env_id: str | None = None, geometry: str | No
     """
     source = resolve_policy(spec, env_id, geometry, estimator)
     if geometry is not None and source.kind not in CLASSICAL_KINDS and not same_geometry(geometry, source.geometry):
-        raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry!r}, not {geometry!r}: train one "
-                          f"for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the pid")  # fmt: skip
+        raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry_label!r}, not {geometry!r}: "
+                          f"train one for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the "
+                          "pid")  # fmt: skip
     policy = load_policy(source)
     return source, policy, resolved_env_kwargs(source, getattr(policy, "action_size", None))
 

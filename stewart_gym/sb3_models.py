@@ -95,7 +95,8 @@ def load_sb3(path: str | Path) -> SB3Policy:
     if not zip_path.is_file():
         raise PolicyError(f"no model at {zip_path}")
     if not zipfile.is_zipfile(zip_path):
-        raise PolicyError(f"{zip_path}: not a Stable-Baselines3 model (not a zip archive)")
+        raise PolicyError(f"{zip_path}: not a Stable-Baselines3 model (not a zip archive): give the model.zip that "
+                          "stewart-gym train wrote, or its run folder")  # fmt: skip
     # SAC and TQC each load the other's model without complaint: the saved policy class says which it is
     order = (TQC, PPO, SAC, TD3) if _policy_module(zip_path).startswith("sb3_contrib.tqc") else (PPO, SAC, TD3, TQC)
     for algo in order:
@@ -105,7 +106,8 @@ def load_sb3(path: str | Path) -> SB3Policy:
         except (ValueError, KeyError, TypeError, AttributeError, zipfile.BadZipFile, RuntimeError):
             continue
     else:
-        raise PolicyError(f"{zip_path} is not a PPO, SAC, TD3 or TQC model")
+        raise PolicyError(f"{zip_path} is not a PPO, SAC, TD3 or TQC model that this Stable-Baselines3 can load: "
+                          "give a model that stewart-gym train wrote, or train one")  # fmt: skip
     obs_rms, clip_obs = None, 10.0
     stats = model_statistics(zip_path)
     if stats is not None:

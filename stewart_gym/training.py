@@ -543,13 +543,18 @@ def check_algo_values(algo: str, hp: dict[str, Any], n_envs: int, where: str = "
                           "advantage PPO cannot normalise; give n_steps or --n-envs 2 or more")  # fmt: skip
 
 
+def run_copies(config: TrainConfig, hp: dict[str, Any]) -> int:
+    """How many env copies a run trains on: ``--n-envs``, else the recipe's ``n_envs``, else 1."""
+    return int(config.n_envs if config.n_envs is not None else hp.get("n_envs", 1))
+
+
 def rollout_note(config: TrainConfig) -> str | None:
     """A line where a new PPO run's rollout (``n_steps`` × ``n_envs``) is not a whole number of minibatches,
     which is what each epoch then does; None otherwise (a resumed run keeps its model's own settings)."""
     if config.algo != "ppo" or config.resume:
         return None
     hp = run_hyperparams(config)
-    n_envs = int(config.n_envs or hp.get("n_envs", 1))
+    n_envs = run_copies(config, hp)
     batch, n_steps = _ppo_setting(hp, "batch_size"), _ppo_setting(hp, "n_steps")
     rollout = n_steps * n_envs
     if rollout % batch == 0:
@@ -588,8 +593,8 @@ def check_recipe(config: TrainConfig) -> dict[str, Any]:
     check_hyperparameter_values(hp, recipe)
     check_action_noise(config.algo, hp)
     backend = config.backend or (hp.get("env_kwargs") or {}).get("backend")
-    check_copies(int(config.n_envs or hp.get("n_envs", 1)), backend, config.vec_env)
-    check_algo_values(config.algo, hp, int(config.n_envs or hp.get("n_envs", 1)), recipe)
+    check_copies(run_copies(config, hp), backend, config.vec_env)
+    check_algo_values(config.algo, hp, run_copies(config, hp), recipe)
     geometry = config.geometry or (hp.get("env_kwargs") or {}).get("geometry")
     if geometry is not None:
         from stewart_gym.envs.ball_env import check_ball_geometry
@@ -874,6 +879,23 @@ class _Deadline(BaseCallback):
         return not self.reached
 
 
+class _NetworkGaveNaN(Exception):
+    """The policy's weights are no longer finite (raised by :class:`_FiniteNetwork`)."""
+
+
+class _FiniteNetwork(BaseCallback):
+    """Ends a run whose network has come apart: as each rollout starts (after the last update), the policy's weights
+    must be finite. torch's distributions refuse a NaN mean too, but only where their argument checks are on, and a
+    library imported beside (TorchRL) turns them off for the whole process: the NaN actions then reach the env."""
+
+    def _on_rollout_start(self) -> None:
+        if not all(bool(torch.isfinite(p).all()) for p in self.model.policy.parameters()):
+            raise _NetworkGaveNaN
+
+    def _on_step(self) -> bool:
+        return True
+
+
 class _Progress(BaseCallback):
     """``report(n_envs)`` after each vectorised step."""
 
@@ -946,7 +968,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     def option(value: int | None, key: str, default: int) -> int:  # an explicit option wins, even a small one
         return int(value if value is not None else hp.get(key, default))
 
-    n_envs = option(config.n_envs, "n_envs", 1)
+    n_envs = run_copies(config, hp)
     n_timesteps = option(config.n_timesteps, "n_timesteps", 100_000)
     normalize = hp.get("normalize", False)
     env_kwargs = training_env_kwargs(config, hp)
@@ -1025,6 +1047,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     evaluations = _EvalLog(evaluator, max(eval_freq // n_envs, 1), run, started, on_eval,
                            continued_from=int(model.num_timesteps) if in_place else None)  # fmt: skip
     every_callback = CallbackList([
+        _FiniteNetwork(),
         evaluations,
         CheckpointCallback(max(config.checkpoint_freq // n_envs, 1), str(run / "checkpoints"),
                            save_vecnormalize=bool(normalize)),
@@ -1038,8 +1061,8 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         model.learn(n_timesteps, callback=every_callback, progress_bar=config.progress_bar,
                     reset_num_timesteps=resume is None, tb_log_name=config.algo)  # fmt: skip
         evaluations.finish()
-    except ValueError as exc:  # torch's distributions refuse a NaN mean: the network has come apart
-        if "found invalid values" not in str(exc):
+    except (ValueError, _NetworkGaveNaN) as exc:  # (torch's distributions refuse a NaN mean where they check)
+        if isinstance(exc, ValueError) and "found invalid values" not in str(exc):
             raise
         raise TrainingDiverged(f"training diverged after {model.num_timesteps:,} steps: the network gave NaN; lower "
                                f"the learning_rate, vf_coef or ent_coef of {recipe_name(config)} (what was saved "

@@ -426,3 +426,22 @@ def test_a_calibration_follows_its_geometry_file_by_content(tmp_path: Path, devi
 
     with pytest.raises(ConfigError, match=r"my_build\.toml has changed since .*calibration\.toml was calibrated"):
         load_calibration(str(tmp_path / "cal" / "calibration.toml"), str(geo_path))
+
+
+def test_a_bundle_for_my_build_evaluates_on_the_build_it_holds(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """A bundle carries its build: evaluate runs it there (by the bundle's geometry, not by a preset of its name),
+    accepts ``--geometry`` of the same build and refuses another."""
+    geo_path = my_build(tmp_path)
+    assert sg_in(capfd, "export", "--policy", "pid", "--geometry", str(geo_path), "--out", str(tmp_path / "pid"),
+                 cwd=tmp_path).returncode == 0  # fmt: skip
+    (tmp_path / "elsewhere").mkdir()  # (no my_build.toml beside it: the bundle alone says what the build is)
+    run = sg_in(capfd, "evaluate", "--policy", str(tmp_path / "pid"), "--episodes", "1", "--json",
+                cwd=tmp_path / "elsewhere")  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    result = json.loads(run.stdout)
+    assert (result["geometry"], result["geometry_name"]) == ("my-build", "my-build"), result
+    same = sg_in(capfd, "evaluate", "--policy", str(tmp_path / "pid"), "--geometry", str(geo_path), "--episodes", "1",
+                 cwd=tmp_path)  # fmt: skip
+    assert same.returncode == 0 and "on my-build" in same.stdout, same.stderr
+    other = sg_in(capfd, "evaluate", "--policy", str(tmp_path / "pid"), "--geometry", "desk-rect", cwd=tmp_path)
+    assert other.returncode == 1 and "trained for geometry 'my-build', not 'desk-rect'" in other.stderr, other.stderr

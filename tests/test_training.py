@@ -538,3 +538,24 @@ def test_a_policy_trained_on_the_batched_backend_runs_in_every_engine(
         for pair in ([str(run), other], [other, str(run)]):
             assert main(["compare", *pair, "--episodes", "2", "--json"]) == 0
             assert json.loads(capsys.readouterr().out)["backend"] == "pybullet", pair
+
+
+@pytest.mark.parametrize("checks", [True, False], ids=["torch-checks-on", "torch-checks-off"])
+def test_a_network_that_turns_to_nan_ends_in_one_line_whatever_torch_checks(
+        checks: bool, tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """Whether torch's distributions check their arguments or not (TorchRL, once imported, turns the checks off for
+    the whole process), a run whose network turns to NaN ends with the same ``error: training diverged`` line."""
+    import torch
+
+    (tmp_path / "diverges.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  n_steps: 16\n  batch_size: 32\n"
+                                           "  vf_coef: 1.0e+300\n  n_timesteps: 256\n  env_kwargs: {backend: batched}\n")
+    before = torch.distributions.Distribution._validate_args
+    torch.distributions.Distribution.set_default_validate_args(checks)
+    try:
+        code, _, err = cli(capfd, "train", "--hyperparams", str(tmp_path / "diverges.yml"), "--run-dir",
+                           str(tmp_path / "r"), "--no-progress", "--no-tensorboard", cwd=tmp_path)  # fmt: skip
+    finally:
+        torch.distributions.Distribution.set_default_validate_args(before)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert code == 1 and len(lines) == 1, err
+    assert lines[0].startswith("error: training diverged after 32 steps: the network gave NaN"), err

@@ -14,6 +14,7 @@ from stewart_gym.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     add_geometry,
+    bounded_float,
     finite_float,
     int_at_least,
     output_dir,
@@ -29,11 +30,18 @@ if TYPE_CHECKING:
 __all__ = ["register", "settle_at"]
 
 
+#: deg: the largest angle ``ik`` and ``render`` take, a whole turn either way (a position of any size is taken, and
+#: is unreachable beyond the platform's reach).
+MAX_POSE_ANGLE = 360.0
+
+
 def _pose_args(parser: argparse.ArgumentParser) -> None:
-    """Six positional pose values, each a finite number."""
+    """Six positional pose values, each a finite number, the angles within ±:data:`MAX_POSE_ANGLE`."""
     for name, unit in (("x", "mm"), ("y", "mm"), ("z", "mm"), ("roll", "deg"), ("pitch", "deg"), ("yaw", "deg")):
-        parser.add_argument(f"{name}_{unit}", type=finite_float, metavar=f"{name.upper()}_{unit.upper()}",
-                            help=f"{name} ({unit}{', from home' if name == 'z' else ''})")  # fmt: skip
+        kind = finite_float if unit == "mm" else bounded_float(-MAX_POSE_ANGLE, MAX_POSE_ANGLE)
+        limit = "" if unit == "mm" else f", ±{MAX_POSE_ANGLE:g}"
+        parser.add_argument(f"{name}_{unit}", type=kind, metavar=f"{name.upper()}_{unit.upper()}",
+                            help=f"{name} ({unit}{', from home' if name == 'z' else ''}{limit})")  # fmt: skip
 
 
 def _pose(args: argparse.Namespace) -> np.ndarray:

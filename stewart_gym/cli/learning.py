@@ -179,8 +179,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
           f"{', domain randomisation' if randomize else (', the twin' if twin else ', nominal physics')}) of {env_id} "
-          f"on {geometry}, "
-          f"{world_line['backend']}, sensor {world_line['sensor']}; {processes} processes at a time…", flush=True,
+          f"on {geometry}, {world_line['backend']}, sensor {world_line['sensor']}; {processes} "
+          f"process{'es' if processes > 1 else ''} at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip
     progress = Progress(args.episodes * len(policies), "episodes", "compare")
     results, rows = compare(policies, env_id, args.episodes, args.seed, randomize, geometry, args.backend,
@@ -254,7 +254,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     processes, parts = process_plan(args.workers, len(names), args.episodes)
     physics = "with domain randomisation" if twin is None else f"on the twin {args.twin}"
     print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes {physics} "
-          f"({engine}), {processes} processes at a time…", flush=True)  # fmt: skip
+          f"({engine}), {processes} process{'es' if processes > 1 else ''} at a time…", flush=True)  # fmt: skip
     jobs = [EvaluationJob(name, env_id, args.geometry, None, env_kwargs, args.episodes, args.seed, randomize)
             for name, (_, env_kwargs) in loaded.items()]  # fmt: skip
     progress = Progress(args.episodes * len(jobs), "episodes", "demo")
@@ -281,7 +281,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
     named = args.policy in (*SHIPPED_TABLES, *CLASSICAL)
     if args.geometry and not named and not same_geometry(args.geometry, source.geometry):
-        raise ConfigError(f"{args.policy} was trained for geometry {source.geometry!r}, not {args.geometry!r}")
+        raise ConfigError(f"{args.policy} was trained for geometry {source.geometry_label!r}, not {args.geometry!r}")
     if args.env and not named and source.env_id != args.env:
         raise ConfigError(f"{args.policy} was trained on {source.env_id}, not {args.env}; leave out --env")
     folder = export_policy(source, out)

@@ -88,10 +88,12 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDes
     cls = LQRDesign if kind == "lqr" else PIDGains
     if not isinstance(values, dict):
         raise ValueError(f"expected {cls.__name__} values as a mapping, got {type(values).__name__}")
-    try:
-        design = cls(**values)
-    except TypeError as exc:
-        raise ValueError(f"not {cls.__name__} values ({exc})") from None
+    names = [f.name for f in dataclass_fields(cls)]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        what = "an LQR's design has" if cls is LQRDesign else "a PID's gains are"
+        raise ValueError(f"unknown field(s) {unknown}: {what} {', '.join(names)} (and {ESTIMATOR_FIELD})")
+    design = cls(**values)
     fields = vars(design)
     bad = [k for k, v in fields.items() if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)]
     if bad:

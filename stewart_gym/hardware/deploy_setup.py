@@ -158,12 +158,9 @@ class DeploySetup:
         from stewart_gym.envs import ENV_IDS
         from stewart_gym.envs.task import load_task
         from stewart_gym.outputs import output_file
-        from stewart_gym.sensing import ObservationBuilder
 
-        self.policy, self.options, self.say = policy, options, say  # the bundle's fields were checked as it loaded
-        if policy.observation_layout != ObservationBuilder.LAYOUT_VERSION:
-            raise ConfigError(f"the policy was exported for observation layout {policy.observation_layout}; this "
-                              f"version builds layout {ObservationBuilder.LAYOUT_VERSION}: re-export it")  # fmt: skip
+        self.policy, self.options, self.say = policy, options, say  # the bundle's fields (its observation layout
+        # too) were checked as it loaded
         self.calibration, hw = load_calibration(options.calibration, policy.geometry)
         self.port, self.protocol, self.baudrate = port_settings(options.port, options.protocol, options.baudrate, hw)
         if self.protocol not in PROTOCOLS:

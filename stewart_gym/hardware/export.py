@@ -36,9 +36,16 @@ from stewart_gym.control import (
 )
 from stewart_gym.errors import PolicyError
 from stewart_gym.inputs import read_text
-from stewart_gym.sensing import ESTIMATORS
+from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
 
-__all__ = ["BundlePolicy", "classical_meta", "export_bundle_copy", "export_pid", "export_sb3"]
+__all__ = ["BUNDLE_FIELDS", "BundlePolicy", "bundle_geometry", "classical_meta", "export_bundle_copy", "export_pid",
+           "export_sb3"]  # fmt: skip
+
+#: The fields a ``bundle.json`` may hold (what :func:`export_sb3`, :func:`export_pid` and
+#: :func:`classical_meta` write); any other is refused as a sign of an edited or foreign file.
+BUNDLE_FIELDS = ("kind", "env_id", "env_kwargs", "action_mode", "algo", "obs_size", "action_low", "action_high",
+                 "obs_mean", "obs_var", "clip_obs", "epsilon", "ensemble", "residual", "gains", "geometry",
+                 "control_hz", "max_tilt", "observation_layout", "estimator", "integral")  # fmt: skip
 
 
 
@@ -227,6 +234,32 @@ def _vector(meta: dict[str, Any], key: str, where: Path, size: int) -> np.ndarra
     return np.asarray(value, np.float64)
 
 
+def bundle_geometry(meta: dict[str, Any], meta_path: Path) -> Any:
+    """The geometry a bundle was made for: its embedded TOML, whose name must be the one the bundle gives (bundles
+    without a geometry: the reference build). Raises :class:`PolicyError` naming ``meta_path``."""
+    from stewart_gym.geometry import GeometryError, PlatformGeometry
+    from stewart_gym.presets import check_home, load_preset
+    from stewart_gym.tomlio import tomllib
+
+    entry = meta.get("geometry")
+    if entry is None:
+        return load_preset("servo-hexapod")
+    if not isinstance(entry, dict) or not isinstance(entry.get("toml"), str) or not isinstance(entry.get("name"), str):
+        raise PolicyError(f"{meta_path}: geometry must be {{name, toml}}: the build's name and its whole geometry "
+                          "file; re-export the policy")  # fmt: skip
+    try:
+        geometry = PlatformGeometry.from_dict(tomllib.loads(entry["toml"]), source=f"{meta_path} geometry")
+        check_home(geometry, f"{meta_path} geometry")
+    except tomllib.TOMLDecodeError as exc:
+        raise PolicyError(f"{meta_path}: malformed geometry ({exc}); re-export the policy") from None
+    except GeometryError as exc:
+        raise PolicyError(f"{exc}; re-export the policy") from None
+    if geometry.name != entry["name"]:
+        raise PolicyError(f"{meta_path}: geometry.name {entry['name']!r} is not the name in geometry.toml "
+                          f"({geometry.name!r}); re-export the policy")  # fmt: skip
+    return geometry
+
+
 class BundlePolicy:
     """A policy from a bundle folder, for deployment: onnxruntime + numpy only. Every field of ``bundle.json`` is
     checked as it loads (sizes, ranges, finite numbers), so a damaged bundle is refused before anything runs."""
@@ -254,6 +287,10 @@ class BundlePolicy:
             kind = meta.get("kind") if isinstance(meta, dict) else None
             raise PolicyError(f"{meta_path}: unknown bundle kind {kind!r} (expected 'onnx', 'pid', 'lqr' or "
                               "'handover')")  # fmt: skip
+        unknown = sorted(set(meta) - set(BUNDLE_FIELDS))
+        if unknown:
+            raise PolicyError(f"{meta_path}: unknown field(s) {unknown}; a bundle holds {', '.join(BUNDLE_FIELDS)}: "
+                              "re-export the policy")  # fmt: skip
         self.meta = meta
         self.kind = meta["kind"]
         self.env_id = meta.get("env_id", "StewartBallBalance-v0")
@@ -272,7 +309,10 @@ class BundlePolicy:
         self.max_tilt = _number(meta, "max_tilt", meta_path, tilt_default, 1e-3, 1.0)
         #: the observation layout version it was made for (bundles older than the field: version 1)
         self.observation_layout = int(_number(meta, "observation_layout", meta_path, 1, 1, 1000))
-        self.geometry = self._geometry(meta, meta_path)
+        if self.observation_layout != ObservationBuilder.LAYOUT_VERSION:
+            raise PolicyError(f"{meta_path}: the policy was exported for observation layout {self.observation_layout}; "
+                              f"this version builds layout {ObservationBuilder.LAYOUT_VERSION}: re-export it")  # fmt: skip
+        self.geometry = bundle_geometry(meta, meta_path)
         #: the observer it runs behind (bundles older than the field: the low-pass one)
         self.estimator = str(meta.get("estimator", "lowpass"))
         if self.estimator not in ESTIMATORS:
@@ -356,21 +396,6 @@ class BundlePolicy:
                                         1.0 / self.control_hz)  # fmt: skip
             except (TypeError, ValueError, ZeroDivisionError) as exc:
                 raise PolicyError(f"{meta_path}: malformed residual ({exc}); re-export the policy") from None
-
-    @staticmethod
-    def _geometry(meta: dict[str, Any], meta_path: Path) -> Any:
-        """The geometry the bundle was made for: its embedded TOML (bundles without one: the reference build)."""
-        from stewart_gym.geometry import PlatformGeometry
-        from stewart_gym.presets import load_preset
-        from stewart_gym.tomlio import tomllib
-
-        entry = meta.get("geometry")
-        if entry is None:
-            return load_preset("servo-hexapod")
-        try:
-            return PlatformGeometry.from_dict(tomllib.loads(entry["toml"]), source=f"{meta_path} geometry")
-        except (KeyError, TypeError, tomllib.TOMLDecodeError) as exc:
-            raise PolicyError(f"{meta_path}: malformed geometry ({exc}); re-export the policy") from None
 
     def reset(self) -> None:
         """Start of an episode (clears the PID's or LQR's state, or a residual policy's base's)."""

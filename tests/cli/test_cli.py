@@ -68,6 +68,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "wrong_gains.json").write_text('{"kp": 1}\n')
     (d / "negative_zone.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "integral_zone": -0.02}\n')
     (d / "empty_gains.json").write_text('{}\n')
+    (d / "extra_gain.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "extra": 2}\n')
     (d / "negative_gain.json").write_text('{"kp_pos": -2, "kp_vel": 3, "ki_vel": 1}\n')
     (d / "huge_gain.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1e308}\n')
     (d / "rolling_factor.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "rolling_factor": 7}\n')
@@ -177,7 +178,13 @@ def _inputs_of_issue_57(d: Path) -> None:
                          "bundle_hz_text": {"control_hz": "fifty"}, "bundle_action_low": {"action_low": [-1.0]},
                          "bundle_var_negative": {"obs_var": [-1.0] * 12}, "bundle_clip_nan": {"clip_obs": math.nan},
                          "bundle_obs_size": {"obs_size": 11}, "bundle_env_id": {"env_id": "Foo-v0"},
-                         "bundle_env_kwargs": {"env_kwargs": "oops"}}.items():  # fmt: skip
+                         "bundle_env_kwargs": {"env_kwargs": "oops"},
+                         "bundle_unknown_field": {"note": "mine"}, "bundle_layout": {"observation_layout": 1},
+                         "bundle_env_keyword": {"env_kwargs": {**shipped["env_kwargs"], "bogus": 1}},
+                         "bundle_env_estimator": {"env_kwargs": {**shipped["env_kwargs"], "estimator": "magic"}},
+                         "bundle_env_backend": {"env_kwargs": {**shipped["env_kwargs"], "backend": "foo"}},
+                         "bundle_geometry_name": {"geometry": {**shipped["geometry"], "name": "desk-rect"}},
+                         }.items():  # fmt: skip
         folder = d / name
         shutil.copytree(POLICY_DIR / "balance" / "bundle", folder)
         (folder / "bundle.json").write_text(json.dumps({**shipped, **change}))
@@ -245,6 +252,9 @@ def test_huge_pose_is_unreachable_not_a_crash() -> None:
     proc = sg("ik", "1e308", "0", "0", "0", "0", "0", "--json")
     out = json.loads(proc.stdout)
     assert proc.returncode == 1 and out["reachable"] is False and "Traceback" not in proc.stderr
+    proc = sg("ik", "0", "0", "0", "0", "0", "1e308")  # an angle beyond a whole turn is a mistake, not a pose
+    assert proc.returncode == 1 and error_lines(proc) == [
+        "error: stewart-gym ik: argument YAW_DEG: '1e308' must be in [-360, 360] (see stewart-gym ik --help)"]
 
 
 def test_urdf_and_render(tmp_path: Path) -> None:
@@ -281,6 +291,7 @@ BAD = [
     ["ik", "0", "0", "0"],
     ["ik", "nan", "0", "0", "0", "0", "0"],
     ["ik", "0", "0", "0", "0", "0", "inf"],
+    ["ik", "0", "0", "0", "0", "0", "1e308"],
     ["ik", "x", "0", "0", "0", "0", "0"],
     ["ik", "0", "0", "0", "0", "0", "0", "7"],
     ["ik", "0", "0", "0", "0", "0", "0", "--bogus"],
@@ -594,6 +605,8 @@ WRONG_BLAME = [
      "narrow_range.toml: servo_angle_range", "neutral_us"),
     (["evaluate", "--policy", "{files}/empty_gains.json"], "empty_gains.json: a PID's gains need kp_pos, kp_vel, ki_vel",
      "xx"),
+    (["evaluate", "--policy", "{files}/extra_gain.json"], "extra_gain.json: unknown field(s) ['extra']: a PID's gains "
+     "are kp_pos", "__init__"),
     (["evaluate", "--policy", "{files}/negative_gain.json"], "negative_gain.json: kp_pos must be positive", "xx"),
     (["evaluate", "--policy", "{files}/huge_gain.json"], "ki_vel must be from 0 to 10000, got 1e+308", "xx"),
     (["evaluate", "--policy", "{files}/rolling_factor.json"], "rolling_factor must be above 0 and at most 1", "xx"),
@@ -634,6 +647,17 @@ WRONG_BLAME = [
      "Traceback"),
     (["evaluate", "--policy", "{files}/bundle_env_kwargs"], "bundle.json: env_kwargs must be a mapping", "Traceback"),
     (["export", "--policy", "pid", "--out", "{files}/not_a_model"], "holds other files (model.zip)", "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_unknown_field"], "bundle.json: unknown field(s) ['note']", "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_layout"], "bundle.json: the policy was exported for observation layout 1",
+     "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_env_keyword"],
+     "bundle.json: env_kwargs: StewartBallBalance-v0 takes no keyword(s) ['bogus']", "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_env_estimator"],
+     "bundle.json: env_kwargs.estimator 'magic' is not the bundle's estimator 'kalman'", "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_env_backend"], "bundle.json: env_kwargs.backend must be one of",
+     "Traceback"),
+    (["evaluate", "--policy", "{files}/bundle_geometry_name"],
+     "bundle.json: geometry.name 'desk-rect' is not the name in geometry.toml ('servo-hexapod')", "Traceback"),
     (["train", "--algo", "tqc", "--hyperparams", "{files}/tqc_quantiles.yml", "--run-dir", "{tmp}/r"],
      "top_quantiles_to_drop_per_net (2) must be below policy_kwargs.n_quantiles (2)", "Traceback"),
     (["train", "--hyperparams", "{files}/diverges.yml", "--run-dir", "{tmp}/r"],

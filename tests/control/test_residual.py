@@ -298,7 +298,7 @@ def test_the_shipped_balance_residual_latches_its_correction_off_in_evaluation_a
                                              ({"base": "lqr", "inner_mm": 2, "release_mm": 20, "dwell_s": -3}, "dwell_s"),
                                              ({"base": "lqr", "inner_mm": 2, "release_mm": 20, "dwell_s": "3 s"}, "dwell_s"),
                                              ({"base": "pid", "design": {"kp_pos": float("nan")}}, "design.*finite"),
-                                             ({"base": "lqr", "design": {"kp_pos": 2.0}}, "design.*LQRDesign"),
+                                             ({"base": "lqr", "design": {"kp_pos": 2.0}}, "unknown.*'kp_pos'.*LQR"),
                                              ({"base": "lqr", "design": {"tilt": -0.1}}, "design.*positive")])  # fmt: skip
 def test_a_malformed_residual_is_refused_naming_the_key(spec: dict, match: str) -> None:
     from stewart_gym.errors import ConfigError
