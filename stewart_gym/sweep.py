@@ -402,6 +402,9 @@ def connect(address: str | None) -> dict[str, Any]:
         # Ray runs its workers at nice 15, where any busy process on the machine starves them; the trials are this
         # command's work (docs: Sweeps)
         os.environ.setdefault("RAY_worker_niceness", "0")
+        # a new local Ray turns token authentication on and says so on stderr unless the mode is set: set it, to
+        # the same mode (the user's own setting wins)
+        os.environ.setdefault("RAY_AUTH_MODE", "token")
         ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False,
                  object_store_memory=200 * 1024**2, log_to_driver=False, configure_logging=False)  # fmt: skip
     else:

@@ -155,6 +155,7 @@ def local_sweep(tmp_path: Path, **entries: object) -> tuple[Path, str, list[dict
     out = tmp_path / "out"
     proc = sg("sweep", str(write(tmp_path, **entries)), "--out", str(out), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Token authentication" not in proc.stderr, proc.stderr  # Ray's own notice (the sweep sets its mode)
     return out, proc.stdout, rows(out)
 
 

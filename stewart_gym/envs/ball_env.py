@@ -12,10 +12,12 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ClosedEnvironmentError
 from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
+from stewart_gym.envs.arguments import check_engine_arguments, check_randomization, real_number, true_or_false
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges, draw_count, polar
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
@@ -240,8 +242,13 @@ class StewartBallEnv(gym.Env, EzPickle):
         if unknown:  # a TypeError, as Python's own for a keyword a function does not take (clients probe for it)
             raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r} "
                             f"(the env and its task take: {', '.join(sorted(env_keywords(task)))})")  # fmt: skip
-        if not (isinstance(episode_s, (int, float)) and not isinstance(episode_s, bool) and 0 < episode_s <= 3600):
-            raise ConfigError(f"episode_s must be a duration in s, more than 0 and at most 3600, got {episode_s!r}")
+        episode_s = real_number("episode_s", episode_s, low=0, high=3600, low_open=True)
+        control_hz, physics_hz = check_engine_arguments(geometry, control_hz, physics_hz, ball, servo)
+        max_tilt = real_number("max_tilt", max_tilt, optional=True)  # (its range: the action mapper's)
+        check_randomization(randomization)
+        if not isinstance(backend, (str, PhysicsBackend)):
+            raise ConfigError(f"backend must be 'auto', 'pybullet', 'mujoco', 'batched' or a PhysicsBackend, got "
+                              f"{backend!r}")  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if not (isinstance(randomize, (bool, np.bool_)) or (type(randomize) is int and randomize in (0, 1))):
@@ -283,8 +290,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.action_space = spaces.Box(-1.0, 1.0, (self.mapper.size,), dtype=np.float32)
         if estimator not in ESTIMATORS:
             raise ConfigError(f"estimator must be one of {list(ESTIMATORS)}, got {estimator!r}")
-        if not isinstance(integral, bool):
-            raise ConfigError(f"integral must be true or false, got {integral!r}")
+        integral = true_or_false("integral", integral)
         self.start_distance = self._checked_start_distance(start_distance)
         self.observer = BallObserver(self.mapper.size, plate_half=self.plate_half_extent, estimator=estimator,
                                      integral=integral)  # fmt: skip
@@ -384,12 +390,13 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def begin_episode(self, seed: int | None, options: dict[str, Any] | None) -> dict[str, np.ndarray]:
         """:meth:`draw_episode` before the draws: seed the generator, note what a copy replays, check the options
-        (returned, as arrays) and start a closed engine again."""
+        (returned, as arrays) and start a closed engine again. Options it refuses leave no trace: the generator, the
+        episode and what a copy replays are as they were."""
+        checked = self._check_options(options)
         super().reset(seed=seed)
         #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since;
         #: None on a backend object (such an env cannot be copied)
         self._episode = None if self._engine is None else (self.np_random.bit_generator.state, options, [])
-        checked = self._check_options(options)
         if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
             self._reopen()
         return checked
@@ -501,7 +508,16 @@ class StewartBallEnv(gym.Env, EzPickle):
     def begin_step(self, action: np.ndarray) -> Any:
         """The part of :meth:`step` before the physics: map the action, record it (for :meth:`__deepcopy__`), let
         the task act (a push) and send the pulses. Returns what :meth:`end_step` takes once the backend has
-        advanced a control period."""
+        advanced a control period. An action not of the action space's shape, not real numbers or not finite is a
+        ``ValueError``, a step after :meth:`close` Gymnasium's ``ClosedEnvironmentError``, before anything moves."""
+        if getattr(self.sim, "closed", False):
+            raise ClosedEnvironmentError("this env is closed: reset() starts it again")
+        if type(action) is not np.ndarray or action.shape != self.action_space.shape or action.dtype.kind != "f":
+            values = np.asarray(action)  # (the common case, a float array of the right shape, skips this)
+            if values.shape != self.action_space.shape:
+                raise ValueError(f"expected an action of shape {self.action_space.shape}, got shape {values.shape}")
+            if values.dtype.kind not in "iuf":
+                raise ValueError(f"an action must be real numbers, got an array of {values.dtype}")
         mapped = self.mapper(action)
         if self._episode is not None:
             self._episode[2].append(np.array(action, copy=True))

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from stewart_gym.envs.arguments import real_number
 from stewart_gym.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -114,17 +115,18 @@ class BallTask:
                  plate_half: float = 0.15, near_scale: float | None = None,
                  settled_rate_penalty: float = 0.0, outside_penalty: float = 0.0,
                  charge_until_settled: bool = False) -> None:  # fmt: skip
-        self.success_radius = float(self.default_success_radius if success_radius is None else success_radius)
-        self.success_window_s = float(success_window_s)
-        self.rate_penalty = float(rate_penalty)
-        self.plate_half = float(plate_half)
-        self.near_scale = float(self.NEAR_SCALE if near_scale is None else near_scale)
+        self.success_radius = real_number("success_radius", self.default_success_radius if success_radius is None
+                                          else success_radius)  # fmt: skip
+        self.success_window_s = real_number("success_window_s", success_window_s)
+        self.rate_penalty = real_number("rate_penalty", rate_penalty)
+        self.plate_half = real_number("plate_half", plate_half)
+        self.near_scale = real_number("near_scale", self.NEAR_SCALE if near_scale is None else near_scale)
         for key, v in (("success_radius", self.success_radius), ("success_window_s", self.success_window_s),
                        ("plate_half", self.plate_half), ("near_scale", self.near_scale)):  # fmt: skip
             if not (math.isfinite(v) and v > 0):
                 raise ConfigError(f"{key} must be a positive number, got {v!r}")
-        self.settled_rate_penalty = float(settled_rate_penalty)
-        self.outside_penalty = float(outside_penalty)
+        self.settled_rate_penalty = real_number("settled_rate_penalty", settled_rate_penalty)
+        self.outside_penalty = real_number("outside_penalty", outside_penalty)
         for key, v in (("rate_penalty", self.rate_penalty), ("settled_rate_penalty", self.settled_rate_penalty),
                        ("outside_penalty", self.outside_penalty)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):

@@ -32,6 +32,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from stewart_gym.camera import CameraSpec
+from stewart_gym.envs.arguments import check_engine_arguments
 from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
 from stewart_gym.envs.copies import CopySteps
 from stewart_gym.errors import ConfigError
@@ -255,6 +256,7 @@ class StewartBallVectorEnv(ArrayVectorEnv):
             raise ConfigError("the batched backend does not render; make one env with backend 'pybullet' to watch")
         from stewart_gym.sim import BallSpec, ServoSpec
 
+        control_hz, physics_hz = check_engine_arguments(geometry, control_hz, physics_hz, ball, servo)
         geo = check_ball_geometry(geometry, ball)
         self.num_envs = int(num_envs)
         self.sim = BatchedSim(geo, n=self.num_envs, control_hz=control_hz,

@@ -44,27 +44,35 @@ def _mujoco():  # noqa: ANN202 - the module
     return mujoco
 
 
-def _renderer(mj: Any, model: Any, height: int, width: int) -> Any:
-    """A MuJoCo offscreen renderer, or :class:`ConfigError` in one line where OpenGL cannot start."""
-    try:
-        return mj.Renderer(model, height, width)
-    except Exception as exc:  # no OpenGL context on this machine (the error's own text may fail to print)
-        from stewart_gym.errors import ConfigError
+#: Why MuJoCo could not render in this process (None: it has not failed). A second try after a failed start of its
+#: OpenGL context can abort the whole process (GLFW's initialisation re-entered), so a failure is final.
+_render_failure: str | None = None
 
-        raise ConfigError(f"MuJoCo cannot render on this machine ({type(exc).__name__} from OpenGL): set "
-                          "MUJOCO_GL=egl (a GPU) or MUJOCO_GL=osmesa (software, libOSMesa), or use the pybullet "
-                          "backend for images") from None  # fmt: skip
+
+def _renderer(mj: Any, model: Any, height: int, width: int) -> Any:
+    """A MuJoCo offscreen renderer, or :class:`ConfigError` in one line where OpenGL cannot start (then at once on
+    every later call in this process: it is not tried again)."""
+    global _render_failure
+    from stewart_gym.errors import ConfigError
+
+    if _render_failure is None:
+        import warnings
+
+        try:
+            with warnings.catch_warnings():  # GLFW warns before it fails; the failure is reported in one line
+                warnings.simplefilter("ignore")
+                return mj.Renderer(model, height, width)
+        except Exception as exc:  # no OpenGL context on this machine (the error's own text may fail to print)
+            _render_failure = f"{type(exc).__name__} from OpenGL"
+    raise ConfigError(f"MuJoCo cannot render on this machine ({_render_failure}): set MUJOCO_GL=egl (a GPU) or "
+                      "MUJOCO_GL=osmesa (software, libOSMesa), or use the pybullet backend for images")  # fmt: skip
 
 
 def check_rendering() -> None:
     """Raise :class:`~stewart_gym.errors.ConfigError` now if MuJoCo cannot render here (before long work)."""
-    import warnings
-
     mj = _mujoco()
     model = mj.MjModel.from_xml_string("<mujoco><worldbody><geom size='0.1'/></worldbody></mujoco>")
-    with warnings.catch_warnings():  # GLFW warns before it fails; the failure is reported in one line
-        warnings.simplefilter("ignore")
-        _renderer(mj, model, 8, 8).close()
+    _renderer(mj, model, 8, 8).close()
 
 
 def _quat_matrix(q: Sequence[float]) -> np.ndarray:

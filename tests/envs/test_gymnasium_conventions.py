@@ -147,3 +147,124 @@ def test_record_video_writes_a_file(tmp_path: Path) -> None:
         env.close()
     videos = list((tmp_path / "videos").glob("*.mp4"))
     assert len(videos) == 1 and videos[0].stat().st_size > 1000
+
+
+BAD_ARGUMENTS = [
+    ({"ball": 5}, "ball must be a BallSpec"), ({"servo": "x"}, "servo must be a ServoSpec"),
+    ({"geometry": 5}, "geometry must be a preset name, a TOML path or a PlatformGeometry"),
+    ({"control_hz": "50"}, "control_hz must be a whole number"), ({"control_hz": True}, "control_hz must be a whole"),
+    ({"control_hz": 0}, r"control_hz must be a finite number in \[1, 1000\]"),
+    ({"physics_hz": 0}, "physics_hz must be a finite number in"), ({"physics_hz": 300.5}, "physics_hz must be a whole"),
+    ({"max_tilt": True}, "max_tilt must be a number"), ({"max_tilt": "0.1"}, "max_tilt must be a number"),
+    ({"success_radius": "x"}, "success_radius must be a number"), ({"rate_penalty": "x"}, "rate_penalty must be a"),
+    ({"randomization": 5}, "randomization must be RandomizationRanges or a mapping"),
+    ({"episode_s": "5"}, "episode_s must be a number"), ({"integral": 1}, "integral must be true or false"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("vector", [False, True], ids=["make", "make_vec"])
+@pytest.mark.parametrize("kwargs,says", BAD_ARGUMENTS, ids=[next(iter(k)) + "=" + repr(v) for k, v in
+                                                            ((a, next(iter(a.values()))) for a, _ in BAD_ARGUMENTS)])
+def test_a_bad_argument_is_a_config_error_naming_it(kwargs: dict, says: str, vector: bool) -> None:
+    """A constructor argument of the wrong type or out of range is refused before anything is built, naming the
+    argument (a bool is not a number; an AttributeError from deep inside was the answer to ``ball=5``)."""
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=says):
+        if vector:
+            gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point", **kwargs)
+        else:
+            gym.make("StewartBallBalance-v0", backend="batched", **kwargs)
+
+
+def test_numpy_numbers_and_switches_are_taken() -> None:
+    """NumPy's scalars are numbers and switches as Python's are; a whole float is a whole number."""
+    env = gym.make("StewartBallBalance-v0", backend="batched", episode_s=np.int64(5), control_hz=np.int64(50),
+                   physics_hz=150.0, max_tilt=np.float32(0.1), integral=np.True_, randomize=np.True_)  # fmt: skip
+    try:
+        assert env.unwrapped.episode_steps == 250 and env.observation_space.shape == (14,)
+        assert env.unwrapped.mapper.max_tilt == pytest.approx(0.1)
+    finally:
+        env.close()
+
+
+def test_a_refused_reset_leaves_no_trace() -> None:
+    """A reset refused for its options leaves the generator, the episode and what a copy replays as they were: the
+    next reset draws what it would have drawn, and a deepcopy still works."""
+    from stewart_gym.errors import ConfigError
+
+    starts = []
+    for refuse in (False, True):
+        env = gym.make("StewartBallBalance-v0", randomize=True)
+        env.reset(seed=0)
+        for _ in range(5):
+            env.step(np.array([0.3, -0.2], dtype=np.float32))
+        if refuse:
+            with pytest.raises(ConfigError, match="unknown reset option"):
+                env.reset(seed=123, options={"foo": 1})
+            with pytest.raises(ConfigError, match="ball_velocity"):
+                env.reset(seed=123, options={"ball_velocity": (5, 0)})
+            twin = copy.deepcopy(env)
+            twin.close()
+        _, info = env.reset()
+        starts.append(info["ball_xy_m"])
+        env.close()
+    assert np.array_equal(starts[0], starts[1])
+
+
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+def test_every_info_value_is_a_numpy_value(env_id: str) -> None:
+    """On reset and on every step, each info entry is a NumPy scalar or array (TorchRL registers info by dtype)."""
+    env = gym.make(env_id, backend="batched")
+    try:
+        _, info = env.reset(seed=0)
+        infos = [info]
+        for _ in range(200):
+            infos.append(env.step(env.action_space.sample())[4])
+        for entry in infos:
+            plain = {k: type(v).__name__ for k, v in entry.items() if not isinstance(v, (np.generic, np.ndarray))}
+            assert not plain, plain
+    finally:
+        env.close()
+
+
+def test_the_env_checks_an_action_as_the_vector_env_does() -> None:
+    """An action of another shape, not real numbers, or after close() is refused before anything moves."""
+    from gymnasium.error import ClosedEnvironmentError
+
+    env = gym.make("StewartBallBalance-v0", backend="batched").unwrapped
+    env.reset(seed=0)
+    t = env.sim.time
+    for action, says in ((np.zeros((1, 2)), r"expected an action of shape \(2,\), got shape \(1, 2\)"),
+                         (np.zeros(3), r"shape \(3,\)"), (np.zeros(2, complex), "real numbers"),
+                         (np.array([True, False]), "real numbers"), ([0.0, float("nan")], "finite")):  # fmt: skip
+        with pytest.raises(ValueError, match=says):
+            env.step(action)
+    assert env.sim.time == t
+    env.step([0, 0])  # a list, of ints: real numbers of the right shape
+    env.close()
+    with pytest.raises(ClosedEnvironmentError, match="closed"):
+        env.step(np.zeros(2, dtype=np.float32))
+    env.reset(seed=0)  # starts it again
+    env.step(np.zeros(2, dtype=np.float32))
+    env.close()
+
+
+def test_mujoco_that_cannot_render_says_so_each_time_without_aborting() -> None:
+    """Where MuJoCo cannot start OpenGL, every render says so in one ConfigError; a second try used to abort the
+    process (GLFW initialised twice). Where it can render, both give frames."""
+    import subprocess
+    import sys
+
+    code = ("import gymnasium as gym, stewart_gym\nfrom stewart_gym.errors import ConfigError\n"
+            "for k in range(2):\n"
+            "    env = gym.make('StewartBallBalance-v0', backend='mujoco', render_mode='rgb_array')\n"
+            "    env.reset(seed=0)\n"
+            "    try:\n        print('frame', env.render().shape)\n"
+            "    except ConfigError as exc:\n        print('refused', str(exc).split(':')[0])\n"
+            "    env.close()\n")  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stdout.splitlines()
+    assert len(lines) == 2 and lines[0] == lines[1], proc.stdout
+    assert lines[0].startswith("frame (") or lines[0].startswith("refused MuJoCo cannot render on this machine")

@@ -70,4 +70,5 @@ class DisturbanceTask(BallTask):
             self._load_on = True
 
     def info(self) -> dict[str, Any]:
-        return {"pushes": self._next, "plate_load_kg": self._load[1] if self._load_on and self._load else 0.0}
+        return {"pushes": np.int64(self._next),
+                "plate_load_kg": np.float64(self._load[1] if self._load_on and self._load else 0.0)}  # fmt: skip

@@ -1,0 +1,84 @@
+"""The envs' constructor arguments, checked at the edge before anything is built.
+
+A number must be a real number (a Python or NumPy int or float, not a bool or a string), finite and in its range;
+a spec must be of its class; a switch must be true or false. A bad one is a
+:class:`~stewart_gym.errors.ConfigError` naming the argument (``gym.make(id, control_hz="50")``, ``ball=5``), not an
+``AttributeError`` from deep inside the engine, or a bool taken as 1.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from stewart_gym.envs.randomization import RandomizationRanges
+from stewart_gym.errors import ConfigError
+from stewart_gym.geometry import PlatformGeometry
+from stewart_gym.sim import BallSpec, ServoSpec
+
+__all__ = ["MAX_CONTROL_HZ", "MAX_PHYSICS_HZ", "check_engine_arguments", "check_randomization", "real_number", "spec_of",
+           "true_or_false"]  # fmt: skip
+
+#: Hz: the highest control rate an env takes (a deploy loop's own limit is 500 Hz).
+MAX_CONTROL_HZ = 1000
+#: Hz: the highest physics rate an env takes.
+MAX_PHYSICS_HZ = 100_000
+
+
+def real_number(name: str, value: Any, *, optional: bool = False, whole: bool = False, low: float = -math.inf,
+                high: float = math.inf, low_open: bool = False) -> Any:  # fmt: skip
+    """``value`` as a Python int (``whole``: a real number of no fraction) or float, checked: a real number (None
+    where ``optional``), not a bool, finite, within [``low``, ``high``] (``(low, high]`` with ``low_open``); else
+    a ConfigError naming ``name``."""
+    if value is None and optional:
+        return None
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ConfigError(f"{name} must be {'a whole number' if whole else 'a number'}, got {value!r} "
+                          f"({type(value).__name__})")  # fmt: skip
+    number = float(value)
+    if whole and math.isfinite(number) and not number.is_integer():
+        raise ConfigError(f"{name} must be a whole number, got {value!r}")
+    if not math.isfinite(number) or number > high or number < low or (low_open and number == low):
+        bounds = "" if low == -math.inf and high == math.inf else f" in {'(' if low_open else '['}{low:g}, {high:g}]"
+        raise ConfigError(f"{name} must be a finite number{bounds}, got {value!r}")
+    return int(number) if whole else number
+
+
+def true_or_false(name: str, value: Any) -> bool:
+    """``value`` as a bool: True or False (NumPy's too); else a ConfigError naming ``name``."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise ConfigError(f"{name} must be true or false, got {value!r}")
+    return bool(value)
+
+
+def spec_of(name: str, value: Any, classes: type | tuple[type, ...], what: str) -> Any:
+    """``value`` where it is None or of ``classes``; else a ConfigError naming ``name`` and saying ``what`` it
+    takes."""
+    if value is not None and not isinstance(value, classes):
+        raise ConfigError(f"{name} must be {what}, got {value!r} ({type(value).__name__})")
+    return value
+
+
+def check_engine_arguments(geometry: Any, control_hz: Any, physics_hz: Any, ball: Any, servo: Any) -> tuple[int, Any]:
+    """The arguments an engine is built from, checked (:func:`real_number`, :func:`spec_of`): the geometry (a preset
+    name, a TOML path or a :class:`~stewart_gym.geometry.PlatformGeometry`), the rates (whole numbers of Hz; the
+    physics rate None for the engine's own), the ball and servo specs. Returns the rates as Python ints."""
+    if not isinstance(geometry, (str, os.PathLike, PlatformGeometry)):
+        raise ConfigError(f"geometry must be a preset name, a TOML path or a PlatformGeometry, got {geometry!r}")
+    control = real_number("control_hz", control_hz, whole=True, low=1, high=MAX_CONTROL_HZ)
+    physics = real_number("physics_hz", physics_hz, optional=True, whole=True, low=1, high=MAX_PHYSICS_HZ)
+    spec_of("ball", ball, BallSpec, "a BallSpec")
+    spec_of("servo", servo, ServoSpec, "a ServoSpec")
+    return control, physics
+
+
+def check_randomization(value: Any) -> Any:
+    """``randomization``: None, the ranges (:class:`~stewart_gym.envs.randomization.RandomizationRanges`) or a
+    mapping of the fields to change; else a ConfigError."""
+    return spec_of("randomization", value, (RandomizationRanges, Mapping),
+                   "RandomizationRanges or a mapping of its fields")  # fmt: skip
