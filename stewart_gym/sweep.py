@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import os
 import shutil
@@ -402,11 +403,15 @@ def connect(address: str | None) -> dict[str, Any]:
         # Ray runs its workers at nice 15, where any busy process on the machine starves them; the trials are this
         # command's work (docs: Sweeps)
         os.environ.setdefault("RAY_worker_niceness", "0")
-        # a new local Ray turns token authentication on and says so on stderr unless the mode is set: set it, to
-        # the same mode (the user's own setting wins)
-        os.environ.setdefault("RAY_AUTH_MODE", "token")
-        ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False,
-                 object_store_memory=200 * 1024**2, log_to_driver=False, configure_logging=False)  # fmt: skip
+        # a new local Ray turns token authentication on, and logs a warning that it did: not a word for the user
+        notice = logging.getLogger("ray._private.authentication.authentication_token_setup")
+        level = notice.level
+        notice.setLevel(logging.ERROR)
+        try:
+            ray.init(address="local", num_cpus=os.cpu_count(), include_dashboard=False,
+                     object_store_memory=200 * 1024**2, log_to_driver=False, configure_logging=False)  # fmt: skip
+        finally:
+            notice.setLevel(level)
     else:
         check_reachable(address)
         try:
