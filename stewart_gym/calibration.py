@@ -149,6 +149,10 @@ class ServoCalibration:
         # Round outwards to 1e-6 µs so that the pulses at the travel's ends are inside.
         lo_us = np.floor(np.minimum(w_lo, w_hi) * 1e6) / 1e6
         hi_us = np.ceil(np.maximum(w_lo, w_hi) * 1e6) / 1e6
+        if np.any(lo_us <= 0):
+            raise CalibrationError(f"servo_angle_range of {geo.name!r}: {math.degrees(hi - lo):.0f}° of travel at "
+                                   f"{us_per_rad * math.pi / 180:.2f} µs/° from {neutral_us:g} µs needs pulses down to "
+                                   f"{float(lo_us.min()):.0f} µs: narrow it to the servo's real travel")  # fmt: skip
         return cls(w0, d, home, np.full(6, us_per_rad), lo_us, hi_us)
 
     @classmethod

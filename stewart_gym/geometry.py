@@ -165,8 +165,12 @@ class PlatformGeometry:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        if not isinstance(self.description, str):
+            raise GeometryError(f"description: free text in quotes, got {self.description!r}")
         set_(self, "base_anchors", _readonly(_shape("base_anchors", self.base_anchors, (6, 3))))
         set_(self, "platform_anchors", _readonly(_shape("platform_anchors", self.platform_anchors, (6, 3))))
+        for key in ("base_anchors", "platform_anchors"):
+            _spread(key, getattr(self, key))
         _positive("rod_length", self.rod_length)
         _positive("home_height", self.home_height)
         set_(self, "rod_length", float(self.rod_length))
@@ -182,7 +186,12 @@ class PlatformGeometry:
             set_(self, "servo_beta", _readonly(_shape("servo_beta", self.servo_beta, (6,))))
             if self.servo_angle_range is None:
                 raise GeometryError("servo_angle_range: required for a rotary platform")
-            set_(self, "servo_angle_range", _range("servo_angle_range", self.servo_angle_range, positive=False))
+            turn = _range("servo_angle_range", self.servo_angle_range, positive=False)
+            if turn[1] - turn[0] > 2 * math.pi or max(abs(turn[0]), abs(turn[1])) > 2 * math.pi:
+                raise GeometryError(f"servo_angle_range: a servo turns less than a whole turn (hobby servos about "
+                                    f"180°), got {math.degrees(turn[0]):.1f}° to {math.degrees(turn[1]):.1f}°; check "
+                                    "angle_unit")  # fmt: skip
+            set_(self, "servo_angle_range", turn)
             if self.leg_length_range is not None:
                 raise GeometryError("leg_length_range: only for a linear platform (horn_length is set)")
         else:
@@ -270,7 +279,7 @@ class PlatformGeometry:
             layout = symmetric_layout(**_symmetric(data["symmetric"], ls, ang, source))
         kw: dict[str, Any] = {
             "name": name,
-            "description": str(data.get("description", "")),
+            "description": data.get("description", ""),
             "base_anchors": layout[0] if layout else _shape("base_anchors", need("base_anchors"), (6, 3)) * ls,
             "platform_anchors": (layout[1] if layout
                                  else _shape("platform_anchors", need("platform_anchors"), (6, 3)) * ls),
@@ -407,6 +416,21 @@ def _positive(key: str, value: Any) -> None:
     v = _scalar(key, value)
     if not math.isfinite(v) or v <= 0.0:
         raise GeometryError(f"{key}: must be a finite positive length, got {v!r}")
+
+
+#: m: how far the six anchors of a side must spread across their plane (its narrower way): less, and they lie on a
+#: line (or in one point), where no platform can hold a pose.
+MIN_ANCHOR_SPREAD = 1e-3
+
+
+def _spread(key: str, anchors: np.ndarray) -> None:
+    """Raise :class:`GeometryError` if the six ``anchors`` (6, 3) m lie on one line or in one point: their spread
+    across the narrower way of the best-fitting plane is under :data:`MIN_ANCHOR_SPREAD`."""
+    widths = np.linalg.svd(anchors - anchors.mean(axis=0), compute_uv=False)
+    if not widths[1] >= MIN_ANCHOR_SPREAD:  # (NaN too)
+        raise GeometryError(f"{key}: the six anchors lie on one line or in one point (they spread "
+                            f"{widths[1] * 1e3:.3g} mm across it): a platform needs them around a plane, as a "
+                            "ring of pairs")  # fmt: skip
 
 
 def _range(key: str, value: Any, *, positive: bool, ordered: bool = True) -> tuple[float, float]:

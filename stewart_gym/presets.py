@@ -206,7 +206,8 @@ def check_home(geometry: PlatformGeometry, source: str) -> None:
 
     key, what = ("servo_angle_range", "servo angles") if geometry.is_rotary else ("leg_length_range", "leg lengths")
     travel = getattr(geometry, key)
-    values = np.asarray(inverse_kinematics(geometry, np.zeros(6)).actuators, dtype=np.float64)
+    home = inverse_kinematics(geometry, np.zeros(6))
+    values = np.asarray(home.actuators, dtype=np.float64)
     if not np.all(np.isfinite(values)):
         raise GeometryError(f"{source}: home_height: the chains cannot close at home (no {what} reach it): "
                             "check home_height, rod_length and the anchors")  # fmt: skip
@@ -225,3 +226,6 @@ def check_home(geometry: PlatformGeometry, source: str) -> None:
         raise GeometryError(f"{source}: {key}: {show(lo)} to {show(hi)} does not hold the {what} at home "
                             f"(actuators {outside.tolist()}: {at_home}): widen it to include them, or change "
                             "home_height")  # fmt: skip
+    if not bool(home.reachable):  # (what else the IK refuses: a platform anchor not above its base anchor)
+        raise GeometryError(f"{source}: home_height: the home pose is unreachable ({home.explain()}): check "
+                            "home_height and the anchors' heights")  # fmt: skip

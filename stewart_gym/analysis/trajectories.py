@@ -66,22 +66,30 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
     import csv
     import io
 
-    text = read_text(path, "CSV of poses", DATA_LIMIT)
+    text = read_text(path, "CSV of poses", DATA_LIMIT).removeprefix("\ufeff")  # (a spreadsheet's byte-order mark)
     try:
-        rows = list(csv.DictReader(io.StringIO(text, newline="")))
+        lines = list(csv.reader(io.StringIO(text, newline="")))
     except csv.Error as exc:
         raise ConfigError(f"{path}: not a valid CSV file ({exc})") from None
-    if not rows:
+    header = [c.strip() for c in lines[0]] if lines else []
+    body = [(number, line) for number, line in enumerate(lines[1:], start=2) if line]  # (blank lines skipped)
+    if not body:
         raise ConfigError(f"{path}: no rows (expected a header line and one pose per line)")
-    header = [c.strip() for c in rows[0]]
     known = {"t_s"} | {f"{a}_{u}" for a in ("x", "y", "z") for u in ("m", "mm")} | {
         f"{a}_{u}" for a in ("roll", "pitch", "yaw") for u in ("rad", "deg")}  # fmt: skip
     unknown = [c for c in header if c not in known]
     if unknown:
         raise ConfigError(f"{path}: unknown column(s) {unknown}; use t_s, x_m|x_mm, y_…, z_…, roll_rad|roll_deg, "
                           "pitch_…, yaw_…")  # fmt: skip
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise ConfigError(f"{path}: column(s) {twice} given more than once")
     if not set(header) - {"t_s"}:
         raise ConfigError(f"{path}: no pose column (x_mm, y_mm, z_mm, roll_deg, … )")
+    for number, line in body:
+        if len(line) != len(header):
+            raise ConfigError(f"{path}: line {number} has {len(line)} field(s), the header {len(header)}")
+    rows = [dict(zip(header, line)) for _, line in body]
     poses = np.zeros((len(rows), 6))
 
     def column(name: str) -> np.ndarray:
@@ -90,8 +98,12 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
         except (TypeError, ValueError) as exc:
             raise ConfigError(f"{path}: column {name!r}: {exc}") from None
         if not np.all(np.isfinite(values)):
-            row = int(np.argmin(np.isfinite(values))) + 2
+            row = body[int(np.argmin(np.isfinite(values)))][0]
             raise ConfigError(f"{path}: column {name!r} has a non-finite value (line {row})")
+        limit = {"deg": 360.0, "rad": 2 * math.pi}.get(name.split("_", 1)[1])
+        if limit is not None and np.any(np.abs(values) > limit):
+            row = body[int(np.argmax(np.abs(values) > limit))][0]
+            raise ConfigError(f"{path}: column {name!r} has an angle beyond a whole turn (line {row})")
         return values
 
     for k, axis in enumerate(("x", "y", "z", "roll", "pitch", "yaw")):
@@ -102,7 +114,7 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
             poses[:, k] = column(cols[0]) * _UNITS[cols[0].split("_", 1)[1]]
     t = column("t_s") if "t_s" in header else np.arange(len(rows), dtype=float)
     if np.any(np.diff(t) < 0):
-        raise ConfigError(f"{path}: t_s goes backwards (row {int(np.argmax(np.diff(t) < 0)) + 3})")
+        raise ConfigError(f"{path}: t_s goes backwards (line {body[int(np.argmax(np.diff(t) < 0)) + 1][0]})")
     return t, poses
 
 

@@ -30,6 +30,16 @@ class HeightMap:
     z_min: np.ndarray
 
 
+#: The most poses :func:`height_map`'s first scan may solve at once (about 15 s and a few GB of memory).
+MAX_SCAN_POSES = 20_000_000
+
+
+def scan_poses(cells: int, levels: int, stride: int = 16) -> int:
+    """How many poses :func:`height_map` solves at once in its first scan of ``cells`` (x, y) points over
+    ``levels`` heights (every ``stride``-th one, and the last)."""
+    return cells * (len(range(0, levels, stride)) + 1)
+
+
 def height_map(geometry: PlatformGeometry, orientation: tuple[float, float, float] = (0.0, 0.0, 0.0),
                pivot: np.ndarray | None = None, *, x: np.ndarray, y: np.ndarray, z_levels: np.ndarray,
                stride: int = 16) -> HeightMap:  # fmt: skip

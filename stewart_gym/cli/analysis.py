@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,6 @@ from stewart_gym.cli.common import (
     EXIT_FAILED,
     EXIT_OK,
     bounded_float,
-    finite_float,
     int_at_least,
     json_safe,
     output_file,
@@ -27,6 +27,11 @@ from stewart_gym.tomlio import read_toml
 
 #: Seed 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
 SEED_003_RANGES_MM = (25.0, 28.0, 15.0)
+#: mm: the largest length or position the analysis commands take (10 m, as a geometry's own lengths).
+MAX_MM = 10_000.0
+#: The largest planar parameter (a length in the file's own unit; gamma is within a turn): beyond it the planar
+#: solver's polynomial overflows.
+MAX_PLANAR = 1e6
 
 
 
@@ -54,7 +59,7 @@ def _grid_extent(geo: Any) -> tuple[float, float]:
 def cmd_workspace(args: argparse.Namespace) -> int:
     """Reach along each axis, the reachable-z map over x–y (seed 002) and sampled workspace volumes."""
     from stewart_gym.analysis.plots import plot_height_map
-    from stewart_gym.analysis.workspace import height_map, reachable_volume
+    from stewart_gym.analysis.workspace import MAX_SCAN_POSES, height_map, reachable_volume, scan_poses
     from stewart_gym.kinematics import axis_ranges
 
     geo = load_geometry(args.geometry)
@@ -67,6 +72,9 @@ def cmd_workspace(args: argparse.Namespace) -> int:
         xy_ext = args.range * 1e-3
     step = args.z_step * 1e-3
     levels = np.arange(-math.ceil(z_ext / step), math.ceil(z_ext / step) + 1) * step
+    if scan_poses(args.n * args.n, len(levels)) > MAX_SCAN_POSES:
+        raise ConfigError(f"--n {args.n} with --z-step {args.z_step:g} scans {scan_poses(args.n**2, len(levels)):,} "
+                          f"poses at once, more than {MAX_SCAN_POSES:,}: lower --n or raise --z-step")  # fmt: skip
     grid = np.linspace(-xy_ext, xy_ext, args.n)
     hm = height_map(geo, orient, pivot, x=grid, y=grid, z_levels=levels)
     vol = reachable_volume(geo, samples=args.samples, pivot=pivot)
@@ -93,8 +101,12 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     if geo.name == "servo-hexapod":
         res["seed_003_ranges_mm"] = SEED_003_RANGES_MM
     hmr = res["height_map"]
-    lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm at {args.z_step} mm steps: "
-                 f"{hmr['min_z_mm']} … {hmr['max_z_mm']} mm, {hmr['reachable_fraction']:.1%} of the grid")  # fmt: skip
+    if hmr["max_z_mm"] is None:
+        lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm: no height of the grid is "
+                     f"reachable at orientation {list(args.orientation)}°")  # fmt: skip
+    else:
+        lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm at {args.z_step} mm steps: "
+                     f"{hmr['min_z_mm']} … {hmr['max_z_mm']} mm, {hmr['reachable_fraction']:.1%} of the grid")  # fmt: skip
     if at_edge:
         lines.append(f"  (z reaches the edge of the searched range ±{z_ext * 1e3:.1f} mm: the true extreme lies beyond)")
     lines.append(f"translational workspace at home orientation ≈ {vol['volume_translation_m3'] * 1e9:,.1f} mm³; "
@@ -173,6 +185,9 @@ def cmd_conditioning(args: argparse.Namespace) -> int:
     res = conditioning(geo, xy_grid_poses(grid, grid, orientation=tuple(math.radians(v) for v in args.orientation)),
                        args.threshold)  # fmt: skip
     cond, near = res["cond"], res["near_singular"]
+    if not np.isfinite(cond).any():
+        raise ConfigError(f"no pose of the {args.n}×{args.n} grid is reachable at orientation "
+                          f"{list(args.orientation)}°: {geo.name!r} cannot tilt that far; try a smaller one")  # fmt: skip
     gx, gy = np.meshgrid(grid, grid)
     flagged = [[float(gx[i] * 1e3), float(gy[i] * 1e3), float(cond[i])] for i in zip(*np.nonzero(near))]
     out = {"geometry": geo.name, "min_cond": float(np.nanmin(cond)), "max_cond": float(np.nanmax(cond)),
@@ -197,9 +212,10 @@ def _planar_params(args: argparse.Namespace) -> dict[str, float]:
         if missing:
             raise ConfigError(f"{args.geometry}: missing planar parameter(s) {missing}")
         bad = [k for k in PLANAR_KEYS if isinstance(data[k], bool) or not isinstance(data[k], (int, float))
-               or not math.isfinite(data[k])]  # fmt: skip
+               or not abs(data[k]) <= (2 * math.pi if k == "gamma" else MAX_PLANAR)]  # fmt: skip
         if bad:
-            raise ConfigError(f"{args.geometry}: planar parameter(s) {bad} must be finite numbers")
+            raise ConfigError(f"{args.geometry}: planar parameter(s) {bad} must be finite numbers within ±{MAX_PLANAR:g} "
+                              "(gamma within a turn, ±2π rad)")  # fmt: skip
         params = {k: float(data[k]) for k in PLANAR_KEYS}
     for k in PLANAR_KEYS:
         v = getattr(args, k)
@@ -215,11 +231,11 @@ def _sweep_spec(text: str) -> tuple[str, float, float, int]:
         if len(parts) != 4 or parts[0] not in ("p1", "p2", "p3"):
             raise ValueError
         start, stop, n = float(parts[1]), float(parts[2]), int(parts[3])
-        if not (math.isfinite(start) and math.isfinite(stop) and 0 < start < stop and 2 <= n <= 100_000):
+        if not (0 < start < stop <= MAX_PLANAR and 2 <= n <= 100_000):
             raise ValueError
     except ValueError:
         raise ConfigError(f"--sweep {text!r}: expected STRUT:START:STOP:N with STRUT p1, p2 or p3, "
-                          "0 < START < STOP and 2 ≤ N ≤ 100000, e.g. p2:0.5:12:231") from None  # fmt: skip
+                          f"0 < START < STOP ≤ {MAX_PLANAR:g} and 2 ≤ N ≤ 100000, e.g. p2:0.5:12:231") from None  # fmt: skip
     return parts[0], start, stop, n
 
 
@@ -232,6 +248,10 @@ def cmd_planar(args: argparse.Namespace) -> int:
     _plot_path(args)
     _plot_path(args, "sweep_plot")
     sweep = _sweep_spec(args.sweep) if args.sweep else None
+    if args.sweep_plot and not sweep:
+        raise ConfigError("--sweep-plot draws a sweep: add --sweep STRUT:START:STOP:N, or leave it out")
+    if args.plot and args.sweep_plot and Path(args.plot).resolve() == Path(args.sweep_plot).resolve():
+        raise ConfigError(f"--plot and --sweep-plot are both {args.plot}: give two files")
     poses = solve_planar(**params)
     out: dict[str, Any] = {"parameters": params, "poses": poses, "count": len(poses)}
     lines = [f"{len(poses)} pose(s) (x, y, θ):"] + [f"  {p[0]: .6f} {p[1]: .6f} {p[2]: .6f}" for p in poses]
@@ -260,6 +280,8 @@ def cmd_assembly(args: argparse.Namespace) -> int:
         if not np.all(lengths > 0):
             raise ConfigError("--legs: leg lengths must be positive (mm)")
     else:
+        if any(abs(v) > 360.0 for v in args.pose[3:]):
+            raise ConfigError(f"--pose: the angles must be within ±360°, got {list(args.pose[3:])}")
         pose = np.array([v * 1e-3 for v in args.pose[:3]] + [math.radians(v) for v in args.pose[3:]])
         lengths = inverse_kinematics(geo, pose).leg_lengths
     modes = assembly_modes(geo, lengths, guesses=args.guesses, progress=not args.json)
@@ -285,8 +307,9 @@ def register(sub: Any) -> None:
     p = sub.add_parser("workspace", help=cmd_workspace.__doc__, description=cmd_workspace.__doc__)
     _common(p, "servo-hexapod")
     p.add_argument("--orientation", default=(0.0, 0.0, 0.0), help="degrees", **angles)
-    p.add_argument("--pivot", nargs=3, type=finite_float, metavar=("X", "Y", "Z"), help="mm, platform frame")
-    p.add_argument("--range", type=positive_float, help="half-width of the x–y grid, mm")
+    p.add_argument("--pivot", nargs=3, type=bounded_float(-MAX_MM, MAX_MM), metavar=("X", "Y", "Z"),
+                   help="mm, platform frame (±10 m)")  # fmt: skip
+    p.add_argument("--range", type=bounded_float(0.0, MAX_MM, lo_open=True), help="half-width of the x–y grid, mm")
     p.add_argument("--n", type=int_at_least(2, 2000), default=100, help="grid points per axis (2–2000)")
     p.add_argument("--z-step", type=bounded_float(0.001, 100.0), default=0.1, help="mm")
     p.add_argument("--samples", type=int_at_least(1, 50_000_000), default=200_000,
@@ -296,8 +319,9 @@ def register(sub: Any) -> None:
                        " Exit 1 if any sample is unreachable.")  # fmt: skip
     _common(p, "senilov2018")
     p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
-    p.add_argument("--radius", type=positive_float, default=200.0, help="circle radius, mm (seed 001: 200)")
-    p.add_argument("--z", type=finite_float, default=0.0, help="circle height from home, mm")
+    p.add_argument("--radius", type=bounded_float(0.0, MAX_MM, lo_open=True), default=200.0,
+                   help="circle radius, mm (seed 001: 200)")  # fmt: skip
+    p.add_argument("--z", type=bounded_float(-MAX_MM, MAX_MM), default=0.0, help="circle height from home, mm")
     p.add_argument("--samples", type=int_at_least(2, 10_000_000), default=1000, help="poses along the circle")
     p.set_defaults(func=cmd_trajectory)
     p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__, description=cmd_sensitivity.__doc__)
@@ -320,14 +344,16 @@ def register(sub: Any) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", help="PNG of every pose")
     for k in PLANAR_KEYS:
-        p.add_argument(f"--{k}", type=finite_float, help="override" + (" (rad)" if k == "gamma" else ""))
+        limit = 2 * math.pi if k == "gamma" else MAX_PLANAR
+        p.add_argument(f"--{k}", type=bounded_float(-limit, limit), help="override" + (" (rad)" if k == "gamma" else ""))
     p.add_argument("--sweep", help="STRUT:START:STOP:N, e.g. p2:0.5:12:231")
     p.add_argument("--sweep-plot", help="PNG of the pose count against the swept strut")
     p.set_defaults(func=cmd_planar)
     p = sub.add_parser("assembly", help=cmd_assembly.__doc__, description=cmd_assembly.__doc__)
     _common(p, "senilov2018", plot=False)
-    p.add_argument("--legs", nargs=6, type=finite_float, metavar="MM", help="leg lengths, mm (instead of --pose)")
-    p.add_argument("--pose", nargs=6, type=finite_float, default=(10, 0, 0, 3, 1, 6), metavar="V",
+    p.add_argument("--legs", nargs=6, type=bounded_float(0.0, MAX_MM, lo_open=True), metavar="MM",
+                   help="leg lengths, mm (instead of --pose)")  # fmt: skip
+    p.add_argument("--pose", nargs=6, type=bounded_float(-MAX_MM, MAX_MM), default=(10, 0, 0, 3, 1, 6), metavar="V",
                    help="a pose X Y Z (mm, from home) ROLL PITCH YAW (°) whose leg lengths are used; default "
                         "10 0 0 3 1 6; ignored with --legs")  # fmt: skip
     p.add_argument("--guesses", type=int_at_least(1, 1_000_000), default=4000,

@@ -73,6 +73,16 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "huge_gain.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1e308}\n')
     (d / "rolling_factor.json").write_text('{"kp_pos": 2, "kp_vel": 3, "ki_vel": 1, "rolling_factor": 7}\n')
     hexapod = load_preset("servo-hexapod").to_toml()  # its servos sit at 0.2992 rad at home
+    (d / "traj_long_row.csv").write_text("t_s,x_mm\n0,1,2\n")
+    (d / "traj_twice.csv").write_text("t_s,x_mm,x_mm\n0,1,2\n")
+    (d / "traj_spaced.csv").write_text("\ufefft_s, x_mm\n0,1\n1,2\n")  # a byte-order mark and a space: taken
+    in_line = "base_anchors = [" + ", ".join(f"[{0.02 * i}, 0.0, 0.0]" for i in range(6)) + "]\n"
+    (d / "anchors_in_line.toml").write_text(re.sub(r"base_anchors = \[\n(?:  \[.*\],\n)+\]\n", in_line, hexapod))
+    (d / "servo_turns.toml").write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [-6.0, 9.0]",
+                                               hexapod))  # fmt: skip
+    (d / "description_number.toml").write_text(hexapod.replace('description = "', 'description = 5\nx = "'))
+    linear = load_preset("senilov2018").to_toml()
+    (d / "linear_low_home.toml").write_text(re.sub(r"home_height = [0-9.e-]+", "home_height = 0.01", linear))
     (d / "narrow_range.toml").write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [0.3, 1.0]",
                                                 hexapod))  # fmt: skip
     (d / "emptydir").mkdir()
@@ -224,6 +234,7 @@ GOOD = [
     (["conditioning", "--n", "11"], 0, "cond(J)"),
     (["planar"], 0, "pose(s)"),
     (["planar", "--sweep", "p2:0.5:12:31", "--json"], 0, '"sweep"'),
+    (["trajectory", "--csv", "{files}/traj_spaced.csv", "--geometry", "servo-hexapod"], 0, "2 samples"),
     (["assembly", "--guesses", "200"], 0, "assembly modes"),
     (["assembly", "--guesses", "200", "--legs", "300", "300", "300", "300", "300", "300"], 0, "assembly modes"),
     (["evaluate", "--policy", "pid", "--episodes", "2", "--no-randomize"], 0, "success rate"),
@@ -420,6 +431,21 @@ BAD = [
     ["calibrate", "--port", DEV, "--geometry", "senilov2018"],
     # analyses
     ["workspace", "--n", "0"],
+    ["workspace", "--n", "2000"],
+    ["workspace", "--pivot", "1e300", "0", "0"],
+    ["conditioning", "--orientation", "30", "30", "30"],
+    ["planar", "--p1", "1e300"],
+    ["planar", "--sweep", "p2:1:1e300:10"],
+    ["planar", "--sweep-plot", "{tmp}/s.png"],
+    ["assembly", "--pose", "1e300", "0", "0", "0", "0", "0"],
+    ["assembly", "--pose", "0", "0", "0", "1e6", "0", "0"],
+    ["assembly", "--legs", "1e300", "1e300", "1e300", "1e300", "1e300", "1e300"],
+    ["trajectory", "--csv", "{files}/traj_long_row.csv"],
+    ["trajectory", "--csv", "{files}/traj_twice.csv"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/anchors_in_line.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/servo_turns.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/description_number.toml"],
+    ["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/linear_low_home.toml"],
     ["workspace", "--samples", "0"],
     ["workspace", "--orientation", "nan", "0", "0"],
     ["workspace", "--pivot", "0", "0"],
@@ -605,6 +631,15 @@ WRONG_BLAME = [
      "narrow_range.toml: servo_angle_range", "neutral_us"),
     (["evaluate", "--policy", "{files}/empty_gains.json"], "empty_gains.json: a PID's gains need kp_pos, kp_vel, ki_vel",
      "xx"),
+    (["trajectory", "--csv", "{files}/traj_long_row.csv"], "traj_long_row.csv: line 2 has 3 field(s), the header 2",
+     "xx"),
+    (["conditioning", "--orientation", "30", "30", "30"], "no pose of the 61×61 grid is reachable", "nan"),
+    (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/anchors_in_line.toml"],
+     "anchors_in_line.toml: base_anchors: the six anchors lie on one line or in one point", "xx"),
+    (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/servo_turns.toml"],
+     "servo_turns.toml: servo_angle_range: a servo turns less than a whole turn", "min_us"),
+    (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "{files}/linear_low_home.toml"],
+     "linear_low_home.toml: home_height: the home pose is unreachable", "xx"),
     (["evaluate", "--policy", "{files}/extra_gain.json"], "extra_gain.json: unknown field(s) ['extra']: a PID's gains "
      "are kp_pos", "__init__"),
     (["evaluate", "--policy", "{files}/negative_gain.json"], "negative_gain.json: kp_pos must be positive", "xx"),
@@ -626,7 +661,8 @@ WRONG_BLAME = [
     (["train", "--hyperparams", "{files}/residual_scale.yml", "--run-dir", "{tmp}/r"],
      "residual_scale.yml: StewartBallBalance-v0.env_wrapper: residual scale", "Traceback"),
     (["train", "--hyperparams", "{files}/rate_penalty_nan.yml", "--run-dir", "{tmp}/r", "--backend", "batched"],
-     "rate_penalty_nan.yml: StewartBallBalance-v0.env_kwargs with --backend batched: rate_penalty must be ≥ 0",
+     "rate_penalty_nan.yml: StewartBallBalance-v0.env_kwargs with --backend batched: rate_penalty must be a finite "
+     "number, got nan",
      "Traceback"),
     (["train", "--hyperparams", "{files}/batch_one.yml", "--run-dir", "{tmp}/r"],
      "batch_one.yml: batch_size must be 2 or more, got 1", "Traceback"),
