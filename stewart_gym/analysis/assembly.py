@@ -15,6 +15,7 @@ import numpy as np
 
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import forward_kinematics, inverse_kinematics, rotation_matrix
+from stewart_gym.progress import Progress
 
 __all__ = ["assembly_modes"]
 
@@ -39,15 +40,16 @@ def assembly_modes(geometry: PlatformGeometry, leg_lengths: np.ndarray, guesses:
     g[:, 2] = rng.uniform(-span - geometry.home_height, span - geometry.home_height, guesses)
     g[:, 3:] = rng.uniform(-math.pi, math.pi, (guesses, 3))
     chunks = np.array_split(np.arange(guesses), max(1, guesses // 500))
-    if progress:
-        from tqdm import tqdm
-
-        chunks = tqdm(chunks, desc="assembly modes", unit="batch")
+    bar = Progress(len(chunks), "batches", "assembly modes") if progress else None  # (a bar on a terminal, else lines)
     found = []
     for idx in chunks:
         fk = forward_kinematics(geometry, leg_lengths=np.broadcast_to(lengths, (len(idx), 6)), guess=g[idx],
                                 max_iter=60)  # fmt: skip
         found.append(fk.pose[fk.converged])
+        if bar is not None:
+            bar.advance()
+    if bar is not None:
+        bar.close()
     poses = np.concatenate(found) if found else np.zeros((0, 6))
     # one Euler triple per rotation: (r, p, y) and (r + π, π − p, y + π) are the same; keep |pitch| ≤ π/2
     flip = np.abs(_wrap(poses[:, 4])) > math.pi / 2

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
 from stewart_gym.errors import ConfigError
+from stewart_gym.progress import Progress
 
 __all__ = ["PLANAR_KEYS", "PLANAR_PRESETS", "planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
 
@@ -147,12 +148,14 @@ def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,
     def count(v: float) -> int:
         return len(solve_planar(**{**params, strut: float(v)}))
 
-    iterator = values
-    if progress:
-        from tqdm import tqdm
-
-        iterator = tqdm(values, desc=f"sweeping {strut}", unit="length")
-    counts = np.array([count(v) for v in iterator])
+    bar = Progress(len(values), "lengths", f"sweeping {strut}") if progress else None  # (a bar on a terminal)
+    counts = np.zeros(len(values), dtype=int)
+    for k, v in enumerate(values):
+        counts[k] = count(v)
+        if bar is not None:
+            bar.advance()
+    if bar is not None:
+        bar.close()
     changes = []
     span = float(values[-1] - values[0]) if len(values) > 1 else 1.0
     for i in np.flatnonzero(np.diff(counts) != 0):

@@ -1308,3 +1308,10 @@ def test_a_gains_files_max_tilt_that_is_not_used_is_said(tmp_path: Path, capfd: 
         else:
             assert said == [f"note: {tmp_path / name}: max_tilt 0.3 rad is not used: the controller's tilt at action "
                             "±1 is the env's, 0.174533 rad on 'servo-hexapod' (a PID's max_tilt must match the env's)"]
+
+
+def test_assembly_reports_progress_in_lines_into_a_pipe() -> None:
+    """Piped, a long analysis prints progress lines as the other commands do, not a terminal's ``\\r`` bar."""
+    proc = sg("assembly", "--guesses", "4000", env={"STEWART_GYM_PROGRESS_S": "0.1"})
+    assert proc.returncode == 0 and "\r" not in proc.stderr, proc.stderr
+    assert all(ln.startswith("assembly modes: ") and " batches (" in ln for ln in proc.stderr.splitlines()), proc.stderr
