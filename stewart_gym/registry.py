@@ -330,14 +330,12 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
 
 
 def _bundle_source(spec: str, folder: Path) -> PolicySource:
-    """A bundle folder's policy, its fields checked against each other: its env keywords are ones its env takes,
-    the observer, action mode and integral they name are the bundle's own, and its geometry is the one it holds
-    (a preset's name where it is a preset, else the held geometry itself)."""
-    from stewart_gym.envs import ENV_IDS
-    from stewart_gym.envs.ball_env import SENSOR_NAMES, env_keywords
+    """A bundle folder's policy, its fields checked against each other: the observer, action mode and integral its
+    env keywords name are the bundle's own, and its geometry is the one it holds (a preset's name where it is a
+    preset, else the held geometry itself). What evaluate alone needs is checked there
+    (:func:`check_bundle_env`): deploy runs without gymnasium."""
     from stewart_gym.hardware.export import bundle_geometry
     from stewart_gym.presets import PRESETS, load_preset
-    from stewart_gym.sim.engines import BACKEND_NAMES
 
     meta_path = folder / "bundle.json"
     meta = _read_json(meta_path)
@@ -346,15 +344,6 @@ def _bundle_source(spec: str, folder: Path) -> PolicySource:
                           f"{meta['env_kwargs']!r}; export the policy again")  # fmt: skip
     env_kwargs = dict(meta.get("env_kwargs") or {})
     env_id = meta.get("env_id", DEFAULT_ENV)
-    if isinstance(env_id, str) and env_id in ENV_IDS:  # (else PolicySource names the env)
-        unknown = sorted(set(env_kwargs) - env_keywords(ENV_IDS[env_id][0]) - {"residual"})
-        if unknown:
-            raise PolicyError(f"{meta_path}: env_kwargs: {env_id} takes no keyword(s) {unknown}; export the policy "
-                              "again")  # fmt: skip
-    for key, names in (("backend", (*BACKEND_NAMES, "auto")), ("sensor", SENSOR_NAMES)):  # the world evaluate starts from
-        if key in env_kwargs and env_kwargs[key] not in names:
-            raise PolicyError(f"{meta_path}: env_kwargs.{key} must be one of {list(names)}, got {env_kwargs[key]!r}; "
-                              "export the policy again")  # fmt: skip
     for key in ("action_mode", "estimator", "integral", "control_hz", "max_tilt"):
         if env_kwargs.get(key) is not None and key in meta and env_kwargs[key] != meta[key]:
             raise PolicyError(f"{meta_path}: env_kwargs.{key} {env_kwargs[key]!r} is not the bundle's {key} "
@@ -434,12 +423,32 @@ def load_for_evaluation(spec: str, env_id: str | None = None, geometry: str | No
     one raises :class:`PolicyError` naming both (the PID runs on any).
     """
     source = resolve_policy(spec, env_id, geometry, estimator)
+    if source.kind == "bundle":
+        check_bundle_env(source)
     if geometry is not None and source.kind not in CLASSICAL_KINDS and not same_geometry(geometry, source.geometry):
         raise PolicyError(f"policy {spec!r} was trained for geometry {source.geometry_label!r}, not {geometry!r}: "
                           f"train one for {geometry!r} (stewart-gym train --geometry {geometry}), or evaluate the "
                           "pid")  # fmt: skip
     policy = load_policy(source)
     return source, policy, resolved_env_kwargs(source, getattr(policy, "action_size", None))
+
+
+def check_bundle_env(source: PolicySource) -> None:
+    """A bundle's env keywords, as evaluate builds its env from them: keywords its env takes, and the engine and
+    sensor it names among the known ones. Raises :class:`PolicyError` naming the bundle's file."""
+    from stewart_gym.envs import ENV_IDS
+    from stewart_gym.envs.ball_env import SENSOR_NAMES, env_keywords
+    from stewart_gym.sim.engines import BACKEND_NAMES
+
+    meta_path, env_kwargs = source.path / "bundle.json", source.env_kwargs
+    unknown = sorted(set(env_kwargs) - env_keywords(ENV_IDS[source.env_id][0]) - {"residual"})
+    if unknown:
+        raise PolicyError(f"{meta_path}: env_kwargs: {source.env_id} takes no keyword(s) {unknown}; export the policy "
+                          "again")  # fmt: skip
+    for key, names in (("backend", (*BACKEND_NAMES, "auto")), ("sensor", SENSOR_NAMES)):
+        if key in env_kwargs and env_kwargs[key] not in names:
+            raise PolicyError(f"{meta_path}: env_kwargs.{key} must be one of {list(names)}, got {env_kwargs[key]!r}; "
+                              "export the policy again")  # fmt: skip
 
 
 def same_geometry(a: str | Any, b: str | Any) -> bool:
