@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -60,7 +61,7 @@ import numpy as np
 from stewart_gym.blas import one_blas_thread
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
-from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS
+from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS, log_columns
 from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, TrimFit, fit_trims, usable_frames
 from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
@@ -158,6 +159,13 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
     if not rows:
         raise ConfigError(f"{path}: empty; give a log that identify or deploy wrote")
     header = rows[0]
+    twice = sorted({c for c in header if header.count(c) > 1})
+    known = set(log_columns(0, 0, plate=True))
+    unknown = [c for c in header if c not in known and not re.fullmatch(r"(obs|action)\d+", c)]
+    if twice or unknown:
+        raise ConfigError(f"{path}: " + (f"column(s) {twice} given more than once" if twice else
+                                         f"unknown column(s) {unknown[:5]}") + "; a deploy log has the columns deploy "
+                          "and identify write (docs: Configuration files, deploy log)")  # fmt: skip
     need = ["t_s", *(f"pulse{i}_us" for i in range(6)), *LOG_READING_COLUMNS]
     missing = [c for c in need if c not in header]
     if missing:
@@ -488,6 +496,14 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         raise ConfigError(f"holdout must be a fraction in [0, 0.8], got {holdout!r}")
     geo = load_geometry(geometry)
     cal = calibration or ServoCalibration.default(geo)
+    for log in logs:  # pulses the calibration could not have sent: another calibration's log, or an edited one
+        outside = ~cal.in_range(log.pulses)
+        if outside.any():
+            tick, channel = (int(v) for v in np.argwhere(outside)[0])
+            raise ConfigError(f"{log.path}: pulse{channel}_us {log.pulses[tick, channel]:g} µs (tick {tick + 1}, t_s "
+                              f"{log.t[tick]:g}) is outside the calibration's [{cal.min_us[channel]:g}, "
+                              f"{cal.max_us[channel]:g}] µs ({int(outside.sum())} pulse(s) in all): give the "
+                              "--calibration the log was run with")  # fmt: skip
     start = start or Twin()
     windows = _windows(list(logs), holdout)
     fit_w = [w for w in windows if not w.heldout]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,6 +53,7 @@ def open_capture(source: str | int, backend: int | None = None) -> Any:
     OpenCV's came before that line)."""
     cv2 = _cv2()
     cv2.setLogLevel(0)  # silent
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # and FFmpeg's own lines (AV_LOG_QUIET), as it starts
     return cv2.VideoCapture(source) if backend is None else cv2.VideoCapture(source, backend)
 
 
@@ -292,6 +294,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if width * height > MAX_IMAGE_PIXELS:
         raise ConfigError(f"{path}: the image declares {width} × {height} px, more than {MAX_IMAGE_PIXELS:,} px")
     cv2 = _cv2()
+    cv2.setLogLevel(0)  # a damaged file's [ WARN ] lines: the error below says it in one line
     try:
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
     except cv2.error:

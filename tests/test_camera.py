@@ -213,6 +213,12 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
               str(tmp_path / "a.png"), cwd=tmp_path)  # fmt: skip
     assert live.returncode == 0 and "ball found in 10 of 10 frames" in live.stdout, live.stderr
     assert cv2.imread(str(tmp_path / "a.png")).shape == (480, 640, 3)
+    for args, says in ((["--frames", "10"], f"{tmp_path / 'a.png'} exists; give another name or --overwrite"),
+                       (["--image", str(empty), "--overwrite"], "is the --image it reads")):  # fmt: skip
+        target = tmp_path / "a.png" if "--frames" in args else empty
+        before = target.read_bytes()
+        kept = sg("camera-check", "--camera-config", str(clip / "cam.toml"), *args, "--out", str(target), cwd=tmp_path)
+        assert kept.returncode == 1 and says in kept.stderr and target.read_bytes() == before, kept.stderr
     bad = sg("camera-check", "--camera-config", str(clip / "cam.toml"), "--image", str(tmp_path / "nope.png"),
              cwd=tmp_path)  # fmt: skip
     errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]

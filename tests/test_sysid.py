@@ -178,6 +178,11 @@ def test_sysid_writes_the_twin_and_its_report(tmp_path, capfd):
     (",".join(HEADER) + "\n0.02,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,\n0.0,1500,1500,1500,1500,1500,1500,0,0,0,0,"
      "0,,,\n", "increasing"),
     (",".join(HEADER) + "\n0,1500,x,1500,1500,1500,1500,0,0,0,0,0,,,\n", "a row is not a deploy log's"),
+    (",".join(HEADER) + ",bogus\n", "unknown column(s) ['bogus']"),
+    (",".join(HEADER) + ",t_s\n", "column(s) ['t_s'] given more than once"),
+    (",".join(HEADER) + "\n" + "".join(f"{k / 50},1500,{1e9 if k == 100 else 1500},1500,1500,1500,1500,0,0,0,0,0,0,0,"
+                                        f"{k / 50}\n" for k in range(300)),
+     "pulse1_us 1e+09 µs (tick 101, t_s 2) is outside the calibration's [1100, 1900] µs (1 pulse(s) in all)"),
 ])  # fmt: skip
 def test_a_bad_log_is_one_error_line(tmp_path, capfd, content, words):
     log = tmp_path / "log.csv"
@@ -191,6 +196,14 @@ def test_sysid_refuses_before_any_work(tmp_path, capfd):
     (tmp_path / "twin.toml").write_text("")
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "twin.toml"))
     assert code == 1 and "exists" in err  # the output is checked first
+    (tmp_path / "report").mkdir()
+    (tmp_path / "report" / "report.md").write_text("an earlier fit's\n")
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"), "--report",
+                       str(tmp_path / "report"))  # fmt: skip
+    assert code == 1 and "holds a report already; give another folder or --overwrite" in err
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), str(tmp_path / "." / "none.csv"), "--out",
+                       str(tmp_path / "new.toml"))  # fmt: skip
+    assert code == 1 and "a log given twice would count its windows twice" in err
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"))
     assert code == 1 and "none.csv" in err
 

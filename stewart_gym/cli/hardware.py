@@ -69,7 +69,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from stewart_gym.hardware.trim import calibration_toml, find_trims
     from stewart_gym.presets import load_geometry
 
-    out = output_file(args.out, suffixes=(".toml",))
+    out = output_file(args.out, suffixes=(".toml",), overwrite=args.overwrite)  # (a calibration holds hand-set trims)
     geometry = load_geometry(args.geometry)
     calibration, hw = load_calibration(args.calibration, geometry, used_for=f"--geometry {args.geometry}")
     port, protocol, baudrate = port_settings(args.port, args.protocol, args.baudrate, hw)
@@ -95,6 +95,9 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     from stewart_gym.hardware.virtual_device import Faults, VirtualDevice, stream_camera_config
     from stewart_gym.presets import load_geometry
 
+    if args.stall_sensor_after is not None and args.protocol != "line":
+        raise ConfigError(f"--stall-sensor-after stops the ball reports, which only the line protocol's board sends; "
+                          f"this board answers {args.protocol!r}: add --protocol line, or leave it out")  # fmt: skip
     faults = Faults(drop_rate=args.drop_rate, corrupt_rate=args.corrupt_rate,
                     stall_sensor_after_s=args.stall_sensor_after, latency_ms=args.latency_ms,
                     unplug_after_s=args.unplug_after, stop_reading_after_s=args.stop_reading_after,
@@ -166,7 +169,9 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     from stewart_gym.vision import CameraConfig, annotate, locate_ball, open_capture, read_image
 
     config = CameraConfig.from_toml(args.camera_config)
-    out = output_file(args.out, suffixes=(".png", ".jpg")) if args.out else None
+    out = output_file(args.out, suffixes=(".png", ".jpg"), overwrite=args.overwrite) if args.out else None
+    if out is not None and args.image and Path(args.image).resolve() == out.resolve():
+        raise ConfigError(f"--out {args.out} is the --image it reads: give another file for the annotated image")
     import cv2
 
     if args.image:
@@ -298,7 +303,9 @@ def register(sub: Any) -> None:
     p.add_argument("--camera-config", required=True, help="camera config TOML ([camera], [markers], [ball])")
     p.add_argument("--image", help="one image file to read instead of the camera")
     p.add_argument("--frames", type=int_at_least(1, 10_000), default=30, help="live frames to grab (default 30)")
-    p.add_argument("--out", help="annotated image (.png/.jpg; default camera_check.png for live frames)")
+    p.add_argument("--out", help="annotated image (.png/.jpg; default camera_check.png for live frames, replaced each "
+                                 "run)")  # fmt: skip
+    p.add_argument("--overwrite", action="store_true", help="allow --out to replace an existing file")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=cmd_camera_check)
 
@@ -311,5 +318,6 @@ def register(sub: Any) -> None:
     p.add_argument("--calibration", help="start from this calibration TOML")
     p.add_argument("--step", type=bounded_float(0.0, 100.0, lo_open=True), default=5.0, help="µs per key press")
     p.add_argument("--out", default="calibration.toml", help="the calibration TOML to write")
+    p.add_argument("--overwrite", action="store_true", help="allow --out to replace an existing calibration")
     p.set_defaults(func=cmd_calibrate)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
 from stewart_gym.cli.common import (
@@ -21,6 +22,7 @@ from stewart_gym.cli.common import (
     twin_tables,
 )
 from stewart_gym.cli.hardware import add_port
+from stewart_gym.errors import ConfigError
 
 __all__ = ["register"]
 
@@ -72,6 +74,11 @@ def cmd_sysid(args: argparse.Namespace) -> int:
 
     out = output_file(args.out, suffixes=(".toml",), overwrite=args.overwrite)
     report = None if args.report is None else output_dir(args.report)
+    if report is not None and (report / "report.md").exists() and not args.overwrite:
+        raise ConfigError(f"{report} holds a report already; give another folder or --overwrite")
+    twice = sorted({p for p in args.logs if sum(Path(q).resolve() == Path(p).resolve() for q in args.logs) > 1})
+    if twice:
+        raise ConfigError(f"{', '.join(twice)}: a log given twice would count its windows twice; give each once")
     geometry = load_geometry(args.geometry)
     calibration: ServoCalibration
     calibration, _ = load_calibration(args.calibration, geometry, used_for=f"--geometry {args.geometry}")
@@ -84,6 +91,7 @@ def cmd_sysid(args: argparse.Namespace) -> int:
                       marker_height=args.marker_height_mm / 1e3)  # fmt: skip
     progress.close()
     twin = result.twin
+    out.parent.mkdir(parents=True, exist_ok=True)  # (output_file checked that it can be made)
     out.write_text(f"# fitted by stewart-gym sysid from {', '.join(args.logs)}\n" + twin.toml(
         {name: "undetermined" for name in twin.undetermined}))
     if report is not None:
@@ -135,7 +143,8 @@ def register(sub: Any) -> None:
     add_geometry(p)
     p.add_argument("--calibration", help="calibration TOML the logs were run with (default: the geometry's)")
     p.add_argument("--out", required=True, help="the twin to write (TOML)")
-    p.add_argument("--overwrite", action="store_true", help="allow --out to replace an existing file")
+    p.add_argument("--overwrite", action="store_true",
+                   help="allow --out and --report to replace an existing twin and report")  # fmt: skip
     p.add_argument("--report", metavar="DIR", help="write report.md and paths.png (logged against predicted ball "
                                                    "paths, nominal and fitted twin) into this folder")
     p.add_argument("--start", metavar="TWIN", help="the twin whose undetermined values the fit keeps (default: "

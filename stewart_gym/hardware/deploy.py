@@ -99,11 +99,16 @@ class SimulatedPlant:
         self.final_error_mm: float | None = None
 
     def read(self, t: float) -> Reading | None:
+        """The newest reading the simulated panel has sent, dated when it arrived (its sample's time plus the
+        panel's latency) on the loop's clock: as :class:`PanelSensor` dates a real panel's line, which says nothing
+        of when it was sampled. So the loop, its observer and the log see the sensing delay as on the bench, and
+        ``sysid`` fits it in the total latency as it does from a real log."""
         sim_t = self.backend.time
         got = self.sensor.read(sim_t)
         if got is None:
             return None
-        return got[0], t - (sim_t - got[1])  # the sample's age carried over to the loop's clock
+        arrived = min(got[1] + getattr(self.sensor.spec, "latency_s", 0.0), sim_t)
+        return got[0], t - (sim_t - arrived)
 
     def apply(self, pulses_us: np.ndarray) -> None:
         self.backend.command(pulses_us)

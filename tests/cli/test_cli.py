@@ -1151,6 +1151,13 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
     assert sg("deploy", "--calibration", str(out), "--duration", "0.2", "--log", str(tmp_path / "l.csv"),
               cwd=tmp_path).returncode == 0  # fmt: skip
     board.stop()
+    # a second calibration does not replace the first's hand-set trims unless asked, and asks before the port opens
+    drain = Drain(device)
+    again = sg("calibrate", "--port", device.path, "--protocol", "maestro", "--out", str(out), stdin="q\n",
+               cwd=tmp_path)  # fmt: skip
+    assert drain.stop() == b"" and again.returncode == 1 and error_lines(again) == [
+        f"error: {out} exists; give another name or --overwrite"], again.stderr
+    assert out.read_text() == text
 
 
 # ------------------------------------------- pose- and pulse-mode policies

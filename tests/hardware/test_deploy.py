@@ -110,6 +110,25 @@ def test_dry_run_with_a_fake_maestro(device: FakeDevice, tmp_path: Path) -> None
     assert plant.final_error_mm is not None and plant.final_error_mm < 15.0  # still balanced near the centre after 10 s
 
 
+def test_the_simulated_plant_dates_a_reading_when_it_arrives_as_a_real_panels(tmp_path: Path) -> None:
+    """A real panel's line says nothing of when it was sampled: the loop dates it on arrival. The simulated plant
+    dates its readings so too (the sample's time plus the panel's latency), so that a dry run's loop and log see the
+    sensing delay as on the bench, and sysid fits it in the total latency (it was missed by the sensor's 30 ms)."""
+    twin = tmp_path / "twin.toml"
+    twin.write_text("[sensor]\nlatency_ms = 30\nnoise_mm = 0\n")
+    plant = SimulatedPlant(twin=str(twin))
+    home = CAL.neutral_us.copy()
+    rate = plant.sensor.spec.rate_hz
+    ages = []
+    for k in range(100):
+        plant.apply(home)
+        got = plant.read(10.0 + 0.02 * k)  # the loop's clock, ahead of the simulator's by 10 s
+        if got is not None:
+            ages.append(10.0 + 0.02 * k - got[1])
+    plant.close()
+    assert len(ages) > 90 and min(ages) >= -1e-9 and max(ages) <= 1.0 / rate + 1e-9, (min(ages), max(ages))
+
+
 @pytest.mark.parametrize("field,value", [("rate_hz", -5.0), ("rate_hz", 0.0), ("rate_hz", 1e5), ("rate_hz", math.nan),
                                          ("duration_s", -1.0), ("duration_s", math.inf), ("watchdog_s", 0.0),
                                          ("max_step_us", -1.0)])  # fmt: skip
