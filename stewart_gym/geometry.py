@@ -101,7 +101,8 @@ def _symmetric(table: Any, ls: float, ang: float, source: str) -> dict[str, floa
         else:
             out[key] = value * ang
             if not 0.0 < out[key] < 2 * math.pi / 3:
-                raise GeometryError(f"symmetric.{key}: between 0 and 120° (the pairs may not overlap), got {value}")
+                raise GeometryError(f"symmetric.{key}: between 0 and 120° (the pairs may not overlap), got {value:g} "
+                                    f"in the file's angle_unit ({math.degrees(out[key]):g}°)")  # fmt: skip
     return out
 
 
@@ -276,7 +277,8 @@ class PlatformGeometry:
             if replaced:
                 raise GeometryError(f"symmetric: it gives the anchors and horn directions, so {source} may not give "
                                     f"{', '.join(replaced)} as well; keep one or the other")  # fmt: skip
-            layout = symmetric_layout(**_symmetric(data["symmetric"], ls, ang, source))
+            symmetric = _symmetric(data["symmetric"], ls, ang, source)
+            layout = symmetric_layout(**symmetric)
         kw: dict[str, Any] = {
             "name": name,
             "description": data.get("description", ""),
@@ -324,8 +326,12 @@ class PlatformGeometry:
         for key in ("base_anchors", "platform_anchors", "rod_length", "horn_length", "plate_size", "leg_length_range",
                     "home_height"):  # fmt: skip
             if key in kw and not np.max(np.abs(np.asarray(kw[key], dtype=float))) <= MAX_LENGTH_M:
-                raise GeometryError(f"{key}: {np.max(np.abs(np.asarray(kw[key], dtype=float))):g} m is larger than "
-                                    f"any build ({MAX_LENGTH_M:g} m); check length_unit")  # fmt: skip
+                size = np.max(np.abs(np.asarray(kw[key], dtype=float)))
+                if layout and key.endswith("anchors"):  # (the file gave a radius, not the anchors)
+                    key = f"{key.split('_')[0]}_radius"
+                    key, size = f"symmetric.{key}", symmetric[key]
+                raise GeometryError(f"{key}: {size:g} m is larger than any build ({MAX_LENGTH_M:g} m); check "
+                                    "length_unit")  # fmt: skip
         return cls(**kw)
 
     @property

@@ -285,3 +285,17 @@ def test_a_file_whose_travel_misses_home_is_refused_naming_the_range(name: str, 
     path.write_text(text[:start] + f"{key} = [{above!r}, {hi!r}]" + text[end:])
     with pytest.raises(GeometryError, match=rf"^{re.escape(str(path))}: {key}: .* does not hold the .* at home"):
         load_geometry(path)
+
+
+def test_a_symmetric_descriptions_mistakes_name_its_own_fields(tmp_path: Path) -> None:
+    """A ``[symmetric]`` file gives radii and pair angles, not anchors: its errors name them, in its own units."""
+    head = 'name = "s"\nhorn_length = 0.025\nrod_length = 0.16\nservo_angle_range = [-0.7, 0.7]\n'
+    for unit, table, says in (
+            ('length_unit = "m"\nangle_unit = "deg"\nhome_height = 0.16',
+             "base_radius = 100\nbase_pair_angle = 40\nplatform_radius = 0.08\nplatform_pair_angle = 16",
+             r"symmetric.base_radius: 100 m is larger than any build"),
+            ('angle_unit = "rad"', "base_radius = 0.1\nbase_pair_angle = 40\nplatform_radius = 0.08\n"
+             "platform_pair_angle = 0.3", r"symmetric.base_pair_angle: .* got 40 in the file's angle_unit \(2291.83°\)")):
+        (tmp_path / "s.toml").write_text(f"{unit}\n{head}[symmetric]\n{table}\n")
+        with pytest.raises(GeometryError, match=says):
+            load_geometry(tmp_path / "s.toml")
