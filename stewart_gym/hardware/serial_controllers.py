@@ -286,10 +286,13 @@ class MaestroController(ServoController):
         return got
 
     def errors(self) -> list[str]:
-        """Get Errors (clears them on the device); the names of the bits set."""
+        """Get Errors (clears them on the device); the names of the bits set. The board has the answer timeout
+        (:attr:`answer_timeout_s`) to reply, as for any question."""
         self.serial.reset_input_buffer()
         self._write(Maestro.GET_ERRORS)
-        reply = self.serial.read(2)
+        reply, deadline = b"", time.monotonic() + self.answer_timeout_s
+        while len(reply) < 2 and time.monotonic() < deadline:
+            reply += self.serial.read(2 - len(reply))
         if len(reply) != 2:
             raise DeviceError(f"Maestro on {self.serial.port} did not answer Get Errors")
         return Maestro.decode_errors(reply)

@@ -33,15 +33,20 @@ def test_fake_maestro_receives_exact_bytes(device: FakeDevice) -> None:
     want = Maestro.set_multiple_targets(0, PULSES)
     assert device.read_all(size=len(want)) == want
 
-    def answer() -> None:  # the device answers Get Errors with overrun + RX-buffer-full
-        for _ in range(50):
+    def answer() -> None:  # the device answers Get Errors with overrun + RX-buffer-full, a slow 0.2 s later
+        for _ in range(250):
             data = device.read_all(0.02)
             if Maestro.GET_ERRORS in data:
+                time.sleep(0.2)  # (within the answer timeout, 0.5 s; beyond one read's 0.05 s)
                 device.write(bytes([0x06, 0x00]))
                 return
 
     threading.Thread(target=answer, daemon=True).start()
     assert ctl.errors() == ["serial overrun error", "serial RX buffer full"]
+    started = time.monotonic()
+    with pytest.raises(DeviceError, match="did not answer Get Errors"):
+        ctl.errors()  # no answer at all
+    assert time.monotonic() - started >= ctl.answer_timeout_s
     ctl.close()
     multi.close()
 
