@@ -27,10 +27,14 @@ from stewart_gym.errors import DeviceFailure
 from stewart_gym.sensing import Reading, reading_is_valid
 from stewart_gym.vision import CameraConfig, Detection, locate_ball, open_capture
 
-__all__ = ["FIRST_FRAME_TIMEOUT_S", "CameraSensor"]
+__all__ = ["FIRST_FRAME_TIMEOUT_S", "LIVE_PIPE_OPTIONS", "CameraSensor"]
 
 #: s: the longest the sensor waits for the source's first frame.
 FIRST_FRAME_TIMEOUT_S = 5.0
+#: FFmpeg's options for an MJPEG stream in a named pipe (``OPENCV_FFMPEG_CAPTURE_OPTIONS``, where the user has not
+#: set it): decode each frame as it comes, with no read-ahead buffer, so that a reader slower than the stream gets
+#: recent frames (FFmpeg's buffer alone would hold seconds of them).
+LIVE_PIPE_OPTIONS = "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg"
 
 
 class CameraSensor:
@@ -75,7 +79,7 @@ class CameraSensor:
 
         source = self.config.source
         if self._live_pipe:  # an MJPEG stream in a named pipe (the virtual device's camera): decode as it comes
-            os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg")
+            os.environ.setdefault("OPENCV_FFMPEG_CAPTURE_OPTIONS", LIVE_PIPE_OPTIONS)
             cap = open_capture(source, cv2.CAP_FFMPEG)
         else:
             cap = open_capture(source)

@@ -17,6 +17,8 @@ gets no pulse before that), then runs in real time.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import math
 import os
 import pty
@@ -304,6 +306,10 @@ class CameraStream:
                 self._stop.wait(0.05)
                 continue
             os.set_blocking(fd, True)
+            # the smallest pipe (a page, on Linux): a reader that falls behind then gets the newest frame, as from a
+            # camera, not one of the ten or so (about 6 KB each at pixy2's size) the default 64 KB would queue
+            with contextlib.suppress(OSError, AttributeError):
+                fcntl.fcntl(fd, fcntl.F_SETPIPE_SZ, 4096)
             self.connected = True
             try:
                 while not self._stop.is_set():

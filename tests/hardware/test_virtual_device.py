@@ -325,3 +325,55 @@ def test_the_rendered_camera_closes_the_loop_through_the_virtual_board(tmp_path:
     late = [d for t, d in seen if t > seen[-1][0] - 2.0]
     assert len(late) > 20 and float(np.median(late)) < seen[0][1] / 3, (seen[0], late)
     assert not pipe.exists()  # the board removes its pipe
+
+
+def test_a_slow_reader_of_the_boards_camera_stream_gets_recent_frames(tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stream behaves as a camera: a reader that takes half the frames (a busy host) reads one of the newest,
+    not one queued behind many (the pipe's default 64 KB held about 20 of these frames, a third of a second at
+    60 fps, and FFmpeg's read-ahead seconds of them). Each frame carries its number in its pixels."""
+    import threading
+
+    import cv2
+
+    from stewart_gym.camera import CAMERA_PRESETS
+    from stewart_gym.hardware.camera_sensor import LIVE_PIPE_OPTIONS
+    from stewart_gym.hardware.virtual_device import CameraStream
+    from stewart_gym.sim.engines import make_backend
+    from stewart_gym.vision import open_capture
+
+    with make_backend("pybullet", "servo-hexapod", ball=True) as sim:
+        sim.reset()
+        view = sim.camera_image(CAMERA_PRESETS["pixy2"])  # what the board streams
+    stream = CameraStream(str(tmp_path / "camera.mjpg"))
+    sent, done = [0], threading.Event()
+
+    def camera() -> None:  # 60 frames a second, each numbered in its top rows (two channels, five levels apart)
+        while not done.is_set():
+            if stream.connected:
+                frame = view.copy()
+                frame[:40, :, 0], frame[:40, :, 2] = (sent[0] % 50) * 5, (sent[0] // 50) * 5
+                stream.put(frame)
+                sent[0] += 1
+            time.sleep(1 / 60)
+
+    monkeypatch.setenv("OPENCV_FFMPEG_CAPTURE_OPTIONS", LIVE_PIPE_OPTIONS)
+    writer = threading.Thread(target=camera, daemon=True)
+    writer.start()
+    cap = open_capture(str(tmp_path / "camera.mjpg"), cv2.CAP_FFMPEG)
+    behind: list[int] = []
+    try:
+        start = time.monotonic()
+        while time.monotonic() - start < 3.0:
+            ok, frame = cap.read()
+            assert ok
+            number = round(float(np.median(frame[:40, :, 0])) / 5) + 50 * round(float(np.median(frame[:40, :, 2])) / 5)
+            behind.append(sent[0] - 1 - number)
+            time.sleep(0.03)  # a reader at about half the stream's rate
+    finally:
+        done.set()
+        cap.release()
+        writer.join(timeout=2.0)
+        stream.close()
+    assert len(behind) > 40 and min(behind) >= 0  # the numbers read back
+    assert np.median(behind[20:]) <= 8, behind
