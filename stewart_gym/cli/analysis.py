@@ -270,25 +270,38 @@ def cmd_planar(args: argparse.Namespace) -> int:
 
 
 def cmd_assembly(args: argparse.Namespace) -> int:
-    """All real assembly modes (FK branches) found from many starting guesses, for given leg lengths."""
+    """All real assembly modes (FK branches) found from many starting guesses, for given leg lengths, or for a rotary
+    build the servo angles of a pose."""
     from stewart_gym.analysis.assembly import assembly_modes
     from stewart_gym.kinematics import inverse_kinematics
 
     geo = load_geometry(args.geometry)
+    if args.legs and geo.is_rotary:
+        raise ConfigError(f"--legs: {geo.name!r} is a rotary build, whose rods have one length; its assembly modes "
+                          "are those of the servo angles of a pose: give --pose instead")  # fmt: skip
     if args.legs:
         lengths = np.array(args.legs) * 1e-3
         if not np.all(lengths > 0):
             raise ConfigError("--legs: leg lengths must be positive (mm)")
+        modes = assembly_modes(geo, lengths, guesses=args.guesses, progress=not args.json)
+        out = {"geometry": geo.name, "leg_lengths_mm": lengths * 1e3}
     else:
         if any(abs(v) > 360.0 for v in args.pose[3:]):
             raise ConfigError(f"--pose: the angles must be within ±360°, got {list(args.pose[3:])}")
         pose = np.array([v * 1e-3 for v in args.pose[:3]] + [math.radians(v) for v in args.pose[3:]])
-        lengths = inverse_kinematics(geo, pose).leg_lengths
-    modes = assembly_modes(geo, lengths, guesses=args.guesses, progress=not args.json)
-    out = {"geometry": geo.name, "leg_lengths_mm": lengths * 1e3, "count": len(modes),
-           "modes_mm_deg": np.c_[modes[:, :3] * 1e3, np.degrees(modes[:, 3:])]}  # fmt: skip
-    lines = [f"{geo.name}: {len(modes)} distinct real assembly modes from {args.guesses} guesses "
-             "(x, y, z mm; roll, pitch, yaw °):"]  # fmt: skip
+        ik = inverse_kinematics(geo, pose)
+        if geo.is_rotary:
+            if not ik.reachable:
+                raise ConfigError(f"--pose: {ik.explain()}; give a pose the servos reach (stewart-gym ik checks one)")
+            modes = assembly_modes(geo, servo_angles=ik.servo_angles, guesses=args.guesses, progress=not args.json)
+            out = {"geometry": geo.name, "servo_angles_deg": np.degrees(ik.servo_angles)}
+        else:
+            modes = assembly_modes(geo, ik.leg_lengths, guesses=args.guesses, progress=not args.json)
+            out = {"geometry": geo.name, "leg_lengths_mm": ik.leg_lengths * 1e3}
+    out |= {"count": len(modes), "modes_mm_deg": np.c_[modes[:, :3] * 1e3, np.degrees(modes[:, 3:])]}
+    given = "servo angles" if "servo_angles_deg" in out else "leg lengths"
+    lines = [f"{geo.name}: {len(modes)} distinct real assembly modes for these {given} from {args.guesses} guesses "
+             "(x, y, z mm from home; roll, pitch, yaw °):"]  # fmt: skip
     lines += ["  " + " ".join(f"{v:9.3f}" for v in row) for row in out["modes_mm_deg"]]
     return _emit(args, out, lines)
 
@@ -352,10 +365,10 @@ def register(sub: Any) -> None:
     p = sub.add_parser("assembly", help=cmd_assembly.__doc__, description=cmd_assembly.__doc__)
     _common(p, "senilov2018", plot=False)
     p.add_argument("--legs", nargs=6, type=bounded_float(0.0, MAX_MM, lo_open=True), metavar="MM",
-                   help="leg lengths, mm (instead of --pose)")  # fmt: skip
+                   help="leg lengths, mm (instead of --pose; a linear build)")  # fmt: skip
     p.add_argument("--pose", nargs=6, type=bounded_float(-MAX_MM, MAX_MM), default=(10, 0, 0, 3, 1, 6), metavar="V",
-                   help="a pose X Y Z (mm, from home) ROLL PITCH YAW (°) whose leg lengths are used; default "
-                        "10 0 0 3 1 6; ignored with --legs")  # fmt: skip
+                   help="a pose X Y Z (mm, from home) ROLL PITCH YAW (°) whose leg lengths are used (a rotary "
+                        "build: its servo angles); default 10 0 0 3 1 6; ignored with --legs")  # fmt: skip
     p.add_argument("--guesses", type=int_at_least(1, 1_000_000), default=4000,
                    help="starting guesses for the forward kinematics")
     p.set_defaults(func=cmd_assembly)

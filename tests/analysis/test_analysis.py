@@ -15,7 +15,7 @@ from stewart_gym.analysis.sensitivity import conditioning, fd_check, sensitivity
 from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
 from stewart_gym.analysis.workspace import height_map, reachable_volume
 from stewart_gym.cli import main
-from stewart_gym.kinematics import axis_ranges, inverse_kinematics
+from stewart_gym.kinematics import axis_ranges, forward_kinematics, horn_tips, inverse_kinematics
 from stewart_gym.presets import load_preset
 
 MM = 1e-3
@@ -190,6 +190,33 @@ def test_assembly_modes_include_the_true_pose_and_satisfy_the_legs() -> None:
     assert len(modes) >= 2 and len(modes) % 2 == 0  # coplanar base anchors: each mode has its mirror image
     assert np.min(np.abs(modes - pose).max(axis=1)) < 1e-8
     assert np.allclose(inverse_kinematics(g, modes).leg_lengths, lengths, atol=1e-9)
+
+
+def test_a_rotary_builds_assembly_modes_hold_its_servo_angles() -> None:
+    """For a rotary build the horn tips are fixed by the servo angles: every mode has each rod spanning its horn tip
+    to its plate anchor, the pose the angles came from is one of them, and each is a pose the angles' forward
+    kinematics reaches from a guess near it (leg lengths from the base anchors would be another mechanism's)."""
+    g = load_preset("servo-hexapod")
+    pose = np.array([0.01, 0.0, 0.0, 0.05, 0.02, 0.1])
+    angles = inverse_kinematics(g, pose).servo_angles
+    modes = assembly_modes(g, servo_angles=angles, guesses=1500)
+    assert len(modes) >= 2 and np.min(np.abs(modes - pose).max(axis=1)) < 1e-8
+    anchors = inverse_kinematics(g, modes).leg_vectors + g.base_anchors
+    assert np.allclose(np.linalg.norm(anchors - horn_tips(g, angles), axis=-1), g.rod_length, atol=1e-9)
+    again = forward_kinematics(g, servo_angles=np.broadcast_to(angles, (len(modes), 6)), guess=modes + 1e-4).pose
+    assert np.allclose(again, modes, atol=1e-9)
+    with pytest.raises(ValueError, match="exactly one"):
+        assembly_modes(g, inverse_kinematics(g, pose).leg_lengths, servo_angles=angles)
+
+
+def test_assembly_on_a_rotary_build_takes_a_pose_not_leg_lengths(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["assembly", "--geometry", "servo-hexapod", "--guesses", "300", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert len(out["servo_angles_deg"]) == 6 and "leg_lengths_mm" not in out and out["count"] >= 2
+    assert main(["assembly", "--geometry", "servo-hexapod", "--legs", *["300"] * 6]) == 1
+    assert "rotary build" in capsys.readouterr().err
+    assert main(["assembly", "--geometry", "servo-hexapod", "--pose", "0", "0", "80", "0", "0", "0"]) == 1
+    assert "unreachable" in capsys.readouterr().err
 
 
 # ----------------------------------------------------------------------- CLI
