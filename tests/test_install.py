@@ -64,8 +64,9 @@ def test_deploy_only_install_runs_a_bundle(tmp_path: Path, device: FakeDevice, d
     py = venv / "bin" / "python"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     wheel = next(dist.glob("*.whl"))
-    install = subprocess.run([str(py), "-m", "pip", "install", "-q", f"{wheel}[deploy]"], capture_output=True,
-                             text=True, timeout=1200, env=env)  # fmt: skip
+    # (--no-compile: pip would byte-compile every module of every package; each compiles as it is imported instead)
+    install = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-compile", f"{wheel}[deploy]"],
+                             capture_output=True, text=True, timeout=1200, env=env)  # fmt: skip
     assert install.returncode == 0, install.stdout[-2000:] + install.stderr[-2000:]
     heavy = "('torch', 'stable_baselines3', 'pybullet', 'gymnasium', 'yaml')"
     probe = f"import importlib.util as u; print([m for m in {heavy} if u.find_spec(m)])"
@@ -156,7 +157,7 @@ def test_demo_only_install_runs_the_demo_without_torch(tmp_path: Path, dist: Pat
     py = venv / "bin" / "python"
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     wheel = next(dist.glob("*.whl"))
-    install = subprocess.run([str(py), "-m", "pip", "install", "-q", "-c", str(ROOT / "constraints.txt"),
+    install = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-compile", "-c", str(ROOT / "constraints.txt"),
                               f"{wheel}[demo]"], capture_output=True, text=True, timeout=1200, env=env)  # fmt: skip
     assert install.returncode == 0, install.stdout[-2000:] + install.stderr[-2000:]
     probe = ("import importlib.util as u; print([m for m in ('torch', 'stable_baselines3', 'ray', 'cv2', 'pytest') "
