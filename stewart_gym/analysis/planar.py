@@ -29,7 +29,8 @@ from scipy.optimize import brentq, minimize_scalar
 from stewart_gym.errors import ConfigError
 from stewart_gym.progress import Progress
 
-__all__ = ["PLANAR_KEYS", "PLANAR_PRESETS", "planar_f", "planar_struts", "planar_vertices", "solve_planar", "sweep_strut"]
+__all__ = ["PLANAR_KEYS", "PLANAR_PRESETS", "planar_continua", "planar_f", "planar_struts", "planar_vertices",
+           "solve_planar", "sweep_strut"]
 
 #: 3-RPR parameter sets from Sauer's Reality Check 1 (the seed's source).
 PLANAR_PRESETS: dict[str, dict[str, float]] = {
@@ -85,8 +86,12 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
     """All poses (x, y, θ) with the given strut lengths: array (k, 3) sorted by θ; k = 0 when there is none.
 
     Each candidate θ is kept only if the pose it gives reproduces the three strut
-    lengths to ``tol`` (relative to the largest strut), which discards
-    spurious roots where D = 0.
+    lengths to ``tol`` (relative to the largest strut). Where D = 0 at a root the
+    two linear equations are one: the poses at that θ are where its line meets the
+    first strut's circle (none, one or two). Where both vanish (the moving triangle
+    is the base triangle turned by θ, and p1 = p2 = p3) every point of that circle
+    is a pose: :func:`planar_continua` gives those θ, which this leaves out.
+    ``L1`` must be the side the law of cosines gives from L2, L3 and γ.
     """
     for name, v in (("L1", L1), ("L2", L2), ("L3", L3), ("p1", p1), ("p2", p2), ("p3", p3)):
         if not (math.isfinite(v) and v > 0):
@@ -94,6 +99,11 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
     for name, v in (("gamma", gamma), ("x1", x1), ("x2", x2), ("y2", y2)):
         if not math.isfinite(v):
             raise ConfigError(f"{name} must be finite, got {v}")
+    opposite = math.sqrt(max(0.0, L2 * L2 + L3 * L3 - 2.0 * L2 * L3 * math.cos(gamma)))
+    if abs(L1 - opposite) > 1e-6 * max(L1, L2, L3):
+        raise ConfigError(f"L1 is the side opposite the angle gamma: L2 = {L2:g}, L3 = {L3:g} and gamma = {gamma:g} "
+                          f"rad make it {opposite:.9g}, not {L1:g}; give L1 = {opposite:.9g} (or change L2, L3 or "
+                          "gamma)")  # fmt: skip
     args = (L1, L2, L3, gamma, x1, x2, y2, p1, p2, p3)
 
     def f(t: float) -> float:
@@ -117,20 +127,66 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
                               options={"xatol": 1e-13})  # fmt: skip
         if abs(f(res.x)) <= 1e-10 * scale:
             roots.append(float(res.x))
-    poses = []
+    poses: list[np.ndarray] = []
     strut_scale = max(p1, p2, p3)
     for th in sorted(roots):
         n1, n2, d = _terms(np.array(th), L2, L3, gamma, x1, x2, y2, p1, p2, p3)
-        if abs(float(d)) < 1e-12 * (1 + strut_scale**2):
-            continue
-        pose = np.array([float(n1 / d), float(n2 / d), float(th)])
-        struts = planar_struts(pose, L2, L3, gamma, x1, x2, y2)
-        if np.max(np.abs(struts - [p1, p2, p3])) <= max(tol, 1e-6) * strut_scale:
-            if not poses or abs(((pose[2] - poses[-1][2] + math.pi) % (2 * math.pi)) - math.pi) > 1e-7:
+        if abs(float(d)) >= 1e-12 * (1 + strut_scale**2):
+            candidates = [np.array([float(n1 / d), float(n2 / d), float(th)])]
+        else:  # one line, or none (a continuum: planar_continua), where D = 0
+            candidates = [np.array([x, y, th]) for x, y in _line_and_circle(th, L2, L3, gamma, x1, x2, y2, p1, p2, p3)]
+        for pose in candidates:
+            struts = planar_struts(pose, L2, L3, gamma, x1, x2, y2)
+            if np.max(np.abs(struts - [p1, p2, p3])) <= max(tol, 1e-6) * strut_scale and not any(
+                    _same_pose(pose, other, strut_scale) for other in poses):  # fmt: skip
                 poses.append(pose)
-    if len(poses) > 1 and abs(((poses[0][2] - poses[-1][2] + math.pi) % (2 * math.pi)) - math.pi) <= 1e-7:
-        poses.pop()  # θ = −π and θ = π are the same pose
     return np.array(poses).reshape(-1, 3)
+
+
+def _same_pose(a: np.ndarray, b: np.ndarray, scale: float) -> bool:
+    """Whether poses ``a`` and ``b`` are one (θ = −π and θ = π are the same angle)."""
+    turn = abs(((a[2] - b[2] + math.pi) % (2 * math.pi)) - math.pi)
+    return turn <= 1e-7 and abs(a[0] - b[0]) <= 1e-7 * scale and abs(a[1] - b[1]) <= 1e-7 * scale
+
+
+def _offsets(theta: float, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float, p2: float,
+             p3: float) -> tuple[np.ndarray, np.ndarray, float, float]:  # fmt: skip
+    """At angle θ: the offsets e2 = (A2, B2) and e3 = (A3, B3) of the second and third vertex from their anchors,
+    less the first vertex, and the right sides: with v the first vertex, the struts ask |v| = p1, 2 e2·v = u and
+    2 e3·v = w."""
+    e2 = np.array([L3 * math.cos(theta) - x1, L3 * math.sin(theta)])
+    e3 = np.array([L2 * math.cos(theta + gamma) - x2, L2 * math.sin(theta + gamma) - y2])
+    return e2, e3, p2 * p2 - p1 * p1 - float(e2 @ e2), p3 * p3 - p1 * p1 - float(e3 @ e3)
+
+
+def _line_and_circle(theta: float, *args: float) -> list[tuple[float, float]]:
+    """Where D = 0 at θ (e2 ∥ e3): the first vertex's points on the line of the larger of e2 and e3 and on the
+    first strut's circle; none where both offsets vanish."""
+    e2, e3, u, w = _offsets(theta, *args)
+    e, c = (e2, u / 2) if e2 @ e2 >= e3 @ e3 else (e3, w / 2)
+    norm2, p1 = float(e @ e), args[7]
+    if norm2 <= 1e-24 * (1.0 + p1 * p1):
+        return []
+    foot = e * (c / norm2)
+    half2 = p1 * p1 - float(foot @ foot)
+    if half2 < -1e-12 * p1 * p1:
+        return []
+    along = np.array([-e[1], e[0]]) / math.sqrt(norm2) * math.sqrt(max(half2, 0.0))
+    return [(float(foot[0] + s * along[0]), float(foot[1] + s * along[1])) for s in (-1.0, 1.0)]
+
+
+def planar_continua(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
+                    p2: float, p3: float) -> list[float]:  # fmt: skip
+    """The angles θ (rad, in (−π, π]) at which the platform has a continuum of poses: the moving triangle is the
+    base triangle turned by θ (each vertex offset from its anchor as the first from its own) and the three struts
+    are equally long, so that the first vertex may be anywhere on the circle of radius p1 about its anchor (the
+    struts stay parallel). Usually none."""
+    scale = max(L2, L3, abs(x1), math.hypot(x2, y2), p1, p2, p3)
+    theta = 0.0 if x1 > 0 else math.pi  # the turn that puts the second vertex's offset on (x1, 0)
+    if abs(L3 - abs(x1)) > 1e-9 * scale or max(abs(p2 - p1), abs(p3 - p1)) > 1e-9 * scale:
+        return []
+    e2, e3, _, _ = _offsets(theta, L2, L3, gamma, x1, x2, y2, p1, p2, p3)
+    return [theta] if max(np.abs(e2).max(), np.abs(e3).max()) <= 1e-9 * scale else []
 
 
 def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,

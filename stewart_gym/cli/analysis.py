@@ -241,7 +241,7 @@ def _sweep_spec(text: str) -> tuple[str, float, float, int]:
 
 def cmd_planar(args: argparse.Namespace) -> int:
     """All poses of the planar 3-RPR platform (seed 004), optionally sweeping one strut."""
-    from stewart_gym.analysis.planar import solve_planar, sweep_strut
+    from stewart_gym.analysis.planar import planar_continua, solve_planar, sweep_strut
     from stewart_gym.analysis.plots import plot_planar, plot_sweep
 
     params = _planar_params(args)
@@ -253,8 +253,12 @@ def cmd_planar(args: argparse.Namespace) -> int:
     if args.plot and args.sweep_plot and Path(args.plot).resolve() == Path(args.sweep_plot).resolve():
         raise ConfigError(f"--plot and --sweep-plot are both {args.plot}: give two files")
     poses = solve_planar(**params)
-    out: dict[str, Any] = {"parameters": params, "poses": poses, "count": len(poses)}
+    continua = planar_continua(**params)
+    out: dict[str, Any] = {"parameters": params, "poses": poses, "count": len(poses), "continua_theta": continua}
     lines = [f"{len(poses)} pose(s) (x, y, θ):"] + [f"  {p[0]: .6f} {p[1]: .6f} {p[2]: .6f}" for p in poses]
+    lines += [f"and a continuum at θ = {t:.6f}: there the moving triangle matches the base triangle and the struts are "
+              f"equal, so the first vertex may be anywhere on the circle of radius p1 = {params['p1']:g} about its "
+              "anchor (the struts stay parallel)" for t in continua]  # fmt: skip
     if args.plot:
         plot_planar(poses, params, args.plot)
     if sweep:

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from stewart_gym.analysis.assembly import assembly_modes
-from stewart_gym.analysis.planar import PLANAR_PRESETS, planar_f, planar_struts, solve_planar, sweep_strut
+from stewart_gym.analysis.planar import PLANAR_PRESETS, planar_continua, planar_f, planar_struts, solve_planar, sweep_strut
 from stewart_gym.analysis.sensitivity import conditioning, fd_check, sensitivity, xy_grid_poses
 from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
 from stewart_gym.analysis.workspace import height_map, reachable_volume
 from stewart_gym.cli import main
+from stewart_gym.errors import ConfigError
 from stewart_gym.kinematics import axis_ranges, forward_kinematics, horn_tips, inverse_kinematics
 from stewart_gym.presets import load_preset
 
@@ -179,6 +180,41 @@ def test_planar_no_solution_is_empty() -> None:
     assert solve_planar(**p).shape == (0, 3)
     with pytest.raises(ValueError, match="p1"):
         solve_planar(**{**p, "p1": -1.0})
+
+
+def test_planar_poses_where_the_two_linear_equations_are_one_are_found() -> None:
+    """At θ = 0 here the second and third vertices' offsets from their anchors are parallel (D = 0): the poses there
+    are where one line meets the first strut's circle, (1, ±2.5), and both are found with the others."""
+    g = {"L1": math.sqrt(5), "L2": 1.0, "L3": 2.0, "gamma": math.pi / 2, "x1": 4.0, "x2": 3.0, "y2": 1.0}
+    p1, p2, p3 = planar_struts(np.array([1.0, 2.5, 0.0]), g["L2"], g["L3"], g["gamma"], g["x1"], g["x2"], g["y2"])
+    poses = solve_planar(**g, p1=p1, p2=p2, p3=p3)
+    for want in ([1.0, 2.5, 0.0], [1.0, -2.5, 0.0]):
+        assert np.min(np.abs(poses - want).max(axis=1)) < 1e-9, poses
+    struts = planar_struts(poses, g["L2"], g["L3"], g["gamma"], g["x1"], g["x2"], g["y2"])
+    assert np.allclose(struts, [p1, p2, p3], atol=1e-9)
+    assert planar_continua(**g, p1=p1, p2=p2, p3=p3) == []
+
+
+def test_planar_names_a_continuum_of_poses_and_a_side_l1_that_is_not_the_triangles(
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """An equilateral platform on its own equilateral base with three equal struts moves as a parallelogram: every
+    point of the first strut's circle is a pose at θ = 0, which the command says (and each is one: checked at a
+    few). An L1 that is not the side the law of cosines gives is refused, naming it."""
+    side = 5.0
+    eq = {"L1": side, "L2": side, "L3": side, "gamma": math.pi / 3, "x1": side, "x2": side / 2,
+          "y2": side * math.sqrt(3) / 2, "p1": 3.0, "p2": 3.0, "p3": 3.0}  # fmt: skip
+    assert planar_continua(**eq) == [0.0]
+    for phi in np.linspace(0.0, 2 * math.pi, 7):
+        pose = np.array([3.0 * math.cos(phi), 3.0 * math.sin(phi), 0.0])
+        assert np.allclose(planar_struts(pose, side, side, math.pi / 3, side, side / 2, eq["y2"]), 3.0)
+    assert main(["planar", *[a for k, v in eq.items() for a in (f"--{k}", repr(v))], "--json"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["continua_theta"] == [0.0]
+    assert main(["planar", *[a for k, v in eq.items() for a in (f"--{k}", repr(v))]]) == 0
+    assert "and a continuum at θ = 0.000000" in capsys.readouterr().out
+    with pytest.raises(ConfigError, match="L1 is the side opposite"):
+        solve_planar(**{**eq, "L1": 4.0})
+    assert main(["planar", "--geometry", "sauer", "--L1", "9"]) == 1
+    assert "give L1 = 3" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------- assembly modes
