@@ -190,6 +190,8 @@ def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
         return spec
     if isinstance(spec, str) and spec in PRESETS:
         return load_preset(spec)
+    if isinstance(spec, str) and not spec.strip():
+        raise GeometryError(f"the geometry is empty: give a preset ({', '.join(preset_names())}) or a TOML file")
     path = Path(spec)
     if path.suffix == ".toml" or path.exists():
         geometry = PlatformGeometry.from_toml(path)

@@ -19,7 +19,15 @@ from stewart_gym import note_stops_while_loading
 
 note_stops_while_loading()  # a Ctrl-C while the modules below load is noted too, until main() installs its handlers
 
-from stewart_gym.cli.common import EXIT_CODES_HELP, Parser, interrupted, run, stop_behind, stop_signals  # noqa: E402
+from stewart_gym.cli.common import (  # noqa: E402
+    EXIT_CODES_HELP,
+    Parser,
+    geometry_text,
+    interrupted,
+    run,
+    stop_behind,
+    stop_signals,
+)
 
 __all__ = ["build_parser", "main"]
 
@@ -42,6 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
         group.register(sub)
     for sp in sub.choices.values():  # --debug is accepted after the subcommand too
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of any error")
+        for action in sp._actions:  # every --geometry: not empty (an empty path is the current folder)
+            if action.dest == "geometry":
+                action.type = geometry_text
     parser.set_defaults(subcommand_parsers=sub.choices)
     return parser
 

@@ -130,6 +130,16 @@ def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
     return parse
 
 
+def geometry_text(text: str) -> str:
+    """A ``--geometry``: a preset name or a file, not empty (an empty path is the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty: give a preset name or a TOML file")
+    return text
+
+
+geometry_text.__name__ = "geometry"
+
+
 # -------------------------------------------------------------------- run
 @contextlib.contextmanager
 def stop_signals() -> Iterator[None]:

@@ -471,6 +471,10 @@ BAD = [
     ["assembly", "--legs", "1", "2", "3"],
     ["assembly", "--legs", "-1", "-1", "-1", "-1", "-1", "-1"],
     ["assembly", "--guesses", "0"],
+    ["assembly", "--geometry", "servo-hexapod", "--legs", "300", "300", "300", "300", "300", "300"],
+    ["planar", "--L1", "9"],
+    ["ik", "--geometry", "", "0", "0", "0", "0", "0", "0"],  # (an empty path is the current folder)
+    ["evaluate", "--geometry", " "],
     # demo
     ["demo", "--backend", "x"],
     # camera-check
