@@ -31,9 +31,9 @@ from stewart_gym.kinematics import pulses_one
 from stewart_gym.presets import load_geometry
 from stewart_gym.tomlio import read_toml
 
-__all__ = ["HARDWARE_FIELDS", "LINEAR_FIELDS", "LINEAR_SERVO_FIELDS", "ROTARY_FIELDS", "ROTARY_SERVO_FIELDS",
-           "DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError", "ServoCalibration",
-           "hardware_settings"]
+__all__ = ["HARDWARE_FIELDS", "LINEAR_FIELDS", "LINEAR_SERVO_FIELDS", "PULSE_LIMITS_US", "ROTARY_FIELDS",
+           "ROTARY_SERVO_FIELDS", "DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError",
+           "ServoCalibration", "hardware_settings"]
 
 #: 400 µs per 45° (seed 000).
 DEFAULT_US_PER_RAD = 1600.0 / math.pi
@@ -210,6 +210,7 @@ class ServoCalibration:
                 raise CalibrationError("geometry: a linear-actuator calibration needs the geometry (its stroke)")
             return cls._linear_from_dict(data, geo, source)
         servos = _check_keys(data, set(ROTARY_FIELDS), set(ROTARY_SERVO_FIELDS), source)
+        _limits(servos)
         if "us_per_rad" in data and "us_per_degree" in data:
             raise CalibrationError("us_per_rad: give us_per_rad or us_per_degree, not both")
         rate = _scalar("us_per_rad", data.get("us_per_rad", DEFAULT_US_PER_RAD))
@@ -223,6 +224,14 @@ class ServoCalibration:
         else:
             raise CalibrationError("geometry: needed to compute home angles (or give servo[i].home_angle_deg)")
         direction = _per_servo(servos, "direction", list(DEFAULT_DIRECTIONS))
+        wrong = [i for i, d in enumerate(direction) if d not in (-1.0, 1.0)]
+        if wrong:
+            raise CalibrationError(f"servo[{wrong[0]}].direction: +1 or -1 (the way the horn turns as the pulse grows), "
+                                   f"got {servos[wrong[0]]['direction']!r}")  # fmt: skip
+        far = [i for i, a in enumerate(np.degrees(home)) if abs(a) > 180.0]
+        if far:
+            raise CalibrationError(f"servo[{far[0]}].home_angle_deg: the horn's angle at home, within ±180°, got "
+                                   f"{servos[far[0]]['home_angle_deg']!r}")  # fmt: skip
         trims = np.array(_per_servo(servos, "trim_us", 0.0))
         base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate,
                            direction=tuple(int(d) for d in direction)) if geo is not None else None  # fmt: skip
@@ -233,7 +242,7 @@ class ServoCalibration:
             us_per_rad=np.full(6, rate),
             min_us=np.array(_per_servo(servos, "min_us", None if base is None else base.min_us)),
             max_us=np.array(_per_servo(servos, "max_us", None if base is None else base.max_us)),
-            channels=tuple(int(c) for c in _per_servo(servos, "channel", list(range(6)))),
+            channels=_channels(servos),
         )
 
     @classmethod
@@ -249,6 +258,7 @@ class ServoCalibration:
         home leg length). ``[hardware]`` as for rotary servos.
         """
         servos = _check_keys(data, set(LINEAR_FIELDS), set(LINEAR_SERVO_FIELDS), source)
+        _limits(servos)
         retracted = _scalar("retracted_us", data.get("retracted_us", 1000.0))
         extended = _scalar("extended_us", data.get("extended_us", 2000.0))
         if not 0 < retracted < extended:
@@ -265,7 +275,7 @@ class ServoCalibration:
             us_per_rad=base.us_per_rad,
             min_us=np.array(_per_servo(servos, "min_us", base.min_us)),
             max_us=np.array(_per_servo(servos, "max_us", base.max_us)),
-            channels=tuple(int(c) for c in _per_servo(servos, "channel", list(range(6)))),
+            channels=_channels(servos),
             actuator="linear",
         )
 
@@ -413,9 +423,12 @@ def _us(v: float) -> float:
 def hardware_settings(path: str | Path) -> dict[str, Any]:
     """The ``[hardware]`` table of a calibration file (``port``, ``protocol``, ``baudrate``); {} if absent."""
     table = read_toml(path, CalibrationError, "calibration file").get("hardware", {})
+    if not isinstance(table, dict):
+        raise CalibrationError(f"{path}: hardware must be a table ([hardware] with port, protocol, baudrate), got "
+                               f"{table!r}")  # fmt: skip
     unknown = sorted(set(table) - set(HARDWARE_FIELDS))
     if unknown:
-        raise CalibrationError(f"hardware: unknown field(s) {unknown}; known: {sorted(HARDWARE_FIELDS)}")
+        raise CalibrationError(f"{path}: hardware: unknown field(s) {unknown}; known: {sorted(HARDWARE_FIELDS)}")
     return dict(table)
 
 
@@ -441,6 +454,33 @@ def _per_servo(servos: list[dict], key: str, default: Any) -> list[float]:
             raise CalibrationError(f"servo[{i}].{key}: missing")
         out.append(_scalar(f"servo[{i}].{key}", v))
     return out
+
+
+#: µs: the pulse limits a calibration file may give (hobby servos take about 500–2500 µs; beyond this a limit is a
+#: typing error that would let a servo be driven past its end stop).
+PULSE_LIMITS_US = (400.0, 2600.0)
+
+
+def _channels(servos: list[dict]) -> tuple[int, ...]:
+    """Each servo table's ``channel`` (default its index): a whole number."""
+    out = []
+    for i, s in enumerate(servos):
+        c = s.get("channel", i)
+        if isinstance(c, bool) or not isinstance(c, int) or c < 0:
+            raise CalibrationError(f"servo[{i}].channel: the board's channel, a whole number from 0, got {c!r}")
+        out.append(c)
+    return tuple(out)
+
+
+def _limits(servos: list[dict]) -> None:
+    """Refuse a ``min_us`` or ``max_us`` given outside :data:`PULSE_LIMITS_US`."""
+    lo, hi = PULSE_LIMITS_US
+    for i, s in enumerate(servos):
+        for key in ("min_us", "max_us"):
+            if key in s and not lo <= _scalar(f"servo[{i}].{key}", s[key]) <= hi:
+                raise CalibrationError(f"servo[{i}].{key}: {s[key]!r} µs is outside {lo:g}–{hi:g} µs, beyond any "
+                                       "hobby servo's pulses: check the number (the servo's data sheet gives its "
+                                       "range)")  # fmt: skip
 
 
 def _scalar(key: str, value: Any) -> float:

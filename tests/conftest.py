@@ -251,12 +251,15 @@ class Board:
 
     Faults: ``answer=False`` (a board whose replies are not wired), ``stop_reading_after`` (s after the first
     frame: it reads nothing more; the pty fills), ``read_rate`` (bytes a second it reads at most),
-    ``answer_offset_us`` (it reports pulses this far from those it received).
+    ``answer_offset_us`` (it reports pulses this far from those it received), ``lose_home_frames`` (Maestro: the
+    first so many home frames, six Set Targets of 1500 µs, after the platform has moved are lost on the line).
     """
 
     def __init__(self, device: FakeDevice, protocol: str = "maestro", lines=None, answer: bool = True,
                  stop_reading_after: float | None = None, read_rate: float | None = None,
-                 answer_offset_us: float = 0.0) -> None:  # fmt: skip
+                 answer_offset_us: float = 0.0, lose_home_frames: int = 0) -> None:  # fmt: skip
+        self.lose_home_frames, self.lost_frames = lose_home_frames, 0
+        self._moved = False  # whether a frame has gone more than 5 µs from home
         from stewart_gym.hardware.virtual_device import LineParser, MaestroParser, Parsed, SSC32Parser
 
         self.device, self.protocol, self.lines, self.answer = device, protocol, lines, answer
@@ -299,14 +302,21 @@ class Board:
                 budget -= len(chunk)
             if chunk:
                 self.data.extend(chunk)
+                home = [bytes([0x84, c, 0x70, 0x2E]) for c in range(6)]  # Set Target 1500 µs on channels 0…5
+                if self._moved and self.lost_frames < self.lose_home_frames and all(h in chunk for h in home):
+                    for h in home:  # the home frame lost on the line
+                        chunk = chunk.replace(h, b"", 1)
+                    self.lost_frames += 1
                 parsed = self._parsed_type()
                 self.parser.feed(chunk, parsed)
                 for channel, us in parsed.targets:
                     self.held[channel] = us
                     self._targets.append(us)
                     if len(self._targets) == 6:
-                        self.frames.append(np.array(self._targets))
+                        frame = np.array(self._targets)
                         self._targets = []
+                        self._moved = self._moved or bool(np.any(np.abs(frame - 1500.0) > 5.0))
+                        self.frames.append(frame)
                         if self.first_frame is None:
                             self.first_frame = time.monotonic()
                 self.queries += len(parsed.replies)

@@ -49,7 +49,10 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "3 position queries in a row not answered within `--answer-timeout-ms` (500; a late answer is none): "
               "a device failure within about 3 s; the home frames are still written, and the summary says "
               "*servos NOT confirmed home*", "2"),
-    Behaviour("home_mismatch", "the board reports other pulses than the home ones at the end",
+    Behaviour("home_lost", "the home frame (or the board's answer) is lost or garbled on the line",
+              "the home frame is sent again and the board asked again, for up to 3 s: *servos homed: confirmed by the "
+              "board (after sending the home frame N more time(s))*", "0"),
+    Behaviour("home_mismatch", "the board still reports other pulses than the home ones at the end",
               "*servos NOT confirmed home (the board holds …)*", "2"),
     Behaviour("unplugged", "the port goes away (cable pulled, board reset)",
               "the loop stops at the first write or read that fails, keeps its log, and says *servos NOT homed*",
@@ -61,6 +64,9 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "1"),
     Behaviour("policy_unusable", "the policy gives a NaN or unreachable action",
               "that tick holds the last safe pulses; a run where every tick held fails", "0 (1 if every tick held)"),
+    Behaviour("log_unwritable", "the log cannot be written (a full disk, a file size limit)",
+              "before the port opens: one `error:` line naming the log, nothing moves; during the run: the run ends, "
+              "drives home and prints its summary, *error: the log … cannot be written*", "1"),
     Behaviour("missed_deadlines", "the computer cannot keep the rate (more than 5 % of the deadlines missed)",
               "a late tick drives home; the run fails", "1"),
 )

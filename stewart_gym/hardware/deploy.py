@@ -49,6 +49,10 @@ __all__ = ["LOG_PLATE_COLUMNS", "LOG_READING_COLUMNS", "DeployConfig", "DeployLo
            "Plant", "SimulatedPlant", "log_columns"]
 
 
+class LogWriteError(Exception):
+    """The run's log could not be written (a full disk, a device gone): the run ends, home, with its summary."""
+
+
 class Plant(Protocol):
     """What the pulses drive when no real platform does: the simulated plant of a dry run."""
 
@@ -147,6 +151,13 @@ class SimulatedPlant:
 DEFAULT_SLEW_US_PER_S = 3000.0
 #: Highest control rate the loop accepts, Hz (hobby servos take a new pulse every 3–20 ms).
 MAX_RATE_HZ = 500.0
+#: µs: the largest rate limit per tick the loop accepts.
+MAX_STEP_US = 1000.0
+#: s: the longest drive home a rate limit may need, from either end of a channel's travel.
+MAX_HOME_S = 10.0
+#: s: how long the home frame is sent again, and the board asked again, where it does not confirm it holds the home
+#: pulses (a frame or an answer lost or garbled on the line).
+HOME_CONFIRM_S = 3.0
 #: A run that misses more than this fraction of its deadlines has failed: the machine cannot keep the rate.
 MAX_MISSED_FRACTION = 0.05
 #: A run with no fresh valid reading on more than this fraction of its ticks has failed: the sensor did not work.
@@ -176,7 +187,7 @@ class DeployConfig:
 
     def __post_init__(self) -> None:
         checks = [("rate_hz", self.rate_hz, 0.0, MAX_RATE_HZ), ("watchdog_s", self.watchdog_s, 0.0, 60.0),
-                  ("max_step_us", self.max_step_us, 0.0, 1000.0), ("home_timeout_s", self.home_timeout_s, 0.0, 60.0)]
+                  ("max_step_us", self.max_step_us, 0.0, MAX_STEP_US), ("home_timeout_s", self.home_timeout_s, 0.0, 60.0)]
         if self.duration_s is not None:
             checks.append(("duration_s", self.duration_s, 0.0, math.inf))
         for name, value, lo, hi in checks:
@@ -327,7 +338,12 @@ class DeployLoop:
         if self.controller.monitoring:
             summary.board_answers = 0
         sees_plate = callable(getattr(self.sensor, "plate_pose", None))
-        writer, fh = self._open_log(sees_plate)
+        try:
+            writer, fh = self._open_log(sees_plate)
+        except OSError as exc:
+            self._close(None)
+            raise ConfigError(f"the log {cfg.log_path} cannot be written ({exc.strerror or exc}); nothing was "
+                              "moved") from None
         jitters, computes = [], []
         start = time.monotonic()
         next_tick = start
@@ -359,10 +375,13 @@ class DeployLoop:
                     if sees_plate:
                         plate = self.sensor.plate_pose(t)
                         raw += (math.nan,) * 7 if plate is None else (*plate[0], plate[1])
-                    writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
-                                     *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed), len(data),
-                                     *(f"{v:.6f}" for v in raw)])
-                    fh.flush()
+                    try:
+                        writer.writerow([f"{t:.4f}", f"{jitter:.3f}", *np.round(obs, 5), *np.round(action, 5),
+                                         *np.round(flags["pose"], 6), *np.round(pulses, 2), *bits, int(missed),
+                                         len(data), *(f"{v:.6f}" for v in raw)])  # fmt: skip
+                        fh.flush()
+                    except OSError as exc:
+                        raise LogWriteError(f"the log {cfg.log_path} cannot be written ({exc.strerror or exc})") from None
                 next_tick += period
                 sleep = next_tick - time.monotonic()
                 missed = sleep < -period  # more than a whole period late
@@ -376,11 +395,13 @@ class DeployLoop:
             summary.exit_code = 128 + int(getattr(exc, "signum", signal.SIGINT))
         except DeviceError as exc:
             summary.message, summary.exit_code = f"device failure: {exc}", 2
+        except LogWriteError as exc:
+            summary.message, summary.exit_code = f"error: {exc}", 1
         except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)
             summary.message, summary.exit_code = f"error: {type(exc).__name__}: {exc}", 1
         finally:
             self._go_home(period, summary)
-            self._close(fh)
+            self._close(fh, summary)
         summary.duration_s = time.monotonic() - start
         summary.frames_sent = self.controller.frames_sent
         if summary.board_answers is not None:
@@ -447,6 +468,15 @@ class DeployLoop:
                 summary.home, summary.home_note = "sent", "the board's answers are not read (--write-only)"
                 return
             confirmed, held = self.controller.confirm(self.safety.home, self.controller.answer_timeout_s)
+            resent, until = 0, time.monotonic() + HOME_CONFIRM_S
+            while not confirmed and time.monotonic() < until:  # a frame lost or garbled on the line: send it again
+                self.controller.send(self.safety.toward_home().pulses)  # (at home: the home pulses)
+                self.controller.drain()
+                resent += 1
+                got, answer = self.controller.confirm(self.safety.home, self.controller.answer_timeout_s, attempts=1)
+                confirmed, held = got, answer if answer is not None else held
+            if confirmed and resent:
+                summary.home_note = f"after sending the home frame {resent} more time(s)"
         except DeviceError as exc:
             summary.home, summary.home_note = "not confirmed", str(exc)
             return
@@ -462,16 +492,25 @@ class DeployLoop:
             summary.home_note = (f"the board holds {np.round(held, 1).tolist()} µs, not the home pulses "
                                  f"{np.round(self.safety.home, 1).tolist()}")  # fmt: skip
 
-    def _close(self, log: Any) -> None:
-        """Close the port, the log, the plant and the sensor; a stop signal meanwhile does not cut this short."""
+    def _close(self, log: Any, summary: DeploySummary | None = None) -> None:
+        """Close the port, the log, the plant and the sensor; a stop signal meanwhile does not cut this short, and a
+        log that cannot be written (a full disk) is said in ``summary``."""
         parts = [self.controller.close, *(getattr(x, "close", None) for x in (log, self.plant, self.sensor))]
-        for close in parts:
+        for k, close in enumerate(parts):
             while close is not None:
                 try:
                     close()
                     break
                 except KeyboardInterrupt:
                     continue
+                except OSError as exc:
+                    if k != 1:  # (not the log)
+                        raise
+                    if summary is not None and "cannot be written" not in summary.message:
+                        note = f"the log {self.config.log_path} cannot be written ({exc.strerror or exc})"
+                        summary.message = f"error: {note}" if summary.exit_code == 0 else f"{summary.message}; {note}"
+                        summary.exit_code = summary.exit_code or 1
+                    break
 
     def _open_log(self, plate: bool) -> tuple[Any, Any]:
         if not self.config.log_path:

@@ -23,6 +23,8 @@ from stewart_gym.calibration import CalibrationError, ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import (
     DEFAULT_SLEW_US_PER_S,
+    MAX_HOME_S,
+    MAX_STEP_US,
     DeployConfig,
     DeployLoop,
     DeploySummary,
@@ -34,6 +36,7 @@ from stewart_gym.hardware.serial_controllers import (
     PROTOCOLS,
     DeviceError,
     LineController,
+    check_channels,
     open_controller,
 )
 
@@ -165,6 +168,7 @@ class DeploySetup:
         self.port, self.protocol, self.baudrate = port_settings(options.port, options.protocol, options.baudrate, hw)
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"protocol must be one of {sorted(PROTOCOLS)}, got {self.protocol!r}")
+        check_channels(self.protocol, self.calibration.channels, options.calibration or "the default calibration")
         self.camera_config = None
         if options.sensor == "sim":
             import importlib.util
@@ -197,19 +201,27 @@ class DeploySetup:
         if env_id not in ENV_IDS:
             raise ConfigError(f"the policy was exported for {env_id!r}, which is not an env of this version")
         task_kwargs = {k: v for k, v in policy.meta.get("env_kwargs", {}).items() if k == "trajectory"}
-        if options.trajectory:
-            task_kwargs["trajectory"] = options.trajectory
         self.task = load_task(ENV_IDS[env_id][0], **task_kwargs)
         if options.trajectory and not self.task.moving_target:
-            raise ConfigError(f"--trajectory needs a track policy; this one balances ({env_id})")
+            raise ConfigError(f"--trajectory needs a track policy (StewartBallTrack-v0); this one is for {env_id}")
+        if options.trajectory:
+            self.task = load_task(ENV_IDS[env_id][0], **{**task_kwargs, "trajectory": options.trajectory})
         self.log = options.log or new_log_name(LOG_FOLDER)
         output_file(self.log, suffixes=(".csv",), overwrite=options.overwrite)
         Path(self.log).parent.mkdir(parents=True, exist_ok=True)
         self.mapper = ActionMapper(policy.geometry, self.calibration, policy.action_mode, max_tilt=policy.max_tilt)
+        max_step = options.max_step_us or min(DEFAULT_SLEW_US_PER_S / options.rate_hz, MAX_STEP_US)
+        travel = float(np.max(self.calibration.max_us - self.calibration.min_us))
+        home_s = travel / (max_step * options.rate_hz)  # from one end of the widest channel at the rate limit
+        if home_s > MAX_HOME_S:
+            raise ConfigError(f"--max-step-us {max_step:g} at {options.rate_hz:g} Hz moves a servo "
+                              f"{max_step * options.rate_hz:g} µs/s: from the end of its travel ({travel:g} µs) the "
+                              f"drive home would take {home_s:.0f} s; give --max-step-us "
+                              f"{travel / (MAX_HOME_S * options.rate_hz):.3g} or more (home within "
+                              f"{MAX_HOME_S:g} s)")  # fmt: skip
         self.config = DeployConfig(rate_hz=options.rate_hz, duration_s=options.duration_s,
-                                   watchdog_s=options.watchdog_s,
-                                   max_step_us=options.max_step_us or DEFAULT_SLEW_US_PER_S / options.rate_hz,
-                                   log_path=self.log)  # fmt: skip
+                                   watchdog_s=options.watchdog_s, max_step_us=max_step, log_path=self.log,
+                                   home_timeout_s=max(2.0, 1.5 * home_s))  # fmt: skip
         self.task.reset(np.random.default_rng(options.seed), None)  # the target only: no disturbances on hardware
 
     def _sensor_first(self) -> Any:

@@ -28,9 +28,10 @@ MAESTRO_ERRORS = {
 }
 
 
-def _check_channel(channel: int) -> int:
-    if not 0 <= int(channel) <= 23:
-        raise ValueError(f"channel {channel} is outside 0…23")
+def _check_channel(channel: int, count: int = 24) -> int:
+    """``channel`` if it is one of a board's ``count`` channels (0 … count − 1)."""
+    if not 0 <= int(channel) < count:
+        raise ValueError(f"channel {channel} is outside 0…{count - 1}")
     return int(channel)
 
 
@@ -43,6 +44,9 @@ def _data14(value: int) -> bytes:
 
 class Maestro:
     """Pololu Maestro compact protocol. Pulse widths are given in µs and sent in quarter-µs."""
+
+    #: the channels of the largest Maestro (the Mini Maestro 24), 0 … 23
+    CHANNELS = 24
 
     GET_ERRORS = b"\xa1"
     GO_HOME = b"\xa2"
@@ -98,6 +102,9 @@ class Maestro:
 class SSC32:
     """Lynxmotion SSC-32/SSC-32U: one CR-terminated ASCII group move for all servos."""
 
+    #: its servo channels, 0 … 31
+    CHANNELS = 32
+
     QUERY_MOVEMENT = b"Q\r"
 
     @staticmethod
@@ -105,7 +112,7 @@ class SSC32:
         """``#0P1500#1P1520…T20\\r``: every channel in one line, arriving together after ``time_ms``."""
         if len(channels) != len(us):
             raise ValueError("one pulse width per channel")
-        body = "".join(f"#{_check_channel(c)}P{int(round(float(w)))}" for c, w in zip(channels, us))
+        body = "".join(f"#{_check_channel(c, SSC32.CHANNELS)}P{int(round(float(w)))}" for c, w in zip(channels, us))
         if time_ms is not None:
             body += f"T{int(time_ms)}"
         return (body + "\r").encode("ascii")
@@ -113,7 +120,7 @@ class SSC32:
     @staticmethod
     def query_pulse(channel: int) -> bytes:
         """``QP<ch>\\r``: the reply is one byte, µs / 10."""
-        return f"QP{_check_channel(channel)}\r".encode("ascii")
+        return f"QP{_check_channel(channel, SSC32.CHANNELS)}\r".encode("ascii")
 
 
 class LineProtocol:

@@ -40,7 +40,8 @@ ANSWER_TIMEOUT_S = 0.5
 MAX_MISSED_ANSWERS = 3
 
 __all__ = ["ANSWER_TIMEOUT_S", "ASK_EVERY_S", "PROTOCOLS", "DeviceError", "LineController", "MaestroController",
-           "MAX_MISSED_ANSWERS", "ServoController", "SSC32Controller", "open_controller", "write_timeout_s"]  # fmt: skip
+           "MAX_MISSED_ANSWERS", "ServoController", "SSC32Controller", "check_channels", "open_controller",
+           "write_timeout_s"]  # fmt: skip
 
 
 class DeviceError(DeviceFailure):
@@ -433,11 +434,31 @@ class LineController(ServoController):
 PROTOCOLS = {"maestro": MaestroController, "ssc32": SSC32Controller, "line": LineController}
 
 
+def check_channels(protocol: str, channels: Sequence[int], source: str = "the calibration") -> None:
+    """Raise :class:`~stewart_gym.errors.ConfigError` unless the six ``channels`` (``source``'s ``[[servo]]
+    channel``) are the board's: a Maestro's 0…23, an SSC-32's 0…31; the sketch (``line``) drives servo k on its
+    PCA9685 channel k, so there they are 0…5 in order."""
+    channels = [int(c) for c in channels]
+    if protocol == "line":
+        if channels != list(range(6)):
+            raise ConfigError(f"{source}: channels {channels}: the line protocol's sketch drives servo k on PCA9685 "
+                              "channel k, so the channels must be 0, 1, 2, 3, 4, 5 in order: wire the servos so (or "
+                              "edit the sketch's pins) and give those")  # fmt: skip
+        return
+    count = {"maestro": Maestro.CHANNELS, "ssc32": SSC32.CHANNELS}.get(protocol)
+    outside = [c for c in channels if count is not None and not 0 <= c < count]
+    if outside:
+        raise ConfigError(f"{source}: channel(s) {outside} are not on a {protocol} board, whose channels are "
+                          f"0…{count - 1}: give the channels the servos are wired to")  # fmt: skip
+
+
 def open_controller(protocol: str, port: str | serial.Serial, channels: Sequence[int] = range(6),
                     baudrate: int | None = None) -> ServoController:  # fmt: skip
-    """A controller by protocol name (:data:`PROTOCOLS`)."""
+    """A controller by protocol name (:data:`PROTOCOLS`); the channels checked (:func:`check_channels`) before the
+    port opens."""
     try:
         cls = PROTOCOLS[protocol]
     except KeyError:
         raise ConfigError(f"protocol must be one of {sorted(PROTOCOLS)}, got {protocol!r}") from None
+    check_channels(protocol, channels)
     return cls(port, channels, baudrate)

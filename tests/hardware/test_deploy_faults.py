@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import Board, FakeDevice
+from conftest import Board, FakeDevice, cli
 
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.hardware.behaviour import DEPLOY_BEHAVIOUR, behaviour_table
@@ -292,6 +292,40 @@ def test_a_board_that_reports_other_pulses_at_the_end_is_not_confirmed(device: F
     assert code == 2 and "servos NOT confirmed home (the board holds" in out, out + err
 
 
+@covers("home_lost")
+def test_a_home_frame_lost_on_the_line_is_sent_again_until_the_board_holds_it(device: FakeDevice,
+                                                                             tmp_path: Path) -> None:  # fmt: skip
+    board = Board(device, lose_home_frames=2)
+    code, out, err, _ = run(device, "--duration", "1", cwd=tmp_path, board=board)
+    assert board.lost_frames == 2 and np.allclose(board.frames[-1], np.round(HOME * 4) / 4)
+    assert code == 0 and "confirmed by the board (after sending the home frame 2 more time(s))" in out, out + err
+
+
+@covers("log_unwritable")
+def test_a_log_that_cannot_be_written_ends_the_run_home_with_its_summary(device: FakeDevice, tmp_path: Path) -> None:
+    """A file size limit (as a full disk) stops the log after a few rows: the run ends, drives home, and prints its
+    summary naming the log. A log that cannot take even its header is one error line, and nothing moves."""
+    import resource
+
+    board = Board(device)
+    limit = lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))  # noqa: E731  (Python ignores SIGXFSZ)
+    proc = start(device, "--duration", "5", "--log", str(tmp_path / "l.csv"), cwd=tmp_path, preexec_fn=limit)
+    out, err = proc.communicate(timeout=HANG_S)
+    board.stop()
+    assert proc.returncode == 1 and "Traceback" not in err, out + err
+    assert f"error: the log {tmp_path / 'l.csv'} cannot be written (File too large)" in out, out
+    assert "servos homed: confirmed by the board" in out and np.allclose(board.frames[-1], np.round(HOME * 4) / 4)
+    assert 10 < len(board.frames) < 5 * 50  # it ran, and stopped early
+
+    (tmp_path / "full.csv").symlink_to("/dev/full")
+    board = Board(device)
+    proc = start(device, "--duration", "1", "--log", str(tmp_path / "full.csv"), "--overwrite", cwd=tmp_path)
+    out, err = proc.communicate(timeout=HANG_S)
+    board.stop()
+    assert proc.returncode == 1 and "No space left on device); nothing was moved" in one_error_line(err), err
+    assert board.frames == []
+
+
 @pytest.mark.slow
 @covers("unplugged")
 def test_an_unplugged_port_stops_the_run_and_says_it_could_not_home(device: FakeDevice, tmp_path: Path) -> None:
@@ -362,3 +396,62 @@ def test_every_row_of_the_table_is_made_to_happen_and_the_page_shows_the_table()
     assert {b.key for b in DEPLOY_BEHAVIOUR} == COVERED
     page = (ROOT / "docs" / "src" / "hardware.md").read_text()
     assert behaviour_table() in page
+
+
+def _calibration(servo_lines: list[str] | None = None, hardware: str = "") -> str:
+    """A calibration file: six servos (each with ``servo_lines[i]`` where given) and a ``hardware`` line or table."""
+    lines = servo_lines or [""] * 6
+    servos = "".join(f"\n[[servo]]\n{'' if 'channel' in lines[i] else f'channel = {i}'}\n{lines[i]}\n" for i in range(6))
+    return hardware + "\n" + servos
+
+
+MISWIRED = [
+    # (calibration file text, deploy's options, what the one error line must say)
+    (_calibration(hardware="hardware = 3"), [], "hardware must be a table"),
+    (_calibration(hardware='[hardware]\nparity = "N"'), [], "cal.toml: hardware: unknown field(s) ['parity']"),
+    (_calibration(["channel = 0.9"] + [""] * 5), [], "servo[0].channel: the board's channel, a whole number"),
+    (_calibration(["direction = 0.5"] + [""] * 5), [], "servo[0].direction: +1 or -1"),
+    (_calibration(["home_angle_deg = 1000"] * 6), [], "servo[0].home_angle_deg: the horn's angle at home, within ±180°"),
+    (_calibration(["min_us = 100"] + [""] * 5), [], "servo[0].min_us: 100 µs is outside 400–2600 µs"),
+    (_calibration(["max_us = 3000"] + [""] * 5), [], "servo[0].max_us: 3000 µs is outside 400–2600 µs"),
+    ("\n".join(f"[[servo]]\nchannel = {c}" for c in (5, 4, 3, 2, 1, 0)), ["--protocol", "line", "--sensor", "panel"],
+     "the line protocol's sketch drives servo k on PCA9685 channel k"),
+    ("\n".join(f"[[servo]]\nchannel = {c}" for c in range(26, 32)), ["--protocol", "ssc32"], ""),  # an SSC-32's 0…31
+    ("\n".join(f"[[servo]]\nchannel = {c}" for c in range(20, 26)), ["--protocol", "maestro"],
+     "channel(s) [24, 25] are not on a maestro board, whose channels are 0…23"),
+]
+
+
+@pytest.mark.parametrize("text,options,says", MISWIRED, ids=[m[2][:40] or "ssc32 channels 26-31" for m in MISWIRED])
+def test_a_calibration_the_board_cannot_follow_is_refused_before_the_port_opens(
+        text: str, options: list[str], says: str, tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """Each is one error line naming the field, before the port (which does not exist) opens; channels 26–31 on an
+    SSC-32 are its own, so there the port is what fails (exit 2)."""
+    (tmp_path / "cal.toml").write_text(text)
+    code, out, err = cli(capfd, "deploy", "--calibration", "cal.toml", "--port", str(tmp_path / "no_port"), *options,
+                         "--duration", "1", cwd=tmp_path)  # fmt: skip
+    line = one_error_line(err)
+    if says:
+        assert code == 1 and says in line, line
+    else:
+        assert code == 2 and "no_port" in line, line
+
+
+@pytest.mark.parametrize("options,says", [
+    (["--trajectory", "circle"], "--trajectory needs a track policy (StewartBallTrack-v0)"),
+    (["--rate", "10", "--max-step-us", "0.2"], "the drive home would take"),
+])  # fmt: skip
+def test_options_that_cannot_run_are_refused_in_one_line(options: list[str], says: str, tmp_path: Path,
+                                                         capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    code, out, err = cli(capfd, "deploy", "--port", str(tmp_path / "no_port"), *options, "--duration", "1",
+                         cwd=tmp_path)  # fmt: skip
+    assert code == 1 and says in one_error_line(err), err
+
+
+def test_a_slow_control_rate_gets_a_rate_limit_it_accepts(device: FakeDevice, tmp_path: Path) -> None:
+    """At 2 Hz the default slew (3,000 µs/s) would be 1,500 µs a tick, beyond the loop's 1,000: it is held there,
+    and the run goes home as any other."""
+    board = Board(device)
+    code, out, err, rows = run(device, "--rate", "2", "--duration", "2", cwd=tmp_path, board=board)
+    assert code == 0 and "servos homed: confirmed by the board" in out, out + err
+    assert len(rows) == 4
