@@ -27,11 +27,32 @@ SIGINT_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread
                            and _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN)  # fmt: skip
 
 
+#: Whether this process is the ``stewart-gym`` command (its script, or ``python -m stewart_gym``, whose package
+#: loads while ``sys.argv[0]`` is still ``-m``): then a stop signal while it loads is noted, and the command stops with
+#: its one line as it starts (another program that imports the package keeps its own handling).
+AS_COMMAND = _sys.argv[:1] in (["-m"], ["stewart-gym"]) or (_sys.argv[:1] != [] and _sys.argv[0].endswith("/stewart-gym"))
+#: The stop signals :func:`note_stops_while_loading` notes instead of their default, with that default (the command
+#: line puts it back as its own handlers go in).
+NOTED_WHILE_LOADING: list[tuple[int, object]] = []
+
+
+def _note(signum: int, frame: object) -> None:
+    SIGNALS_WHILE_LOADING.append(signum)
+
+
 def note_stops_while_loading() -> None:
     """Where the process started with SIGINT ignored, note a SIGINT in :data:`SIGNALS_WHILE_LOADING` from now on
-    instead of losing it (the command line calls it again as its own modules load, until its handlers are in)."""
+    instead of losing it (the command line calls it again as its own modules load, until its handlers are in); in
+    the command (:data:`AS_COMMAND`), note Ctrl-C, SIGTERM and SIGHUP too where they are at their default."""
     if SIGINT_IGNORED_AT_START:
-        _signal.signal(_signal.SIGINT, lambda signum, frame: SIGNALS_WHILE_LOADING.append(signum))
+        _signal.signal(_signal.SIGINT, _note)
+    if AS_COMMAND and _threading.current_thread() is _threading.main_thread():
+        for name, default in (("SIGINT", _signal.default_int_handler), ("SIGTERM", _signal.SIG_DFL),
+                              ("SIGHUP", _signal.SIG_DFL)):  # fmt: skip
+            num = getattr(_signal, name, None)
+            if num is not None and _signal.getsignal(num) is default:
+                _signal.signal(num, _note)
+                NOTED_WHILE_LOADING.append((num, default))
 
 
 note_stops_while_loading()  # noted, not lost, while the package loads (the command line's first half second)

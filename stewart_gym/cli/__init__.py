@@ -12,12 +12,13 @@ its own module and adds itself to the parser with ``register(sub)``:
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from collections.abc import Sequence
 
-from stewart_gym import note_stops_while_loading
+from stewart_gym import NOTED_WHILE_LOADING, SIGNALS_WHILE_LOADING, note_stops_while_loading
 
-note_stops_while_loading()  # a Ctrl-C while the modules below load is noted too, until main() installs its handlers
+note_stops_while_loading()  # a stop while the modules below load is noted too, until main() installs its handlers
 
 from stewart_gym.cli.common import (  # noqa: E402
     EXIT_CODES_HELP,
@@ -61,13 +62,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; its exit code. A stop signal at any moment (Ctrl-C, SIGTERM, SIGHUP), while the parser and
     the commands' modules load too, is one ``error:`` line and exit code 128 + its number."""
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
-    from stewart_gym import SIGNALS_WHILE_LOADING
-
+    while NOTED_WHILE_LOADING:  # back to the default, which stop_signals() restores after the command
+        signal.signal(*NOTED_WHILE_LOADING.pop())
     with stop_signals():
         try:
-            if SIGNALS_WHILE_LOADING:  # a stop that came while the package loaded, with SIGINT ignored at start
+            if SIGNALS_WHILE_LOADING:  # a stop that came while the modules loaded
+                signum = SIGNALS_WHILE_LOADING[0]
                 SIGNALS_WHILE_LOADING.clear()
-                raise KeyboardInterrupt
+                if signum == signal.SIGINT:
+                    raise KeyboardInterrupt
+                from stewart_gym.errors import Stopped
+
+                raise Stopped(signum, signal.Signals(signum).name)
             args, unknown = build_parser().parse_known_args(argv)
             if unknown:  # named by the subcommand that was given them, which lists what it takes
                 args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")

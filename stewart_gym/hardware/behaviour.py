@@ -31,7 +31,8 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "the drive home short (at most 2 s)", "128 + the signal's number: 130, 143, 129"),
     Behaviour("startup_signal", "one of those signals before the loop starts (loading, opening the port, waiting for "
               "the board)", "one line, *error: stopped by … before the command finished*; nothing has moved, no "
-              "traceback", "130, 143, 129"),
+              "traceback (in Python's own start, the first few hundredths of a second before the package loads, the "
+              "system's default ends the process, also before anything is sent)", "130, 143, 129"),
     Behaviour("invalid_readings", "readings that are NaN, infinite or off the plate (more than 10 % of its half "
               "size beyond its edge)",
               "each is no reading: the last valid one goes on ageing, so after `--watchdog-ms` (100) the platform "

@@ -176,10 +176,10 @@ def wait_until_it_handles(proc: subprocess.Popen, sig: int) -> None:
 def test_a_stop_signal_during_start_up_is_one_line_and_moves_nothing(sig: int, after_s: float, device: FakeDevice,
                                                                     tmp_path: Path) -> None:  # fmt: skip
     """Loading the commands' modules and the policy, then waiting for the line sketch's ``ready`` (this board
-    never says it): a signal at any of these moments, ``after_s`` after the command line has put in its stop
-    handlers, is one line and 128 + its number, and no byte reaches the board. (SIGINT starts at its default, as
-    in a terminal; before the handlers are in, the interpreter's own start-up, a signal ends the process as the
-    operating system's default says, before anything is sent.)"""
+    never says it): a signal at any of these moments, ``after_s`` after the package began to note stop signals as
+    it loads as the command (0: while it loads), is one line and 128 + its number, and no byte reaches the board.
+    (SIGINT starts at its default, as in a terminal; before that, in the interpreter's own start-up, a signal ends
+    the process as the operating system's default says, before anything is sent.)"""
     proc = start(device, "--protocol", "line", "--sensor", "panel", "--log", str(tmp_path / "l.csv"), cwd=tmp_path,
                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     wait_until_it_handles(proc, signal.SIGTERM)  # main() is running: its stop handlers are in
