@@ -40,6 +40,8 @@ def cmd_deploy(args: argparse.Namespace) -> int:
     from stewart_gym.hardware.deploy_setup import DeployOptions, DeploySetup
     from stewart_gym.registry import deployable_policy, resolve_policy, same_geometry
 
+    if args.twin and args.sensor != "sim":  # before the file is read: it has no use here
+        raise ConfigError("--twin describes the simulated plant: it needs --sensor sim")
     source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
     policy = deployable_policy(source)
     if args.env and policy.env_id != args.env:

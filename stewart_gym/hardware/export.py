@@ -228,8 +228,13 @@ def _vector(meta: dict[str, Any], key: str, where: Path, size: int) -> np.ndarra
         return None
     if (not isinstance(value, list) or len(value) != size
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)):
-        n = len(value) if isinstance(value, list) else type(value).__name__
-        raise PolicyError(f"{where}: {key} must be {size} finite numbers (the observation or action size), got {n}; "
+        if isinstance(value, list) and len(value) == size:
+            bad = next(i for i, v in enumerate(value)
+                       if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)))  # fmt: skip
+            got = f"{key}[{bad}] is {value[bad]!r}"
+        else:
+            got = f"got {len(value) if isinstance(value, list) else type(value).__name__}"
+        raise PolicyError(f"{where}: {key} must be {size} finite numbers (the observation or action size); {got}; "
                           "re-export the policy")  # fmt: skip
     return np.asarray(value, np.float64)
 

@@ -79,7 +79,9 @@ class ServoController(ABC):
                 self.serial = serial.Serial(port, self.baudrate, timeout=timeout,
                                             write_timeout=write_timeout_s(self.baudrate))  # fmt: skip
             except serial.SerialException as exc:
-                raise DeviceError(f"cannot open {port}: {exc}") from None
+                hint = ("; it is not a serial device: check --port (ls /dev/tty*; the board's port appears as it is "
+                        "plugged in)" if "Inappropriate ioctl" in str(exc) else "")  # fmt: skip
+                raise DeviceError(f"cannot open {port}: {exc}{hint}") from None
         self.frames_sent = 0
         #: whether :meth:`send` asks the board along the way (:meth:`monitor`)
         self.monitoring = False

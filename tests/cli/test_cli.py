@@ -187,6 +187,7 @@ def _inputs_of_issue_57(d: Path) -> None:
     for name, change in {"bundle_obs_mean": {"obs_mean": shipped["obs_mean"][:3]}, "bundle_hz_zero": {"control_hz": 0},
                          "bundle_hz_text": {"control_hz": "fifty"}, "bundle_action_low": {"action_low": [-1.0]},
                          "bundle_var_negative": {"obs_var": [-1.0] * 12}, "bundle_clip_nan": {"clip_obs": math.nan},
+                         "bundle_var_nan": {"obs_var": [math.nan] + [1.0] * 11},
                          "bundle_obs_size": {"obs_size": 11}, "bundle_env_id": {"env_id": "Foo-v0"},
                          "bundle_env_kwargs": {"env_kwargs": "oops"},
                          "bundle_unknown_field": {"note": "mine"}, "bundle_layout": {"observation_layout": 1},
@@ -704,6 +705,11 @@ WRONG_BLAME = [
      "training diverged after 32 steps: the network gave NaN", "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
+    (["deploy", "--policy", "{files}/bundle_var_nan", "--port", "{files}/notes.txt"], "obs_var[0] is nan", "got 12"),
+    (["deploy", "--port", "{files}/notes.txt", "--duration", "1"], "it is not a serial device: check --port",
+     "Traceback"),
+    (["deploy", "--twin", "{files}/notes.txt", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
+     "--twin describes the simulated plant: it needs --sensor sim", "notes.txt"),
 ]  # fmt: skip
 
 
