@@ -22,9 +22,10 @@ import numpy as np
 from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
 
-__all__ = ["GIF_FPS", "PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate", "evaluation_part", "format_paired",
-           "format_table", "paired_difference", "paired_rows", "paired_verdict", "plot_episode", "pooled_rms", "run_episode",
-           "same_seeds", "settling_offset", "summarise", "write_gif"]  # fmt: skip
+__all__ = ["GIF_FPS", "MIN_VERDICT_EPISODES", "PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate",
+           "evaluation_part", "format_paired", "format_table", "paired_count", "paired_difference", "paired_rows",
+           "paired_verdict", "plot_episode", "pooled_rms", "run_episode", "same_seeds", "settling_offset", "summarise",
+           "write_gif"]  # fmt: skip
 
 
 def settling_offset(env: gym.Env) -> float:
@@ -285,12 +286,29 @@ def paired_difference(a: dict[str, Any], b: dict[str, Any], metric: str, resampl
     return diff, float(low), float(high)
 
 
-def paired_verdict(metric: str, low: float, high: float) -> str:
-    """What a paired interval of ``metric`` (row a minus row b, :func:`paired_difference`) says of a: ``better``
-    or ``worse`` when it excludes 0 (a higher success rate is better; a lower error or settling time), ``tie``
-    when it holds 0, ``–`` when it could not be computed (no seed where both settled)."""
+def paired_count(a: dict[str, Any], b: dict[str, Any], metric: str) -> int:
+    """How many episodes :func:`paired_difference` pairs for ``metric``: every seed, or for settling time the seeds
+    where both settled."""
+    pa, pb = a["per_episode"], b["per_episode"]
+    if metric == "settling_time_s":
+        return sum(x is not None and y is not None for x, y in zip(pa["settling_s"], pb["settling_s"]))
+    return len(pa["success"])
+
+
+#: The fewest paired episodes a verdict is given on: with fewer, a bootstrap interval is little more than the
+#: smallest and largest difference (with two, any two of one sign would be "better" or "worse"), not a 95 % one.
+MIN_VERDICT_EPISODES = 10
+
+
+def paired_verdict(metric: str, low: float, high: float, pairs: int = MIN_VERDICT_EPISODES) -> str:
+    """What a paired interval of ``metric`` (row a minus row b, :func:`paired_difference`, over ``pairs`` paired
+    episodes) says of a: ``better`` or ``worse`` when it excludes 0 (a higher success rate is better; a lower
+    error or settling time), ``tie`` when it holds 0, ``–`` when it could not be computed (no seed where both
+    settled), and ``too few episodes`` below :data:`MIN_VERDICT_EPISODES` pairs."""
     if not (math.isfinite(low) and math.isfinite(high)):
         return "–"
+    if pairs < MIN_VERDICT_EPISODES:
+        return f"too few episodes ({pairs} < {MIN_VERDICT_EPISODES})"
     if low <= 0 <= high:
         return "tie"
     lower_is_better = metric != "success_rate"
@@ -311,8 +329,9 @@ def paired_rows(results: dict[str, dict[str, Any]], reference: str) -> list[dict
                                                        for n in (reference, other)):  # fmt: skip
                 continue
             diff, low, high = paired_difference(results[reference], results[other], metric)
+            pairs = paired_count(results[reference], results[other], metric)
             rows.append({"a": reference, "b": other, "metric": metric, "difference": diff, "low": low, "high": high,
-                         "verdict": paired_verdict(metric, low, high)})  # fmt: skip
+                         "verdict": paired_verdict(metric, low, high, pairs)})  # fmt: skip
     return rows
 
 

@@ -943,22 +943,26 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them(capfd: py
     at a time, in worker processes), and A is paired with B and with C, each verdict agreeing with its interval
     (a lower error is better, a higher success rate is better). The text output names each pair's verdicts."""
     policies = ("pid-kalman", "lqr", "pid")
-    proc = sg_in(capfd, "compare", *policies, "--episodes", "4", "--seed", "2", "--workers", "2", "--json")
+    proc = sg_in(capfd, "compare", *policies, "--episodes", "10", "--seed", "2", "--workers", "2", "--json")
     assert proc.returncode == 0, proc.stderr[-2000:]
     got = json.loads(proc.stdout)
-    assert list(got["policies"]) == list(policies) and (got["episodes"], got["seed"]) == (4, 2)
+    assert list(got["policies"]) == list(policies) and (got["episodes"], got["seed"]) == (10, 2)
     assert (got["env_id"], got["geometry"], got["backend"], got["sensor"]) == (
         "StewartBallBalance-v0", "servo-hexapod", "pybullet", "panel")
-    alone = sg_in(capfd, "evaluate", "--policy", "lqr", "--episodes", "4", "--seed", "2", "--json")
+    alone = sg_in(capfd, "evaluate", "--policy", "lqr", "--episodes", "10", "--seed", "2", "--json")
     assert alone.returncode == 0, alone.stderr[-2000:]
     for key in ("success_rate", "rms_error_mm", "final_error_mm", "settling_time_s", "settled_pulse_p2p_us"):
         assert got["policies"]["lqr"][key] == pytest.approx(json.loads(alone.stdout)[key], rel=1e-9)
     rows = got["paired"]
     assert {(r["a"], r["b"]) for r in rows} == {("pid-kalman", "lqr"), ("pid-kalman", "pid")}
     assert {r["metric"] for r in rows} == {"success_rate", "rms_error_mm", "final_error_mm", "settling_time_s"}
+    settled = {b: sum(x is not None and y is not None for x, y in
+                      zip(*(got["policies"][p]["per_episode"]["settling_s"] for p in ("pid-kalman", b))))
+               for b in ("lqr", "pid")}  # fmt: skip
     for r in rows:
         lower_is_better = r["metric"] != "success_rate"
-        expected = ("tie" if r["low"] <= 0 <= r["high"] else
+        pairs = settled[r["b"]] if r["metric"] == "settling_time_s" else 10
+        expected = (f"too few episodes ({pairs} < 10)" if pairs < 10 else "tie" if r["low"] <= 0 <= r["high"] else
                     "better" if (r["high"] < 0) == lower_is_better else "worse")  # fmt: skip
         assert r["verdict"] == expected and r["low"] <= r["difference"] <= r["high"]
     # the PID + Kalman holds the ball closer than the plain PID on every seed of this draw, so better
@@ -967,7 +971,7 @@ def test_compare_evaluates_each_policy_as_evaluate_does_and_pairs_them(capfd: py
     text = sg_in(capfd, "compare", "pid-kalman", "pid", "--episodes", "3", "--workers", "1")
     assert text.returncode == 0, text.stderr[-2000:]
     assert "pid-kalman − pid, seed by seed" in text.stdout and "RMS error (last 5 s)" in text.stdout
-    assert re.search(r"settling time .* (better|worse|tie)", text.stdout)
+    assert re.search(r"RMS error .* too few episodes \(3 < 10\)", text.stdout)  # three seeds decide nothing
 
 
 @pytest.mark.slow
@@ -1017,6 +1021,9 @@ def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
     assert paired_verdict("success_rate", -0.1, -0.02) == "worse"
     assert paired_verdict("final_error_mm", -0.1, 0.1) == paired_verdict("success_rate", 0.0, 0.0) == "tie"
     assert paired_verdict("settling_time_s", float("nan"), float("nan")) == "–"
+    # two episodes of one sign are no verdict: the interval is only their smallest and largest difference
+    assert paired_verdict("rms_error_mm", 0.07, 1.08, pairs=2) == "too few episodes (2 < 10)"
+    assert paired_verdict("rms_error_mm", 0.07, 1.08, pairs=10) == "worse"
 
 
 @pytest.mark.slow

@@ -214,23 +214,25 @@ def test_results_page_pairs_rows_seed_by_seed(tmp_path: Path) -> None:
     (tmp_path / "images").mkdir()
 
     def row(label: str, rms: list[float], final: list[float], settle: list[float]) -> dict:
-        per = {"success": [True] * 4, "rms_mm": rms, "tail_steps": [250] * 4, "final_mm": final, "settling_s": settle}
+        """A row whose seeds are the given ones three times over (a verdict needs 10 paired episodes)."""
+        n = 3 * len(rms)
+        per = {"success": [True] * n, "rms_mm": rms * 3, "tail_steps": [250] * n, "final_mm": final * 3,
+               "settling_s": settle * 3}  # fmt: skip
         return {"table": "balance", "row": label, "policy": label, "estimator": None, "env": "StewartBallBalance-v0",
-                "episodes": 4, "metrics": {"seed": 0, "success_rate": 1.0, "per_episode": per}}  # fmt: skip
+                "episodes": n, "metrics": {"seed": 0, "success_rate": 1.0, "per_episode": per}}  # fmt: skip
 
     results = [row("LQR → PID", [1.0, 1.1, 0.9, 1.0], [0.5, 0.9, 0.4, 0.8], [0.6, 0.6, 0.7, 0.5]),
                row("PID + Kalman", [1.0, 1.0, 1.0, 1.0], [0.6, 0.6, 0.6, 0.6], [1.4, 1.5, 1.5, 1.4]),
                row("LQR", [2.0, 2.1, 1.9, 2.0], [1.0, 1.1, 0.9, 1.0], [0.6, 0.6, 0.7, 0.5])]  # fmt: skip
     del results[2]["metrics"]["per_episode"]  # an old results.json row: no paired comparison with it
-    fewer = row("residual PPO", [0.9, 1.0, 1.1], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5])  # 3 seeds: not paired with 4
-    fewer["metrics"]["per_episode"].update(success=[True] * 3, tail_steps=[250] * 3)
+    fewer = row("residual PPO", [0.9, 1.0, 1.1], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5])  # 9 seeds: not paired with 12
     results.append(fewer)
     (tmp_path / "results.json").write_text(json.dumps(results))
     proc = subprocess.run([sys.executable, str(root / "train" / "tools" / "results.py"), "--from-json", "--out",
                            str(tmp_path / "r.md")], capture_output=True, text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     page = (tmp_path / "r.md").read_text()
-    assert "paired: row minus row on the same 4 seeds" in page
+    assert "paired: row minus row on the same 12 seeds" in page
     # the tables where train/tools/results_intro.md marks them: after what the rows are and how to read them
     assert "<!-- tables -->" not in page
     assert page.index("## The controllers") < page.index("## Reading the tables") < page.index("paired: row minus row")
@@ -251,10 +253,10 @@ def test_results_page_track_pairs_median_settling_and_servo_motion_against_noise
     root = Path(__file__).resolve().parents[2]
     (tmp_path / "images").mkdir()
 
-    def track(label: str, rms: list[float]) -> dict:
-        per = {"success": [True] * 4, "rms_mm": rms, "tail_steps": [250] * 4, "final_mm": rms}
+    def track(label: str, rms: list[float]) -> dict:  # its seeds three times over: a verdict needs 10 pairs
+        per = {"success": [True] * 12, "rms_mm": rms * 3, "tail_steps": [250] * 12, "final_mm": rms * 3}
         return {"table": "track circle", "row": label, "policy": label, "estimator": None,
-                "env": "StewartBallTrack-v0", "episodes": 4, "env_kwargs": {"trajectory": "circle"},
+                "env": "StewartBallTrack-v0", "episodes": 12, "env_kwargs": {"trajectory": "circle"},
                 "metrics": {"success_rate": 1.0, "rms_error_mm": 1.0, "per_episode": per}}  # fmt: skip
 
     per = {"success": [True] * 4, "rms_mm": [1.0] * 4, "tail_steps": [250] * 4, "final_mm": [1.0] * 4,

@@ -254,7 +254,8 @@ def paired(results: list[dict[str, Any]]) -> list[str]:
     out = [f"### Balance, paired: row minus row on the same {episodes} seeds", "",
            "Each cell: the difference, its 95 % bootstrap interval (2,000 resamples of the seeds, both rows "
            "resampled together), and the verdict: *better* or *worse* when the interval excludes 0, *tie* when "
-           "it holds 0 (no difference shown at this many seeds). Settling compares the seeds where both settled.", "",
+           "it holds 0 (no difference shown at this many seeds); no verdict on fewer than 10 paired seeds. Settling "
+           "compares the seeds where both settled.", "",
            "| rows | " + " | ".join(name for _, name in PAIRED) + " |", "|---" * (len(PAIRED) + 1) + "|"]  # fmt: skip
     out += [f"| {a} − {b} | " + " | ".join(paired_cells(rows[a], rows[b])) + " |" for a, b in pairs]
     return [*out, ""]
@@ -346,12 +347,12 @@ def paired_cells(a: dict[str, Any], b: dict[str, Any],
                  metrics: tuple[tuple[str, str], ...] = PAIRED) -> list[str]:  # fmt: skip
     """Row ``a`` minus row ``b`` (their metrics with ``per_episode``) on each of ``metrics`` (:data:`PAIRED`): the
     difference, its 95 % bootstrap interval and the verdict (better, worse, or tie when the interval holds 0)."""
-    from stewart_gym.evaluation import paired_difference, paired_verdict
+    from stewart_gym.evaluation import paired_count, paired_difference, paired_verdict
 
     cells = []
     for key, _ in metrics:
         diff, low, high = paired_difference(a, b, key)
-        cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {paired_verdict(key, low, high)}")
+        cells.append(f"{diff:+.2f} [{low:+.2f}, {high:+.2f}] {paired_verdict(key, low, high, paired_count(a, b, key))}")
     return cells
 
 
