@@ -12,8 +12,9 @@ physics engine and the ball sensor, from the policy and what the user asked for.
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -122,7 +123,8 @@ def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int,
         reports = context.Queue()  # the workers' progress, read here while they run
         with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=context, initializer=worker_setup,
                                  initargs=(reports,)) as pool:  # fmt: skip
-            futures = [pool.submit(evaluate_part, task) for task in tasks]
+            with _workers_start_deaf_to_ctrl_c():
+                futures = [pool.submit(evaluate_part, task) for task in tasks]
             while not all(f.done() for f in futures):
                 try:
                     amount = reports.get(timeout=0.2)
@@ -135,17 +137,39 @@ def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int,
                       [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
 
 
+@contextlib.contextmanager
+def _workers_start_deaf_to_ctrl_c() -> Iterator[None]:
+    """While the worker processes start (the pool starts them as the tasks are submitted): SIGINT ignored, which a
+    started process keeps, so that a terminal's Ctrl-C while a worker still loads (seconds: Python, torch, the
+    policy) does not print that worker's traceback; :func:`worker_setup` then makes a Ctrl-C end the worker without
+    a word. The parent's own handler is back as soon as the tasks are submitted."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
 #: In a worker process of :func:`evaluate_all`: where its progress goes (set by :func:`worker_setup`).
 _REPORTS: list[Any] = []
 
 
 def worker_setup(reports: Any) -> None:
-    """In a worker process: no ``note:`` lines (the parent has said them when it loaded the policies), and the
-    queue that carries its progress to the parent."""
+    """In a worker process: no ``note:`` lines (the parent has said them when it loaded the policies), the queue
+    that carries its progress to the parent, and a Ctrl-C (which a terminal sends to the parent and its workers
+    alike) ends it without a word: the parent says the one line."""
     import logging
+    import signal
 
     logging.getLogger("stewart_gym").setLevel(logging.ERROR)
     _REPORTS[:] = [reports]
+    signal.signal(signal.SIGINT, lambda signum, frame: os._exit(128 + signum))
 
 
 def evaluate_part(task: tuple[EvaluationJob, list[int]],

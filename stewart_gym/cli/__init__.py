@@ -14,9 +14,10 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+import threading
 from collections.abc import Sequence
 
-from stewart_gym import NOTED_WHILE_LOADING, SIGNALS_WHILE_LOADING, note_stops_while_loading
+from stewart_gym import AS_COMMAND, NOTED_WHILE_LOADING, SIGNALS_WHILE_LOADING, note_stops_while_loading
 
 note_stops_while_loading()  # a stop while the modules below load is noted too, until main() installs its handlers
 
@@ -60,7 +61,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; its exit code. A stop signal at any moment (Ctrl-C, SIGTERM, SIGHUP), while the parser and
-    the commands' modules load too, is one ``error:`` line and exit code 128 + its number."""
+    the commands' modules load too, is one ``error:`` line and exit code 128 + its number. In the command's own
+    process a Ctrl-C after the command has done its work and said so is ignored: it would only cut Python's
+    teardown short (with a traceback of a library's exit handler, or a silent exit 130)."""
+    code = _main(argv)
+    _done()  # (again: leaving stop_signals() put its handler back)
+    return code
+
+
+def _done() -> None:
+    if AS_COMMAND and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     while NOTED_WHILE_LOADING:  # back to the default, which stop_signals() restores after the command
         signal.signal(*NOTED_WHILE_LOADING.pop())
@@ -77,7 +91,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             args, unknown = build_parser().parse_known_args(argv)
             if unknown:  # named by the subcommand that was given them, which lists what it takes
                 args.subcommand_parsers[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
-            return run(args.func, args)
+            code = run(args.func, args)
+            _done()
+            return code
         except KeyboardInterrupt as exc:
             if debug:
                 raise

@@ -1012,6 +1012,38 @@ def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path, capfd: p
     assert "pid-kalman − folder/gains.json, seed by seed" in proc.stdout and str(tmp_path) not in header
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("after_s", [0.0, 1.5])
+def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(after_s: float, tmp_path: Path) -> None:
+    """A terminal's Ctrl-C reaches the command and its worker processes alike, while the workers still load (0 s
+    after they exist) or while they evaluate: one line, exit 130, no worker's traceback, no process left."""
+    proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "compare", "pid", "lqr", "--episodes", "40",
+                             "--workers", "2"], cwd=tmp_path, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+
+    def group() -> list[str]:
+        return subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True).stdout.split()
+
+    try:
+        deadline = time.monotonic() + 120
+        while len(group()) < 3:  # the command and its two workers
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-2000:]
+            time.sleep(0.05)
+        time.sleep(after_s)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert proc.returncode == 130 and lines == ["error: stopped by Ctrl-C (SIGINT) before the command finished"], err
+        deadline = time.monotonic() + 10
+        while group() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert group() == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
 def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
     from stewart_gym.evaluation import paired_verdict
 
