@@ -306,6 +306,18 @@ class PlatformGeometry:
             for key in ("servo_beta", "servo_angle_range"):
                 if key in data:
                     raise GeometryError(f"{key}: only for a rotary platform (horn_length is not set)")
+        def sizes_fit(keys: tuple[str, ...]) -> None:
+            """Refuse a length of ``keys`` beyond :data:`MAX_LENGTH_M` (before it is used: 1e308 overflows)."""
+            for key in keys:
+                if key in kw and not np.max(np.abs(np.asarray(kw[key], dtype=float))) <= MAX_LENGTH_M:
+                    size = np.max(np.abs(np.asarray(kw[key], dtype=float)))
+                    if layout and key.endswith("anchors"):  # (the file gave a radius, not the anchors)
+                        key = f"{key.split('_')[0]}_radius"
+                        key, size = f"symmetric.{key}", symmetric[key]
+                    raise GeometryError(f"{key}: {size:g} m is larger than any build ({MAX_LENGTH_M:g} m); check "
+                                        "length_unit")  # fmt: skip
+
+        sizes_fit(("base_anchors", "platform_anchors", "rod_length", "horn_length", "plate_size", "leg_length_range"))
         if "home_height" in data:
             kw["home_height"] = _scalar("home_height", data["home_height"]) * ls
         elif rotary:
@@ -323,15 +335,7 @@ class PlatformGeometry:
             kw["home_height"] = float(np.mean(h))
         else:
             raise GeometryError(f"home_height: missing field in {source} (required for a linear platform)")
-        for key in ("base_anchors", "platform_anchors", "rod_length", "horn_length", "plate_size", "leg_length_range",
-                    "home_height"):  # fmt: skip
-            if key in kw and not np.max(np.abs(np.asarray(kw[key], dtype=float))) <= MAX_LENGTH_M:
-                size = np.max(np.abs(np.asarray(kw[key], dtype=float)))
-                if layout and key.endswith("anchors"):  # (the file gave a radius, not the anchors)
-                    key = f"{key.split('_')[0]}_radius"
-                    key, size = f"symmetric.{key}", symmetric[key]
-                raise GeometryError(f"{key}: {size:g} m is larger than any build ({MAX_LENGTH_M:g} m); check "
-                                    "length_unit")  # fmt: skip
+        sizes_fit(("home_height",))
         return cls(**kw)
 
     @property

@@ -121,7 +121,13 @@ def int_at_least(lo: int, hi: int | None = None) -> Callable[[str], int]:
         try:
             v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+            try:  # a whole number written as a float ("1e12", "20.0") is read as one, then its range checked
+                number = float(text)
+            except ValueError:
+                number = math.nan
+            if not (math.isfinite(number) and number.is_integer()):
+                raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+            v = int(number)
         if v < lo or (hi is not None and v > hi):
             raise argparse.ArgumentTypeError(f"{text!r} must be at least {lo}" + (f" and at most {hi}" if hi else ""))
         return v

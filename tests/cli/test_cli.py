@@ -85,6 +85,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "linear_low_home.toml").write_text(re.sub(r"home_height = [0-9.e-]+", "home_height = 0.01", linear))
     (d / "narrow_range.toml").write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [0.3, 1.0]",
                                                 hexapod))  # fmt: skip
+    (d / "huge.toml").write_text(re.sub(r"home_height = [0-9.e-]+\n", "", re.sub(r"rod_length = [0-9.e-]+",
+                                                                                "rod_length = 1e305", hexapod)))
     (d / "emptydir").mkdir()
     (d / "unknown_cols.csv").write_text("t,a,b\n0,1,2\n1,2,3\n")
     (d / "text_values.csv").write_text("t_s,x_mm\n0,abc\n")
@@ -705,6 +707,9 @@ WRONG_BLAME = [
      "training diverged after 32 steps: the network gave NaN", "Traceback"),
     (["ik", "0", "0", "0", "0", "0", "0", "--geometry", "/dev/zero"], "not a regular file", "xx"),
     (["sweep", "{files}/sweep_lr.yaml"], "search.learning_rate", "xx"),
+    (["compare", "pid", "lqr", "--episodes", "1e12"], "'1e12' must be at least 2 and at most 100000", "whole"),
+    (["urdf", "--geometry", "{files}/huge.toml", "--out", "{tmp}/u"], "rod_length: 1e+305 m is larger than any build",
+     "Traceback"),
     (["deploy", "--policy", "{files}/bundle_var_nan", "--port", "{files}/notes.txt"], "obs_var[0] is nan", "got 12"),
     (["deploy", "--port", "{files}/notes.txt", "--duration", "1"], "it is not a serial device: check --port",
      "Traceback"),
