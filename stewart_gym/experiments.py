@@ -287,16 +287,24 @@ def compare_setup(policies: list[str], env_id: str | None = None, geometry: str 
                   trajectory: str | None = None, twin: dict | None = None) -> tuple[str, str, dict[str, dict]]:  # fmt: skip
     """Before any episode: the env id, the build and each policy's env keywords for :func:`compare`, every
     policy loaded once (a bad one is a :class:`ConfigError` or :class:`~stewart_gym.errors.PolicyError`). The
-    build is ``geometry``, else the one a trained policy given by path was trained for (the named ones adapt to
-    it); the physics engine and the sensor are ``backend`` and ``sensor``, else the ones the policies were trained
-    with, which must then agree; ``twin`` (a twin's tables) is the platform they all run on."""
+    task is ``env_id``, else the one the trained policies given by path were trained for (which must agree), else
+    the first policy's; the build is ``geometry``, else the one a trained policy given by path was trained for
+    (the named ones adapt to both); the physics engine and the sensor are ``backend`` and ``sensor``, else the
+    ones the policies were trained with, which must then agree; ``twin`` (a twin's tables) is the platform they
+    all run on."""
     from stewart_gym.control import CLASSICAL_KINDS
     from stewart_gym.registry import CLASSICAL, DEFAULT_GEOMETRY, SHIPPED_TABLES, load_for_evaluation, resolve_policy
 
     sources = {spec: resolve_policy(spec, env_id) for spec in policies}
-    env_id = env_id or sources[policies[0]].env_id
     own = [s for s in sources.values() if s.spec not in (*SHIPPED_TABLES, *CLASSICAL) and s.kind in ("sb3", "ensemble",
                                                                                                      "bundle")]
+    if env_id is None:  # the trained networks' task (the named policies adapt to it), else the first policy's
+        tasks = {s.spec: s.env_id for s in own}
+        if len(set(tasks.values())) > 1:
+            named = ", ".join(f"{spec} for {task}" for spec, task in tasks.items())
+            raise ConfigError(f"the policies were trained for different tasks ({named}): say which to compare them "
+                              f"on, e.g. --env {next(iter(tasks.values()))}")  # fmt: skip
+        env_id = next(iter(tasks.values()), sources[policies[0]].env_id)
     geometry = geometry or (own[0].geometry if own else DEFAULT_GEOMETRY)
     chosen = {"backend": backend, "sensor": sensor}
     for key in chosen:  # a trained network's world, else the env's default; a classical controller has none

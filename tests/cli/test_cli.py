@@ -88,6 +88,10 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (d / "huge.toml").write_text(re.sub(r"home_height = [0-9.e-]+\n", "", re.sub(r"rod_length = [0-9.e-]+",
                                                                                 "rod_length = 1e305", hexapod)))
     (d / "emptydir").mkdir()
+    from stewart_gym.registry import POLICY_DIR
+
+    shutil.copytree(POLICY_DIR / "balance" / "bundle", d / "bundle_balance")
+    shutil.copytree(POLICY_DIR / "track" / "bundle", d / "bundle_track")
     (d / "unknown_cols.csv").write_text("t,a,b\n0,1,2\n1,2,3\n")
     (d / "text_values.csv").write_text("t_s,x_mm\n0,abc\n")
     (d / "nan_values.csv").write_text("t_s,x_mm\n0,nan\n")
@@ -399,6 +403,7 @@ BAD = [
     ["compare", "pid", "lqr", "--trajectory", "figure8"],
     ["compare", "pid", "lqr", "--geometry", "mathcad-micro"],
     ["compare", "shipped-camera", "{files}/run_webcam"],  # trained with different sensors: --sensor says which
+    ["compare", "{files}/bundle_balance", "{files}/bundle_track"],  # trained for different tasks: --env says which
     ["compare", "shipped", "shipped-camera"],  # the touch panel (the default) against a camera
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
