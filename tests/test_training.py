@@ -357,6 +357,38 @@ def test_demo_on_the_batched_backend_writes_all_but_the_gif_and_says_why(tmp_pat
     assert not (tmp_path / "demo.gif").exists()
 
 
+@pytest.mark.slow
+def test_a_demo_stopped_while_it_draws_leaves_its_folder_as_it_was(tmp_path: Path) -> None:
+    """Ctrl-C after the tables, while the demo runs the episode it draws: one line, exit 130, and the folder holds
+    the last run's three files unchanged (not a new table beside an old GIF)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    for name in ("demo_metrics.json", "demo.gif", "demo_pulses.png"):
+        (out / name).write_text("the last run's\n")
+    proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "demo", "--episodes", "2", "--workers", "1", "--out",
+                             str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    try:
+        for line in proc.stdout:  # the last paired table's heading: the figures' episode comes next
+            if line.startswith("shipped-residual − lqr, seed by seed"):
+                break
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130 and err.strip().splitlines() == [
+        "error: stopped by Ctrl-C (SIGINT) before the command finished"], err
+    assert sorted(p.name for p in out.iterdir()) == ["demo.gif", "demo_metrics.json", "demo_pulses.png"]
+    assert all((out / name).read_text() == "the last run's\n" for name in ("demo_metrics.json", "demo.gif"))
+
+
 def test_demo_compares_the_learned_policies_shipped_for_the_build_with_the_strongest_classical_ones() -> None:
     from stewart_gym.experiments import demo_policies
 

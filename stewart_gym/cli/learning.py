@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -250,7 +252,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
         except ConfigError as exc:
             gif = None
             print(f"note: no GIF: {exc}", file=sys.stderr)
-    out.mkdir(parents=True, exist_ok=True)
     processes, parts = process_plan(args.workers, len(names), args.episodes)
     physics = "with domain randomisation" if twin is None else f"on the twin {args.twin}"
     print(f"evaluating {', '.join(names)} on the same {args.episodes} seeded episodes {physics} "
@@ -264,10 +265,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     print(format_table(results))
     print()
     print(format_paired(paired_rows(results, names[0])))
-    (out / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
     policy, env_kwargs = loaded[names[0]]
-    episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, out / "demo_pulses.png",
-                    f"{names[0]} on {world_line(world(env_id, env_kwargs))}")  # fmt: skip
+    with tempfile.TemporaryDirectory(prefix="stewart-gym-demo-") as scratch:  # the three files made, then moved in
+        # together: a run stopped on the way leaves the folder as it was (or none), not new files beside old ones
+        work = Path(scratch)
+        (work / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
+        episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif and work / gif.name,
+                        work / "demo_pulses.png", f"{names[0]} on {world_line(world(env_id, env_kwargs))}")  # fmt: skip
+        out.mkdir(parents=True, exist_ok=True)
+        for made in work.iterdir():
+            shutil.move(str(made), out / made.name)
     wrote = [str(p) for p in (gif, out / "demo_pulses.png") if p is not None]
     print(f"\nwrote {', '.join(wrote)} (policy {names[0]}) and {out / 'demo_metrics.json'}")
     return EXIT_OK
