@@ -365,6 +365,7 @@ def test_a_demo_stopped_while_it_draws_leaves_its_folder_as_it_was(tmp_path: Pat
     import signal
     import subprocess
     import sys
+    import time
 
     out = tmp_path / "demo"
     out.mkdir()
@@ -372,11 +373,12 @@ def test_a_demo_stopped_while_it_draws_leaves_its_folder_as_it_was(tmp_path: Pat
         (out / name).write_text("the last run's\n")
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "demo", "--episodes", "2", "--workers", "1", "--out",
                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)  # fmt: skip
+                            start_new_session=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})  # fmt: skip
     try:
-        for line in proc.stdout:  # the last paired table's heading: the figures' episode comes next
+        for line in proc.stdout:  # the last paired table's heading: the figures' episode (seconds) comes next
             if line.startswith("shipped-residual − lqr, seed by seed"):
                 break
+        time.sleep(1.0)
         os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=120)
     finally:
