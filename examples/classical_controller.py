@@ -6,17 +6,15 @@ observation a learned policy gets, an SB3-style ``predict``, an episode loop.
 
 from __future__ import annotations
 
-import argparse
-
 import gymnasium as gym
 
 import stewart_gym  # noqa: F401  (registers the env ids)
-from stewart_gym.cli.common import int_at_least
+from stewart_gym.cli.common import Parser, int_at_least
 from stewart_gym.control import CLASSICAL, classical_controller, shipped_design
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--controller", choices=sorted(CLASSICAL), default="lqr")
     parser.add_argument("--episodes", type=int_at_least(1), default=5)
     parser.add_argument("--seed", type=int_at_least(0), default=0)

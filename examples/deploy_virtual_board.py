@@ -8,7 +8,6 @@ end and reports whether the board confirmed it. No hardware needed.
 
 from __future__ import annotations
 
-import argparse
 import signal
 import subprocess
 import sys
@@ -17,14 +16,25 @@ import time
 from pathlib import Path
 
 from stewart_gym.cli import main as stewart_gym
+from stewart_gym.cli.common import Parser, positive_float
+from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import output_file
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--policy", default="shipped", help="a shipped name, a bundle or a run folder")
-    parser.add_argument("--duration", type=float, default=10.0, help="seconds")
-    parser.add_argument("--log", default="out/deploy_log.csv", help="the run's log, a row per tick")
+    parser.add_argument("--duration", type=positive_float, default=10.0, help="seconds")
+    parser.add_argument("--log", help="the run's log, a row per tick (default: a new out/deploy_log_<date>-<time>.csv)")
+    parser.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")
     args = parser.parse_args(argv)
+    log = ["--log", args.log] if args.log else []
+    if args.log:  # checked before the board starts (deploy checks it again)
+        try:
+            output_file(args.log, suffixes=(".csv",), overwrite=args.overwrite)
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
 
     with tempfile.TemporaryDirectory() as folder:
         port = Path(folder) / "board"
@@ -37,9 +47,9 @@ def main(argv: list[str] | None = None) -> int:
                     print(board.stdout.read() if board.stdout else "", file=sys.stderr)
                     return 1
                 time.sleep(0.1)
-            Path(args.log).parent.mkdir(parents=True, exist_ok=True)
             code = stewart_gym(["deploy", "--policy", args.policy, "--port", str(port), "--protocol", "line",
-                                "--sensor", "panel", "--duration", str(args.duration), "--log", args.log])  # fmt: skip
+                                "--sensor", "panel", "--duration", str(args.duration), *log,
+                                *(["--overwrite"] if args.overwrite else [])])  # fmt: skip
         finally:
             board.send_signal(signal.SIGINT)  # the board prints what it received, then exits
             out, _ = board.communicate(timeout=60)

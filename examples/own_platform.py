@@ -7,8 +7,8 @@ on it in simulation. Writes the file to ``out/my_platform.toml``; pass it as ``-
 
 from __future__ import annotations
 
-import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 import gymnasium as gym
@@ -16,9 +16,10 @@ import numpy as np
 
 import stewart_gym  # noqa: F401  (registers the env ids)
 from stewart_gym import ServoCalibration, inverse_kinematics, load_geometry
-from stewart_gym.cli.common import int_at_least
+from stewart_gym.cli.common import Parser, int_at_least
 from stewart_gym.control import classical_controller, shipped_design
 from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import output_file
 
 TOML = """name = "my-platform"
 length_unit = "mm"
@@ -37,7 +38,7 @@ platform_pair_angle = {platform_pair_angle}
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--base-radius", type=float, default=110.0, help="servo shafts' circle, mm")
     parser.add_argument("--base-pair-angle", type=float, default=30.0, help="between a pair's shafts, degrees")
     parser.add_argument("--platform-radius", type=float, default=85.0, help="rod ends' circle on the plate, mm")
@@ -46,16 +47,25 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rod", type=float, default=170.0, help="rod length, mm")
     parser.add_argument("--plate", type=float, default=320.0, help="square plate's side, mm")
     parser.add_argument("--episodes", type=int_at_least(1), default=3)
-    parser.add_argument("--out", default="out/my_platform.toml")
+    parser.add_argument("--out", default="out/my_platform.toml", help="the geometry file to write")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     args = parser.parse_args(argv)
 
-    path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(TOML.format(**vars(args)))
     try:
-        geometry = load_geometry(path)
+        path = output_file(args.out, suffixes=(".toml",), overwrite=args.overwrite)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryDirectory(dir=path.parent) as scratch:  # written where it goes once it describes a build
+            draft = Path(scratch) / path.name
+            draft.write_text(TOML.format(**vars(args)))
+            try:
+                geometry = load_geometry(draft)
+            except ConfigError as exc:  # named as the file it would have been
+                raise ConfigError(str(exc).replace(str(draft), str(path))) from None
+            draft.replace(path)
     except ConfigError as exc:  # a measurement that describes no platform: say which, in one line
         sys.exit(f"error: {exc}")
+    except OSError as exc:
+        sys.exit(f"error: cannot write {args.out}: {exc.strerror or exc}")
     print(f"{path}: home height {1e3 * geometry.home_height:.2f} mm")
 
     calibration = ServoCalibration.default(geometry)

@@ -9,8 +9,6 @@ Needs ``pip install "ray[rllib]"`` beside ``stewart_gym[train]``.
 
 from __future__ import annotations
 
-import argparse
-
 import gymnasium as gym
 import numpy as np
 import ray
@@ -18,13 +16,13 @@ import torch
 from ray.rllib.algorithms.ppo import PPOConfig
 from ray.rllib.core.columns import Columns
 
-from stewart_gym.cli.common import int_at_least
+from stewart_gym.cli.common import Parser, int_at_least
 
 ENV_ID = "stewart_gym:StewartBallBalance-v0"
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--iterations", type=int_at_least(1), default=50, help="training iterations")
     parser.add_argument("--batch", type=int_at_least(1), default=4000, help="env steps per iteration")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")

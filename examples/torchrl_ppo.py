@@ -9,7 +9,6 @@ Needs ``pip install torchrl`` beside ``stewart_gym[train]``.
 
 from __future__ import annotations
 
-import argparse
 import logging
 
 import torch
@@ -24,7 +23,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 import stewart_gym  # noqa: F401  (registers the env ids)
-from stewart_gym.cli.common import int_at_least
+from stewart_gym.cli.common import Parser, int_at_least
 
 
 def mlp(n_in: int, n_out: int) -> nn.Sequential:
@@ -32,7 +31,7 @@ def mlp(n_in: int, n_out: int) -> nn.Sequential:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int_at_least(1), default=200_000, help="env steps in all")
     parser.add_argument("--batch", type=int_at_least(1), default=2048, help="env steps per update")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")

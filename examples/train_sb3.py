@@ -10,22 +10,20 @@ to a policy that holds the ball on every episode (2 to 3 minutes on 2 cores).
 
 from __future__ import annotations
 
-import argparse
-
 import gymnasium as gym
 from stable_baselines3 import PPO
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 import stewart_gym  # noqa: F401  (registers the env ids)
-from stewart_gym.cli.common import int_at_least
+from stewart_gym.cli.common import Parser, int_at_least
 
 ENV_ID = "StewartBallBalance-v0"
 ENV_KWARGS = {"randomize": True, "estimator": "kalman", "rate_penalty": 10.0}
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = Parser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--timesteps", type=int_at_least(1), default=150_000, help="env steps to train for")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes")
     parser.add_argument("--seed", type=int_at_least(0), default=0)
