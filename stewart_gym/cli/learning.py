@@ -170,9 +170,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if len(policies) < 2:
         raise ConfigError(f"compare needs 2 or more policies, got {len(policies)}: add the one to compare with, "
                           "e.g. stewart-gym compare shipped-residual pid-kalman lqr")  # fmt: skip
-    twice = sorted({p for p in policies if policies.count(p) > 1})
+    def same(spec: str) -> str:  # a path as the file it names (./b1 is b1), a name as itself
+        return str(Path(spec).resolve()) if Path(spec).exists() else spec
+
+    twice = sorted({p for p in policies if [same(q) for q in policies].count(same(p)) > 1})
     if twice:
-        raise ConfigError(f"{', '.join(twice)} given more than once; give each policy once")
+        raise ConfigError(f"the same policy is given more than once ({', '.join(twice)}); give each policy once")
     twin = twin_tables(args.twin)
     randomize = not args.no_randomize and twin is None  # a twin: exactly that platform
     env_id, geometry, env_kwargs = compare_setup(policies, args.env, args.geometry, args.backend, args.sensor,

@@ -404,6 +404,7 @@ BAD = [
     ["compare", "pid", "lqr", "--geometry", "mathcad-micro"],
     ["compare", "shipped-camera", "{files}/run_webcam"],  # trained with different sensors: --sensor says which
     ["compare", "{files}/bundle_balance", "{files}/bundle_track"],  # trained for different tasks: --env says which
+    ["compare", "{files}/bundle_balance", "{files}/./bundle_balance"],  # one policy, spelt twice
     ["compare", "shipped", "shipped-camera"],  # the touch panel (the default) against a camera
     ["export", "--env", "Foo-v0", "--out", "{tmp}/b"],
     ["export", "--out", "{files}/notes.txt"],
