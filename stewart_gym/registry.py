@@ -37,6 +37,7 @@ actually loaded, so deploying a bundle needs numpy and onnxruntime only.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass, field
@@ -295,20 +296,24 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
     if len(runs) < 2:
         raise PolicyError(f"an ensemble averages 2 or more trained networks; got {len(runs)}")
     sources = [resolve_policy(r) for r in runs]
-    seen: dict[Path, str] = {}
+    seen: dict[str, str] = {}
     for source in sources:
-        if source.path.resolve() in seen:
-            raise PolicyError(f"{source.spec!r} and {seen[source.path.resolve()]!r} are the same network; an ensemble "
-                              "averages different ones (the same recipe, other seeds)")  # fmt: skip
-        seen[source.path.resolve()] = source.spec
         if source.kind != "sb3":
             raise PolicyError(f"{source.spec!r} is not a trained network (a run folder or a model .zip), so it "
                               "cannot be an ensemble's member")  # fmt: skip
-        _check_alike(sources[0], source)
+        stats = model_statistics(source.path)  # the network and its statistics (a copied run folder is the same)
+        digest = hashlib.sha256(source.path.read_bytes() + (stats.read_bytes() if stats else b"")).hexdigest()
+        if digest in seen:
+            raise PolicyError(f"{source.spec!r} and {seen[digest]!r} are the same network; an ensemble averages "
+                              "different ones (the same recipe, other seeds)")  # fmt: skip
+        seen[digest] = source.spec
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise PolicyError(f"{out} already exists and is not an empty folder; give a new --out")
-    EnsemblePolicy([load_sb3(s.path) for s in sources])  # loads, same sizes, each with its statistics: before writing
+    models = [load_sb3(s.path) for s in sources]  # each loads, with its statistics (a file that is no model says so)
+    for source in sources[1:]:
+        _check_alike(sources[0], source)
+    EnsemblePolicy(models)  # the same sizes: before anything is written
     members = []
     for k, source in enumerate(sources):
         member = out / "members" / str(k)

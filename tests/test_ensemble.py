@@ -7,6 +7,7 @@ bundle's one ONNX graph holds every network with its own normalisation. The ship
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -106,8 +107,8 @@ def test_an_ensemble_made_on_the_command_line_evaluates_and_exports_as_the_mean(
 def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_nothing_is_written(
         tmp_path: Path, capfd: pytest.CaptureFixture) -> None:  # fmt: skip
     """The shipped balance network (no residual base) and a residual member cannot be averaged; an
-    ensemble is not written over a folder that holds files; one network, or one network twice, is not an
-    ensemble."""
+    ensemble is not written over a folder that holds files; one network, or one network twice (also as a copied
+    run folder), is not an ensemble; a file that is no model is named as such."""
     member = str(ensemble_members(RESIDUAL)[0])
     bare = tmp_path / "bare"  # a run without its normalisation statistics
     bare.mkdir()
@@ -115,9 +116,14 @@ def test_networks_trained_unalike_or_an_existing_folder_are_one_error_line_and_n
         (bare / name).write_bytes((Path(member) / name).read_bytes())
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "keep.txt").write_text("keep me\n")
+    copy = tmp_path / "copy"  # a copied run folder: the same network under another name
+    shutil.copytree(member, copy)
+    (tmp_path / "junk.zip").write_text("not a model\n")
     cases = [([str(POLICY_DIR / "balance"), member, "--out", "e"], "trained with different residual"),
              ([member, str(ensemble_members(RESIDUAL)[1]), "--out", "full"], "already exists"),
              ([member, member, "--out", "e"], "are the same network"),
+             ([member, str(copy), "--out", "e"], "are the same network"),
+             ([str(tmp_path / "junk.zip"), member, "--out", "e"], "junk.zip: not a Stable-Baselines3 model"),
              ([member, "--out", "e"], "2 or more"),
              ([member, str(bare), "--out", "e"], "vecnormalize.pkl")]  # fmt: skip
     for args, message in cases:
@@ -150,14 +156,15 @@ def test_a_checkpoint_runs_with_its_own_statistics_and_ensembles(tmp_path: Path,
     """A checkpoint (``checkpoints/rl_model_<n>_steps.zip`` with ``rl_model_vecnormalize_<n>_steps.pkl`` beside it,
     as training writes them) evaluates as the same network in a run folder does, and ``ensemble`` takes
     checkpoints (a snapshot ensemble of one run). Without its statistics it is one ``error:`` line: the network
-    would see raw observations. Before 2026-11-25 a checkpoint loaded without its statistics, silently."""
-    member = ensemble_members(RESIDUAL)[0]
+    would see raw observations. (The two checkpoints here are two members of the shipped residual ensemble: one
+    recipe's networks, as a run's checkpoints are; two copies of one network would be refused.)"""
+    member, earlier = ensemble_members(RESIDUAL)[:2]
     folder = tmp_path / "run" / "checkpoints"
     folder.mkdir(parents=True)
     (tmp_path / "run" / "config.yaml").write_text((member / "config.yaml").read_text())
-    for steps in (250_000, 300_000):
-        (folder / f"rl_model_{steps}_steps.zip").write_bytes((member / "model.zip").read_bytes())
-        (folder / f"rl_model_vecnormalize_{steps}_steps.pkl").write_bytes((member / "vecnormalize.pkl").read_bytes())
+    for steps, source in ((250_000, earlier), (300_000, member)):
+        (folder / f"rl_model_{steps}_steps.zip").write_bytes((source / "model.zip").read_bytes())
+        (folder / f"rl_model_vecnormalize_{steps}_steps.pkl").write_bytes((source / "vecnormalize.pkl").read_bytes())
     checkpoint = folder / "rl_model_300000_steps.zip"
     figures = {}
     for name, policy in (("run folder", str(member)), ("checkpoint", str(checkpoint))):
