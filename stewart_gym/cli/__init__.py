@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
         group.register(sub)
     for sp in sub.choices.values():  # --debug is accepted after the subcommand too
         sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show the traceback of any error")
-        for action in sp._actions:  # every --geometry: not empty (an empty path is the current folder)
+        for action in sp.arguments():  # every --geometry: not empty (an empty path is the current folder)
             if action.dest == "geometry":
                 action.type = geometry_text
     parser.set_defaults(subcommand_parsers=sub.choices)
