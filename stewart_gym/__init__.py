@@ -27,10 +27,19 @@ SIGINT_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread
                            and _signal.getsignal(_signal.SIGINT) is _signal.SIG_IGN)  # fmt: skip
 
 
-#: Whether this process is the ``stewart-gym`` command (its script, or ``python -m stewart_gym``, whose package
-#: loads while ``sys.argv[0]`` is still ``-m``): then a stop signal while it loads is noted, and the command stops with
-#: its one line as it starts (another program that imports the package keeps its own handling).
-AS_COMMAND = _sys.argv[:1] in (["-m"], ["stewart-gym"]) or (_sys.argv[:1] != [] and _sys.argv[0].endswith("/stewart-gym"))
+def _as_command() -> bool:
+    """Whether this process is the ``stewart-gym`` command: its script, or ``python -m stewart_gym`` (not another
+    module of the package run with ``-m``, such as a vector env's worker)."""
+    script = _sys.argv[0] if _sys.argv else ""
+    given = list(getattr(_sys, "orig_argv", []))
+    after_m = given[given.index("-m") + 1] if "-m" in given[:-1] else None
+    return script == "stewart-gym" or script.endswith("/stewart-gym") or after_m in ("stewart_gym", "stewart_gym.cli")
+
+
+#: Whether this process is the ``stewart-gym`` command (:func:`_as_command`): then a stop signal while it loads is
+#: noted, and the command stops with its one line as it starts (another program that imports the package, or runs
+#: one of its modules, keeps its own handling).
+AS_COMMAND = _as_command()
 #: The stop signals :func:`note_stops_while_loading` notes instead of their default, with that default (the command
 #: line puts it back as its own handlers go in).
 NOTED_WHILE_LOADING: list[tuple[int, object]] = []
