@@ -455,3 +455,19 @@ def test_a_slow_control_rate_gets_a_rate_limit_it_accepts(device: FakeDevice, tm
     code, out, err, rows = run(device, "--rate", "2", "--duration", "2", cwd=tmp_path, board=board)
     assert code == 0 and "servos homed: confirmed by the board" in out, out + err
     assert len(rows) == 4
+
+
+@pytest.mark.parametrize("command,noted", [(["-m", "stewart_gym", "ik"], True), (["-m", "stewart_gym.cli"], True),
+                                           (["-m", "stewart_gym.envs.split_vector", "3", "4"], False),
+                                           (["-c", "pass"], False)])  # fmt: skip
+def test_only_the_command_itself_notes_stop_signals_while_it_loads(command: list[str], noted: bool) -> None:
+    """The package notes SIGTERM and SIGHUP as it loads only in the command (its script, ``python -m stewart_gym``):
+    another module of it run with ``-m`` (the split vector env's worker) or a program that imports it keeps the
+    system's default, so that SIGTERM still ends it."""
+    probe = ("import signal, sys; sys.orig_argv = [sys.executable, *{command!r}]; sys.argv = [{first!r}]; "
+             "import stewart_gym; print(stewart_gym.AS_COMMAND, signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)")
+    first = "-m" if command[0] == "-m" else "-c"
+    proc = subprocess.run([sys.executable, "-c", probe.format(command=command, first=first)], capture_output=True,
+                          text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split() == [str(noted), str(not noted)], proc.stdout
