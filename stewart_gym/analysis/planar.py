@@ -43,18 +43,22 @@ PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
 
 
 
-def _terms(theta: np.ndarray, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
-           p2: float, p3: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+def _offsets(theta: np.ndarray, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float,
+             p2: float, p3: float) -> tuple[np.ndarray, ...]:  # fmt: skip
+    """At angles θ: (A2, B2) and (A3, B3), the offsets of the second and third vertex from their anchors less the
+    first vertex, and the right sides u and v: with the first vertex at w, the struts ask |w| = p1,
+    2 (A2, B2)·w = u and 2 (A3, B3)·w = v."""
     a2 = L3 * np.cos(theta) - x1
     b2 = L3 * np.sin(theta)
     a3 = L2 * np.cos(theta + gamma) - x2
     b3 = L2 * np.sin(theta + gamma) - y2
-    u = p2**2 - p1**2 - a2**2 - b2**2
-    v = p3**2 - p1**2 - a3**2 - b3**2
-    n1 = b3 * u - b2 * v
-    n2 = -a3 * u + a2 * v
-    d = 2.0 * (a2 * b3 - b2 * a3)
-    return n1, n2, d
+    return a2, b2, a3, b3, p2**2 - p1**2 - a2**2 - b2**2, p3**2 - p1**2 - a3**2 - b3**2
+
+
+def _terms(theta: np.ndarray, *args: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """N1, N2 and D at angles θ (the linear equations solved by Cramer's rule: x = N1 / D, y = N2 / D)."""
+    a2, b2, a3, b3, u, v = _offsets(theta, *args)
+    return b3 * u - b2 * v, -a3 * u + a2 * v, 2.0 * (a2 * b3 - b2 * a3)
 
 
 def planar_f(theta: np.ndarray | float, L1: float, L2: float, L3: float, gamma: float, x1: float, x2: float,
@@ -149,21 +153,12 @@ def _same_pose(a: np.ndarray, b: np.ndarray, scale: float) -> bool:
     return turn <= 1e-7 and abs(a[0] - b[0]) <= 1e-7 * scale and abs(a[1] - b[1]) <= 1e-7 * scale
 
 
-def _offsets(theta: float, L2: float, L3: float, gamma: float, x1: float, x2: float, y2: float, p1: float, p2: float,
-             p3: float) -> tuple[np.ndarray, np.ndarray, float, float]:  # fmt: skip
-    """At angle θ: the offsets e2 = (A2, B2) and e3 = (A3, B3) of the second and third vertex from their anchors,
-    less the first vertex, and the right sides: with v the first vertex, the struts ask |v| = p1, 2 e2·v = u and
-    2 e3·v = w."""
-    e2 = np.array([L3 * math.cos(theta) - x1, L3 * math.sin(theta)])
-    e3 = np.array([L2 * math.cos(theta + gamma) - x2, L2 * math.sin(theta + gamma) - y2])
-    return e2, e3, p2 * p2 - p1 * p1 - float(e2 @ e2), p3 * p3 - p1 * p1 - float(e3 @ e3)
-
-
 def _line_and_circle(theta: float, *args: float) -> list[tuple[float, float]]:
     """Where D = 0 at θ (e2 ∥ e3): the first vertex's points on the line of the larger of e2 and e3 and on the
     first strut's circle; none where both offsets vanish."""
-    e2, e3, u, w = _offsets(theta, *args)
-    e, c = (e2, u / 2) if e2 @ e2 >= e3 @ e3 else (e3, w / 2)
+    a2, b2, a3, b3, u, v = (float(x) for x in _offsets(np.array(theta), *args))
+    e2, e3 = np.array([a2, b2]), np.array([a3, b3])
+    e, c = (e2, u / 2) if e2 @ e2 >= e3 @ e3 else (e3, v / 2)
     norm2, p1 = float(e @ e), args[7]
     if norm2 <= 1e-24 * (1.0 + p1 * p1):
         return []
@@ -185,8 +180,8 @@ def planar_continua(L1: float, L2: float, L3: float, gamma: float, x1: float, x2
     theta = 0.0 if x1 > 0 else math.pi  # the turn that puts the second vertex's offset on (x1, 0)
     if abs(L3 - abs(x1)) > 1e-9 * scale or max(abs(p2 - p1), abs(p3 - p1)) > 1e-9 * scale:
         return []
-    e2, e3, _, _ = _offsets(theta, L2, L3, gamma, x1, x2, y2, p1, p2, p3)
-    return [theta] if max(np.abs(e2).max(), np.abs(e3).max()) <= 1e-9 * scale else []
+    offsets = _offsets(np.array(theta), L2, L3, gamma, x1, x2, y2, p1, p2, p3)[:4]
+    return [theta] if max(abs(float(x)) for x in offsets) <= 1e-9 * scale else []
 
 
 def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,

@@ -32,6 +32,7 @@ import csv
 import math
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -47,6 +48,16 @@ from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact,
 
 __all__ = ["LOG_PLATE_COLUMNS", "LOG_READING_COLUMNS", "DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor",
            "Plant", "SimulatedPlant", "log_columns"]
+
+
+def _through_stops(close: Callable[[], object] | None) -> None:
+    """``close()`` (if any), called again where a stop signal interrupts it: what closes is not cut short."""
+    while close is not None:
+        try:
+            close()
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 class LogWriteError(Exception):
@@ -495,22 +506,16 @@ class DeployLoop:
     def _close(self, log: Any, summary: DeploySummary | None = None) -> None:
         """Close the port, the log, the plant and the sensor; a stop signal meanwhile does not cut this short, and a
         log that cannot be written (a full disk) is said in ``summary``."""
-        parts = [self.controller.close, *(getattr(x, "close", None) for x in (log, self.plant, self.sensor))]
-        for k, close in enumerate(parts):
-            while close is not None:
-                try:
-                    close()
-                    break
-                except KeyboardInterrupt:
-                    continue
-                except OSError as exc:
-                    if k != 1:  # (not the log)
-                        raise
-                    if summary is not None and "cannot be written" not in summary.message:
-                        note = f"the log {self.config.log_path} cannot be written ({exc.strerror or exc})"
-                        summary.message = f"error: {note}" if summary.exit_code == 0 else f"{summary.message}; {note}"
-                        summary.exit_code = summary.exit_code or 1
-                    break
+        _through_stops(self.controller.close)
+        try:
+            _through_stops(getattr(log, "close", None))
+        except OSError as exc:
+            if summary is not None and "cannot be written" not in summary.message:
+                note = f"the log {self.config.log_path} cannot be written ({exc.strerror or exc})"
+                summary.message = f"error: {note}" if summary.exit_code == 0 else f"{summary.message}; {note}"
+                summary.exit_code = summary.exit_code or 1
+        for part in (self.plant, self.sensor):
+            _through_stops(getattr(part, "close", None))
 
     def _open_log(self, plate: bool) -> tuple[Any, Any]:
         if not self.config.log_path:
