@@ -34,7 +34,7 @@ demo: $(DEMO_STAMP)
 
 # The suite on three worker processes (pytest-xdist; the Ray sweeps share one worker, so no two clusters start
 # at once). Three on 2 cores, because many tests wait on real time (a serial link, a board's timeouts, another
-# process) and the third keeps the cores busy meanwhile: about 9 minutes on 2 quiet cores (tests page).
+# process) and the third keeps the cores busy meanwhile: about 13 minutes on 2 cores (tests page).
 # `$(PY) -m pytest` alone runs it in one process.
 test: $(STAMP)
 	$(PY) -m pytest -q -n 3 --dist loadgroup
