@@ -1030,7 +1030,8 @@ def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(after_s: float, tm
     after they exist) or while they evaluate: one line, exit 130, no worker's traceback, no process left."""
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "compare", "pid", "lqr", "--episodes", "40",
                              "--workers", "2"], cwd=tmp_path, start_new_session=True, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "STEWART_GYM_PROGRESS_S": "86400"})  # fmt: skip
 
     def group() -> list[str]:
         return subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True).stdout.split()
