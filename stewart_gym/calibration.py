@@ -135,7 +135,8 @@ class ServoCalibration:
 
         α0 is the IK servo angle at home, and the channel limits are the pulses
         at the ends of the geometry's ``servo_angle_range`` (so they bound the
-        same travel).
+        same travel), within :data:`PULSE_LIMITS_US`: a travel wider than hobby
+        servos' pulses express is bounded by those pulses instead.
         """
         geo = load_geometry(geometry)
         if not geo.is_rotary:
@@ -147,12 +148,8 @@ class ServoCalibration:
         w_lo = w0 + d * (lo - home) * us_per_rad
         w_hi = w0 + d * (hi - home) * us_per_rad
         # Round outwards to 1e-6 µs so that the pulses at the travel's ends are inside.
-        lo_us = np.floor(np.minimum(w_lo, w_hi) * 1e6) / 1e6
-        hi_us = np.ceil(np.maximum(w_lo, w_hi) * 1e6) / 1e6
-        if np.any(lo_us <= 0):
-            raise CalibrationError(f"servo_angle_range of {geo.name!r}: {math.degrees(hi - lo):.0f}° of travel at "
-                                   f"{us_per_rad * math.pi / 180:.2f} µs/° from {neutral_us:g} µs needs pulses down to "
-                                   f"{float(lo_us.min()):.0f} µs: narrow it to the servo's real travel")  # fmt: skip
+        lo_us = np.maximum(np.floor(np.minimum(w_lo, w_hi) * 1e6) / 1e6, PULSE_LIMITS_US[0])
+        hi_us = np.minimum(np.ceil(np.maximum(w_lo, w_hi) * 1e6) / 1e6, PULSE_LIMITS_US[1])
         return cls(w0, d, home, np.full(6, us_per_rad), lo_us, hi_us)
 
     @classmethod
@@ -281,8 +278,13 @@ class ServoCalibration:
 
     @classmethod
     def from_toml(cls, path: str | Path, geometry: PlatformGeometry | str | None = None) -> ServoCalibration:
-        """Load a calibration TOML file (layout in :meth:`from_dict`)."""
-        return cls.from_dict(read_toml(path, CalibrationError, "calibration file"), geometry, source=str(path))
+        """Load a calibration TOML file (layout in :meth:`from_dict`). A relative ``geometry`` path inside the file
+        is read from the file's own folder, as ``calibrate`` writes it."""
+        data = read_toml(path, CalibrationError, "calibration file")
+        declared = data.get("geometry")
+        if isinstance(declared, str) and declared.endswith(".toml") and not Path(declared).is_absolute():
+            data["geometry"] = str(Path(path).parent / declared)
+        return cls.from_dict(data, geometry, source=str(path))
 
     def to_toml(self, geometry: PlatformGeometry | str | None = None) -> str:
         """TOML text that :meth:`from_toml` reads back to an equal calibration.

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from stewart_gym.calibration import ServoCalibration
+from stewart_gym.calibration import PULSE_LIMITS_US, ServoCalibration
 from stewart_gym.hardware.serial_controllers import ServoController
 
 __all__ = ["TrimResult", "calibration_toml", "find_trims"]
@@ -75,9 +75,12 @@ def find_trims(controller: ServoController, start: ServoCalibration, keys: Itera
             say(f"servo {servo}: trims {np.round(trims, 1).tolist()} µs")
         finished = True
     finally:
-        shift = nominal + trims - start.neutral_us  # the channel limits move with the neutral pulse
+        # the channel limits move with the neutral pulse, within any servo's (so that the file reads back)
+        shift = nominal + trims - start.neutral_us
+        lowest, highest = PULSE_LIMITS_US
         cal = ServoCalibration(nominal + trims, start.direction, start.home_angle, start.us_per_rad,
-                               np.round(start.min_us + shift, DECIMALS), np.round(start.max_us + shift, DECIMALS),
+                               np.round(np.maximum(start.min_us + shift, lowest), DECIMALS),
+                               np.round(np.minimum(start.max_us + shift, highest), DECIMALS),
                                start.channels, start.actuator)  # fmt: skip
         if finished:
             controller.send(np.clip(cal.neutral_us, cal.min_us, cal.max_us))  # rest at the new neutral

@@ -1221,6 +1221,36 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
     assert out.read_text() == text
 
 
+
+def test_calibrate_keeps_every_limit_within_any_servos_pulses(device: FakeDevice, tmp_path: Path) -> None:
+    """A build whose servos travel further than hobby servos' pulses express (here 1500 µs ± 1,170 µs), trimmed
+    200 µs down: the file calibrate writes holds limits within 400–2600 µs, so that it reads back and drives
+    deploy (it could not be read back before)."""
+    from stewart_gym.calibration import PULSE_LIMITS_US, ServoCalibration
+    from stewart_gym.presets import load_preset
+
+    wide = tmp_path / "wide.toml"
+    wide.write_text(re.sub(r"servo_angle_range = \[[^]]*\]", "servo_angle_range = [-2.0, 2.6]",
+                           load_preset("servo-hexapod").to_toml()))  # fmt: skip
+    drain = Drain(device)
+    out = tmp_path / "cal.toml"
+    proc = sg("calibrate", "--geometry", str(wide), "--port", device.path, "--protocol", "maestro", "--step", "50",
+              "--out", str(out), stdin="-\n-\n-\n-\nq\n", cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert proc.returncode == 0, proc.stderr
+    cal = ServoCalibration.from_toml(out)
+    assert cal.neutral_us[0] == pytest.approx(1300.0) and cal.neutral_us[1] == pytest.approx(1500.0)
+    lowest, highest = PULSE_LIMITS_US
+    untrimmed = ServoCalibration.default(str(wide))  # what calibrate starts from
+    assert untrimmed.min_us.min() == lowest and untrimmed.max_us.max() == highest
+    assert cal.min_us.min() == lowest and cal.max_us.max() == highest  # bounded there, not beyond
+    assert np.all(cal.min_us < cal.neutral_us) and np.all(cal.neutral_us < cal.max_us)
+    board = Board(device)
+    deploy = sg("deploy", "--policy", "pid", "--geometry", str(wide), "--calibration", str(out), "--duration", "0.2",
+                "--log", str(tmp_path / "l.csv"), cwd=tmp_path)  # fmt: skip
+    board.stop()
+    assert deploy.returncode == 0, deploy.stderr
+
 # ------------------------------------------- pose- and pulse-mode policies
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["pose", "pulse"])
