@@ -252,8 +252,8 @@ def register(sub: Any) -> None:
                    help="moving target of a track policy (default: the one it was trained on)")  # fmt: skip
     p.add_argument("--log", help="CSV log (default out/deploy_log_<date>-<time>.csv; never overwritten without --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="allow --log to replace an existing file")
-    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), default=0, help="simulated plant's seed (--sensor sim)")
-    p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant")
+    p.add_argument("--seed", type=int_at_least(0, MAX_SEED), help="simulated plant's seed (--sensor sim; default 0)")
+    p.add_argument("--no-randomize", action="store_true", help="nominal simulated plant (--sensor sim)")
     add_twin(p, "the simulated plant is this twin's platform, exactly (--sensor sim)")
     p.add_argument("--write-only", action="store_true",
                    help="the board's replies are not wired: do not ask it anything (a board that stops reading "

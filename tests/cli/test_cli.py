@@ -721,6 +721,10 @@ WRONG_BLAME = [
      "Traceback"),
     (["deploy", "--twin", "{files}/notes.txt", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--twin describes the simulated plant: it needs --sensor sim", "notes.txt"),
+    (["deploy", "--seed", "3", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
+     "--seed sets the simulated plant: it needs --sensor sim", "serial device"),
+    (["deploy", "--no-randomize", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
+     "--no-randomize sets the simulated plant: it needs --sensor sim", "serial device"),
 ]  # fmt: skip
 
 
