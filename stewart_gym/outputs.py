@@ -59,7 +59,8 @@ def _writable_dir(folder: Path) -> None:
             break
         existing = existing.parent
     if not existing.is_dir():
-        raise ConfigError(f"{folder}: {existing} is a file, not a folder")
+        raise ConfigError(f"{existing} is a file, not a folder" if existing == folder
+                          else f"{folder}: {existing} is a file, not a folder")  # fmt: skip
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ConfigError(f"{folder}: no permission to write in {existing}")
 

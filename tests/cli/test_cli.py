@@ -721,6 +721,8 @@ WRONG_BLAME = [
      "Traceback"),
     (["deploy", "--twin", "{files}/notes.txt", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--twin describes the simulated plant: it needs --sensor sim", "notes.txt"),
+    (["render", "0", "0", "0", "0", "0", "0", "--out", "{files}/notes.txt/x.png"], "notes.txt is a file, not a folder",
+     "notes.txt: "),  # (said once)
     (["deploy", "--seed", "3", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--seed sets the simulated plant: it needs --sensor sim", "serial device"),
     (["deploy", "--no-randomize", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
