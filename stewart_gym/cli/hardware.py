@@ -42,6 +42,9 @@ def cmd_deploy(args: argparse.Namespace) -> int:
 
     if args.twin and args.sensor != "sim":  # before the file is read: it has no use here
         raise ConfigError("--twin describes the simulated plant: it needs --sensor sim")
+    if args.sensor != "sim" and (args.seed is not None or args.no_randomize):
+        raise ConfigError(f"{'--seed' if args.seed is not None else '--no-randomize'} sets the simulated plant: it "
+                          "needs --sensor sim (a real platform has no seed)")  # fmt: skip
     source = resolve_policy(args.policy, args.env, args.geometry, args.estimator)
     policy = deployable_policy(source)
     if args.env and policy.env_id != args.env:
@@ -54,7 +57,7 @@ def cmd_deploy(args: argparse.Namespace) -> int:
                             camera_config=args.camera_config, calibration=args.calibration, backend=args.backend,
                             rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
                             max_step_us=args.max_step_us, trajectory=args.trajectory, log=args.log,
-                            overwrite=args.overwrite, seed=args.seed, randomize=not args.no_randomize,
+                            overwrite=args.overwrite, seed=args.seed or 0, randomize=not args.no_randomize,
                             write_only=args.write_only, answer_timeout_s=args.answer_timeout_ms / 1000,
                             twin=twin_tables(args.twin))  # fmt: skip
     setup = DeploySetup(policy, options, say=lambda line: print(line, flush=True))

@@ -146,8 +146,8 @@ class DeployOptions:
     trajectory: str | None = None
     log: str | None = None
     overwrite: bool = False
-    seed: int | None = None  # the simulated plant's (--sensor sim; None: 0)
-    randomize: bool = True  # the simulated plant's (--sensor sim)
+    seed: int = 0
+    randomize: bool = True
     write_only: bool = False
     answer_timeout_s: float = ANSWER_TIMEOUT_S
     twin: dict | None = None  # the simulated plant's platform (--sensor sim): a twin's tables
@@ -183,9 +183,6 @@ class DeploySetup:
             raise ConfigError("--backend chooses the simulated plant's engine: it needs --sensor sim")
         elif options.twin is not None:
             raise ConfigError("--twin describes the simulated plant: it needs --sensor sim")
-        elif options.seed is not None or not options.randomize:
-            raise ConfigError(f"{'--seed' if options.seed is not None else '--no-randomize'} sets the simulated "
-                              "plant: it needs --sensor sim (a real platform has no seed)")  # fmt: skip
         if options.sensor == "camera":
             if not options.camera_config:
                 raise ConfigError("--sensor camera needs --camera-config FILE (see stewart-gym camera-check)")
@@ -237,7 +234,7 @@ class DeploySetup:
 
             return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
         if o.sensor == "sim":
-            return SimulatedPlant(self.policy.env_id, seed=o.seed or 0, randomize=o.randomize, geometry=self.policy.geometry,
+            return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize, geometry=self.policy.geometry,
                                   backend=o.backend or "auto", twin=o.twin)  # fmt: skip
         return None
 
