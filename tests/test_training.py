@@ -373,8 +373,8 @@ def test_a_demo_stopped_while_it_draws_leaves_its_folder_as_it_was(tmp_path: Pat
         (out / name).write_text("the last run's\n")
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "demo", "--episodes", "2", "--workers", "1", "--out",
                              str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1", "STEWART_GYM_PROGRESS_S": "86400"})  # no progress line  # fmt: skip
+                            start_new_session=True,  # no progress line: a slow machine's would come first
+                            env={**os.environ, "PYTHONUNBUFFERED": "1", "STEWART_GYM_PROGRESS_S": "86400"})  # fmt: skip
     try:
         for line in proc.stdout:  # the last paired table's heading: the figures' episode (seconds) comes next
             if line.startswith("shipped-residual − lqr, seed by seed"):
