@@ -14,10 +14,10 @@ from stewart_gym.control import CLASSICAL, classical_controller, shipped_design
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = Parser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--controller", choices=sorted(CLASSICAL), default="lqr")
-    parser.add_argument("--episodes", type=int_at_least(1), default=5)
-    parser.add_argument("--seed", type=int_at_least(0), default=0)
+    parser = Parser.for_script(__doc__)
+    parser.add_argument("--controller", choices=sorted(CLASSICAL), default="lqr", help="which controller")
+    parser.add_argument("--episodes", type=int_at_least(1), default=5, help="seeded episodes")
+    parser.add_argument("--seed", type=int_at_least(0), default=0, help="the first episode's seed")
     args = parser.parse_args(argv)
 
     kind, _, estimator = CLASSICAL[args.controller]  # the observer it was tuned behind: lowpass or kalman

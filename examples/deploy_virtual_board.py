@@ -22,7 +22,7 @@ from stewart_gym.outputs import output_file
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser = Parser.for_script(__doc__)
     parser.add_argument("--policy", default="shipped", help="a shipped name, a bundle or a run folder")
     parser.add_argument("--duration", type=positive_float, default=10.0, help="seconds")
     parser.add_argument("--log", help="the run's log, a row per tick (default: a new out/deploy_log_<date>-<time>.csv)")

@@ -38,7 +38,7 @@ platform_pair_angle = {platform_pair_angle}
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser = Parser.for_script(__doc__)
     parser.add_argument("--base-radius", type=float, default=110.0, help="servo shafts' circle, mm")
     parser.add_argument("--base-pair-angle", type=float, default=30.0, help="between a pair's shafts, degrees")
     parser.add_argument("--platform-radius", type=float, default=85.0, help="rod ends' circle on the plate, mm")
@@ -46,7 +46,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--horn", type=float, default=25.0, help="horn length, mm")
     parser.add_argument("--rod", type=float, default=170.0, help="rod length, mm")
     parser.add_argument("--plate", type=float, default=320.0, help="square plate's side, mm")
-    parser.add_argument("--episodes", type=int_at_least(1), default=3)
+    parser.add_argument("--episodes", type=int_at_least(1), default=3, help="episodes of the balancing check")
     parser.add_argument("--out", default="out/my_platform.toml", help="the geometry file to write")
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     args = parser.parse_args(argv)

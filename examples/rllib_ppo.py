@@ -22,11 +22,11 @@ ENV_ID = "stewart_gym:StewartBallBalance-v0"
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser = Parser.for_script(__doc__)
     parser.add_argument("--iterations", type=int_at_least(1), default=50, help="training iterations")
     parser.add_argument("--batch", type=int_at_least(1), default=4000, help="env steps per iteration")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")
-    parser.add_argument("--seed", type=int_at_least(0), default=0)
+    parser.add_argument("--seed", type=int_at_least(0), default=0, help="random seed")
     args = parser.parse_args(argv)
     # docs: config start (docs/src/libraries.md shows the lines to the end mark; a test keeps them equal)
     config = (

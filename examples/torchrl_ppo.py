@@ -31,11 +31,11 @@ def mlp(n_in: int, n_out: int) -> nn.Sequential:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser = Parser.for_script(__doc__)
     parser.add_argument("--frames", type=int_at_least(1), default=200_000, help="env steps in all")
     parser.add_argument("--batch", type=int_at_least(1), default=2048, help="env steps per update")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes at the end")
-    parser.add_argument("--seed", type=int_at_least(0), default=0)
+    parser.add_argument("--seed", type=int_at_least(0), default=0, help="random seed")
     args = parser.parse_args(argv)
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its set-up notes; this script prints its own lines
     torch.manual_seed(args.seed)

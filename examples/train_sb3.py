@@ -23,10 +23,10 @@ ENV_KWARGS = {"randomize": True, "estimator": "kalman", "rate_penalty": 10.0}
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = Parser(description=__doc__.split("\n\n")[0])
+    parser = Parser.for_script(__doc__)
     parser.add_argument("--timesteps", type=int_at_least(1), default=150_000, help="env steps to train for")
     parser.add_argument("--episodes", type=int_at_least(1), default=10, help="evaluation episodes")
-    parser.add_argument("--seed", type=int_at_least(0), default=0)
+    parser.add_argument("--seed", type=int_at_least(0), default=0, help="random seed")
     args = parser.parse_args(argv)
 
     env = VecNormalize(make_vec_env(ENV_ID, n_envs=2, seed=args.seed, env_kwargs=ENV_KWARGS), gamma=0.98)

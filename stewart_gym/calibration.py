@@ -1,4 +1,4 @@
-"""Servo calibration: servo angles ↔ pulse widths (seed 000, eqs 13/14).
+"""Servo calibration: servo angles ↔ pulse widths (source 000, eqs 13/14).
 
 ``W_i = W0_i + d_i · (α_i − α0_i) · r_i``
 
@@ -35,9 +35,9 @@ __all__ = ["HARDWARE_FIELDS", "LINEAR_FIELDS", "LINEAR_SERVO_FIELDS", "PULSE_LIM
            "ROTARY_SERVO_FIELDS", "DEFAULT_DIRECTIONS", "DEFAULT_US_PER_RAD", "CalibrationError", "PulseRangeError",
            "ServoCalibration", "hardware_settings"]
 
-#: 400 µs per 45° (seed 000).
+#: 400 µs per 45° (source 000).
 DEFAULT_US_PER_RAD = 1600.0 / math.pi
-#: Odd servos mounted mirrored (seed 000, eqs 13/14).
+#: Odd servos mounted mirrored (source 000, eqs 13/14).
 DEFAULT_DIRECTIONS = (1, -1, 1, -1, 1, -1)
 
 #: The keys of a calibration file (TOML): top level and each ``[[servo]]`` table, for rotary servos and for
@@ -131,7 +131,7 @@ class ServoCalibration:
         us_per_rad: float = DEFAULT_US_PER_RAD,
         direction: tuple[int, ...] = DEFAULT_DIRECTIONS,
     ) -> ServoCalibration:
-        """Seed 000's mapping for a rotary geometry.
+        """Source 000's mapping for a rotary geometry.
 
         α0 is the IK servo angle at home, and the channel limits are the pulses
         at the ends of the geometry's ``servo_angle_range`` (so they bound the

@@ -7,7 +7,7 @@ exist:
   horn of length ``horn_length`` (a) in a vertical plane at angle ``servo_beta``
   (β_i) to the x-axis; a rod of length ``rod_length`` (s) joins the horn tip to
   the platform anchor p_i. Actuator limits are ``servo_angle_range`` (α, rad,
-  measured from the horizontal, eq. 9 of seed 000).
+  measured from the horizontal, eq. 9 of source 000).
 * **linear** (6-UPS): six extensible legs from b_i to p_i. ``rod_length`` is the
   fixed (fully retracted) part of a leg, so the actuator stroke is
   ``|l_i| - rod_length``. Actuator limits are ``leg_length_range`` (m, the whole
@@ -115,10 +115,10 @@ def _readonly(a: np.ndarray) -> np.ndarray:
 def home_height_eq10(
     base_anchors: np.ndarray, platform_anchors: np.ndarray, horn_length: float, rod_length: float
 ) -> np.ndarray:
-    """Home height of each leg by eq. 10 of seed 000, shape (6,), metres.
+    """Home height of each leg by eq. 10 of source 000, shape (6,), metres.
 
     h0 = sqrt(s² + a² − (x_p − x_b)² − (y_p − y_b)²) − z_p + z_b, the height at
-    which horn and rod are at right angles (|l|² = s² + a²). Seed 000 takes
+    which horn and rod are at right angles (|l|² = s² + a²). Source 000 takes
     z_b = 0; the + z_b term keeps the definition for servos mounted above the
     base plane. NaN where no such height exists.
     """

@@ -1,4 +1,4 @@
-"""Batched inverse and forward kinematics of a Stewart platform (seed 000).
+"""Batched inverse and forward kinematics of a Stewart platform (source 000).
 
 Conventions (the docs: Conventions and presets):
 
@@ -6,7 +6,7 @@ Conventions (the docs: Conventions and presets):
   The translation is measured from home ``(0, 0, h0)``.
 * ``R = Rz(yaw) · Ry(pitch) · Rx(roll)`` (eq. 1).
 * With a ``pivot`` c (3,), the point of the platform frame about which the
-  platform turns (seed 002's point of interest), platform anchor i sits at
+  platform turns (source 002's point of interest), platform anchor i sits at
   ``q_i = (0, 0, h0) + (x, y, z) + c + R · (p_i − c)`` in the base frame, and the
   leg vector is ``l_i = q_i − b_i`` (eq. 3). ``pivot=None`` means c = 0.
 * Servo angle α_i (eq. 9, in its one consistent form, see the docs: Sources):
@@ -483,7 +483,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
         geometry: The platform.
         pose: (..., 6) (x, y, z, roll, pitch, yaw), m and rad, translation from home.
         pivot: (3,) m, the point in the platform frame about which the platform
-            rotates (seed 002's point of interest); default the platform origin.
+            rotates (source 002's point of interest); default the platform origin.
 
     Returns:
         An :class:`IKResult`. Unreachable poses are flagged (``reachable`` False,

@@ -38,7 +38,7 @@ def servo_hexapod() -> PlatformGeometry:
     an 80 mm radius at ±8° about the same angles. The home height follows from
     eq. 10 (h0 = 159.61 mm) and the home servo angle from eq. 12
     (α0 = 17.14°, horn slightly raised). Servo travel is ±45° about α0
-    (±400 µs at 1600/π µs/rad), as in seed 000. Reachable from home along one
+    (±400 µs at 1600/π µs/rad), as in source 000. Reachable from home along one
     axis: x ±45.7 mm, y −53.3/+44.2 mm, z −18.5/+18.0 mm, roll −13.7/+13.0°,
     pitch ±13.7°, yaw ±32.5°; cond(J) = 42.8 at home.
     """
@@ -119,7 +119,7 @@ def memememe_liverpool() -> PlatformGeometry:
 
 
 def senilov2018() -> PlatformGeometry:
-    """Seed 001: a 6-UPS platform with linear actuators (Senilov, 2018).
+    """Source 001: a 6-UPS platform with linear actuators (Senilov, 2018).
 
     Base anchors on Rb = 0.5 m, platform anchors on Rt = 0.2 m, half-angle 10°,
     the base anchors lifted 0.02 m by the static link. Home height 0.25 m. The
@@ -133,13 +133,13 @@ def senilov2018() -> PlatformGeometry:
         rod_length=0.2,
         home_height=0.25,
         leg_length_range=(0.2, 0.5),
-        description="Seed 001 (Senilov 2018): 6-UPS, Rb=0.5 m, Rt=0.2 m, stroke 0..0.3 m; 500 mm plate.",
+        description="Source 001 (Senilov 2018): 6-UPS, Rb=0.5 m, Rt=0.2 m, stroke 0..0.3 m; 500 mm plate.",
         plate_size=(0.500, 0.500),
     )
 
 
 def mathcad_micro() -> PlatformGeometry:
-    """Seed 002: the Mathcad sheet's 22 mm micro platform.
+    """Source 002: the Mathcad sheet's 22 mm micro platform.
 
     Anchor tables in mm converted to m; home height z_mid = 22.19 mm; legs
     31.44 mm ± 1.24 mm, so a leg spans 30.20…32.68 mm and the fixed part is
@@ -156,7 +156,7 @@ def mathcad_micro() -> PlatformGeometry:
         rod_length=(31.44 - 1.24) * MM,
         home_height=22.19 * MM,
         leg_length_range=((31.44 - 1.24) * MM, (31.44 + 1.24) * MM),
-        description="Seed 002 (Mathcad micro platform): legs 31.44 ± 1.24 mm, z_mid 22.19 mm; 30 mm plate.",
+        description="Source 002 (Mathcad micro platform): legs 31.44 ± 1.24 mm, z_mid 22.19 mm; 30 mm plate.",
         plate_size=(0.030, 0.030),
     )
 
@@ -211,8 +211,10 @@ def check_home(geometry: PlatformGeometry, source: str) -> None:
     home = inverse_kinematics(geometry, np.zeros(6))
     values = np.asarray(home.actuators, dtype=np.float64)
     if not np.all(np.isfinite(values)):
-        raise GeometryError(f"{source}: home_height: the chains cannot close at home (no {what} reach it): "
-                            "check home_height, rod_length and the anchors")  # fmt: skip
+        horn = ", horn_length" if geometry.is_rotary else ""
+        raise GeometryError(f"{source}: the chains cannot close at home, {1e3 * geometry.home_height:.1f} mm up (no "
+                            f"{what} reach it): check rod_length{horn}, the anchors and home_height (given, or computed "
+                            "from them where it is left out)")  # fmt: skip
     lo, hi = travel
     tolerance = 1e-9 * max(1.0, abs(lo), abs(hi))
     outside = np.flatnonzero((values < lo - tolerance) | (values > hi + tolerance))

@@ -65,7 +65,7 @@ def preset(request: pytest.FixtureRequest) -> PlatformGeometry:
 
 
 def reference_rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Rz(yaw)·Ry(pitch)·Rx(roll) from the three elementary matrices of seed 000."""
+    """Rz(yaw)·Ry(pitch)·Rx(roll) from the three elementary matrices of source 000."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
@@ -76,7 +76,7 @@ def reference_rotation(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 
 def reference_servo_angles(geo: PlatformGeometry, pose: np.ndarray, pivot: np.ndarray | None = None) -> np.ndarray:
-    """Seed 000 eq. 9 literally, one pose and one leg at a time: asin(L/√(M²+N²)) − atan2(N, M)."""
+    """Source 000 eq. 9 literally, one pose and one leg at a time: asin(L/√(M²+N²)) − atan2(N, M)."""
     c = np.zeros(3) if pivot is None else np.asarray(pivot)
     rot = reference_rotation(*pose[3:])
     out = np.empty(6)

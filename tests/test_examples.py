@@ -52,7 +52,9 @@ def test_the_examples_refuse_bad_input_in_one_line_and_keep_files(tmp_path: Path
     cases = [("classical_controller", ["--episodes", "0"], "--episodes: '0' must be at least 1"),
              ("own_platform", ["--out", str(tmp_path / "mine.toml")], "mine.toml exists; give another name or --overwrite"),
              ("own_platform", ["--rod", "10", "--out", str(tmp_path / "bad.toml")],
-              f"{tmp_path / 'bad.toml'}: home_height: the chains cannot close"),
+              f"{tmp_path / 'bad.toml'}: the chains cannot close at home, "),  # its rods, not a home_height it
+             # was never given, come first:
+             ("own_platform", ["--rod", "20", "--out", str(tmp_path / "bad.toml")], "check rod_length, horn_length"),
              ("own_platform", ["--rod", "1e308", "--out", str(tmp_path / "huge.toml")], "larger than any build"),
              ("deploy_virtual_board", ["--duration", "-1"], "--duration: '-1' must be greater than 0"),
              ("deploy_virtual_board", ["--log", str(tmp_path / "mine.toml")], "expected a file name ending in .csv")]

@@ -48,7 +48,7 @@ def test_rotation_derivatives_match_finite_differences() -> None:
         assert d[:, k] == pytest.approx((plus - minus) / (2 * h), abs=1e-9)
 
 
-# ------------------------------------------------------------------- seed 002
+# ------------------------------------------------------------------- source 002
 def test_seed_002_leg_vectors_with_pivot() -> None:
     """Mathcad sheet: vec_leg and leg_len − leg_mid at home with offset (10, 0, 10) mm."""
     g = load_preset("mathcad-micro")
@@ -63,7 +63,7 @@ def test_seed_002_leg_vectors_with_pivot() -> None:
     assert ik.reachable  # the sheet's check says "OK"
 
 
-# ------------------------------------------------------------------- seed 001
+# ------------------------------------------------------------------- source 001
 def test_seed_001_example_exceeds_stroke() -> None:
     """x = 0.2 m from the 0.25 m home: the report notes the stroke is exceeded."""
     g = load_preset("senilov2018")
@@ -91,7 +91,7 @@ def test_seed_001_example_exceeds_stroke() -> None:
     assert text.count("above the upper") == 1  # one reason, said once for its legs
 
 
-# ------------------------------------------------------------------- seed 000
+# ------------------------------------------------------------------- source 000
 @pytest.mark.parametrize("name", ["servo-hexapod", "memememe-liverpool"])
 def test_seed_000_home_relations(name: str) -> None:
     """At eq. 10's home height, |l|² = s² + a², horn ⊥ rod, and α0 follows eq. 12."""
@@ -248,7 +248,7 @@ def test_fk_reports_failure_instead_of_a_wrong_pose() -> None:
 
 
 def hand_vectorised_servo_ik(geo: PlatformGeometry, poses: np.ndarray) -> np.ndarray:
-    """Seed 000 eq. 9 vectorised by hand, as a careful user would write it with numpy: each rotation entry an (n,
+    """Source 000 eq. 9 vectorised by hand, as a careful user would write it with numpy: each rotation entry an (n,
     1) column, each anchor coordinate broadcast against it, (n, 6) arrays throughout (the reference the batched IK
     is timed against)."""
     x, y, z, r, p, w = (c[:, None] for c in poses.T)

@@ -1,4 +1,4 @@
-"""Forward kinematics of the planar 3-RPR platform (seed 004; Sauer, *Numerical Analysis*, Reality Check 1).
+"""Forward kinematics of the planar 3-RPR platform (source 004; Sauer, *Numerical Analysis*, Reality Check 1).
 
 Base anchors at (0, 0), (x1, 0), (x2, y2). The moving triangle has its first
 vertex at (x, y); side L3 leaves it at angle θ and side L2 at angle θ + γ; L1 is

@@ -22,7 +22,7 @@ def _plt() -> Any:
 
 
 def plot_height_map(hm: Any, path: str | Path, title: str) -> None:
-    """Largest and smallest reachable z over the x–y grid, as filled contours (seed 002's chart)."""
+    """Largest and smallest reachable z over the x–y grid, as filled contours (source 002's chart)."""
     plt = _plt()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
     for ax, data, label in ((axes[0], hm.z_max, "largest reachable z"), (axes[1], hm.z_min, "smallest reachable z")):

@@ -1,4 +1,4 @@
-"""How precisely a servo platform can be placed (seed 003), and how well conditioned it is.
+"""How precisely a servo platform can be placed (source 003), and how well conditioned it is.
 
 For a pose with actuator Jacobian J = ∂α/∂pose (:func:`~stewart_gym.kinematics.actuator_jacobian`),
 the forward Jacobian F = J⁻¹ gives the platform motion for servo steps: one
@@ -6,7 +6,7 @@ servo i stepping by Δα moves the pose by F[:, i]·Δα. The *resolution* per a
 the largest such motion over the six servos; the worst case when every servo
 may be off by Δα at once is Σ_i |F[k, i]|·Δα.
 
-Seed 003 estimates the motion as the horn tip's arc, a·Δα (a small-angle
+Source 003 estimates the motion as the horn tip's arc, a·Δα (a small-angle
 estimate that ignores the linkage's leverage); :func:`sensitivity` reports both.
 
 Conditioning: cond(J·S) with S = diag(1, 1, 1, 1/Lc, 1/Lc, 1/Lc) and Lc the
@@ -48,7 +48,7 @@ class SensitivityResult:
         angle_step: (...,) rad, largest rotation caused by one servo step.
         all_servos: (..., 6) worst case with every servo off by the step.
         step: rad, the servo step.
-        small_angle_estimate: m, seed 003's a·Δα.
+        small_angle_estimate: m, source 003's a·Δα.
     """
 
     reachable: np.ndarray
@@ -83,7 +83,7 @@ def _forward_jacobian(geometry: PlatformGeometry, poses: np.ndarray) -> tuple[np
 
 
 def sensitivity(geometry: PlatformGeometry, poses: np.ndarray, step: float = math.radians(0.1)) -> SensitivityResult:
-    """Platform motion for a servo step of ``step`` rad (default 0.1°, seed 003's servo resolution) at ``poses``."""
+    """Platform motion for a servo step of ``step`` rad (default 0.1°, source 003's servo resolution) at ``poses``."""
     if not geometry.is_rotary:
         raise GeometryError(f"geometry {geometry.name!r} is linear: servo sensitivity needs a rotary platform")
     poses = np.asarray(poses, dtype=np.float64)

@@ -43,7 +43,7 @@ def aggressive_moves(geometry: PlatformGeometry, rate_hz: float = 50.0, *, fract
 
 def circle(radius: float = 0.2, samples: int = 1000, turns: float = 1.0, z: float = 0.0,
            duration_s: float = 40.0) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Seed 001's circular motion: (t (n,) s, poses (n, 6)), x = r cos φ, y = r sin φ at height z from home."""
+    """Source 001's circular motion: (t (n,) s, poses (n, 6)), x = r cos φ, y = r sin φ at height z from home."""
     t = np.linspace(0.0, duration_s, samples)
     phi = 2 * math.pi * turns * t / duration_s
     poses = np.zeros((samples, 6))

@@ -15,7 +15,7 @@ __all__ = ["HeightMap", "height_map", "reachable_volume"]
 
 @dataclass(frozen=True)
 class HeightMap:
-    """Largest and smallest reachable z over an x–y grid at a fixed orientation (seed 002's contour chart).
+    """Largest and smallest reachable z over an x–y grid at a fixed orientation (source 002's contour chart).
 
     Attributes:
         x, y: (nx,), (ny,) m, grid coordinates (translation from home).
@@ -43,7 +43,7 @@ def scan_poses(cells: int, levels: int, stride: int = 16) -> int:
 def height_map(geometry: PlatformGeometry, orientation: tuple[float, float, float] = (0.0, 0.0, 0.0),
                pivot: np.ndarray | None = None, *, x: np.ndarray, y: np.ndarray, z_levels: np.ndarray,
                stride: int = 16) -> HeightMap:  # fmt: skip
-    """Highest and lowest reachable level of ``z_levels`` at each (x, y), like seed 002's Check(x, y).
+    """Highest and lowest reachable level of ``z_levels`` at each (x, y), like source 002's Check(x, y).
 
     Vectorised over the whole grid: the levels are scanned every ``stride``-th
     one, then the boundary between the last reachable and the next scanned

@@ -25,8 +25,8 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.presets import load_geometry
 from stewart_gym.tomlio import read_toml
 
-#: Seed 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
-SEED_003_RANGES_MM = (25.0, 28.0, 15.0)
+#: Source 003's built platform reached about ±25, ±28, ±15 mm in x, y, z.
+SOURCE_003_RANGES_MM = (25.0, 28.0, 15.0)
 #: mm: the largest length or position the analysis commands take (10 m, as a geometry's own lengths).
 MAX_MM = 10_000.0
 #: The largest planar parameter (a length in the file's own unit; gamma is within a turn): beyond it the planar
@@ -57,7 +57,7 @@ def _grid_extent(geo: Any) -> tuple[float, float]:
 
 
 def cmd_workspace(args: argparse.Namespace) -> int:
-    """Reach along each axis, the reachable-z map over x–y (seed 002) and sampled workspace volumes."""
+    """Reach along each axis, the reachable-z map over x–y (source 002) and sampled workspace volumes."""
     from stewart_gym.analysis.plots import plot_height_map
     from stewart_gym.analysis.workspace import MAX_SCAN_POSES, height_map, reachable_volume, scan_poses
     from stewart_gym.kinematics import axis_ranges
@@ -96,10 +96,10 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     for k, (axis, unit, scale) in enumerate([("x", "mm", 1e3), ("y", "mm", 1e3), ("z", "mm", 1e3),
                                              ("roll", "°", 180 / math.pi), ("pitch", "°", 180 / math.pi),
                                              ("yaw", "°", 180 / math.pi)]):  # fmt: skip
-        extra = f"   (seed 003's build: ±{SEED_003_RANGES_MM[k]:.0f} mm)" if geo.name == "servo-hexapod" and k < 3 else ""
+        extra = f"   (source 003's build: ±{SOURCE_003_RANGES_MM[k]:.0f} mm)" if geo.name == "servo-hexapod" and k < 3 else ""
         lines.append(f"  {axis:5s} {reach[k, 0] * scale:9.2f} … {reach[k, 1] * scale:8.2f} {unit}{extra}")
     if geo.name == "servo-hexapod":
-        res["seed_003_ranges_mm"] = SEED_003_RANGES_MM
+        res["source_003_ranges_mm"] = SOURCE_003_RANGES_MM
     hmr = res["height_map"]
     if hmr["max_z_mm"] is None:
         lines.append(f"reachable z over a {args.n}×{args.n} grid of ±{xy_ext * 1e3:.1f} mm: no height of the grid is "
@@ -117,7 +117,7 @@ def cmd_workspace(args: argparse.Namespace) -> int:
 
 
 def cmd_trajectory(args: argparse.Namespace) -> int:
-    """Run a trajectory (seed 001's circle or a CSV of poses) through the IK against the limits."""
+    """Run a trajectory (source 001's circle or a CSV of poses) through the IK against the limits."""
     from stewart_gym.analysis.plots import plot_trajectory
     from stewart_gym.analysis.trajectories import circle, load_pose_csv, trajectory_check
 
@@ -141,7 +141,7 @@ def cmd_trajectory(args: argparse.Namespace) -> int:
 
 
 def cmd_sensitivity(args: argparse.Namespace) -> int:
-    """Platform motion per servo step (seed 003) over the x–y workspace; Jacobian cross-checked by FK."""
+    """Platform motion per servo step (source 003) over the x–y workspace; Jacobian cross-checked by FK."""
     from stewart_gym.analysis.plots import plot_sensitivity
     from stewart_gym.analysis.sensitivity import fd_check, sensitivity, xy_grid_poses
 
@@ -165,7 +165,7 @@ def cmd_sensitivity(args: argparse.Namespace) -> int:
              f"  all six off by the step: x, y, z up to {np.round(worst['worst_all_servos_xyz_mm'], 4).tolist()} mm, "
              f"roll, pitch, yaw up to {np.round(worst['worst_all_servos_rpy_deg'], 4).tolist()}°",
              f"  least precise at x, y = {out['least_precise_xy_mm']} mm",
-             f"  seed 003's small-angle estimate a·Δα = {worst['small_angle_estimate_mm']:.4f} mm",
+             f"  source 003's small-angle estimate a·Δα = {worst['small_angle_estimate_mm']:.4f} mm",
              f"  Jacobian vs finite differences through FK: relative error {fd:.2e}"]  # fmt: skip
     if args.plot:
         plot_sensitivity(grid, grid, res.position_step, res.angle_step, args.plot,
@@ -240,7 +240,7 @@ def _sweep_spec(text: str) -> tuple[str, float, float, int]:
 
 
 def cmd_planar(args: argparse.Namespace) -> int:
-    """All poses of the planar 3-RPR platform (seed 004), optionally sweeping one strut."""
+    """All poses of the planar 3-RPR platform (source 004), optionally sweeping one strut."""
     from stewart_gym.analysis.planar import planar_continua, solve_planar, sweep_strut
     from stewart_gym.analysis.plots import plot_planar, plot_sweep
 
@@ -337,14 +337,14 @@ def register(sub: Any) -> None:
     _common(p, "senilov2018")
     p.add_argument("--csv", help="poses: t_s, x_m|x_mm, …, roll_rad|roll_deg, …")
     p.add_argument("--radius", type=bounded_float(0.0, MAX_MM, lo_open=True), default=200.0,
-                   help="circle radius, mm (seed 001: 200)")  # fmt: skip
+                   help="circle radius, mm (source 001: 200)")  # fmt: skip
     p.add_argument("--z", type=bounded_float(-MAX_MM, MAX_MM), default=0.0, help="circle height from home, mm")
     p.add_argument("--samples", type=int_at_least(2, 10_000_000), default=1000, help="poses along the circle")
     p.set_defaults(func=cmd_trajectory)
     p = sub.add_parser("sensitivity", help=cmd_sensitivity.__doc__, description=cmd_sensitivity.__doc__)
     _common(p, "servo-hexapod")
     p.add_argument("--step-deg", type=bounded_float(0.0, 10.0, lo_open=True), default=0.1,
-                   help="servo step, degrees (seed 003: 0.1)")  # fmt: skip
+                   help="servo step, degrees (source 003: 0.1)")  # fmt: skip
     p.add_argument("--n", type=int_at_least(2, 1000), default=61, help="grid points per axis of the x–y grid")
     p.add_argument("--fd-samples", type=int_at_least(1, 100_000), default=100,
                    help="poses for the finite-difference check")  # fmt: skip

@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -65,12 +66,32 @@ def exit_code_table() -> str:
     return "\n".join(["| exit code | meaning |", "|---|---|"] + [f"| {c} | {t} |" for c, t in EXIT_CODES.items()])
 
 
+class _DefaultsShown(argparse.HelpFormatter):
+    """Each option's help ends with its default, where it has one (not None or False) that the help does not
+    give already."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if (action.default is None or action.default is False or action.default == argparse.SUPPRESS
+                or "default" in text or not action.option_strings):  # fmt: skip
+            return text
+        return f"{text} (default: %(default)s)" if text else "default: %(default)s"
+
+
 class Parser(argparse.ArgumentParser):
     """An ``ArgumentParser`` whose usage errors are one line, ``error: …``, and exit code 1."""
 
     def error(self, message: str) -> NoReturn:
         sys.stderr.write(f"error: {self.prog}: {message} (see {self.prog} --help)\n")
         sys.exit(EXIT_FAILED)
+
+    @classmethod
+    def for_script(cls, docstring: str, **kwargs: Any) -> Parser:
+        """A script's parser, described by its docstring's first paragraph as plain text (reST's ````code````
+        marks dropped); its help gives each option's default."""
+        text = re.sub(r"``([^`]+)``", r"\1", docstring.split("\n\n")[0].strip())
+        kwargs.setdefault("formatter_class", _DefaultsShown)
+        return cls(description=text, **kwargs)
 
     def arguments(self) -> list[argparse.Action]:
         """Every argument this parser takes, in the order they were added (``-h`` and the subcommands included)."""

@@ -33,7 +33,7 @@ class Fixed:
 
 
 class Circle:
-    """A circle of ``radius`` m traced every ``period`` s (seed 001's circular motion, scaled to the plate)."""
+    """A circle of ``radius`` m traced every ``period`` s (source 001's circular motion, scaled to the plate)."""
 
     def __init__(self, radius: float = 0.06, period: float = 8.0, phase: float = 0.0) -> None:
         self.radius, self.omega, self.phase = radius, 2 * math.pi / period, phase

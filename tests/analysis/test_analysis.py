@@ -24,7 +24,7 @@ MM = 1e-3
 
 # ------------------------------------------------------------------ workspace
 def test_mathcad_height_map_agrees_with_the_seeds_check() -> None:
-    """Seed 002's Check(x, y): for k = 0…30, keep k/10 mm if every leg is within 31.44 ± 1.24 mm."""
+    """Source 002's Check(x, y): for k = 0…30, keep k/10 mm if every leg is within 31.44 ± 1.24 mm."""
     g = load_preset("mathcad-micro")
     pivot = np.array([10, 0, 10]) * MM
     xs = np.linspace(-2.5, 2.5, 100) * MM
@@ -267,7 +267,7 @@ def test_assembly_on_a_rotary_build_takes_a_pose_not_leg_lengths(capsys: pytest.
 def test_analysis_cli_json_and_plot(args: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     plot = tmp_path / "p.png"
     extra = ["--plot", str(plot)] if args[0] != "assembly" else []
-    # seed 001's 0.2 m circle leaves the stroke: the trajectory check reports it with exit code 1
+    # source 001's 0.2 m circle leaves the stroke: the trajectory check reports it with exit code 1
     assert main([*args, "--json", *extra]) == (1 if args[0] == "trajectory" else 0)
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert isinstance(out, dict) and out

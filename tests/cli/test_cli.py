@@ -234,7 +234,7 @@ GOOD = [
     (["ik", "--geometry", "senilov2018", "0", "0", "-300", "0", "0", "0"], 1, "not above its base anchor"),
     (["ik", "0", "0", "-5", "-3", "0", "0"], 0, "reachable"),  # negative numbers are values, not options
     (["workspace", "--n", "20", "--samples", "2000"], 0, "reach from home"),
-    (["trajectory"], 1, "first unreachable: sample"),  # seed 001's 0.2 m circle leaves the stroke
+    (["trajectory"], 1, "first unreachable: sample"),  # source 001's 0.2 m circle leaves the stroke
     (["trajectory", "--radius", "20"], 0, "every sample is reachable"),
     (["trajectory", "--csv", "{files}/good.csv", "--geometry", "servo-hexapod"], 0, "3 samples"),
     (["sensitivity", "--n", "11", "--fd-samples", "5"], 0, "Jacobian vs finite differences"),

@@ -19,7 +19,7 @@ __all__ = ["TrackTask"]
 class TrackTask(BallTask):
     """Make the ball follow a moving target.
 
-    ``trajectory``: ``"circle"`` (radius 60 mm, 8 s a turn, like seed 001's
+    ``trajectory``: ``"circle"`` (radius 60 mm, 8 s a turn, like source 001's
     circle), ``"figure8"`` (±70 mm, 10 s a loop) or ``"waypoints"`` (random
     points within 70 mm, held 2 s, 1 s moves), with a random phase each
     episode; ``"mixed"`` draws one of the three each episode (for training a
