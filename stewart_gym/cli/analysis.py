@@ -96,7 +96,8 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     for k, (axis, unit, scale) in enumerate([("x", "mm", 1e3), ("y", "mm", 1e3), ("z", "mm", 1e3),
                                              ("roll", "°", 180 / math.pi), ("pitch", "°", 180 / math.pi),
                                              ("yaw", "°", 180 / math.pi)]):  # fmt: skip
-        extra = f"   (source 003's build: ±{SOURCE_003_RANGES_MM[k]:.0f} mm)" if geo.name == "servo-hexapod" and k < 3 else ""
+        source = geo.name == "servo-hexapod" and k < 3
+        extra = f"   (source 003's build: ±{SOURCE_003_RANGES_MM[k]:.0f} mm)" if source else ""
         lines.append(f"  {axis:5s} {reach[k, 0] * scale:9.2f} … {reach[k, 1] * scale:8.2f} {unit}{extra}")
     if geo.name == "servo-hexapod":
         res["source_003_ranges_mm"] = SOURCE_003_RANGES_MM
