@@ -272,7 +272,7 @@ class FitResult:
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
                        f"{row['fitted']:.2f} mm ({verdict})")
         if tw.undetermined:
-            out.append("undetermined (the twin keeps these as written):")
+            out.append("undetermined (and what the twin holds for each):")
             out.extend(f"  {name}: {self.notes.get(name, '')}" for name in tw.undetermined)
         return out
 
@@ -504,6 +504,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                               f"{log.t[tick]:g}) is outside the calibration's [{cal.min_us[channel]:g}, "
                               f"{cal.max_us[channel]:g}] µs ({int(outside.sum())} pulse(s) in all): give the "
                               "--calibration the log was run with")  # fmt: skip
+    given = start is not None  # a --start twin: its values stand where the logs cannot determine them
     start = start or Twin()
     windows = _windows(list(logs), holdout)
     fit_w = [w for w in windows if not w.heldout]
@@ -586,15 +587,31 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                                "that make it (identify --sensor camera logs the plate's pose, which shows "
                                "each)"}  # fmt: skip
     undetermined = ["sensor.latency_ms", "servos.trim_us"]
+    kept: dict[tuple[str, str], Any] = {}  # the --start twin's values that stand for undetermined ones
     for name, grid, value, sd in (("servos.speed_scale", SPEED_GRID, speed, spread[0]),
                                   ("servos.deadband_us", DEADBAND_GRID, band, spread[1])):  # fmt: skip
         span = grid[-1] - grid[0]
         if sd > UNDETERMINED_FRACTION * span:
-            undetermined.append(name)
             notes[name] = f"the bootstrap spread ({sd:.2g}) covers much of the search range: the logs hardly show it"
         elif value >= grid[-1] or value <= grid[0]:
-            undetermined.append(name)
             notes[name] = f"at the edge of the search ({value:g}): the logs only bound it"
+        else:
+            continue
+        undetermined.append(name)
+        if given:  # the user's value stands, with its own uncertainty
+            kept[tuple(name.split("."))] = start[name]
+            notes[name] += f"; the twin keeps --start's {start[name]:g}"
+            sigma.pop(name)
+            if name in start.sigma:
+                sigma[name] = start.sigma[name]
+        else:  # the search's best, as uncertain as the search is wide
+            sigma[name] = max(sigma[name], UNDETERMINED_FRACTION * span)
+            notes[name] += f"; the twin holds the search's best, ± {sigma[name]:.2g}"
+    latency_span = LATENCY_GRID[-1] - LATENCY_GRID[0]
+    if spread[2] > UNDETERMINED_FRACTION * latency_span:
+        undetermined.append("servos.latency_ms")
+        notes["servos.latency_ms"] = (f"the bootstrap spread ({spread[2] * 1e3:.0f} ms) covers much of the search "
+                                      "range: the logs hardly show it; the twin holds the search's best")  # fmt: skip
     for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "plate.friction", "plate.load_kg"):
         undetermined.append(key)
         notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
@@ -608,20 +625,29 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))
     else:
         trims = _trims_for(geo, cal, best_accel)
+        if given and "servos.trim_us" not in start.undetermined:  # each servo's own, measured: they stand
+            kept[("servos", "trim_us")] = tuple(start["servos.trim_us"])
+            notes["servos.trim_us"] = ("the panel sees only the tilt the trims make together: the twin keeps "
+                                       "--start's, each servo's own")  # fmt: skip
+            if "servos.trim_us" in start.sigma:
+                sigma["servos.trim_us"] = start.sigma["servos.trim_us"]
     values = dict(start.values)
     values.update({("servos", "speed_scale"): float(np.clip(speed, 0.1, 5.0)),
                    ("servos", "deadband_us"): float(np.clip(band, 0.0, 50.0)),
                    ("servos", "latency_ms"): float(np.clip(total_ms - sensor_ms, 0.0, 200.0)),
                    ("servos", "trim_us"): tuple(float(np.clip(v, -200, 200)) for v in trims),
                    ("sensor", "latency_ms"): sensor_ms, ("sensor", "noise_mm"): float(np.clip(noise_mm, 0.0, 20.0))})
+    values.update(kept)
     order = [f"{t}.{k}" for t, k in TWIN_FIELDS]
     twin = Twin(values, sigma, tuple(sorted(set(undetermined), key=order.index)), "sysid")
     sensor = "camera" if len(camera) == len(logs) else "panel and camera" if camera else "panel"
     result = FitResult(twin, total_ms, best_accel, noise_mm, {}, len(fit_w), len(held_w), notes, trim_fit=trim_fit,
                        sensor=sensor)  # fmt: skip
-    if held_w:
-        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel,
-                 trim_fit.servo if plate_chose else servos[ci], overhead)  # fmt: skip
+    if held_w:  # the fitted twin as it is written: --start's servos where they stand
+        fitted = trim_fit.servo if plate_chose else servos[ci]
+        if ("servos", "speed_scale") in kept or ("servos", "deadband_us") in kept:
+            fitted = _servo(twin["servos.speed_scale"], twin["servos.deadband_us"])
+        _predict(result, geo, cal, list(logs), held_w, start, lat, best_accel, fitted, overhead)
     if on_progress:
         on_progress(1.0)
     return result

@@ -170,6 +170,39 @@ def test_sysid_writes_the_twin_and_its_report(tmp_path, capfd):
     assert (tmp_path / "report" / "paths.png").stat().st_size > 1000
 
 
+@pytest.mark.slow
+def test_what_the_logs_cannot_determine_is_the_start_twins_or_widely_uncertain(tmp_path, capfd):
+    """A log whose pulses never move (every servo speed and dead band replays it alike): the speed and the dead
+    band are undetermined. With --start, the twin keeps its speed, dead band and measured trims, and says so;
+    without, it holds the search's best with an uncertainty of a fifth of the search, not a narrow one."""
+    from stewart_gym.sim.twin import load_twin
+    from stewart_gym.sysid import DEADBAND_GRID, SPEED_GRID, UNDETERMINED_FRACTION
+
+    moving = tmp_path / "moving.csv"
+    synthetic_log(moving, TWIN, 20.0)
+    rows = list(csv.reader(moving.open()))
+    pulses = [rows[0].index(f"pulse{i}_us") for i in range(6)]
+    still = tmp_path / "still.csv"
+    with still.open("w", newline="") as fh:
+        csv.writer(fh).writerows([rows[0], *([v if j not in pulses else "1500" for j, v in enumerate(r)]
+                                             for r in rows[1:])])  # fmt: skip
+    start = tmp_path / "start.toml"
+    start.write_text("[servos]\nspeed_scale = 0.5\ndeadband_us = 12.0\ntrim_us = [30, -30, 20, -10, 0, 25]\n")
+    code, out, err = cli(capfd, "sysid", str(still), "--start", str(start), "--out", str(tmp_path / "twin.toml"))
+    assert code == 0, err
+    twin = load_twin(tmp_path / "twin.toml")
+    assert {"servos.speed_scale", "servos.deadband_us", "servos.trim_us"} <= set(twin.undetermined)
+    assert twin["servos.speed_scale"] == 0.5 and twin["servos.deadband_us"] == 12.0
+    assert list(twin["servos.trim_us"]) == [30, -30, 20, -10, 0, 25]
+    assert "servos.speed_scale" not in twin.sigma and "servos.deadband_us" not in twin.sigma
+    assert "the twin keeps --start's 0.5" in out and "the twin keeps --start's, each servo's own" in out
+    assert "keeps these as written" not in out
+    alone = fit_twin([read_log(still)]).twin  # no --start: the search's best, widely uncertain
+    for name, grid in (("servos.speed_scale", SPEED_GRID), ("servos.deadband_us", DEADBAND_GRID)):
+        assert name in alone.undetermined
+        assert alone.sigma[name] >= UNDETERMINED_FRACTION * (grid[-1] - grid[0]) - 1e-12
+
+
 @pytest.mark.parametrize("content, words", [
     ("t_s,pulse0_us\n0,1500\n", "not a deploy log with readings (no column 'pulse1_us')"),
     ("", "empty"),
