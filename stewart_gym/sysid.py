@@ -67,7 +67,7 @@ from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
 __all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "TICK_DATED_OVERHEAD_S", "TICK_DATED_VAR_S2",
-           "FitResult", "FlightLog", "fit_twin", "read_log", "write_report"]
+           "FitResult", "FlightLog", "MIN_FIT_WINDOWS", "fit_twin", "read_log", "unfit_reason", "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010
@@ -148,6 +148,24 @@ class FlightLog:
         return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
 
 
+#: The fewest windows a fit takes.
+MIN_FIT_WINDOWS = 5
+
+
+def unfit_reason(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15), holdout: float = 0.3) -> str | None:
+    """Why :func:`fit_twin` could not fit a twin from the log at ``path`` alone (too short, too few windows with
+    the ball on the plate, not a log it reads), in words; None where it can."""
+    try:
+        log = read_log(path, plate_half)
+    except ConfigError as exc:
+        return str(exc)
+    fit = [w for w in _windows([log], holdout) if not w.heldout]
+    if len(fit) < MIN_FIT_WINDOWS:
+        return (f"{path}: {len(fit)} usable windows to fit ({MIN_FIT_WINDOWS} or more needed): the ball was on the "
+                "plate too briefly")  # fmt: skip
+    return None
+
+
 def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> FlightLog:
     """A deploy log (``identify``'s or ``deploy``'s), checked: its columns, finite pulses, at least 5 s of ticks
     and readings. Readings off the plate (``plate_half`` m, with a 10 mm margin) or not finite are dropped, and a
@@ -173,19 +191,40 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
                           "stewart-gym identify, or deploy with this version")  # fmt: skip
     col = {name: header.index(name) for name in header}
     flags = [c for c in ("stale", "invalid", "missed_deadline", "held", "homing") if c in col]
-    try:
-        body = [r for r in rows[1:] if r]
-        t = np.array([float(r[col["t_s"]]) for r in body])
-        pulses = np.array([[float(r[col[f"pulse{i}_us"]]) for i in range(6)] for r in body])
-        raw = np.array([[float(r[col[c]]) if r[col[c]] != "" else math.nan for c in LOG_READING_COLUMNS]
-                        for r in body])  # fmt: skip
-        bad = np.array([[int(r[col[c]]) for c in flags] for r in body]).reshape(len(body), len(flags))
-    except (ValueError, IndexError) as exc:
-        raise ConfigError(f"{path}: a row is not a deploy log's ({exc}); the file may be cut or edited") from None
-    if len(t) < 2 or not np.all(np.isfinite(t)) or not np.all(np.diff(t) > 0):
-        raise ConfigError(f"{path}: the tick times (t_s) must be finite and increasing, with 2 ticks or more")
-    if not np.all(np.isfinite(pulses)):
-        raise ConfigError(f"{path}: a pulse width is not a finite number")
+    lines = [k + 2 for k, r in enumerate(rows[1:]) if r]  # each row's line in the file
+    body = [r for r in rows[1:] if r]
+    if body and not text.endswith("\n") and len(body[-1]) != len(header):  # a last line cut as it was written
+        body, lines = body[:-1], lines[:-1]  # (a crash or a full disk): the rows before it stand
+
+    def parsed(r: list[str]) -> tuple[float, list[float], list[float], list[int]]:
+        if len(r) != len(header):
+            raise ValueError(f"{len(r)} fields, the header has {len(header)}")
+        return (float(r[col["t_s"]]), [float(r[col[f"pulse{i}_us"]]) for i in range(6)],
+                [float(r[col[c]]) if r[col[c]] != "" else math.nan for c in LOG_READING_COLUMNS],
+                [int(r[col[c]]) for c in flags])  # fmt: skip
+
+    values = []
+    for line, r in zip(lines, body):
+        try:
+            values.append(parsed(r))
+        except ValueError as exc:
+            raise ConfigError(f"{path}: line {line} is not a deploy log's row ({exc}); the file may be cut or "
+                              "edited") from None  # fmt: skip
+    t = np.array([v[0] for v in values])
+    pulses = np.array([v[1] for v in values]).reshape(len(values), 6)
+    raw = np.array([v[2] for v in values]).reshape(len(values), len(LOG_READING_COLUMNS))
+    bad = np.array([v[3] for v in values], dtype=np.int64).reshape(len(values), len(flags))
+    if len(t) < 2:
+        raise ConfigError(f"{path}: {len(t)} tick(s); a fit needs a log of 5 s or more (identify runs 60 s)")
+    wrong = np.flatnonzero(~np.isfinite(t) | np.r_[False, ~(np.diff(t) > 0)])
+    if wrong.size:
+        raise ConfigError(f"{path}: line {lines[wrong[0]]}: t_s {t[wrong[0]]:g} is not finite, or not after the "
+                          "tick before it; the tick times must be finite and increasing")  # fmt: skip
+    nonfinite = np.argwhere(~np.isfinite(pulses))
+    if nonfinite.size:
+        k, channel = (int(v) for v in nonfinite[0])
+        raise ConfigError(f"{path}: line {lines[k]}: pulse{channel}_us is {pulses[k, channel]:g}, not a finite pulse "
+                          "width")  # fmt: skip
     rate = 1.0 / float(np.median(np.diff(t)))
     half = np.asarray(plate_half, dtype=float) + 0.010
     ok = np.all(np.isfinite(raw), axis=1)
@@ -195,8 +234,9 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
     readings = readings[np.sort(first)]
     readings = readings[np.argsort(readings[:, 2], kind="stable")]
     if t[-1] - t[0] < 5.0 or len(readings) < 5 * rate / 2:
-        raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks and {len(readings)} readings on the plate; a fit "
-                          "needs at least 5 s with the ball on the plate (identify runs 60 s)")  # fmt: skip
+        raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks, with {len(readings)} readings of the ball on the "
+                          f"plate; a fit needs at least 5 s of ticks and {math.ceil(5 * rate / 2)} readings "
+                          "(identify runs 60 s)")  # fmt: skip
     at_tick = np.abs(readings[:, 2] - t[np.clip(np.searchsorted(t, readings[:, 2]), 0, len(t) - 1)]) < 2e-4
     plate = None
     if all(c in col for c in LOG_PLATE_COLUMNS):
@@ -509,9 +549,9 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     windows = _windows(list(logs), holdout)
     fit_w = [w for w in windows if not w.heldout]
     held_w = [w for w in windows if w.heldout]
-    if len(fit_w) < 5:
-        raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit (5 or more needed): log longer runs "
-                          "with the ball on the plate (identify --duration 60)")  # fmt: skip
+    if len(fit_w) < MIN_FIT_WINDOWS:
+        raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit ({MIN_FIT_WINDOWS} or more needed): log "
+                          "longer runs with the ball on the plate (identify --duration 60)")  # fmt: skip
     servos = [_servo(s, d) for s in SPEED_GRID for d in DEADBAND_GRID]
     rate = logs[0].rate_hz
     dt = 1.0 / rate

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -223,6 +224,13 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
              cwd=tmp_path)  # fmt: skip
     errors = [ln for ln in bad.stderr.splitlines() if ln.startswith("error:")]
     assert bad.returncode == 1 and len(errors) == 1 and "nope.png" in errors[0]
+    (tmp_path / "notes.txt").write_text("my notes\n")  # a source that is no video: the user's mistake (exit 1)
+    config = tmp_path / "notes_cam.toml"
+    config.write_text(re.sub(r'source = "[^"]*"', f'source = "{tmp_path / "notes.txt"}"',
+                             (clip / "cam.toml").read_text()))  # fmt: skip
+    text_source = sg("camera-check", "--camera-config", str(config), cwd=tmp_path)
+    assert text_source.returncode == 1 and text_source.stderr.strip().splitlines() == [
+        f"error: {config}: camera.source '{tmp_path / 'notes.txt'}' is not a video OpenCV can read"], text_source.stderr
 
 
 @pytest.mark.xdist_group("camera_clip")

@@ -168,6 +168,8 @@ def test_sysid_writes_the_twin_and_its_report(tmp_path, capfd):
     assert twin.sigma and "total latency" in out and "undetermined" in out
     assert (tmp_path / "report" / "report.md").read_text().count("prediction RMS") == 2
     assert (tmp_path / "report" / "paths.png").stat().st_size > 1000
+    assert sorted(p.name for p in (tmp_path / "report").iterdir()) == ["paths.png", "report.md"]  # no scratch left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv", "report", "twin.toml"]
 
 
 @pytest.mark.slow
@@ -209,8 +211,13 @@ def test_what_the_logs_cannot_determine_is_the_start_twins_or_widely_uncertain(t
     (",".join(HEADER) + "\n" + "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0,0,{k / 50}\n"
                                         for k in range(100)), "at least 5 s"),
     (",".join(HEADER) + "\n0.02,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,\n0.0,1500,1500,1500,1500,1500,1500,0,0,0,0,"
-     "0,,,\n", "increasing"),
-    (",".join(HEADER) + "\n0,1500,x,1500,1500,1500,1500,0,0,0,0,0,,,\n", "a row is not a deploy log's"),
+     "0,,,\n", "line 3: t_s 0 is not finite, or not after the tick before it"),
+    (",".join(HEADER) + "\n0,1500,x,1500,1500,1500,1500,0,0,0,0,0,,,\n", "line 2 is not a deploy log's row (could not "
+     "convert string to float: 'x')"),
+    (",".join(HEADER) + "\n0,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,\n0.02,1500,1500,1500\n0.04,1500,1500,1500,1500,"
+     "1500,1500,0,0,0,0,0,,,\n", "line 3 is not a deploy log's row (4 fields, the header has 15)"),
+    (",".join(HEADER) + "\n0,1500,1500,nan,1500,1500,1500,0,0,0,0,0,,,\n0.02,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,"
+     "\n", "line 2: pulse2_us is nan, not a finite pulse width"),
     (",".join(HEADER) + ",bogus\n", "unknown column(s) ['bogus']"),
     (",".join(HEADER) + ",t_s\n", "column(s) ['t_s'] given more than once"),
     (",".join(HEADER) + "\n" + "".join(f"{k / 50},1500,{1e9 if k == 100 else 1500},1500,1500,1500,1500,0,0,0,0,0,0,0,"
@@ -223,6 +230,18 @@ def test_a_bad_log_is_one_error_line(tmp_path, capfd, content, words):
     code, out, err = cli(capfd, "sysid", str(log), "--out", str(tmp_path / "twin.toml"))
     assert code == 1 and words in err and str(log) in err and "Traceback" not in err
     assert err.strip().count("\n") == 0 and not (tmp_path / "twin.toml").exists()
+
+
+def test_a_log_whose_last_line_was_cut_as_it_was_written_is_read_without_it(tmp_path):
+    """A crash or a full disk leaves the log's last line half written (it is flushed line by line): the rows before
+    it stand. A short row inside the log is still refused (test_a_bad_log_is_one_error_line)."""
+    rows = "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0.01,0.02,{k / 50}\n" for k in range(400))
+    whole = tmp_path / "whole.csv"
+    whole.write_text(",".join(HEADER) + "\n" + rows)
+    cut = tmp_path / "cut.csv"
+    cut.write_text(",".join(HEADER) + "\n" + rows + "8.0,1500,15")
+    a, b = read_log(whole), read_log(cut)
+    assert len(b.t) == len(a.t) == 400 and np.array_equal(a.pulses, b.pulses)
 
 
 def test_sysid_refuses_before_any_work(tmp_path, capfd):
@@ -239,6 +258,13 @@ def test_sysid_refuses_before_any_work(tmp_path, capfd):
     assert code == 1 and "a log given twice would count its windows twice" in err
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"))
     assert code == 1 and "none.csv" in err
+    rows = "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0.01,0.02,{k / 50}\n" for k in range(400))
+    (tmp_path / "a.csv").write_text(",".join(HEADER) + "\n" + rows)
+    (tmp_path / "b.csv").write_text(",".join(HEADER) + "\n" + rows)  # a copy under another name
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--out",
+                       str(tmp_path / "new.toml"))  # fmt: skip
+    assert code == 1 and f"{tmp_path / 'a.csv'} and {tmp_path / 'b.csv'} hold the same log" in err, err
+    assert not (tmp_path / "new.toml").exists()
 
 
 @pytest.mark.parametrize("height", ["-0.1", "25", "nan"])

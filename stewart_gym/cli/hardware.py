@@ -186,6 +186,9 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
         if not cap.isOpened():
             from stewart_gym.errors import DeviceFailure
 
+            source = str(config.source)
+            if Path(source).is_file():  # a file (the config checked that it is there): the user's to fix
+                raise ConfigError(f"{args.camera_config}: camera.source {source!r} is not a video OpenCV can read")
             raise DeviceFailure(f"camera {config.source!r} cannot be opened (wrong index or path, or in use?)")
         frames = []
         for _ in range(args.frames):

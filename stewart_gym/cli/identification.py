@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
+import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -55,8 +58,17 @@ def cmd_identify(args: argparse.Namespace) -> int:
           f"PID + Kalman; Ctrl-C stops it and homes the servos", flush=True)  # fmt: skip
     summary = setup.run()
     print(summary.text(), flush=True)
-    markers = " --marker-height-mm H (your markers' thickness)" if args.sensor == "camera" else ""
-    print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log}{markers} --out twin.toml)", flush=True)
+    from stewart_gym.sysid import unfit_reason
+
+    width, depth = setup.mapper.geometry.plate_extent
+    why = unfit_reason(setup.log, (width / 2, depth / 2)) if Path(setup.log).is_file() else "no log was written"
+    if why is None:
+        markers = " --marker-height-mm H (your markers' thickness)" if args.sensor == "camera" else ""
+        print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log}{markers} --out twin.toml)",
+              flush=True)  # fmt: skip
+    else:
+        print(f"log: {setup.log} (too short to fit a twin from alone: {why.removeprefix(f'{setup.log}: ')}; run "
+              "identify longer, 60 s by default, or fit it with other logs)", flush=True)  # fmt: skip
     return summary.exit_code
 
 
@@ -85,6 +97,13 @@ def cmd_sysid(args: argparse.Namespace) -> int:
     start = load_twin(args.start) if args.start else None
     width, depth = geometry.plate_extent
     logs = [read_log(path, (width / 2, depth / 2)) for path in args.logs]
+    digests: dict[str, str] = {}
+    for path in args.logs:  # a copy under another name counts its windows twice too
+        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+        if digest in digests:
+            raise ConfigError(f"{digests[digest]} and {path} hold the same log: it would count its windows twice "
+                              "(and narrow the uncertainties); give it once")  # fmt: skip
+        digests[digest] = path
     progress = Progress(100, "%", "sysid")
     result = fit_twin(logs, geometry, calibration, start=start, holdout=args.holdout,
                       on_progress=lambda f: progress.advance(100 * f - progress.done),
@@ -92,10 +111,19 @@ def cmd_sysid(args: argparse.Namespace) -> int:
     progress.close()
     twin = result.twin
     out.parent.mkdir(parents=True, exist_ok=True)  # (output_file checked that it can be made)
-    out.write_text(f"# fitted by stewart-gym sysid from {', '.join(args.logs)}\n" + twin.toml(
-        {name: "undetermined" for name in twin.undetermined}))
-    if report is not None:
-        write_report(result, report, args.logs)
+    text = f"# fitted by stewart-gym sysid from {', '.join(args.logs)}\n" + twin.toml(
+        {name: "undetermined" for name in twin.undetermined})
+    # the report and the twin are written aside and put in place at the end, the twin last: a run stopped while
+    # they are written leaves no half report and no twin, and its rerun is not refused for them
+    with tempfile.TemporaryDirectory(dir=out.parent, prefix=".sysid-") as scratch:
+        draft = Path(scratch) / out.name
+        draft.write_text(text)
+        if report is not None:
+            report.mkdir(parents=True, exist_ok=True)
+            with tempfile.TemporaryDirectory(dir=report, prefix=".sysid-") as pages:
+                for page in write_report(result, pages, args.logs):
+                    os.replace(page, report / page.name)
+        os.replace(draft, out)
     if args.json:
         print(json.dumps(json_safe({"twin": twin.to_mapping(), "total_latency_ms": result.total_latency_ms,
                                     "noise_mm": result.noise_mm, "sensor": result.sensor,

@@ -206,7 +206,7 @@ class EpisodeParams:
         trim = np.asarray(twin["servos.trim_us"], dtype=float)
         if rng is not None:
             w = max(2.0 * twin.sigma.get("servos.trim_us", 0.0), TWIN_WIDTH_FLOOR["servos.trim_us"])
-            trim = trim + rng.uniform(-w, w, 6)
+            trim = np.clip(trim + rng.uniform(-w, w, 6), -200.0, 200.0)  # within a twin's trims, as the others
         servo_ep = replace(servo, max_speed=servo.max_speed * value("servos.speed_scale", 0.1, 5.0),
                            deadband_us=value("servos.deadband_us", 0.0, 50.0), trim_error_us=tuple(trim),
                            lag_s=servo.lag_s + value("servos.latency_ms", 0.0, 200.0) / 1e3)  # fmt: skip

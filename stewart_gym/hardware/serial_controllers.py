@@ -14,7 +14,9 @@ asks whether the board holds the home pulses.
 
 from __future__ import annotations
 
+import errno
 import math
+import os
 import select
 import time
 from abc import ABC, abstractmethod
@@ -79,9 +81,14 @@ class ServoController(ABC):
                 self.serial = serial.Serial(port, self.baudrate, timeout=timeout,
                                             write_timeout=write_timeout_s(self.baudrate))  # fmt: skip
             except serial.SerialException as exc:
-                hint = ("; it is not a serial device: check --port (ls /dev/tty*; the board's port appears as it is "
-                        "plugged in)" if "Inappropriate ioctl" in str(exc) else "")  # fmt: skip
-                raise DeviceError(f"cannot open {port}: {exc}{hint}") from None
+                code = exc.errno if isinstance(exc.errno, int) else None  # pyserial's own text repeats the port
+                reason = os.strerror(code) if code is not None else str(exc)
+                if code in (errno.ENOTTY, errno.EISDIR) or "Inappropriate ioctl" in str(exc):
+                    reason = ("it is not a serial device: check --port (ls /dev/tty*; the board's port appears as it "
+                              "is plugged in)")  # fmt: skip
+                elif code == errno.EACCES:
+                    reason += "; on Linux, join the dialout group (sudo usermod -aG dialout $USER, then log in again)"
+                raise DeviceError(f"cannot open {port}: {reason}") from None
         self.frames_sent = 0
         #: whether :meth:`send` asks the board along the way (:meth:`monitor`)
         self.monitoring = False

@@ -92,6 +92,10 @@ class Twin:
         if not isinstance(data, Mapping):
             raise ConfigError(f"{source}: a twin is a set of TOML tables, got {type(data).__name__}")
         unknown = sorted(set(data) - set(TABLES) - {FIT_TABLE})
+        loose = [k for k in unknown if not isinstance(data[k], Mapping)]
+        if loose:
+            raise ConfigError(f"{source}: key(s) {loose} outside any table; a twin's keys go in its tables, such as "
+                              "[servos] speed_scale = 0.5 (docs: Configuration files, twin)")  # fmt: skip
         if unknown:
             raise ConfigError(f"{source}: unknown table(s) {unknown}; a twin has [servos], [ball], [plate], [sensor]")
         values = {k: v[0] for k, v in TWIN_FIELDS.items()}
@@ -178,6 +182,11 @@ def _fit_table(source: str, fit: Any) -> tuple[dict[str, float], tuple[str, ...]
     undetermined = fit.get("undetermined", [])
     if not isinstance(sigma, Mapping) or not all(k in names and _number(v) and v >= 0 for k, v in sigma.items()):
         raise ConfigError(f"{source}: fit.sigma must map twin keys (\"servos.speed_scale\", …) to numbers ≥ 0")
+    for name, value in sigma.items():  # an uncertainty wider than the value's whole range says nothing more
+        _, lo, hi, unit, _ = TWIN_FIELDS[tuple(name.split("."))]
+        if value > hi - lo:
+            raise ConfigError(f"{source}: fit.sigma \"{name}\" = {value:g} is wider than the value's whole range "
+                              f"({lo:g}…{hi:g}{'' if unit in ('', '×') else ' ' + unit})")  # fmt: skip
     if not isinstance(undetermined, list) or not all(u in names for u in undetermined):
         raise ConfigError(f"{source}: fit.undetermined must list twin keys (\"ball.mass_scale\", …)")
     return {k: float(v) for k, v in sigma.items()}, tuple(undetermined)
@@ -192,5 +201,9 @@ def load_twin(twin: Twin | Mapping[str, Any] | str | Path) -> Twin:
     if isinstance(twin, (str, Path)):
         from stewart_gym.tomlio import read_toml
 
-        return Twin.from_mapping(read_toml(twin, ConfigError, "twin file"), source=str(twin))
+        data = read_toml(twin, ConfigError, "twin file")
+        if not data:  # (an emptied file, a failed copy: not a nominal platform said in so many words)
+            raise ConfigError(f"{twin}: the twin file sets nothing; a twin has [servos], [ball], [plate] or [sensor] "
+                              "tables (stewart-gym sysid writes one)")  # fmt: skip
+        return Twin.from_mapping(data, source=str(twin))
     raise ConfigError(f"twin must be a twin file path or its tables, got {type(twin).__name__}")

@@ -723,6 +723,8 @@ WRONG_BLAME = [
      "--twin describes the simulated plant: it needs --sensor sim", "notes.txt"),
     (["render", "0", "0", "0", "0", "0", "0", "--out", "{files}/notes.txt/x.png"], "notes.txt is a file, not a folder",
      "notes.txt: "),  # (said once)
+    (["deploy", "--port", "{files}/emptydir", "--duration", "1"], "emptydir: it is not a serial device: check --port",
+     "Errno"),  # (pyserial's own text names the port and the errno again)
     (["deploy", "--seed", "3", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--seed sets the simulated plant: it needs --sensor sim", "serial device"),
     (["deploy", "--no-randomize", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],

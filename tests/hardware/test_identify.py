@@ -18,7 +18,7 @@ from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
 from stewart_gym.registry import deployable_policy, resolve_policy
-from stewart_gym.sysid import DEADBAND_GRID, read_log
+from stewart_gym.sysid import DEADBAND_GRID, fit_twin, read_log
 from tests.conftest import cli, sg_in
 from tests.hardware.test_virtual_device import Board
 
@@ -146,6 +146,10 @@ def test_identify_through_the_wire_logs_pulses_and_readings_and_goes_home(tmp_pa
     assert not read_log(tmp_path / "identify.csv").dated_at_ticks
     tilts = np.array([[float(r["action0"]), float(r["action1"])] for r in rows])
     assert np.abs(tilts).max() > 0.3  # the steps went out
+    # 6 s is too short for a fit: the run says so, rather than point at a sysid that refuses the log
+    assert "too short to fit a twin from alone" in out and "fit a twin from it" not in out, out
+    with pytest.raises(ConfigError, match="usable windows to fit"):
+        fit_twin([read_log(tmp_path / "identify.csv")])
 
 
 @pytest.mark.slow
@@ -158,6 +162,7 @@ def test_identify_goes_home_when_stopped_by_a_signal(tmp_path, sig):
     assert code == 128 + sig and f"stopped by {name}" in out, out
     assert "servos homed: confirmed by the board" in out and "Traceback" not in out, out
     assert len(rows) >= 90 and within_limits(rows)
+    assert "too short to fit a twin from alone" in out, out  # stopped after 2 s
 
 
 @pytest.mark.slow
@@ -201,6 +206,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     bcode, bout, _ = board.stop()
     assert run.returncode == 0 and "servos homed: confirmed by the board" in run.stdout, run.stdout + run.stderr
     assert "height and yaw moves" in run.stdout
+    assert f"fit a twin from it: stewart-gym sysid {log} --marker-height-mm" in run.stdout, run.stdout
     assert bcode == 0 and "on the plate" in bout, bout
     rows = list(csv.DictReader(log.open()))
     assert within_limits(rows)

@@ -85,6 +85,10 @@ def test_missing_keys_take_the_nominal_values():
     ({"ball": {"rolling_friction": 0.01}}, "ball.rolling_friction"),
     ({"plate": 3}, "[plate] must be a table"),
     ({"fit": {"sigma": {"servos.speed": 1}}}, "fit.sigma"),
+    ({"fit": {"sigma": {"servos.trim_us": 1e9}}}, 'fit.sigma "servos.trim_us" = 1e+09 is wider than the value\'s whole '
+                                                  "range (-200…200 µs)"),
+    ({"speed_scale": 0.5}, "key(s) ['speed_scale'] outside any table; a twin's keys go in its tables"),
+    ({}, "the twin file sets nothing"),  # an emptied file is not the nominal platform
 ])  # fmt: skip
 def test_a_bad_twin_is_one_error_naming_the_file_and_key(tmp_path, tables, words):
     path = tmp_path / "mine.toml"
