@@ -67,7 +67,8 @@ from stewart_gym.sim import BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
 __all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "TICK_DATED_OVERHEAD_S", "TICK_DATED_VAR_S2",
-           "FitResult", "FlightLog", "MIN_FIT_WINDOWS", "fit_twin", "read_log", "unfit_reason", "write_report"]
+           "FitResult", "FlightLog", "MIN_FIT_WINDOWS", "MIN_POSE_AGREEMENT", "POSE_COLUMNS", "fit_twin",
+           "pose_agreement", "read_log", "unfit_reason", "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010
@@ -121,6 +122,7 @@ class FlightLog:
             time) rather than when they arrived between ticks.
         plate: with a camera (the log's plate columns), each distinct frame's time and plate pose
             (:class:`~stewart_gym.plate_trims.PlateLog`); None without.
+        poses: (K, 6) the pose asked for at each tick (m, rad), where the log has the pose columns; else None.
     """
 
     path: str
@@ -132,6 +134,7 @@ class FlightLog:
     rate_hz: float
     dated_at_ticks: bool = False
     plate: PlateLog | None = None
+    poses: np.ndarray | None = None
 
     @property
     def read_overhead_s(self) -> float:
@@ -150,6 +153,36 @@ class FlightLog:
 
 #: The fewest windows a fit takes.
 MIN_FIT_WINDOWS = 5
+#: A deploy log's columns of the pose asked for at each tick.
+POSE_COLUMNS = ("x_m", "y_m", "z_m", "roll", "pitch", "yaw")
+#: The share of a log's ticks away from home whose pulses must be the geometry's and calibration's for the pose
+#: asked for, to the log's rounding: below it, the log is another build's (or another calibration's).
+MIN_POSE_AGREEMENT = 0.25
+
+
+def pose_agreement(log: FlightLog, geometry: Any, calibration: ServoCalibration) -> float | None:
+    """The share of ``log``'s ticks away from home (a pulse over 20 µs from neutral) whose pulses are the ones
+    ``geometry`` and ``calibration`` give for the pose asked for, to within what the log's rounding (poses to 1e-6,
+    pulses to 0.01 µs) allows; None where the log has no poses or fewer than 20 such ticks. A tick the safety layer
+    held back disagrees, so a log of the right build agrees on most ticks and one of another build on next to
+    none."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    if log.poses is None:
+        return None
+    away = np.abs(log.pulses - calibration.neutral_us).max(axis=1) > 20.0
+    if away.sum() < 20:
+        return None
+    poses = log.poses[away]
+
+    def pulses(p: np.ndarray) -> np.ndarray:
+        return calibration.pulse_widths(inverse_kinematics(geometry, p).actuators)
+
+    expected = pulses(poses)
+    step = 1e-6  # each coordinate's slope, for the tolerance its rounding to 1e-6 brings
+    slack = sum(np.abs(pulses(poses + step * np.eye(6)[k]) - expected) for k in range(6)) * 0.5
+    gap = np.nan_to_num(np.abs(expected - log.pulses[away]), nan=np.inf)
+    return float(np.mean(np.all(gap <= 0.02 + slack, axis=1)))
 
 
 def unfit_reason(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15), holdout: float = 0.3) -> str | None:
@@ -249,8 +282,15 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
         _, first = np.unique(seen[:, :6], axis=0, return_index=True)  # a frame read at several ticks: once
         seen = seen[np.sort(first)]
         plate = PlateLog(t, pulses, seen[:, 6], seen[:, :6])
+    poses = None
+    if all(c in col for c in POSE_COLUMNS):
+        try:
+            poses = np.array([[float(r[col[c]]) for c in POSE_COLUMNS] for r in body]).reshape(len(body), 6)
+        except ValueError as exc:
+            raise ConfigError(f"{path}: a pose asked for is not a number ({exc}); the file may be cut or "
+                              "edited") from None  # fmt: skip
     return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate,
-                     dated_at_ticks=bool(np.mean(at_tick) > 0.5), plate=plate)  # fmt: skip
+                     dated_at_ticks=bool(np.mean(at_tick) > 0.5), plate=plate, poses=poses)  # fmt: skip
 
 
 @dataclass
@@ -544,6 +584,12 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                               f"{log.t[tick]:g}) is outside the calibration's [{cal.min_us[channel]:g}, "
                               f"{cal.max_us[channel]:g}] µs ({int(outside.sum())} pulse(s) in all): give the "
                               "--calibration the log was run with")  # fmt: skip
+    for log in logs:  # another build's log (or another calibration's) would fit a twin to the wrong plant
+        agreement = pose_agreement(log, geo, cal)
+        if agreement is not None and agreement < MIN_POSE_AGREEMENT:
+            raise ConfigError(f"{log.path}: its pulses are not what geometry {geo.name!r} and this calibration give "
+                              f"for the poses it asked for ({100 * agreement:.0f} % of its ticks away from home "
+                              "agree): give the --geometry and --calibration it was run with")  # fmt: skip
     given = start is not None  # a --start twin: its values stand where the logs cannot determine them
     start = start or Twin()
     windows = _windows(list(logs), holdout)

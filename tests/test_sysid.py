@@ -244,6 +244,45 @@ def test_a_log_whose_last_line_was_cut_as_it_was_written_is_read_without_it(tmp_
     assert len(b.t) == len(a.t) == 400 and np.array_equal(a.pulses, b.pulses)
 
 
+def test_a_log_of_another_build_is_refused_before_the_fit(tmp_path, capfd):
+    """A log's pulses are its build's and calibration's for the poses it asked for: sysid given another geometry
+    (or a calibration the log was not run with) says so in one line instead of fitting a twin of another plant;
+    the right ones agree on the log's ticks to its rounding, the small mathcad-micro build's too."""
+    from stewart_gym.calibration import ServoCalibration
+    from stewart_gym.kinematics import inverse_kinematics
+    from stewart_gym.presets import load_geometry
+    from stewart_gym.sysid import POSE_COLUMNS, pose_agreement
+
+    def log_of(geometry: str, reach: float) -> object:
+        geo, cal = load_geometry(geometry), ServoCalibration.default(geometry)
+        rng = np.random.default_rng(1)
+        k = np.arange(500)
+        poses = np.zeros((500, 6))
+        poses[:, :3] = reach * rng.uniform(-1, 1, (500, 3))
+        poses[:, 3:] = 0.05 * np.stack([np.sin(k / 20), np.cos(k / 25), 0.3 * np.sin(k / 30)], axis=1)
+        pulses = cal.pulse_widths(inverse_kinematics(geo, poses).actuators)
+        path = tmp_path / f"{geometry}.csv"
+        with path.open("w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow([*HEADER, *POSE_COLUMNS])
+            for i in range(500):  # as deploy writes them: pulses to 0.01 µs, poses to 1e-6
+                writer.writerow([f"{i / 50:.4f}", *np.round(pulses[i], 2), 0, 0, 0, 0, 0, 0.01, 0.02, f"{i / 50:.4f}",
+                                 *np.round(poses[i], 6)])  # fmt: skip
+        return path
+
+    hexapod = log_of("servo-hexapod", 0.004)
+    assert pose_agreement(read_log(hexapod), load_geometry("servo-hexapod"),
+                          ServoCalibration.default("servo-hexapod")) == 1.0  # fmt: skip
+    micro = log_of("mathcad-micro", 0.0001)
+    assert pose_agreement(read_log(micro), load_geometry("mathcad-micro"),
+                          ServoCalibration.default("mathcad-micro")) == 1.0  # fmt: skip
+    code, _, err = cli(capfd, "sysid", str(hexapod), "--geometry", "desk-rect", "--out", str(tmp_path / "t.toml"))
+    assert code == 1 and err.strip().splitlines() == [
+        f"error: {hexapod}: its pulses are not what geometry 'desk-rect' and this calibration give for the poses it "
+        "asked for (0 % of its ticks away from home agree): give the --geometry and --calibration it was run with"]
+    assert not (tmp_path / "t.toml").exists()
+
+
 def test_sysid_refuses_before_any_work(tmp_path, capfd):
     (tmp_path / "twin.toml").write_text("")
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "twin.toml"))
