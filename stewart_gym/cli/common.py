@@ -79,7 +79,13 @@ class _DefaultsShown(argparse.HelpFormatter):
 
 
 class Parser(argparse.ArgumentParser):
-    """An ``ArgumentParser`` whose usage errors are one line, ``error: …``, and exit code 1."""
+    """An ``ArgumentParser`` whose usage errors are one line, ``error: …``, and exit code 1, and which takes a
+    negative number as users type it (``-1e-3``, ``-.5``, ``-inf``) for a value, not an option."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # argparse's own test of a negative number knows no exponent: "ik -1e-3 0 0 0 0 0" lacked an argument
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^-(inf|nan)$", re.IGNORECASE)
 
     def error(self, message: str) -> NoReturn:
         sys.stderr.write(f"error: {self.prog}: {message} (see {self.prog} --help)\n")

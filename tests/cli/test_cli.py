@@ -233,6 +233,7 @@ GOOD = [
     (["ik", "--geometry", "senilov2018", "200", "0", "0", "0", "0", "0"], 1, "above the upper actuator limit"),
     (["ik", "--geometry", "senilov2018", "0", "0", "-300", "0", "0", "0"], 1, "not above its base anchor"),
     (["ik", "0", "0", "-5", "-3", "0", "0"], 0, "reachable"),  # negative numbers are values, not options
+    (["ik", "-1e-3", "-.5", "0", "0", "0", "0"], 0, "reachable"),  # as users type them
     (["workspace", "--n", "20", "--samples", "2000"], 0, "reach from home"),
     (["trajectory"], 1, "first unreachable: sample"),  # source 001's 0.2 m circle leaves the stroke
     (["trajectory", "--radius", "20"], 0, "every sample is reachable"),
@@ -725,6 +726,9 @@ WRONG_BLAME = [
      "notes.txt: "),  # (said once)
     (["deploy", "--port", "{files}/emptydir", "--duration", "1"], "emptydir: it is not a serial device: check --port",
      "Errno"),  # (pyserial's own text names the port and the errno again)
+    (["sysid", "{files}/good.csv", "--out", "{tmp}/t.toml", "--marker-height-mm", "-1e9"], "'-1e9' must be in [0, 20]",
+     "expected one argument"),
+    (["ik", "-inf", "0", "0", "0", "0", "0"], "'-inf' is not a finite number", "required"),
     (["deploy", "--seed", "3", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--seed sets the simulated plant: it needs --sensor sim", "serial device"),
     (["deploy", "--no-randomize", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
