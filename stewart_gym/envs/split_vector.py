@@ -46,7 +46,7 @@ from stewart_gym.envs.vector import (
 )
 from stewart_gym.errors import ConfigError
 
-__all__ = ["SplitVectorEnv", "batched_vector_env"]
+__all__ = ["SplitVectorEnv", "WorkerTraceback", "batched_vector_env"]
 
 #: The most worker processes one split env starts.
 MAX_WORKERS = 256
@@ -62,6 +62,21 @@ def batched_vector_env(num_envs: int = 1, *, workers: int = 1, **kwargs: Any) ->
     return SplitVectorEnv(num_envs, workers=int(workers), **kwargs)
 
 
+def _failure(exc: BaseException) -> tuple[BaseException | None, str]:
+    """What a worker sends of an error: the exception itself where it pickles (the caller raises it as one
+    process's env would), and its traceback's text."""
+    text = traceback.format_exc()
+    try:
+        pickle.loads(pickle.dumps(exc))
+    except Exception:  # noqa: BLE001 - an exception that does not travel: its text does
+        return None, text
+    return exc, text
+
+
+class WorkerTraceback(Exception):
+    """The traceback of an error raised in a worker process, as the cause of the error the caller raises."""
+
+
 def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a child process
     """A worker: make its share of the copies (the first message: its ``num_envs`` and keywords), then answer
     ``(command, argument)`` messages from ``inbox`` on ``conn`` until ``close``."""
@@ -70,7 +85,7 @@ def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a 
         env = StewartBallVectorEnv(num_envs, **kwargs)
         conn.send(("ok", None))
     except Exception as exc:  # noqa: BLE001 - the parent reports it
-        conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
+        conn.send(("error", _failure(exc)))
         return
     while True:
         try:
@@ -89,7 +104,7 @@ def _work(inbox: Connection, conn: Connection) -> None:  # pragma: no cover - a 
                 return
             conn.send(("ok", result))
         except Exception as exc:  # noqa: BLE001 - the parent reports it
-            conn.send(("error", str(exc) if isinstance(exc, ConfigError) else traceback.format_exc()))
+            conn.send(("error", _failure(exc)))
 
 
 def _columns(parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -133,6 +148,12 @@ class SplitVectorEnv(ArrayVectorEnv):
         check_num_envs(num_envs)
         if not 1 <= workers <= num_envs:
             raise ConfigError(f"workers must be from 1 to num_envs ({num_envs}), got {workers}")
+        for key, value in kwargs.items():  # pickled by name: the workers import it, and cannot import a script
+            where = getattr(value, "__module__", None) if callable(value) else type(value).__module__
+            if where == "__main__":
+                name = getattr(value, "__name__", type(value).__name__)
+                raise ConfigError(f"{key}: {name} is defined in the script itself (__main__), which the split vector "
+                                  "env's workers cannot import: define it in a module of its own, or use workers=1")
         self.num_envs, self.workers = int(num_envs), int(workers)
         base, extra = divmod(self.num_envs, self.workers)
         self.sizes = [base + (w < extra) for w in range(self.workers)]
@@ -174,18 +195,26 @@ class SplitVectorEnv(ArrayVectorEnv):
         return [process.pid for process in self._processes]
 
     def _gather(self) -> list[Any]:
-        """Every other worker's answer, in order; raises :class:`ConfigError` with the first failure."""
+        """Every other worker's answer, in order. The first failure is raised: a worker's error as one process's
+        env raises it (its traceback the cause), else :class:`ConfigError`; the env then needs a reset, its
+        shares having stepped apart."""
         answers, failure = [], None
         for w, conn in enumerate(self._conns):
             try:
                 status, value = conn.recv()
             except (EOFError, OSError):
-                status, value = "error", f"worker {w} stopped (exit code {self._processes[w].poll()})"
+                code = self._processes[w].poll()
+                status, value = "error", (None, f"worker {w} stopped" + (f" (exit code {code})" if code is not None
+                                                                          else " answering"))  # fmt: skip
             if status != "ok" and failure is None:
                 failure = value
             answers.append(value)
         if failure is not None:
-            raise ConfigError(f"a worker of the split vector env failed: {failure.strip()}")
+            self.ready = False
+            exc, text = failure
+            if exc is None:
+                raise ConfigError(f"a worker of the split vector env failed: {text.strip()}")
+            raise exc from WorkerTraceback(text.strip())
         return answers
 
     def _own(self, method: Any, *args: Any, **kwargs: Any) -> Any:
@@ -231,23 +260,39 @@ class SplitVectorEnv(ArrayVectorEnv):
 
     def close_extras(self, terminate: bool = False, **kwargs: Any) -> None:
         """End the workers (each closes its env); kill any that do not end within 10 s."""
-        if not terminate:
-            for outbox in getattr(self, "_outboxes", []):
+        try:
+            if not terminate:
+                for outbox in getattr(self, "_outboxes", []):
+                    try:
+                        outbox.send(("close", None))
+                    except (BrokenPipeError, OSError):
+                        pass
+            for process in getattr(self, "_processes", []):
                 try:
-                    outbox.send(("close", None))
-                except (BrokenPipeError, OSError):
+                    process.wait(timeout=0.1 if terminate else 10.0)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    process.wait(timeout=5.0)
+            for conn in [*getattr(self, "_outboxes", []), *getattr(self, "_conns", [])]:
+                try:
+                    conn.close()
+                except OSError:  # closed already
                     pass
-        for process in getattr(self, "_processes", []):
-            try:
-                process.wait(timeout=0.1 if terminate else 10.0)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=5.0)
-        for conn in [*getattr(self, "_outboxes", []), *getattr(self, "_conns", [])]:
-            conn.close()
-        self._outboxes, self._conns, self._processes = [], [], []
-        if getattr(self, "own", None) is not None:
-            self.own.close()
+            self._outboxes, self._conns, self._processes = [], [], []
+        finally:
+            if getattr(self, "own", None) is not None:
+                self.own.close()
+
+    def __deepcopy__(self, memo: dict) -> SplitVectorEnv:
+        raise TypeError(_NO_COPY)
+
+    def __reduce_ex__(self, protocol: Any) -> Any:
+        raise TypeError(_NO_COPY)
+
+
+#: Why a split vector env is neither copied nor pickled.
+_NO_COPY = ("a split vector env (workers > 1) cannot be copied or pickled: its copies live in worker processes; make "
+            "a new one, or one with workers=1, which copies")
 
 
 if __name__ == "__main__":  # pragma: no cover - a worker, started by SplitVectorEnv

@@ -333,6 +333,15 @@ class StewartBallVectorEnv(ArrayVectorEnv):
         for env in getattr(self, "envs", []):  # [] when the constructor refused its arguments
             env.close()
 
+    def __deepcopy__(self, memo: dict) -> StewartBallVectorEnv:
+        """An independent vector env in the same state: what a pickle round trip makes (the copies, their shared
+        simulator, sensors and observers copied together)."""
+        import pickle
+
+        twin = pickle.loads(pickle.dumps(self))
+        memo[id(self)] = twin
+        return twin
+
 
 def sensor_array(env: StewartBallEnv, n: int, control_dt: float) -> PanelArray | CameraArray:
     """``n`` copies of ``env``'s sensor as one array: touch panels, or cameras where it has a camera (every

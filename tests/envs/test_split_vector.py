@@ -12,11 +12,19 @@ import numpy as np
 import pytest
 
 import stewart_gym  # noqa: F401  (registers the ids)
-from stewart_gym.envs.split_vector import SplitVectorEnv
+from stewart_gym.envs.split_vector import SplitVectorEnv, WorkerTraceback
+from stewart_gym.envs.tasks.balance import BalanceTask
 from stewart_gym.envs.vector import StewartBallVectorEnv
 from stewart_gym.errors import ConfigError
 
 pytestmark = pytest.mark.xdist_group("split_vector")  # worker processes: not two of these tests at once
+
+
+class FailingTask(BalanceTask):
+    """A task that fails in its first step (importable: a worker makes it from its module)."""
+
+    def before_step(self, t: float, backend: object) -> None:
+        raise ValueError("the task failed on purpose")
 
 
 def make(num_envs: int, **kwargs) -> gym.vector.VectorEnv:
@@ -88,6 +96,60 @@ def test_a_worker_that_fails_is_one_error_and_leaves_no_process() -> None:
         for pid in leftover:
             with open(f"/proc/{pid}/cmdline", "rb") as f:
                 assert b"stewart_gym.envs.split_vector" not in f.read()
+
+
+def test_a_workers_error_is_raised_as_one_processs_env_raises_it() -> None:
+    """An error in a worker's share is the error one process's env raises (its type, its message), the worker's
+    traceback its cause; the shares then need a reset (they stepped apart). A task defined in the script itself,
+    which the workers cannot import, is refused before they start."""
+    one, split = make(4, task=FailingTask()), make(4, workers=2, task=FailingTask())
+    try:
+        for env in (one, split):
+            env.reset(seed=0)
+            with pytest.raises(ValueError, match="^the task failed on purpose$") as raised:
+                env.step(np.zeros((4, 2), np.float32))
+        assert isinstance(raised.value.__cause__, WorkerTraceback)
+        assert "the task failed on purpose" in str(raised.value.__cause__)
+        from gymnasium.error import ResetNeeded
+
+        with pytest.raises(ResetNeeded):
+            split.step(np.zeros((4, 2), np.float32))
+    finally:
+        one.close()
+        split.close()
+    script = type("ScriptTask", (BalanceTask,), {"__module__": "__main__"})
+    with pytest.raises(ConfigError, match=r"task: ScriptTask is defined in the script itself \(__main__\), which the "
+                                          "split vector env's workers cannot import"):  # fmt: skip
+        make(4, workers=2, task=script())
+
+
+def test_a_split_env_refuses_a_copy_and_stays_whole() -> None:
+    """copy.deepcopy or pickle of a split env: one TypeError, before anything is copied (a half-made copy closed
+    the env's pipes as it was collected); the env steps on, and closes once and again. One process's vector env
+    copies: the copy steps as the env does."""
+    import copy
+    import gc
+    import pickle
+
+    split = make(4, workers=2)
+    try:
+        split.reset(seed=0)
+        for attempt in (copy.deepcopy, pickle.dumps):
+            with pytest.raises(TypeError, match="cannot be copied or pickled: its copies live in worker processes"):
+                attempt(split)
+        gc.collect()
+        split.step(np.zeros((4, 2), np.float32))
+    finally:
+        split.close()
+    split.close()
+    one = make(3)
+    one.reset(seed=2)
+    twin = copy.deepcopy(one)
+    a = np.full((3, 2), 0.3, np.float32)
+    for x, y in zip(one.step(a)[:4], twin.step(a)[:4]):
+        np.testing.assert_array_equal(x, y)
+    one.close()
+    twin.close()
 
 
 def test_a_dead_worker_is_one_error_and_close_ends_the_others() -> None:
