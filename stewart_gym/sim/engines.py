@@ -89,10 +89,6 @@ def make_backend(name: str, geometry: Any, *, physics_hz: int | None = None, **k
         if kwargs.get("render_mode") == "human":
             raise ConfigError("render_mode 'human' is PyBullet's window; with MuJoCo use 'rgb_array' or "
                               "python -m mujoco.viewer on the file from stewart-gym mjcf")  # fmt: skip
-        if kwargs.get("render_mode") == "rgb_array":  # said as the env is made, not at its first frame
-            from stewart_gym.sim.mujoco_sim import check_rendering
-
-            check_rendering()
         own = (kwargs.get("physics") or MujocoPhysics()).physics_hz
         return MujocoSim(geometry, physics_hz=physics_hz or multiple_at_least(own, control_hz), **kwargs)
     if name == "batched":
