@@ -711,7 +711,8 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         sigma["servos.trim_us"] = float(max(np.max(trim_fit.sigma_us), 0.5))
     else:
         trims = _trims_for(geo, cal, best_accel)
-        if given and "servos.trim_us" not in start.undetermined:  # each servo's own, measured: they stand
+        measured = given and "servos.trim_us" not in start.undetermined and any(start["servos.trim_us"])
+        if measured:  # each servo's own, measured (not the nominal zeros of a --start that leaves them out): they stand
             kept[("servos", "trim_us")] = tuple(start["servos.trim_us"])
             notes["servos.trim_us"] = ("the panel sees only the tilt the trims make together: the twin keeps "
                                        "--start's, each servo's own")  # fmt: skip

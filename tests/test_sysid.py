@@ -199,6 +199,8 @@ def test_what_the_logs_cannot_determine_is_the_start_twins_or_widely_uncertain(t
     assert "servos.speed_scale" not in twin.sigma and "servos.deadband_us" not in twin.sigma
     assert "the twin keeps --start's 0.5" in out and "the twin keeps --start's, each servo's own" in out
     assert "keeps these as written" not in out
+    speed_only = Twin.from_mapping({"servos": {"speed_scale": 0.5}})  # sets no trims: the smallest that tilt alike
+    assert any(fit_twin([read_log(still)], start=speed_only).twin["servos.trim_us"])
     alone = fit_twin([read_log(still)]).twin  # no --start: the search's best, widely uncertain
     for name, grid in (("servos.speed_scale", SPEED_GRID), ("servos.deadband_us", DEADBAND_GRID)):
         assert name in alone.undetermined
