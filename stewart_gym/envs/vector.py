@@ -288,7 +288,14 @@ class StewartBallVectorEnv(ArrayVectorEnv):
     def reset_arrays(self, *, seed: int | list[int | None] | None = None,
                      options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:  # fmt: skip
         self.check_open()
-        out = self._reset_copies(np.arange(self.num_envs), copy_seeds(seed, self.num_envs), options)
+        seeds = copy_seeds(seed, self.num_envs)
+        try:
+            out = self._reset_copies(np.arange(self.num_envs), seeds, options)
+        except ConfigError as exc:  # an option one copy refuses: each copy takes the same options
+            if options and str(exc).startswith("reset option "):
+                raise ConfigError(f"{exc} (every copy of a vector env resets with these same options: one value "
+                                  "each, not one per copy)") from None  # fmt: skip
+            raise
         self.ready = True
         return out
 

@@ -238,6 +238,13 @@ def test_bad_arguments_are_one_clear_error() -> None:
 
     with pytest.raises(ConfigError, match="env_kwargs.workers: training steps its batched copies in one process"):
         BatchedVecEnv("StewartBallBalance-v0", 4, {"backend": "batched", "workers": 2})
+    vector = gym.make_vec("StewartBallBalance-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    with pytest.raises(ConfigError, match=r"got shape \(2, 2\) \(every copy of a vector env resets with these same "
+                                          r"options: one value each, not one per copy\)"):  # fmt: skip
+        vector.reset(options={"ball_position": [(0.01, 0.02), (0.03, 0.0)]})
+    vector.reset(seed=0, options={"ball_position": (0.01, 0.02)})  # one value: every copy's
+    np.testing.assert_allclose(vector.unwrapped.sim.ball_xy, [(0.01, 0.02)] * 2)
+    vector.close()
 
 
 def test_the_single_batched_env_passes_the_env_checkers() -> None:
