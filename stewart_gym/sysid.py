@@ -49,6 +49,7 @@ over the next 0.5 s and 1 s.
 from __future__ import annotations
 
 import csv
+import hashlib
 import math
 import re
 from collections.abc import Sequence
@@ -123,6 +124,7 @@ class FlightLog:
         plate: with a camera (the log's plate columns), each distinct frame's time and plate pose
             (:class:`~stewart_gym.plate_trims.PlateLog`); None without.
         poses: (K, 6) the pose asked for at each tick (m, rad), where the log has the pose columns; else None.
+        digest: the sha256 of the file's text: the same log under two names is told apart from two logs.
     """
 
     path: str
@@ -135,6 +137,7 @@ class FlightLog:
     dated_at_ticks: bool = False
     plate: PlateLog | None = None
     poses: np.ndarray | None = None
+    digest: str = ""
 
     @property
     def read_overhead_s(self) -> float:
@@ -186,17 +189,23 @@ def pose_agreement(log: FlightLog, geometry: Any, calibration: ServoCalibration)
 
 
 def unfit_reason(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15), holdout: float = 0.3) -> str | None:
-    """Why :func:`fit_twin` could not fit a twin from the log at ``path`` alone (too short, too few windows with
-    the ball on the plate, not a log it reads), in words; None where it can."""
+    """Why :func:`fit_twin` could not fit a twin from the log at ``path`` alone (not a log it reads, too short, too
+    few windows with the ball on the plate), in words; None where it can."""
     try:
-        log = read_log(path, plate_half)
+        _fit_windows([read_log(path, plate_half)], holdout)
     except ConfigError as exc:
         return str(exc)
-    fit = [w for w in _windows([log], holdout) if not w.heldout]
-    if len(fit) < MIN_FIT_WINDOWS:
-        return (f"{path}: {len(fit)} usable windows to fit ({MIN_FIT_WINDOWS} or more needed): the ball was on the "
-                "plate too briefly")  # fmt: skip
     return None
+
+
+def _fit_windows(logs: Sequence[FlightLog], holdout: float) -> tuple[list[_Window], list[_Window]]:
+    """The logs' windows to fit and held out; :class:`ConfigError` where there are too few to fit."""
+    windows = _windows(list(logs), holdout)
+    fit_w = [w for w in windows if not w.heldout]
+    if len(fit_w) < MIN_FIT_WINDOWS:
+        raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit ({MIN_FIT_WINDOWS} or more needed): log "
+                          "longer runs with the ball on the plate (identify --duration 60)")  # fmt: skip
+    return fit_w, [w for w in windows if w.heldout]
 
 
 def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> FlightLog:
@@ -290,7 +299,8 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
             raise ConfigError(f"{path}: a pose asked for is not a number ({exc}); the file may be cut or "
                               "edited") from None  # fmt: skip
     return FlightLog(str(path), t, pulses, ~np.any(bad.astype(bool), axis=1), readings[:, 2], readings[:, :2], rate,
-                     dated_at_ticks=bool(np.mean(at_tick) > 0.5), plate=plate, poses=poses)  # fmt: skip
+                     dated_at_ticks=bool(np.mean(at_tick) > 0.5), plate=plate, poses=poses,
+                     digest=hashlib.sha256(text.encode()).hexdigest())  # fmt: skip
 
 
 @dataclass
@@ -584,6 +594,12 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                               f"{log.t[tick]:g}) is outside the calibration's [{cal.min_us[channel]:g}, "
                               f"{cal.max_us[channel]:g}] µs ({int(outside.sum())} pulse(s) in all): give the "
                               "--calibration the log was run with")  # fmt: skip
+    seen: dict[str, str] = {}
+    for log in logs:  # a log under two names would count its windows twice (and narrow the uncertainties)
+        if log.digest and log.digest in seen:
+            raise ConfigError(f"{seen[log.digest]} and {log.path} hold the same log: it would count its windows "
+                              "twice (and narrow the uncertainties); give it once")  # fmt: skip
+        seen[log.digest] = log.path
     for log in logs:  # another build's log (or another calibration's) would fit a twin to the wrong plant
         agreement = pose_agreement(log, geo, cal)
         if agreement is not None and agreement < MIN_POSE_AGREEMENT:
@@ -592,12 +608,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                               "agree): give the --geometry and --calibration it was run with")  # fmt: skip
     given = start is not None  # a --start twin: its values stand where the logs cannot determine them
     start = start or Twin()
-    windows = _windows(list(logs), holdout)
-    fit_w = [w for w in windows if not w.heldout]
-    held_w = [w for w in windows if w.heldout]
-    if len(fit_w) < MIN_FIT_WINDOWS:
-        raise ConfigError(f"the logs give {len(fit_w)} usable windows to fit ({MIN_FIT_WINDOWS} or more needed): log "
-                          "longer runs with the ball on the plate (identify --duration 60)")  # fmt: skip
+    fit_w, held_w = _fit_windows(logs, holdout)
     servos = [_servo(s, d) for s in SPEED_GRID for d in DEADBAND_GRID]
     rate = logs[0].rate_hz
     dt = 1.0 / rate
