@@ -66,8 +66,8 @@ def cmd_identify(args: argparse.Namespace) -> int:
         print(f"log: {setup.log} (fit a twin from it: stewart-gym sysid {setup.log}{markers} --out twin.toml)",
               flush=True)  # fmt: skip
     else:
-        print(f"log: {setup.log} (too short to fit a twin from alone: {why.removeprefix(f'{setup.log}: ')}; run "
-              "identify longer, 60 s by default, or fit it with other logs)", flush=True)  # fmt: skip
+        print(f"log: {setup.log} (too short to fit a twin from alone: {why.removeprefix(f'{setup.log}: ')})",
+              flush=True)  # fmt: skip
     return summary.exit_code
 
 
