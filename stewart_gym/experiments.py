@@ -121,39 +121,59 @@ def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int,
 
         context = multiprocessing.get_context("spawn")
         reports = context.Queue()  # the workers' progress, read here while they run
+        others = set(context.active_children())
         with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=context, initializer=worker_setup,
                                  initargs=(reports,)) as pool:  # fmt: skip
-            with _workers_start_deaf_to_ctrl_c():
-                futures = [pool.submit(evaluate_part, task) for task in tasks]
-            while not all(f.done() for f in futures):
-                try:
-                    amount = reports.get(timeout=0.2)
-                except queues.Empty:
-                    continue
-                if on_progress is not None:
-                    on_progress(amount)
+            try:
+                with ctrl_c_held_while_workers_start():
+                    futures = [pool.submit(evaluate_part, task) for task in tasks]
+                while not all(f.done() for f in futures):
+                    try:
+                        amount = reports.get(timeout=0.2)
+                    except queues.Empty:
+                        continue
+                    if on_progress is not None:
+                        on_progress(amount)
+            except BaseException:  # a stop (Ctrl-C, SIGTERM) or a failure here: the workers stop too, at once
+                for worker in set(context.active_children()) - others:
+                    worker.terminate()
+                raise
             results = [f.result() for f in futures]
     return [summarise(job.env_id, job.episodes, job.seed, job.randomize,
                       [part for (owner, _), part in zip(tasks, results) if owner is job]) for job in jobs]  # fmt: skip
 
 
 @contextlib.contextmanager
-def _workers_start_deaf_to_ctrl_c() -> Iterator[None]:
-    """While the worker processes start (the pool starts them as the tasks are submitted): SIGINT ignored, which a
-    started process keeps, so that a terminal's Ctrl-C while a worker still loads (seconds: Python, torch, the
-    policy) does not print that worker's traceback; :func:`worker_setup` then makes a Ctrl-C end the worker without
-    a word. The parent's own handler is back as soon as the tasks are submitted."""
+def ctrl_c_held_while_workers_start() -> Iterator[None]:
+    """While the worker processes start (the pool starts them as the tasks are submitted): SIGINT blocked in this
+    thread, which a process started from it keeps, so that a terminal's Ctrl-C while a worker still loads (seconds:
+    Python, torch, the policy) waits in that worker until :func:`worker_setup` ends it without a word (no traceback
+    of its import). A Ctrl-C in these moments is held here too (noted where another thread takes it), and raised as
+    :class:`KeyboardInterrupt` as soon as the tasks are submitted. Where signals cannot be blocked (Windows), SIGINT
+    is ignored in these moments instead."""
     import signal
     import threading
 
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if not hasattr(signal, "pthread_sigmask"):
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            yield
+        finally:
+            signal.signal(signal.SIGINT, before)
+        return
+    held: list[int] = []
+    before = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         yield
     finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # one that waited here runs the handler above
         signal.signal(signal.SIGINT, before)
+    if held:
+        raise KeyboardInterrupt
 
 
 #: In a worker process of :func:`evaluate_all`: where its progress goes (set by :func:`worker_setup`).
@@ -170,6 +190,8 @@ def worker_setup(reports: Any) -> None:
     logging.getLogger("stewart_gym").setLevel(logging.ERROR)
     _REPORTS[:] = [reports]
     signal.signal(signal.SIGINT, signal.SIG_DFL)  # the system's default: the process ends, Python says nothing
+    if hasattr(signal, "pthread_sigmask"):  # started blocked: a Ctrl-C that came while it loaded ends it now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def evaluate_part(task: tuple[EvaluationJob, list[int]],

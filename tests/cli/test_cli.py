@@ -1036,10 +1036,11 @@ def test_compare_labels_a_column_by_the_end_of_its_path(tmp_path: Path, capfd: p
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("after_s", [0.0, 1.5])
-def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(after_s: float, tmp_path: Path) -> None:
-    """A terminal's Ctrl-C reaches the command and its worker processes alike, while the workers still load (0 s
-    after they exist) or while they evaluate: one line, exit 130, no worker's traceback, no process left."""
+@pytest.mark.parametrize(("processes", "after_s"), [(2, 0.0), (3, 0.0), (4, 0.0), (4, 1.5)])
+def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(processes: int, after_s: float, tmp_path: Path) -> None:
+    """A terminal's Ctrl-C reaches the command and its worker processes alike: before the workers start (the
+    command and multiprocessing's resource tracker: 2 processes), as the first starts (3), while both still load
+    (4, at once) or while they evaluate: one line, exit 130, no worker's traceback, no process left."""
     proc = subprocess.Popen([sys.executable, "-m", "stewart_gym", "compare", "pid", "lqr", "--episodes", "40",
                              "--workers", "2"], cwd=tmp_path, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True,
@@ -1050,7 +1051,7 @@ def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(after_s: float, tm
 
     try:
         deadline = time.monotonic() + 120
-        while len(group()) < 3:  # the command and its two workers
+        while len(group()) < processes:
             assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-2000:]
             time.sleep(0.05)
         time.sleep(after_s)
@@ -1066,6 +1067,22 @@ def test_ctrl_c_in_a_compare_split_over_processes_is_one_line(after_s: float, tm
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="signals cannot be blocked on this system")
+def test_a_ctrl_c_while_the_workers_start_is_kept_for_after() -> None:
+    """A Ctrl-C in the moments the evaluation's workers start (when they must not take it yet) stops the command as
+    soon as they have started: it is not lost, which would run the whole comparison after it."""
+    from stewart_gym.experiments import ctrl_c_held_while_workers_start
+
+    reached = []
+    with pytest.raises(KeyboardInterrupt):
+        with ctrl_c_held_while_workers_start():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            reached.append("the tasks are submitted")
+    assert reached == ["the tasks are submitted"]
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
 
 
 def test_paired_verdict_reads_the_interval_in_the_metrics_direction() -> None:
