@@ -21,6 +21,7 @@ import numpy as np
 
 from stewart_gym.envs.ball_env import settling_start
 from stewart_gym.errors import PolicyError
+from stewart_gym.outputs import make_parent
 
 __all__ = ["GIF_FPS", "MIN_VERDICT_EPISODES", "PAIRED_METRICS", "EpisodeLog", "Policy", "check_fits", "evaluate",
            "evaluation_part", "format_paired", "format_table", "paired_count", "paired_difference", "paired_rows",
@@ -410,7 +411,7 @@ def plot_episode(log: EpisodeLog, path: str | Path, title: str = "") -> None:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -435,4 +436,4 @@ def write_gif(frames: list[np.ndarray], path: str | Path, fps: float = GIF_FPS, 
         kept = stamped
     # encoded in memory, then written: imageio's writer, failing to open a path, fails again when collected
     data = iio.imwrite("<bytes>", np.stack(kept), extension=".gif", duration=1000 / fps, loop=0)
-    Path(path).write_bytes(data)
+    make_parent(path).write_bytes(data)

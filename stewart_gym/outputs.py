@@ -9,14 +9,15 @@ Used by the command line, the policy registry and :func:`stewart_gym.training.tr
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.inputs import read_text, read_yaml
 
-__all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "model_statistics", "output_dir", "output_file",
-           "run_config"]
+__all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "make_parent", "model_statistics", "output_dir",
+           "output_file", "run_config"]
 
 #: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
 #: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
@@ -25,7 +26,8 @@ ENSEMBLE_FILE = "ensemble.json"
 
 def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: bool = True) -> Path:
     """Check that ``path`` can be written, before any long work: its folder exists or can be created, it is
-    not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`."""
+    not a folder, and (with ``overwrite=False``) it does not exist yet. Raises :class:`ConfigError`. The writer
+    makes the folder as it writes (:func:`make_parent`)."""
     if not str(path).strip():
         raise ConfigError("an empty output path was given; name the file to write")
     p = Path(path)
@@ -35,9 +37,17 @@ def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: 
         raise ConfigError(f"{p} is a folder; give a file name")
     if p.exists() and not overwrite:
         raise ConfigError(f"{p} exists; give another name or --overwrite")
-    _writable_dir(p.parent)
+    _writable_dir(p.parent, p)
     if p.exists() and not os.access(p, os.W_OK):
         raise ConfigError(f"{p}: no permission to write")
+    return p
+
+
+def make_parent(path: str | Path) -> Path:
+    """``path`` as a :class:`~pathlib.Path`, its folder made where it is missing (:func:`output_file` checked that
+    it can be): what a writer calls just before it writes, so that work done is not lost to a missing folder."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
     return p
 
 
@@ -48,11 +58,13 @@ def output_dir(path: str | Path) -> Path:
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise ConfigError(f"{p} exists and is not a folder")
-    _writable_dir(p)
+    _writable_dir(p, p)
     return p
 
 
-def _writable_dir(folder: Path) -> None:
+def _writable_dir(folder: Path, target: Path) -> None:
+    """Raise :class:`ConfigError` unless ``target`` (``folder`` or a file in it) can be written: ``folder``, or
+    its nearest existing folder, is a folder that takes a new file."""
     existing = folder
     while not existing.exists():
         if existing.parent == existing:
@@ -63,6 +75,12 @@ def _writable_dir(folder: Path) -> None:
                           else f"{folder}: {existing} is a file, not a folder")  # fmt: skip
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ConfigError(f"{folder}: no permission to write in {existing}")
+    try:  # a file made there and removed at once: what the permissions do not tell (/proc, a read-only mount, root)
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{target}: {existing} takes no new files ({os.strerror(exc.errno or 0).lower()}); "
+                          "choose a folder you can write in") from None  # fmt: skip
 
 
 #: A run trained on a geometry file keeps a copy of the build here, in its folder, and its config.yaml names it

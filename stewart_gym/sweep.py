@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 
 from stewart_gym.errors import ConfigError
 from stewart_gym.inputs import read_yaml
+from stewart_gym.outputs import make_parent
 
 if TYPE_CHECKING:
     from stewart_gym.training import TrainConfig
@@ -583,7 +584,7 @@ def plot_sweep(spec: SweepSpec, rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_title(f"{spec.name}: {spec.env}, {spec.algo}, {spec.n_timesteps} steps per trial", fontsize=9)
     fig.tight_layout()
     fig.subplots_adjust(left=max(fig.subplotpars.left, 0.3))
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 

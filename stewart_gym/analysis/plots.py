@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from stewart_gym.outputs import make_parent
+
 __all__ = ["plot_conditioning", "plot_height_map", "plot_planar", "plot_sensitivity", "plot_sweep",
            "plot_trajectory"]  # fmt: skip
 
@@ -31,7 +33,7 @@ def plot_height_map(hm: Any, path: str | Path, title: str) -> None:
         ax.set(xlabel="x [mm]", ylabel="y [mm]", title=label, aspect="equal")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -67,7 +69,7 @@ def plot_trajectory(res: dict[str, Any], path: str | Path, title: str) -> None:
     axes[-1, 0].set(xlabel="time [s]")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -83,7 +85,7 @@ def plot_sensitivity(x: np.ndarray, y: np.ndarray, position_step: np.ndarray, an
         ax.set(xlabel="x [mm]", ylabel="y [mm]", aspect="equal")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -100,7 +102,7 @@ def plot_conditioning(x: np.ndarray, y: np.ndarray, cond: np.ndarray, near: np.n
         ax.legend()
     ax.set(xlabel="x [mm]", ylabel="y [mm]", title=title, aspect="equal")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -125,7 +127,7 @@ def plot_planar(poses: np.ndarray, params: dict[str, float], path: str | Path) -
         ax.set(xlabel="x", ylabel="y", aspect="equal")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)
 
 
@@ -139,5 +141,5 @@ def plot_sweep(values: np.ndarray, counts: np.ndarray, strut: str, changes: list
     ax.set(xlabel=f"strut {strut} length", ylabel="number of poses", yticks=range(0, int(max(counts, default=0)) + 2, 2))
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(make_parent(path), dpi=110)
     plt.close(fig)

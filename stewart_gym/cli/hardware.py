@@ -26,6 +26,7 @@ from stewart_gym.cli.common import (
 from stewart_gym.cli.learning import ENV_CHOICES
 from stewart_gym.envs.targets import TRAJECTORIES
 from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import make_parent
 
 __all__ = ["register"]
 
@@ -85,8 +86,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                             nominal_us=nominal)  # fmt: skip
     finally:
         controller.close()
-    out.write_text(calibration_toml(result.calibration, {"port": port, "protocol": protocol, "baudrate": baudrate},
-                                    geometry=args.geometry, folder=out.parent))  # fmt: skip
+    written = {"port": port, "protocol": protocol, "baudrate": baudrate}
+    make_parent(out).write_text(calibration_toml(result.calibration, written, geometry=args.geometry, folder=out.parent))
     print(f"calibration written to {out} (geometry {geometry.name}, port {port}, protocol {protocol})")
     return EXIT_OK
 
@@ -204,8 +205,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     if out is None and not args.image:
         out = output_file("camera_check.png", suffixes=(".png",))
     if out is not None:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(out), annotate(frames[-1], config, last)):
+        if not cv2.imwrite(str(make_parent(out)), annotate(frames[-1], config, last)):
             raise ConfigError(f"{out}: the annotated image could not be written (check the folder and the name)")
     if args.json:
         result = last.as_dict()

@@ -22,6 +22,7 @@ from stewart_gym.cli.common import (
 )
 from stewart_gym.errors import UnreachableError
 from stewart_gym.kinematics import inverse_kinematics
+from stewart_gym.outputs import make_parent
 from stewart_gym.presets import load_geometry
 
 if TYPE_CHECKING:
@@ -132,7 +133,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         settle_at(sim, pose)
         if args.ball:
             sim.place_ball(np.zeros(2))
-        iio.imwrite(out, sim.render())
+        iio.imwrite(make_parent(out), sim.render())
         reached = sim.platform_pose()
         print(f"{out}: pose reached {np.round(reached[:3] * 1e3, 3).tolist()} mm, "
               f"{np.round(np.degrees(reached[3:]), 3).tolist()} deg")  # fmt: skip

@@ -30,6 +30,7 @@ import numpy as np
 from stewart_gym.constants import GRAVITY
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import horn_tips, inverse_kinematics
+from stewart_gym.outputs import make_parent
 from stewart_gym.presets import load_geometry
 from stewart_gym.sim.backend import BallSpec
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR, ServoSpec
@@ -264,6 +265,6 @@ def ball_friction(ball: BallSpec, plate_friction: float) -> tuple[float, float, 
 
 def write_mjcf(path: str | Path, geometry: PlatformGeometry | str = "servo-hexapod", *, ball: bool = True) -> Path:
     """Write the platform's MJCF (with the default ball unless ``ball=False``) to ``path``; return it."""
-    path = Path(path)
+    path = make_parent(path)
     path.write_text(mechanism_mjcf(geometry, ball=BallSpec() if ball else None))
     return path

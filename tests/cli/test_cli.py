@@ -363,7 +363,7 @@ BAD = [
     ["train", "--resume", "{files}/emptydir", "--run-dir", "{tmp}/r"],
     ["train", "--geometry", "mathcad-micro", "--run-dir", "{tmp}/r"],  # a 30 mm plate cannot carry the ball
     ["train", "--geometry", "nope", "--run-dir", "{tmp}/r"],
-    ["train", "--run-dir", "/proc/stewart-gym-run", "--max-minutes", "1"],  # refused after PyBullet is imported
+    ["train", "--run-dir", "/proc/stewart-gym-run", "--max-minutes", "1"],  # /proc takes no new file
     # evaluate
     ["evaluate", "--policy", "nope"],
     ["evaluate", "--policy", "pid-kalman", "--trajectory", "figure8"],  # the balance env's target does not move
@@ -604,7 +604,7 @@ BAD_57 = [
     ["calibrate", "--port", DEV, "--calibration", "{files}/cal_other_build.toml"],
     ["evaluate", "--policy", "{files}/bundle_env_id"],
     ["evaluate", "--policy", "{files}/bundle_env_kwargs"],
-    ["evaluate", "--policy", "pid", "--episodes", "1", "--gif", "/proc/x.gif"],  # imageio's writer said it again
+    ["evaluate", "--policy", "pid", "--episodes", "1", "--gif", "/proc/x.gif"],  # refused before the episode
     ["export", "--policy", "pid", "--out", "{files}/not_a_model"],  # a folder with a model: not a bundle's
 ]
 DEVICE_FAILURES = {("deploy", DEV), ("calibrate", DEV)}  # a missing port is a device failure: exit 2
@@ -1105,12 +1105,40 @@ def test_evaluate_writes_gif_and_plot(tmp_path: Path, capfd: pytest.CaptureFixtu
     step), none thrown away."""
     import imageio.v3 as iio
 
-    proc = sg_in(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(tmp_path / "pid.gif"), "--plot",
-              str(tmp_path / "pid.png"))  # fmt: skip
+    gif = tmp_path / "figures" / "gif" / "pid.gif"  # in folders made as it writes
+    proc = sg_in(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--gif", str(gif), "--plot",
+                 str(tmp_path / "pid.png"))  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    assert (tmp_path / "pid.gif").read_bytes()[:6] == b"GIF89a" and (tmp_path / "pid.png").stat().st_size > 10_000
-    meta = iio.immeta(tmp_path / "pid.gif")
-    assert iio.improps(tmp_path / "pid.gif").shape[0] == 250 and meta["duration"] == pytest.approx(40, abs=1)
+    assert gif.read_bytes()[:6] == b"GIF89a" and (tmp_path / "pid.png").stat().st_size > 10_000
+    meta = iio.immeta(gif)
+    assert iio.improps(gif).shape[0] == 250 and meta["duration"] == pytest.approx(40, abs=1)
+
+
+@pytest.mark.parametrize("args", [["mjcf", "--out", "new/servo.xml"], ["sensitivity", "--plot", "new/s.png"],
+                                  ["evaluate", "--policy", "pid", "--episodes", "1", "--plot", "new/deeper/p.png"]])
+def test_a_file_written_into_a_folder_not_made_yet_is_written(args: list[str], tmp_path: Path,
+                                                               capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """An output in a folder that does not exist yet: the folder is made as the file is written (the work done
+    is not lost to "no such file or directory" at the end)."""
+    code, _, err = cli(capfd, *args, cwd=tmp_path)
+    assert code == 0 and "error" not in err, err
+    assert (tmp_path / args[-1]).stat().st_size > 1000
+
+
+@pytest.mark.parametrize("args", [["evaluate", "--policy", "pid", "--episodes", "100", "--gif", "/proc/new/x.gif"],
+                                  ["mjcf", "--out", "/proc/servo.xml"], ["sensitivity", "--plot", "/proc/s.png"]])
+def test_an_output_where_no_file_can_be_made_is_refused_before_the_work(args: list[str], tmp_path: Path,
+                                                                       capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """``/proc`` takes no new file, though root's permissions call it writable: refused before the work (a
+    hundred episodes ran first, then writing failed), naming the file and the folder."""
+    if not Path("/proc").is_dir():
+        pytest.skip("no /proc on this system")
+    code, _, err = cli(capfd, *args, cwd=tmp_path)
+    lines = err.strip().splitlines()
+    assert code == 1 and len(lines) == 1, err
+    expected = (f"error: {args[-1]}: /proc takes no new files (no such file or directory); choose a folder you can "
+                "write in") if os.access("/proc", os.W_OK) else "no permission to write in /proc"  # fmt: skip
+    assert expected in lines[0], err
 
 
 def test_deploy_pid_leaves_no_temporary_folder(device: FakeDevice, tmp_path: Path) -> None:
@@ -1222,7 +1250,7 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
     from stewart_gym.calibration import ServoCalibration, hardware_settings
 
     drain = Drain(device)
-    out = tmp_path / "cal.toml"
+    out = tmp_path / "not made yet" / "cal.toml"  # the trims found are not lost to a missing folder
     proc = sg("calibrate", "--port", device.path, "--protocol", "maestro", "--step", "0.1", "--out", str(out),
               stdin="+\n+\n+\nn\n-\nx\nq\n", cwd=tmp_path)  # fmt: skip
     data = drain.stop()
