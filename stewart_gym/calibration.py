@@ -17,6 +17,7 @@ the caller asks explicitly for clipping or NaN.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -110,12 +111,18 @@ class ServoCalibration:
         if not np.all(self.min_us < self.max_us):
             raise CalibrationError(f"min_us/max_us: need min_us < max_us per channel, got {self.min_us.tolist()} / "
                                    f"{self.max_us.tolist()}")  # fmt: skip
-        if np.any(self.min_us <= 0):
-            raise CalibrationError(f"min_us: pulse widths must be positive, got {self.min_us.tolist()}")
+        lo, hi = PULSE_LIMITS_US
+        if np.any(self.min_us < lo) or np.any(self.max_us > hi):
+            raise CalibrationError(f"min_us/max_us: within {lo:g}–{hi:g} µs, beyond any hobby servo's pulses, got "
+                                   f"{self.min_us.tolist()} / {self.max_us.tolist()}")  # fmt: skip
         bad = np.flatnonzero((self.neutral_us < self.min_us) | (self.neutral_us > self.max_us))
         if bad.size:
             raise CalibrationError(f"neutral_us: channels {bad.tolist()} have their neutral pulse outside [min_us, max_us]")
-        channels = tuple(int(c) for c in self.channels)
+        given = self.channels
+        if isinstance(given, (str, bytes)) or not all(isinstance(c, numbers.Integral) and not isinstance(c, bool)
+                                                      for c in given):  # fmt: skip
+            raise CalibrationError(f"channels: need 6 distinct whole channel numbers from 0, got {given!r}")
+        channels = tuple(int(c) for c in given)
         if len(channels) != 6 or len(set(channels)) != 6 or min(channels) < 0:
             raise CalibrationError(f"channels: need 6 distinct non-negative channel numbers, got {list(self.channels)}")
         object.__setattr__(self, "channels", channels)
@@ -346,6 +353,8 @@ class ServoCalibration:
         :class:`PulseRangeError`, ``"nan"`` returns NaN there, ``"clip"`` clamps
         finite pulses to the limits (NaN still raises).
         """
+        if out_of_range not in ("raise", "clip", "nan"):
+            raise ValueError(f"out_of_range must be 'raise', 'clip' or 'nan', got {out_of_range!r}")
         al = np.asarray(angles, dtype=np.float64)
         if al.shape[-1:] != (6,):
             raise ValueError(f"angles must have shape (..., 6), got {al.shape}")
@@ -353,7 +362,10 @@ class ServoCalibration:
         return self._limit(w, out_of_range)
 
     def in_range_one(self, pulse_widths: Sequence[float]) -> bool:
-        """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN)."""
+        """True if all six pulses (µs, Python floats) are within their channel's limits (False for NaN); raises
+        ``ValueError`` for any number of pulses but six."""
+        if len(pulse_widths) != 6:
+            raise ValueError(f"pulse_widths must be 6 pulses, got {len(pulse_widths)}")
         for w, (_, _, _, low, high) in zip(pulse_widths, self.pulse_map):
             if not low <= w <= high:  # also False for NaN
                 return False
@@ -361,6 +373,8 @@ class ServoCalibration:
 
     def angles_one(self, pulse_widths: Sequence[float]) -> list[float]:
         """The scalar twin of :meth:`angles`: six angles (rad) for six pulses (µs), as Python floats."""
+        if len(pulse_widths) != 6:
+            raise ValueError(f"pulse_widths must be 6 pulses, got {len(pulse_widths)}")
         return [h + (w - n) / k for w, (n, k, h, _, _) in zip(pulse_widths, self.pulse_map)]
 
     @cached_property
@@ -383,6 +397,8 @@ class ServoCalibration:
     def in_range(self, pulse_widths: np.ndarray) -> np.ndarray:
         """(..., 6) bool: finite and within each channel's limits."""
         w = np.asarray(pulse_widths, dtype=np.float64)
+        if w.shape[-1:] != (6,):
+            raise ValueError(f"pulse_widths must have shape (..., 6), got {w.shape}")
         return (w >= self.min_us) & (w <= self.max_us)
 
     def check(self, pulse_widths: np.ndarray) -> np.ndarray:
@@ -397,8 +413,6 @@ class ServoCalibration:
             return np.where(ok, w, np.nan)
         if out_of_range == "clip" and np.all(np.isfinite(w)):
             return np.clip(w, self.min_us, self.max_us)
-        if out_of_range not in ("raise", "clip", "nan"):
-            raise ValueError(f"out_of_range must be 'raise', 'clip' or 'nan', got {out_of_range!r}")
         flat_w = w.reshape(-1, 6)
         idx, ch = np.argwhere(~ok.reshape(-1, 6))[0]
         raise PulseRangeError(

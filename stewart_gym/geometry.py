@@ -309,13 +309,20 @@ class PlatformGeometry:
         def sizes_fit(keys: tuple[str, ...]) -> None:
             """Refuse a length of ``keys`` beyond :data:`MAX_LENGTH_M` (before it is used: 1e308 overflows)."""
             for key in keys:
-                if key in kw and not np.max(np.abs(np.asarray(kw[key], dtype=float))) <= MAX_LENGTH_M:
-                    size = np.max(np.abs(np.asarray(kw[key], dtype=float)))
-                    if layout and key.endswith("anchors"):  # (the file gave a radius, not the anchors)
-                        key = f"{key.split('_')[0]}_radius"
-                        key, size = f"symmetric.{key}", symmetric[key]
-                    raise GeometryError(f"{key}: {size:g} m is larger than any build ({MAX_LENGTH_M:g} m); check "
-                                        "length_unit")  # fmt: skip
+                if key not in kw:
+                    continue
+                sizes = np.abs(np.asarray(kw[key], dtype=float))
+                if np.max(sizes) <= MAX_LENGTH_M:  # (False for NaN)
+                    continue
+                finite = bool(np.all(np.isfinite(sizes)))
+                size = np.max(sizes) if finite else np.nan
+                if layout and key.endswith("anchors"):  # (the file gave a radius, not the anchors)
+                    key = f"{key.split('_')[0]}_radius"
+                    key, size = f"symmetric.{key}", symmetric[key]
+                if not finite:
+                    raise GeometryError(f"{key}: must be a finite length, got {size:g}")
+                raise GeometryError(f"{key}: {size:g} m is larger than any build ({MAX_LENGTH_M:g} m); check "
+                                    "length_unit")  # fmt: skip
 
         sizes_fit(("base_anchors", "platform_anchors", "rod_length", "horn_length", "plate_size", "leg_length_range"))
         if "home_height" in data:
@@ -346,7 +353,10 @@ class PlatformGeometry:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> PlatformGeometry:
-        """Load a geometry from a TOML file (see :meth:`from_dict` for the fields); an error names the file."""
+        """Load a geometry from a TOML file (see :meth:`from_dict` for the fields); an error names the file. This
+        checks each field; :func:`stewart_gym.presets.load_geometry` (what the command line and the envs use) also
+        checks the build as a whole: that its chains close at home, inside the actuators' travel, and hold the
+        plate there."""
         data = read_toml(path, GeometryError, "geometry file")
         try:
             return cls.from_dict(data, source=str(path))

@@ -101,11 +101,18 @@ def rotation_matrix(roll: np.ndarray | float, pitch: np.ndarray | float, yaw: np
 
 
 def euler_from_matrix(rot: np.ndarray) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) rad of a rotation matrix R = Rz(yaw)·Ry(pitch)·Rx(roll), pitch in [−π/2, π/2]."""
-    roll = math.atan2(rot[2, 1], rot[2, 2])
-    pitch = -math.asin(max(-1.0, min(1.0, rot[2, 0])))
-    yaw = math.atan2(rot[1, 0], rot[0, 0])
-    return roll, pitch, yaw
+    """(roll, pitch, yaw) rad of a rotation matrix R = Rz(yaw)·Ry(pitch)·Rx(roll), pitch in [−π/2, π/2]. Raises
+    ``ValueError`` for anything but a finite 3 × 3 rotation (orthonormal to 1e-6, determinant +1)."""
+    rows = np.asarray(rot, dtype=np.float64)
+    if rows.shape != (3, 3):
+        raise ValueError(f"rot must be one 3 × 3 rotation matrix, got shape {rows.shape}")
+    (a, b, c), (d, e, f), (g, h, i) = rows.tolist()  # scalar arithmetic: a simulator reads its plate pose so
+    rr = (a * a + b * b + c * c, d * d + e * e + f * f, g * g + h * h + i * i, a * d + b * e + c * f,
+          a * g + b * h + c * i, d * g + e * h + f * i)  # R·Rᵀ  # fmt: skip
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    if not (all(abs(v - 1.0) <= 1e-6 for v in rr[:3]) and all(abs(v) <= 1e-6 for v in rr[3:]) and det > 0):
+        raise ValueError("rot is not a finite rotation matrix (R·Rᵀ = I to 1e-6, det R = +1)")
+    return math.atan2(h, i), -math.asin(max(-1.0, min(1.0, g))), math.atan2(d, a)
 
 
 def rotation_matrix_derivatives(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -193,6 +200,8 @@ def _pivot(pivot: np.ndarray | None) -> np.ndarray:
     c = np.asarray(pivot, dtype=np.float64)
     if c.shape != (3,):
         raise ValueError(f"pivot must have shape (3,), got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError(f"pivot must be finite, got {c.tolist()}")
     return c
 
 
@@ -403,6 +412,8 @@ def pulses_one(geometry: PlatformGeometry, pose: Sequence[float],
     path; :func:`stewart_gym.calibration.servo_pulses_one` is its user. For a
     linear platform the actuator value is the leg length (m) instead of α.
     """
+    if len(pose) != 6 or len(pulse_map) != 6:
+        raise ValueError(f"pose and pulse_map must have 6 entries each, got {len(pose)} and {len(pulse_map)}")
     hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
     k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
     return _ik_scalar(k, pose, pulse_map)
@@ -467,12 +478,16 @@ def pulses_many(geometry: PlatformGeometry, poses: np.ndarray,
     :func:`~stewart_gym.compiled.exp_each` assumes of exp)."""
     if _pulses_compiled is None:  # pragma: no cover - the dev install has numba
         return None
+    poses = np.ascontiguousarray(poses, dtype=np.float64)
+    if poses.ndim != 2 or poses.shape[1] != 6:
+        raise ValueError(f"poses must have shape (n, 6), got {poses.shape}")
+    table = np.array(pulse_map, dtype=np.float64)
+    if table.shape != (6, 5):  # (the compiled loop reads it unchecked)
+        raise ValueError(f"pulse_map must be 6 rows of 5 numbers, got shape {table.shape}")
     hit = _CONSTANTS.get((id(geometry), _NO_PIVOT_KEY))
     k = hit[1] if hit is not None and hit[0] is geometry else _constants(geometry, _NO_PIVOT)
-    poses = np.ascontiguousarray(poses, dtype=np.float64).reshape(-1, 6)
     out, ok = np.empty((len(poses), 6)), np.empty(len(poses), dtype=np.bool_)
-    _pulses_compiled(poses, np.array(k.legs), np.array(pulse_map, dtype=np.float64), k.lo, k.hi, k.inv_2a, k.half_l0,
-                     k.rotary, out, ok)  # fmt: skip
+    _pulses_compiled(poses, np.array(k.legs), table, k.lo, k.hi, k.inv_2a, k.half_l0, k.rotary, out, ok)
     return out, ok
 
 
@@ -635,13 +650,23 @@ def forward_kinematics(
     tip to anchor); its Jacobian is analytic. ``guess`` (..., 6) defaults to home.
     A pose counts as converged when the Newton step is below ``xtol`` and the
     largest residual below ``ftol`` (m); otherwise it is NaN and ``converged``
-    is False. The solution found is the assembly mode nearest the guess.
+    is False. The solution found is the assembly mode nearest the guess, its
+    angles as Newton reaches them from the guess (not wrapped to ±π). Raises
+    ``ValueError`` for a guess that is not finite or does not broadcast to the
+    batch, or tolerances and ``max_iter`` that are not positive.
     """
     if (leg_lengths is None) == (servo_angles is None):
         raise ValueError("give exactly one of leg_lengths or servo_angles")
+    for name, value in (("xtol", xtol), ("ftol", ftol)):
+        if not (isinstance(value, (int, float, np.floating)) and 0 < value < math.inf):
+            raise ValueError(f"{name} must be a positive number, got {value!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be a whole number from 1, got {max_iter!r}")
     c = _pivot(pivot)
     if servo_angles is not None:
         target = np.asarray(servo_angles, dtype=np.float64)
+        if target.shape[-1:] != (6,):
+            raise ValueError(f"servo_angles must have shape (..., 6), got {target.shape}")
         anchors = horn_tips(geometry, target)  # (..., 6, 3) fixed lower ends
         lengths = np.full(target.shape, geometry.rod_length)
     else:
@@ -650,7 +675,16 @@ def forward_kinematics(
             raise ValueError(f"leg_lengths must have shape (..., 6), got {lengths.shape}")
         anchors = np.broadcast_to(geometry.base_anchors, lengths.shape + (3,))
     batch = lengths.shape[:-1]
-    x = np.zeros(batch + (6,)) if guess is None else np.array(np.broadcast_to(guess, batch + (6,)), dtype=float)
+    if guess is None:
+        x = np.zeros(batch + (6,))
+    else:
+        start = np.asarray(guess, dtype=np.float64)
+        try:
+            x = np.array(np.broadcast_to(start, batch + (6,)))
+        except ValueError:
+            raise ValueError(f"guess must be a pose (6,) or one per target {batch + (6,)}, got {start.shape}") from None
+        if not np.all(np.isfinite(x)):
+            raise ValueError("guess holds a NaN or infinite value")
     x = x.reshape(-1, 6)
     lengths = lengths.reshape(-1, 6)
     anchors = anchors.reshape(-1, 6, 3)
@@ -704,8 +738,14 @@ def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, 
     (angles); the first unreachable sample is then bracketed and bisected to
     ``tol`` (relative to the search bound), all rays at once. The result is
     remembered per geometry object (building an env, its action mapper and its
-    tilt default all ask for it; ~30 ms each time otherwise).
+    tilt default all ask for it; ~30 ms each time otherwise). Raises
+    ``ValueError`` unless ``samples`` is a whole number from 2 and ``tol`` a
+    number from 1e-15 (a float's resolution) to 1.
     """
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
+        raise ValueError(f"samples must be a whole number from 2, got {samples!r}")
+    if not (isinstance(tol, (int, float, np.floating)) and 1e-15 <= tol <= 1):
+        raise ValueError(f"tol must be a number from 1e-15 to 1 (relative to the search bound), got {tol!r}")
     key = (id(geometry), _pivot(pivot).tobytes(), samples, tol)
     hit = _REACH.get(key)
     if hit is not None and hit[0] is geometry:

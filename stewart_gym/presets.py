@@ -200,11 +200,17 @@ def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
     raise GeometryError(f"{spec!r} is neither a preset ({', '.join(preset_names())}) nor a TOML file")
 
 
+#: The largest condition number of the actuators' Jacobian at home a build may have: beyond it the legs cannot hold
+#: the plate there (the presets: 9 to 242; one leg given twice: 1e17).
+MAX_HOME_CONDITION = 1e8
+
+
 def check_home(geometry: PlatformGeometry, source: str) -> None:
     """Raise :class:`GeometryError` (naming ``source``, the file) unless the home pose is inside the actuators'
     travel: a solution of the IK at home, with each servo angle inside ``servo_angle_range`` (each leg length
-    inside ``leg_length_range``). A build whose home is outside its travel has no neutral pulse to start from."""
-    from stewart_gym.kinematics import inverse_kinematics
+    inside ``leg_length_range``), and the legs hold the plate there (their Jacobian is not singular:
+    :data:`MAX_HOME_CONDITION`). A build whose home is outside its travel has no neutral pulse to start from."""
+    from stewart_gym.kinematics import actuator_jacobian, inverse_kinematics
 
     key, what = ("servo_angle_range", "servo angles") if geometry.is_rotary else ("leg_length_range", "leg lengths")
     travel = getattr(geometry, key)
@@ -233,3 +239,11 @@ def check_home(geometry: PlatformGeometry, source: str) -> None:
     if not bool(home.reachable):  # (what else the IK refuses: a platform anchor not above its base anchor)
         raise GeometryError(f"{source}: home_height: the home pose is unreachable ({home.explain()}): check "
                             "home_height and the anchors' heights")  # fmt: skip
+    condition = float(np.linalg.cond(actuator_jacobian(geometry, np.zeros(6))))
+    if not condition < MAX_HOME_CONDITION:
+        same = [f"{i} and {j}" for i in range(6) for j in range(i + 1, 6)
+                if np.allclose(geometry.base_anchors[i], geometry.base_anchors[j], rtol=0, atol=1e-6)
+                and np.allclose(geometry.platform_anchors[i], geometry.platform_anchors[j], rtol=0, atol=1e-6)]
+        why = f"legs {', '.join(same)} are one leg twice" if same else "the legs' lines meet or run parallel"
+        raise GeometryError(f"{source}: the legs cannot hold the plate at home ({why}: a singular pose, condition "
+                            f"number {condition:.3g}): check base_anchors and platform_anchors")  # fmt: skip

@@ -133,3 +133,33 @@ def test_linear_actuators_map_the_stroke_onto_1000_to_2000_us() -> None:
     assert np.allclose(cal.neutral_us, 1000.0 + 1000.0 * (home - lo) / (hi - lo))
     mid = np.full(6, (lo + hi) / 2)
     assert np.allclose(cal.angles(cal.pulse_widths(mid)), mid)
+
+
+@pytest.mark.parametrize(("change", "named"), [
+    ({"max_us": 1e9}, "max_us"),  # a pulse no servo takes
+    ({"min_us": 100.0}, "min_us"),
+    ({"channels": "012345"}, "channels"),  # a string's characters
+    ({"channels": (0.5, 1, 2, 3, 4, 5)}, "channels"),  # 0.5 was channel 0
+    ({"channels": (True, 1, 2, 3, 4, 5)}, "channels"),
+])  # fmt: skip
+def test_the_constructor_refuses_what_a_calibration_file_may_not_hold(change: dict, named: str) -> None:
+    base = ServoCalibration.default(load_preset("servo-hexapod"))
+    fields = {k: getattr(base, k) for k in ("neutral_us", "direction", "home_angle", "us_per_rad", "min_us", "max_us",
+                                            "channels")}  # fmt: skip
+    with pytest.raises(CalibrationError, match=named):
+        ServoCalibration(**{**fields, **change})
+
+
+def test_the_methods_refuse_a_wrong_count_of_pulses_and_an_unknown_mode() -> None:
+    cal = ServoCalibration.default(load_preset("servo-hexapod"))
+    with pytest.raises(ValueError, match="out_of_range"):
+        cal.pulse_widths(np.zeros(6), out_of_range="bogus")  # (taken while every pulse was in range)
+    with pytest.raises(ValueError, match="pulse_widths"):
+        cal.in_range(np.full(5, 1500.0))
+    with pytest.raises(ValueError, match="pulse_widths"):
+        cal.check(np.full(5, 1500.0))
+    with pytest.raises(ValueError, match="6 pulses"):
+        cal.in_range_one([1500.0] * 5)  # (True: five pulses checked)
+    with pytest.raises(ValueError, match="6 pulses"):
+        cal.angles_one([1500.0] * 7)
+    assert cal.in_range_one([1500.0] * 6) and cal.in_range(np.full(6, 1500.0)).all()

@@ -299,3 +299,28 @@ def test_a_symmetric_descriptions_mistakes_name_its_own_fields(tmp_path: Path) -
         (tmp_path / "s.toml").write_text(f"{unit}\n{head}[symmetric]\n{table}\n")
         with pytest.raises(GeometryError, match=says):
             load_geometry(tmp_path / "s.toml")
+
+
+def test_a_build_with_one_leg_given_twice_is_refused_naming_the_legs(tmp_path: Path) -> None:
+    """Its Jacobian at home is singular: forward kinematics then called a wrong pose converged."""
+    import dataclasses
+
+    from stewart_gym.presets import load_geometry, load_preset
+
+    g = load_preset("servo-hexapod")
+    base, top, beta = g.base_anchors.copy(), g.platform_anchors.copy(), g.servo_beta.copy()
+    base[1], top[1], beta[1] = base[0], top[0], beta[0]
+    path = tmp_path / "twice.toml"
+    path.write_text(dataclasses.replace(g, base_anchors=base, platform_anchors=top, servo_beta=beta).to_toml())
+    with pytest.raises(GeometryError, match=r"twice.toml: the legs cannot hold the plate at home \(legs 0 and 1 are "
+                                            "one leg twice"):  # fmt: skip
+        load_geometry(str(path))
+
+
+def test_a_length_that_is_not_a_number_is_called_so(tmp_path: Path) -> None:
+    from stewart_gym.presets import load_geometry
+
+    path = tmp_path / "nan.toml"
+    path.write_text(load_geometry("servo-hexapod").to_toml().replace("home_height = ", "home_height = nan #", 1))
+    with pytest.raises(GeometryError, match="home_height: must be a finite length, got nan"):
+        load_geometry(str(path))

@@ -297,3 +297,48 @@ def test_batched_ik_keeps_its_speed_on_a_busy_machine() -> None:
             proc.kill()
             proc.wait()
     assert best["reference"] / best["ours"] >= 0.7, best
+
+
+def _bad_kinematics_calls() -> list[tuple[str, object]]:
+    from stewart_gym.calibration import ServoCalibration
+    from stewart_gym.kinematics import axis_ranges, euler_from_matrix, pulses_many, pulses_one
+
+    g = load_preset("servo-hexapod")
+    pm = ServoCalibration.default(g).pulse_map
+    zeros = np.zeros(6)
+    return [
+        ("tol", lambda: axis_ranges(g, tol=0)),  # bisected for ever
+        ("tol", lambda: axis_ranges(g, tol=-1)),
+        ("tol", lambda: axis_ranges(g, tol=float("nan"))),
+        ("samples", lambda: axis_ranges(g, samples=1)),  # no reach at all, silently
+        ("pulse_map", lambda: pulses_one(g, [0.0] * 6, pm[:1])),  # one pulse back
+        ("pulse_map", lambda: pulses_many(g, np.zeros((3, 6)), pm[:1])),  # the compiled loop read past the map
+        ("poses", lambda: pulses_many(g, np.zeros(12), pm)),  # taken as two poses
+        ("rot", lambda: euler_from_matrix(np.full((3, 3), np.nan))),  # pitch −90° back
+        ("rot", lambda: euler_from_matrix(2 * np.eye(3))),
+        ("rot", lambda: euler_from_matrix(np.diag([1.0, 1.0, -1.0]))),  # a reflection
+        ("rot", lambda: euler_from_matrix(np.zeros((2, 3, 3)))),
+        ("guess", lambda: forward_kinematics(g, servo_angles=zeros, guess=np.zeros(5))),
+        ("guess", lambda: forward_kinematics(g, servo_angles=zeros, guess=np.full(6, np.nan))),
+        ("xtol", lambda: forward_kinematics(g, servo_angles=zeros, xtol=-1)),
+        ("max_iter", lambda: forward_kinematics(g, servo_angles=zeros, max_iter=-1)),
+        ("servo_angles", lambda: forward_kinematics(g, servo_angles=np.zeros(5))),
+        ("pivot", lambda: inverse_kinematics(g, zeros, pivot=[np.nan, 0, 0])),
+    ]
+
+
+@pytest.mark.parametrize("index", range(17))
+def test_a_bad_argument_is_a_value_error_naming_it(index: int) -> None:
+    """Each call that hung, read past an array or gave a silent wrong answer raises ``ValueError`` naming its
+    argument."""
+    name, call = _bad_kinematics_calls()[index]
+    with pytest.raises(ValueError, match=name):
+        call()
+
+
+def test_euler_from_matrix_inverts_rotation_matrix_to_the_last_bits_within_its_checks() -> None:
+    from stewart_gym.kinematics import euler_from_matrix, rotation_matrix
+
+    rng = np.random.default_rng(3)
+    for roll, pitch, yaw in rng.uniform([-3, -1.5, -3], [3, 1.5, 3], (200, 3)):
+        assert np.allclose(euler_from_matrix(rotation_matrix(roll, pitch, yaw)), (roll, pitch, yaw), atol=1e-12)

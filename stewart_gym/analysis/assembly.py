@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 
+from stewart_gym.analysis.arguments import finite_array, positive_number, whole_number
+from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import forward_kinematics, horn_tips, inverse_kinematics, rotation_matrix
 from stewart_gym.progress import Progress
@@ -38,13 +40,20 @@ def assembly_modes(geometry: PlatformGeometry, leg_lengths: np.ndarray | None = 
     """
     if (leg_lengths is None) == (servo_angles is None):
         raise ValueError("give exactly one of leg_lengths or servo_angles")
+    guesses = whole_number("guesses", guesses, 1)
+    positive_number("tol", tol)
     if servo_angles is not None:
-        angles = np.asarray(servo_angles, dtype=np.float64).reshape(6)
+        angles = finite_array("servo_angles", servo_angles, (6,))
         tips = horn_tips(geometry, angles)  # the rods' fixed lower ends
         reach = float(np.max(np.linalg.norm(tips, axis=1))) + float(np.max(geometry.rod_length))
         actuators = {"servo_angles": angles}
     else:
-        lengths = np.asarray(leg_lengths, dtype=np.float64).reshape(6)
+        if geometry.is_rotary:
+            raise ConfigError(f"leg_lengths: {geometry.name!r} is a rotary build, whose rods have one length; its "
+                              "assembly modes are those of its servo angles: give servo_angles")  # fmt: skip
+        lengths = finite_array("leg_lengths", leg_lengths, (6,))
+        if not np.all(lengths > 0):
+            raise ConfigError(f"leg_lengths must be above zero (m), got {lengths.tolist()}")
         reach = float(np.max(lengths))
         actuators = {"leg_lengths": lengths}
     rng = np.random.default_rng(seed)

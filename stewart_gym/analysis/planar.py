@@ -26,6 +26,7 @@ import math
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
+from stewart_gym.analysis.arguments import finite_array, positive_number, whole_number
 from stewart_gym.errors import ConfigError
 from stewart_gym.progress import Progress
 
@@ -40,6 +41,9 @@ PLANAR_PRESETS: dict[str, dict[str, float]] = {
               "p1": 5.0, "p2": 5.0, "p3": 3.0},
 }  # fmt: skip
 PLANAR_KEYS = ("L1", "L2", "L3", "gamma", "x1", "x2", "y2", "p1", "p2", "p3")
+#: The fewest θ samples :func:`solve_planar` takes (one a degree): fewer miss roots that lie close together (on
+#: Sauer's sets, 10 samples already lose two of the six poses at p2 = 7).
+MIN_PLANAR_SAMPLES = 360
 
 
 
@@ -97,6 +101,8 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
     is a pose: :func:`planar_continua` gives those θ, which this leaves out.
     ``L1`` must be the side the law of cosines gives from L2, L3 and γ.
     """
+    whole_number("samples", samples, MIN_PLANAR_SAMPLES)
+    positive_number("tol", tol)
     for name, v in (("L1", L1), ("L2", L2), ("L3", L3), ("p1", p1), ("p2", p2), ("p3", p3)):
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"{name} must be a positive, finite length, got {v}")
@@ -194,7 +200,9 @@ def sweep_strut(params: dict[str, float], strut: str, values: np.ndarray,
     """
     if strut not in ("p1", "p2", "p3"):
         raise ConfigError(f"strut must be p1, p2 or p3, got {strut!r}")
-    values = np.asarray(values, dtype=np.float64)
+    values = finite_array("values", values, (None,))
+    if not np.all(np.diff(values) > 0):
+        raise ConfigError("values must rise from the shortest length to the longest (the bisection relies on it)")
 
     def count(v: float) -> int:
         return len(solve_planar(**{**params, strut: float(v)}))

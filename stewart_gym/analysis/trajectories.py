@@ -66,7 +66,7 @@ def load_pose_csv(path: str) -> tuple[np.ndarray, np.ndarray]:
     import csv
     import io
 
-    text = read_text(path, "CSV of poses", DATA_LIMIT).removeprefix("\ufeff")  # (a spreadsheet's byte-order mark)
+    text = read_text(path, "CSV of poses", DATA_LIMIT)
     try:
         lines = list(csv.reader(io.StringIO(text, newline="")))
     except csv.Error as exc:

@@ -211,11 +211,18 @@ class SimulatorBase:
         raise NotImplementedError
 
     def platform_pose(self) -> np.ndarray:
-        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics."""
+        """(6,) (x, y, z, roll, pitch, yaw) in m and rad, translation from home, as in the kinematics; NaN where the
+        physics blew up."""
         from stewart_gym.kinematics import euler_from_matrix
 
         origin, rot = self._plate_frame()
-        return np.array([*(origin - self.geometry.home_position), *euler_from_matrix(rot)])
+        try:
+            angles = euler_from_matrix(rot)
+        except ValueError:
+            if np.all(np.isfinite(rot)):
+                raise
+            return np.full(6, np.nan)
+        return np.array([*(origin - self.geometry.home_position), *angles])
 
     def set_plate_load(self, load: PlateLoad | None) -> None:
         """Put an extra mass on the plate (or take it off) from the next ``step`` on."""

@@ -275,3 +275,37 @@ def test_analysis_cli_json_and_plot(args: list[str], tmp_path: Path, capsys: pyt
         assert plot.stat().st_size > 10_000
     if args[0] == "planar":
         assert out["count"] == 6
+
+
+def _bad_analysis_calls() -> list[tuple[str, object]]:
+    g, lin = load_preset("servo-hexapod"), load_preset("senilov2018")
+    lengths = inverse_kinematics(lin, np.zeros(6)).leg_lengths
+    home = np.zeros((1, 6))
+    levels = np.linspace(-0.02, 0.02, 41)
+    return [
+        ("guesses", lambda: assembly_modes(lin, lengths, guesses=-3)),
+        ("leg_lengths", lambda: assembly_modes(lin, np.full(6, np.nan))),
+        ("leg_lengths", lambda: assembly_modes(lin, -lengths)),
+        ("leg_lengths", lambda: assembly_modes(lin, np.zeros((2, 6)))),
+        ("leg_lengths", lambda: assembly_modes(g, inverse_kinematics(g, np.zeros(6)).leg_lengths)),  # a rotary build
+        ("step", lambda: sensitivity(g, home, -0.01)),  # a negative step size back
+        ("step", lambda: sensitivity(g, home, 0.0)),
+        ("poses", lambda: fd_check(g, np.full((2, 6), 1.0))),  # none reachable
+        ("singular_threshold", lambda: conditioning(g, home, singular_threshold=float("nan"))),
+        ("z_levels", lambda: height_map(g, x=[0.0], y=[0.0], z_levels=levels[::-1])),  # z_max and z_min swapped
+        ("z_levels", lambda: height_map(g, x=[0.0], y=[0.0], z_levels=[])),
+        ("stride", lambda: height_map(g, x=[0.0], y=[0.0], z_levels=levels, stride=0)),
+        ("orientation", lambda: height_map(g, (0.0, 0.0), x=[0.0], y=[0.0], z_levels=levels)),
+        ("samples", lambda: reachable_volume(g, samples=0)),
+        ("samples", lambda: solve_planar(**PLANAR_PRESETS["sauer"], samples=1)),  # "no poses"
+        ("values", lambda: sweep_strut(PLANAR_PRESETS["sauer"], "p2", np.linspace(12, 0.5, 50))),  # no bisection
+    ]
+
+
+@pytest.mark.parametrize("index", range(16))
+def test_a_bad_analysis_argument_is_one_clear_error_naming_it(index: int) -> None:
+    """Each call that gave a wrong answer silently (a negative step, swapped heights, no poses) or a deep NumPy
+    error raises :class:`ConfigError` (a ``ValueError``) naming its argument."""
+    name, call = _bad_analysis_calls()[index]
+    with pytest.raises(ConfigError, match=name):
+        call()
