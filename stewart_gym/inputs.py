@@ -64,10 +64,11 @@ def read_bytes(path: str | os.PathLike, what: str = "file", limit: int = CONFIG_
 
 def read_text(path: str | os.PathLike, what: str = "file", limit: int = CONFIG_LIMIT,
               error: type[Exception] = ConfigError) -> str:  # fmt: skip
-    """The text of an :func:`input_file`; a file that is not UTF-8 text raises ``error``."""
+    """The text of an :func:`input_file`, without the byte-order mark some editors put first (Notepad's "UTF-8
+    with BOM"); a file that is not UTF-8 text raises ``error``."""
     data = read_bytes(path, what, limit, error)
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise error(f"{path}: not a text file (a {what} must be UTF-8 text)") from None
 

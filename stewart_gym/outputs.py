@@ -33,6 +33,12 @@ def output_file(path: str | Path, *, suffixes: tuple[str, ...] = (), overwrite: 
     p = Path(path)
     if suffixes and p.suffix.lower() not in suffixes:
         raise ConfigError(f"{p}: expected a file name ending in {' or '.join(suffixes)}")
+    _short_names(p)
+    if p.is_symlink() and not p.exists():  # written through: its target's folder must be there
+        target = _link_target(p)
+        if not target.parent.is_dir():
+            raise ConfigError(f"{p} is a link to {target}, whose folder does not exist; give another name, or "
+                              "remove the link")  # fmt: skip
     if p.is_dir():
         raise ConfigError(f"{p} is a folder; give a file name")
     if p.exists() and not overwrite:
@@ -56,10 +62,31 @@ def output_dir(path: str | Path) -> Path:
     if not str(path).strip():
         raise ConfigError("an empty output folder was given; name the folder to write into")
     p = Path(path)
+    _short_names(p)
     if p.exists() and not p.is_dir():
         raise ConfigError(f"{p} exists and is not a folder")
     _writable_dir(p, p)
     return p
+
+
+#: Bytes: the longest name of one file or folder most file systems take (ext4, APFS, NTFS: 255).
+NAME_MAX = 255
+
+
+def _short_names(p: Path) -> None:
+    long = next((part for part in p.parts if len(os.fsencode(part)) > NAME_MAX), None)
+    if long is not None:
+        raise ConfigError(f"{p}: the name {long[:40]}… is {len(os.fsencode(long))} bytes long; a file or folder name "
+                          f"takes at most {NAME_MAX}")  # fmt: skip
+
+
+def _link_target(p: Path) -> Path:
+    """Where the symbolic link ``p`` leads, followed to its end; :class:`ConfigError` for a loop."""
+    try:
+        return p.resolve()
+    except (RuntimeError, OSError):  # "Symlink loop"
+        raise ConfigError(f"{p}: a symbolic link that leads back to itself (a loop); remove it or give another "
+                          "name") from None
 
 
 def _writable_dir(folder: Path, target: Path) -> None:
@@ -67,6 +94,10 @@ def _writable_dir(folder: Path, target: Path) -> None:
     its nearest existing folder, is a folder that takes a new file."""
     existing = folder
     while not existing.exists():
+        if existing.is_symlink():  # a link that leads nowhere: nothing can be made through it
+            where = "" if existing == target else f"{target}: "
+            raise ConfigError(f"{where}{existing} is a link to {_link_target(existing)}, which does not exist; give "
+                              "another path, or remove the link")  # fmt: skip
         if existing.parent == existing:
             break
         existing = existing.parent

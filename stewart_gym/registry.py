@@ -199,6 +199,8 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
                           f"give {_KINDS_TEXT}")  # fmt: skip
     if path.suffix == ".zip":
         return _sb3_source(spec, path)
+    if path.name == "bundle.json":  # a bundle's description, named instead of its folder: the bundle
+        return _bundle_source(spec, path.parent)
     if path.suffix == ".json":
         # a readable JSON file, checked here; its kind from its fields; the gains themselves when loaded
         values = _read_json(path)

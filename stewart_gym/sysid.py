@@ -69,7 +69,7 @@ from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
 __all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "TICK_DATED_OVERHEAD_S", "TICK_DATED_VAR_S2",
            "FitResult", "FlightLog", "MIN_FIT_WINDOWS", "MIN_POSE_AGREEMENT", "POSE_COLUMNS", "fit_twin",
-           "pose_agreement", "read_log", "unfit_reason", "write_report"]
+           "REPORT_FILES", "pose_agreement", "read_log", "unfit_reason", "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010
@@ -276,7 +276,8 @@ def read_log(path: str | Path, plate_half: Sequence[float] = (0.15, 0.15)) -> Fl
     readings = readings[np.sort(first)]
     readings = readings[np.argsort(readings[:, 2], kind="stable")]
     if t[-1] - t[0] < 5.0 or len(readings) < 5 * rate / 2:
-        raise ConfigError(f"{path}: {t[-1] - t[0]:.1f} s of ticks, with {len(readings)} readings of the ball on the "
+        span = math.floor((t[-1] - t[0]) * 100) / 100  # (4.996 s is not "5.0 s")
+        raise ConfigError(f"{path}: {span:.2f} s of ticks, with {len(readings)} readings of the ball on the "
                           f"plate; a fit needs at least 5 s of ticks and {math.ceil(5 * rate / 2)} readings "
                           "(identify runs 60 s)")  # fmt: skip
     at_tick = np.abs(readings[:, 2] - t[np.clip(np.searchsorted(t, readings[:, 2]), 0, len(t) - 1)]) < 2e-4
@@ -807,6 +808,10 @@ def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[Flig
     for h in HORIZONS_S:
         result.prediction[h] = {k: math.sqrt(float(np.mean(v))) * 1e3 for k, v in errors[h].items()}
         result.prediction[h]["windows"] = len(errors[h]["fitted"])
+
+
+#: The files :func:`write_report` writes into its folder.
+REPORT_FILES = ("report.md", "paths.png")
 
 
 def write_report(result: FitResult, folder: str | Path, logs: Sequence[str]) -> list[Path]:

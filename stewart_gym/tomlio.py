@@ -18,10 +18,11 @@ __all__ = ["read_toml", "tomllib"]
 
 
 def read_toml(path: str | Path, error: type[Exception] = ConfigError, what: str = "TOML file") -> dict[str, Any]:
-    """The parsed file; a missing, oversized or non-regular file, or a syntax error, raises ``error`` naming it."""
+    """The parsed file (a byte-order mark first, as some editors save, is left out); a missing, oversized or
+    non-regular file, or a syntax error, raises ``error`` naming it."""
     data = read_bytes(path, what, error=error)
     try:
-        return tomllib.loads(data.decode("utf-8"))
+        return tomllib.loads(data.decode("utf-8-sig"))
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError:

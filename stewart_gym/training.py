@@ -51,7 +51,7 @@ from stewart_gym.presets import PRESETS
 from stewart_gym.sb3_models import ResidualAction, check_residual, residual_base, saved_algo
 from stewart_gym.training_evals import BackgroundEvaluator, Evaluation, InProcessEvaluator, worker_start_method
 
-__all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_KEYS", "TrainConfig",
+__all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RUN_FILES", "RUN_KEYS", "TrainConfig",
            "algo_keywords", "check_action_noise", "check_algo_keywords", "check_hyperparameter_values",
            "check_resumed_observer", "check_algo_values", "check_recipe", "check_run_dir", "check_run_env",
            "action_noise", "evaluation_env", "load_hyperparams", "make_env", "planned_timesteps", "rollout_note",
@@ -621,6 +621,10 @@ def check_run_env(config: TrainConfig) -> None:
         raise ConfigError(f"the env of {env_settings_source(config)}: {exc}") from None
 
 
+#: The files a run writes into its folder (besides the folders ``best/``, ``eval/`` and ``tb/``).
+RUN_FILES = ("model.zip", "vecnormalize.pkl", "metrics.json", "eval.csv", "config.yaml", "git.txt", RUN_GEOMETRY_FILE)
+
+
 def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
     its recipe and options (:func:`check_recipe`), the run folder (writable; not holding another run's model
@@ -629,6 +633,10 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
 
     hp = check_recipe(config)
     run = output_dir(config.run_dir)
+    blocked = [run / name for name in RUN_FILES if (run / name).is_dir()]
+    if blocked:
+        raise ConfigError(f"{blocked[0]} is a folder, where the run writes a file; remove it or give another "
+                          "--run-dir")  # fmt: skip
     if config.resume:
         resume = Path(config.resume)
         model = resume / "model.zip" if resume.is_dir() else resume

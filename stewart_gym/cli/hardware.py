@@ -117,13 +117,10 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
 
         if importlib.util.find_spec("mujoco") is None:
             raise ConfigError("--backend mujoco needs MuJoCo: pip install 'stewart_gym[mujoco]'")
-    config_out = Path(args.camera_config_out) if args.camera_config_out else None
-    if config_out is not None and not args.camera_stream:
+    if args.camera_config_out is not None and not args.camera_stream:
         raise ConfigError("--camera-config-out writes the config that reads the camera stream: give --camera-stream "
                           "PIPE too")  # fmt: skip
-    if config_out is not None and (config_out.is_dir() or not config_out.parent.is_dir()):
-        raise ConfigError(f"--camera-config-out {config_out}: not a file in an existing folder; give a path such as "
-                          "/tmp/camera.toml")  # fmt: skip
+    config_out = None if args.camera_config_out is None else output_file(args.camera_config_out, suffixes=(".toml",))
     if config_out is not None and config_out.exists() and not args.overwrite:
         raise ConfigError(f"--camera-config-out {config_out} exists (your own camera config?): give another path, or "
                           "--overwrite to replace it")  # fmt: skip
@@ -135,7 +132,7 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     twin = twin_tables(args.twin)
     ours = config_out is not None and not config_out.exists()  # (an existing one is replaced only with --overwrite)
     if config_out is not None:  # before the board's link appears: a host may read it at once
-        config_out.write_text(stream_camera_config(camera, args.camera_stream).to_toml())
+        make_parent(config_out).write_text(stream_camera_config(camera, args.camera_stream).to_toml())
     put_back = None if args.leave_fallen_ball else args.put_ball_back_after
     try:
         device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,
@@ -190,6 +187,9 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
             source = str(config.source)
             if Path(source).is_file():  # a file (the config checked that it is there): the user's to fix
                 raise ConfigError(f"{args.camera_config}: camera.source {source!r} is not a video OpenCV can read")
+            if Path(source).is_dir():
+                raise ConfigError(f"{args.camera_config}: camera.source {source!r} is a folder, not a video file or a "
+                                  "camera")  # fmt: skip
             raise DeviceFailure(f"camera {config.source!r} cannot be opened (wrong index or path, or in use?)")
         frames = []
         for _ in range(args.frames):

@@ -81,12 +81,18 @@ def cmd_sysid(args: argparse.Namespace) -> int:
     from stewart_gym.presets import load_geometry
     from stewart_gym.progress import Progress
     from stewart_gym.sim.twin import load_twin
-    from stewart_gym.sysid import fit_twin, read_log, write_report
+    from stewart_gym.sysid import REPORT_FILES, fit_twin, read_log, write_report
 
     out = output_file(args.out, suffixes=(".toml",), overwrite=args.overwrite)
     report = None if args.report is None else output_dir(args.report)
     if report is not None and (report / "report.md").exists() and not args.overwrite:
         raise ConfigError(f"{report} holds a report already; give another folder or --overwrite")
+    if report is not None and report.resolve() == out.resolve():
+        raise ConfigError(f"--out and --report both name {out}: give the twin file and the report folder two names")
+    blocked = [] if report is None else [report / name for name in REPORT_FILES if (report / name).is_dir()]
+    if blocked:
+        raise ConfigError(f"{blocked[0]} is a folder, where the report writes a file; remove it or give another "
+                          "--report folder")  # fmt: skip
     twice = sorted({p for p in args.logs if sum(Path(q).resolve() == Path(p).resolve() for q in args.logs) > 1})
     if twice:
         raise ConfigError(f"{', '.join(twice)}: a log given twice would count its windows twice; give each once")

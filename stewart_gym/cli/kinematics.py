@@ -133,7 +133,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         settle_at(sim, pose)
         if args.ball:
             sim.place_ball(np.zeros(2))
-        iio.imwrite(make_parent(out), sim.render())
+        make_parent(out).write_bytes(iio.imwrite("<bytes>", sim.render(), extension=".png"))  # (no '~' expanded)
         reached = sim.platform_pose()
         print(f"{out}: pose reached {np.round(reached[:3] * 1e3, 3).tolist()} mm, "
               f"{np.round(np.degrees(reached[3:]), 3).tolist()} deg")  # fmt: skip

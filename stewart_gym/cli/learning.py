@@ -147,15 +147,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                             randomize)  # fmt: skip
         metrics = evaluate_all([job], parts, processes, progress.advance)[0]
     progress.close()
+    if args.json:  # the numbers first, then the GIF and plot: one that cannot be written loses no number
+        twin_file = {"twin": args.twin} if args.twin else {}
+        print(json.dumps(json_safe({"policy": source.label, **where.describe(), **twin_file, **metrics})), flush=True)
+    else:
+        print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}")
+        print(format_table({source.label: metrics}), flush=True)
     if gif or plot:
         episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, plot,
                         f"{source.label} on {world_line(where.describe())}")  # fmt: skip
-    if args.json:
-        twin_file = {"twin": args.twin} if args.twin else {}
-        print(json.dumps(json_safe({"policy": source.label, **where.describe(), **twin_file, **metrics})))
-    else:
-        print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}")
-        print(format_table({source.label: metrics}))
     return EXIT_OK
 
 

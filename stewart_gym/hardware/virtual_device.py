@@ -423,13 +423,16 @@ class VirtualDevice:
             raise ConfigError(f"--link {link} leads to {os.readlink(link)}, which is open: another board (or program) "
                               "has it; stop that board, or give another --link path")  # fmt: skip
         if link and not Path(link).parent.is_dir():
-            raise ConfigError(f"--link {link}: the folder {Path(link).parent} does not exist; create it or link "
-                              "elsewhere")  # fmt: skip
+            parent = Path(link).parent
+            raise ConfigError(f"--link {link}: {parent} is a file, not a folder; link elsewhere" if parent.exists()
+                              else f"--link {link}: the folder {parent} does not exist; create it or link elsewhere")
         if camera_stream and Path(camera_stream).exists() and not stat.S_ISFIFO(Path(camera_stream).stat().st_mode):
             raise ConfigError(f"--camera-stream {camera_stream} exists and is not a pipe: give another path")
         if camera_stream and not Path(camera_stream).parent.is_dir():
-            raise ConfigError(f"--camera-stream {camera_stream}: the folder {Path(camera_stream).parent} does not "
-                              "exist; create it or give a path in another folder")  # fmt: skip
+            parent, flag = Path(camera_stream).parent, f"--camera-stream {camera_stream}"
+            raise ConfigError(f"{flag}: {parent} is a file, not a folder; give a path in another folder" if parent.exists()
+                              else f"{flag}: the folder {parent} does not exist; create it or give a path in another "
+                              "folder")  # fmt: skip
         self.protocol = protocol
         self.faults = faults or Faults()
         geo = load_geometry(geometry)

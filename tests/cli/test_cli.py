@@ -503,7 +503,7 @@ BAD = [
     ["virtual-device", "--camera-stream", "{files}/notes.txt"],
     ["virtual-device", "--camera-stream", "{tmp}/p", "--backend", "mujoco"],
     ["virtual-device", "--camera-config-out", "{tmp}/camera.toml"],
-    ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{tmp}/no_folder/camera.toml"],
+    ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{tmp}/camera.txt"],  # a camera config is TOML
     ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{files}/emptydir"],
     ["virtual-device", "--geometry", "nope"],
     ["virtual-device", "--camera-stream", "{tmp}/p", "--camera-config-out", "{files}/notes.txt"],  # not replaced
@@ -1470,3 +1470,56 @@ def test_assembly_reports_progress_in_lines_into_a_pipe() -> None:
     proc = sg("assembly", "--guesses", "4000", env={"STEWART_GYM_PROGRESS_S": "0.1"})
     assert proc.returncode == 0 and "\r" not in proc.stderr, proc.stderr
     assert all(ln.startswith("assembly modes: ") and " batches (" in ln for ln in proc.stderr.splitlines()), proc.stderr
+
+
+def test_a_link_that_leads_nowhere_is_refused_before_the_work(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """An output through a dangling link, a link loop or a name too long for any file system: one line before the
+    episodes run (each was found only when the GIF was written, and the episodes' figures were lost)."""
+    (tmp_path / "dangling.gif").symlink_to(tmp_path / "gone" / "x.gif")
+    (tmp_path / "loop1").symlink_to(tmp_path / "loop2")
+    (tmp_path / "loop2").symlink_to(tmp_path / "loop1")
+    (tmp_path / "run").symlink_to(tmp_path / "gone")
+    cases = [(["evaluate", "--policy", "pid", "--episodes", "100", "--gif", "dangling.gif"],
+              "dangling.gif is a link to "),
+             (["evaluate", "--policy", "pid", "--episodes", "100", "--gif", "loop1/x.gif"], "leads back to itself"),
+             (["evaluate", "--policy", "pid", "--episodes", "100", "--plot", "x/" + "a" * 300 + "/p.png"],
+              "is 300 bytes long; a file or folder name takes at most 255"),
+             (["train", "--run-dir", "run/inside"], "run is a link to ")]  # fmt: skip
+    for args, said in cases:
+        code, out, err = cli(capfd, *args, cwd=tmp_path)
+        lines = err.strip().splitlines()
+        assert code == 1 and len(lines) == 1 and said in lines[0] and "episodes" not in out, (args, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dangling.gif", "loop1", "loop2", "run"]  # nothing made
+
+
+def test_a_file_the_run_writes_that_is_a_folder_is_refused_before_training(tmp_path: Path,
+                                                                          capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    (tmp_path / "r" / "vecnormalize.pkl").mkdir(parents=True)
+    code, _, err = cli(capfd, "train", "--timesteps", "64", "--run-dir", "r", cwd=tmp_path)
+    assert code == 1 and err.strip() == "error: r/vecnormalize.pkl is a folder, where the run writes a file; remove " \
+                                        "it or give another --run-dir", err  # fmt: skip
+    assert [p.name for p in (tmp_path / "r").iterdir()] == ["vecnormalize.pkl"]
+
+
+def test_files_saved_with_a_byte_order_mark_are_read(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """Notepad's "UTF-8 with BOM": a geometry (TOML) and PID gains (JSON) read as without it."""
+    from stewart_gym.presets import load_preset
+
+    bom = "\ufeff"
+    (tmp_path / "g.toml").write_text(bom + load_preset("servo-hexapod").to_toml(), encoding="utf-8")
+    shipped = Path(__file__).resolve().parents[2] / "stewart_gym" / "policies" / "pid_gains.json"
+    (tmp_path / "gains.json").write_text(bom + shipped.read_text(), encoding="utf-8")
+    code, out, err = cli(capfd, "ik", "0", "0", "0", "0", "0", "0", "--geometry", "g.toml", "--json", cwd=tmp_path)
+    assert code == 0 and json.loads(out)["reachable"], err
+    code, _, err = cli(capfd, "export", "--policy", "gains.json", "--out", "b", cwd=tmp_path)
+    assert code == 0 and (tmp_path / "b" / "bundle.json").is_file(), err
+
+
+def test_a_bundles_description_named_as_the_policy_is_its_bundle(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """``--policy b/bundle.json`` is the bundle ``b`` (it was read as PID gains: "unknown field(s) ['action_high',
+    …]")."""
+    assert cli(capfd, "export", "--policy", "pid", "--out", "b", cwd=tmp_path)[0] == 0
+    code, out, err = cli(capfd, "export", "--policy", "b/bundle.json", "--out", "c", cwd=tmp_path)
+    assert code == 0, err
+    assert json.loads((tmp_path / "c" / "bundle.json").read_text()) == json.loads((tmp_path / "b" /
+                                                                                  "bundle.json").read_text())
