@@ -72,7 +72,14 @@ def symmetric_layout(base_radius: float, base_pair_angle: float, platform_radius
     """(base anchors, platform anchors, servo β) of a platform built in three pairs, as the presets are: pairs
     centred at 330°, 90° and 210° (:data:`SYMMETRIC_PAIR_CENTRES_DEG`), the first of a pair at the centre minus
     half the pair angle; each horn perpendicular to its pair's centre line, pointing away from its partner
-    (β = centre − 90° for the first, centre + 90° for the second). Radii in m, angles in rad; anchors at z = 0."""
+    (β = centre − 90° for the first, centre + 90° for the second). Radii in m, angles in rad; anchors at z = 0.
+    Raises :class:`GeometryError` for a radius that is not a finite positive length, or a pair angle outside 0 to
+    120° (2π/3 rad: wider, the pairs overlap; an angle in degrees by mistake is far outside)."""
+    for key, radius in (("base_radius", base_radius), ("platform_radius", platform_radius)):
+        _positive(key, radius)
+    for key, angle in (("base_pair_angle", base_pair_angle), ("platform_pair_angle", platform_pair_angle)):
+        if not 0.0 <= _scalar(key, angle) <= 2 * math.pi / 3:
+            raise GeometryError(f"{key}: between 0 and 2π/3 rad (120°), got {angle!r}; the angles are in radians")
     centres = np.radians(SYMMETRIC_PAIR_CENTRES_DEG)
 
     def ring(radius: float, pair_angle: float) -> np.ndarray:
@@ -166,6 +173,8 @@ class PlatformGeometry:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        if not isinstance(self.name, str):
+            raise GeometryError(f"name: text in quotes, got {self.name!r}")
         if not isinstance(self.description, str):
             raise GeometryError(f"description: free text in quotes, got {self.description!r}")
         set_(self, "base_anchors", _readonly(_shape("base_anchors", self.base_anchors, (6, 3))))
@@ -174,6 +183,10 @@ class PlatformGeometry:
             _spread(key, getattr(self, key))
         _positive("rod_length", self.rod_length)
         _positive("home_height", self.home_height)
+        for key in ("base_anchors", "platform_anchors", "rod_length", "home_height", "horn_length"):
+            value = getattr(self, key)
+            if value is not None and np.max(np.abs(np.asarray(value, dtype=float))) > MAX_LENGTH_M:
+                raise GeometryError(f"{key}: larger than any build ({MAX_LENGTH_M:g} m); lengths are in metres")
         set_(self, "rod_length", float(self.rod_length))
         set_(self, "home_height", float(self.home_height))
         if self.plate_size is not None:

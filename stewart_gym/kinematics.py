@@ -236,11 +236,19 @@ _NOT_FINITE, _BELOW_BASE = int(LegStatus.NOT_FINITE), int(LegStatus.BELOW_BASE)
 _HUGE = 1e200
 
 
+def _geometry(geometry: object) -> PlatformGeometry:
+    if not isinstance(geometry, PlatformGeometry):
+        raise TypeError(f"geometry must be a PlatformGeometry (stewart_gym.presets.load_geometry gives one from a "
+                        f"preset's name or a file), got {type(geometry).__name__}")  # fmt: skip
+    return geometry
+
+
 def _constants(geo: PlatformGeometry, c: np.ndarray) -> _IKConstants:
     key = (id(geo), c.tobytes())  # pulses_one looks up (id, _NO_PIVOT_KEY) directly
     hit = _CONSTANTS.get(key)
     if hit is not None and hit[0] is geo:
         return hit[1]
+    _geometry(geo)
     rotary = geo.is_rotary
     a = geo.horn_length or 1.0
     beta = geo.servo_beta if rotary else np.zeros(6)
@@ -550,7 +558,7 @@ def inverse_kinematics(geometry: PlatformGeometry, pose: np.ndarray, pivot: np.n
 
 def horn_tips(geometry: PlatformGeometry, servo_angles: np.ndarray) -> np.ndarray:
     """Horn tip positions A_i = b_i + a (cos α cos β, cos α sin β, sin α), shape (..., 6, 3), m."""
-    if not geometry.is_rotary:
+    if not _geometry(geometry).is_rotary:
         raise GeometryError(f"geometry {geometry.name!r} is linear: it has no servo horns")
     assert geometry.horn_length is not None and geometry.servo_beta is not None
     al = np.asarray(servo_angles, dtype=np.float64)
@@ -592,7 +600,7 @@ def actuator_jacobian(
     """
     pose = _as_pose(pose)
     c = _pivot(pivot)
-    actuator = actuator or ("servo" if geometry.is_rotary else "leg")
+    actuator = actuator or ("servo" if _geometry(geometry).is_rotary else "leg")
     q, dq = _anchor_jacobian(geometry, pose, c)
     legs = q - geometry.base_anchors
     if actuator == "leg":
@@ -655,6 +663,7 @@ def forward_kinematics(
     ``ValueError`` for a guess that is not finite or does not broadcast to the
     batch, or tolerances and ``max_iter`` that are not positive.
     """
+    _geometry(geometry)
     if (leg_lengths is None) == (servo_angles is None):
         raise ValueError("give exactly one of leg_lengths or servo_angles")
     for name, value in (("xtol", xtol), ("ftol", ftol)):
@@ -742,6 +751,7 @@ def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, 
     ``ValueError`` unless ``samples`` is a whole number from 2 and ``tol`` a
     number from 1e-15 (a float's resolution) to 1.
     """
+    _geometry(geometry)
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
         raise ValueError(f"samples must be a whole number from 2, got {samples!r}")
     if not (isinstance(tol, (int, float, np.floating)) and 1e-15 <= tol <= 1):

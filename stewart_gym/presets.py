@@ -8,6 +8,7 @@ documented in the docs' "Conventions and presets" page.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -179,7 +180,7 @@ def load_preset(name: str) -> PlatformGeometry:
     """Return the named preset geometry (see :func:`preset_names`)."""
     try:
         builder = PRESETS[name]
-    except KeyError:
+    except (KeyError, TypeError):  # (an unhashable name too)
         raise GeometryError(f"unknown preset {name!r}; known presets: {preset_names()}") from None
     return builder()
 
@@ -188,6 +189,9 @@ def load_geometry(spec: str | Path | PlatformGeometry) -> PlatformGeometry:
     """A geometry from a preset name, a TOML path, or a geometry (returned as is)."""
     if isinstance(spec, PlatformGeometry):
         return spec
+    if not isinstance(spec, (str, os.PathLike)):
+        raise GeometryError(f"the geometry is a preset's name ({', '.join(preset_names())}), a TOML file's path or a "
+                            f"PlatformGeometry, got {spec!r}")  # fmt: skip
     if isinstance(spec, str) and spec in PRESETS:
         return load_preset(spec)
     if isinstance(spec, str) and not spec.strip():

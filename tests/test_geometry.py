@@ -324,3 +324,25 @@ def test_a_length_that_is_not_a_number_is_called_so(tmp_path: Path) -> None:
     path.write_text(load_geometry("servo-hexapod").to_toml().replace("home_height = ", "home_height = nan #", 1))
     with pytest.raises(GeometryError, match="home_height: must be a finite length, got nan"):
         load_geometry(str(path))
+
+
+def test_the_layout_and_the_constructor_check_what_a_file_is_checked_for() -> None:
+    """What ``from_dict`` refuses in a file, the Python calls refuse too: a negative or NaN radius, a pair angle in
+    degrees, a name that is not text, a length in millimetres."""
+    import dataclasses
+
+    from stewart_gym.geometry import symmetric_layout
+    from stewart_gym.presets import load_geometry, load_preset
+
+    for args, named in (((-0.1, 0.3, 0.08, 0.3), "base_radius"), ((0.1, 0.3, math.nan, 0.3), "platform_radius"),
+                        ((0.1, 20.0, 0.08, 0.3), "base_pair_angle")):  # fmt: skip
+        with pytest.raises(GeometryError, match=named):
+            symmetric_layout(*args)
+    g = load_preset("servo-hexapod")
+    with pytest.raises(GeometryError, match="name"):
+        dataclasses.replace(g, name=5)
+    with pytest.raises(GeometryError, match="rod_length: larger than any build"):
+        dataclasses.replace(g, rod_length=160.0)  # mm taken for m
+    for spec in (None, 123):
+        with pytest.raises(GeometryError, match="a preset's name"):
+            load_geometry(spec)

@@ -342,3 +342,14 @@ def test_euler_from_matrix_inverts_rotation_matrix_to_the_last_bits_within_its_c
     rng = np.random.default_rng(3)
     for roll, pitch, yaw in rng.uniform([-3, -1.5, -3], [3, 1.5, 3], (200, 3)):
         assert np.allclose(euler_from_matrix(rotation_matrix(roll, pitch, yaw)), (roll, pitch, yaw), atol=1e-12)
+
+
+def test_a_geometry_given_by_name_is_a_type_error_saying_how_to_load_it() -> None:
+    """``inverse_kinematics("servo-hexapod", pose)`` said "'str' object has no attribute 'is_rotary'"."""
+    from stewart_gym.kinematics import axis_ranges, horn_tips
+
+    for call in (lambda: inverse_kinematics("servo-hexapod", np.zeros(6)), lambda: axis_ranges("servo-hexapod"),
+                 lambda: forward_kinematics("servo-hexapod", leg_lengths=np.ones(6)),
+                 lambda: horn_tips("servo-hexapod", np.zeros(6))):  # fmt: skip
+        with pytest.raises(TypeError, match="load_geometry gives one"):
+            call()
