@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import math
 import os
 import re
@@ -275,6 +276,9 @@ def describe(exc: BaseException) -> str:
         hint = {FileNotFoundError: "check the path", PermissionError: "check the permissions",
                 IsADirectoryError: "give a file, not a folder",
                 NotADirectoryError: "a part of the path is a file"}.get(type(exc), "")  # fmt: skip
+        hint = hint or {errno.ENOSPC: "free some space, or write elsewhere", errno.EDQUOT: "free some space, or "
+                        "write elsewhere", errno.EROFS: "write elsewhere", errno.ENAMETOOLONG: "give a shorter "
+                        "name"}.get(exc.errno or 0, "")  # fmt: skip
         return f"{name}{exc.strerror.lower()}" + (f" ({hint})" if hint else "")
     if isinstance(exc, UnicodeDecodeError):
         return "a file that should be text is not (binary or not UTF-8)"

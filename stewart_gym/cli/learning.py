@@ -237,6 +237,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from stewart_gym.sim.engines import default_backend
 
     out = output_dir(args.out)
+    blocked = [out / name for name in ("demo.gif", "demo_pulses.png", "demo_metrics.json") if (out / name).is_dir()]
+    if blocked:
+        raise ConfigError(f"{blocked[0]} is a folder, where the demo writes a file; remove it or give another --out")
     env_id = "StewartBallBalance-v0"
     names = demo_policies(env_id, args.geometry)
     twin = twin_tables(args.twin)

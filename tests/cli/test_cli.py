@@ -1523,3 +1523,20 @@ def test_a_bundles_description_named_as_the_policy_is_its_bundle(tmp_path: Path,
     assert code == 0, err
     assert json.loads((tmp_path / "c" / "bundle.json").read_text()) == json.loads((tmp_path / "b" /
                                                                                   "bundle.json").read_text())
+
+
+def test_a_demo_file_that_is_a_folder_is_refused_before_the_episodes(tmp_path: Path,
+                                                                     capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    """(The GIF went into ``out/demo.gif/demo.gif``, and the command said it wrote ``out/demo.gif``.)"""
+    (tmp_path / "o" / "demo.gif").mkdir(parents=True)
+    code, out, err = cli(capfd, "demo", "--episodes", "10", "--out", "o", cwd=tmp_path)
+    assert code == 1 and "evaluating" not in out and err.strip() == "error: o/demo.gif is a folder, where the demo " \
+                                                                    "writes a file; remove it or give another --out"  # fmt: skip
+    assert list((tmp_path / "o" / "demo.gif").iterdir()) == []
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device that is always full) here")
+def test_a_full_disk_says_what_to_do(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    (tmp_path / "full.png").symlink_to("/dev/full")
+    code, _, err = cli(capfd, "render", "0", "0", "0", "0", "0", "0", "--out", "full.png", cwd=tmp_path)
+    assert code == 1 and err.strip() == "error: no space left on device (free some space, or write elsewhere)", err
