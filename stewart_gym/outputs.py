@@ -16,8 +16,8 @@ from typing import Any
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.inputs import read_text, read_yaml
 
-__all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "make_parent", "model_statistics", "output_dir",
-           "output_file", "run_config"]
+__all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "make_parent", "model_statistics",
+           "no_folders_named", "output_dir", "output_file", "run_config"]
 
 #: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
 #: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
@@ -67,6 +67,14 @@ def output_dir(path: str | Path) -> Path:
         raise ConfigError(f"{p} exists and is not a folder")
     _writable_dir(p, p)
     return p
+
+
+def no_folders_named(folder: Path, names: tuple[str, ...], writer: str, option: str) -> None:
+    """Raise :class:`ConfigError` if one of the files ``writer`` (``"the run"``) writes into ``folder`` under
+    ``names`` is a folder there (the file would be moved into it, or fail at the end of the work)."""
+    blocked = next((folder / name for name in names if (folder / name).is_dir()), None)
+    if blocked is not None:
+        raise ConfigError(f"{blocked} is a folder, where {writer} writes a file; remove it or give another {option}")
 
 
 #: Bytes: the longest name of one file or folder most file systems take (ext4, APFS, NTFS: 255).

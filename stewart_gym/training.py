@@ -629,14 +629,11 @@ def check_run_dir(config: TrainConfig, overwrite: bool = False) -> None:
     """Everything about a training run that can be checked before it starts (raises :class:`ConfigError`):
     its recipe and options (:func:`check_recipe`), the run folder (writable; not holding another run's model
     unless ``overwrite`` or resuming) and the run to resume from."""
-    from stewart_gym.outputs import output_dir
+    from stewart_gym.outputs import no_folders_named, output_dir
 
     hp = check_recipe(config)
     run = output_dir(config.run_dir)
-    blocked = [run / name for name in RUN_FILES if (run / name).is_dir()]
-    if blocked:
-        raise ConfigError(f"{blocked[0]} is a folder, where the run writes a file; remove it or give another "
-                          "--run-dir")  # fmt: skip
+    no_folders_named(run, RUN_FILES, "the run", "--run-dir")
     if config.resume:
         resume = Path(config.resume)
         model = resume / "model.zip" if resume.is_dir() else resume

@@ -297,6 +297,13 @@ def test_sysid_refuses_before_any_work(tmp_path, capfd):
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), str(tmp_path / "." / "none.csv"), "--out",
                        str(tmp_path / "new.toml"))  # fmt: skip
     assert code == 1 and "a log given twice would count its windows twice" in err
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"), "--report",
+                       str(tmp_path / "new.toml"))  # fmt: skip
+    assert code == 1 and "--out and --report both name" in err  # (the fit ran, then the twin could not be written)
+    (tmp_path / "other" / "paths.png").mkdir(parents=True)
+    code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"), "--report",
+                       str(tmp_path / "other"))  # fmt: skip
+    assert code == 1 and "paths.png is a folder, where the report writes a file" in err
     code, _, err = cli(capfd, "sysid", str(tmp_path / "none.csv"), "--out", str(tmp_path / "new.toml"))
     assert code == 1 and "none.csv" in err
     rows = "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0.01,0.02,{k / 50}\n" for k in range(400))

@@ -25,6 +25,7 @@ from stewart_gym.cli.common import (
 )
 from stewart_gym.cli.hardware import add_port
 from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import no_folders_named
 
 __all__ = ["register"]
 
@@ -89,10 +90,8 @@ def cmd_sysid(args: argparse.Namespace) -> int:
         raise ConfigError(f"{report} holds a report already; give another folder or --overwrite")
     if report is not None and report.resolve() == out.resolve():
         raise ConfigError(f"--out and --report both name {out}: give the twin file and the report folder two names")
-    blocked = [] if report is None else [report / name for name in REPORT_FILES if (report / name).is_dir()]
-    if blocked:
-        raise ConfigError(f"{blocked[0]} is a folder, where the report writes a file; remove it or give another "
-                          "--report folder")  # fmt: skip
+    if report is not None:
+        no_folders_named(report, REPORT_FILES, "the report", "--report folder")
     twice = sorted({p for p in args.logs if sum(Path(q).resolve() == Path(p).resolve() for q in args.logs) > 1})
     if twice:
         raise ConfigError(f"{', '.join(twice)}: a log given twice would count its windows twice; give each once")

@@ -31,6 +31,7 @@ from stewart_gym.cli.common import (
 from stewart_gym.envs import ENV_IDS, trajectory_env_ids
 from stewart_gym.envs.targets import TRACK_TRAJECTORIES
 from stewart_gym.errors import ConfigError
+from stewart_gym.outputs import no_folders_named
 from stewart_gym.progress import Progress
 
 __all__ = ["ENV_CHOICES", "POLICY_HELP", "register"]
@@ -237,9 +238,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from stewart_gym.sim.engines import default_backend
 
     out = output_dir(args.out)
-    blocked = [out / name for name in ("demo.gif", "demo_pulses.png", "demo_metrics.json") if (out / name).is_dir()]
-    if blocked:
-        raise ConfigError(f"{blocked[0]} is a folder, where the demo writes a file; remove it or give another --out")
+    no_folders_named(out, ("demo.gif", "demo_pulses.png", "demo_metrics.json"), "the demo", "--out")
     env_id = "StewartBallBalance-v0"
     names = demo_policies(env_id, args.geometry)
     twin = twin_tables(args.twin)
