@@ -52,11 +52,12 @@ def cmd_deploy(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.policy} was exported for {policy.env_id}, not {args.env}; leave out --env")
     if args.geometry and not same_geometry(args.geometry, policy.geometry):
         raise ConfigError(f"{args.policy} was made for geometry {policy.geometry.name!r}, not {args.geometry!r}")
-    if policy.control_hz != round(args.rate):
-        print(f"note: the policy was trained at {policy.control_hz} Hz and runs at {args.rate:g} Hz", flush=True)
+    rate = float(policy.control_hz) if args.rate is None else args.rate  # the rate it was trained at, by default
+    if policy.control_hz != round(rate):
+        print(f"note: the policy was trained at {policy.control_hz} Hz and runs at {rate:g} Hz", flush=True)
     options = DeployOptions(port=args.port, protocol=args.protocol, baudrate=args.baudrate, sensor=args.sensor,
                             camera_config=args.camera_config, calibration=args.calibration, backend=args.backend,
-                            rate_hz=args.rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
+                            rate_hz=rate, duration_s=args.duration, watchdog_s=args.watchdog_ms / 1000,
                             max_step_us=args.max_step_us, trajectory=args.trajectory, log=args.log,
                             overwrite=args.overwrite, seed=args.seed or 0, randomize=not args.no_randomize,
                             write_only=args.write_only, answer_timeout_s=args.answer_timeout_ms / 1000,
@@ -248,7 +249,9 @@ def register(sub: Any) -> None:
     add_backend(p, "physics engine of the simulated plant (--sensor sim; default: PyBullet if installed, else MuJoCo)")
     p.add_argument("--calibration", help="calibration TOML (trims, directions, limits, [hardware])")
     p.add_argument("--duration", type=positive_float, help="seconds (default: until Ctrl-C)")
-    p.add_argument("--rate", type=bounded_float(0.0, 500.0, lo_open=True), default=50.0, help="control rate, Hz (≤ 500)")
+    p.add_argument("--rate", type=bounded_float(0.0, 500.0, lo_open=True),
+                   help="control rate, Hz (≤ 500; default: the rate the policy was trained at, 50 for the classical "
+                        "controllers)")  # fmt: skip
     p.add_argument("--watchdog-ms", type=bounded_float(1.0, 10_000.0), default=100.0,
                    help="sensor data older than this sends the platform home")  # fmt: skip
     p.add_argument("--max-step-us", type=bounded_float(0.0, 1000.0, lo_open=True),

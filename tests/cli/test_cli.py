@@ -890,6 +890,20 @@ def deploy(device: FakeDevice, *args: str, cwd: Path, lines=None, **faults) -> t
     return proc, board.stop()
 
 
+def test_deploy_runs_a_bundle_at_the_rate_it_was_trained_at(device: FakeDevice, tmp_path: Path) -> None:
+    """A bundle made for 25 Hz runs at 25 Hz unless ``--rate`` says otherwise (it ran at 50 Hz, with a note)."""
+    assert sg("export", "--policy", "pid", "--out", str(tmp_path / "b"), cwd=tmp_path).returncode == 0
+    meta = json.loads((tmp_path / "b" / "bundle.json").read_text())
+    (tmp_path / "b" / "bundle.json").write_text(json.dumps({**meta, "control_hz": 25}))
+    proc, _ = deploy(device, "--policy", str(tmp_path / "b"), "--sensor", "sim", "--duration", "2", "--log",
+                     str(tmp_path / "log.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0 and "note: the policy was trained at" not in proc.stdout, proc.stdout + proc.stderr
+    assert 48 <= len((tmp_path / "log.csv").read_text().splitlines()) - 1 <= 52  # 2 s at 25 Hz
+    proc, _ = deploy(device, "--policy", str(tmp_path / "b"), "--sensor", "sim", "--duration", "1", "--rate", "50",
+                     "--log", str(tmp_path / "log50.csv"), cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0 and "note: the policy was trained at 25 Hz and runs at 50 Hz" in proc.stdout
+
+
 @pytest.mark.parametrize("protocol", ["maestro", "ssc32", "line"])
 def test_deploy_dry_run_prints_its_summary(protocol: str, device: FakeDevice, tmp_path: Path) -> None:
     """The documented dry run: exits 0 and prints the summary with the simulated ball's final error."""
