@@ -227,8 +227,8 @@ class CameraConfig:
         if isinstance(source, str) and not source.startswith("/dev/"):
             found = Path(path).parent / source  # a relative video path is read from the config's folder
             if not found.exists():
-                raise ConfigError(f"camera.source: {found} does not exist (give a camera index, a device or a video "
-                                  "file; a relative path is taken from the config's folder)")  # fmt: skip
+                raise ConfigError(f"{path}: camera.source: {found} does not exist (give a camera index, a device or a "
+                                  "video file; a relative path is taken from the config's folder)")  # fmt: skip
             source = str(found)
         return cls(source, (width, height), fps, fov, markers, colour, min_ball_px)
 

@@ -163,3 +163,12 @@ def test_the_methods_refuse_a_wrong_count_of_pulses_and_an_unknown_mode() -> Non
     with pytest.raises(ValueError, match="6 pulses"):
         cal.angles_one([1500.0] * 7)
     assert cal.in_range_one([1500.0] * 6) and cal.in_range(np.full(6, 1500.0)).all()
+
+
+def test_a_geometry_hash_that_is_not_hex_is_refused(tmp_path: Path) -> None:
+    from stewart_gym.hardware.deploy_setup import load_calibration
+
+    path = tmp_path / "cal.toml"
+    path.write_text('geometry = "servo-hexapod"\ngeometry_sha256 = "' + "z" * 64 + '"\n')
+    with pytest.raises(CalibrationError, match="geometry_sha256 must be the 64 hex digits"):
+        load_calibration(str(path), "servo-hexapod")

@@ -12,6 +12,7 @@ what was opened and leaves the servos unmoved.
 from __future__ import annotations
 
 import math
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +63,7 @@ def load_calibration(path: str | None, geometry: Any, used_for: str = "the polic
         return ServoCalibration.default(geo), {}
     data = read_toml(path, CalibrationError, "calibration file")
     declared, digest = data.get("geometry"), data.get("geometry_sha256")
-    if digest is not None and (not isinstance(digest, str) or len(digest) != 64):
+    if digest is not None and (not isinstance(digest, str) or re.fullmatch(r"[0-9a-f]{64}", digest) is None):
         raise CalibrationError(f"{path}: geometry_sha256 must be the 64 hex digits calibrate writes, got {digest!r}")
     if declared is not None:
         if not isinstance(declared, str) or not declared:
