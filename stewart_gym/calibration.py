@@ -113,8 +113,8 @@ class ServoCalibration:
                                    f"{self.max_us.tolist()}")  # fmt: skip
         lo, hi = PULSE_LIMITS_US
         if np.any(self.min_us < lo) or np.any(self.max_us > hi):
-            raise CalibrationError(f"min_us/max_us: within {lo:g}–{hi:g} µs, beyond any hobby servo's pulses, got "
-                                   f"{self.min_us.tolist()} / {self.max_us.tolist()}")  # fmt: skip
+            raise CalibrationError(f"min_us/max_us: each within {lo:g}–{hi:g} µs (no hobby servo takes a pulse beyond), "
+                                   f"got {self.min_us.tolist()} / {self.max_us.tolist()}")  # fmt: skip
         bad = np.flatnonzero((self.neutral_us < self.min_us) | (self.neutral_us > self.max_us))
         if bad.size:
             raise CalibrationError(f"neutral_us: channels {bad.tolist()} have their neutral pulse outside [min_us, max_us]")

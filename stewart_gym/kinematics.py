@@ -106,7 +106,7 @@ def euler_from_matrix(rot: np.ndarray) -> tuple[float, float, float]:
     rows = np.asarray(rot, dtype=np.float64)
     if rows.shape != (3, 3):
         raise ValueError(f"rot must be one 3 × 3 rotation matrix, got shape {rows.shape}")
-    (a, b, c), (d, e, f), (g, h, i) = rows.tolist()  # scalar arithmetic: a simulator reads its plate pose so
+    (a, b, c), (d, e, f), (g, h, i) = rows.tolist()  # in scalars: each simulator step reads its plate pose here
     rr = (a * a + b * b + c * c, d * d + e * e + f * f, g * g + h * h + i * i, a * d + b * e + c * f,
           a * g + b * h + c * i, d * g + e * h + f * i)  # R·Rᵀ  # fmt: skip
     det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
