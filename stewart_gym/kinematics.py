@@ -206,6 +206,8 @@ def _pivot(pivot: np.ndarray | None) -> np.ndarray:
 
 
 def _as_pose(pose: np.ndarray) -> np.ndarray:
+    if np.iscomplexobj(pose):
+        raise ValueError("pose must be real numbers, got complex ones")
     pose = np.asarray(pose, dtype=np.float64)
     if pose.ndim == 0 or pose.shape[-1] != 6:
         raise ValueError(f"pose must have shape (..., 6) = (x, y, z, roll, pitch, yaw), got {pose.shape}")

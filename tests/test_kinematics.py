@@ -324,10 +324,11 @@ def _bad_kinematics_calls() -> list[tuple[str, object]]:
         ("max_iter", lambda: forward_kinematics(g, servo_angles=zeros, max_iter=-1)),
         ("servo_angles", lambda: forward_kinematics(g, servo_angles=np.zeros(5))),
         ("pivot", lambda: inverse_kinematics(g, zeros, pivot=[np.nan, 0, 0])),
+        ("pose", lambda: inverse_kinematics(g, zeros + 0.01j)),  # the imaginary part dropped with a warning
     ]
 
 
-@pytest.mark.parametrize("index", range(17))
+@pytest.mark.parametrize("index", range(18))
 def test_a_bad_argument_is_a_value_error_naming_it(index: int) -> None:
     """Each call that hung, read past an array or gave a silent wrong answer raises ``ValueError`` naming its
     argument."""
