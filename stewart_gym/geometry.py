@@ -109,7 +109,8 @@ def _symmetric(table: Any, ls: float, ang: float, source: str) -> dict[str, floa
             out[key] = value * ang
             if not 0.0 < out[key] < 2 * math.pi / 3:
                 raise GeometryError(f"symmetric.{key}: between 0 and 120° (the pairs may not overlap), got {value:g} "
-                                    f"in the file's angle_unit ({math.degrees(out[key]):g}°)")  # fmt: skip
+                                    f"in the file's angle_unit ({math.degrees(out[key]):g}°); check angle_unit "
+                                    '(angle_unit = "deg" for degrees)')  # fmt: skip
     return out
 
 

@@ -71,15 +71,19 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     if args.range is not None:
         xy_ext = args.range * 1e-3
     step = args.z_step * 1e-3
-    levels = np.arange(-math.ceil(z_ext / step), math.ceil(z_ext / step) + 1) * step
-    if scan_poses(args.n * args.n, len(levels)) > MAX_SCAN_POSES:
-        raise ConfigError(f"--n {args.n} with --z-step {args.z_step:g} scans {scan_poses(args.n**2, len(levels)):,} "
-                          f"poses at once, more than {MAX_SCAN_POSES:,}: lower --n or raise --z-step")  # fmt: skip
     grid = np.linspace(-xy_ext, xy_ext, args.n)
-    hm = height_map(geo, orient, pivot, x=grid, y=grid, z_levels=levels)
+    for _ in range(4):  # the heights searched widen while the reachable ones reach their edge
+        levels = np.arange(-math.ceil(z_ext / step), math.ceil(z_ext / step) + 1) * step
+        if scan_poses(args.n * args.n, len(levels)) > MAX_SCAN_POSES:
+            raise ConfigError(f"--n {args.n} with --z-step {args.z_step:g} scans {scan_poses(args.n**2, len(levels)):,} "
+                              f"poses at once, more than {MAX_SCAN_POSES:,}: lower --n or raise --z-step")  # fmt: skip
+        hm = height_map(geo, orient, pivot, x=grid, y=grid, z_levels=levels)
+        at_edge = bool(np.isfinite(hm.z_max).any() and (np.nanmin(hm.z_min) <= levels[0] + 1e-12
+                                                        or np.nanmax(hm.z_max) >= levels[-1] - 1e-12))  # fmt: skip
+        if not at_edge:
+            break
+        z_ext *= 2
     vol = reachable_volume(geo, samples=args.samples, pivot=pivot)
-    at_edge = bool(np.isfinite(hm.z_max).any() and (np.nanmin(hm.z_min) <= levels[0] + 1e-12
-                                                    or np.nanmax(hm.z_max) >= levels[-1] - 1e-12))  # fmt: skip
     res: dict[str, Any] = {
         "geometry": geo.name,
         "axis_ranges": {"x_mm": reach[0] * 1e3, "y_mm": reach[1] * 1e3, "z_mm": reach[2] * 1e3,

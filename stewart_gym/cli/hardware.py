@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -82,11 +83,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     port, protocol, baudrate = port_settings(args.port, args.protocol, args.baudrate, hw)
     nominal = ServoCalibration.default(geometry).neutral_us  # untrimmed: 1500 µs, or the home leg length's pulse
     controller = open_controller(protocol, port, calibration.channels, baudrate)
+    if geometry.is_rotary:  # what each horn should show: the trim is right when it stands at this angle
+        angles = [math.degrees(a) for a in calibration.home_angle]
+        shown = f"{angles[0]:.1f}°" if max(angles) - min(angles) < 0.05 else ", ".join(f"{a:.1f}°" for a in angles)
+        print(f"home angle of each horn on {geometry.name}: {shown} above horizontal", flush=True)
     try:
         result = find_trims(controller, calibration, sys.stdin, args.step, say=lambda s: print(s, flush=True),
                             nominal_us=nominal)  # fmt: skip
     finally:
         controller.close()
+    if not Path(port).is_absolute() and Path(port).exists():  # a link in a folder: kept wherever deploy runs from
+        port = str(Path(port).absolute())
     written = {"port": port, "protocol": protocol, "baudrate": baudrate}
     make_parent(out).write_text(calibration_toml(result.calibration, written, geometry=args.geometry, folder=out.parent))
     print(f"calibration written to {out} (geometry {geometry.name}, port {port}, protocol {protocol})")
@@ -323,7 +330,7 @@ def register(sub: Any) -> None:
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
     add_geometry(p)
     p.add_argument("--port", help="serial port of the servo board (default: [hardware] port of --calibration)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, help="the board's serial protocol (default: as --port)")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, help="the board's serial protocol (default: the [hardware] protocol of --calibration)")
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
                    help="serial speed (default: the protocol's own)")
     p.add_argument("--calibration", help="start from this calibration TOML")

@@ -309,3 +309,19 @@ def test_a_bad_analysis_argument_is_one_clear_error_naming_it(index: int) -> Non
     name, call = _bad_analysis_calls()[index]
     with pytest.raises(ConfigError, match=name):
         call()
+
+
+def test_workspace_widens_its_height_search_until_the_reachable_heights_end_inside_it(tmp_path: Path,
+                                                                                     capsys: pytest.CaptureFixture) -> None:  # fmt: skip
+    """A small build whose reachable heights off the centre pass 1.2 times its reach along z (where the search
+    started): the search widens, and the lowest height is found rather than a note that it lies beyond."""
+    path = tmp_path / "small.toml"
+    path.write_text('name = "small"\nlength_unit = "mm"\nangle_unit = "deg"\nhorn_length = 15\nrod_length = 90\n'
+                    "servo_angle_range = [-30, 60]\nplate_size = [180, 180]\n[symmetric]\nbase_radius = 70\n"
+                    "base_pair_angle = 25\nplatform_radius = 55\nplatform_pair_angle = 16\n")  # fmt: skip
+    assert main(["workspace", "--geometry", str(path), "--samples", "2000", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    from stewart_gym.presets import load_geometry
+
+    reach_z = -axis_ranges(load_geometry(str(path)))[2, 0]
+    assert out["height_map"]["min_z_mm"] < -1.2 * reach_z * 1e3 and not out["height_map"]["z_limited_by_grid"]

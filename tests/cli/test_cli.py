@@ -1270,6 +1270,7 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
     data = drain.stop()
     assert proc.returncode == 0, proc.stderr
     assert "unknown key 'x'" in proc.stdout
+    assert "home angle of each horn on servo-hexapod: 17.1° above horizontal" in proc.stdout  # what to trim to
     hw = hardware_settings(out)
     assert hw == {"port": device.path, "protocol": "maestro"}
     cal = ServoCalibration.from_toml(out, "servo-hexapod")
@@ -1291,6 +1292,21 @@ def test_calibrate_saves_trims_port_and_protocol(device: FakeDevice, tmp_path: P
         f"error: {out} exists; give another name or --overwrite"], again.stderr
     assert out.read_text() == text
 
+
+
+def test_calibrate_keeps_a_relative_port_as_a_full_path(device: FakeDevice, tmp_path: Path) -> None:
+    """``--port out/board`` (the tutorial's link to the virtual board) is written as its full path: the port of
+    ``deploy --calibration out/cal.toml`` run from another folder (it was taken from that folder)."""
+    from stewart_gym.calibration import hardware_settings
+
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "board").symlink_to(device.path)
+    drain = Drain(device)
+    proc = sg("calibrate", "--port", "out/board", "--protocol", "maestro", "--out", "cal.toml", stdin="q\n",
+              cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert proc.returncode == 0, proc.stderr
+    assert hardware_settings(tmp_path / "cal.toml")["port"] == str(tmp_path / "out" / "board")
 
 
 def test_calibrate_keeps_every_limit_within_any_servos_pulses(device: FakeDevice, tmp_path: Path) -> None:
