@@ -330,7 +330,8 @@ def register(sub: Any) -> None:
     p = sub.add_parser("calibrate", help=cmd_calibrate.__doc__, description=cmd_calibrate.__doc__)
     add_geometry(p)
     p.add_argument("--port", help="serial port of the servo board (default: [hardware] port of --calibration)")
-    p.add_argument("--protocol", choices=PROTOCOL_CHOICES, help="the board's serial protocol (default: the [hardware] protocol of --calibration)")
+    p.add_argument("--protocol", choices=PROTOCOL_CHOICES,
+                   help="the board's serial protocol (default: the [hardware] protocol of --calibration)")
     p.add_argument("--baudrate", type=int_at_least(300, 4_000_000),
                    help="serial speed (default: the protocol's own)")
     p.add_argument("--calibration", help="start from this calibration TOML")
