@@ -311,8 +311,8 @@ def test_a_bad_analysis_argument_is_one_clear_error_naming_it(index: int) -> Non
         call()
 
 
-def test_workspace_widens_its_height_search_until_the_reachable_heights_end_inside_it(tmp_path: Path,
-                                                                                     capsys: pytest.CaptureFixture) -> None:  # fmt: skip
+def test_workspace_widens_its_height_search_until_the_heights_end_inside_it(tmp_path: Path,
+                                                                           capsys: pytest.CaptureFixture) -> None:
     """A small build whose reachable heights off the centre pass 1.2 times its reach along z (where the search
     started): the search widens, and the lowest height is found rather than a note that it lies beyond."""
     path = tmp_path / "small.toml"

@@ -1560,8 +1560,8 @@ def test_a_demo_file_that_is_a_folder_is_refused_before_the_episodes(tmp_path: P
     """(The GIF went into ``out/demo.gif/demo.gif``, and the command said it wrote ``out/demo.gif``.)"""
     (tmp_path / "o" / "demo.gif").mkdir(parents=True)
     code, out, err = cli(capfd, "demo", "--episodes", "10", "--out", "o", cwd=tmp_path)
-    assert code == 1 and "evaluating" not in out and err.strip() == "error: o/demo.gif is a folder, where the demo " \
-                                                                    "writes a file; remove it or give another --out"  # fmt: skip
+    said = "error: o/demo.gif is a folder, where the demo writes a file; remove it or give another --out"
+    assert code == 1 and "evaluating" not in out and err.strip() == said, err
     assert list((tmp_path / "o" / "demo.gif").iterdir()) == []
 
 
