@@ -189,6 +189,8 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
         path.write_text(good.replace(old, new))
         with pytest.raises(ConfigError, match=field):
             CameraConfig.from_toml(path)
+    with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: camera.source: "):  # (the last: missing.mp4)
+        CameraConfig.from_toml(path)
     (tmp_path / "v.avi").write_bytes(b"")  # a relative video path is read from the config's folder
     (tmp_path / "rel.toml").write_text(good.replace(f'source = "{tmp_path}"', 'source = "v.avi"'))
     assert CameraConfig.from_toml(tmp_path / "rel.toml").source == str(tmp_path / "v.avi")
@@ -231,6 +233,10 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
     text_source = sg("camera-check", "--camera-config", str(config), cwd=tmp_path)
     assert text_source.returncode == 1 and text_source.stderr.strip().splitlines() == [
         f"error: {config}: camera.source '{tmp_path / 'notes.txt'}' is not a video OpenCV can read"], text_source.stderr
+    config.write_text(re.sub(r'source = "[^"]*"', f'source = "{tmp_path}"', (clip / "cam.toml").read_text()))
+    folder_source = sg("camera-check", "--camera-config", str(config), cwd=tmp_path)  # a folder: exit 1 too
+    assert folder_source.returncode == 1 and folder_source.stderr.strip().splitlines() == [
+        f"error: {config}: camera.source '{tmp_path}' is a folder, not a video file or a camera"], folder_source.stderr
 
 
 @pytest.mark.xdist_group("camera_clip")

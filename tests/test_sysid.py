@@ -212,6 +212,8 @@ def test_what_the_logs_cannot_determine_is_the_start_twins_or_widely_uncertain(t
     ("", "empty"),
     (",".join(HEADER) + "\n" + "".join(f"{k / 50},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0,0,{k / 50}\n"
                                         for k in range(100)), "at least 5 s"),
+    (",".join(HEADER) + "\n" + "".join(f"{k * 0.02},1500,1500,1500,1500,1500,1500,0,0,0,0,0,0,0,{k * 0.02}\n"
+                                        for k in range(250)), "4.98 s of ticks"),  # (printed as 5.0 s: no contradiction)
     (",".join(HEADER) + "\n0.02,1500,1500,1500,1500,1500,1500,0,0,0,0,0,,,\n0.0,1500,1500,1500,1500,1500,1500,0,0,0,0,"
      "0,,,\n", "line 3: t_s 0 is not finite, or not after the tick before it"),
     (",".join(HEADER) + "\n0,1500,x,1500,1500,1500,1500,0,0,0,0,0,,,\n", "line 2 is not a deploy log's row (could not "

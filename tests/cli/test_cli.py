@@ -1570,3 +1570,30 @@ def test_a_full_disk_says_what_to_do(tmp_path: Path, capfd: pytest.CaptureFixtur
     (tmp_path / "full.png").symlink_to("/dev/full")
     code, _, err = cli(capfd, "render", "0", "0", "0", "0", "0", "0", "--out", "full.png", cwd=tmp_path)
     assert code == 1 and err.strip() == "error: no space left on device (free some space, or write elsewhere)", err
+
+
+def test_path_messages_name_what_is_wrong(tmp_path: Path, capfd: pytest.CaptureFixture) -> None:
+    """A link's folder that is a file was called a folder that does not exist; a pair angle far out of range
+    suggests ``angle_unit``; ``render --out '~/x.png'`` writes where the check looked (imageio expanded ``~``)."""
+    (tmp_path / "notes.txt").write_text("")
+    code, _, err = cli(capfd, "virtual-device", "--link", "notes.txt/board", cwd=tmp_path)
+    assert code == 1 and err.strip() == "error: --link notes.txt/board: notes.txt is a file, not a folder; link " \
+                                        "elsewhere", err  # fmt: skip
+    (tmp_path / "g.toml").write_text('name = "g"\nlength_unit = "mm"\nhorn_length = 25\nrod_length = 160\n'
+                                     "servo_angle_range = [-0.5, 1.0]\n[symmetric]\nbase_radius = 100\n"
+                                     "base_pair_angle = 40\nplatform_radius = 80\nplatform_pair_angle = 16\n")  # fmt: skip
+    code, _, err = cli(capfd, "ik", "0", "0", "0", "0", "0", "0", "--geometry", "g.toml", cwd=tmp_path)
+    assert code == 1 and 'check angle_unit (angle_unit = "deg" for degrees)' in err, err
+    code, _, err = cli(capfd, "render", "0", "0", "0", "0", "0", "0", "--out", "~/home.png", cwd=tmp_path)
+    assert code == 0 and (tmp_path / "~" / "home.png").stat().st_size > 1000, err
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device that is always full) here")
+def test_evaluate_prints_its_figures_before_a_gif_that_cannot_be_written(tmp_path: Path,
+                                                                         capfd: pytest.CaptureFixture) -> None:  # fmt: skip
+    (tmp_path / "full.gif").symlink_to("/dev/full")  # passes every check; the disk is full when it is written
+    code, out, err = cli(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--gif", "full.gif", "--json",
+                         cwd=tmp_path)  # fmt: skip
+    assert code == 1 and "no space left on device" in err
+    assert json.loads(out)["policy"] == "pid"  # the episodes' figures, printed before the GIF
