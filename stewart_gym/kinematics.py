@@ -30,6 +30,7 @@ from typing import Literal
 import numpy as np
 
 from stewart_gym.blas import OneBlasThread
+from stewart_gym.checks import real_number
 from stewart_gym.compiled import compiled
 from stewart_gym.geometry import GeometryError, PlatformGeometry
 
@@ -668,11 +669,8 @@ def forward_kinematics(
     _geometry(geometry)
     if (leg_lengths is None) == (servo_angles is None):
         raise ValueError("give exactly one of leg_lengths or servo_angles")
-    for name, value in (("xtol", xtol), ("ftol", ftol)):
-        if not (isinstance(value, (int, float, np.floating)) and 0 < value < math.inf):
-            raise ValueError(f"{name} must be a positive number, got {value!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
-        raise ValueError(f"max_iter must be a whole number from 1, got {max_iter!r}")
+    xtol, ftol = (real_number(name, value, low=0, low_open=True) for name, value in (("xtol", xtol), ("ftol", ftol)))
+    max_iter = real_number("max_iter", max_iter, whole=True, low=1)
     c = _pivot(pivot)
     if servo_angles is not None:
         target = np.asarray(servo_angles, dtype=np.float64)
@@ -754,10 +752,8 @@ def axis_ranges(geometry: PlatformGeometry, pivot: np.ndarray | None = None, *, 
     number from 1e-15 (a float's resolution) to 1.
     """
     _geometry(geometry)
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 2:
-        raise ValueError(f"samples must be a whole number from 2, got {samples!r}")
-    if not (isinstance(tol, (int, float, np.floating)) and 1e-15 <= tol <= 1):
-        raise ValueError(f"tol must be a number from 1e-15 to 1 (relative to the search bound), got {tol!r}")
+    samples = real_number("samples", samples, whole=True, low=2)
+    tol = real_number("tol (relative to the search bound)", tol, low=1e-15, high=1.0)
     key = (id(geometry), _pivot(pivot).tobytes(), samples, tol)
     hit = _REACH.get(key)
     if hit is not None and hit[0] is geometry:

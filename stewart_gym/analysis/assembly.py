@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from stewart_gym.analysis.arguments import finite_array, positive_number, whole_number
+from stewart_gym.checks import finite_array, real_number
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import forward_kinematics, horn_tips, inverse_kinematics, rotation_matrix
@@ -40,8 +40,8 @@ def assembly_modes(geometry: PlatformGeometry, leg_lengths: np.ndarray | None = 
     """
     if (leg_lengths is None) == (servo_angles is None):
         raise ValueError("give exactly one of leg_lengths or servo_angles")
-    guesses = whole_number("guesses", guesses, 1)
-    positive_number("tol", tol)
+    guesses = real_number("guesses", guesses, whole=True, low=1)
+    real_number("tol", tol, low=0, low_open=True)
     if servo_angles is not None:
         angles = finite_array("servo_angles", servo_angles, (6,))
         tips = horn_tips(geometry, angles)  # the rods' fixed lower ends

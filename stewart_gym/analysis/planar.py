@@ -26,7 +26,7 @@ import math
 import numpy as np
 from scipy.optimize import brentq, minimize_scalar
 
-from stewart_gym.analysis.arguments import finite_array, positive_number, whole_number
+from stewart_gym.checks import finite_array, real_number
 from stewart_gym.errors import ConfigError
 from stewart_gym.progress import Progress
 
@@ -101,8 +101,8 @@ def solve_planar(L1: float, L2: float, L3: float, gamma: float, x1: float, x2: f
     is a pose: :func:`planar_continua` gives those θ, which this leaves out.
     ``L1`` must be the side the law of cosines gives from L2, L3 and γ.
     """
-    whole_number("samples", samples, MIN_PLANAR_SAMPLES)
-    positive_number("tol", tol)
+    real_number("samples", samples, whole=True, low=MIN_PLANAR_SAMPLES)
+    real_number("tol", tol, low=0, low_open=True)
     for name, v in (("L1", L1), ("L2", L2), ("L3", L3), ("p1", p1), ("p2", p2), ("p3", p3)):
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"{name} must be a positive, finite length, got {v}")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stewart_gym.analysis.arguments import positive_number
+from stewart_gym.checks import real_number
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import GeometryError, PlatformGeometry
 from stewart_gym.kinematics import actuator_jacobian, forward_kinematics, inverse_kinematics
@@ -88,7 +88,7 @@ def sensitivity(geometry: PlatformGeometry, poses: np.ndarray, step: float = mat
     """Platform motion for a servo step of ``step`` rad (default 0.1°, source 003's servo resolution) at ``poses``."""
     if not geometry.is_rotary:
         raise GeometryError(f"geometry {geometry.name!r} is linear: servo sensitivity needs a rotary platform")
-    step = positive_number("step", step)
+    step = real_number("step", step, low=0, low_open=True)
     poses = np.asarray(poses, dtype=np.float64)
     reach, fwd = _forward_jacobian(geometry, poses)
     per_servo = np.abs(fwd) * step  # (..., 6 axes, 6 servos)
@@ -106,7 +106,7 @@ def fd_check(geometry: PlatformGeometry, poses: np.ndarray, step: float = math.r
     started at the unstepped pose) gives the new pose; the central difference is
     compared with the Jacobian's prediction, relative to its norm.
     """
-    step = positive_number("step", step)
+    step = real_number("step", step, low=0, low_open=True)
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 6)
     ik = inverse_kinematics(geometry, poses)
     poses, alpha = poses[ik.reachable], ik.servo_angles[ik.reachable]
@@ -129,7 +129,7 @@ def fd_check(geometry: PlatformGeometry, poses: np.ndarray, step: float = math.r
 
 def conditioning(geometry: PlatformGeometry, poses: np.ndarray, singular_threshold: float = 1e3) -> dict[str, object]:
     """Condition numbers (…,) of the scaled Jacobian at ``poses`` (NaN if unreachable) and near-singular flags."""
-    positive_number("singular_threshold", singular_threshold)
+    real_number("singular_threshold", singular_threshold, low=0, low_open=True)
     poses = np.asarray(poses, dtype=np.float64)
     reach = inverse_kinematics(geometry, poses).reachable
     jac = actuator_jacobian(geometry, poses)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from stewart_gym.analysis.arguments import finite_array, whole_number
+from stewart_gym.checks import finite_array, real_number
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.kinematics import axis_ranges, inverse_kinematics
@@ -57,7 +57,7 @@ def height_map(geometry: PlatformGeometry, orientation: tuple[float, float, floa
     if not np.all(np.diff(levels) > 0):
         raise ConfigError("z_levels must rise from the lowest to the highest level (the bisection relies on it)")
     orientation = finite_array("orientation", orientation, (3,))
-    stride = whole_number("stride", stride, 1)
+    stride = real_number("stride", stride, whole=True, low=1)
     gx, gy = np.meshgrid(x, y)
     cells = gx.size
     nz = len(levels)
@@ -121,7 +121,7 @@ def reachable_volume(geometry: PlatformGeometry, samples: int = 200_000, seed: i
       translation box; reachable fraction times its volume (m³).
     Both with the standard error of the fraction.
     """
-    samples = whole_number("samples", samples, 1)
+    samples = real_number("samples", samples, whole=True, low=1)
     rng = np.random.default_rng(seed)
     reach = axis_ranges(geometry, pivot)
     lo, hi = reach[:, 0], reach[:, 1]

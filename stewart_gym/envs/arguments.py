@@ -8,14 +8,13 @@ a spec must be of its class; a switch must be true or false. A bad one is a
 
 from __future__ import annotations
 
-import math
-import numbers
 import os
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from stewart_gym.checks import real_number
 from stewart_gym.envs.randomization import RandomizationRanges
 from stewart_gym.errors import ConfigError
 from stewart_gym.geometry import PlatformGeometry
@@ -28,25 +27,6 @@ __all__ = ["MAX_CONTROL_HZ", "MAX_PHYSICS_HZ", "check_engine_arguments", "check_
 MAX_CONTROL_HZ = 1000
 #: Hz: the highest physics rate an env takes.
 MAX_PHYSICS_HZ = 100_000
-
-
-def real_number(name: str, value: Any, *, optional: bool = False, whole: bool = False, low: float = -math.inf,
-                high: float = math.inf, low_open: bool = False) -> Any:  # fmt: skip
-    """``value`` as a Python int (``whole``: a real number of no fraction) or float, checked: a real number (None
-    where ``optional``), not a bool, finite, within [``low``, ``high``] (``(low, high]`` with ``low_open``); else
-    a ConfigError naming ``name``."""
-    if value is None and optional:
-        return None
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise ConfigError(f"{name} must be {'a whole number' if whole else 'a number'}, got {value!r} "
-                          f"({type(value).__name__})")  # fmt: skip
-    number = float(value)
-    if whole and math.isfinite(number) and not number.is_integer():
-        raise ConfigError(f"{name} must be a whole number, got {value!r}")
-    if not math.isfinite(number) or number > high or number < low or (low_open and number == low):
-        bounds = "" if low == -math.inf and high == math.inf else f" in {'(' if low_open else '['}{low:g}, {high:g}]"
-        raise ConfigError(f"{name} must be a finite number{bounds}, got {value!r}")
-    return int(number) if whole else number
 
 
 def true_or_false(name: str, value: Any) -> bool:
