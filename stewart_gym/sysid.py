@@ -61,15 +61,17 @@ import numpy as np
 
 from stewart_gym.blas import one_blas_thread
 from stewart_gym.calibration import ServoCalibration
+from stewart_gym.envs.randomization import EpisodeParams
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.deploy import LOG_PLATE_COLUMNS, LOG_READING_COLUMNS, log_columns
 from stewart_gym.plate_trims import MIN_FRAMES, PlateLog, TrimFit, fit_trims, usable_frames
-from stewart_gym.sim import BatchedSim, ServoSpec
+from stewart_gym.sensing import TouchPanelSpec
+from stewart_gym.sim import BallSpec, BatchedSim, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
 __all__ = ["PANEL_PERIOD_S", "READ_OVERHEAD_S", "READ_TIME_VAR_S2", "TICK_DATED_OVERHEAD_S", "TICK_DATED_VAR_S2",
            "FitResult", "FlightLog", "MIN_FIT_WINDOWS", "MIN_POSE_AGREEMENT", "POSE_COLUMNS", "fit_twin",
-           "REPORT_FILES", "pose_agreement", "read_log", "unfit_reason", "write_report"]
+           "REPORT_FILES", "pose_agreement", "read_log", "twin_ball", "unfit_reason", "write_report"]
 
 #: s: the panel's sample period (the sketch reports at 100 Hz).
 PANEL_PERIOD_S = 0.010
@@ -404,15 +406,21 @@ def _windows(logs: list[FlightLog], holdout: float) -> list[_Window]:
     return out
 
 
+def twin_ball(twin: Twin) -> BallSpec:
+    """The ball ``twin`` sets (its radius, mass, rolling friction and shell), which the replays roll."""
+    return EpisodeParams.from_twin(twin, BallSpec(), ServoSpec(), TouchPanelSpec()).ball
+
+
 def _simulate(geometry: Any, calibration: ServoCalibration, logs: list[FlightLog], windows: list[_Window],
-              servos: list[ServoSpec], start: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:  # fmt: skip
-    """Every window under every candidate servo: the ball's path (W, C, steps + 1, 2) m from the end of the
-    burn-in, the ball placed there with ``start`` (positions and velocities, (W, 2) each), else at rest at the
-    window's first reading."""
+              servos: list[ServoSpec], start: tuple[np.ndarray, np.ndarray] | None = None, *,
+              ball: BallSpec) -> np.ndarray:  # fmt: skip
+    """Every window under every candidate servo, with ``ball``: the ball's path (W, C, steps + 1, 2) m from the end
+    of the burn-in, the ball placed there with ``start`` (positions and velocities, (W, 2) each), else at rest at
+    the window's first reading."""
     rate = logs[0].rate_hz
     W, C = len(windows), len(servos)
     sim = BatchedSim(geometry, n=W * C, calibration=calibration, physics_hz=int(round(rate)) * 4,
-                     control_hz=int(round(rate)))  # fmt: skip
+                     control_hz=int(round(rate)), ball_spec=ball)  # fmt: skip
     sim.reset(servo_specs=[s for _ in windows for s in servos])
     burn = int(round(BURN_IN_S * rate))
     steps = max(w.ticks for w in windows) - burn
@@ -609,6 +617,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
                               "agree): give the --geometry and --calibration it was run with")  # fmt: skip
     given = start is not None  # a --start twin: its values stand where the logs cannot determine them
     start = start or Twin()
+    ball = twin_ball(start)  # the replays' ball: --start's (a ping-pong ball rolls at 3/5 g sin θ, a steel one 5/7)
     fit_w, held_w = _fit_windows(logs, holdout)
     servos = [_servo(s, d) for s in SPEED_GRID for d in DEADBAND_GRID]
     rate = logs[0].rate_hz
@@ -620,7 +629,7 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
     ones = np.ones(len(fit_w))
     start_state = None
     for done in (0.35, 0.7):  # twice: the second time each window's ball starts where the first fit put it
-        path = _simulate(geo, cal, list(logs), fit_w, servos, start_state)
+        path = _simulate(geo, cal, list(logs), fit_w, servos, start_state, ball=ball)
         c, b, A, n = _statistics(path, u, xy, mask, dt)
         total, accel = _cost(c, b, A, ones)
         speed, band, lat, (si, di, li) = _best(total)
@@ -710,9 +719,12 @@ def fit_twin(logs: Sequence[FlightLog], geometry: Any = "servo-hexapod", calibra
         undetermined.append("servos.latency_ms")
         notes["servos.latency_ms"] = (f"the bootstrap spread ({spread[2] * 1e3:.0f} ms) covers much of the search "
                                       "range: the logs hardly show it; the twin holds the search's best")  # fmt: skip
-    for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "plate.friction", "plate.load_kg"):
+    for key in ("ball.mass_scale", "ball.radius_scale", "ball.rolling_friction", "ball.hollow", "plate.friction",
+                "plate.load_kg"):
         undetermined.append(key)
         notes[key] = "a ball rolling on the plate shows nothing of it; the twin keeps its value"
+    notes["ball.hollow"] = ("not fitted (a shell's slower rolling would pass for slower servos): the replays rolled "
+                            "the --start twin's ball, which the twin keeps")  # fmt: skip
     if camera and not plate_chose:
         notes["servos.trim_us"] = (f"the camera's logs hold {usable_frames(camera)} frames of the plate after their "
                                    f"first second, fewer than the {MIN_FRAMES} the trims need: these are the "
@@ -780,6 +792,7 @@ def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[Flig
     rate = logs[0].rate_hz
     dt = 1.0 / rate
     nominal_servo = _servo(start["servos.speed_scale"], start["servos.deadband_us"])
+    ball = twin_ball(start)
     nominal_lat = start.total_latency_ms / 1e3 + overhead
     margin = max(LATENCY_GRID)
     u, xy, mask = _readings(logs, windows, margin, margin + PAST_S + max(HORIZONS_S))
@@ -787,8 +800,9 @@ def _predict(result: FitResult, geo: Any, cal: ServoCalibration, logs: list[Flig
     errors: dict[float, dict[str, list[float]]] = {h: {"nominal": [], "fitted": []} for h in HORIZONS_S}
     paths: dict[str, list[np.ndarray]] = {"nominal": [], "fitted": []}
     for name, servo, lt, acc in (("nominal", nominal_servo, nominal_lat, np.zeros(2)), ("fitted", fitted, lat, accel)):
-        path = _simulate(geo, cal, logs, windows, [servo])
-        path = _simulate(geo, cal, logs, windows, [servo], _start_states(path[:, 0], u, xy, past, dt, lt, acc))
+        path = _simulate(geo, cal, logs, windows, [servo], ball=ball)
+        path = _simulate(geo, cal, logs, windows, [servo], _start_states(path[:, 0], u, xy, past, dt, lt, acc),
+                         ball=ball)  # fmt: skip
         pred = _at(path, u - lt, dt)[:, 0] + 0.5 * acc * (u**2)[:, :, None]
         r = xy - pred
         for w in range(len(windows)):  # the ball's start from the past readings only: position and velocity

@@ -13,7 +13,7 @@ from stewart_gym.camera import CameraSpec
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
-from stewart_gym.sim.twin import Twin
+from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
 __all__ = ["FIRST_DRAWS", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count", "polar"]
 
@@ -183,7 +183,8 @@ class EpisodeParams:
                   ranges: RandomizationRanges | None = None) -> EpisodeParams:  # fmt: skip
         """The platform ``twin`` describes, from the nominal ``ball``, ``servo`` and ``sensor``. With ``rng``, each
         value is drawn around the twin's (:data:`TWIN_WIDTH_FLOOR`; an undetermined ball or plate key from
-        ``ranges``).
+        ``ranges``, the ball's scales as factors of the twin's: a ping-pong ball's twin draws ping-pong balls). The
+        ball is a thin shell where the twin says so (or the nominal ball is one).
 
         The twin's ``[sensor]`` is the touch panel's; a camera keeps its own latency and noise (a tuple of
         cameras: one of them, drawn uniformly with ``rng``, else the first)."""
@@ -195,14 +196,16 @@ class EpisodeParams:
             if rng is None:
                 return v
             if name in undetermined and wide is not None:
-                return float(rng.uniform(*wide))
+                drawn = float(rng.uniform(*wide))
+                return float(np.clip(v * drawn, lo, hi)) if name.endswith("_scale") else drawn
             w = max(2.0 * twin.sigma.get(name, 0.0), TWIN_WIDTH_FLOOR[name])
             return float(np.clip(rng.uniform(v - w, v + w), lo, hi))
 
-        mass = value("ball.mass_scale", 0.1, 10.0, ranges.ball_mass_scale)
-        radius = value("ball.radius_scale", 0.5, 2.0, ranges.ball_radius_scale)
+        mass = value("ball.mass_scale", *TWIN_FIELDS[("ball", "mass_scale")][1:3], ranges.ball_mass_scale)
+        radius = value("ball.radius_scale", *TWIN_FIELDS[("ball", "radius_scale")][1:3], ranges.ball_radius_scale)
         ball_ep = replace(ball, radius=round(ball.radius * radius, 5), mass=ball.mass * mass,
-                          rolling_friction=value("ball.rolling_friction", 0.0, 1e-3, ranges.ball_rolling_friction))
+                          rolling_friction=value("ball.rolling_friction", 0.0, 1e-3, ranges.ball_rolling_friction),
+                          hollow=ball.hollow or bool(twin["ball.hollow"]))  # fmt: skip
         trim = np.asarray(twin["servos.trim_us"], dtype=float)
         if rng is not None:
             w = max(2.0 * twin.sigma.get("servos.trim_us", 0.0), TWIN_WIDTH_FLOOR["servos.trim_us"])

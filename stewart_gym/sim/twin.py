@@ -13,6 +13,7 @@ is a :class:`~stewart_gym.errors.ConfigError` naming the file and the key::
     mass_scale = 1.0
     radius_scale = 1.0
     rolling_friction = 0.0             # m
+    hollow = false                     # true: a thin shell, such as a ping-pong ball
     [plate]
     friction = 0.6
     load_kg = 0.0
@@ -34,9 +35,10 @@ from typing import Any
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["FIT_KEYS", "TWIN_FIELDS", "Twin", "load_twin"]
+__all__ = ["FIT_KEYS", "SWITCHES", "TWIN_FIELDS", "Twin", "load_twin"]
 
-#: Every key of a twin file: ``(table, key)`` → (nominal value, lowest, highest, unit, what it is).
+#: Every key of a twin file: ``(table, key)`` → (nominal value, lowest, highest, unit, what it is); a key whose
+#: nominal value is a bool (:data:`SWITCHES`) takes true or false.
 TWIN_FIELDS: dict[tuple[str, str], tuple[Any, float, float, str, str]] = {
     ("servos", "speed_scale"): (1.0, 0.1, 5.0, "×", "the servos' speed, × the servo model's nominal no-load speed"),
     ("servos", "deadband_us"): (5.0, 0.0, 50.0, "µs", "pulse changes this small are ignored"),
@@ -45,15 +47,22 @@ TWIN_FIELDS: dict[tuple[str, str], tuple[Any, float, float, str, str]] = {
     ("servos", "latency_ms"): (0.0, 0.0, 200.0, "ms",
                                "delay between a pulse leaving the computer and the servo acting on it, on top of "
                                "the servo model's own 10 ms lag"),
-    ("ball", "mass_scale"): (1.0, 0.1, 10.0, "×", "the ball's mass, × the nominal 66.8 g"),
-    ("ball", "radius_scale"): (1.0, 0.5, 2.0, "×", "the ball's radius, × the nominal 12.7 mm"),
+    ("ball", "mass_scale"): (1.0, 0.02, 10.0, "×", "the ball's mass, × the nominal 66.8 g (a 2.7 g ping-pong ball: "
+                                                   "0.04)"),
+    ("ball", "radius_scale"): (1.0, 0.5, 2.0, "×", "the ball's radius, × the nominal 12.7 mm (a 40 mm ping-pong ball: "
+                                                   "1.575)"),
     ("ball", "rolling_friction"): (0.0, 0.0, 1e-3, "m", "rolling friction (lever arm)"),
+    ("ball", "hollow"): (False, 0, 1, "", "true: the ball is a thin shell, such as a ping-pong ball (I = 2/3 m r², "
+                                          "rolling at 3/5 g sin θ); false: the nominal ball's own (a solid one, "
+                                          "I = 2/5 m r², 5/7 g sin θ)"),
     ("plate", "friction"): (0.6, 0.05, 2.0, "", "friction coefficient between the ball and the plate"),
     ("plate", "load_kg"): (0.0, 0.0, 2.0, "kg", "an extra mass at the plate's centre (a cable, a sensor)"),
     ("sensor", "noise_mm"): (1.0, 0.0, 20.0, "mm", "standard deviation of each reported coordinate"),
     ("sensor", "latency_ms"): (10.0, 0.0, 300.0, "ms", "age of a reading when it reaches the computer"),
 }
 TABLES = ("servos", "ball", "plate", "sensor")
+#: The keys that are true or false rather than numbers (no uncertainty, no range)
+SWITCHES = tuple(f"{t}.{k}" for (t, k), entry in TWIN_FIELDS.items() if isinstance(entry[0], bool))
 #: The table ``sysid`` adds: ``sigma`` (one-sigma uncertainties, keyed ``"table.key"``) and ``undetermined``
 #: (the keys the logs could not determine).
 FIT_TABLE = "fit"
@@ -140,8 +149,12 @@ class Twin:
             for (t, key), value in self.values.items():
                 if t != table:
                     continue
-                text = ("[" + ", ".join(f"{v:.1f}" for v in value) + "]" if isinstance(value, tuple)
-                        else f"{value:.6g}")  # fmt: skip
+                if isinstance(value, bool):
+                    text = "true" if value else "false"
+                elif isinstance(value, tuple):
+                    text = "[" + ", ".join(f"{v:.1f}" for v in value) + "]"
+                else:
+                    text = f"{value:.6g}"
                 note = comments.get(f"{table}.{key}")
                 lines.append(f"{key} = {text}" + (f"  # {note}" if note else ""))
             lines.append("")
@@ -157,6 +170,10 @@ class Twin:
 def _checked(source: str, table: str, key: str, value: Any) -> Any:
     _, lo, hi, unit, _ = TWIN_FIELDS[(table, key)]
     unit = f" {unit}" if unit and unit != "×" else ""
+    if isinstance(TWIN_FIELDS[(table, key)][0], bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: {table}.{key} must be true or false, got {value!r}")
+        return bool(value)
     if key == "trim_us":
         items = list(value) if isinstance(value, (list, tuple)) else None
         if items is None or len(items) != 6 or not all(_number(v) and lo <= v <= hi for v in items):
@@ -180,7 +197,8 @@ def _fit_table(source: str, fit: Any) -> tuple[dict[str, float], tuple[str, ...]
         raise ConfigError(f"{source}: unknown key(s) {bad} in [fit]; its keys: {list(FIT_KEYS)}")
     sigma = fit.get("sigma", {})
     undetermined = fit.get("undetermined", [])
-    if not isinstance(sigma, Mapping) or not all(k in names and _number(v) and v >= 0 for k, v in sigma.items()):
+    if not isinstance(sigma, Mapping) or not all(k in names and k not in SWITCHES and _number(v) and v >= 0
+                                                 for k, v in sigma.items()):  # fmt: skip
         raise ConfigError(f"{source}: fit.sigma must map twin keys (\"servos.speed_scale\", …) to numbers ≥ 0")
     for name, value in sigma.items():  # an uncertainty wider than the value's whole range says nothing more
         _, lo, hi, unit, _ = TWIN_FIELDS[tuple(name.split("."))]

@@ -37,7 +37,7 @@ latency_ms = 10.0
 """
 
 SLOW = {"servos": {"speed_scale": 0.5, "deadband_us": 12, "trim_us": [30, -30, 20, -10, 0, 25], "latency_ms": 50},
-        "ball": {"mass_scale": 1.5, "radius_scale": 1.1, "rolling_friction": 2e-5},
+        "ball": {"mass_scale": 1.5, "radius_scale": 1.1, "rolling_friction": 2e-5, "hollow": True},
         "plate": {"friction": 0.4, "load_kg": 0.2}, "sensor": {"noise_mm": 2.5, "latency_ms": 30}}  # fmt: skip
 
 
@@ -83,6 +83,10 @@ def test_missing_keys_take_the_nominal_values():
     ({"servos": {"trim_us": [0, 0, 0, 0, 0, 500]}}, "servos.trim_us must be six numbers in -200…200"),
     ({"sensor": {"noise_mm": "1"}}, "sensor.noise_mm"),
     ({"ball": {"rolling_friction": 0.01}}, "ball.rolling_friction"),
+    ({"ball": {"hollow": "yes"}}, "ball.hollow must be true or false, got 'yes'"),
+    ({"ball": {"hollow": 1}}, "ball.hollow must be true or false, got 1"),
+    ({"ball": {"mass_scale": 0.01}}, "ball.mass_scale must be a number in 0.02…10"),
+    ({"fit": {"sigma": {"ball.hollow": 0.5}}}, "fit.sigma must map twin keys"),
     ({"plate": 3}, "[plate] must be a table"),
     ({"fit": {"sigma": {"servos.speed": 1}}}, "fit.sigma"),
     ({"fit": {"sigma": {"servos.trim_us": 1e9}}}, 'fit.sigma "servos.trim_us" = 1e+09 is wider than the value\'s whole '
@@ -120,6 +124,7 @@ def test_the_env_simulates_exactly_the_twin():
     assert p.sensor == TouchPanelSpec(noise_mm=2.5, rate_hz=100.0, latency_s=0.030)
     assert p.ball.mass == pytest.approx(1.5 * BallSpec().mass)
     assert p.ball.radius == pytest.approx(round(1.1 * BallSpec().radius, 5)) and p.ball.rolling_friction == 2e-5
+    assert p.ball.hollow
     assert p.plate_friction == 0.4 and p.plate_load[0] == 0.2
     env.reset(seed=4)  # another seed: the same platform
     assert env.params.servo == p.servo and env.params.sensor == p.sensor
@@ -147,3 +152,56 @@ def test_randomised_around_a_twin_each_value_stays_within_its_width(seed, sigma)
 def test_a_bad_twin_keyword_is_refused_by_the_env():
     with pytest.raises(ConfigError, match="unknown key"):
         gym.make("StewartBallBalance-v0", twin={"servos": {"speed": 2}})
+
+
+#: A 40 mm ping-pong ball of 2.7 g, a thin shell, as its user writes it.
+PING_PONG = {"ball": {"radius_scale": 1.575, "mass_scale": 0.04, "hollow": True}}
+
+
+@pytest.mark.parametrize("backend", ["pybullet", "mujoco", "batched"])
+def test_a_ping_pong_ball_twin_rolls_at_three_fifths_of_g_sin_theta(backend):
+    """Under the same held tilt, a thin shell rolls at 3/5 g sin θ and the solid nominal ball at 5/7 g sin θ: the
+    ratio of their accelerations is 0.84 in every engine (its 2.7 g and 20 mm change nothing of it)."""
+    accelerations = []
+    for twin in ({}, PING_PONG):
+        env = gym.make("StewartBallBalance-v0", backend=backend, randomize=False, **({"twin": twin} if twin else {}))
+        env.reset(seed=0, options={"ball_position": (0.0, 0.0), "ball_velocity": (0.0, 0.0)})
+        ball = env.unwrapped.sim.ball_spec
+        assert (ball.hollow, ball.radius, ball.mass) == ((True, 0.02, 0.04 * BallSpec().mass) if twin
+                                                         else (False, BallSpec().radius, BallSpec().mass))  # fmt: skip
+        xs = []
+        for _ in range(35):  # a held tilt about y: the ball rolls along x
+            _, _, terminated, _, info = env.step(np.array([0.0, 0.25], dtype=np.float32))
+            assert not terminated
+            xs.append(info["ball_xy_m"][0])
+        env.close()
+        t = np.arange(1, 36) / 50.0
+        accelerations.append(2.0 * np.polyfit(t[15:], np.array(xs[15:]), 2)[0])  # once the plate has tilted
+    solid, shell = accelerations
+    assert solid > 0.1
+    assert shell / solid == pytest.approx((3 / 5) / (5 / 7), abs=0.01)
+
+
+def test_undetermined_ball_scales_are_drawn_around_the_twins_ball():
+    """A fitted twin leaves the ball undetermined (the ball's rolling shows neither its mass nor its size):
+    training draws them from today's ranges as factors of the twin's own, so that a ping-pong ball's twin trains
+    on ping-pong balls, and the nominal twin draws exactly as before."""
+    from stewart_gym.envs.randomization import EpisodeParams
+
+    ranges = RandomizationRanges()
+    undetermined = ("ball.mass_scale", "ball.radius_scale", "ball.hollow")
+    for values, scale in ((Twin.from_mapping(PING_PONG).values, 1.575), (Twin().values, 1.0)):
+        twin = Twin(values, {}, undetermined)
+        for seed in range(20):
+            p = EpisodeParams.from_twin(twin, BallSpec(), ServoSpec(), TouchPanelSpec(), np.random.default_rng(seed),
+                                        ranges)  # fmt: skip
+            lo, hi = ranges.ball_radius_scale
+            assert scale * lo * BallSpec().radius - 1e-5 <= p.ball.radius <= scale * hi * BallSpec().radius + 1e-5
+            assert p.ball.hollow == (scale != 1.0)
+    nominal = Twin(Twin().values, {}, undetermined)
+    for seed in range(5):  # the nominal twin: the same draws as the ranges themselves give
+        p = EpisodeParams.from_twin(nominal, BallSpec(), ServoSpec(), TouchPanelSpec(), np.random.default_rng(seed),
+                                    ranges)  # fmt: skip
+        rng = np.random.default_rng(seed)
+        assert p.ball.mass == BallSpec().mass * rng.uniform(*ranges.ball_mass_scale)
+        assert p.ball.radius == round(BallSpec().radius * rng.uniform(*ranges.ball_radius_scale), 5)
