@@ -341,7 +341,10 @@ class FitResult:
         tw = self.twin
         s = tw.sigma
         noise = {"panel": "panel noise", "camera": "camera noise"}.get(self.sensor, "reading noise")
-        out = [f"fitted on {self.fit_windows} windows; predictions on {self.heldout_windows} held-out windows",
+        ball = twin_ball(tw)
+        out = [f"fitted on {self.fit_windows} windows; predictions on {self.heldout_windows} held-out windows, "
+               f"rolling a {2e3 * ball.radius:.1f} mm {'hollow' if ball.hollow else 'solid'} ball of "
+               f"{1e3 * ball.mass:.1f} g (--start's [ball], else the nominal one)",
                f"  total latency  {self.total_latency_ms:6.1f} ms ± {s.get('servos.latency_ms', 0):.1f} "
                f"(sensor {tw['sensor.latency_ms']:.0f} + servos {tw['servos.latency_ms']:.1f})",
                f"  servo speed    {tw['servos.speed_scale']:6.2f} × ± {s.get('servos.speed_scale', 0):.2f}",
@@ -361,7 +364,8 @@ class FitResult:
         for h, row in self.prediction.items():
             ratio = row["nominal"] / max(row["fitted"], 1e-9)
             verdict = (f"{ratio:.1f}× better" if ratio >= 1.0 else
-                       f"{1.0 / ratio:.1f}× worse: the log may be too short or too quiet for the fit; run identify longer")
+                       f"{1.0 / ratio:.1f}× worse: the log may be too short or too quiet for the fit (run identify "
+                       "longer), or the ball is not the one the replays rolled (give your ball's twin with --start)")
             out.append(f"  held-out {h:g} s prediction RMS: nominal twin {row['nominal']:.2f} mm, fitted "
                        f"{row['fitted']:.2f} mm ({verdict})")
         if tw.undetermined:

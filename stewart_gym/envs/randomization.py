@@ -186,28 +186,50 @@ class EpisodeParams:
         ``ranges``, the ball's scales as factors of the twin's: a ping-pong ball's twin draws ping-pong balls). The
         ball is a thin shell where the twin says so (or the nominal ball is one).
 
+        A key the twin's file leaves out (:attr:`Twin.omitted <stewart_gym.sim.twin.Twin.omitted>`) is the nominal
+        ``ball``'s, ``servo``'s or ``sensor``'s own, or with ``rng`` drawn from ``ranges`` as :meth:`sample` draws
+        it: a twin of the ball alone leaves the servos, the sensor and the plate as randomised as without a twin.
+
         The twin's ``[sensor]`` is the touch panel's; a camera keeps its own latency and noise (a tuple of
         cameras: one of them, drawn uniformly with ``rng``, else the first)."""
         ranges = ranges or RandomizationRanges()
-        undetermined = set(twin.undetermined)
+        undetermined, omitted = set(twin.undetermined), set(twin.omitted)
+        panel = sensor if isinstance(sensor, TouchPanelSpec) else TouchPanelSpec()
+        # a left-out key: the nominal's own value, and the range it is drawn from (ms for the latencies)
+        own = {"servos.deadband_us": servo.deadband_us, "ball.rolling_friction": ball.rolling_friction,
+               "sensor.noise_mm": panel.noise_mm, "sensor.latency_ms": panel.latency_s * 1e3}  # fmt: skip
+        drawn_from = {
+            "ball.mass_scale": ranges.ball_mass_scale, "ball.radius_scale": ranges.ball_radius_scale,
+            "ball.rolling_friction": ranges.ball_rolling_friction, "plate.friction": ranges.plate_friction,
+            "plate.load_kg": ranges.plate_load_kg, "servos.speed_scale": ranges.servo_speed_scale,
+            "servos.deadband_us": ranges.servo_deadband_us,
+            "servos.latency_ms": tuple(1e3 * v for v in ranges.control_latency_s),
+            "sensor.noise_mm": ranges.sensor_noise_mm,
+            "sensor.latency_ms": tuple(1e3 * v for v in ranges.sensor_latency_s),
+        }  # fmt: skip
 
-        def value(name: str, lo: float, hi: float, wide: tuple[float, float] | None = None) -> float:
+        def value(name: str, lo: float, hi: float) -> float:
             v = float(twin[name])
+            if name in omitted:
+                return own.get(name, v) if rng is None else float(rng.uniform(*drawn_from[name]))
             if rng is None:
                 return v
-            if name in undetermined and wide is not None:
-                drawn = float(rng.uniform(*wide))
+            if name in undetermined and name.startswith(("ball.", "plate.")):
+                drawn = float(rng.uniform(*drawn_from[name]))
                 return float(np.clip(v * drawn, lo, hi)) if name.endswith("_scale") else drawn
             w = max(2.0 * twin.sigma.get(name, 0.0), TWIN_WIDTH_FLOOR[name])
             return float(np.clip(rng.uniform(v - w, v + w), lo, hi))
 
-        mass = value("ball.mass_scale", *TWIN_FIELDS[("ball", "mass_scale")][1:3], ranges.ball_mass_scale)
-        radius = value("ball.radius_scale", *TWIN_FIELDS[("ball", "radius_scale")][1:3], ranges.ball_radius_scale)
+        mass = value("ball.mass_scale", *TWIN_FIELDS[("ball", "mass_scale")][1:3])
+        radius = value("ball.radius_scale", *TWIN_FIELDS[("ball", "radius_scale")][1:3])
         ball_ep = replace(ball, radius=round(ball.radius * radius, 5), mass=ball.mass * mass,
-                          rolling_friction=value("ball.rolling_friction", 0.0, 1e-3, ranges.ball_rolling_friction),
+                          rolling_friction=value("ball.rolling_friction", 0.0, 1e-3),
                           hollow=ball.hollow or bool(twin["ball.hollow"]))  # fmt: skip
         trim = np.asarray(twin["servos.trim_us"], dtype=float)
-        if rng is not None:
+        if "servos.trim_us" in omitted:
+            trim = (np.asarray(servo.trim_error_us, dtype=float) if rng is None
+                    else rng.uniform(-ranges.servo_trim_us, ranges.servo_trim_us, 6))  # fmt: skip
+        elif rng is not None:
             w = max(2.0 * twin.sigma.get("servos.trim_us", 0.0), TWIN_WIDTH_FLOOR["servos.trim_us"])
             trim = np.clip(trim + rng.uniform(-w, w, 6), -200.0, 200.0)  # within a twin's trims, as the others
         servo_ep = replace(servo, max_speed=servo.max_speed * value("servos.speed_scale", 0.1, 5.0),
@@ -219,9 +241,9 @@ class EpisodeParams:
         if isinstance(sensor, TouchPanelSpec):
             sensor_ep = TouchPanelSpec(noise_mm=value("sensor.noise_mm", 0.0, 20.0), rate_hz=sensor.rate_hz,
                                        latency_s=value("sensor.latency_ms", 0.0, 300.0) / 1e3)  # fmt: skip
-        load_kg = value("plate.load_kg", 0.0, 2.0, ranges.plate_load_kg)
+        load_kg = value("plate.load_kg", 0.0, 2.0)
         load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
-        return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0, ranges.plate_friction), load)
+        return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0), load)
 
 
 def polar(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:

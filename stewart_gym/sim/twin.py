@@ -78,12 +78,16 @@ class Twin:
         sigma: ``"table.key"`` → one-sigma uncertainty of a fitted value (empty for a twin written by hand).
         undetermined: the ``"table.key"`` names the fit could not determine.
         source: the file it was read from, for messages.
+        omitted: the ``"table.key"`` names the file leaves out (their values are the nominal ones): a twin of
+            one's ball alone (a ``[ball]`` table) says nothing of the servos, which training then draws as it
+            would without a twin.
     """
 
     values: dict[tuple[str, str], Any] = field(default_factory=lambda: {k: v[0] for k, v in TWIN_FIELDS.items()})
     sigma: dict[str, float] = field(default_factory=dict)
     undetermined: tuple[str, ...] = ()
     source: str = "twin"
+    omitted: tuple[str, ...] = ()
 
     def __getitem__(self, name: str) -> Any:
         """A value by ``"table.key"``, e.g. ``twin["servos.speed_scale"]``."""
@@ -119,12 +123,16 @@ class Twin:
             for key, value in given.items():
                 values[(table, key)] = _checked(source, table, key, value)
         sigma, undetermined = _fit_table(source, data.get(FIT_TABLE, {}))
-        return cls(values, sigma, undetermined, source)
+        omitted = tuple(f"{t}.{k}" for t, k in TWIN_FIELDS if k not in data.get(t, {}))
+        return cls(values, sigma, undetermined, source, omitted)
 
     def to_mapping(self) -> dict[str, Any]:
-        """The tables, as :meth:`from_mapping` reads them (with ``[fit]`` where there is one)."""
+        """The tables, as :meth:`from_mapping` reads them (with ``[fit]`` where there is one): the keys given, not
+        those :attr:`omitted`."""
         out: dict[str, Any] = {t: {} for t in TABLES}
         for (table, key), value in self.values.items():
+            if f"{table}.{key}" in self.omitted:
+                continue
             out[table][key] = list(value) if isinstance(value, tuple) else value
         if self.sigma or self.undetermined:
             out[FIT_TABLE] = {"sigma": dict(self.sigma), "undetermined": list(self.undetermined)}
@@ -138,7 +146,9 @@ class Twin:
             if (table, key) not in TWIN_FIELDS:
                 raise ConfigError(f"{self.source}: no twin key {table}.{key}")
             values[(table, key)] = _checked(self.source, table, key, value)
-        return Twin(values, dict(self.sigma), self.undetermined, self.source)
+        given = {f"{name.partition('__')[0]}.{name.partition('__')[2]}" for name in changes}
+        return Twin(values, dict(self.sigma), self.undetermined, self.source,
+                    tuple(name for name in self.omitted if name not in given))  # fmt: skip
 
     def toml(self, comments: Mapping[str, str] | None = None) -> str:
         """The twin as a TOML file; ``comments`` (``"table.key"`` → text) go beside the values."""
@@ -197,16 +207,27 @@ def _fit_table(source: str, fit: Any) -> tuple[dict[str, float], tuple[str, ...]
         raise ConfigError(f"{source}: unknown key(s) {bad} in [fit]; its keys: {list(FIT_KEYS)}")
     sigma = fit.get("sigma", {})
     undetermined = fit.get("undetermined", [])
-    if not isinstance(sigma, Mapping) or not all(k in names and k not in SWITCHES and _number(v) and v >= 0
-                                                 for k, v in sigma.items()):  # fmt: skip
-        raise ConfigError(f"{source}: fit.sigma must map twin keys (\"servos.speed_scale\", …) to numbers ≥ 0")
+    if not isinstance(sigma, Mapping):
+        raise ConfigError(f"{source}: fit.sigma must be a table of twin keys (\"servos.speed_scale\" = 0.04, …), got "
+                          f"{sigma!r}")  # fmt: skip
+    for name, value in sigma.items():
+        if name not in names or name in SWITCHES:
+            raise ConfigError(f"{source}: fit.sigma \"{name}\": not a twin key with a number; fit.sigma maps keys such "
+                              "as \"servos.speed_scale\" to their uncertainty")  # fmt: skip
+        if not (_number(value) and value >= 0):
+            raise ConfigError(f"{source}: fit.sigma \"{name}\" must be a number ≥ 0, got {value!r}")
     for name, value in sigma.items():  # an uncertainty wider than the value's whole range says nothing more
         _, lo, hi, unit, _ = TWIN_FIELDS[tuple(name.split("."))]
         if value > hi - lo:
             raise ConfigError(f"{source}: fit.sigma \"{name}\" = {value:g} is wider than the value's whole range "
                               f"({lo:g}…{hi:g}{'' if unit in ('', '×') else ' ' + unit})")  # fmt: skip
-    if not isinstance(undetermined, list) or not all(u in names for u in undetermined):
-        raise ConfigError(f"{source}: fit.undetermined must list twin keys (\"ball.mass_scale\", …)")
+    if not isinstance(undetermined, list):
+        raise ConfigError(f"{source}: fit.undetermined must list twin keys (\"ball.mass_scale\", …), got "
+                          f"{undetermined!r}")  # fmt: skip
+    unknown = [u for u in undetermined if u not in names]
+    if unknown:
+        raise ConfigError(f"{source}: fit.undetermined lists {unknown[0]!r}, not a twin key (such as "
+                          "\"ball.mass_scale\")")  # fmt: skip
     return {k: float(v) for k, v in sigma.items()}, tuple(undetermined)
 
 
@@ -220,8 +241,10 @@ def load_twin(twin: Twin | Mapping[str, Any] | str | Path) -> Twin:
         from stewart_gym.tomlio import read_toml
 
         data = read_toml(twin, ConfigError, "twin file")
-        if not data:  # (an emptied file, a failed copy: not a nominal platform said in so many words)
+        loaded = Twin.from_mapping(data, source=str(twin)) if data else None
+        if loaded is None or len(loaded.omitted) == len(TWIN_FIELDS):  # (an emptied file, a failed copy, a [fit]
+            # table alone: not a nominal platform said in so many words)
             raise ConfigError(f"{twin}: the twin file sets nothing; a twin has [servos], [ball], [plate] or [sensor] "
-                              "tables (stewart-gym sysid writes one)")  # fmt: skip
-        return Twin.from_mapping(data, source=str(twin))
+                              "tables with values (stewart-gym sysid writes one)")  # fmt: skip
+        return loaded
     raise ConfigError(f"twin must be a twin file path or its tables, got {type(twin).__name__}")

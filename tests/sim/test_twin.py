@@ -86,7 +86,14 @@ def test_missing_keys_take_the_nominal_values():
     ({"ball": {"hollow": "yes"}}, "ball.hollow must be true or false, got 'yes'"),
     ({"ball": {"hollow": 1}}, "ball.hollow must be true or false, got 1"),
     ({"ball": {"mass_scale": 0.01}}, "ball.mass_scale must be a number in 0.02…10"),
-    ({"fit": {"sigma": {"ball.hollow": 0.5}}}, "fit.sigma must map twin keys"),
+    ({"fit": {"sigma": {"ball.hollow": 0.5}}}, 'fit.sigma "ball.hollow": not a twin key with a number'),
+    ({"fit": {"sigma": {"ball.foo": 0.1}}}, 'fit.sigma "ball.foo": not a twin key'),
+    ({"fit": {"sigma": {"servos.speed_scale": "0.1"}}}, 'fit.sigma "servos.speed_scale" must be a number ≥ 0, got '
+                                                       "'0.1'"),
+    ({"fit": {"undetermined": ["ball.diameter"]}, "ball": {"hollow": True}},
+     "fit.undetermined lists 'ball.diameter', not a twin key"),
+    ({"fit": {"undetermined": ["ball.mass_scale"], "sigma": {}}}, "the twin file sets nothing"),  # [fit] alone
+    ({"ball": {}}, "the twin file sets nothing"),
     ({"plate": 3}, "[plate] must be a table"),
     ({"fit": {"sigma": {"servos.speed": 1}}}, "fit.sigma"),
     ({"fit": {"sigma": {"servos.trim_us": 1e9}}}, 'fit.sigma "servos.trim_us" = 1e+09 is wider than the value\'s whole '
@@ -205,3 +212,37 @@ def test_undetermined_ball_scales_are_drawn_around_the_twins_ball():
         rng = np.random.default_rng(seed)
         assert p.ball.mass == BallSpec().mass * rng.uniform(*ranges.ball_mass_scale)
         assert p.ball.radius == round(BallSpec().radius * rng.uniform(*ranges.ball_radius_scale), 5)
+
+
+def test_what_a_twin_file_leaves_out_is_randomised_as_without_a_twin(tmp_path):
+    """A twin of the ball alone says nothing of the servos, the panel or the plate: training (``rng``) draws them
+    from today's ranges, as ``randomize`` does without a twin, not narrowly around nominal values nobody measured;
+    a fixed episode (no ``rng``) keeps the nominal ball's, servos' and panel's own values. The keys left out
+    survive the trip through the command line's tables (``to_mapping``)."""
+    from stewart_gym.envs.randomization import EpisodeParams
+
+    path = tmp_path / "ball.toml"
+    path.write_text(toml_text(PING_PONG))
+    twin = load_twin(path)
+    assert set(twin.omitted) == {f"{t}.{k}" for t, k in TWIN_FIELDS} - {"ball.radius_scale", "ball.mass_scale",
+                                                                         "ball.hollow"}  # fmt: skip
+    assert Twin.from_mapping(twin.to_mapping()).omitted == twin.omitted
+    servo, panel = ServoSpec(deadband_us=4.0, trim_error_us=(5.0,) * 6), TouchPanelSpec(noise_mm=0.7)
+    fixed = EpisodeParams.from_twin(twin, BallSpec(), servo, panel)
+    assert fixed.servo == servo and fixed.sensor == panel and fixed.ball.rolling_friction == BallSpec().rolling_friction
+    assert fixed.ball.radius == 0.02 and fixed.ball.hollow
+    ranges = RandomizationRanges()
+    drawn = [EpisodeParams.from_twin(twin, BallSpec(), ServoSpec(), TouchPanelSpec(), np.random.default_rng(seed),
+                                     ranges) for seed in range(300)]  # fmt: skip
+    speeds = np.array([p.servo.max_speed / ServoSpec().max_speed for p in drawn])
+    trims = np.array([p.servo.trim_error_us for p in drawn])
+    lags = np.array([p.servo.lag_s - ServoSpec().lag_s for p in drawn])
+    noises = np.array([p.sensor.noise_mm for p in drawn])
+    for values, (lo, hi) in ((speeds, ranges.servo_speed_scale), (lags, ranges.control_latency_s),
+                             (noises, ranges.sensor_noise_mm), (trims, (-ranges.servo_trim_us, ranges.servo_trim_us)),
+                             ([p.plate_friction for p in drawn], ranges.plate_friction)):  # fmt: skip
+        values = np.asarray(values)
+        assert lo - 1e-12 <= values.min() and values.max() <= hi + 1e-12
+        assert values.max() - values.min() > 0.8 * (hi - lo)  # the whole range, not a narrow band
+    width = BallSpec().radius * TWIN_WIDTH_FLOOR["ball.radius_scale"] + 1e-5  # (the radius rounded to 10 µm)
+    assert all(p.ball.hollow and abs(p.ball.radius - 0.02) <= width for p in drawn)  # the ball given: narrowly
