@@ -152,7 +152,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         twin_file = {"twin": args.twin} if args.twin else {}
         print(json.dumps(json_safe({"policy": source.label, **where.describe(), **twin_file, **metrics})), flush=True)
     else:
-        print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}")
+        print(f"{source.label} on {args.episodes} seeded episodes of {world_line(where.describe())}"
+              + (f" ({args.twin})" if args.twin else ""))  # fmt: skip
         print(format_table({source.label: metrics}), flush=True)
     if gif or plot:
         episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif, plot,
@@ -184,7 +185,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     processes, _ = process_plan(args.workers, len(policies), args.episodes)
     world_line = world(env_id, next(iter(env_kwargs.values())))
     print(f"{len(policies)} policies on {args.episodes} seeded episodes (seeds {args.seed}…{args.seed + args.episodes - 1}"
-          f"{', domain randomisation' if randomize else (', the twin' if twin else ', nominal physics')}) of {env_id} "
+          f"{', domain randomisation' if randomize else (f', the twin {args.twin}' if twin else ', nominal physics')}) "
+          f"of {env_id} "
           f"on {geometry}, {world_line['backend']}, sensor {world_line['sensor']}; {processes} "
           f"process{'es' if processes > 1 else ''} at a time…", flush=True,
           file=sys.stderr if args.json else sys.stdout)  # fmt: skip

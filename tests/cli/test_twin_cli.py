@@ -39,6 +39,8 @@ def test_evaluate_runs_on_exactly_the_twin(twin, capfd):
     code, out, _ = cli(capfd, "evaluate", "--policy", "pid-kalman", "--episodes", "2", "--json", "--no-randomize")
     nominal = json.loads(out)
     assert "twin" not in nominal
+    code, out, _ = cli(capfd, "evaluate", "--policy", "pid", "--episodes", "1", "--twin", str(twin))
+    assert code == 0 and out.splitlines()[0].endswith(f"the twin's physics ({twin})"), out
     # the slow, late, noisy twin moves the servos differently from the nominal platform on the same seeds
     assert on_twin["pulse_rate_us_per_s"] != pytest.approx(nominal["pulse_rate_us_per_s"], rel=0.02)
 
@@ -49,6 +51,8 @@ def test_compare_runs_every_policy_on_the_twin(twin, capfd):
     result = json.loads(out)
     assert result["twin"] == str(twin) and result["randomize"] is False and set(result["policies"]) == {"pid-kalman",
                                                                                                        "lqr"}
+    code, out, _ = cli(capfd, "compare", "pid", "lqr", "--episodes", "2", "--twin", str(twin))
+    assert code == 0 and f"(seeds 0…1, the twin {twin})" in out.splitlines()[0], out
 
 
 @pytest.mark.parametrize("command", [["evaluate", "--policy", "pid"], ["compare", "pid", "lqr"], ["demo"],
