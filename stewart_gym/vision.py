@@ -33,7 +33,8 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.tomlio import read_toml
 
 __all__ = ["CAMERA_CONFIG_FIELDS", "MAX_IMAGE_PIXELS", "BallColour", "CameraConfig", "Detection", "MarkerLayout",
-           "annotate", "find_markers", "locate_ball", "marker_corners_mm", "read_image"]
+           "annotate", "find_markers", "grab_frames", "locate_ball", "marker_corners_mm", "open_capture", "read_image",
+           "source_problem"]
 
 #: The most pixels an image file may declare (a 8K frame is 33 M): more is refused before it is decoded.
 MAX_IMAGE_PIXELS = 50_000_000
@@ -55,6 +56,59 @@ def open_capture(source: str | int, backend: int | None = None) -> Any:
     cv2.setLogLevel(0)  # silent
     os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # and FFmpeg's own lines (AV_LOG_QUIET), as it starts
     return cv2.VideoCapture(source) if backend is None else cv2.VideoCapture(source, backend)
+
+
+def source_problem(source: str | int) -> str | None:
+    """Why a ``source`` OpenCV could not open is the user's to fix, in words naming the field (a folder, or a file
+    that is no video OpenCV reads); None where it may be a camera that is absent, busy or hung."""
+    if isinstance(source, str) and Path(source).is_dir():
+        return f"camera.source {source!r} is a folder, not a video file or a camera"
+    if isinstance(source, str) and Path(source).is_file():
+        return f"camera.source {source!r} is not a video OpenCV can read"
+    return None
+
+
+def grab_frames(source: str | int, count: int, timeout_s: float) -> tuple[bool, list[np.ndarray]]:
+    """Up to ``count`` frames of ``source``: whether it opened, and the frames it gave before it ended or gave none
+    for ``timeout_s`` s. They are read in a background thread, since opening a named pipe waits in OpenCV, deaf to
+    Ctrl-C, for a writer that may never come: a source that neither opens nor fails within ``timeout_s`` raises
+    :class:`TimeoutError` (the thread is left to the process's end)."""
+    import threading
+
+    _cv2()  # (without OpenCV: the one-line error here, not in the thread)
+    frames: list[np.ndarray] = []
+    state: dict[str, bool | None] = {"opened": None}
+    news = threading.Event()  # the source opened (or failed), or a frame came, or it ended
+    done = threading.Event()
+
+    def read() -> None:
+        cap = None
+        try:
+            cap = open_capture(source)
+            state["opened"] = cap.isOpened()
+            news.set()
+            while state["opened"] and len(frames) < count and not done.is_set():
+                ok, frame = cap.read()
+                if not ok:
+                    break
+                frames.append(frame)
+                news.set()
+        finally:
+            if cap is not None:
+                cap.release()
+            state["opened"] = bool(state["opened"])
+            done.set()
+            news.set()
+
+    threading.Thread(target=read, name="camera frames", daemon=True).start()
+    while not done.is_set():  # each piece of news gives the source another timeout_s
+        if not news.wait(timeout_s):
+            if state["opened"] is None:
+                raise TimeoutError(f"camera {source!r} did not open within {timeout_s:g} s")
+            done.set()  # stalled: the frames so far
+            break
+        news.clear()
+    return bool(state["opened"]), list(frames)
 
 
 #: The tables of a camera config (TOML) and the keys of each.

@@ -240,6 +240,45 @@ def test_camera_check_reads_an_image_and_a_video(clip: Path, tmp_path: Path) -> 
 
 
 @pytest.mark.xdist_group("camera_clip")
+def test_camera_check_on_a_pipe_nobody_writes_to_says_so_within_seconds(clip: Path, tmp_path: Path) -> None:
+    """Opening a named pipe waits for a writer, inside OpenCV, deaf to Ctrl-C and to SIGTERM: camera-check waits
+    5 s for the first frame, as deploy does, and then says what is wrong in one line (exit 2, a device failure)."""
+    import os
+    import time
+
+    pipe = tmp_path / "stream.mjpg"
+    os.mkfifo(pipe)
+    config = tmp_path / "pipe_cam.toml"
+    config.write_text(re.sub(r'source = "[^"]*"', f'source = "{pipe}"', (clip / "cam.toml").read_text()))
+    start = time.monotonic()
+    waited = sg("camera-check", "--camera-config", str(config), "--frames", "5", cwd=tmp_path, timeout=120)
+    assert time.monotonic() - start < 60
+    assert waited.returncode == 2 and waited.stderr.strip().splitlines() == [
+        f"error: camera '{pipe}' delivered no frame within 5 s (nothing writing to the pipe? a camera in use or "
+        "hung?)"], waited.stderr  # fmt: skip
+    assert not (tmp_path / "camera_check.png").exists()
+
+
+@pytest.mark.xdist_group("camera_clip")
+@pytest.mark.parametrize("source", ["folder", "text"])
+def test_deploy_with_a_camera_source_that_is_no_video_names_the_config(clip: Path, tmp_path: Path, capfd,
+                                                                       source: str) -> None:  # fmt: skip
+    """A source that is a folder, or a file that is no video, is the config's mistake: deploy names the file and
+    the field in one line (exit 1), as camera-check does, before any port opens."""
+    from conftest import cli
+
+    target = tmp_path if source == "folder" else tmp_path / "notes.txt"
+    if source == "text":
+        target.write_text("my notes\n")
+    config = tmp_path / "cam_src.toml"
+    config.write_text(re.sub(r'source = "[^"]*"', f'source = "{target}"', (clip / "cam.toml").read_text()))
+    code, out, err = cli(capfd, "deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(config),
+                         "--port", str(tmp_path / "no_board"), "--protocol", "maestro", "--duration", "1")  # fmt: skip
+    says = "is a folder, not a video file or a camera" if source == "folder" else "is not a video OpenCV can read"
+    assert code == 1 and err.strip().splitlines() == [f"error: {config}: camera.source '{target}' {says}"], err
+
+
+@pytest.mark.xdist_group("camera_clip")
 def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: Path, device: FakeDevice) -> None:
     drain = Board(device)
     dep = sg("deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(clip / "cam.toml"), "--port",

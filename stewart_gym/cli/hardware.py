@@ -177,7 +177,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     frames from the config's camera or video, writing an annotated image to tune the colour range."""
     import json
 
-    from stewart_gym.vision import CameraConfig, annotate, locate_ball, open_capture, read_image
+    from stewart_gym.vision import CameraConfig, annotate, grab_frames, locate_ball, read_image, source_problem
 
     config = CameraConfig.from_toml(args.camera_config)
     out = output_file(args.out, suffixes=(".png", ".jpg"), overwrite=args.overwrite) if args.out else None
@@ -188,26 +188,22 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     if args.image:
         frames = [read_image(args.image)]
     else:
-        cap = open_capture(config.source)
-        if not cap.isOpened():
-            from stewart_gym.errors import DeviceFailure
+        from stewart_gym.errors import DeviceFailure
+        from stewart_gym.hardware.camera_sensor import FIRST_FRAME_TIMEOUT_S
 
-            source = str(config.source)
-            if Path(source).is_file():  # a file (the config checked that it is there): the user's to fix
-                raise ConfigError(f"{args.camera_config}: camera.source {source!r} is not a video OpenCV can read")
-            if Path(source).is_dir():
-                raise ConfigError(f"{args.camera_config}: camera.source {source!r} is a folder, not a video file or a "
-                                  "camera")  # fmt: skip
+        try:
+            opened, frames = grab_frames(config.source, args.frames, FIRST_FRAME_TIMEOUT_S)
+        except TimeoutError:
+            raise DeviceFailure(f"camera {config.source!r} delivered no frame within {FIRST_FRAME_TIMEOUT_S:g} s "
+                                "(nothing writing to the pipe? a camera in use or hung?)") from None  # fmt: skip
+        if not opened:
+            problem = source_problem(config.source)  # a folder, or a file that is no video: the user's to fix
+            if problem is not None:
+                raise ConfigError(f"{args.camera_config}: {problem}")
             raise DeviceFailure(f"camera {config.source!r} cannot be opened (wrong index or path, or in use?)")
-        frames = []
-        for _ in range(args.frames):
-            ok, frame = cap.read()
-            if not ok:
-                break
-            frames.append(frame)
-        cap.release()
         if not frames:
-            raise ConfigError(f"camera {config.source!r} gave no frames")
+            raise ConfigError(f"{args.camera_config}: camera {config.source!r} gave no frames (an empty video, or a "
+                              f"stream that stalled for {FIRST_FRAME_TIMEOUT_S:g} s)")  # fmt: skip
     detections = [locate_ball(f, config) for f in frames]
     last = detections[-1]
     if out is None and not args.image:

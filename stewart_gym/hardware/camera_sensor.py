@@ -7,7 +7,8 @@ rate, as a camera would deliver it), runs :func:`~stewart_gym.vision.locate_ball
 on each frame and keeps the newest detection with its capture time. The
 constructor waits for the first frame: a source that delivers none within
 ``first_frame_timeout_s`` (a pipe nobody writes to, a camera that hangs) is a
-:class:`~stewart_gym.errors.DeviceFailure` before anything moves.
+:class:`~stewart_gym.errors.DeviceFailure` before anything moves; a source that is a
+folder, or a file that is no video, a :class:`~stewart_gym.errors.ConfigError`.
 
 ``read(t)`` returns the newest *found* ball: a frame with no ball, no plate, or a
 position that cannot be a ball on the plate (:func:`~stewart_gym.sensing.reading_is_valid`)
@@ -23,9 +24,9 @@ import threading
 import time
 from collections.abc import Sequence
 
-from stewart_gym.errors import DeviceFailure
+from stewart_gym.errors import ConfigError, DeviceFailure
 from stewart_gym.sensing import Reading, reading_is_valid
-from stewart_gym.vision import CameraConfig, Detection, locate_ball, open_capture
+from stewart_gym.vision import CameraConfig, Detection, locate_ball, open_capture, source_problem
 
 __all__ = ["FIRST_FRAME_TIMEOUT_S", "LIVE_PIPE_OPTIONS", "CameraSensor"]
 
@@ -72,6 +73,9 @@ class CameraSensor:
                                 "writing to the pipe? a camera in use or hung?); nothing was moved")  # fmt: skip
         if self._failure is not None:
             self.close()
+            problem = source_problem(source) if not self._live_pipe else None
+            if problem is not None:  # a folder, or a file that is no video: the config's to fix
+                raise ConfigError(problem)
             raise DeviceFailure(self._failure)
 
     def _open(self) -> object:

@@ -233,7 +233,10 @@ class DeploySetup:
         if o.sensor == "camera":
             from stewart_gym.hardware.camera_sensor import CameraSensor
 
-            return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
+            try:
+                return CameraSensor(self.camera_config, plate_half=(width / 2, depth / 2))  # type: ignore[arg-type]
+            except ConfigError as exc:  # the config's source: name the file
+                raise ConfigError(f"{o.camera_config}: {exc}") from None
         if o.sensor == "sim":
             return SimulatedPlant(self.policy.env_id, seed=o.seed, randomize=o.randomize, geometry=self.policy.geometry,
                                   backend=o.backend or "auto", twin=o.twin)  # fmt: skip
