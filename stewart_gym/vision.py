@@ -259,8 +259,9 @@ class CameraConfig:
                                 _number(ball.get("radius_mm", BallColour.radius_mm), "ball.radius_mm"))  # fmt: skip
         except ConfigError as exc:
             raise ConfigError(f"{path}: {exc}") from None
-        except (TypeError, IndexError) as exc:
-            raise ConfigError(f"{path}: markers.centres_mm must be four [x, y] pairs ({exc})") from None
+        except (TypeError, IndexError):  # an entry that is no pair
+            raise ConfigError(f"{path}: markers.centres_mm must be four [x, y] pairs in mm, got "
+                              f"{mk['centres_mm']!r}") from None  # fmt: skip
         source = cam.get("source", 0)
         if isinstance(source, bool) or not isinstance(source, (int, str)) or source == "":
             raise ConfigError(f"{path}: camera.source: a camera index, a device path or a video file, got {source!r}")
@@ -277,7 +278,7 @@ class CameraConfig:
                                    ("fps", fps, 0.1, 1000), ("fov_deg", fov, 10, 150),
                                    ("min_ball_px", min_ball_px, 1, width * height)):  # fmt: skip
             if not lo <= value <= hi:
-                raise ConfigError(f"{path}: camera.{key} must be in {lo:g}…{hi:g}, got {value:g}")
+                raise ConfigError(f"{path}: camera.{key} must be in {lo:g}…{hi:g}, got {value!r}")
         if isinstance(source, str) and not source.startswith("/dev/"):
             found = Path(path).parent / source  # a relative video path is read from the config's folder
             if not found.exists():

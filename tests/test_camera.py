@@ -183,6 +183,8 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
         ("size_mm = 36", "size_mm = -3", "size_mm"),
         ("hsv_low = [5, 120, 120]", "hsv_low = [5, 120, 300]", "hsv_low"),
         ("fps = 30", "fps = 30\nzoom = 2", "zoom"),
+        ("fps = 30", "fps = 30\nmin_ball_px = 99999999", "min_ball_px must be in 1…307200, got 99999999$"),
+        ("[125, 125]", "[125]", re.escape("centres_mm must be four [x, y] pairs in mm, got [[-125, 125], [125], ")),
         (f'source = "{tmp_path}"', 'source = "missing.mp4"', "source"),
     ]:
         path = tmp_path / "c.toml"
@@ -256,6 +258,16 @@ def test_camera_check_on_a_pipe_nobody_writes_to_says_so_within_seconds(clip: Pa
     assert waited.returncode == 2 and waited.stderr.strip().splitlines() == [
         f"error: camera '{pipe}' delivered no frame within 5 s (nothing writing to the pipe? a camera in use or "
         "hung?)"], waited.stderr  # fmt: skip
+    assert not (tmp_path / "camera_check.png").exists()
+
+
+@pytest.mark.xdist_group("camera_clip")
+def test_camera_check_with_an_empty_out_is_refused(clip: Path, tmp_path: Path, capfd) -> None:
+    """``--out ""`` is a mistake, not a request for the default camera_check.png."""
+    from conftest import cli
+
+    code, _, err = cli(capfd, "camera-check", "--camera-config", str(clip / "cam.toml"), "--out", "", cwd=tmp_path)
+    assert code == 1 and err.strip() == "error: an empty output path was given; name the file to write", err
     assert not (tmp_path / "camera_check.png").exists()
 
 

@@ -180,7 +180,7 @@ def cmd_camera_check(args: argparse.Namespace) -> int:
     from stewart_gym.vision import CameraConfig, annotate, grab_frames, locate_ball, read_image, source_problem
 
     config = CameraConfig.from_toml(args.camera_config)
-    out = output_file(args.out, suffixes=(".png", ".jpg"), overwrite=args.overwrite) if args.out else None
+    out = output_file(args.out, suffixes=(".png", ".jpg"), overwrite=args.overwrite) if args.out is not None else None
     if out is not None and args.image and Path(args.image).resolve() == out.resolve():
         raise ConfigError(f"--out {args.out} is the --image it reads: give another file for the annotated image")
     import cv2
