@@ -12,7 +12,7 @@ from typing import Any, Literal
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
-from gymnasium.error import ClosedEnvironmentError
+from gymnasium.error import ClosedEnvironmentError, ResetNeeded
 from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
@@ -512,6 +512,8 @@ class StewartBallEnv(gym.Env, EzPickle):
         ``ValueError``, a step after :meth:`close` Gymnasium's ``ClosedEnvironmentError``, before anything moves."""
         if getattr(self.sim, "closed", False):
             raise ClosedEnvironmentError("this env is closed: reset() starts it again")
+        if "params" not in self.__dict__:  # (gym.make's OrderEnforcing says so too; the unwrapped env alone did not)
+            raise ResetNeeded("call reset() before step()")
         if type(action) is not np.ndarray or action.shape != self.action_space.shape or action.dtype.kind != "f":
             values = np.asarray(action)  # (the common case, a float array of the right shape, skips this)
             if values.shape != self.action_space.shape:

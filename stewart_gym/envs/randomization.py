@@ -15,7 +15,8 @@ from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sim import BallSpec, ServoSpec
 from stewart_gym.sim.twin import TWIN_FIELDS, Twin
 
-__all__ = ["FIRST_DRAWS", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count", "polar"]
+__all__ = ["FIRST_DRAWS", "POSITIVE_RANGES", "TWIN_WIDTH_FLOOR", "EpisodeParams", "RandomizationRanges", "draw_count",
+           "polar"]
 
 #: The uniform draws of an episode's parameters before its sensor's (:meth:`EpisodeParams.from_draws`): the ball's
 #: radius, mass and rolling friction, the control latency, the servos' speed, their six trims and their dead band.
@@ -31,11 +32,17 @@ def draw_count(sensor: TouchPanelSpec | CameraSpec) -> int:
     return FIRST_DRAWS + (2 if isinstance(sensor, TouchPanelSpec) else 3) + 4
 
 
+#: The ranges of :class:`RandomizationRanges` whose low end must be above 0 (the others' at least 0).
+POSITIVE_RANGES = ("ball_mass_scale", "ball_radius_scale", "servo_speed_scale", "plate_friction")
+
+
 @dataclass(frozen=True)
 class RandomizationRanges:
     """Ranges drawn uniformly once per episode (``randomize=True``).
 
-    Multiplicative ranges scale the nominal value; the others are absolute.
+    Multiplicative ranges scale the nominal value; the others are absolute. Every range is [lo, hi] with
+    0 ≤ lo ≤ hi, and 0 < lo for the ball's scales, the servos' speed and the plate's friction
+    (:data:`POSITIVE_RANGES`).
     """
 
     ball_mass_scale: tuple[float, float] = (0.8, 1.2)
@@ -64,15 +71,19 @@ class RandomizationRanges:
             ok = len(items) == (2 if pair else 1) and all(
                 not isinstance(v, bool) and isinstance(v, (int, float, np.integer, np.floating)) and math.isfinite(v)
                 for v in items)  # fmt: skip
-            if not ok or (items[0] > items[1] if pair else items[0] < 0):
-                want = "[lo, hi] with finite lo ≤ hi" if pair else "a finite number ≥ 0"
+            positive = f.name in POSITIVE_RANGES  # a scale of 0 or less is no ball, no servo, no friction
+            if not ok or (items[0] > items[1] or (items[0] <= 0 if positive else items[0] < 0) if pair
+                          else items[0] < 0):  # fmt: skip
+                want = (("[lo, hi] with finite 0 < lo ≤ hi" if positive else "[lo, hi] with finite 0 ≤ lo ≤ hi")
+                        if pair else "a finite number ≥ 0")  # fmt: skip
                 raise ConfigError(f"randomization.{f.name} must be {want}, got {value!r}")
             object.__setattr__(self, f.name, (float(items[0]), float(items[1])) if pair else float(items[0]))
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, Any]) -> RandomizationRanges:
         """The defaults with some fields replaced, e.g. from a YAML ``env_kwargs: {randomization: {...}}``; a
-        range is ``[lo, hi]`` (finite, lo ≤ hi), a single value a finite number ≥ 0 (:meth:`__post_init__`). Raises
+        range is ``[lo, hi]`` (finite, 0 ≤ lo ≤ hi; 0 < lo for :data:`POSITIVE_RANGES`), a single value a finite
+        number ≥ 0 (:meth:`__post_init__`). Raises
         :class:`ConfigError` naming the field."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(values) - known)

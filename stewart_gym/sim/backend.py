@@ -11,6 +11,7 @@ and the servos are commanded in pulse widths (µs) through the shared
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -49,6 +50,23 @@ class BallSpec:
     rolling_friction: float = 1e-5
     spinning_friction: float = 1e-5
     restitution: float = 0.1
+
+    def __post_init__(self) -> None:
+        """Each field a finite number in its range (radius and mass above 0, the frictions at least 0, restitution
+        0…1), ``hollow`` a bool; else :class:`~stewart_gym.errors.ConfigError` naming the field."""
+        from stewart_gym.errors import ConfigError
+
+        for key, low, positive in (("radius", 0.0, True), ("mass", 0.0, True), ("lateral_friction", 0.0, False),
+                                   ("rolling_friction", 0.0, False), ("spinning_friction", 0.0, False),
+                                   ("restitution", 0.0, False)):  # fmt: skip
+            value = getattr(self, key)
+            number = (not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+                      and math.isfinite(value))  # fmt: skip
+            if not (number and (value > low if positive else value >= low)) or (key == "restitution" and value > 1):
+                want = "above 0" if positive else ("in 0…1" if key == "restitution" else "at least 0")
+                raise ConfigError(f"BallSpec.{key} must be a finite number {want}, got {value!r}")
+        if not isinstance(self.hollow, bool):
+            raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
 
     @property
     def inertia(self) -> float:

@@ -229,10 +229,13 @@ def test_every_info_value_is_a_numpy_value(env_id: str) -> None:
 
 
 def test_the_env_checks_an_action_as_the_vector_env_does() -> None:
-    """An action of another shape, not real numbers, or after close() is refused before anything moves."""
-    from gymnasium.error import ClosedEnvironmentError
+    """An action of another shape, not real numbers, before reset() or after close() is refused before anything
+    moves."""
+    from gymnasium.error import ClosedEnvironmentError, ResetNeeded
 
     env = gym.make("StewartBallBalance-v0", backend="batched").unwrapped
+    with pytest.raises(ResetNeeded, match=r"call reset\(\) before step\(\)"):  # the unwrapped env, no OrderEnforcing
+        env.step(np.zeros(2, dtype=np.float32))
     env.reset(seed=0)
     t = env.sim.time
     for action, says in ((np.zeros((1, 2)), r"expected an action of shape \(2,\), got shape \(1, 2\)"),

@@ -89,7 +89,10 @@ def test_numpy_uniform_is_the_draw_up_to_its_rounding() -> None:
 @pytest.mark.parametrize(("field", "value"), [("servo_deadband_us", (5.0, 3.0)), ("plate_friction", (0.0, math.inf)),
                                               ("ball_mass_scale", (math.nan, 1.0)), ("servo_trim_us", -1.0),
                                               ("plate_load_radius", math.inf), ("sensor_noise_mm", (1.0,)),
-                                              ("control_latency_s", ("0", "1"))])  # fmt: skip
+                                              ("control_latency_s", ("0", "1")), ("ball_mass_scale", (0.0, 0.0)),
+                                              ("ball_radius_scale", (-1.0, -0.5)), ("servo_speed_scale", (0.0, 1.0)),
+                                              ("plate_friction", (0.0, 0.5)),
+                                              ("sensor_latency_s", (-0.01, 0.01))])  # fmt: skip
 def test_bad_ranges_are_refused_naming_the_field(field: str, value: object) -> None:
     """A range or value the draws cannot use is one clear error, made directly or from a mapping (a YAML
     ``randomization:`` table)."""
@@ -103,3 +106,18 @@ def test_ranges_are_kept_as_python_floats() -> None:
     ranges = RandomizationRanges(ball_mass_scale=(np.float32(0.9), 1), servo_trim_us=np.int64(3))
     assert ranges.ball_mass_scale == (float(np.float32(0.9)), 1.0) and ranges.servo_trim_us == 3.0
     assert all(type(v) is float for v in (*ranges.ball_mass_scale, ranges.servo_trim_us))
+
+
+@pytest.mark.parametrize("backend", ["pybullet", "batched"])
+def test_a_ball_of_no_size_or_mass_is_refused_before_the_engine_sees_it(backend: str) -> None:
+    """A zero or negative ball range, or ball, is one error naming the field, not PyBullet's "createCollisionShape
+    failed" or the batched kernel's division by zero (nor a negative mass that runs without a word)."""
+    import gymnasium as gym
+
+    from stewart_gym.sim import BallSpec
+
+    with pytest.raises(ConfigError, match=r"randomization.ball_radius_scale must be \[lo, hi\] with finite 0 < lo"):
+        gym.make("StewartBallBalance-v0", backend=backend, randomization={"ball_radius_scale": (0, 0)})
+    for field, value in (("radius", -0.02), ("radius", 0.0), ("mass", -1.0), ("radius", "a")):
+        with pytest.raises(ConfigError, match=f"BallSpec.{field} must be a finite number above 0, got {value!r}"):
+            gym.make("StewartBallBalance-v0", backend=backend, ball=BallSpec(**{field: value}))
