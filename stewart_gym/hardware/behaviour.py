@@ -59,10 +59,10 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "the loop stops at the first write or read that fails, keeps its log, and says *servos NOT homed*",
               "2"),
     Behaviour("camera_silent", "the camera (or the pipe it reads) delivers no frame within 5 s",
-              "refused before the port opens: nothing moves", "2"),
+              "refused before the port opens: nothing moves (`camera-check` too says so after 5 s)", "2"),
     Behaviour("bad_input", "a damaged bundle (a field of the wrong size or type), a bad calibration or camera "
-              "config, a log that exists", "one `error:` line naming the file and the field, before the port opens",
-              "1"),
+              "config (its `source` a folder, or a file that is no video), a log that exists",
+              "one `error:` line naming the file and the field, before the port opens", "1"),
     Behaviour("policy_unusable", "the policy gives a NaN or unreachable action",
               "that tick holds the last safe pulses; a run where every tick held fails", "0 (1 if every tick held)"),
     Behaviour("log_unwritable", "the log cannot be written (a full disk, a file size limit)",
