@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from stewart_gym.errors import ConfigError
+
 if TYPE_CHECKING:
     from stewart_gym.calibration import ServoCalibration
     from stewart_gym.geometry import PlatformGeometry
@@ -53,20 +55,29 @@ class BallSpec:
 
     def __post_init__(self) -> None:
         """Each field a finite number in its range (radius and mass above 0, the frictions at least 0, restitution
-        0…1), ``hollow`` a bool; else :class:`~stewart_gym.errors.ConfigError` naming the field."""
-        from stewart_gym.errors import ConfigError
+        0…1), ``hollow`` a bool; else :class:`~stewart_gym.errors.ConfigError` naming the field. (One chain of
+        comparisons first: a vector env's resets make a ball per copy.)"""
+        inf = math.inf
+        try:
+            ok = (0.0 < self.radius < inf and 0.0 < self.mass < inf and 0.0 <= self.lateral_friction < inf
+                  and 0.0 <= self.rolling_friction < inf and 0.0 <= self.spinning_friction < inf
+                  and 0.0 <= self.restitution <= 1.0 and isinstance(self.hollow, bool))  # fmt: skip
+        except TypeError:  # a field that is no number
+            ok = False
+        if not ok:
+            self._refuse()
 
-        for key, low, positive in (("radius", 0.0, True), ("mass", 0.0, True), ("lateral_friction", 0.0, False),
-                                   ("rolling_friction", 0.0, False), ("spinning_friction", 0.0, False),
-                                   ("restitution", 0.0, False)):  # fmt: skip
+    def _refuse(self) -> None:
+        """Raise :class:`~stewart_gym.errors.ConfigError` naming the first field out of its range."""
+        for key, positive in (("radius", True), ("mass", True), ("lateral_friction", False), ("rolling_friction", False),
+                              ("spinning_friction", False), ("restitution", False)):  # fmt: skip
             value = getattr(self, key)
             number = (not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
                       and math.isfinite(value))  # fmt: skip
-            if not (number and (value > low if positive else value >= low)) or (key == "restitution" and value > 1):
+            if not (number and (value > 0 if positive else value >= 0)) or (key == "restitution" and value > 1):
                 want = "above 0" if positive else ("in 0…1" if key == "restitution" else "at least 0")
                 raise ConfigError(f"BallSpec.{key} must be a finite number {want}, got {value!r}")
-        if not isinstance(self.hollow, bool):
-            raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
+        raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
 
     @property
     def inertia(self) -> float:
