@@ -146,7 +146,7 @@ class Twin:
             if (table, key) not in TWIN_FIELDS:
                 raise ConfigError(f"{self.source}: no twin key {table}.{key}")
             values[(table, key)] = _checked(self.source, table, key, value)
-        given = {f"{name.partition('__')[0]}.{name.partition('__')[2]}" for name in changes}
+        given = {name.replace("__", ".", 1) for name in changes}
         return Twin(values, dict(self.sigma), self.undetermined, self.source,
                     tuple(name for name in self.omitted if name not in given))  # fmt: skip
 
