@@ -246,15 +246,13 @@ def test_camera_check_on_a_pipe_nobody_writes_to_says_so_within_seconds(clip: Pa
     """Opening a named pipe waits for a writer, inside OpenCV, deaf to Ctrl-C and to SIGTERM: camera-check waits
     5 s for the first frame, as deploy does, and then says what is wrong in one line (exit 2, a device failure)."""
     import os
-    import time
 
     pipe = tmp_path / "stream.mjpg"
     os.mkfifo(pipe)
     config = tmp_path / "pipe_cam.toml"
     config.write_text(re.sub(r'source = "[^"]*"', f'source = "{pipe}"', (clip / "cam.toml").read_text()))
-    start = time.monotonic()
-    waited = sg("camera-check", "--camera-config", str(config), "--frames", "5", cwd=tmp_path, timeout=120)
-    assert time.monotonic() - start < 60
+    waited = sg("camera-check", "--camera-config", str(config), "--frames", "5", cwd=tmp_path, timeout=120)  # (a hang
+    # fails here, at the timeout)
     assert waited.returncode == 2 and waited.stderr.strip().splitlines() == [
         f"error: camera '{pipe}' delivered no frame within 5 s (nothing writing to the pipe? a camera in use or "
         "hung?)"], waited.stderr  # fmt: skip
