@@ -47,6 +47,12 @@ def _cli_reference() -> str:
     return cli_reference()
 
 
+def _deploy_behaviour() -> str:
+    from stewart_gym.hardware.behaviour import behaviour_table
+
+    return behaviour_table()
+
+
 #: Each generated block by its marker name: the function that makes it (from the code that defines it).
 BLOCKS: dict[str, Callable[[], str]] = {
     "env-table": _env_table,
@@ -54,6 +60,7 @@ BLOCKS: dict[str, Callable[[], str]] = {
     "observation-table": _observation_table,
     "exit-codes": _exit_codes,
     "cli-reference": _cli_reference,
+    "deploy-behaviour": _deploy_behaviour,
 }
 MARKER = re.compile(r"(<!-- generated:([a-z-]+) start[^>]*-->\n)(.*?)(<!-- generated:\2 end -->)", re.DOTALL)
 

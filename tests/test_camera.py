@@ -299,22 +299,47 @@ def test_deploy_with_the_camera_reading_a_rendered_video(clip: Path, tmp_path: P
     assert "camera: ball found in" in dep.stdout
     found, frames = (int(v) for v in dep.stdout.split("camera: ball found in ")[1].split(" frames")[0].split(" of "))
     assert frames >= 45 and found == frames  # 30 fps for 2 s, every frame read
+    assert "source ended" not in dep.stdout  # the 3 s clip outlasts the run
     assert len(drain.frames) >= 90 and all(np.all((f >= 1000) & (f <= 2000)) for f in drain.frames)
     no_config = sg("deploy", "--policy", "pid", "--sensor", "camera", "--port", device.path, cwd=tmp_path)
     assert no_config.returncode == 1 and "--camera-config" in no_config.stderr
 
 
 @pytest.mark.xdist_group("camera_clip")
+def test_a_raw_mjpeg_file_plays_at_the_configs_frame_rate(clip: Path, tmp_path: Path, device: FakeDevice) -> None:
+    """A raw MJPEG file stores no frame rate (OpenCV says 25 fps): ``deploy`` plays it at ``camera.fps``, here 60."""
+    video = cv2.VideoCapture(str(clip / "clip.avi"))
+    with (tmp_path / "clip.mjpg").open("wb") as f:
+        while True:
+            ok, image = video.read()
+            if not ok:
+                break
+            f.write(cv2.imencode(".jpg", image)[1].tobytes())
+    video.release()
+    config = tmp_path / "cam.toml"
+    config.write_text((clip / "cam.toml").read_text().replace(str(clip / "clip.avi"), str(tmp_path / "clip.mjpg"))
+                      .replace("fps = 30", "fps = 60"))  # fmt: skip
+    drain = Board(device)
+    dep = sg("deploy", "--policy", "pid", "--sensor", "camera", "--camera-config", str(config), "--port", device.path,
+             "--protocol", "maestro", "--duration", "1", "--log", str(tmp_path / "d.csv"), cwd=tmp_path)  # fmt: skip
+    drain.stop()
+    assert dep.returncode == 0, dep.stdout + dep.stderr
+    frames = int(dep.stdout.split("camera: ball found in ")[1].split(" frames")[0].split(" of ")[1])
+    assert 45 <= frames <= 75, dep.stdout  # 60 a second for 1 s (at OpenCV's 25 it would be about 25)
+
+
+@pytest.mark.xdist_group("camera_clip")
 def test_a_camera_that_never_finds_the_ball_sends_the_platform_home(clip: Path, tmp_path: Path,
                                                                     device: FakeDevice) -> None:  # fmt: skip
     """Frames with the plate but no ball: no detection ever arrives, so the watchdog holds the platform at home,
-    as for a silent touch panel, and the run fails."""
+    as for a silent touch panel, and the run fails. The video (0.5 s) ends before the run (1 s): the summary says at
+    which tick."""
     video = tmp_path / "empty.avi"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, WEBCAM.resolution)
     with StewartSim(ball=True) as sim:
         sim.place_ball(np.array([5.0, 5.0]))  # out of view
         image = sim.camera_image(WEBCAM)
-    for _ in range(60):
+    for _ in range(15):
         writer.write(image)
     writer.release()
     config = tmp_path / "cam.toml"
@@ -326,6 +351,8 @@ def test_a_camera_that_never_finds_the_ball_sends_the_platform_home(clip: Path, 
     # no fresh reading on any tick: the platform was held home, and the run fails (it did not balance anything)
     assert dep.returncode == 1 and "failed: no fresh valid reading" in dep.stdout, dep.stdout + dep.stderr
     assert "camera: ball found in 0 of" in dep.stdout
+    ended = re.search(r"the sensor's source ended at tick (\d+) \(a video ran out, or the camera went away\)", dep.stdout)
+    assert ended and 10 <= int(ended[1]) <= 45, dep.stdout  # 0.5 s of a 1 s run at 50 Hz
     import csv
 
     rows = list(csv.DictReader((tmp_path / "d.csv").open()))

@@ -3,7 +3,8 @@
 :class:`CameraSensor` is a :class:`~stewart_gym.sensing.BallSensor`. A thread
 opens the source (a camera index or device, a named pipe carrying an MJPEG stream
 from ``virtual-device --camera-stream``, or a video file played at its own frame
-rate, as a camera would deliver it), runs :func:`~stewart_gym.vision.locate_ball`
+rate, as a camera would deliver it: a raw MJPEG file, which stores none, at the
+config's ``fps``), runs :func:`~stewart_gym.vision.locate_ball`
 on each frame and keeps the newest detection with its capture time. The
 constructor waits for the first frame: a source that delivers none within
 ``first_frame_timeout_s`` (a pipe nobody writes to, a camera that hangs) is a
@@ -23,12 +24,13 @@ import stat
 import threading
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from stewart_gym.errors import ConfigError, DeviceFailure
 from stewart_gym.sensing import Reading, reading_is_valid
 from stewart_gym.vision import CameraConfig, Detection, locate_ball, open_capture, source_problem
 
-__all__ = ["FIRST_FRAME_TIMEOUT_S", "LIVE_PIPE_OPTIONS", "CameraSensor"]
+__all__ = ["FIRST_FRAME_TIMEOUT_S", "LIVE_PIPE_OPTIONS", "RAW_MJPEG_SUFFIXES", "CameraSensor"]
 
 #: s: the longest the sensor waits for the source's first frame.
 FIRST_FRAME_TIMEOUT_S = 5.0
@@ -36,6 +38,8 @@ FIRST_FRAME_TIMEOUT_S = 5.0
 #: set it): decode each frame as it comes, with no read-ahead buffer, so that a reader slower than the stream gets
 #: recent frames (FFmpeg's buffer alone would hold seconds of them).
 LIVE_PIPE_OPTIONS = "probesize;32|analyzeduration;0|fflags;nobuffer|f;mjpeg"
+#: The suffixes of a raw MJPEG file: JPEG frames one after another, with no frame rate stored.
+RAW_MJPEG_SUFFIXES = (".mjpg", ".mjpeg")
 
 
 class CameraSensor:
@@ -54,12 +58,16 @@ class CameraSensor:
         source = config.source
         self._live_pipe = isinstance(source, str) and stat.S_ISFIFO(os.stat(source).st_mode)
         self._is_file = isinstance(source, str) and not source.startswith("/dev/") and not self._live_pipe
+        #: whether the source is a raw MJPEG file (.mjpg, .mjpeg), which stores no frame rate (OpenCV would say 25):
+        #: it plays at the config's ``fps``
+        self.raw_mjpeg = self._is_file and Path(source).suffix.lower() in RAW_MJPEG_SUFFIXES
         self._plate_half = None if plate_half is None else (float(plate_half[0]), float(plate_half[1]))
         self._lock = threading.Lock()
         self._latest: tuple[tuple[float, float], float] | None = None
         self._plate: tuple[tuple[float, ...], float] | None = None  # the newest plate pose and its capture time
         self.last_detection: Detection | None = None
         self.frames = self.found = self.invalid = 0
+        #: whether the source ran out (a video's end) or went away: no frame comes after
         self.ended = False
         self._cap = None
         self._opened = threading.Event()  # the first frame came, or opening failed
@@ -105,7 +113,7 @@ class CameraSensor:
             self._failure = f"camera {self.config.source!r} cannot be opened (wrong index or path, or in use?)"
             self._opened.set()
             return
-        fps = cap.get(cv2.CAP_PROP_FPS) if self._is_file else 0.0
+        fps = cap.get(cv2.CAP_PROP_FPS) if self._is_file and not self.raw_mjpeg else 0.0
         period = 1.0 / (fps if fps and fps > 0 else self.config.fps)
         next_frame = time.monotonic()
         while not self._stop.is_set():

@@ -236,6 +236,8 @@ class DeploySummary:
     board_wait_ms_max: float = 0.0
     exit_code: int = 0
     message: str = "completed"
+    #: the tick at which the sensor's source ended (a camera's video ran out, or the camera went away), else None
+    source_ended_tick: int | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -252,12 +254,15 @@ class DeploySummary:
     def text(self) -> str:
         board = ("" if self.board_answers is None else
                  f"board answered {self.board_answers} questions, longest wait {self.board_wait_ms_max:.0f} ms; ")
+        ended = ("" if self.source_ended_tick is None else
+                 f"the sensor's source ended at tick {self.source_ended_tick} (a video ran out, or the camera went "
+                 "away): no fresh reading after it; ")  # fmt: skip
         return (f"{self.message}: {self.ticks} ticks in {self.duration_s:.2f} s, {self.frames_sent} frames sent; "
                 f"held {self.held}, clamped {self.clamped}, rate-limited {self.rate_limited}, homing {self.homing}, "
                 f"stale sensor {self.stale}, invalid readings {self.invalid}, missed deadlines {self.missed_deadlines}, "
                 f"unreachable {self.unreachable}; jitter mean {self.jitter_ms_mean:.2f} ms, max "
                 f"{self.jitter_ms_max:.2f} ms; compute p99 {self.compute_ms_p99:.3f} ms; "
-                f"{board}{self.home_text()}")  # fmt: skip
+                f"{ended}{board}{self.home_text()}")  # fmt: skip
 
 
 def log_columns(obs_size: int, action_size: int, plate: bool = False) -> list[str]:
@@ -349,6 +354,7 @@ class DeployLoop:
         if self.controller.monitoring:
             summary.board_answers = 0
         sees_plate = callable(getattr(self.sensor, "plate_pose", None))
+        can_end = hasattr(self.sensor, "ended")  # a source that can run out (a camera's video, a stream)
         try:
             writer, fh = self._open_log(sees_plate)
         except OSError as exc:
@@ -365,6 +371,8 @@ class DeployLoop:
                 jitter = (now - next_tick) * 1e3
                 t = now - start
                 got = self.sensor.read(t)
+                if can_end and summary.source_ended_tick is None and self.sensor.ended:
+                    summary.source_ended_tick = summary.ticks
                 reading, invalid = self.checked(got, t)  # (x, y), age
                 c0 = time.perf_counter()
                 obs, action, pulses, flags = self.compute(reading, t)

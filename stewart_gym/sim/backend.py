@@ -61,8 +61,11 @@ class BallSpec:
         try:
             ok = (0.0 < self.radius < inf and 0.0 < self.mass < inf and 0.0 <= self.lateral_friction < inf
                   and 0.0 <= self.rolling_friction < inf and 0.0 <= self.spinning_friction < inf
-                  and 0.0 <= self.restitution <= 1.0 and isinstance(self.hollow, bool))  # fmt: skip
-        except TypeError:  # a field that is no number
+                  and 0.0 <= self.restitution <= 1.0 and isinstance(self.hollow, bool)
+                  and bool not in {type(self.radius), type(self.mass), type(self.lateral_friction),
+                                   type(self.rolling_friction), type(self.spinning_friction),
+                                   type(self.restitution)})  # fmt: skip
+        except (TypeError, ValueError):  # a field that is no number, or an array of them
             ok = False
         if not ok:
             self._refuse()

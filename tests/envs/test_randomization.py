@@ -121,3 +121,13 @@ def test_a_ball_of_no_size_or_mass_is_refused_before_the_engine_sees_it(backend:
     for field, value in (("radius", -0.02), ("radius", 0.0), ("mass", -1.0), ("radius", "a")):
         with pytest.raises(ConfigError, match=f"BallSpec.{field} must be a finite number above 0, got {value!r}"):
             gym.make("StewartBallBalance-v0", backend=backend, ball=BallSpec(**{field: value}))
+
+
+def test_a_ball_field_that_is_a_bool_or_an_array_is_refused_naming_it() -> None:
+    """``True`` compares as 1 and ``False`` as 0: neither is a radius or a friction. An array is no one number."""
+    from stewart_gym.sim import BallSpec
+
+    for field, value, want in (("radius", True, "above 0"), ("lateral_friction", False, "at least 0"),
+                               ("mass", np.array([0.1, 0.2]), "above 0")):  # fmt: skip
+        with pytest.raises(ConfigError, match=rf"BallSpec.{field} must be a finite number {want}, got"):
+            BallSpec(**{field: value})

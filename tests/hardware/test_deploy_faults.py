@@ -391,6 +391,19 @@ def test_the_loop_s_own_failures_are_in_test_deploy() -> None:
     assert callable(test_deploy.test_a_loop_that_misses_its_deadlines_fails)
 
 
+@covers("camera_ends")
+def test_a_camera_source_that_ends_is_in_test_camera() -> None:
+    """A video that ends mid-run needs OpenCV and a rendered clip: ``test_camera.test_a_camera_that_never_finds_the_
+    ball_sends_the_platform_home`` plays a 0.5 s video in a 1 s run and reads the tick it ended at in the summary.
+    Here: that test exists."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("camera_tests", ROOT / "tests" / "test_camera.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert callable(module.test_a_camera_that_never_finds_the_ball_sends_the_platform_home)
+
+
 # -------------------------------------------------------------- the table
 def test_every_row_of_the_table_is_made_to_happen_and_the_page_shows_the_table() -> None:
     assert {b.key for b in DEPLOY_BEHAVIOUR} == COVERED
