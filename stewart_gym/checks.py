@@ -30,9 +30,18 @@ def real_number(name: str, value: Any, *, optional: bool = False, whole: bool = 
     if whole and math.isfinite(number) and not number.is_integer():
         raise ConfigError(f"{name} must be a whole number, got {value!r}")
     if not math.isfinite(number) or number > high or number < low or (low_open and number == low):
-        bounds = "" if low == -math.inf and high == math.inf else f" in {'(' if low_open else '['}{low:g}, {high:g}]"
-        raise ConfigError(f"{name} must be a finite number{bounds}, got {value!r}")
+        raise ConfigError(f"{name} must be a finite number{_bounds(low, high, low_open)}, got {value!r}")
     return int(number) if whole else number
+
+
+def _bounds(low: float, high: float, low_open: bool) -> str:
+    """The range [``low``, ``high``] (``(low, high]`` with ``low_open``) in words: " above 0", " at least 0",
+    " at most 1", " in [1, 1000]", or nothing for every finite number."""
+    if high == math.inf:
+        return "" if low == -math.inf else f" {'above' if low_open else 'at least'} {low:g}"
+    if low == -math.inf:
+        return f" at most {high:g}"
+    return f" in {'(' if low_open else '['}{low:g}, {high:g}]"
 
 
 def finite_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarray:

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from stewart_gym.checks import real_number
 from stewart_gym.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -74,12 +75,8 @@ class BallSpec:
         """Raise :class:`~stewart_gym.errors.ConfigError` naming the first field out of its range."""
         for key, positive in (("radius", True), ("mass", True), ("lateral_friction", False), ("rolling_friction", False),
                               ("spinning_friction", False), ("restitution", False)):  # fmt: skip
-            value = getattr(self, key)
-            number = (not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
-                      and math.isfinite(value))  # fmt: skip
-            if not (number and (value > 0 if positive else value >= 0)) or (key == "restitution" and value > 1):
-                want = "above 0" if positive else ("in 0…1" if key == "restitution" else "at least 0")
-                raise ConfigError(f"BallSpec.{key} must be a finite number {want}, got {value!r}")
+            real_number(f"BallSpec.{key}", getattr(self, key), low=0.0, low_open=positive,
+                        high=1.0 if key == "restitution" else math.inf)  # fmt: skip
         raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
 
     @property

@@ -118,16 +118,19 @@ def test_a_ball_of_no_size_or_mass_is_refused_before_the_engine_sees_it(backend:
 
     with pytest.raises(ConfigError, match=r"randomization.ball_radius_scale must be \[lo, hi\] with finite 0 < lo"):
         gym.make("StewartBallBalance-v0", backend=backend, randomization={"ball_radius_scale": (0, 0)})
-    for field, value in (("radius", -0.02), ("radius", 0.0), ("mass", -1.0), ("radius", "a")):
+    for field, value in (("radius", -0.02), ("radius", 0.0), ("mass", -1.0)):
         with pytest.raises(ConfigError, match=f"BallSpec.{field} must be a finite number above 0, got {value!r}"):
             gym.make("StewartBallBalance-v0", backend=backend, ball=BallSpec(**{field: value}))
 
 
 def test_a_ball_field_that_is_a_bool_or_an_array_is_refused_naming_it() -> None:
-    """``True`` compares as 1 and ``False`` as 0: neither is a radius or a friction. An array is no one number."""
+    """``True`` compares as 1 and ``False`` as 0: neither is a radius or a friction. An array is no one number, nor
+    a string; the message says what it got."""
     from stewart_gym.sim import BallSpec
 
-    for field, value, want in (("radius", True, "above 0"), ("lateral_friction", False, "at least 0"),
-                               ("mass", np.array([0.1, 0.2]), "above 0")):  # fmt: skip
-        with pytest.raises(ConfigError, match=rf"BallSpec.{field} must be a finite number {want}, got"):
+    for field, value, kind in (("radius", True, "bool"), ("lateral_friction", False, "bool"),
+                               ("mass", np.array([0.1, 0.2]), "ndarray"), ("radius", "a", "str")):  # fmt: skip
+        with pytest.raises(ConfigError, match=rf"BallSpec.{field} must be a number, got .* \({kind}\)$"):
             BallSpec(**{field: value})
+    with pytest.raises(ConfigError, match=r"BallSpec.restitution must be a finite number in \[0, 1\], got 2$"):
+        BallSpec(restitution=2)
