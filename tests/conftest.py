@@ -260,7 +260,7 @@ class Board:
                  answer_offset_us: float = 0.0, lose_home_frames: int = 0) -> None:  # fmt: skip
         self.lose_home_frames, self.lost_frames = lose_home_frames, 0
         self._moved = False  # whether a frame has gone more than 5 µs from home
-        from stewart_gym.hardware.virtual_device import LineParser, MaestroParser, Parsed, SSC32Parser
+        from stewart_gym.hardware.virtual_device import PARSERS, Parsed
 
         self.device, self.protocol, self.lines, self.answer = device, protocol, lines, answer
         self.stop_reading_after, self.read_rate, self.answer_offset_us = stop_reading_after, read_rate, answer_offset_us
@@ -272,8 +272,7 @@ class Board:
         self.first_frame: float | None = None
         self._parsed_type = Parsed
         position = self._position
-        self.parser = {"maestro": lambda: MaestroParser(position, lambda: None), "ssc32": lambda: SSC32Parser(position),
-                       "line": lambda: LineParser(range(6), position)}[protocol]()  # fmt: skip
+        self.parser = PARSERS[protocol](range(6), position, lambda: None)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()

@@ -153,8 +153,11 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     where = device.path + (f" (link {device.link})" if device.link else "")
     if config_out is not None:
         where += f"; the camera config that reads its stream in {config_out}"
+    from stewart_gym.sim.engines import default_backend
+
+    engine = default_backend() if args.backend == "auto" else args.backend  # the engine "auto" picked here
     print(f"virtual {args.protocol} board with {geometry.name}{' (the twin ' + args.twin + ')' if twin else ''} in "
-          f"{args.backend} on {where}; Ctrl-C to stop",
+          f"{engine} on {where}; Ctrl-C to stop",
           flush=True)  # fmt: skip
     stop = {"now": False}
 

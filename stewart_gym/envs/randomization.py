@@ -28,7 +28,9 @@ def draw_count(sensor: TouchPanelSpec | CameraSpec) -> int:
     :data:`FIRST_DRAWS`, the sensor's two or three, and the plate load's three and the plate friction. (From a
     tuple of cameras, the one drawn: :meth:`EpisodeParams.sample` draws it between the first draws and the rest.)"""
     if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
-        raise TypeError(f"draw_count takes one touch panel or camera, got {type(sensor).__name__}")
+        raise ConfigError(f"randomize draws an episode's sensor around a touch panel or a camera, not a "
+                          f"{type(sensor).__name__}: make the env with randomize=False, or add the sensor's draws here "
+                          "(docs: Add a ball sensor)")  # fmt: skip
     return FIRST_DRAWS + (2 if isinstance(sensor, TouchPanelSpec) else 3) + 4
 
 

@@ -10,7 +10,7 @@ ball leaves the plate, success once the ball has stayed within
 
 A new task is one file with a class following :class:`Task` (usually a
 subclass of :class:`BallTask`) and one line in
-:data:`stewart_gym.envs.ENV_IDS`; ``docs/guides/add-a-task.md`` walks through
+:data:`stewart_gym.envs.ENV_IDS`; ``docs/src/guides/add-a-task.md`` walks through
 it. ``tests/envs/test_task_contract.py`` holds the checks every task must pass.
 """
 

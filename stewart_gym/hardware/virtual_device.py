@@ -43,8 +43,8 @@ if TYPE_CHECKING:
     from stewart_gym.camera import CameraSpec
     from stewart_gym.vision import CameraConfig
 
-__all__ = ["Faults", "LineParser", "MaestroParser", "SSC32Parser", "VirtualDevice", "VirtualSummary",
-           "stream_camera_config"]
+__all__ = ["PARSERS", "Faults", "LineParser", "MaestroParser", "ParserFactory", "SSC32Parser", "VirtualDevice",
+           "VirtualSummary", "stream_camera_config"]
 
 #: Hz: how often the sketch reports the ball, and the rate the platform is simulated at (one step per period).
 TICK_HZ = 100
@@ -248,6 +248,18 @@ class LineParser:
             out.targets += [(c, float(w)) for c, w in zip(self._channels, m.groups())]
 
 
+#: A board-side parser of a protocol's bytes: made from the board's channels (servo k's channel is ``channels[k]``),
+#: ``position(channel, pending)`` (what a position query answers) and ``home()`` (what a "go home" command does).
+ParserFactory = Callable[[Sequence[int], Callable[..., float], Callable[[], None]], Any]
+
+#: Each protocol's board-side parser, by the name ``--protocol`` takes (the names of
+#: :data:`~stewart_gym.hardware.serial_controllers.PROTOCOLS`).
+PARSERS: dict[str, ParserFactory] = {
+    "maestro": lambda channels, position, home: MaestroParser(position, home),
+    "ssc32": lambda channels, position, home: SSC32Parser(position),
+    "line": lambda channels, position, home: LineParser(channels, position),
+}
+
 # ------------------------------------------------------------------ camera
 def stream_camera_config(camera: CameraSpec, pipe: str | Path) -> CameraConfig:
     """The :class:`~stewart_gym.vision.CameraConfig` that reads a board's camera stream: the pipe (as an
@@ -404,8 +416,8 @@ class VirtualDevice:
         from stewart_gym.hardware.deploy import SimulatedPlant
         from stewart_gym.presets import load_geometry
 
-        if protocol not in ("maestro", "ssc32", "line"):
-            raise ConfigError(f"protocol must be maestro, ssc32 or line, got {protocol!r}")
+        if protocol not in PARSERS:
+            raise ConfigError(f"protocol must be one of {sorted(PARSERS)}, got {protocol!r}")
         after = put_ball_back_after_s
         if after is not None and (isinstance(after, (bool, np.bool_)) or not isinstance(after, (int, float, np.number))
                                   or not MIN_PUT_BACK_S <= after <= 1e6):  # fmt: skip
@@ -444,12 +456,7 @@ class VirtualDevice:
         self.held = self.calibration.neutral_us.copy()
         self.commanded = self.held.copy()  # the last targets received (acting after any injected latency)
         self.summary = VirtualSummary(protocol)
-        if protocol == "maestro":
-            self.parser: Any = MaestroParser(self._position, self._go_home)
-        elif protocol == "ssc32":
-            self.parser = SSC32Parser(self._position)
-        else:
-            self.parser = LineParser(self.calibration.channels, self._position)
+        self.parser: Any = PARSERS[protocol](self.calibration.channels, self._position, self._go_home)
         self._master, slave = pty.openpty()
         tty.setraw(slave)
         self.path = os.ttyname(slave)

@@ -13,6 +13,8 @@ from stewart_gym.envs.task import BallTask, Task, load_task
 from stewart_gym.errors import ConfigError
 
 TASKS = sorted({task for task, _ in ENV_IDS.values()})
+#: Each task's longest episode among the ids that run it, s.
+EPISODE_S = {task: max(seconds for t, seconds in ENV_IDS.values() if t == task) for task in TASKS}
 
 
 class _RecordingBackend:
@@ -37,12 +39,17 @@ def test_task_contract(path: str) -> None:
     assert task.success_radius > 0 and task.success_window_s > 0 and isinstance(task.name, str)
     backend = _RecordingBackend()
     task.reset(np.random.default_rng(0), backend)  # type: ignore[arg-type]
-    for k in range(500):
+    for k in range(round(EPISODE_S[path] / 0.02) + 50):  # its longest episode, and 1 s more
         backend.t = k * 0.02
         task.before_step(backend.t, backend)  # type: ignore[arg-type]
         (x, y), (vx, vy) = task.target(backend.t)
         assert all(isinstance(v, float) and math.isfinite(v) for v in (x, y, vx, vy))
-        assert abs(x) < 0.15 and abs(y) < 0.15
+        assert abs(x) < 0.15 and abs(y) < 0.15, (backend.t, x, y)  # on the reference plate
+    # the reward is finite wherever the ball can be (to beyond the plate's corner), and falls with the distance
+    distances = np.linspace(0.0, 0.5, 101).tolist()
+    rewards = [task.reward(d, 0.0, False) for d in distances]
+    assert all(math.isfinite(r) for r in rewards) and all(a >= b for a, b in zip(rewards, rewards[1:])), rewards
+    assert math.isfinite(task.reward(0.5, 1.0, True))
     # the reward prefers the target, punishes servo wear and a fall
     assert task.reward(0.0, 0.0, False) > task.reward(0.01, 0.0, False) > task.reward(0.1, 0.0, False)
     assert task.reward(0.0, 1.0, False) <= task.reward(0.0, 0.0, False)

@@ -85,6 +85,41 @@ def test_push_ball_changes_its_velocity_by_impulse_over_mass(backend: PhysicsBac
     assert vel[1] == pytest.approx(0.005 / BallSpec().mass, rel=1e-6) and abs(vel[0]) < 1e-9
 
 
+def test_reset_takes_the_ball_spec_s_radius_mass_and_inertia(backend: PhysicsBackend) -> None:
+    """A ping-pong ball (20 mm, 2.7 g, hollow) instead of the steel one: it rests 20 mm above the plate, a push
+    moves it by impulse over its own mass, and on a plate pitched 3° it rolls at (3/5) g sin θ, the hollow ball's
+    rate (a solid one's is 5/7 of g sin θ, 19 % more)."""
+    from stewart_gym.kinematics import inverse_kinematics
+
+    ball = BallSpec(radius=0.02, mass=0.0027, hollow=True)
+    backend.reset(ball_spec=ball)
+    run(backend, 0.3)
+    assert backend.ball_position()[2] == pytest.approx(backend.plate_top + 0.02, abs=1e-3)
+    backend.place_ball(np.zeros(2))
+    backend.push_ball((0.0, 0.0001))
+    assert backend.ball_state()[1][1] == pytest.approx(0.0001 / 0.0027, rel=1e-6)
+    pose = np.array([0, 0, 0, 0, math.radians(3), 0])
+    pulses = backend.calibration.pulse_widths(inverse_kinematics(backend.geometry, pose).servo_angles)
+    run(backend, 0.5, pulses)
+    backend.place_ball(np.zeros(2))
+    t = 0.3
+    run(backend, t, pulses)
+    acceleration = 2 * backend.ball_position()[0] / t**2
+    assert acceleration == pytest.approx(0.6 * 9.81 * math.sin(backend.platform_pose()[4]), rel=0.08)
+    backend.reset()
+
+
+def test_every_backend_name_builds_its_class() -> None:
+    """A name in ``BACKEND_NAMES`` is one ``make_backend`` builds and ``backend_class`` names (what
+    ``virtual-device --camera-stream`` asks before building one), and the contract runs on it."""
+    from stewart_gym.sim.engines import BACKEND_NAMES, backend_class
+
+    assert set(BACKEND_NAMES) == set(BACKENDS)
+    for name in BACKEND_NAMES:
+        with make_backend(name, "servo-hexapod") as built:
+            assert isinstance(built, backend_class(name)), name
+
+
 def test_a_plate_load_appears_from_the_next_step(backend: PhysicsBackend) -> None:
     """Weak servos sag under an off-centre load put on mid-episode: the plate tips towards it. A backend that
     declares it does not model the servos' torque (``models_plate_load`` False) takes the load and holds the plate
