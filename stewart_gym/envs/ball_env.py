@@ -23,7 +23,8 @@ from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
 from stewart_gym.sensing import ESTIMATORS, BallObserver, SimulatedTouchPanel, TouchPanelSpec, ball_contact
 from stewart_gym.sim import BallSpec, PhysicsBackend, ServoSpec
-from stewart_gym.sim.engines import make_backend
+from stewart_gym.sim.backend import missing_members
+from stewart_gym.sim.engines import BACKEND_NAMES, make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 from stewart_gym.sim.twin import Twin, load_twin
 
@@ -247,8 +248,9 @@ class StewartBallEnv(gym.Env, EzPickle):
         max_tilt = real_number("max_tilt", max_tilt, optional=True)  # (its range: the action mapper's)
         check_randomization(randomization)
         if not isinstance(backend, (str, PhysicsBackend)):
-            raise ConfigError(f"backend must be 'auto', 'pybullet', 'mujoco', 'batched' or a PhysicsBackend, got "
-                              f"{backend!r}")  # fmt: skip
+            missing = missing_members(backend)
+            raise ConfigError(f"backend must be 'auto', one of {list(BACKEND_NAMES)} or a PhysicsBackend, got "
+                              f"{backend!r}" + (f" (it lacks {', '.join(missing)})" if missing else ""))  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if not (isinstance(randomize, (bool, np.bool_)) or (type(randomize) is int and randomize in (0, 1))):

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from stewart_gym.geometry import PlatformGeometry
     from stewart_gym.sim.servo_model import ServoSpec
 
-__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase", "check_rates"]
+__all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase", "check_rates", "missing_members"]
 
 #: An extra mass on the plate: (kg, (3,) offset of its centre in the platform frame, m).
 PlateLoad = tuple[float, np.ndarray]
@@ -155,6 +155,12 @@ class PhysicsBackend(Protocol):
     def close(self) -> None:
         """Release the engine; safe to call twice."""
 
+
+
+def missing_members(obj: object) -> list[str]:
+    """The attributes and methods of :class:`PhysicsBackend` that ``obj`` lacks, by name (none: it is one)."""
+    wanted = {*getattr(PhysicsBackend, "__annotations__", {}), *vars(PhysicsBackend)}
+    return sorted(name for name in wanted if not name.startswith("_") and not hasattr(obj, name))
 
 class SimulatorBase:
     """What every engine's simulator does the same way, so that each engine holds only its own engine code.

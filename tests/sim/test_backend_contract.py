@@ -143,3 +143,28 @@ def test_commands_outside_the_limits_are_refused(backend: PhysicsBackend) -> Non
     backend.reset()
     with pytest.raises(PulseRangeError):
         backend.command(np.full(6, 5000.0))
+
+
+def test_an_object_that_is_not_a_backend_is_refused_naming_what_it_lacks() -> None:
+    """An engine class half written (here: no ``push_ball``, ``set_plate_load`` nor ``render``): one error naming the
+    members it lacks, before anything is built."""
+    import gymnasium as gym
+
+    from stewart_gym.errors import ConfigError
+
+    class HalfWritten:
+        def __init__(self) -> None:
+            self.inner = StewartSim(ball=True)
+
+        def __getattr__(self, name: str):
+            if name in ("push_ball", "set_plate_load", "render"):
+                raise AttributeError(name)
+            return getattr(self.inner, name)
+
+    half = HalfWritten()
+    try:
+        with pytest.raises(ConfigError, match=r"or a PhysicsBackend, got .* \(it lacks push_ball, render, "
+                                              r"set_plate_load\)$"):  # fmt: skip
+            gym.make("StewartBallBalance-v0", backend=half)
+    finally:
+        half.inner.close()
