@@ -30,7 +30,8 @@ def real_number(name: str, value: Any, *, optional: bool = False, whole: bool = 
     if whole and math.isfinite(number) and not number.is_integer():
         raise ConfigError(f"{name} must be a whole number, got {value!r}")
     if not math.isfinite(number) or number > high or number < low or (low_open and number == low):
-        raise ConfigError(f"{name} must be a finite number{_bounds(low, high, low_open)}, got {value!r}")
+        kind = "a whole number" if whole else "a finite number"
+        raise ConfigError(f"{name} must be {kind}{_bounds(low, high, low_open)}, got {value!r}")
     return int(number) if whole else number
 
 

@@ -249,8 +249,10 @@ class StewartBallEnv(gym.Env, EzPickle):
         check_randomization(randomization)
         if not isinstance(backend, (str, PhysicsBackend)):
             missing = missing_members(backend)
+            why = ("" if not missing else " (a class: pass an instance of it)" if isinstance(backend, type)
+                   else f" (it lacks {', '.join(missing)})" if len(missing) < 10 else "")  # fmt: skip
             raise ConfigError(f"backend must be 'auto', one of {list(BACKEND_NAMES)} or a PhysicsBackend, got "
-                              f"{backend!r}" + (f" (it lacks {', '.join(missing)})" if missing else ""))  # fmt: skip
+                              f"{backend!r}{why}")  # fmt: skip
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ConfigError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
         if not (isinstance(randomize, (bool, np.bool_)) or (type(randomize) is int and randomize in (0, 1))):

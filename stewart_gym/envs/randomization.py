@@ -29,8 +29,9 @@ def draw_count(sensor: TouchPanelSpec | CameraSpec) -> int:
     tuple of cameras, the one drawn: :meth:`EpisodeParams.sample` draws it between the first draws and the rest.)"""
     if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
         raise ConfigError(f"randomize draws an episode's sensor around a touch panel or a camera, not a "
-                          f"{type(sensor).__name__}: make the env with randomize=False, or add the sensor's draws here "
-                          "(docs: Add a ball sensor)")  # fmt: skip
+                          f"{type(sensor).__name__}: make the env with randomize=False, or add the sensor's draws to "
+                          "draw_count and EpisodeParams.from_draws in stewart_gym/envs/randomization.py (docs: Add a "
+                          "ball sensor)")  # fmt: skip
     return FIRST_DRAWS + (2 if isinstance(sensor, TouchPanelSpec) else 3) + 4
 
 
@@ -148,8 +149,7 @@ class EpisodeParams:
         (x86-64, Linux arm64), and within one rounding where it fuses them (macOS arm64)
         (``tests/envs/test_randomization.py``). The arithmetic is IEEE's + − × and √ on float64 either way, and the
         radius's rounding, cosine and sine are Python's, so a row gives the same episode alone or among others."""
-        if not isinstance(sensor, (TouchPanelSpec, CameraSpec)):
-            raise TypeError(f"from_draws takes one touch panel or camera, got {type(sensor).__name__}")
+        draw_count(sensor)  # a touch panel or one camera, else the ConfigError that says what to do
         r = ranges
         panel = isinstance(sensor, TouchPanelSpec)
         measured = ((r.sensor_noise_mm, r.sensor_latency_s) if panel

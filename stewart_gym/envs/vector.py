@@ -36,6 +36,7 @@ from stewart_gym.envs.arguments import check_engine_arguments
 from stewart_gym.envs.ball_env import StewartBallEnv, check_ball_geometry
 from stewart_gym.envs.copies import CopySteps
 from stewart_gym.errors import ConfigError
+from stewart_gym.sensing import TouchPanelSpec
 from stewart_gym.sensing_arrays import CameraArray, CameraRow, ObserverArray, ObserverRow, PanelArray, PanelRow
 from stewart_gym.sim.batched import BatchedPlatform, BatchedSim
 from stewart_gym.sim.engines import PYBULLET_ENV_HZ, multiple_at_least
@@ -355,6 +356,10 @@ def sensor_array(env: StewartBallEnv, n: int, control_dt: float) -> PanelArray |
     episode then has one: a preset, or one drawn from the presets)."""
     if isinstance(env.nominal_sensor, (CameraSpec, tuple)):
         return CameraArray(n, control_dt, env.sensor_model.spec, env.nominal_ball.radius)
+    if not isinstance(env.nominal_sensor, TouchPanelSpec):
+        raise ConfigError(f"the batched vector env holds touch panels and cameras as arrays, not a "
+                          f"{type(env.nominal_sensor).__name__}: use a PyBullet or MuJoCo vector env "
+                          "(vectorization_mode 'sync' or 'async'), or give the sensor an array class")  # fmt: skip
     return PanelArray(n, control_dt)
 
 

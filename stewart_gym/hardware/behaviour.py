@@ -60,10 +60,13 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "2"),
     Behaviour("camera_silent", "the camera (or the pipe it reads) delivers no frame within 5 s",
               "refused before the port opens: nothing moves (`camera-check` too says so after 5 s)", "2"),
-    Behaviour("camera_ends", "the camera's video runs out, or the camera goes away, during the run",
+    Behaviour("camera_ends", "the camera's video runs out during the run",
               "no frame comes after: the last reading ages, so after `--watchdog-ms` the platform drives home and "
-              "is held there; the summary says *the sensor's source ended at tick N*, and the run fails if most "
-              "ticks had no fresh reading", "0, or 1 if most ticks had none"),
+              "is held there; the summary says *the sensor's source ended at tick N (the video ran out)*, and the "
+              "run fails if most ticks had no fresh reading", "0, or 1 if most ticks had none"),
+    Behaviour("camera_lost", "a live camera, or the stream it reads, stops delivering frames during the run",
+              "a device failure: the run ends and drives home, and the board is still asked to confirm it "
+              "(*device failure: camera …: the camera stopped delivering frames*)", "2"),
     Behaviour("bad_input", "a damaged bundle (a field of the wrong size or type), a bad calibration or camera "
               "config (its `source` a folder, or a file that is no video), a log that exists",
               "one `error:` line naming the file and the field, before the port opens", "1"),

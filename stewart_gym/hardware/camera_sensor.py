@@ -67,8 +67,8 @@ class CameraSensor:
         self._plate: tuple[tuple[float, ...], float] | None = None  # the newest plate pose and its capture time
         self.last_detection: Detection | None = None
         self.frames = self.found = self.invalid = 0
-        #: whether the source ran out (a video's end) or went away: no frame comes after
-        self.ended = False
+        #: why no frame comes any more (a video's end, a camera or stream lost), or None while frames come
+        self.ended: str | None = None
         self._cap = None
         self._opened = threading.Event()  # the first frame came, or opening failed
         self._failure: str | None = None
@@ -120,7 +120,8 @@ class CameraSensor:
             ok, frame = cap.read()
             captured = time.monotonic()
             if not ok:
-                self.ended = True  # end of the video, or the camera went away: readings go stale
+                self.ended = ("the video ran out" if self._is_file else  # readings go stale from here
+                              "the camera stopped delivering frames (unplugged, or its stream ended)")  # fmt: skip
                 if not self._opened.is_set():
                     self._failure = f"camera {self.config.source!r} gave no frame (an empty video, or a dead stream)"
                     self._opened.set()
@@ -144,7 +145,11 @@ class CameraSensor:
                 self._stop.wait(max(0.0, next_frame - time.monotonic()))
 
     def read(self, t: float) -> Reading | None:
-        """The newest ball found ((x, y) m, capture time on the caller's clock ``t``), or None before the first."""
+        """The newest ball found ((x, y) m, capture time on the caller's clock ``t``), or None before the first. A
+        live camera or stream that has stopped delivering frames is a :class:`~stewart_gym.errors.DeviceFailure`
+        (a video that has run out is not: its last reading ages, and :attr:`ended` says why)."""
+        if self.ended is not None and not self._is_file:
+            raise DeviceFailure(f"camera {self.config.source!r}: {self.ended}")
         with self._lock:
             latest = self._latest
         if latest is None:

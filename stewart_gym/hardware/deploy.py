@@ -41,7 +41,7 @@ import numpy as np
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.envs.targets import Fixed, Target
-from stewart_gym.errors import ConfigError, PolicyError
+from stewart_gym.errors import ConfigError, DeviceFailure, PolicyError
 from stewart_gym.hardware.safety import SafetyLayer
 from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
 from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact, reading_is_valid
@@ -236,8 +236,9 @@ class DeploySummary:
     board_wait_ms_max: float = 0.0
     exit_code: int = 0
     message: str = "completed"
-    #: the tick at which the sensor's source ended (a camera's video ran out, or the camera went away), else None
+    #: the tick at which the sensor's source ended (a camera's video ran out), and why; None if it did not
     source_ended_tick: int | None = None
+    source_ended: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -255,8 +256,8 @@ class DeploySummary:
         board = ("" if self.board_answers is None else
                  f"board answered {self.board_answers} questions, longest wait {self.board_wait_ms_max:.0f} ms; ")
         ended = ("" if self.source_ended_tick is None else
-                 f"the sensor's source ended at tick {self.source_ended_tick} (a video ran out, or the camera went "
-                 "away): no fresh reading after it; ")  # fmt: skip
+                 f"the sensor's source ended at tick {self.source_ended_tick} ({self.source_ended}): no fresh reading "
+                 "after it; ")  # fmt: skip
         return (f"{self.message}: {self.ticks} ticks in {self.duration_s:.2f} s, {self.frames_sent} frames sent; "
                 f"held {self.held}, clamped {self.clamped}, rate-limited {self.rate_limited}, homing {self.homing}, "
                 f"stale sensor {self.stale}, invalid readings {self.invalid}, missed deadlines {self.missed_deadlines}, "
@@ -354,7 +355,6 @@ class DeployLoop:
         if self.controller.monitoring:
             summary.board_answers = 0
         sees_plate = callable(getattr(self.sensor, "plate_pose", None))
-        can_end = hasattr(self.sensor, "ended")  # a source that can run out (a camera's video, a stream)
         try:
             writer, fh = self._open_log(sees_plate)
         except OSError as exc:
@@ -362,6 +362,7 @@ class DeployLoop:
             raise ConfigError(f"the log {cfg.log_path} cannot be written ({exc.strerror or exc}); nothing was "
                               "moved") from None
         jitters, computes = [], []
+        port_failed = False  # whether the port or the board failed (the sensor failing leaves the board to ask)
         start = time.monotonic()
         next_tick = start
         missed = False
@@ -371,8 +372,9 @@ class DeployLoop:
                 jitter = (now - next_tick) * 1e3
                 t = now - start
                 got = self.sensor.read(t)
-                if can_end and summary.source_ended_tick is None and self.sensor.ended:
-                    summary.source_ended_tick = summary.ticks
+                ended = getattr(self.sensor, "ended", None)  # a source that can run out (a camera's video)
+                if isinstance(ended, str) and summary.source_ended_tick is None:
+                    summary.source_ended_tick, summary.source_ended = summary.ticks, ended
                 reading, invalid = self.checked(got, t)  # (x, y), age
                 c0 = time.perf_counter()
                 obs, action, pulses, flags = self.compute(reading, t)
@@ -412,14 +414,15 @@ class DeployLoop:
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP raised as errors.Stopped
             summary.message = f"stopped by {getattr(exc, 'name', 'Ctrl-C (SIGINT)')}"
             summary.exit_code = 128 + int(getattr(exc, "signum", signal.SIGINT))
-        except DeviceError as exc:
+        except DeviceFailure as exc:  # the port, the board, or the sensor (a camera lost mid-run)
             summary.message, summary.exit_code = f"device failure: {exc}", 2
+            port_failed = isinstance(exc, DeviceError)
         except LogWriteError as exc:
             summary.message, summary.exit_code = f"error: {exc}", 1
         except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)
             summary.message, summary.exit_code = f"error: {type(exc).__name__}: {exc}", 1
         finally:
-            self._go_home(period, summary)
+            self._go_home(period, summary, port_failed)
             self._close(fh, summary)
         summary.duration_s = time.monotonic() - start
         summary.frames_sent = self.controller.frames_sent
@@ -452,11 +455,13 @@ class DeployLoop:
             summary.message = "failed: the policy gave no usable action on any tick (every tick held the pose)"
             summary.exit_code = 1
 
-    def _go_home(self, period: float, summary: DeploySummary) -> None:
+    def _go_home(self, period: float, summary: DeploySummary, port_failed: bool = False) -> None:
         """Drive home at the rate limit (at most ``home_timeout_s``; a stop signal meanwhile does not cut it
-        short), drain the port, and ask the board what it holds. Sets ``summary.home`` and ``home_note``."""
+        short), drain the port, and ask the board what it holds. Sets ``summary.home`` and ``home_note``. After
+        the port or the board failed (``port_failed``), the home frames are tried all the same, without asking the
+        board anything."""
         deadline = time.monotonic() + self.config.home_timeout_s
-        failed = summary.exit_code == 2  # the device failed: try all the same, without asking it anything
+        failed = port_failed
         if failed:
             self.controller.monitoring = False
         reached = False

@@ -121,7 +121,7 @@ class MaestroParser:
     LENGTHS = {0x84: 3, 0x87: 3, 0x89: 3, 0x90: 1, 0x93: 0, 0xA1: 0, 0xA2: 0, 0x9F: None}
     PROTOCOL_ERROR = 1 << 4
 
-    def __init__(self, position: Callable[[int], float], home: Callable[[], None]) -> None:
+    def __init__(self, position: Callable[[int, float | None], float], home: Callable[[], None]) -> None:
         self._position, self._home = position, home
         self._msg: list[int] = []
         self.errors = 0
@@ -190,7 +190,7 @@ class SSC32Parser:
     MOVE = re.compile(r"^(?:#\d{1,2}P\d{3,4}(?:S\d+)?)+(?:T\d+)?$")
     PART = re.compile(r"#(\d{1,2})P(\d{3,4})")
 
-    def __init__(self, position: Callable[[int], float]) -> None:
+    def __init__(self, position: Callable[[int, float | None], float]) -> None:
         self._position = position
         self._buffer = b""
 
@@ -221,7 +221,7 @@ class LineParser:
     """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs, channels in order), and ``?`` → ``P w0,…,w5``
     (the pulses held, ``position(channel)``)."""
 
-    def __init__(self, channels: Sequence[int], position: Callable[[int], float] | None = None) -> None:
+    def __init__(self, channels: Sequence[int], position: Callable[[int, float | None], float] | None = None) -> None:
         self._channels = list(channels)
         self._position = position
         self._buffer = b""
@@ -250,7 +250,7 @@ class LineParser:
 
 #: A board-side parser of a protocol's bytes: made from the board's channels (servo k's channel is ``channels[k]``),
 #: ``position(channel, pending)`` (what a position query answers) and ``home()`` (what a "go home" command does).
-ParserFactory = Callable[[Sequence[int], Callable[..., float], Callable[[], None]], Any]
+ParserFactory = Callable[[Sequence[int], Callable[[int, float | None], float], Callable[[], None]], Any]
 
 #: Each protocol's board-side parser, by the name ``--protocol`` takes (the names of
 #: :data:`~stewart_gym.hardware.serial_controllers.PROTOCOLS`).

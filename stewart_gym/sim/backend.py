@@ -32,6 +32,10 @@ __all__ = ["BallSpec", "PhysicsBackend", "PlateLoad", "SimulatorBase", "check_ra
 PlateLoad = tuple[float, np.ndarray]
 
 
+#: The number types :class:`BallSpec` checks with one chain of comparisons (others field by field).
+_PLAIN_NUMBERS = frozenset({float, int, np.float64})
+
+
 @dataclass(frozen=True)
 class BallSpec:
     """The ball. Default: a 25.4 mm (1 in) solid steel ball, heavy enough for a resistive touch panel.
@@ -56,28 +60,25 @@ class BallSpec:
 
     def __post_init__(self) -> None:
         """Each field a finite number in its range (radius and mass above 0, the frictions at least 0, restitution
-        0…1), ``hollow`` a bool; else :class:`~stewart_gym.errors.ConfigError` naming the field. (One chain of
-        comparisons first: a vector env's resets make a ball per copy.)"""
-        inf = math.inf
-        try:
-            ok = (0.0 < self.radius < inf and 0.0 < self.mass < inf and 0.0 <= self.lateral_friction < inf
-                  and 0.0 <= self.rolling_friction < inf and 0.0 <= self.spinning_friction < inf
-                  and 0.0 <= self.restitution <= 1.0 and isinstance(self.hollow, bool)
-                  and bool not in {type(self.radius), type(self.mass), type(self.lateral_friction),
-                                   type(self.rolling_friction), type(self.spinning_friction),
-                                   type(self.restitution)})  # fmt: skip
-        except (TypeError, ValueError):  # a field that is no number, or an array of them
-            ok = False
-        if not ok:
-            self._refuse()
+        0…1), ``hollow`` a bool; else :class:`~stewart_gym.errors.ConfigError` naming the field. (Plain floats are
+        checked with one chain of comparisons: a vector env's resets make a ball per copy.)"""
+        numbers = (self.radius, self.mass, self.lateral_friction, self.rolling_friction, self.spinning_friction,
+                   self.restitution)  # fmt: skip
+        if not (all(type(v) in _PLAIN_NUMBERS for v in numbers) and type(self.hollow) is bool
+                and 0.0 < self.radius < math.inf and 0.0 < self.mass < math.inf
+                and 0.0 <= self.lateral_friction < math.inf and 0.0 <= self.rolling_friction < math.inf
+                and 0.0 <= self.spinning_friction < math.inf and 0.0 <= self.restitution <= 1.0):  # fmt: skip
+            self._check_each()
 
-    def _refuse(self) -> None:
-        """Raise :class:`~stewart_gym.errors.ConfigError` naming the first field out of its range."""
+    def _check_each(self) -> None:
+        """Check field by field (:func:`~stewart_gym.checks.real_number`: a NumPy number passes, a bool, an array
+        or text does not); raise :class:`~stewart_gym.errors.ConfigError` naming the first field that fails."""
         for key, positive in (("radius", True), ("mass", True), ("lateral_friction", False), ("rolling_friction", False),
                               ("spinning_friction", False), ("restitution", False)):  # fmt: skip
             real_number(f"BallSpec.{key}", getattr(self, key), low=0.0, low_open=positive,
                         high=1.0 if key == "restitution" else math.inf)  # fmt: skip
-        raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
+        if not isinstance(self.hollow, (bool, np.bool_)):
+            raise ConfigError(f"BallSpec.hollow must be True or False, got {self.hollow!r}")
 
     @property
     def inertia(self) -> float:
@@ -156,11 +157,11 @@ class PhysicsBackend(Protocol):
         """Release the engine; safe to call twice."""
 
 
-
 def missing_members(obj: object) -> list[str]:
     """The attributes and methods of :class:`PhysicsBackend` that ``obj`` lacks, by name (none: it is one)."""
     wanted = {*getattr(PhysicsBackend, "__annotations__", {}), *vars(PhysicsBackend)}
     return sorted(name for name in wanted if not name.startswith("_") and not hasattr(obj, name))
+
 
 class SimulatorBase:
     """What every engine's simulator does the same way, so that each engine holds only its own engine code.

@@ -129,8 +129,11 @@ def test_a_ball_field_that_is_a_bool_or_an_array_is_refused_naming_it() -> None:
     from stewart_gym.sim import BallSpec
 
     for field, value, kind in (("radius", True, "bool"), ("lateral_friction", False, "bool"),
-                               ("mass", np.array([0.1, 0.2]), "ndarray"), ("radius", "a", "str")):  # fmt: skip
+                               ("radius", np.True_, "bool"), ("mass", np.array([0.1, 0.2]), "ndarray"),
+                               ("mass", np.array(0.1), "ndarray"), ("radius", "a", "str")):  # fmt: skip
         with pytest.raises(ConfigError, match=rf"BallSpec.{field} must be a number, got .* \({kind}\)$"):
             BallSpec(**{field: value})
     with pytest.raises(ConfigError, match=r"BallSpec.restitution must be a finite number in \[0, 1\], got 2$"):
         BallSpec(restitution=2)
+    ball = BallSpec(radius=np.float32(0.02), mass=np.int64(1), hollow=np.True_)  # NumPy numbers are numbers
+    assert ball.inertia == pytest.approx(2 / 3 * 1 * 0.02**2, rel=1e-6)

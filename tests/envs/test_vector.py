@@ -434,3 +434,18 @@ def test_a_copy_whose_physics_blows_up_ends_alone() -> None:
     np.testing.assert_array_equal(obs[0], o)
     assert np.isfinite(obs).all()  # the ended copy was reset
     vector.close()
+
+
+def test_a_sensor_with_no_array_class_is_refused_by_the_batched_vector_env() -> None:
+    """A sensor spec of its own (``docs/src/guides/add-a-sensor.md``) has no array class here: one error, not a
+    touch panel in its place."""
+    from types import SimpleNamespace
+
+    from stewart_gym.envs.vector import sensor_array
+    from stewart_gym.errors import ConfigError
+
+    class GridSensorSpec:
+        pass
+
+    with pytest.raises(ConfigError, match="holds touch panels and cameras as arrays, not a GridSensorSpec"):
+        sensor_array(SimpleNamespace(nominal_sensor=GridSensorSpec()), 4, 0.02)

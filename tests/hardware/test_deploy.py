@@ -186,3 +186,56 @@ def test_a_policy_that_does_not_fit_the_action_mode_is_refused(device: FakeDevic
     with pytest.raises(PolicyError, match="needs 16 and 6"):
         DeployLoop(_Broken(), ActionMapper("servo-hexapod", CAL, "pose"), MaestroController(device.path),
                    _StillSensor(), DeployConfig(duration_s=0.2, log_path=None))  # fmt: skip
+
+
+class _EndingSensor:
+    """Fresh readings for ``fresh`` reads; then its source has run out (``ended`` says why) and the last reading
+    ages; with ``live``, reading after that is a device failure, as a camera that stops delivering frames."""
+
+    def __init__(self, fresh: int, live: bool = False) -> None:
+        self.fresh, self.live, self.reads, self.ended, self.last = fresh, live, 0, None, None
+
+    def read(self, t: float) -> tuple[tuple[float, float], float] | None:
+        from stewart_gym.errors import DeviceFailure
+
+        self.reads += 1
+        if self.reads > self.fresh:
+            if self.live:
+                raise DeviceFailure("camera 0: the camera stopped delivering frames")
+            self.ended = "the video ran out"
+            return self.last
+        self.last = ((0.0, 0.0), t)
+        return self.last
+
+
+@pytest.mark.parametrize(("fresh", "code"), [(5, 1), (45, 0)])
+def test_a_sensor_whose_source_runs_out_is_named_with_its_tick(device: FakeDevice, tmp_path: Path, fresh: int,
+                                                               code: int) -> None:  # fmt: skip
+    """A video that ends after 5 of 50 ticks: held home, the run fails; after 45: the run completes. Either way the
+    summary says at which tick, and why."""
+    from conftest import Board
+
+    board = Board(device)
+    loop = DeployLoop(_pid_bundle(tmp_path), ActionMapper("servo-hexapod", CAL, "tilt"), MaestroController(device.path),
+                      _EndingSensor(fresh), DeployConfig(duration_s=1.0, log_path=None))  # fmt: skip
+    summary = loop.run()
+    board.stop()
+    assert summary.exit_code == code and summary.source_ended_tick == fresh, summary.text()
+    assert f"the sensor's source ended at tick {fresh} (the video ran out)" in summary.text()
+
+
+def test_a_live_camera_lost_mid_run_is_a_device_failure_and_the_board_confirms_home(device: FakeDevice,
+                                                                                     tmp_path: Path) -> None:  # fmt: skip
+    """The sensor fails, not the port: the board is still asked, and confirms home."""
+    from conftest import Board
+
+    board = Board(device)
+    controller = MaestroController(device.path)
+    controller.monitor()
+    loop = DeployLoop(_pid_bundle(tmp_path), ActionMapper("servo-hexapod", CAL, "tilt"), controller,
+                      _EndingSensor(10, live=True), DeployConfig(duration_s=1.0, log_path=None))  # fmt: skip
+    summary = loop.run()
+    board.stop()
+    assert summary.exit_code == 2 and summary.ticks == 10, summary.text()
+    assert summary.message == "device failure: camera 0: the camera stopped delivering frames"
+    assert summary.home == "confirmed", summary.text()

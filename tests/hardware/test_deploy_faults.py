@@ -391,13 +391,17 @@ def test_the_loop_s_own_failures_are_in_test_deploy() -> None:
     assert callable(test_deploy.test_a_loop_that_misses_its_deadlines_fails)
 
 
-@covers("camera_ends")
-def test_a_camera_source_that_ends_is_in_test_camera() -> None:
-    """A video that ends mid-run needs OpenCV and a rendered clip: ``test_camera.test_a_camera_that_never_finds_the_
-    ball_sends_the_platform_home`` plays a 0.5 s video in a 1 s run and reads the tick it ended at in the summary.
-    Here: that test exists."""
+@covers("camera_ends", "camera_lost")
+def test_a_camera_source_that_ends_is_in_test_deploy_and_test_camera() -> None:
+    """A source that runs out, and a live one lost, are the loop's to handle: ``test_deploy`` drives the loop with
+    a sensor that does each (the tick named; exit 0 or 1; exit 2 with home confirmed), and ``test_camera`` plays a
+    0.5 s video in a 1 s deploy through the command line. Here: those tests exist."""
     import importlib.util
 
+    import test_deploy
+
+    assert callable(test_deploy.test_a_sensor_whose_source_runs_out_is_named_with_its_tick)
+    assert callable(test_deploy.test_a_live_camera_lost_mid_run_is_a_device_failure_and_the_board_confirms_home)
     spec = importlib.util.spec_from_file_location("camera_tests", ROOT / "tests" / "test_camera.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

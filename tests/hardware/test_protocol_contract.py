@@ -28,6 +28,9 @@ def _maestro_set_target(channel: int, us: float) -> bytes:
     return bytes([0x84, channel, q & 0x7F, q >> 7])
 
 
+#: The step of each protocol's pulses on the wire, µs: a Maestro's quarter microsecond, the others' whole ones.
+WIRE_STEP_US = {"maestro": 0.25, "ssc32": 1.0, "line": 1.0}
+
 #: Each protocol's bytes for :data:`KNOWN` on channels 0…5, from its board's documentation.
 KNOWN_FRAMES = {
     "maestro": b"".join(_maestro_set_target(c, us) for c, us in enumerate(KNOWN)),
@@ -37,7 +40,7 @@ KNOWN_FRAMES = {
 
 
 def test_every_protocol_is_a_choice_and_has_a_parser_and_a_known_frame() -> None:
-    assert set(PROTOCOLS) == set(PARSERS) == set(PROTOCOL_CHOICES) == set(KNOWN_FRAMES)
+    assert set(PROTOCOLS) == set(PARSERS) == set(PROTOCOL_CHOICES) == set(KNOWN_FRAMES) == set(WIRE_STEP_US)
 
 
 @pytest.mark.parametrize("protocol", sorted(PROTOCOLS))
@@ -67,8 +70,7 @@ def test_frames_reach_the_board_as_sent_and_its_answer_confirms_them(protocol: s
         while len(board.frames) < len(sent) and time.monotonic() < deadline:
             time.sleep(0.01)
         assert len(board.frames) == len(sent), board.frames
-        # the wire's resolution: a Maestro's quarter-µs, the others' whole µs
-        assert np.abs(np.array(board.frames) - sent).max() <= 0.5
+        assert np.abs(np.array(board.frames) - sent).max() <= WIRE_STEP_US[protocol] / 2 + 1e-9  # rounded once
         held, answer = controller.confirm(sent[-1])
         assert held, answer
         assert not controller.confirm(sent[-1] + controller.resolution_us + 2.0)[0]  # other pulses: not confirmed

@@ -179,7 +179,9 @@ def test_corrupted_bytes_are_counted_and_clamped(tmp_path: Path) -> None:
     corrupted = int(out.split(" bytes dropped, ")[1].split(" corrupted")[0])
     malformed = int(out.split(" messages received, ")[1].split(" malformed")[0])
     assert code == 0 and corrupted > 10 and malformed > 0, out
-    assert out.startswith("virtual maestro board with servo-hexapod in pybullet on ")  # the engine "auto" picked
+    from stewart_gym.sim.engines import default_backend
+
+    assert out.startswith(f"virtual maestro board with servo-hexapod in {default_backend()} on ")  # "auto"'s pick
 
 
 @pytest.mark.slow

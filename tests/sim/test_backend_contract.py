@@ -89,9 +89,16 @@ def test_reset_takes_the_ball_spec_s_radius_mass_and_inertia(backend: PhysicsBac
     """A ping-pong ball (20 mm, 2.7 g, hollow) instead of the steel one: it rests 20 mm above the plate, a push
     moves it by impulse over its own mass, and on a plate pitched 3° it rolls at (3/5) g sin θ, the hollow ball's
     rate (a solid one's is 5/7 of g sin θ, 19 % more)."""
+    ball = BallSpec(radius=0.02, mass=0.0027, hollow=True)
+    try:
+        _roll_a_ping_pong_ball(backend, ball)
+    finally:
+        backend.reset(ball_spec=BallSpec())  # (a reset without a ball spec keeps the last ball)
+
+
+def _roll_a_ping_pong_ball(backend: PhysicsBackend, ball: BallSpec) -> None:
     from stewart_gym.kinematics import inverse_kinematics
 
-    ball = BallSpec(radius=0.02, mass=0.0027, hollow=True)
     backend.reset(ball_spec=ball)
     run(backend, 0.3)
     assert backend.ball_position()[2] == pytest.approx(backend.plate_top + 0.02, abs=1e-3)
@@ -106,7 +113,6 @@ def test_reset_takes_the_ball_spec_s_radius_mass_and_inertia(backend: PhysicsBac
     run(backend, t, pulses)
     acceleration = 2 * backend.ball_position()[0] / t**2
     assert acceleration == pytest.approx(0.6 * 9.81 * math.sin(backend.platform_pose()[4]), rel=0.08)
-    backend.reset()
 
 
 def test_every_backend_name_builds_its_class() -> None:
@@ -168,3 +174,12 @@ def test_an_object_that_is_not_a_backend_is_refused_naming_what_it_lacks() -> No
             gym.make("StewartBallBalance-v0", backend=half)
     finally:
         half.inner.close()
+
+
+def test_a_backend_class_given_for_an_instance_is_named_so() -> None:
+    import gymnasium as gym
+
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=r"got <class .*StewartSim'> \(a class: pass an instance of it\)$"):
+        gym.make("StewartBallBalance-v0", backend=StewartSim)
