@@ -11,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+import tty
 
 import numpy as np
 import pytest
@@ -161,6 +162,7 @@ class FakeDevice:
 
     def __init__(self) -> None:
         self.master, slave = pty.openpty()
+        tty.setraw(slave)  # as a serial port: no echo of what the board sends back to it, no line endings changed
         self.path = os.ttyname(slave)
         self._slave = slave  # keep the slave open so the pty survives until the client opens it
         os.set_blocking(self.master, False)
@@ -324,7 +326,7 @@ class Board:
                         self._write(reply)
             if self.protocol == "line":
                 if now - last_ready >= 0.2:  # as after each reset (a host opening the port resets an Uno)
-                    self._write(b"ready\n")
+                    self._write(b"ready 900,2100\n")
                     last_ready = now
                 if self.lines is not None and now - start >= 0.0:
                     line = self.lines(0.0 if since is None else since)

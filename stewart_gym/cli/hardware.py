@@ -82,7 +82,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     calibration, hw = load_calibration(args.calibration, geometry, used_for=f"--geometry {args.geometry}")
     port, protocol, baudrate = port_settings(args.port, args.protocol, args.baudrate, hw)
     nominal = ServoCalibration.default(geometry).neutral_us  # untrimmed: 1500 µs, or the home leg length's pulse
-    controller = open_controller(protocol, port, calibration.channels, baudrate)
+    controller = open_controller(protocol, port, calibration.channels, baudrate,
+                                 (calibration.min_us, calibration.max_us), args.calibration or "the default calibration")
     if geometry.is_rotary:  # what each horn should show: the trim is right when it stands at this angle
         angles = [math.degrees(a) for a in calibration.home_angle]
         shown = f"{angles[0]:.1f}°" if max(angles) - min(angles) < 0.05 else ", ".join(f"{a:.1f}°" for a in angles)

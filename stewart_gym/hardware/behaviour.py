@@ -42,7 +42,10 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
               "garbage or nothing)", "the platform is held home meanwhile; the run ends *failed: no fresh valid "
               "reading on N of M ticks*", "1"),
     Behaviour("garbage", "lines that are not readings (noise, a half line, a reset's banner)",
-              "ignored: only `B x,y`, `P …` and `ready` mean something", "0"),
+              "ignored: only `B x,y`, `P …`, `ready` and `E …` mean something", "0"),
+    Behaviour("board_refuses", "the sketch refuses frames (`E …`: a garbled line, a pulse outside its fence)",
+              "one now and then is let go; 3 of the last 10 frames refused is a device failure (its servos would "
+              "hold their pose): the run drives home and the board is asked to confirm it", "2"),
     Behaviour("board_silent", "the board does not answer the first position query (replies not wired, an old "
               "sketch)", "refused before anything moves; `--write-only` runs without asking (homing is then "
               "*sent, not confirmed*)", "2"),

@@ -43,7 +43,7 @@ from stewart_gym.actions import ActionMapper
 from stewart_gym.envs.targets import Fixed, Target
 from stewart_gym.errors import ConfigError, DeviceFailure, PolicyError
 from stewart_gym.hardware.safety import SafetyLayer
-from stewart_gym.hardware.serial_controllers import DeviceError, LineController, ServoController
+from stewart_gym.hardware.serial_controllers import BoardRefused, DeviceError, LineController, ServoController
 from stewart_gym.sensing import BallObserver, BallSensor, Reading, ball_contact, reading_is_valid
 
 __all__ = ["LOG_PLATE_COLUMNS", "LOG_READING_COLUMNS", "DeployConfig", "DeployLoop", "DeploySummary", "PanelSensor",
@@ -416,7 +416,7 @@ class DeployLoop:
             summary.exit_code = 128 + int(getattr(exc, "signum", signal.SIGINT))
         except DeviceFailure as exc:  # the port, the board, or the sensor (a camera lost mid-run)
             summary.message, summary.exit_code = f"device failure: {exc}", 2
-            port_failed = isinstance(exc, DeviceError)
+            port_failed = isinstance(exc, DeviceError) and not isinstance(exc, BoardRefused)  # (it still answers)
         except LogWriteError as exc:
             summary.message, summary.exit_code = f"error: {exc}", 1
         except Exception as exc:  # noqa: BLE001  (anything: go home, keep the log, report)

@@ -247,7 +247,9 @@ class DeploySetup:
         sensor = self._sensor_first()
         controller = None
         try:
-            controller = open_controller(self.protocol, self.port, self.calibration.channels, self.baudrate)
+            cal = self.calibration
+            controller = open_controller(self.protocol, self.port, cal.channels, self.baudrate, (cal.min_us, cal.max_us),
+                                         self.options.calibration or "the default calibration")  # fmt: skip
             if isinstance(controller, LineController):
                 sensor = sensor or PanelSensor(controller)
             if not self.options.write_only:

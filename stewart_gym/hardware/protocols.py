@@ -129,6 +129,9 @@ class LineProtocol:
     READY = "ready"
     #: Asks the board which pulses it holds; it answers ``P w0,…,w5``.
     QUERY = b"?\n"
+    #: µs: the sketch's fence where its ``ready`` line does not give one (a sketch from before it did): a frame
+    #: with a pulse outside it is refused whole.
+    DEFAULT_FENCE_US = (900.0, 2100.0)
 
     @staticmethod
     def frame(us: Sequence[float]) -> bytes:
@@ -158,3 +161,24 @@ class LineProtocol:
         except ValueError:
             return None
         return values if len(values) == 6 else None
+
+    @staticmethod
+    def parse_ready(line: str) -> tuple[float, float] | None:
+        """``ready lo,hi`` (sent once after a reset, with the sketch's fence in µs) → (lo, hi); a bare ``ready``
+        → :attr:`DEFAULT_FENCE_US`; ``None`` for any other line."""
+        words = line.strip().split()
+        if not words or words[0] != LineProtocol.READY or len(words) > 2:
+            return None
+        if len(words) == 1:
+            return LineProtocol.DEFAULT_FENCE_US
+        try:
+            lo, hi = (float(v) for v in words[1].split(","))
+        except ValueError:
+            return None
+        return (lo, hi) if 0.0 < lo < hi else None
+
+    @staticmethod
+    def parse_refusal(line: str) -> str | None:
+        """``E <message>`` (the sketch refused a line: nothing moved) → the message; ``None`` for any other line."""
+        line = line.strip()
+        return line[2:].strip() or "(no message)" if line.startswith("E ") or line == "E" else None

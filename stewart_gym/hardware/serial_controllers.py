@@ -41,13 +41,17 @@ ANSWER_TIMEOUT_S = 0.5
 #: Missed questions in a row that make a monitored board a device failure (one alone can be a byte lost on the line).
 MAX_MISSED_ANSWERS = 3
 
-__all__ = ["ANSWER_TIMEOUT_S", "ASK_EVERY_S", "PROTOCOLS", "DeviceError", "LineController", "MaestroController",
-           "MAX_MISSED_ANSWERS", "ServoController", "SSC32Controller", "check_channels", "open_controller",
-           "write_timeout_s"]  # fmt: skip
+__all__ = ["ANSWER_TIMEOUT_S", "ASK_EVERY_S", "PROTOCOLS", "BoardRefused", "DeviceError", "LineController",
+           "MaestroController", "MAX_MISSED_ANSWERS", "ServoController", "SSC32Controller", "check_channels",
+           "open_controller", "write_timeout_s"]  # fmt: skip
 
 
 class DeviceError(DeviceFailure):
     """The serial device failed (unplugged, not answering, not reading, protocol error)."""
+
+
+class BoardRefused(DeviceError):
+    """The board refuses the frames it is sent (the sketch's ``E`` lines): it still reads and answers."""
 
 
 def write_timeout_s(baudrate: int) -> float:
@@ -67,6 +71,10 @@ class ServoController(ABC):
     """
 
     default_baudrate = 115200
+    #: µs: the pulses the board itself takes (lowest, highest), where it says: it refuses a frame with any pulse
+    #: outside them, so a calibration whose limits leave them is refused before anything moves
+    #: (:func:`open_controller`); None where the board does not say
+    fence_us: tuple[float, float] | None = None
 
     def __init__(self, port: str | serial.Serial, channels: Sequence[int] = range(6), baudrate: int | None = None,
                  timeout: float = 0.05) -> None:  # fmt: skip
@@ -348,6 +356,10 @@ class LineController(ServoController):
 
     #: s: how long the sketch has to answer the ``?`` asked when no ``ready`` line came.
     QUERY_TIMEOUT_S = 1.0
+    #: The sketch refusing this many of the last :data:`REFUSAL_WINDOW` frames sent is a device failure: its
+    #: servos hold the last pose it took (one refused now and then, a line garbled on the way, is not).
+    MAX_REFUSALS = 3
+    REFUSAL_WINDOW = 10
 
     resolution_us = 1.0
 
@@ -357,11 +369,27 @@ class LineController(ServoController):
         self.last_ball_time: float | None = None
         self._held: list[np.ndarray] = []
         self._ready = False
+        self.fence_us = LineProtocol.DEFAULT_FENCE_US  # until its ready line says
+        self._refused_at: list[int] = []  # frames_sent when each of the last refusals came
+        self._refusals_reported = False  # (once: the run then ends, and the board's answers confirm its home)
+        try:
+            if self._wait_ready(ready_timeout):
+                return
+        except DeviceError:
+            self.close()
+            raise
+        self.close()
+        raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s, and no "
+                          "answer to '?' (wrong port, wrong sketch or wrong baud rate?)")  # fmt: skip
+
+    def _wait_ready(self, ready_timeout: float) -> bool:
+        """Whether the sketch said ``ready`` within ``ready_timeout`` s, or else answered a ``?``; an ``E`` line
+        meanwhile (no PCA9685 on the bus) is a :class:`DeviceError` saying what the board says."""
         deadline = time.monotonic() + ready_timeout
         while time.monotonic() < deadline:
             self._pump()
             if self._ready:
-                return
+                return True
             time.sleep(0.01)
         self._write(LineProtocol.QUERY)  # no reset on open: a running sketch answers
         deadline = time.monotonic() + self.QUERY_TIMEOUT_S
@@ -370,11 +398,9 @@ class LineController(ServoController):
             if self._ready or self._held:
                 self._held.clear()
                 self._ready = True
-                return
+                return True
             time.sleep(0.01)
-        self.close()
-        raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s, and no "
-                          "answer to '?' (wrong port, wrong sketch or wrong baud rate?)")  # fmt: skip
+        return False
 
     def frame(self, pulses_us: np.ndarray) -> bytes:
         return LineProtocol.frame(pulses_us)
@@ -386,7 +412,8 @@ class LineController(ServoController):
         self._pump()  # the lines (ball readings among them) are kept; a broken one is dropped as noise
 
     def _pump(self) -> None:
-        """Read the lines that have arrived: the ball readings, the answers and ``ready``."""
+        """Read the lines that have arrived: the ball readings, the answers, ``ready`` and the sketch's refusals
+        (:meth:`_refused`)."""
         self._read_waiting()
         *lines, self._replies = self._replies.split(b"\n")
         if len(self._replies) > 4096:  # no line end for far too long: noise, not a line
@@ -400,8 +427,28 @@ class LineController(ServoController):
             held = LineProtocol.parse_held(line)
             if held is not None:
                 self._held.append(np.array(held))
-            elif line.strip() == LineProtocol.READY:
-                self._ready = True
+                continue
+            fence = LineProtocol.parse_ready(line)
+            if fence is not None:
+                self._ready, self.fence_us = True, fence
+                continue
+            refusal = LineProtocol.parse_refusal(line)
+            if refusal is not None:
+                self._refused(refusal)
+
+    def _refused(self, message: str) -> None:
+        """The sketch refused a line: before ``ready``, what it says is why it cannot start; after, a
+        :class:`BoardRefused` once it has refused :data:`MAX_REFUSALS` of the last :data:`REFUSAL_WINDOW` frames
+        (once: the frames refused after it, still on their way, are the run's end's, which the board's answer to
+        the position query confirms or not)."""
+        if not self._ready:
+            raise DeviceError(f"the board on {self.serial.port} says: {message}")
+        self._refused_at = [n for n in self._refused_at if n > self.frames_sent - self.REFUSAL_WINDOW]
+        self._refused_at.append(self.frames_sent)
+        if len(self._refused_at) >= self.MAX_REFUSALS and not self._refusals_reported:
+            self._refusals_reported = True
+            raise BoardRefused(f"the board on {self.serial.port} refused {self.MAX_REFUSALS} of the last "
+                              f"{self.REFUSAL_WINDOW} frames ({message}): its servos hold the last pose it took")
 
     def _parse_replies(self) -> list[np.ndarray]:
         self._pump()
@@ -451,8 +498,8 @@ def check_channels(protocol: str, channels: Sequence[int], source: str = "the ca
     if protocol == "line":
         if channels != list(range(6)):
             raise ConfigError(f"{source}: channels {channels}: the line protocol's sketch drives servo k on PCA9685 "
-                              "channel k, so the channels must be 0, 1, 2, 3, 4, 5 in order: wire the servos so (or "
-                              "edit the sketch's pins) and give those")  # fmt: skip
+                              "channel k, so the channels must be 0, 1, 2, 3, 4, 5 in order: wire the servos so and "
+                              "give those")  # fmt: skip
         return
     count = {"maestro": Maestro.CHANNELS, "ssc32": SSC32.CHANNELS}.get(protocol)
     outside = [c for c in channels if count is not None and not 0 <= c < count]
@@ -462,12 +509,25 @@ def check_channels(protocol: str, channels: Sequence[int], source: str = "the ca
 
 
 def open_controller(protocol: str, port: str | serial.Serial, channels: Sequence[int] = range(6),
-                    baudrate: int | None = None) -> ServoController:  # fmt: skip
+                    baudrate: int | None = None, limits: tuple[Sequence[float], Sequence[float]] | None = None,
+                    source: str = "the calibration") -> ServoController:  # fmt: skip
     """A controller by protocol name (:data:`PROTOCOLS`); the channels checked (:func:`check_channels`) before the
-    port opens."""
+    port opens, and the servos' ``limits`` (lowest, highest µs of each, from ``source``) against the board's own
+    fence once it has said it (:attr:`ServoController.fence_us`), before anything is sent."""
     try:
         cls = PROTOCOLS[protocol]
     except KeyError:
         raise ConfigError(f"protocol must be one of {sorted(PROTOCOLS)}, got {protocol!r}") from None
     check_channels(protocol, channels)
-    return cls(port, channels, baudrate)
+    controller = cls(port, channels, baudrate)
+    if limits is not None and controller.fence_us is not None:
+        lo, hi = controller.fence_us
+        outside = [k for k, (a, b) in enumerate(zip(*limits)) if a < lo or b > hi]
+        if outside:
+            k = outside[0]
+            controller.close()
+            raise ConfigError(f"{source}: servo {k}'s limits {limits[0][k]:g}–{limits[1][k]:g} µs leave the board's "
+                              f"fence, {lo:g}–{hi:g} µs (it would refuse those frames and hold its servos): narrow "
+                              "the limits, or widen SERVO_MIN_US and SERVO_MAX_US in the sketch and flash it "
+                              "again")  # fmt: skip
+    return controller

@@ -218,8 +218,16 @@ class SSC32Parser:
 
 
 class LineParser:
-    """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs, channels in order), and ``?`` → ``P w0,…,w5``
-    (the pulses held, ``position(channel)``)."""
+    """The PCA9685 sketch's ``W w0,…,w5\\n`` frames (whole µs of 3 or 4 digits, channels in order), and ``?`` →
+    ``P w0,…,w5`` (the pulses held, ``position(channel)``), taken and refused as the sketch takes and refuses them
+    (``tests/hardware/test_sketch.py`` runs the two side by side): any other line, one longer than the sketch's
+    buffer, or a frame with a pulse outside its fence (:data:`LineProtocol.DEFAULT_FENCE_US
+    <stewart_gym.hardware.protocols.LineProtocol.DEFAULT_FENCE_US>`) is answered with an ``E`` line and moves
+    nothing."""
+
+    #: The longest line the sketch holds (its buffer of 64 bytes, less the end).
+    MAX_LINE = 63
+    FRAME = re.compile(r"W (\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4})")
 
     def __init__(self, channels: Sequence[int], position: Callable[[int, float | None], float] | None = None) -> None:
         self._channels = list(channels)
@@ -232,21 +240,26 @@ class LineParser:
         if len(self._buffer) > 512:
             self._buffer, out.malformed = b"", out.malformed + 1
         for raw in lines:
-            line = raw.decode("ascii", "replace").strip()
-            if not line:
-                continue
-            if line == "?" and self._position is not None:
+            line = raw.replace(b"\r", b"").decode("ascii", "replace")
+            if len(line) > self.MAX_LINE:
+                self._refuse(out, "line too long")
+            elif line == "?" and self._position is not None:
                 out.messages += 1
                 held = ",".join(str(int(round(self._position(c, out.latest(c))))) for c in self._channels)
                 out.replies.append(f"P {held}\n".encode())
-                continue
-            m = re.fullmatch(r"W (\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4}),(\d{3,4})", line)
-            if m is None:
-                out.malformed += 1
-                continue
-            out.messages += 1
-            out.targets += [(c, float(w)) for c, w in zip(self._channels, m.groups())]
+            elif (m := self.FRAME.fullmatch(line)) is None:
+                self._refuse(out, "expected W w0,w1,w2,w3,w4,w5 or ?")
+            elif not all(LineProtocol.DEFAULT_FENCE_US[0] <= float(w) <= LineProtocol.DEFAULT_FENCE_US[1]
+                         for w in m.groups()):  # fmt: skip
+                self._refuse(out, "pulse outside the fence")
+            else:
+                out.messages += 1
+                out.targets += [(c, float(w)) for c, w in zip(self._channels, m.groups())]
 
+    @staticmethod
+    def _refuse(out: Parsed, message: str) -> None:
+        out.malformed += 1
+        out.replies.append(f"E {message}\n".encode())
 
 #: A board-side parser of a protocol's bytes: made from the board's channels (servo k's channel is ``channels[k]``),
 #: ``position(channel, pending)`` (what a position query answers) and ``home()`` (what a "go home" command does).
@@ -637,7 +650,8 @@ class VirtualDevice:
         nothing."""
         f = self.faults
         if since is None and now - self._last_ready >= 0.25:
-            self._send(f"{LineProtocol.READY}\n".encode(), now)
+            lo, hi = LineProtocol.DEFAULT_FENCE_US
+            self._send(f"{LineProtocol.READY} {lo:g},{hi:g}\n".encode(), now)
             self._last_ready = now
         if f.stall_sensor_after_s is not None and since is not None and since >= f.stall_sensor_after_s:
             return

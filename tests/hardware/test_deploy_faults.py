@@ -247,7 +247,7 @@ def test_a_run_without_valid_readings_fails(bad: bytes, device: FakeDevice, tmp_
 
 @covers("garbage")
 def test_garbage_after_ready_is_ignored(device: FakeDevice, tmp_path: Path) -> None:
-    noise = [b"\x00\xff\xfe garbage\n", b"B 12.0\n", b"Bx 1,2\n", b"ready\n", b"P 1,2,3\n", b"E junk\n"]
+    noise = [b"\x00\xff\xfe garbage\n", b"B 12.0\n", b"Bx 1,2\n", b"ready\n", b"P 1,2,3\n", b"Ex junk\n"]
     good = b"B 40.0,-20.0\n"
     board = Board(device, "line", lines=lambda t: noise[int(t * 100) % len(noise)] + good)
     code, out, err, rows = run(device, "--protocol", "line", "--sensor", "panel", "--duration", "1.5", cwd=tmp_path,
@@ -452,6 +452,35 @@ def test_a_calibration_the_board_cannot_follow_is_refused_before_the_port_opens(
         assert code == 1 and says in line, line
     else:
         assert code == 2 and "no_port" in line, line
+
+
+@covers("board_refuses")
+def test_a_board_that_refuses_frames_is_a_device_failure_and_confirms_home(device: FakeDevice,
+                                                                          tmp_path: Path) -> None:  # fmt: skip
+    """From 0.5 s to 0.7 s the sketch sends an E line every 10 ms (frames garbled on the way): the run stops as a
+    device failure within a few frames, drives home, and the board, which still reads, confirms it."""
+    board = Board(device, "line", lines=lambda t: b"B 40.0,-20.0\n" + (b"E pulse outside the fence\n" if 0.5 <= t < 0.7
+                                                                       else b""))  # fmt: skip
+    code, out, err, rows = run(device, "--protocol", "line", "--sensor", "panel", "--duration", "3", cwd=tmp_path,
+                               board=board)  # fmt: skip
+    assert code == 2 and "refused 3 of the last 10 frames (pulse outside the fence)" in out, out + err
+    assert "servos homed: confirmed by the board" in out and "Traceback" not in err
+    assert 0.4 < float(rows[-1]["t_s"]) < 1.2  # stopped within a few frames of the refusals
+
+
+@covers("bad_input")
+def test_a_calibration_beyond_the_sketch_s_fence_is_refused_before_anything_moves(device: FakeDevice,
+                                                                                   tmp_path: Path) -> None:  # fmt: skip
+    """Limits of 850–2150 µs: the sketch (its ready line gives its fence, 900–2100) would refuse those frames and
+    freeze its servos. One error line naming the calibration, the servo and the fence; nothing is written."""
+    (tmp_path / "cal.toml").write_text("\n".join(f"[[servo]]\nchannel = {c}\nmin_us = 850\nmax_us = 2150"
+                                                  for c in range(6)))  # fmt: skip
+    board = Board(device, "line")
+    code, out, err, _ = run(device, "--calibration", "cal.toml", "--protocol", "line", "--sensor", "panel",
+                            "--duration", "1", cwd=tmp_path, board=board)  # fmt: skip
+    line = one_error_line(err)
+    assert code == 1 and "cal.toml: servo 0's limits 850–2150 µs leave the board's fence, 900–2100 µs" in line, line
+    assert board.frames == [] and b"W " not in board.data
 
 
 @pytest.mark.parametrize("options,says", [

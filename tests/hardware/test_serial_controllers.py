@@ -122,6 +122,53 @@ def test_line_controller_takes_a_board_that_did_not_reset(device: FakeDevice) ->
     ctl.close()
 
 
+def test_a_sketch_without_its_pca9685_is_named_before_anything_is_sent(device: FakeDevice) -> None:
+    threading.Timer(0.2, device.write, args=(b"E no PCA9685 at I2C address 0x40: check its wiring and power\n",)).start()
+    with pytest.raises(DeviceError, match=r"the board on .* says: no PCA9685 at I2C address 0x40: check its wiring"):
+        LineController(device.path, ready_timeout=3.0)
+    assert device.read_all(0.05) == b""
+
+
+def test_the_sketch_s_fence_is_checked_against_the_calibration_before_anything_is_sent(device: FakeDevice) -> None:
+    """Its ready line gives the fence; limits that leave it are refused naming the servo, the limits and the fence
+    (the sketch would refuse those frames and freeze its servos); limits within it are taken."""
+    from stewart_gym.errors import ConfigError
+    from stewart_gym.hardware.serial_controllers import open_controller
+
+    threading.Timer(0.2, device.write, args=(b"ready 1000,2000\n",)).start()
+    lows, highs = [1100.0] * 6, [1900.0] * 6
+    highs[3] = 2050.0
+    with pytest.raises(ConfigError, match=r"^cal.toml: servo 3's limits 1100–2050 µs leave the board's fence, "
+                                          r"1000–2000 µs .*widen SERVO_MIN_US and SERVO_MAX_US in the sketch"):  # fmt: skip
+        open_controller("line", device.path, range(6), limits=(lows, highs), source="cal.toml")
+    assert device.read_all(0.05) == b""
+    threading.Timer(0.2, device.write, args=(b"ready\n",)).start()  # a sketch that gives no fence: 900–2100
+    ctl = open_controller("line", device.path, range(6), limits=(lows, highs))
+    assert ctl.fence_us == (900.0, 2100.0)
+    ctl.close()
+
+
+def test_frames_the_sketch_refuses_again_and_again_are_a_device_failure(device: FakeDevice) -> None:
+    """One refused frame (a line garbled on the way) is let go; 3 of the last 10 mean its servos are frozen."""
+    threading.Timer(0.2, device.write, args=(b"ready 900,2100\n",)).start()
+    ctl = LineController(device.path, ready_timeout=3.0)
+    for _ in range(10):
+        ctl.send(PULSES)
+    device.write(b"E pulse outside the fence\n")
+    ctl.wait_until(time.monotonic() + 0.1)  # read and let go
+    for _ in range(10):
+        ctl.send(PULSES)
+    device.write(b"E pulse outside the fence\nE pulse outside the fence\n")
+    ctl.wait_until(time.monotonic() + 0.1)  # 2 of the last 10: let go too (the first was 10 frames before)
+    for _ in range(3):
+        ctl.send(PULSES)
+    device.write(b"E pulse outside the fence\n")
+    time.sleep(0.1)
+    with pytest.raises(DeviceError, match=r"refused 3 of the last 10 frames \(pulse outside the fence\): its servos"):
+        ctl.wait_until(time.monotonic() + 0.1)
+    ctl.close()
+
+
 @pytest.mark.skipif(sys.platform == "win32", reason="termios is POSIX-only")
 def test_a_port_that_fails_in_flush_is_a_device_error() -> None:
     """pyserial's flush() is tcdrain(): on a pty whose other end went away it raises termios.error, not OSError."""

@@ -87,7 +87,8 @@ def test_no_bytes_move_a_servo_outside_its_limits(data: bytes, protocol: str) ->
               "ssc32": SSC32Parser(lambda c, pending=None: 1500.0),
               "line": LineParser(cal.channels)}[protocol]  # fmt: skip
     extreme = {"maestro": b"".join(Maestro.set_target(c, 500 if c % 2 else 2500) for c in range(6)),
-               "ssc32": SSC32.group_move(range(6), [500, 2500] * 3), "line": b"W 500,2500,500,2500,500,2500\n"}
+               "ssc32": SSC32.group_move(range(6), [500, 2500] * 3),
+               "line": b"W 900,2100,900,2100,900,2100\n"}  # (the line protocol's: the sketch's fence)
     end = {"maestro": b"", "ssc32": b"\r", "line": b"\n"}[protocol]  # garbage before a terminator is one bad line
     out = Parsed()
     parser.feed(data + end + extreme[protocol] + data, out)
