@@ -46,6 +46,10 @@ DEPLOY_BEHAVIOUR: tuple[Behaviour, ...] = (
     Behaviour("board_refuses", "the sketch refuses frames (`E …`: a garbled line, a pulse outside its fence)",
               "one now and then is let go; 3 of the last 10 frames refused is a device failure (its servos would "
               "hold their pose): the run drives home and the board is asked to confirm it", "2"),
+    Behaviour("held_elsewhere", "the board holds other pulses than home at the start (it did not reset, and a "
+              "run that crashed left its servos there)",
+              "the first frames move from where it holds them at the rate limit, not straight home; deploy says "
+              "so (a channel that is off, or outside its limits, starts from home)", "0"),
     Behaviour("board_silent", "the board does not answer the first position query (replies not wired, an old "
               "sketch)", "refused before anything moves; `--write-only` runs without asking (homing is then "
               "*sent, not confirmed*)", "2"),

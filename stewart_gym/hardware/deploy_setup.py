@@ -252,8 +252,11 @@ class DeploySetup:
                                          self.options.calibration or "the default calibration")  # fmt: skip
             if isinstance(controller, LineController):
                 sensor = sensor or PanelSensor(controller)
+            held = None  # the pulses the board says it holds now
             if not self.options.write_only:
-                if not controller.probe(max(1.0, self.options.answer_timeout_s)):
+                timeout = max(1.0, self.options.answer_timeout_s)
+                held = next((h for h in (controller.held_pulses(timeout) for _ in range(3)) if h is not None), None)
+                if held is None:
                     hint = ("flash arduino/stewart_pca9685 of this version, which answers '?'"
                             if self.protocol == "line" else "check that its TX line is wired to this computer")
                     raise DeviceError(f"the board on {self.port} did not answer a position query: {hint}; if its "
@@ -264,6 +267,14 @@ class DeploySetup:
                 self.say(f"tracking a {getattr(self.task, 'current_trajectory', 'moving')} target ({self.policy.env_id})")
             plant = sensor if isinstance(sensor, SimulatedPlant) else None
             loop = DeployLoop(self.policy, self.mapper, controller, sensor, self.config, self.task.target, plant=plant)
+            cal = self.calibration
+            if held is not None and np.all((held >= cal.min_us) & (held <= cal.max_us)) and not np.allclose(
+                    held, loop.safety.home, atol=controller.resolution_us + 0.5):  # fmt: skip
+                # servos held elsewhere (a board that did not reset): the first frames start from there, rate-limited
+                # (a channel off, 0, or outside its limits: where the servo is is not known, and home is the start)
+                loop.safety.reset(held)
+                self.say(f"the board holds {', '.join(f'{w:.0f}' for w in held)} µs: the first frames move from "
+                         "there at the rate limit")  # fmt: skip
         except BaseException:
             for part in (controller, sensor):
                 close = getattr(part, "close", None)

@@ -454,6 +454,21 @@ def test_a_calibration_the_board_cannot_follow_is_refused_before_the_port_opens(
         assert code == 2 and "no_port" in line, line
 
 
+@covers("held_elsewhere")
+def test_servos_held_elsewhere_start_from_where_they_are_at_the_rate_limit(device: FakeDevice,
+                                                                            tmp_path: Path) -> None:  # fmt: skip
+    """A Maestro that did not reset holds 1300 µs on every channel (a run that crashed left them there): the first
+    frames move from 1300 at the rate limit (60 µs a tick), not straight to home, and deploy says so."""
+    board = Board(device)
+    board.held.update({c: 1300.0 for c in range(6)})
+    code, out, err, _ = run(device, "--duration", "1", cwd=tmp_path, board=board)
+    assert code == 0, out + err
+    assert "the board holds 1300, 1300, 1300, 1300, 1300, 1300 µs: the first frames move from there" in out
+    frames = np.array(board.frames)
+    assert np.all(np.abs(frames[0] - 1300.0) <= 60.5), frames[0]
+    assert np.all(np.abs(np.diff(frames, axis=0)) <= 60.5)
+
+
 @covers("board_refuses")
 def test_a_board_that_refuses_frames_is_a_device_failure_and_confirms_home(device: FakeDevice,
                                                                           tmp_path: Path) -> None:  # fmt: skip
