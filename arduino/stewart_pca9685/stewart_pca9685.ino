@@ -26,12 +26,13 @@
 const uint8_t PCA9685_ADDRESS = 0x40;  // A0…A5 address jumpers open
 // The PCA9685's internal oscillator runs at 23–27 MHz from chip to chip, and every pulse scales with it. Measure
 // it: with this sketch running, measure the servo signal's frequency f on any channel (a multimeter's Hz range,
-// or a scope); your chip's oscillator is OSCILLATOR_HZ × f / 50. Set that here and flash again.
+// or a scope); your chip's oscillator is f × 4096 × (PRESCALE + 1), f × 499,712 at the prescale of 121. Set that
+// here and flash again.
 const long OSCILLATOR_HZ = 25000000L;
 const long FRAME_HZ = 50;  // one servo pulse every 20 ms
 const uint8_t PRESCALE = (OSCILLATOR_HZ + 4096L * FRAME_HZ / 2) / (4096L * FRAME_HZ) - 1;  // 121 at 25 MHz
 
-const int SERVO_MIN_US = 900;  // hard fence, µs (the host calibration is narrower: 1100…1900 by default)
+const int SERVO_MIN_US = 900;  // hard fence, µs (the host refuses a calibration whose limits leave it)
 const int SERVO_MAX_US = 2100;
 const int HOME_US = 1500;
 int heldUs[6] = {HOME_US, HOME_US, HOME_US, HOME_US, HOME_US, HOME_US};  // what the servos were last sent
@@ -47,7 +48,7 @@ const unsigned long PANEL_PERIOD_US = 10000;  // 100 Hz
 
 char line[64];
 byte lineLen = 0;
-bool lineTooLong = false;
+const char *lineFault = 0;  // why the line being read cannot be taken (too long, a NUL in it), or 0
 unsigned long lastPanel = 0;
 
 bool pcaAnswers() {
@@ -60,6 +61,15 @@ void pcaWrite(uint8_t reg, uint8_t value) {
   Wire.write(reg);
   Wire.write(value);
   Wire.endTransmission();
+}
+
+uint8_t pcaRead(uint8_t reg) {  // 0x10 (asleep) where it does not answer: set up again, then refused
+  Wire.beginTransmission(PCA9685_ADDRESS);
+  Wire.write(reg);
+  if (Wire.endTransmission() != 0 || Wire.requestFrom(PCA9685_ADDRESS, (uint8_t)1) != 1) {
+    return 0x10;
+  }
+  return Wire.read();
 }
 
 void pcaSetup() {
@@ -76,7 +86,12 @@ unsigned int ticksOf(int us) {
   return (unsigned int)(((long)us * (OSCILLATOR_HZ / 1000L) + perTick / 2) / perTick);
 }
 
-void writeServos(const int us[6]) {
+// The six channels in one transaction; false (nothing held changed) if the PCA9685 did not take it.
+bool writeServos(const int us[6]) {
+  if (pcaRead(0x00) & 0x10) {  // MODE1 asleep: it was reset (its power dipped) and lost its setup
+    Serial.println("E PCA9685 had reset (its power dipped?): set up again");
+    pcaSetup();
+  }
   Wire.beginTransmission(PCA9685_ADDRESS);
   Wire.write(0x06);  // LED0_ON_L, then 4 bytes a channel (ON low, ON high, OFF low, OFF high) for channels 0…5
   for (int i = 0; i < 6; i++) {
@@ -86,10 +101,14 @@ void writeServos(const int us[6]) {
     Wire.write(off & 0xFF);
     Wire.write(off >> 8);
   }
-  Wire.endTransmission();
+  if (Wire.endTransmission() != 0) {
+    Serial.println("E PCA9685 did not take the frame (I2C error)");
+    return false;
+  }
   for (int i = 0; i < 6; i++) {
     heldUs[i] = us[i];
   }
+  return true;
 }
 
 void reportHeld() {
@@ -179,8 +198,12 @@ bool parseFrame(const char *s, int us[6]) {
 
 void handleLine() {
   line[lineLen] = 0;
-  if (lineTooLong) {
-    Serial.println("E line too long");
+  if (lineFault) {
+    Serial.print("E ");
+    Serial.println(lineFault);
+    return;
+  }
+  if (lineLen == 0) {  // an empty line ends a half line left by an earlier connection: nothing to say
     return;
   }
   if (line[0] == '?' && line[1] == 0) {
@@ -205,6 +228,7 @@ void setup() {
   Serial.begin(115200);
   Wire.begin();
   Wire.setClock(400000);
+  Wire.setWireTimeout(3000, true);  // a stuck bus ends a transaction with an error after 3 ms, not a hang
   releasePanel();
   while (!pcaAnswers()) {
     Serial.println("E no PCA9685 at I2C address 0x40: check its wiring and power");
@@ -224,12 +248,14 @@ void loop() {
     if (c == '\n') {
       handleLine();
       lineLen = 0;
-      lineTooLong = false;
+      lineFault = 0;
+    } else if (c == 0) {
+      lineFault = "NUL in line";
     } else if (c != '\r') {
       if (lineLen < sizeof(line) - 1) {
         line[lineLen++] = c;
       } else {
-        lineTooLong = true;
+        lineFault = "line too long";
       }
     }
   }

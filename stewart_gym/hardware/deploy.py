@@ -461,6 +461,7 @@ class DeployLoop:
         the port or the board failed (``port_failed``), the home frames are tried all the same, without asking the
         board anything."""
         deadline = time.monotonic() + self.config.home_timeout_s
+        self.controller.fail_on_refusals = False  # the board's answer says whether the servos got home
         failed = port_failed
         if failed:
             self.controller.monitoring = False

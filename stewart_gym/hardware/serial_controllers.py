@@ -75,6 +75,9 @@ class ServoController(ABC):
     #: outside them, so a calibration whose limits leave them is refused before anything moves
     #: (:func:`open_controller`); None where the board does not say
     fence_us: tuple[float, float] | None = None
+    #: whether frames the board refuses again and again raise :class:`BoardRefused` (the loop's rule; the drive
+    #: home turns it off, and the board's answer to the position query then says whether the servos got home)
+    fail_on_refusals = True
 
     def __init__(self, port: str | serial.Serial, channels: Sequence[int] = range(6), baudrate: int | None = None,
                  timeout: float = 0.05) -> None:  # fmt: skip
@@ -372,6 +375,8 @@ class LineController(ServoController):
         self.fence_us = LineProtocol.DEFAULT_FENCE_US  # until its ready line says
         self._refused_at: list[int] = []  # frames_sent when each of the last refusals came
         self._refusals_reported = False  # (once: the run then ends, and the board's answers confirm its home)
+        self._asked_first = False  # whether it asked '?' for want of a ready line
+        self._said: str | None = None  # the refusal that came before the answer to that '?'
         try:
             if self._wait_ready(ready_timeout):
                 return
@@ -380,18 +385,23 @@ class LineController(ServoController):
             raise
         self.close()
         raise DeviceError(f"no '{LineProtocol.READY}' line from {self.serial.port} within {ready_timeout} s, and no "
-                          "answer to '?' (wrong port, wrong sketch or wrong baud rate?)")  # fmt: skip
+                          "answer to '?' (wrong port, wrong sketch or wrong baud rate?)"
+                          + (f"; it said: {self._said}" if self._said else ""))  # fmt: skip
 
     def _wait_ready(self, ready_timeout: float) -> bool:
         """Whether the sketch said ``ready`` within ``ready_timeout`` s, or else answered a ``?``; an ``E`` line
-        meanwhile (no PCA9685 on the bus) is a :class:`DeviceError` saying what the board says."""
+        before that (no PCA9685 on the bus) is a :class:`DeviceError` saying what the board says, and one after the
+        ``?`` is kept for the error where no answer comes."""
         deadline = time.monotonic() + ready_timeout
         while time.monotonic() < deadline:
             self._pump()
             if self._ready:
                 return True
             time.sleep(0.01)
-        self._write(LineProtocol.QUERY)  # no reset on open: a running sketch answers
+        # no reset on open: a running sketch answers. A line end first, for a half line an earlier connection left
+        # in its buffer: a refusal before the answer is that half line's, not this connection's
+        self._write(b"\n" + LineProtocol.QUERY)
+        self._asked_first = True
         deadline = time.monotonic() + self.QUERY_TIMEOUT_S
         while time.monotonic() < deadline:
             self._pump()
@@ -442,10 +452,13 @@ class LineController(ServoController):
         (once: the frames refused after it, still on their way, are the run's end's, which the board's answer to
         the position query confirms or not)."""
         if not self._ready:
+            if self._asked_first:  # kept, for the error if no answer comes
+                self._said = message
+                return
             raise DeviceError(f"the board on {self.serial.port} says: {message}")
         self._refused_at = [n for n in self._refused_at if n > self.frames_sent - self.REFUSAL_WINDOW]
         self._refused_at.append(self.frames_sent)
-        if len(self._refused_at) >= self.MAX_REFUSALS and not self._refusals_reported:
+        if len(self._refused_at) >= self.MAX_REFUSALS and self.fail_on_refusals and not self._refusals_reported:
             self._refusals_reported = True
             raise BoardRefused(f"the board on {self.serial.port} refused {self.MAX_REFUSALS} of the last "
                               f"{self.REFUSAL_WINDOW} frames ({message}): its servos hold the last pose it took")

@@ -243,6 +243,10 @@ class LineParser:
             line = raw.replace(b"\r", b"").decode("ascii", "replace")
             if len(line) > self.MAX_LINE:
                 self._refuse(out, "line too long")
+            elif "\0" in line:
+                self._refuse(out, "NUL in line")
+            elif not line:  # the end of a half line an earlier connection left: nothing to say
+                continue
             elif line == "?" and self._position is not None:
                 out.messages += 1
                 held = ",".join(str(int(round(self._position(c, out.latest(c))))) for c in self._channels)

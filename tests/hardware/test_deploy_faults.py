@@ -483,6 +483,18 @@ def test_a_board_that_refuses_frames_is_a_device_failure_and_confirms_home(devic
     assert 0.4 < float(rows[-1]["t_s"]) < 1.2  # stopped within a few frames of the refusals
 
 
+def test_refusals_that_come_while_the_servos_go_home_leave_the_board_to_confirm_it(device: FakeDevice,
+                                                                                     tmp_path: Path) -> None:  # fmt: skip
+    """E lines from 1 s on in a 1 s run: they come during the drive home and the question that confirms it; the
+    drive goes on, and the board's answer, home, confirms it."""
+    board = Board(device, "line", lines=lambda t: b"B 40.0,-20.0\n" + (b"E pulse outside the fence\n" if t >= 1.0
+                                                                       else b""))  # fmt: skip
+    code, out, err, _ = run(device, "--protocol", "line", "--sensor", "panel", "--duration", "1", cwd=tmp_path,
+                            board=board)  # fmt: skip
+    assert "servos homed: confirmed by the board" in out and "Traceback" not in err, out + err
+    assert code == 0, out  # the run had ended
+
+
 @covers("bad_input")
 def test_a_calibration_beyond_the_sketch_s_fence_is_refused_before_anything_moves(device: FakeDevice,
                                                                                    tmp_path: Path) -> None:  # fmt: skip
