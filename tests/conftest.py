@@ -262,6 +262,7 @@ class Board:
                  answer_offset_us: float = 0.0, lose_home_frames: int = 0) -> None:  # fmt: skip
         self.lose_home_frames, self.lost_frames = lose_home_frames, 0
         self._moved = False  # whether a frame has gone more than 5 µs from home
+        from stewart_gym.hardware.protocols import LineProtocol
         from stewart_gym.hardware.virtual_device import PARSERS, Parsed
 
         self.device, self.protocol, self.lines, self.answer = device, protocol, lines, answer
@@ -275,6 +276,7 @@ class Board:
         self._parsed_type = Parsed
         position = self._position
         self.parser = PARSERS[protocol](range(6), position, lambda: None)
+        self._ready_line = LineProtocol.ready()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -326,7 +328,7 @@ class Board:
                         self._write(reply)
             if self.protocol == "line":
                 if now - last_ready >= 0.2:  # as after each reset (a host opening the port resets an Uno)
-                    self._write(b"ready 900,2100\n")
+                    self._write(self._ready_line)
                     last_ready = now
                 if self.lines is not None and now - start >= 0.0:
                     line = self.lines(0.0 if since is None else since)

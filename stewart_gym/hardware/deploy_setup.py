@@ -254,8 +254,7 @@ class DeploySetup:
                 sensor = sensor or PanelSensor(controller)
             held = None  # the pulses the board says it holds now
             if not self.options.write_only:
-                timeout = max(1.0, self.options.answer_timeout_s)
-                held = next((h for h in (controller.held_pulses(timeout) for _ in range(3)) if h is not None), None)
+                held = controller.held_pulses(max(1.0, self.options.answer_timeout_s), attempts=3)
                 if held is None:
                     hint = ("flash arduino/stewart_pca9685 of this version, which answers '?'"
                             if self.protocol == "line" else "check that its TX line is wired to this computer")
@@ -267,7 +266,6 @@ class DeploySetup:
                 self.say(f"tracking a {getattr(self.task, 'current_trajectory', 'moving')} target ({self.policy.env_id})")
             plant = sensor if isinstance(sensor, SimulatedPlant) else None
             loop = DeployLoop(self.policy, self.mapper, controller, sensor, self.config, self.task.target, plant=plant)
-            cal = self.calibration
             if held is not None and np.all((held >= cal.min_us) & (held <= cal.max_us)) and not np.allclose(
                     held, loop.safety.home, atol=controller.resolution_us + 0.5):  # fmt: skip
                 # servos held elsewhere (a board that did not reset): the first frames start from there, rate-limited

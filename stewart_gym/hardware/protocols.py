@@ -163,6 +163,11 @@ class LineProtocol:
         return values if len(values) == 6 else None
 
     @staticmethod
+    def ready(fence_us: tuple[float, float] = DEFAULT_FENCE_US) -> bytes:
+        """The sketch's line after a reset, with its fence: ``ready 900,2100\\n``."""
+        return f"{LineProtocol.READY} {fence_us[0]:g},{fence_us[1]:g}\n".encode("ascii")
+
+    @staticmethod
     def parse_ready(line: str) -> tuple[float, float] | None:
         """``ready lo,hi`` (sent once after a reset, with the sketch's fence in µs) → (lo, hi); a bare ``ready``
         → :attr:`DEFAULT_FENCE_US`; ``None`` for any other line."""

@@ -182,14 +182,14 @@ class ServoController(ABC):
         self.answer_timeout_s = float(timeout_s)
         self.monitoring = True
 
-    def probe(self, timeout_s: float = 1.0, attempts: int = 3) -> bool:
-        """Whether the board answers a position query within ``timeout_s`` (``attempts`` tries): its replies are
-        wired and it reads."""
-        return any(self.held_pulses(timeout_s) is not None for _ in range(attempts))
-
-    def held_pulses(self, timeout_s: float = 0.5) -> np.ndarray | None:
-        """The six pulses (µs) the board says it holds now, or None if it did not answer within ``timeout_s``.
-        A question already in flight is answered first (or given up, and the bytes received so far dropped)."""
+    def held_pulses(self, timeout_s: float = 0.5, attempts: int = 1) -> np.ndarray | None:
+        """The six pulses (µs) the board says it holds now, or None if it did not answer within ``timeout_s``, asked
+        up to ``attempts`` times. A question already in flight is answered first (or given up, and the bytes
+        received so far dropped)."""
+        for _ in range(attempts - 1):
+            held = self.held_pulses(timeout_s)
+            if held is not None:
+                return held
         deadline = time.monotonic() + timeout_s
         while self._asked_at is not None and time.monotonic() < deadline:
             self._collect(time.monotonic())

@@ -239,6 +239,7 @@ class LineParser:
         *lines, self._buffer = self._buffer.split(b"\n")
         if len(self._buffer) > 512:
             self._buffer, out.malformed = b"", out.malformed + 1
+        lo, hi = LineProtocol.DEFAULT_FENCE_US
         for raw in lines:
             line = raw.replace(b"\r", b"").decode("ascii", "replace")
             if len(line) > self.MAX_LINE:
@@ -253,8 +254,7 @@ class LineParser:
                 out.replies.append(f"P {held}\n".encode())
             elif (m := self.FRAME.fullmatch(line)) is None:
                 self._refuse(out, "expected W w0,w1,w2,w3,w4,w5 or ?")
-            elif not all(LineProtocol.DEFAULT_FENCE_US[0] <= float(w) <= LineProtocol.DEFAULT_FENCE_US[1]
-                         for w in m.groups()):  # fmt: skip
+            elif not all(lo <= float(w) <= hi for w in m.groups()):
                 self._refuse(out, "pulse outside the fence")
             else:
                 out.messages += 1
@@ -264,6 +264,7 @@ class LineParser:
     def _refuse(out: Parsed, message: str) -> None:
         out.malformed += 1
         out.replies.append(f"E {message}\n".encode())
+
 
 #: A board-side parser of a protocol's bytes: made from the board's channels (servo k's channel is ``channels[k]``),
 #: ``position(channel, pending)`` (what a position query answers) and ``home()`` (what a "go home" command does).
@@ -654,8 +655,7 @@ class VirtualDevice:
         nothing."""
         f = self.faults
         if since is None and now - self._last_ready >= 0.25:
-            lo, hi = LineProtocol.DEFAULT_FENCE_US
-            self._send(f"{LineProtocol.READY} {lo:g},{hi:g}\n".encode(), now)
+            self._send(LineProtocol.ready(), now)
             self._last_ready = now
         if f.stall_sensor_after_s is not None and since is not None and since >= f.stall_sensor_after_s:
             return

@@ -85,6 +85,7 @@ def test_it_sets_up_the_pca9685_goes_to_neutral_and_says_ready_with_its_fence(sk
                         [0x40, 0x06, *channel_bytes([1500] * 6)]]  # fmt: skip
     assert "ready 900,2100" in out and "#CLOCK 400000" in out
     assert LineProtocol.parse_ready("ready 900,2100") == (900.0, 2100.0)
+    assert LineProtocol.ready().decode().rstrip() in out  # the line the virtual board sends too
 
 
 def test_a_frame_moves_all_six_servos_in_one_transaction_and_the_answer_echoes_it(sketch: Path) -> None:
