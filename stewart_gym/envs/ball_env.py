@@ -3,10 +3,12 @@ the action mapping and a task (panda-gym's Robot/Task/RobotTaskEnv split)."""
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 import sys
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import gymnasium as gym
@@ -75,6 +77,19 @@ def sensor_model(spec: TouchPanelSpec | CameraSpec | tuple,
     if isinstance(spec, CameraSpec):
         return SimulatedCamera(spec, ball_radius)
     return SimulatedTouchPanel(spec)
+
+
+@dataclass(frozen=True)
+class EpisodeReplay:
+    """What a copy of an env replays of its episode (:meth:`StewartBallEnv.__deepcopy__`): the generator's state at
+    the reset, the reset's options (a copy), the actions taken since, and the start box and the task as they were at
+    the reset (a copy)."""
+
+    draws: dict
+    options: Any
+    actions: list[np.ndarray]
+    start_fraction: float
+    task: Any
 
 
 def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
@@ -301,7 +316,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.observation_space = self.observer.builder.space
         self.sensor_model = sensor_model(self.nominal_sensor, self.nominal_ball.radius)
         self._plate_top = self.sim.plate_top
-        self._episode: tuple[dict, Any, list[np.ndarray]] | None = None
+        self._episode: EpisodeReplay | None = None
         self._last_obs = np.zeros(self.observation_space.shape, dtype=np.float32)  # the last observation returned
         self._reset_episode_state()
 
@@ -398,9 +413,10 @@ class StewartBallEnv(gym.Env, EzPickle):
         episode and what a copy replays are as they were."""
         checked = self._check_options(options)
         super().reset(seed=seed)
-        #: what a copy replays (:meth:`__deepcopy__`): the generator's state now, the options, the actions since;
-        #: None on a backend object (such an env cannot be copied)
-        self._episode = None if self._engine is None else (self.np_random.bit_generator.state, options, [])
+        #: what a copy replays (:meth:`__deepcopy__`); None on a backend object (such an env cannot be copied)
+        self._episode = None if self._engine is None else EpisodeReplay(
+            self.np_random.bit_generator.state, copy.deepcopy(options), [], self.START_FRACTION,
+            copy.deepcopy(self.task, {id(self.sim): self.sim}))  # fmt: skip
         if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
             self._reopen()
         return checked
@@ -526,7 +542,7 @@ class StewartBallEnv(gym.Env, EzPickle):
                 raise ValueError(f"an action must be real numbers, got an array of {values.dtype}")
         mapped = self.mapper(action)
         if self._episode is not None:
-            self._episode[2].append(np.array(action, copy=True))
+            self._episode.actions.append(np.array(action, copy=True))
         self.task.before_step(self.sim.time, self.sim)
         self.sim.command(mapped.pulses)
         return mapped
@@ -574,8 +590,11 @@ class StewartBallEnv(gym.Env, EzPickle):
 
     def __deepcopy__(self, memo: dict) -> StewartBallEnv:
         """An independent env in the same state, mid-episode included: a new env made with the same arguments,
-        its own engine, which replays this episode (the same random draws from the reset on, then each action
-        taken since), so that from here both step alike, to the last bit. Before the first reset: a new env.
+        its own engine, which replays this episode (the same random draws from the reset on, with the start box
+        and the task as they were at the reset, then each action taken since), so that from here both step alike,
+        to the last bit. The copy then takes this env's task, start box (:attr:`START_FRACTION`) and generator as
+        they are now: settings a curriculum changed, and draws taken from :attr:`np_random` by others, carry over.
+        Before the first reset: a new env with this env's task, start box and generator.
 
         An env made on a backend object (``backend=`` a simulator, as each copy of the batched vector env is) has no
         engine of its own to copy: a ``TypeError`` says so."""
@@ -584,14 +603,27 @@ class StewartBallEnv(gym.Env, EzPickle):
                             "which a copy would share; make the copy with gym.make(id, backend=...) by name")  # fmt: skip
         twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
         memo[id(self)] = twin
+        shared = {id(self.sim): twin.sim}  # a task that holds the engine holds the copy's
         if self._episode is not None:
-            draws, options, actions = self._episode
+            replay = self._episode
             generator = np.random.Generator(type(self.np_random.bit_generator)())
-            generator.bit_generator.state = draws
+            generator.bit_generator.state = replay.draws
             twin.np_random = generator
-            twin.reset(options=options)
-            for action in actions:
+            twin.START_FRACTION = replay.start_fraction
+            twin.task = copy.deepcopy(replay.task, shared)
+            twin.reset(options=copy.deepcopy(replay.options))
+            for action in replay.actions:
                 twin.step(action)
+        if self._np_random is not None:  # (in place: the copy's sensor draws from this generator)
+            if twin._np_random is None:
+                twin.np_random = np.random.Generator(type(self._np_random.bit_generator)())
+            twin.np_random.bit_generator.state = self._np_random.bit_generator.state
+            twin._np_random_seed = self._np_random_seed
+        twin.task = copy.deepcopy(self.task, shared)
+        if "START_FRACTION" in vars(self):
+            twin.START_FRACTION = self.START_FRACTION
+        else:
+            vars(twin).pop("START_FRACTION", None)
         return twin
 
     def close(self) -> None:

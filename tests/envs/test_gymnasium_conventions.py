@@ -57,6 +57,60 @@ def test_a_deepcopy_mid_episode_steps_as_the_original(env_id: str, backend: str)
         twin.close()
 
 
+def test_a_deepcopy_keeps_what_was_changed_on_the_env_its_generator_and_its_own_options() -> None:
+    """What a copy replays is what the episode had: a start box and a reward scale set on the live env (as the
+    curriculum sets them) before the reset, reset options the caller changes afterwards, and a draw taken from the
+    env's generator by someone else; the copy steps and resets as the original, to the last bit, and says the
+    same seed."""
+    env = gym.make("StewartBallBalance-v0", backend="mujoco")
+    try:
+        env.unwrapped.START_FRACTION = 0.1
+        env.unwrapped.task.near_scale = 0.005
+        where = {"ball_velocity": [0.05, 0.0]}
+        env.reset(seed=0, options=where)
+        where["ball_velocity"][0] = -0.05  # the caller's dict, changed after the reset
+        for _ in range(3):
+            env.step(np.zeros(2, dtype=np.float32))
+        env.unwrapped.np_random.random()  # a draw by someone else
+        env.unwrapped.task.near_scale = 0.004  # changed mid-episode: the copy takes it too
+        twin = copy.deepcopy(env)
+        try:
+            assert twin.unwrapped.START_FRACTION == 0.1 and twin.unwrapped.task.near_scale == 0.004
+            assert twin.unwrapped.np_random_seed == env.unwrapped.np_random_seed == 0
+            for _ in range(5):
+                a, b = env.step(np.full(2, 0.2, dtype=np.float32)), twin.step(np.full(2, 0.2, dtype=np.float32))
+                assert np.array_equal(a[0], b[0]) and a[1] == b[1], (a[4]["ball_xy_m"], b[4]["ball_xy_m"])
+            assert np.array_equal(env.reset()[0], twin.reset()[0])  # the generators agree
+            assert np.max(np.abs(env.unwrapped.sim.ball_position()[:2])) <= 0.1 * 0.15 + 1e-9  # the small start box
+        finally:
+            twin.close()
+    finally:
+        env.close()
+
+
+def test_a_deepcopy_replays_the_episode_with_the_task_it_had_at_the_reset() -> None:
+    """Pushes drawn at the reset with a push size set on the live task, which is set back after the first push: a
+    copy made then has had the push the original had (its ball moves on as the original's), and its task has the
+    push size of now."""
+    env = gym.make("StewartBallDisturbance-v0", backend="mujoco")
+    try:
+        env.unwrapped.task.push_impulse = (0.012, 0.012)
+        env.reset(seed=3, options={"ball_position": [0.0, 0.0], "ball_velocity": [0.0, 0.0]})
+        while env.step(np.zeros(2, dtype=np.float32))[4]["pushes"] == 0:  # the first push comes 1 to 2 s in
+            pass
+        env.unwrapped.task.push_impulse = (0.003, 0.010)
+        twin = copy.deepcopy(env)
+        try:
+            assert twin.unwrapped.task.push_impulse == (0.003, 0.010)
+            for _ in range(5):
+                a, b = env.step(np.zeros(2, dtype=np.float32)), twin.step(np.zeros(2, dtype=np.float32))
+                assert np.array_equal(a[4]["ball_xy_m"], b[4]["ball_xy_m"]) and a[1:4] == b[1:4]
+        finally:
+            twin.close()
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_close_then_reset_starts_the_engine_again(backend: str) -> None:
     env = gym.make("StewartBallBalance-v0", backend=backend)
