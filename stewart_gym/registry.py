@@ -40,6 +40,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -541,26 +542,55 @@ def _classical_meta(source: PolicySource) -> dict[str, Any]:
 BUNDLE_FILES = ("bundle.json", "policy.onnx", "policy.onnx.data")
 
 
-def export_policy(source: PolicySource, out_dir: str | Path) -> Path:
-    """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder."""
-    from stewart_gym.hardware.export import export_bundle_copy, export_sb3
+def export_policy(source: PolicySource, out_dir: str | Path, overwrite: bool = False) -> Path:
+    """Write ``source`` as a bundle folder (ONNX + JSON, or the PID's gains) and return the folder. A folder that
+    holds a bundle already is refused unless ``overwrite``; the new bundle is written beside it first and takes
+    its place only once whole (a file of the old one that the new one lacks is removed), so that a refusal or a
+    failure leaves the old bundle as it was, and no new folder."""
+    import shutil
+    import tempfile
 
     out = Path(out_dir)
     other = sorted(p.name for p in out.iterdir() if p.name not in BUNDLE_FILES) if out.is_dir() else []
     if other:  # a run folder, say: a bundle.json there would take the place of its model
         raise ConfigError(f"--out {out} holds other files ({', '.join(other[:3])}{', …' if len(other) > 3 else ''}); "
-                          "export into a new or empty folder, or over an earlier bundle")  # fmt: skip
+                          "export into a new or empty folder, or over an earlier bundle (--overwrite)")  # fmt: skip
+    held = [name for name in BUNDLE_FILES if (out / name).exists()]
+    if held and not overwrite:
+        raise ConfigError(f"--out {out} holds a bundle already ({held[0]}); give --overwrite to replace it, or "
+                          "export into another folder")  # fmt: skip
+    new = [p for p in (out, *out.parents) if not p.exists()]  # the folders this export makes
+    out.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=".export-", dir=out))
+    try:
+        _write_bundle(source, work)
+        for name in BUNDLE_FILES:  # the whole new bundle takes the old one's place
+            if (work / name).exists():
+                os.replace(work / name, out / name)
+            else:
+                (out / name).unlink(missing_ok=True)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        if new:  # a refusal or a failure leaves no folder behind
+            shutil.rmtree(new[-1], ignore_errors=True)
+        raise
+    shutil.rmtree(work, ignore_errors=True)
+    return out
+
+
+def _write_bundle(source: PolicySource, out: Path) -> None:
+    """Write ``source``'s bundle files into the folder ``out``."""
+    from stewart_gym.hardware.export import export_bundle_copy, export_sb3
+
     if source.kind in CLASSICAL_KINDS:
-        meta = _classical_meta(source)
-        out.mkdir(parents=True, exist_ok=True)  # once the design is sound: a refusal leaves no folder
-        (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
-        return out
+        (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")
+        return
     if source.kind == "bundle":
-        out = export_bundle_copy(source.path, out_dir)
+        export_bundle_copy(source.path, out)
         meta = _read_json(out / "bundle.json")
         if meta.get("estimator", "lowpass") != source.estimator:  # --estimator asked for another observer
             (out / "bundle.json").write_text(json.dumps({**meta, "estimator": source.estimator}, indent=2) + "\n")
-        return out
+        return
     policy = load_policy(source)  # the model loads and its action size matches its configuration
     env_kwargs = {**source.env_kwargs, **resolved_env_kwargs(source, policy.action_size)}
-    return export_sb3(source.path, out_dir, source.env_id, env_kwargs)
+    export_sb3(source.path, out, source.env_id, env_kwargs)

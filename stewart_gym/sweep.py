@@ -343,7 +343,7 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
             tune.report(dict(last))  # scheduler stops a trial when it reaches n_timesteps
 
     metrics = train(cfg, on_eval=report)
-    bundle = export_policy(resolve_policy(str(run_dir)), run_dir / "bundle")
+    bundle = export_policy(resolve_policy(str(run_dir)), run_dir / "bundle", overwrite=True)  # (a trial run again)
     final = {**last, "timesteps": metrics["timesteps"], "wall_s": metrics["wall_time_s"],
              "env_steps_per_s": round(metrics["timesteps"] / max(metrics["wall_time_s"], 1e-3), 1),
              "best_success_rate": metrics.get("best_eval_success_rate"), "bundle": str(bundle), "finished": True}

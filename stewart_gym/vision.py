@@ -235,6 +235,10 @@ class CameraConfig:
         unknown = sorted(set(data) - set(CAMERA_CONFIG_FIELDS))
         if unknown:
             raise ConfigError(f"{path}: unknown table(s) {unknown}; known: camera, markers, ball")
+        for name in ("camera", "markers", "ball"):
+            if not isinstance(data.get(name, {}), dict):
+                raise ConfigError(f"{path}: [{name}] must be a table (a [{name}] header and its fields), got "
+                                  f"{data[name]!r}")  # fmt: skip
         cam, mk, ball = (dict(data.get(k, {})) for k in ("camera", "markers", "ball"))
         for name, table in (("camera", cam), ("markers", mk), ("ball", ball)):
             known = set(CAMERA_CONFIG_FIELDS[name])

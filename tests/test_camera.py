@@ -193,6 +193,11 @@ def test_camera_config_names_its_mistakes(tmp_path: Path) -> None:
             CameraConfig.from_toml(path)
     with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: camera.source: "):  # (the last: missing.mp4)
         CameraConfig.from_toml(path)
+    for name, value in (("camera", "3"), ("markers", "3"), ("ball", "[1]")):  # a table that is not one
+        tables = [block for block in good.split("\n\n") if not block.strip().startswith(f"[{name}]")]
+        path.write_text(f"{name} = {value}\n" + "\n\n".join(tables))
+        with pytest.raises(ConfigError, match=f"^{re.escape(str(path))}: \\[{name}\\] must be a table"):
+            CameraConfig.from_toml(path)
     (tmp_path / "v.avi").write_bytes(b"")  # a relative video path is read from the config's folder
     (tmp_path / "rel.toml").write_text(good.replace(f'source = "{tmp_path}"', 'source = "v.avi"'))
     assert CameraConfig.from_toml(tmp_path / "rel.toml").source == str(tmp_path / "v.avi")

@@ -298,7 +298,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.policy} was trained for geometry {source.geometry_label!r}, not {args.geometry!r}")
     if args.env and not named and source.env_id != args.env:
         raise ConfigError(f"{args.policy} was trained on {source.env_id}, not {args.env}; leave out --env")
-    folder = export_policy(source, out)
+    folder = export_policy(source, out, overwrite=args.overwrite)
     print(f"bundle written to {folder} ({source.env_id}, action mode {source.action_mode})")
     return EXIT_OK
 
@@ -443,7 +443,8 @@ def register(sub: Any) -> None:
     p.add_argument("--policy", default="shipped", help=POLICY_HELP)
     p.add_argument("--env", choices=ENV_CHOICES, help="which shipped policy (default balance)")
     p.add_argument("--geometry", help="which shipped policy or PID (default servo-hexapod); the bundle records it")
-    p.add_argument("--out", required=True, help="bundle folder")
+    p.add_argument("--out", required=True, help="bundle folder (new, or empty)")
+    p.add_argument("--overwrite", action="store_true", help="replace the bundle --out holds already")
     add_estimator(p, ESTIMATOR_HELP + "; the bundle records it and deploy uses it")
     p.set_defaults(func=cmd_export)
 

@@ -117,3 +117,30 @@ def test_export_pid_keeps_the_observer_its_gains_name(tmp_path: Path) -> None:
     plain = json.loads((export_pid(policies / "pid_gains.json", tmp_path / "p") / "bundle.json").read_text())
     assert (kalman["estimator"], plain["estimator"]) == ("kalman", "lowpass")
     assert "estimator" not in kalman["gains"] and kalman["gains"]["kp_pos"] == 2.0
+
+
+def test_export_keeps_a_bundle_unless_told_to_replace_it_and_replaces_it_whole(tmp_path: Path, capfd) -> None:
+    """export into a folder that holds a bundle: one error line and the bundle as it was; with --overwrite the
+    new bundle replaces it whole (a PID over a network: no policy.onnx left beside the PID's gains); a new bundle
+    that cannot be made leaves the old one, and a refused export into a new folder leaves no folder."""
+    from tests.conftest import cli
+
+    out = tmp_path / "b"
+    assert cli(capfd, "export", "--policy", "shipped", "--out", str(out))[0] == 0
+    before = {name: (out / name).read_bytes() for name in ("bundle.json", "policy.onnx")}
+    code, _, err = cli(capfd, "export", "--policy", "pid", "--out", str(out))
+    assert code == 1 and err.startswith("error: ") and "--overwrite" in err and err.count("\n") == 1, err
+    assert {name: (out / name).read_bytes() for name in before} == before
+    broken = tmp_path / "broken"  # a bundle whose network does not load: found while the new bundle is made
+    assert cli(capfd, "export", "--policy", "shipped", "--out", str(broken))[0] == 0
+    (broken / "policy.onnx").write_bytes(b"garbage")
+    code, _, err = cli(capfd, "export", "--policy", str(broken), "--out", str(out), "--overwrite")
+    assert code == 1 and "not a loadable ONNX model" in err
+    assert {name: (out / name).read_bytes() for name in before} == before
+    assert sorted(p.name for p in out.iterdir()) == ["bundle.json", "policy.onnx"]  # no half-made bundle
+    assert cli(capfd, "export", "--policy", "pid", "--out", str(out), "--overwrite")[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["bundle.json"]
+    assert json.loads((out / "bundle.json").read_text())["kind"] == "pid"
+    assert BundlePolicy(out).kind == "pid"
+    assert cli(capfd, "export", "--policy", str(broken), "--out", str(tmp_path / "new" / "c"))[0] == 1
+    assert not (tmp_path / "new").exists()

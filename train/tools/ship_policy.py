@@ -50,7 +50,7 @@ def main() -> None:
     if evaluation is not None:
         metrics["evaluation_100_seeds"] = evaluation
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
-    export_policy(resolve_policy(str(out)), out / "bundle")  # env id, action mode and geometry from config.yaml
+    export_policy(resolve_policy(str(out)), out / "bundle", overwrite=True)  # env id, action mode, geometry: config.yaml
     print(f"shipped {src} as {out}")
 
 
