@@ -220,13 +220,23 @@ class ServoCalibration:
         rate = _scalar("us_per_rad", data.get("us_per_rad", DEFAULT_US_PER_RAD))
         if "us_per_degree" in data:
             rate = _scalar("us_per_degree", data["us_per_degree"]) * 180.0 / math.pi
+        lo_rate, hi_rate = US_PER_RAD_RANGE
+        if not lo_rate <= rate <= hi_rate:
+            key = "us_per_degree" if "us_per_degree" in data else "us_per_rad"
+            scale, unit = (math.pi / 180.0, "µs/°") if key == "us_per_degree" else (1.0, "µs/rad")
+            raise CalibrationError(f"{key}: the servos' gain, {lo_rate * scale:.4g}–{hi_rate * scale:.4g} {unit} (a "
+                                   f"hobby servo's is about {DEFAULT_US_PER_RAD * scale:.4g}), got {data[key]!r}")
         neutral = _scalar("neutral_us", data.get("neutral_us", 1500.0))
-        if all("home_angle_deg" in s for s in servos):
-            home = np.radians(_per_servo(servos, "home_angle_deg", None))
-        elif geo is not None:
-            home = _home_angles(geo)
-        else:
-            raise CalibrationError("geometry: needed to compute home angles (or give servo[i].home_angle_deg)")
+        lo_us, hi_us = PULSE_LIMITS_US
+        if not lo_us <= neutral <= hi_us:
+            raise CalibrationError(f"neutral_us: the pulse at home, within {lo_us:g}–{hi_us:g} µs, got {neutral!r}")
+        given = [i for i, s in enumerate(servos) if "home_angle_deg" in s]
+        if geo is None and len(given) < 6:
+            lacking = ", ".join(f"servo[{i}]" for i in range(6) if i not in given)
+            raise CalibrationError(f"geometry: needed to compute the home angles {lacking} do not give (or give "
+                                   "home_angle_deg on every servo)")  # fmt: skip
+        geometry_home = _home_angles(geo) if geo is not None else np.zeros(6)
+        home = np.radians(_per_servo(servos, "home_angle_deg", np.degrees(geometry_home)))  # where given, each
         direction = _per_servo(servos, "direction", list(DEFAULT_DIRECTIONS))
         wrong = [i for i, d in enumerate(direction) if d not in (-1.0, 1.0)]
         if wrong:
@@ -237,6 +247,11 @@ class ServoCalibration:
             raise CalibrationError(f"servo[{far[0]}].home_angle_deg: the horn's angle at home, within ±180°, got "
                                    f"{servos[far[0]]['home_angle_deg']!r}")  # fmt: skip
         trims = np.array(_per_servo(servos, "trim_us", 0.0))
+        off = np.flatnonzero((neutral + trims < lo_us) | (neutral + trims > hi_us))
+        if off.size:
+            i = int(off[0])
+            raise CalibrationError(f"servo[{i}].trim_us: neutral_us + trim_us, the servo's pulse at home, within "
+                                   f"{lo_us:g}–{hi_us:g} µs, got {neutral:g} + {trims[i]:g}")  # fmt: skip
         base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate,
                            direction=tuple(int(d) for d in direction)) if geo is not None else None  # fmt: skip
         return cls(
@@ -471,6 +486,10 @@ def _per_servo(servos: list[dict], key: str, default: Any) -> list[float]:
         out.append(_scalar(f"servo[{i}].{key}", v))
     return out
 
+
+#: µs/rad: the servos' gain a calibration file may give (a hobby servo's is about 509: 400 µs per 45°; beyond this
+#: range a gain is a typing error, or in the wrong unit).
+US_PER_RAD_RANGE = (50.0, 5000.0)
 
 #: µs: the pulse limits a calibration file may give (hobby servos take about 500–2500 µs; beyond this a limit is a
 #: typing error that would let a servo be driven past its end stop).

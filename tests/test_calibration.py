@@ -109,6 +109,12 @@ def test_calibration_toml(tmp_path: Path) -> None:
         (("us_per_degree = 10.0", "us_per_degree = 10.0\nport = 3"), "port"),
         (("[[servo]]\nchannel = 11\ntrim_us = -8", ""), "servo"),
         (("geometry = \"servo-hexapod\"", ""), "geometry"),
+        (("channel = 6\ntrim_us = 12", "channel = 6\ntrim_us = 5000"), r"^servo\[0\].trim_us: .*got 1500 \+ 5000"),
+        (("channel = 11\ntrim_us = -8", "channel = 11\ntrim_us = -1200"), r"^servo\[5\].trim_us"),
+        (("us_per_degree = 10.0", "us_per_degree = 10.0\nneutral_us = -1500"), r"^neutral_us: .*got -1500"),
+        (("us_per_degree = 10.0", "us_per_degree = 10.0\nneutral_us = 1e9"), r"^neutral_us"),
+        (("us_per_degree = 10.0", "us_per_rad = 1e12"), r"^us_per_rad: the servos' gain, 50–5000 µs/rad .*got 1000000000000"),  # noqa: E501
+        (("us_per_degree = 10.0", "us_per_degree = 0.01"), r"^us_per_degree: the servos' gain, 0\.87.*µs/°"),
     ],
 )
 def test_bad_calibration_names_the_field(tmp_path: Path, edit: tuple[str, str], field: str) -> None:
@@ -118,6 +124,28 @@ def test_bad_calibration_names_the_field(tmp_path: Path, edit: tuple[str, str], 
     path.write_text(CAL_TOML.replace(old, new, 1))
     with pytest.raises(CalibrationError, match=field):
         ServoCalibration.from_toml(path)
+
+
+def test_a_home_angle_given_on_some_servos_is_theirs_and_the_geometrys_on_the_rest(tmp_path: Path) -> None:
+    """home_angle_deg on servo 0 alone: servo 0's home angle is the one given (its pulse at the geometry's home
+    moves by its gain times the difference), the other five keep the geometry's; without a geometry, the servos
+    that give none are named."""
+    base = ServoCalibration.from_toml(_written(tmp_path / "a.toml", CAL_TOML))
+    edited = ServoCalibration.from_toml(_written(tmp_path / "b.toml", CAL_TOML.replace(
+        "channel = 6\ntrim_us = 12", "channel = 6\ntrim_us = 12\nhome_angle_deg = 20")))  # fmt: skip
+    assert edited.home_angle[0] == pytest.approx(math.radians(20.0))
+    assert np.array_equal(edited.home_angle[1:], base.home_angle[1:])
+    home = base.home_angle.copy()
+    shift = edited.pulse_widths(home)[0] - base.pulse_widths(home)[0]
+    assert shift == pytest.approx(base.us_per_rad[0] * (base.home_angle[0] - math.radians(20.0)))
+    lone = CAL_TOML.replace('geometry = "servo-hexapod"\n', "").replace("trim_us = 12", "trim_us = 12\nhome_angle_deg = 20")
+    with pytest.raises(CalibrationError, match=r"^geometry: .*servo\[1\], servo\[2\]"):
+        ServoCalibration.from_dict(__import__("tomllib").loads(lone))
+
+
+def _written(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
 
 
 def test_linear_actuators_map_the_stroke_onto_1000_to_2000_us() -> None:
