@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import os
 import stat
+import sys
 from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError
 
-__all__ = ["CONFIG_LIMIT", "DATA_LIMIT", "input_file", "read_bytes", "read_text", "read_yaml"]
+__all__ = ["CONFIG_LIMIT", "DATA_LIMIT", "input_file", "read_bytes", "read_json", "read_text", "read_yaml"]
 
 #: bytes: the largest configuration file (TOML, YAML, JSON) read.
 CONFIG_LIMIT = 4 * 2**20
@@ -102,3 +103,31 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", error: type[Exce
         return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506  (a SafeLoader subclass)
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
+
+
+def read_json(path: str | os.PathLike, what: str = "JSON file", error: type[Exception] = ConfigError) -> Any:
+    """The parsed JSON of an :func:`input_file`; invalid JSON, a key given twice in one object (Python's parser
+    keeps the last silently), or a number too long to read raises ``error`` naming the file."""
+    import json
+
+    text = read_text(path, what, CONFIG_LIMIT, error)
+
+    class GivenTwice(Exception):
+        """A key given twice in one object."""
+
+    def unique(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for key, value in pairs:
+            if key in out:
+                raise GivenTwice(key)
+            out[key] = value
+        return out
+
+    try:
+        return json.loads(text, object_pairs_hook=unique)
+    except GivenTwice as exc:
+        raise error(f"{path}: {exc.args[0]!r} is given twice in one object; keep one") from None
+    except json.JSONDecodeError as exc:
+        raise error(f"{path}: not valid JSON ({exc})") from None
+    except ValueError:  # a whole number of thousands of digits: "Exceeds the limit … for integer string …"
+        raise error(f"{path}: a number too long to read ({sys.get_int_max_str_digits()} digits at most)") from None

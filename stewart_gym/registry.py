@@ -49,7 +49,7 @@ from stewart_gym.actions import ACTION_SIZES, default_max_tilt
 from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, design_kind
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.geometry import PlatformGeometry
-from stewart_gym.inputs import read_text
+from stewart_gym.inputs import read_json
 from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, ensemble_members, model_statistics, run_config
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
@@ -218,10 +218,7 @@ def _resolve(spec: str, env_id: str | None, geometry: str | None) -> PolicySourc
 
 
 def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(read_text(path, "JSON file", error=PolicyError))
-    except json.JSONDecodeError as exc:
-        raise PolicyError(f"{path}: not valid JSON ({exc})") from None
+    data = read_json(path, "JSON file", error=PolicyError)
     if not isinstance(data, dict):
         raise PolicyError(f"{path}: expected a JSON object, got {type(data).__name__}")
     return data

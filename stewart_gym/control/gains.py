@@ -47,6 +47,12 @@ PID_REQUIRED = ("kp_pos", "kp_vel", "ki_vel")
 #: The largest loop gain a PID gains file may give (1/s or 1/s²): far above any that balances a ball, low enough that
 #: the loop's arithmetic stays finite.
 MAX_LOOP_GAIN = 1e4
+#: The LQR's acceptable sizes (Bryson's rule) and its servo lag, each within this range (in its own unit): beyond
+#: it the design's weights leave what its Riccati solve can hold.
+LQR_SIZES = ("position_mm", "velocity_mm_s", "integral_mm_s", "tilt_step", "tilt_lag_s")
+LQR_SIZE_RANGE = (1e-6, 1e6)
+#: s: the longest lead of the feed-forward (a target's acceleration a second ahead is already another target's).
+MAX_FEED_LEAD_S = 1.0
 
 
 #: The optional field of a gains or design file that names the observer it was tuned behind (``lowpass`` or
@@ -113,6 +119,11 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDes
         wrong.append(f"rolling_factor must be above 0 and at most 1 (5/7 for a solid ball), got {fields['rolling_factor']}")
     if cls is LQRDesign and fields["tilt"] > 1:
         wrong.append(f"tilt (an acceptable sin(tilt)) must be at most 1, got {fields['tilt']}")
+    low, high = LQR_SIZE_RANGE
+    wrong += [f"{k} must be from {low:g} to {high:g}, got {fields[k]}" for k in LQR_SIZES
+              if k in fields and fields[k] > 0 and not low <= fields[k] <= high]  # fmt: skip
+    if fields.get("feed_lead", 0.0) > MAX_FEED_LEAD_S:
+        wrong.append(f"feed_lead must be from 0 to {MAX_FEED_LEAD_S:g} s, got {fields['feed_lead']}")
     if wrong:
         raise ValueError("; ".join(wrong))
     return design

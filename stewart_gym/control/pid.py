@@ -17,7 +17,7 @@ from stewart_gym.actions import DEFAULT_MAX_TILT
 from stewart_gym.constants import GRAVITY
 from stewart_gym.control.arrays import bounded, paired
 from stewart_gym.control.parts import EpisodicController, SquareWaveDither, TargetFeed, integrate_error
-from stewart_gym.inputs import read_text
+from stewart_gym.inputs import read_json
 
 __all__ = ["CascadedPID", "PIDGains"]
 
@@ -112,4 +112,4 @@ class CascadedPID(EpisodicController):
     @classmethod
     def load(cls, path: str | Path, dt: float = 0.02) -> CascadedPID:
         """Read gains written by :meth:`save`."""
-        return cls(PIDGains(**json.loads(read_text(path, "gains file"))), dt)
+        return cls(PIDGains(**read_json(path, "gains file")), dt)

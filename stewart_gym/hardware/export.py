@@ -35,7 +35,7 @@ from stewart_gym.control import (
     design_estimator,
 )
 from stewart_gym.errors import PolicyError
-from stewart_gym.inputs import read_text
+from stewart_gym.inputs import read_json
 from stewart_gym.sensing import ESTIMATORS, ObservationBuilder
 
 __all__ = ["BUNDLE_FIELDS", "BundlePolicy", "bundle_geometry", "classical_meta", "export_bundle_copy", "export_pid",
@@ -181,10 +181,7 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
     if isinstance(gains, dict):
         values = gains
     else:
-        try:
-            values = json.loads(read_text(gains, "gains file", error=PolicyError))
-        except json.JSONDecodeError as exc:
-            raise PolicyError(f"{gains}: not valid JSON ({exc})") from None
+        values = read_json(gains, "gains file", error=PolicyError)
     estimator = design_estimator(values) or "lowpass"  # the observer the gains name, else the plain PID's
     meta = classical_meta("pid", asdict(checked_design(values, "pid")), env_id, geometry, estimator)
     out.mkdir(parents=True, exist_ok=True)  # once the gains and the build are sound: a refusal leaves no folder
@@ -274,10 +271,7 @@ class BundlePolicy:
         meta_path = folder / "bundle.json"
         if not meta_path.is_file():
             raise PolicyError(f"{folder} is not a policy bundle (no bundle.json); write one with stewart-gym export")
-        try:
-            meta = json.loads(read_text(meta_path, "bundle description", error=PolicyError))
-        except json.JSONDecodeError as exc:
-            raise PolicyError(f"{meta_path}: not valid JSON ({exc})") from None
+        meta = read_json(meta_path, "bundle description", error=PolicyError)
         self._setup(meta, folder, meta_path)
 
     @classmethod

@@ -154,6 +154,12 @@ def _inputs_of_issue_57(d: Path) -> None:
     for name, parts in cams.items():
         (d / f"{name}.toml").write_text(camera.format(**{"camera": "", "ids": "[0, 1, 2, 3]", "centres": square,
                                                          "size": "36", "ball": "", **parts}))  # fmt: skip
+    (d / "cam_not_table.toml").write_text("camera = 3\n" + (d / "cam_ok.toml").read_text().replace("[camera]\n", ""))
+    (d / "gains_twice.json").write_text('{"kp_pos": 2.0, "kp_pos": 200.0, "kp_vel": 3.0, "ki_vel": 3.0}')
+    (d / "gains_long.json").write_text('{"kp_pos": 1' + "0" * 5000 + ', "kp_vel": 3, "ki_vel": 3}')
+    (d / "lqr_huge.json").write_text('{"position_mm": 1e300, "velocity_mm_s": 40, "integral_mm_s": 6, "tilt": 0.1, '
+                                     '"tilt_step": 0.002, "tilt_lag_s": 0.019}')  # fmt: skip
+    (d / "gains_lead.json").write_text('{"kp_pos": 2.0, "kp_vel": 3.0, "ki_vel": 3.0, "feed_lead": 1e9}')
 
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
@@ -733,6 +739,13 @@ WRONG_BLAME = [
      "--seed sets the simulated plant: it needs --sensor sim", "serial device"),
     (["deploy", "--no-randomize", "--sensor", "panel", "--protocol", "line", "--port", "{files}/notes.txt"],
      "--no-randomize sets the simulated plant: it needs --sensor sim", "serial device"),
+    (["camera-check", "--camera-config", "{files}/cam_not_table.toml", "--image", "{files}/emptydir"],
+     "cam_not_table.toml: [camera] must be a table", "Traceback"),
+    (["evaluate", "--policy", "{files}/gains_twice.json"], "gains_twice.json: 'kp_pos' is given twice", "Traceback"),
+    (["evaluate", "--policy", "{files}/gains_long.json"], "gains_long.json: a number too long to read", "Traceback"),
+    (["evaluate", "--policy", "{files}/lqr_huge.json"], "position_mm must be from 1e-06 to 1e+06, got 1e+300",
+     "Traceback"),
+    (["evaluate", "--policy", "{files}/gains_lead.json"], "feed_lead must be from 0 to 1 s", "Traceback"),
 ]  # fmt: skip
 
 
