@@ -70,7 +70,8 @@ def load_calibration(path: str | None, geometry: Any, used_for: str = "the polic
             raise CalibrationError(f"{path}: geometry must be a preset name or a TOML path, got {declared!r}")
         if declared.endswith(".toml") and not Path(declared).is_absolute():
             declared = str(Path(path).parent / declared)
-        if digest is not None and not Path(declared).is_file():  # the geometry file moved: its content decides
+        if digest is not None and declared.endswith(".toml") and not Path(declared).is_file():  # the file moved:
+            # its content decides
             if digest != geo.content_hash():
                 raise ConfigError(f"{path} is a calibration for the geometry in {declared}, which is not there, and "
                                   f"{used_for} ({geo.name!r}) is another build (its content differs): give the "
@@ -82,6 +83,10 @@ def load_calibration(path: str | None, geometry: Any, used_for: str = "the polic
         except ValueError as exc:
             raise CalibrationError(f"{path}: its geometry {declared!r} cannot be loaded ({exc})") from None
         if digest is not None and other.content_hash() != digest:
+            if not declared.endswith(".toml"):  # a preset: this version's differs, or the digest was edited
+                raise ConfigError(f"{path}: its geometry_sha256 is not that of the preset {declared!r} (a calibration "
+                                  "from another version, or an edited digest): calibrate the build again "
+                                  "(stewart-gym calibrate)")  # fmt: skip
             raise ConfigError(f"{declared} has changed since {path} was calibrated for it: calibrate the build again "
                               "(stewart-gym calibrate), or restore the geometry file")  # fmt: skip
         if other != geo:

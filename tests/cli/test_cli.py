@@ -159,6 +159,8 @@ def _inputs_of_issue_57(d: Path) -> None:
     (d / "gains_long.json").write_text('{"kp_pos": 1' + "0" * 5000 + ', "kp_vel": 3, "ki_vel": 3}')
     (d / "lqr_huge.json").write_text('{"position_mm": 1e300, "velocity_mm_s": 40, "integral_mm_s": 6, "tilt": 0.1, '
                                      '"tilt_step": 0.002, "tilt_lag_s": 0.019}')  # fmt: skip
+    (d / "cal_preset_digest.toml").write_text('geometry = "servo-hexapod"\ngeometry_sha256 = "' + "a" * 64 + '"\n'
+                                              + "[[servo]]\n" * 6)  # fmt: skip
     (d / "gains_lead.json").write_text('{"kp_pos": 2.0, "kp_vel": 3.0, "ki_vel": 3.0, "feed_lead": 1e9}')
 
     def chunk(kind: bytes, data: bytes) -> bytes:
@@ -746,6 +748,8 @@ WRONG_BLAME = [
     (["evaluate", "--policy", "{files}/lqr_huge.json"], "position_mm must be from 1e-06 to 1e+06, got 1e+300",
      "Traceback"),
     (["evaluate", "--policy", "{files}/gains_lead.json"], "feed_lead must be from 0 to 1 s", "Traceback"),
+    (["deploy", "--policy", "pid", "--sensor", "sim", "--calibration", "{files}/cal_preset_digest.toml"],
+     "its geometry_sha256 is not that of the preset 'servo-hexapod'", "which is not there"),
 ]  # fmt: skip
 
 
