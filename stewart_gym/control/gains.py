@@ -131,10 +131,14 @@ def checked_design(values: Any, kind: str) -> PIDGains | LQRDesign | HandoverDes
 
 def checked_handover(values: Any) -> HandoverDesign:
     """:class:`HandoverDesign` from a mapping (``lqr`` and ``pid`` sub-mappings and the hand-over sizes), checked."""
-    if not isinstance(values, dict) or not {"lqr", "pid"} <= set(values) or set(values) - set(HANDOVER_SIZES) - {
-            "lqr", "pid"}:  # fmt: skip
-        raise ValueError(f"expected HandoverDesign values {{lqr: {{…}}, pid: {{…}}, {', '.join(HANDOVER_SIZES)}}}, "
-                         f"got {values!r}")  # fmt: skip
+    if not isinstance(values, dict):
+        raise ValueError(f"expected a hand-over design as a mapping, got {type(values).__name__}")
+    missing = [k for k in ("lqr", "pid") if k not in values]
+    unknown = sorted(set(values) - set(HANDOVER_SIZES) - {"lqr", "pid"})
+    if missing or unknown:
+        said = ([f"missing {', '.join(missing)}"] if missing else []) + ([f"unknown field(s) {unknown}"] if unknown else [])
+        raise ValueError(f"a hand-over design: {'; '.join(said)} (its fields: lqr {{…}}, pid {{…}}, "
+                         f"{', '.join(HANDOVER_SIZES)})")  # fmt: skip
     try:
         lqr, pid = checked_design(values["lqr"], "lqr"), checked_design(values["pid"], "pid")
     except ValueError as exc:

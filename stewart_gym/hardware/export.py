@@ -350,7 +350,7 @@ class BundlePolicy:
             raise PolicyError(f"{meta_path}: obs_mean and obs_var go together, and a variance is ≥ 0; re-export the "
                               "policy")  # fmt: skip
         clip = _number(meta, "clip_obs", meta_path, None, 1e-6, 1e6)
-        epsilon = _number(meta, "epsilon", meta_path, None, 0.0, 1.0)
+        epsilon = _number(meta, "epsilon", meta_path, None, 1e-12, 1.0)  # (0: a division by zero where var is 0)
         if "ensemble" in meta:
             _number(meta, "ensemble", meta_path, None, 1, 1000)
         assert folder is not None

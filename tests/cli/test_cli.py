@@ -161,6 +161,13 @@ def _inputs_of_issue_57(d: Path) -> None:
                                      '"tilt_step": 0.002, "tilt_lag_s": 0.019}')  # fmt: skip
     (d / "cal_preset_digest.toml").write_text('geometry = "servo-hexapod"\ngeometry_sha256 = "' + "a" * 64 + '"\n'
                                               + "[[servo]]\n" * 6)  # fmt: skip
+    from dataclasses import asdict
+
+    from stewart_gym.control.gains import shipped_design
+
+    handover = asdict(shipped_design("lqr-pid"))
+    (d / "handover_stray.json").write_text(json.dumps({**handover, "foo": 1}))
+    (d / "handover_no_pid.json").write_text(json.dumps({k: v for k, v in handover.items() if k != "pid"}))
     (d / "gains_lead.json").write_text('{"kp_pos": 2.0, "kp_vel": 3.0, "ki_vel": 3.0, "feed_lead": 1e9}')
 
     def chunk(kind: bytes, data: bytes) -> bytes:
@@ -748,6 +755,9 @@ WRONG_BLAME = [
     (["evaluate", "--policy", "{files}/lqr_huge.json"], "position_mm must be from 1e-06 to 1e+06, got 1e+300",
      "Traceback"),
     (["evaluate", "--policy", "{files}/gains_lead.json"], "feed_lead must be from 0 to 1 s", "Traceback"),
+    (["evaluate", "--policy", "{files}/handover_stray.json"], "a hand-over design: unknown field(s) ['foo']",
+     "'lqr': {"),
+    (["evaluate", "--policy", "{files}/handover_no_pid.json"], "a hand-over design: missing pid", "'lqr': {"),
     (["deploy", "--policy", "pid", "--sensor", "sim", "--calibration", "{files}/cal_preset_digest.toml"],
      "its geometry_sha256 is not that of the preset 'servo-hexapod'", "which is not there"),
 ]  # fmt: skip

@@ -283,7 +283,7 @@ def test_the_handover_design_is_the_shipped_lqr_and_pid_kalman_and_is_checked() 
     assert checked_design({**design, "release_dwell_s": 0.5}, "handover").release_dwell_s == 0.5
     assert checked_design({**design, "release_mm_s": 60}, "handover").release_mm_s == 60.0
     assert checked_design(design, "handover").release_mm_s == 0.0  # off unless given
-    for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "HandoverDesign"),
+    for bad, match in (({**design, "release_mm": 1.0}, "release_mm"), ({"lqr": design["lqr"]}, "missing pid"),
                        ({**design, "handover_mm_s": -1}, "positive"), ({**design, "handover_dwell_s": -0.5}, "positive"),
                        ({**design, "handover_dwell_s": float("nan")}, "positive"),
                        ({**design, "release_dwell_s": -0.5}, "positive"), ({**design, "release_dwell_s": True}, "positive"),
