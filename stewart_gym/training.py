@@ -352,6 +352,11 @@ def check_algo_keywords(algo: str, hp: dict[str, Any], where: str | None = None)
     """Every key of a hyperparameter section is an RL-Zoo key or a keyword of ``algo`` (raises
     :class:`ConfigError` naming the others, and ``where`` they come from: most often a file written for another
     algorithm)."""
+    ours = sorted((set(hp) - set(RUN_KEYS)) & (SET_BY_TRAIN - {"self", "_init_setup_model"}))
+    if ours:
+        raise ConfigError(f"{where + ': ' if where else ''}{ours} {'is' if len(ours) == 1 else 'are'} set by train "
+                          "itself (device: the CPU; seed: --seed; action_noise: noise_type and noise_std; env, "
+                          "tensorboard_log, verbose: the run's options); leave it out")  # fmt: skip
     unknown = sorted(set(hp) - set(RUN_KEYS) - algo_keywords(algo))
     if unknown:
         raise ConfigError(f"{where + ': ' if where else ''}{unknown} are not {algo.upper()} hyperparameters (a file "
