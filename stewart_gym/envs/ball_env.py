@@ -604,21 +604,20 @@ class StewartBallEnv(gym.Env, EzPickle):
         twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
         memo[id(self)] = twin
         shared = {id(self.sim): twin.sim}  # a task that holds the engine holds the copy's
+        seed = self.np_random_seed  # (-1 where the generator was given, not seeded)
+        if seed >= 0:  # the copy says the same seed: its generator seeded so, then set to the state below
+            gym.Env.reset(twin, seed=seed)
+        else:
+            twin.np_random = np.random.Generator(type(self.np_random.bit_generator)())
         if self._episode is not None:
             replay = self._episode
-            generator = np.random.Generator(type(self.np_random.bit_generator)())
-            generator.bit_generator.state = replay.draws
-            twin.np_random = generator
+            twin.np_random.bit_generator.state = replay.draws
             twin.START_FRACTION = replay.start_fraction
             twin.task = copy.deepcopy(replay.task, shared)
             twin.reset(options=copy.deepcopy(replay.options))
             for action in replay.actions:
                 twin.step(action)
-        if self._np_random is not None:  # (in place: the copy's sensor draws from this generator)
-            if twin._np_random is None:
-                twin.np_random = np.random.Generator(type(self._np_random.bit_generator)())
-            twin.np_random.bit_generator.state = self._np_random.bit_generator.state
-            twin._np_random_seed = self._np_random_seed
+        twin.np_random.bit_generator.state = self.np_random.bit_generator.state  # in place: the sensor draws from it
         twin.task = copy.deepcopy(self.task, shared)
         if "START_FRACTION" in vars(self):
             twin.START_FRACTION = self.START_FRACTION
