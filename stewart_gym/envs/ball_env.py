@@ -83,13 +83,14 @@ def sensor_model(spec: TouchPanelSpec | CameraSpec | tuple,
 class EpisodeReplay:
     """What a copy of an env replays of its episode (:meth:`StewartBallEnv.__deepcopy__`): the generator's state at
     the reset, the reset's options (a copy), the actions taken since, and the start box and the task as they were at
-    the reset (a copy)."""
+    the reset (a copy; None, and why, where the task cannot be copied)."""
 
     draws: dict
     options: Any
     actions: list[np.ndarray]
     start_fraction: float
     task: Any
+    task_error: str | None = None  # why the task could not be copied (then ``task`` is None)
 
 
 def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
@@ -413,13 +414,31 @@ class StewartBallEnv(gym.Env, EzPickle):
         episode and what a copy replays are as they were."""
         checked = self._check_options(options)
         super().reset(seed=seed)
+        if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
+            self._reopen()
         #: what a copy replays (:meth:`__deepcopy__`); None on a backend object (such an env cannot be copied)
         self._episode = None if self._engine is None else EpisodeReplay(
             self.np_random.bit_generator.state, copy.deepcopy(options), [], self.START_FRACTION,
-            copy.deepcopy(self.task, {id(self.sim): self.sim}))  # fmt: skip
-        if getattr(self.sim, "closed", False):  # reset after close(): the engine starts again, as Gymnasium's envs do
-            self._reopen()
+            *self._task_now(self._own_parts(self)))  # fmt: skip
         return checked
+
+    def _own_parts(self, owner: StewartBallEnv) -> dict[int, Any]:
+        """A deep copy's memo that gives ``owner``'s env, engine and generator where this env's are met (and the
+        engine closed before the last reset, which a task may hold from the last episode): a task that holds them
+        holds ``owner``'s (this env's own: a snapshot shares them)."""
+        memo = {id(self): owner, id(self.sim): owner.sim, id(self.np_random): owner.np_random}
+        closed = getattr(self, "_closed_sim", None)
+        if closed is not None:
+            memo[id(closed)] = owner.sim
+        return memo
+
+    def _task_now(self, memo: dict[int, Any]) -> tuple[Any, str | None]:
+        """A copy of the task as it is now (``memo``: :meth:`_own_parts`), or None and why it cannot be copied (a
+        lock, an open file among a user's task's members): only a copy of the env needs it, and says so then."""
+        try:
+            return copy.deepcopy(self.task, memo), None
+        except Exception as exc:  # noqa: BLE001  (a user's task: whatever its members raise)
+            return None, f"{type(exc).__name__}: {exc}"
 
     def keep_params(self, params: EpisodeParams) -> None:
         """:meth:`draw_episode` after the parameters' draws: keep ``params`` and start this env's own count of the
@@ -601,28 +620,38 @@ class StewartBallEnv(gym.Env, EzPickle):
         if self._engine is None:
             raise TypeError(f"copy.deepcopy: this env steps the backend object it was given ({type(self.sim).__name__}), "
                             "which a copy would share; make the copy with gym.make(id, backend=...) by name")  # fmt: skip
+        replay = self._episode
+        why = replay.task_error if replay is not None else None
+        if why is None:  # (a copy thrown away: said before an engine is made)
+            why = self._task_now(self._own_parts(self))[1]
+        if why is not None:
+            raise TypeError(f"copy.deepcopy: this env's task ({type(self.task).__name__}) cannot be copied ({why}); "
+                            "give the task a __deepcopy__, or make another env with gym.make")  # fmt: skip
         twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
         memo[id(self)] = twin
-        shared = {id(self.sim): twin.sim}  # a task that holds the engine holds the copy's
-        seed = self.np_random_seed  # (-1 where the generator was given, not seeded)
-        if seed >= 0:  # the copy says the same seed: its generator seeded so, then set to the state below
-            gym.Env.reset(twin, seed=seed)
-        else:
-            twin.np_random = np.random.Generator(type(self.np_random.bit_generator)())
-        if self._episode is not None:
-            replay = self._episode
-            twin.np_random.bit_generator.state = replay.draws
-            twin.START_FRACTION = replay.start_fraction
-            twin.task = copy.deepcopy(replay.task, shared)
-            twin.reset(options=copy.deepcopy(replay.options))
-            for action in replay.actions:
-                twin.step(action)
-        twin.np_random.bit_generator.state = self.np_random.bit_generator.state  # in place: the sensor draws from it
-        twin.task = copy.deepcopy(self.task, shared)
-        if "START_FRACTION" in vars(self):
-            twin.START_FRACTION = self.START_FRACTION
-        else:
-            vars(twin).pop("START_FRACTION", None)
+        try:
+            seed = self.np_random_seed  # (-1 where the generator was given, not seeded)
+            if seed >= 0:  # the copy says the same seed: its generator seeded so, then set to the state below
+                gym.Env.reset(twin, seed=seed)
+            else:
+                twin.np_random = np.random.Generator(type(self.np_random.bit_generator)())
+            shared = self._own_parts(twin)  # a task that holds the env, its engine or its generator: the copy's
+            if replay is not None:
+                twin.np_random.bit_generator.state = replay.draws
+                twin.START_FRACTION = replay.start_fraction
+                twin.task = copy.deepcopy(replay.task, shared)
+                twin.reset(options=copy.deepcopy(replay.options))
+                for action in replay.actions:
+                    twin.step(action)
+            twin.np_random.bit_generator.state = self.np_random.bit_generator.state  # in place: the sensor's too
+            twin.task = copy.deepcopy(self.task, shared)
+            if "START_FRACTION" in vars(self):
+                twin.START_FRACTION = self.START_FRACTION
+            else:
+                vars(twin).pop("START_FRACTION", None)
+        except BaseException:
+            twin.close()
+            raise
         return twin
 
     def close(self) -> None:
@@ -636,6 +665,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if self._engine is None:
             raise RuntimeError("this env's backend was given as an object and has been closed; make the env anew")
         backend, geometry, physics_hz, control_hz, render_mode = self._engine
+        self._closed_sim = self.sim  # a task may still hold it from the last episode (:meth:`_own_parts`)
         self.sim = make_backend(backend, geometry, physics_hz=physics_hz, control_hz=control_hz, ball=True,
                                 ball_spec=self.nominal_ball, servo_spec=self.nominal_servo,
                                 render_mode=render_mode)  # fmt: skip

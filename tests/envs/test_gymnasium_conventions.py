@@ -88,6 +88,49 @@ def test_a_deepcopy_keeps_what_was_changed_on_the_env_its_generator_and_its_own_
         env.close()
 
 
+def test_a_task_that_holds_the_env_its_engine_or_its_generator_is_copied_with_the_copys() -> None:
+    """A user's task that keeps the env, the engine it was reset on and the generator it drew from (and draws from
+    it each step): the env resets, closes and resets again; a copy's task holds the copy's own, and the two go on
+    alike, their generators included. A task that cannot be copied (a lock) resets all the same, and a copy is
+    refused in one TypeError that says why."""
+    import threading
+
+    from stewart_gym.envs.ball_env import StewartBallEnv
+    from stewart_gym.envs.tasks.balance import BalanceTask
+
+    class Keeping(BalanceTask):
+        def reset(self, rng, backend):
+            super().reset(rng, backend)
+            self.rng, self.backend = rng, backend
+
+        def before_step(self, t, backend):
+            self.rng.random()  # a draw each step from the env's generator
+
+    env = StewartBallEnv(task=Keeping(), backend="mujoco")
+    env.task.env = env
+    try:
+        env.reset(seed=0)
+        env.close()
+        env.reset(seed=1)
+        for _ in range(3):
+            env.step(np.zeros(2, dtype=np.float32))
+        twin = copy.deepcopy(env)
+        try:
+            task = twin.task
+            assert task.env is twin and task.backend is twin.sim and task.rng is twin.np_random
+            for _ in range(5):
+                assert np.array_equal(env.step(np.full(2, 0.1, np.float32))[0], twin.step(np.full(2, 0.1, np.float32))[0])
+            assert env.np_random.bit_generator.state == twin.np_random.bit_generator.state
+        finally:
+            twin.close()
+        env.task.lock = threading.Lock()
+        env.reset(seed=2)  # a task that cannot be copied: the env resets all the same
+        with pytest.raises(TypeError, match=r"^copy.deepcopy: this env's task \(Keeping\) cannot be copied \(TypeError"):
+            copy.deepcopy(env)
+    finally:
+        env.close()
+
+
 def test_a_deepcopy_replays_the_episode_with_the_task_it_had_at_the_reset() -> None:
     """Pushes drawn at the reset with a push size set on the live task, which is set back after the first push: a
     copy made then has had the push the original had (its ball moves on as the original's), and its task has the
