@@ -8,16 +8,18 @@ Used by the command line, the policy registry and :func:`stewart_gym.training.tr
 
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from stewart_gym.errors import ConfigError, PolicyError
-from stewart_gym.inputs import read_text, read_yaml
+from stewart_gym.inputs import read_json, read_yaml
 
 __all__ = ["ENSEMBLE_FILE", "RUN_GEOMETRY_FILE", "ensemble_members", "make_parent", "model_statistics",
-           "no_folders_named", "output_dir", "output_file", "run_config"]
+           "no_folders_named", "output_dir", "output_file", "run_config", "stops_held"]
 
 #: The file that makes a folder an ensemble of networks (``stewart-gym ensemble``):
 #: ``{"members": ["members/0", ...], "sources": [...], "note": "..."}``.
@@ -159,12 +161,10 @@ def model_statistics(model_zip: Path) -> Path | None:
 
 def ensemble_members(folder: str | Path) -> list[Path]:
     """The member folders an ensemble folder's ``ensemble.json`` lists (relative to it), checked to exist."""
-    import json
-
     folder = Path(folder)
     index = folder / ENSEMBLE_FILE
     try:
-        listed = json.loads(read_text(index, "ensemble index", error=PolicyError))["members"]
+        listed = read_json(index, "ensemble index", error=PolicyError)["members"]
     except PolicyError:
         raise
     except (ValueError, KeyError, TypeError) as exc:
@@ -177,3 +177,21 @@ def ensemble_members(folder: str | Path) -> list[Path]:
     if missing:
         raise PolicyError(f"{index}: no model.zip in member folder(s) {missing}")
     return members
+
+
+@contextlib.contextmanager
+def stops_held() -> Iterator[None]:
+    """Hold Ctrl-C, SIGTERM and SIGHUP while a few file operations that belong together run (where signals can be
+    blocked, in the main thread: not on Windows); one that came meanwhile acts as soon as they are done."""
+    import signal
+    import threading
+
+    if not hasattr(signal, "pthread_sigmask") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    stops = {getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP")}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, stops)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

@@ -50,7 +50,14 @@ from stewart_gym.control import CLASSICAL, CLASSICAL_KINDS, design_estimator, de
 from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.geometry import PlatformGeometry
 from stewart_gym.inputs import read_json
-from stewart_gym.outputs import ENSEMBLE_FILE, RUN_GEOMETRY_FILE, ensemble_members, model_statistics, run_config
+from stewart_gym.outputs import (
+    ENSEMBLE_FILE,
+    RUN_GEOMETRY_FILE,
+    ensemble_members,
+    model_statistics,
+    run_config,
+    stops_held,
+)
 
 __all__ = ["POLICY_DIR", "SHIPPED", "SHIPPED_CAMERA", "SHIPPED_RESIDUAL", "PolicySource", "deployable_policy",
            "export_policy", "learned_models_importable", "load_for_evaluation", "load_policy", "resolve_policy",
@@ -558,14 +565,15 @@ def export_policy(source: PolicySource, out_dir: str | Path, overwrite: bool = F
                           "export into another folder")  # fmt: skip
     new = [p for p in (out, *out.parents) if not p.exists()]  # the folders this export makes
     out.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=".export-", dir=out))
+    work = Path(tempfile.mkdtemp(prefix=f".{out.resolve().name}.export-", dir=out.resolve().parent))  # beside it
     try:
         _write_bundle(source, work)
-        for name in BUNDLE_FILES:  # the whole new bundle takes the old one's place
-            if (work / name).exists():
-                os.replace(work / name, out / name)
-            else:
-                (out / name).unlink(missing_ok=True)
+        with stops_held():  # the whole new bundle takes the old one's place, not a part of it
+            for name in BUNDLE_FILES:
+                if (work / name).exists():
+                    os.replace(work / name, out / name)
+                else:
+                    (out / name).unlink(missing_ok=True)
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         if new:  # a refusal or a failure leaves no folder behind

@@ -144,3 +144,45 @@ def test_export_keeps_a_bundle_unless_told_to_replace_it_and_replaces_it_whole(t
     assert BundlePolicy(out).kind == "pid"
     assert cli(capfd, "export", "--policy", str(broken), "--out", str(tmp_path / "new" / "c"))[0] == 1
     assert not (tmp_path / "new").exists()
+
+
+@pytest.mark.slow
+def test_an_export_over_a_bundle_never_shows_half_of_each_and_a_killed_one_blocks_nothing(tmp_path: Path,
+                                                                                        capfd) -> None:  # fmt: skip
+    """export --overwrite of a network over a PID's bundle, in its own process: while it runs, the folder holds the
+    old bundle (never a network beside the PID's bundle.json), then the new one. An export killed (SIGKILL) once it
+    has begun leaves the old bundle, and the next export --overwrite works."""
+    import subprocess
+    import sys
+    import time
+
+    from tests.conftest import cli
+
+    out = tmp_path / "b"
+
+    def export(*extra: str) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "stewart_gym", "export", "--policy", "shipped", "--out",
+                                 str(out), "--overwrite", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+    assert cli(capfd, "export", "--policy", "pid", "--out", str(out))[0] == 0
+    old = (out / "bundle.json").read_bytes()
+    proc, mixed = export(), 0
+    while proc.poll() is None:
+        if (out / "policy.onnx").exists() and (out / "bundle.json").read_bytes() == old:
+            mixed += 1
+        time.sleep(0.002)
+    assert proc.returncode == 0 and mixed == 0, proc.stderr.read()
+    assert json.loads((out / "bundle.json").read_text())["kind"] == "onnx" and (out / "policy.onnx").is_file()
+    assert not list(tmp_path.glob(".*export-*"))  # the folder it was made in is gone
+
+    assert cli(capfd, "export", "--policy", "pid", "--out", str(out), "--overwrite")[0] == 0
+    old = (out / "bundle.json").read_bytes()
+    proc = export()
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".b.export-*")) and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.002)
+    proc.kill()
+    proc.wait()
+    assert (out / "bundle.json").read_bytes() == old and sorted(p.name for p in out.iterdir()) == ["bundle.json"]
+    assert cli(capfd, "export", "--policy", "shipped", "--out", str(out), "--overwrite")[0] == 0
+    assert sorted(p.name for p in out.iterdir()) == ["bundle.json", "policy.onnx"]
