@@ -137,18 +137,19 @@ class ServoCalibration:
         trims_us: np.ndarray | float = 0.0,
         us_per_rad: float = DEFAULT_US_PER_RAD,
         direction: tuple[int, ...] = DEFAULT_DIRECTIONS,
+        home_angles: np.ndarray | None = None,
     ) -> ServoCalibration:
         """Source 000's mapping for a rotary geometry.
 
-        α0 is the IK servo angle at home, and the channel limits are the pulses
-        at the ends of the geometry's ``servo_angle_range`` (so they bound the
-        same travel), within :data:`PULSE_LIMITS_US`: a travel wider than hobby
-        servos' pulses express is bounded by those pulses instead.
+        α0 is the IK servo angle at home (or ``home_angles``, rad, where given), and the channel limits are the
+        pulses at the ends of the geometry's ``servo_angle_range`` (so they bound the same travel), within
+        :data:`PULSE_LIMITS_US`: a travel wider than hobby servos' pulses express is bounded by those pulses
+        instead.
         """
         geo = load_geometry(geometry)
         if not geo.is_rotary:
             return cls.linear(geo, trims_us=trims_us)
-        home = _home_angles(geo)
+        home = _home_angles(geo) if home_angles is None else _vec6("home_angles", home_angles)
         w0 = neutral_us + _vec6("trims_us", trims_us)
         d = _vec6("direction", direction)
         lo, hi = geo.servo_angle_range  # type: ignore[misc]
@@ -233,8 +234,8 @@ class ServoCalibration:
         given = [i for i, s in enumerate(servos) if "home_angle_deg" in s]
         if geo is None and len(given) < 6:
             lacking = ", ".join(f"servo[{i}]" for i in range(6) if i not in given)
-            raise CalibrationError(f"geometry: needed to compute the home angles {lacking} do not give (or give "
-                                   "home_angle_deg on every servo)")  # fmt: skip
+            raise CalibrationError(f"geometry: needed for the home angles of {lacking}, which give no "
+                                   "home_angle_deg: name the geometry, or give home_angle_deg on every servo")  # fmt: skip
         geometry_home = _home_angles(geo) if geo is not None else np.zeros(6)
         home = np.radians(_per_servo(servos, "home_angle_deg", np.degrees(geometry_home)))  # where given, each
         direction = _per_servo(servos, "direction", list(DEFAULT_DIRECTIONS))
@@ -252,7 +253,7 @@ class ServoCalibration:
             i = int(off[0])
             raise CalibrationError(f"servo[{i}].trim_us: neutral_us + trim_us, the servo's pulse at home, within "
                                    f"{lo_us:g}–{hi_us:g} µs, got {neutral:g} + {trims[i]:g}")  # fmt: skip
-        base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate,
+        base = cls.default(geo, neutral_us=neutral, trims_us=trims, us_per_rad=rate, home_angles=home,
                            direction=tuple(int(d) for d in direction)) if geo is not None else None  # fmt: skip
         return cls(
             neutral_us=neutral + trims,

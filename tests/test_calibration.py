@@ -138,8 +138,11 @@ def test_a_home_angle_given_on_some_servos_is_theirs_and_the_geometrys_on_the_re
     home = base.home_angle.copy()
     shift = edited.pulse_widths(home)[0] - base.pulse_widths(home)[0]
     assert shift == pytest.approx(base.us_per_rad[0] * (base.home_angle[0] - math.radians(20.0)))
+    ends = np.array(load_preset("servo-hexapod").servo_angle_range)  # its limits: the pulses at the travel's ends
+    at_ends = edited.neutral_us[0] + edited.direction[0] * (ends - edited.home_angle[0]) * edited.us_per_rad[0]
+    assert (edited.min_us[0], edited.max_us[0]) == pytest.approx((min(at_ends), max(at_ends)), abs=1e-5)
     lone = CAL_TOML.replace('geometry = "servo-hexapod"\n', "").replace("trim_us = 12", "trim_us = 12\nhome_angle_deg = 20")
-    with pytest.raises(CalibrationError, match=r"^geometry: .*servo\[1\], servo\[2\]"):
+    with pytest.raises(CalibrationError, match=r"^geometry: needed for the home angles of servo\[1\], servo\[2\]"):
         ServoCalibration.from_dict(__import__("tomllib").loads(lone))
 
 
