@@ -17,7 +17,6 @@ import pytest
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.errors import ConfigError
 from stewart_gym.hardware.identify import Excitation
-from stewart_gym.plate_trims import MIN_FRAMES
 from stewart_gym.registry import deployable_policy, resolve_policy
 from stewart_gym.sysid import DEADBAND_GRID, fit_twin, read_log
 from tests.conftest import cli, sg_in
@@ -190,7 +189,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     """identify --sensor camera through the virtual board's camera stream: the plate moves in height and yaw and
     in large tilt triplets, the log holds the plate pose of each frame, every pulse stays within the channel
     limits and the servos go home; sysid on the log fits the servos' trims (their RMS error under half the trims'
-    own RMS), no longer lists them as undetermined, and the twin's servos are those the plate poses chose.
+    own RMS, none off by more than 0.6 of the largest trim, their stated sigmas a camera's few µs), no longer lists
+    them as undetermined, and the twin's servos are those the plate poses chose.
     The board renders the pixy2 preset (316 × 208 px) as fast as the machine allows, and the frames are dated as
     they arrive through a pipe, on a machine other tests share: how closely the trims come back therefore depends
     on the machine's load. Their accuracy against the fit's stated uncertainties is checked on exactly timed logs
@@ -219,7 +219,7 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     tilt = np.hypot([float(r["roll"]) for r in rows], [float(r["pitch"]) for r in rows])
     assert np.mean(tilt > 0.06) > 0.4  # the triplets: large tilts much of the time (without them, about 0.3)
     plate = read_log(log).plate
-    assert plate is not None and len(plate.frame_t) >= MIN_FRAMES
+    assert plate is not None and len(plate.frame_t) > 750
     fit = sg_in(capfd, "sysid", str(log), "--out", str(tmp_path / "fit.toml"), "--json")
     assert fit.returncode == 0, fit.stderr
     got = json.loads(fit.stdout)
@@ -228,7 +228,8 @@ def test_identify_with_the_camera_gives_sysid_each_servos_trim(tmp_path, capfd):
     sigma = np.array(got["trim_sigma_us"])
     err = fitted - trims
     assert np.sqrt(np.mean(err**2)) < 0.5 * np.sqrt(np.mean(trims**2)), (fitted, sigma)
-    assert np.all(sigma > 0) and np.all(np.isfinite(sigma)), sigma
+    assert np.max(np.abs(err)) < 0.6 * np.max(np.abs(trims)), (fitted, sigma)  # no servo's trim taken for another's
+    assert np.all((0.3 <= sigma) & (sigma <= 10.0)), sigma  # a camera's few µs, neither none nor a guess
     assert "servos.trim_us" not in got["twin"]["fit"]["undetermined"]
     # the plate poses chose the twin's servos: a dead band of the grid (it may come out a step or two off), and a
     # speed of the grid or of the finer speeds near the ball's best
