@@ -20,6 +20,7 @@ import multiprocessing.context
 import os
 import pickle
 import queue
+import sys
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -220,6 +221,11 @@ def _serve(make_env: Callable[[], VecEnv], algo: type[BaseAlgorithm], n_episodes
 
 
 def _alive(pid: int) -> bool:
+    """Whether the process ``pid`` is still there. On Windows, where ``os.kill(pid, 0)`` would send a Ctrl-C to the
+    whole console (0 is ``CTRL_C_EVENT`` there), the parent process multiprocessing knows answers instead."""
+    if sys.platform == "win32":
+        parent = multiprocessing.parent_process()
+        return parent is None or parent.pid != pid or parent.is_alive()
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

@@ -64,9 +64,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     the commands' modules load too, is one ``error:`` line and exit code 128 + its number. In the command's own
     process a Ctrl-C after the command has done its work and said so is ignored: it would only cut Python's
     teardown short (with a traceback of a library's exit handler, or a silent exit 130)."""
+    readable_everywhere(sys.stdout)
     code = _main(argv)
     _done()  # (again: leaving stop_signals() put its handler back)
     return code
+
+
+def readable_everywhere(stream: object) -> None:
+    """Let ``stream`` print what its encoding cannot hold (µ, −, ° in a table) as ``?`` instead of raising: a
+    Windows console's output sent to a file or a pipe is in the ANSI code page (cp1252), which has no minus
+    sign."""
+    reconfigure = getattr(stream, "reconfigure", None)
+    encoding = str(getattr(stream, "encoding", "") or "").lower().replace("-", "").replace("_", "")
+    if reconfigure is not None and encoding not in ("utf8", "utf8sig"):
+        try:
+            reconfigure(errors="replace")
+        except (ValueError, OSError):  # a closed or detached stream: nothing to print to
+            pass
 
 
 def _done() -> None:

@@ -1627,3 +1627,12 @@ def test_evaluate_prints_its_figures_before_a_gif_that_cannot_be_written(tmp_pat
                          cwd=tmp_path)  # fmt: skip
     assert code == 1 and "no space left on device" in err
     assert json.loads(out)["policy"] == "pid"  # the episodes' figures, printed before the GIF
+
+
+def test_output_the_encoding_cannot_hold_is_printed_not_raised() -> None:
+    """stdout in a code page without '≈' or '−' (a Windows console's output sent to a file: cp1252): the command
+    prints its figures with '?' in their place and exits 0, where it raised UnicodeEncodeError."""
+    proc = subprocess.run([sys.executable, "-m", "stewart_gym", "workspace", "--n", "5"], capture_output=True,
+                          env={**os.environ, "PYTHONIOENCODING": "cp1252"}, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr.decode("cp1252")
+    assert b"translational workspace at home orientation ? " in proc.stdout
