@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -84,6 +85,9 @@ class EvaluationJob(NamedTuple):
     randomize: bool
 
 
+#: The most worker processes a pool waits on under Windows (its limit of handles waited on at once, less 3).
+WINDOWS_MAX_WORKERS = 61
+
 #: Episodes a process gets at least when the episodes are split without ``--workers``: starting one (Python,
 #: torch, the policy) costs seconds, about what 2–5 episodes take.
 EPISODES_PER_PROCESS = 10
@@ -122,7 +126,8 @@ def evaluate_all(jobs: list[EvaluationJob], parts: int, processes: int,
         context = multiprocessing.get_context("spawn")
         reports = context.Queue()  # the workers' progress, read here while they run
         others = set(context.active_children())
-        with ProcessPoolExecutor(min(processes, len(tasks)), mp_context=context, initializer=worker_setup,
+        most = WINDOWS_MAX_WORKERS if sys.platform == "win32" else processes  # (Windows waits on 61 at most)
+        with ProcessPoolExecutor(min(processes, len(tasks), most), mp_context=context, initializer=worker_setup,
                                  initargs=(reports,)) as pool:  # fmt: skip
             try:
                 with ctrl_c_held_while_workers_start():

@@ -336,7 +336,7 @@ def write_ensemble(runs: list[str], out_dir: str | Path, note: str = "") -> Path
                 shutil.copyfile(found, member / name)
         members.append(f"members/{k}")
     index = {"members": members, "sources": [str(r) for r in runs], "note": note}
-    (out / ENSEMBLE_FILE).write_text(json.dumps(index, indent=2) + "\n")
+    (out / ENSEMBLE_FILE).write_text(json.dumps(index, indent=2) + "\n", encoding="utf-8")
     _ensemble_source(str(out), out)  # the copies read back alike
     return out
 
@@ -588,13 +588,14 @@ def _write_bundle(source: PolicySource, out: Path) -> None:
     from stewart_gym.hardware.export import export_bundle_copy, export_sb3
 
     if source.kind in CLASSICAL_KINDS:
-        (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n")
+        (out / "bundle.json").write_text(json.dumps(_classical_meta(source), indent=2) + "\n", encoding="utf-8")
         return
     if source.kind == "bundle":
         export_bundle_copy(source.path, out)
         meta = _read_json(out / "bundle.json")
         if meta.get("estimator", "lowpass") != source.estimator:  # --estimator asked for another observer
-            (out / "bundle.json").write_text(json.dumps({**meta, "estimator": source.estimator}, indent=2) + "\n")
+            text = json.dumps({**meta, "estimator": source.estimator}, indent=2) + "\n"
+            (out / "bundle.json").write_text(text, encoding="utf-8")
         return
     policy = load_policy(source)  # the model loads and its action size matches its configuration
     env_kwargs = {**source.env_kwargs, **resolved_env_kwargs(source, policy.action_size)}

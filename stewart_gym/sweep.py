@@ -35,6 +35,7 @@ import json
 import logging
 import math
 import os
+import platform
 import shutil
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields
@@ -332,7 +333,7 @@ def run_trial(config: dict[str, Any], *, spec: dict[str, Any], trials_dir: str) 
     sweep = SweepSpec(**spec)
     run_dir = Path(trials_dir) / tune.get_context().get_trial_id()
     node = ray.get_runtime_context().get_node_id()
-    host = os.uname().nodename
+    host = platform.node()  # (os.uname is not on Windows)
     cfg = trial_config(sweep, config, str(run_dir))
     last: dict[str, Any] = {}
 
@@ -437,7 +438,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
     if not resume and state.exists():
         raise ConfigError(f"{out} already holds a sweep; give another --out, or --resume it")
     if resume and (out / "sweep.json").is_file():
-        saved = json.loads((out / "sweep.json").read_text())
+        saved = json.loads((out / "sweep.json").read_text(encoding="utf-8"))
         changed = sorted(k for k, v in spec.to_dict().items() if json.loads(json.dumps(v)) != saved.get(k))
         if changed:  # Ray restores the search space, scheduler and concurrency it started with
             raise ConfigError(f"--resume: the sweep file or options differ from those {out} was started with "
@@ -448,7 +449,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, address: str | None = None, r
     resources = connect(address)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "sweep.json").write_text(json.dumps(spec.to_dict(), indent=2) + "\n")
+        (out / "sweep.json").write_text(json.dumps(spec.to_dict(), indent=2) + "\n", encoding="utf-8")
         cpus = int(resources.get("CPU", 0))
         if cpus < spec.cpus_per_trial:
             raise ConfigError(f"each trial needs {spec.cpus_per_trial} CPUs (n_envs) but the cluster has {cpus}")
@@ -546,7 +547,7 @@ def write_results(spec: SweepSpec, rows: list[dict[str, Any]], out: Path) -> Non
         writer = csv.DictWriter(fh, fieldnames=columns)
         writer.writeheader()
         writer.writerows(rows)
-    (out / "results.json").write_text(json.dumps(rows, indent=2, default=str) + "\n")
+    (out / "results.json").write_text(json.dumps(rows, indent=2, default=str) + "\n", encoding="utf-8")
     configs = summarise_configs(spec, rows)
     if configs:
         with (out / "configs.csv").open("w", newline="") as fh:

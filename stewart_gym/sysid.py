@@ -838,7 +838,7 @@ def write_report(result: FitResult, folder: str | Path, logs: Sequence[str]) -> 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     text = ["# sysid report", "", f"Logs: {', '.join(str(p) for p in logs)}", "", "```", *result.lines(), "```", ""]
-    (folder / "report.md").write_text("\n".join(text))
+    (folder / "report.md").write_text("\n".join(text), encoding="utf-8")
     written = [folder / "report.md"]
     if result.examples:
         import matplotlib

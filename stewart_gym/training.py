@@ -1008,11 +1008,11 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
     if isinstance(geometry, str) and geometry not in PRESETS:  # a file: the run keeps its own copy of the build
         from stewart_gym.presets import load_geometry
 
-        (run / RUN_GEOMETRY_FILE).write_text(load_geometry(geometry).to_toml())
+        (run / RUN_GEOMETRY_FILE).write_text(load_geometry(geometry).to_toml(), encoding="utf-8")
         recorded = {**hp, "env_kwargs": {**env_kwargs, "geometry": RUN_GEOMETRY_FILE}}
     (run / "config.yaml").write_text(yaml.safe_dump({"options": vars(config), "hyperparams": recorded},
-                                                    sort_keys=False))  # fmt: skip
-    (run / "git.txt").write_text(_git_revision() + "\n")
+                                                    sort_keys=False), encoding="utf-8")  # fmt: skip
+    (run / "git.txt").write_text(_git_revision() + "\n", encoding="utf-8")
 
     env = make_env(config.env_id, n_envs, config.seed, env_kwargs, residual, config.vec_env)
     resume = Path(config.resume) if config.resume else None
@@ -1093,7 +1093,7 @@ def train(config: TrainConfig, max_wall_s: float | None = None,
         metrics["last_eval"] = rows[-1]
         metrics["best_eval_success_rate"] = max((r["success_rate"] for r in rows if r["success_rate"] is not None),
                                                 default=None)  # fmt: skip
-    (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n")
+    (run / "metrics.json").write_text(json.dumps(metrics, indent=2) + "\n", encoding="utf-8")
     env.close()
     return metrics
 

@@ -58,7 +58,8 @@ EXIT_CODES = {
                       "drives the servos home and prints its summary first)",
 }  # fmt: skip
 #: The signals that stop a command as Ctrl-C does (:func:`stop_signals`), by name.
-STOP_SIGNALS = {name: getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name)}
+STOP_SIGNALS = {name: getattr(signal, name) for name in ("SIGTERM", "SIGHUP", "SIGBREAK")  # (SIGBREAK: Windows'
+                if hasattr(signal, name)}  # Ctrl-Break, and its console window closing)
 EXIT_CODES_HELP = "exit codes: " + "; ".join(f"{code} {text.replace('`', '')}" for code, text in EXIT_CODES.items())
 
 

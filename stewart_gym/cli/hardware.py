@@ -96,7 +96,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if not Path(port).is_absolute() and Path(port).exists():  # a link in a folder: kept wherever deploy runs from
         port = str(Path(port).absolute())
     written = {"port": port, "protocol": protocol, "baudrate": baudrate}
-    make_parent(out).write_text(calibration_toml(result.calibration, written, geometry=args.geometry, folder=out.parent))
+    text = calibration_toml(result.calibration, written, geometry=args.geometry, folder=out.parent)
+    make_parent(out).write_text(text, encoding="utf-8")
     print(f"calibration written to {out} (geometry {geometry.name}, port {port}, protocol {protocol})")
     return EXIT_OK
 
@@ -106,6 +107,9 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     to it as to the real board. Runs until Ctrl-C (SIGINT), SIGTERM or SIGHUP, then prints what it saw (exit 0)."""
     import signal
 
+    if sys.platform == "win32":
+        raise ConfigError("virtual-device serves a pseudo-terminal, which Windows has not: run it on Linux or macOS, "
+                          "or in WSL (Windows Subsystem for Linux) with the rest of the tutorial")  # fmt: skip
     from stewart_gym.hardware.deploy_setup import load_calibration
     from stewart_gym.hardware.virtual_device import Faults, VirtualDevice, stream_camera_config
     from stewart_gym.presets import load_geometry
@@ -141,7 +145,7 @@ def cmd_virtual_device(args: argparse.Namespace) -> int:
     twin = twin_tables(args.twin)
     ours = config_out is not None and not config_out.exists()  # (an existing one is replaced only with --overwrite)
     if config_out is not None:  # before the board's link appears: a host may read it at once
-        make_parent(config_out).write_text(stream_camera_config(camera, args.camera_stream).to_toml())
+        make_parent(config_out).write_text(stream_camera_config(camera, args.camera_stream).to_toml(), encoding="utf-8")
     put_back = None if args.leave_fallen_ball else args.put_ball_back_after
     try:
         device = VirtualDevice(args.protocol, args.backend, geometry, calibration, faults, seed=args.seed,

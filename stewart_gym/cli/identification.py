@@ -114,7 +114,7 @@ def cmd_sysid(args: argparse.Namespace) -> int:
     # they are written leaves no half report and no twin, and its rerun is not refused for them
     with tempfile.TemporaryDirectory(dir=out.parent, prefix=".sysid-") as scratch:
         draft = Path(scratch) / out.name
-        draft.write_text(text)
+        draft.write_text(text, encoding="utf-8")
         if report is not None:
             report.mkdir(parents=True, exist_ok=True)
             with tempfile.TemporaryDirectory(dir=report, prefix=".sysid-") as pages:

@@ -276,7 +276,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="stewart-gym-demo-") as scratch:  # the three files made, then moved in
         # together: a run stopped on the way leaves the folder as it was (or none), not new files beside old ones
         work = Path(scratch)
-        (work / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n")
+        (work / "demo_metrics.json").write_text(json.dumps(json_safe(results), indent=2) + "\n", encoding="utf-8")
         episode_figures(env_id, policy, env_kwargs, args.seed, randomize, gif and work / gif.name,
                         work / "demo_pulses.png", f"{names[0]} on {world_line(world(env_id, env_kwargs))}")  # fmt: skip
         out.mkdir(parents=True, exist_ok=True)

@@ -160,7 +160,8 @@ def checked_handover(values: Any) -> HandoverDesign:
 def shipped_design(name: str) -> PIDGains | LQRDesign | HandoverDesign:
     """The design of the shipped classical controller ``name`` (a key of :data:`CLASSICAL`), from its file."""
     kind, filename, _ = CLASSICAL[name]
-    return checked_design(json.loads((Path(__file__).resolve().parents[1] / "policies" / filename).read_text()), kind)
+    path = Path(__file__).resolve().parents[1] / "policies" / filename
+    return checked_design(json.loads(path.read_text(encoding="utf-8")), kind)
 
 
 def classical_controller(kind: str, design: PIDGains | LQRDesign | HandoverDesign, geometry: Any = "servo-hexapod",

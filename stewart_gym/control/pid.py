@@ -107,7 +107,7 @@ class CascadedPID(EpisodicController):
 
     def save(self, path: str | Path) -> None:
         """Write the gains as JSON."""
-        Path(path).write_text(json.dumps(asdict(self.gains), indent=2) + "\n")
+        Path(path).write_text(json.dumps(asdict(self.gains), indent=2) + "\n", encoding="utf-8")
 
     @classmethod
     def load(cls, path: str | Path, dt: float = 0.02) -> CascadedPID:

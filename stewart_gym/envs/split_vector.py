@@ -57,6 +57,9 @@ def batched_vector_env(num_envs: int = 1, *, workers: int = 1, **kwargs: Any) ->
     process (``workers=1``, the default), or a :class:`SplitVectorEnv` over ``workers`` processes."""
     if not whole_number(workers, 1, MAX_WORKERS):
         raise ConfigError(f"workers must be a whole number from 1 to {MAX_WORKERS}, got {workers!r}")
+    if workers > 1 and sys.platform == "win32":
+        raise ConfigError("workers > 1 joins its worker processes by inherited pipes, which Windows cannot pass: "
+                          "leave workers out (one process), or run on Linux, macOS or WSL")  # fmt: skip
     if workers == 1:
         return StewartBallVectorEnv(num_envs, **kwargs)
     return SplitVectorEnv(num_envs, workers=int(workers), **kwargs)

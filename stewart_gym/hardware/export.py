@@ -114,7 +114,7 @@ def export_sb3(model_path: str | Path, out_dir: str | Path, env_id: str = "Stewa
                             "release_mm": spec["release_mm"], "dwell_s": spec.get("dwell_s", 0.0),
                             "base": classical_meta(CLASSICAL[spec["base"]][0], asdict(base.gains), env_id, geometry,
                                                    meta["estimator"])}  # fmt: skip
-    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
+    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     return out
 
 
@@ -185,7 +185,7 @@ def export_pid(gains: str | Path | dict[str, Any], out_dir: str | Path, env_id: 
     estimator = design_estimator(values) or "lowpass"  # the observer the gains name, else the plain PID's
     meta = classical_meta("pid", asdict(checked_design(values, "pid")), env_id, geometry, estimator)
     out.mkdir(parents=True, exist_ok=True)  # once the gains and the build are sound: a refusal leaves no folder
-    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n")
+    (out / "bundle.json").write_text(json.dumps(meta, indent=2) + "\n", encoding="utf-8")
     return out
 
 

@@ -97,7 +97,10 @@ def calibration_toml(cal: ServoCalibration, hardware: dict[str, Any], geometry: 
 
     head = ""
     if geometry and geometry not in PRESETS:
-        where = os.path.relpath(Path(geometry).resolve(), Path(folder).resolve())
+        try:
+            where = Path(os.path.relpath(Path(geometry).resolve(), Path(folder).resolve())).as_posix()  # (any OS)
+        except ValueError:  # on another drive than the folder (Windows): named whole
+            where = Path(geometry).resolve().as_posix()
         head = f"geometry = {json.dumps(where)}\ngeometry_sha256 = \"{load_geometry(geometry).content_hash()}\"\n"
     elif geometry:
         head = f"geometry = {json.dumps(str(geometry))}\n"

@@ -266,5 +266,5 @@ def ball_friction(ball: BallSpec, plate_friction: float) -> tuple[float, float, 
 def write_mjcf(path: str | Path, geometry: PlatformGeometry | str = "servo-hexapod", *, ball: bool = True) -> Path:
     """Write the platform's MJCF (with the default ball unless ``ball=False``) to ``path``; return it."""
     path = make_parent(path)
-    path.write_text(mechanism_mjcf(geometry, ball=BallSpec() if ball else None))
+    path.write_text(mechanism_mjcf(geometry, ball=BallSpec() if ball else None), encoding="utf-8")
     return path

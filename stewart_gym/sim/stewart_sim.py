@@ -181,10 +181,11 @@ class StewartSim(SimulatorBase):
         self.legs: list[int] = []
         for i in range(6):
             path = self._tmp / f"leg_{i}.urdf"
-            path.write_text(mechanism_urdf(geo, self.mechanism, self.servo_spec, legs=[i], base_plate=i == 0))
+            text = mechanism_urdf(geo, self.mechanism, self.servo_spec, legs=[i], base_plate=i == 0)
+            path.write_text(text, encoding="utf-8")
             self.legs.append(c.loadURDF(str(path), useFixedBase=True, flags=flags))
         plate_path = self._tmp / "plate.urdf"
-        plate_path.write_text(plate_urdf(geo, self.mechanism))
+        plate_path.write_text(plate_urdf(geo, self.mechanism), encoding="utf-8")
         self.plate = c.loadURDF(str(plate_path), basePosition=geo.home_position.tolist(), flags=flags)
         # joint indices within each leg body (a joint's index is its child link's)
         names = {c.getJointInfo(self.legs[0], j)[1].decode(): j for j in range(c.getNumJoints(self.legs[0]))}

@@ -343,6 +343,6 @@ def write_urdfs(directory: str | Path, geometry: PlatformGeometry | str = "servo
     directory.mkdir(parents=True, exist_ok=True)
     stem = geo.file_stem
     mech, plate = directory / f"{stem}.urdf", directory / f"{stem}_plate.urdf"
-    mech.write_text(mechanism_urdf(geo, spec, servo))
-    plate.write_text(plate_urdf(geo, spec))
+    mech.write_text(mechanism_urdf(geo, spec, servo), encoding="utf-8")
+    plate.write_text(plate_urdf(geo, spec), encoding="utf-8")
     return mech, plate
