@@ -552,10 +552,10 @@ def export_policy(source: PolicySource, out_dir: str | Path, overwrite: bool = F
     its place only once whole (a file of the old one that the new one lacks is removed), so that a refusal or a
     failure leaves the old bundle as it was, and no new folder."""
     import shutil
-    import tempfile
 
     out = Path(out_dir)
-    other = sorted(p.name for p in out.iterdir() if p.name not in BUNDLE_FILES) if out.is_dir() else []
+    other = sorted(p.name for p in out.iterdir() if p.name not in BUNDLE_FILES and not p.name.startswith(STAGING)
+                   ) if out.is_dir() else []  # fmt: skip
     if other:  # a run folder, say: a bundle.json there would take the place of its model
         raise ConfigError(f"--out {out} holds other files ({', '.join(other[:3])}{', …' if len(other) > 3 else ''}); "
                           "export into a new or empty folder, or over an earlier bundle (--overwrite)")  # fmt: skip
@@ -564,9 +564,10 @@ def export_policy(source: PolicySource, out_dir: str | Path, overwrite: bool = F
         raise ConfigError(f"--out {out} holds a bundle already ({held[0]}); give --overwrite to replace it, or "
                           "export into another folder")  # fmt: skip
     new = [p for p in (out, *out.parents) if not p.exists()]  # the folders this export makes
-    out.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f".{out.resolve().name}.export-", dir=out.resolve().parent))  # beside it
+    work: Path | None = None
     try:
+        out.mkdir(parents=True, exist_ok=True)
+        work = _staging(out)
         _write_bundle(source, work)
         with stops_held():  # the whole new bundle takes the old one's place, not a part of it
             for name in BUNDLE_FILES:
@@ -575,12 +576,29 @@ def export_policy(source: PolicySource, out_dir: str | Path, overwrite: bool = F
                 else:
                     (out / name).unlink(missing_ok=True)
     except BaseException:
-        shutil.rmtree(work, ignore_errors=True)
+        if work is not None:
+            shutil.rmtree(work, ignore_errors=True)
         if new:  # a refusal or a failure leaves no folder behind
             shutil.rmtree(new[-1], ignore_errors=True)
         raise
-    shutil.rmtree(work, ignore_errors=True)
+    for left in (work, *out.glob(f"{STAGING}*")):  # (and what an export killed before left in the folder)
+        shutil.rmtree(left, ignore_errors=True)
     return out
+
+
+#: How the folder an export makes its bundle in begins (beside the bundle's folder, or in it).
+STAGING = ".export-"
+
+
+def _staging(out: Path) -> Path:
+    """A new folder to make ``out``'s bundle in: beside ``out``, or in it where its parent cannot be written
+    (``--out .`` in a home folder)."""
+    import tempfile
+
+    try:
+        return Path(tempfile.mkdtemp(prefix=f"{STAGING}{out.resolve().name}-", dir=out.resolve().parent))
+    except OSError:
+        return Path(tempfile.mkdtemp(prefix=STAGING, dir=out))
 
 
 def _write_bundle(source: PolicySource, out: Path) -> None:
