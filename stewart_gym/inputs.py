@@ -101,6 +101,8 @@ def read_yaml(path: str | os.PathLike, what: str = "YAML file", error: type[Exce
     UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
     try:
         return yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506  (a SafeLoader subclass)
+    except RecursionError:  # brackets nested thousands deep
+        raise error(f"{path}: nested too deeply to read (a damaged or generated file?)") from None
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML ({' '.join(str(exc).split())})") from None
 
@@ -129,5 +131,7 @@ def read_json(path: str | os.PathLike, what: str = "JSON file", error: type[Exce
         raise error(f"{path}: {exc.args[0]!r} is given twice in one object; keep one") from None
     except json.JSONDecodeError as exc:
         raise error(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:  # brackets nested thousands deep
+        raise error(f"{path}: nested too deeply to read (a damaged or generated file?)") from None
     except ValueError:  # a whole number of thousands of digits: "Exceeds the limit … for integer string …"
         raise error(f"{path}: a number too long to read ({sys.get_int_max_str_digits()} digits at most)") from None

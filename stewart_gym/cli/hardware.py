@@ -93,7 +93,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                             nominal_us=nominal)  # fmt: skip
     finally:
         controller.close()
-    if not Path(port).is_absolute() and Path(port).exists():  # a link in a folder: kept wherever deploy runs from
+    if sys.platform != "win32" and not Path(port).is_absolute() and Path(port).exists():  # a link in a folder:
+        # kept wherever deploy runs from (a Windows port, COM3, is a device name, never a path)
         port = str(Path(port).absolute())
     written = {"port": port, "protocol": protocol, "baudrate": baudrate}
     text = calibration_toml(result.calibration, written, geometry=args.geometry, folder=out.parent)

@@ -18,6 +18,7 @@ import errno
 import math
 import os
 import select
+import sys
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
@@ -99,6 +100,11 @@ class ServoController(ABC):
                               "is plugged in)")  # fmt: skip
                 elif code == errno.EACCES:
                     reason += "; on Linux, join the dialout group (sudo usermod -aG dialout $USER, then log in again)"
+                elif sys.platform == "win32" and ("Access is denied" in reason or "PermissionError" in reason):
+                    reason = ("the port is in use: close the program that holds it (the Arduino IDE's serial monitor, "
+                              "another stewart-gym)")  # fmt: skip
+                elif sys.platform == "win32" and "FileNotFoundError" in reason:
+                    reason = "no such port: check the COM number in Device Manager (Ports (COM & LPT))"
                 raise DeviceError(f"cannot open {port}: {reason}") from None
         self.frames_sent = 0
         #: whether :meth:`send` asks the board along the way (:meth:`monitor`)

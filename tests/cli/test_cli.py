@@ -168,6 +168,8 @@ def _inputs_of_issue_57(d: Path) -> None:
     handover = asdict(shipped_design("lqr-pid"))
     (d / "handover_stray.json").write_text(json.dumps({**handover, "foo": 1}))
     (d / "handover_no_pid.json").write_text(json.dumps({k: v for k, v in handover.items() if k != "pid"}))
+    (d / "deep.json").write_text("[" * 50_000)
+    (d / "deep.yml").write_text("StewartBallBalance-v0: " + "[" * 50_000)
     (d / "hp_device.yml").write_text("StewartBallBalance-v0:\n  n_envs: 2\n  device: cuda:7\n")
     (d / "gains_lead.json").write_text('{"kp_pos": 2.0, "kp_vel": 3.0, "ki_vel": 3.0, "feed_lead": 1e9}')
 
@@ -756,6 +758,9 @@ WRONG_BLAME = [
     (["evaluate", "--policy", "{files}/lqr_huge.json"], "position_mm must be from 1e-06 to 1e+06, got 1e+300",
      "Traceback"),
     (["evaluate", "--policy", "{files}/gains_lead.json"], "feed_lead must be from 0 to 1 s", "Traceback"),
+    (["evaluate", "--policy", "{files}/deep.json"], "deep.json: nested too deeply to read", "RecursionError"),
+    (["train", "--hyperparams", "{files}/deep.yml", "--run-dir", "{tmp}/r"], "deep.yml: nested too deeply to read",
+     "RecursionError"),
     (["train", "--hyperparams", "{files}/hp_device.yml", "--run-dir", "{tmp}/r"],
      "hp_device.yml: ['device'] is set by train itself (device: the CPU", "not PPO hyperparameters"),
     (["evaluate", "--policy", "{files}/handover_stray.json"], "a hand-over design: unknown field(s) ['foo']",
