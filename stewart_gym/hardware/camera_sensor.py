@@ -115,10 +115,10 @@ class CameraSensor:
             return
         fps = cap.get(cv2.CAP_PROP_FPS) if self._is_file and not self.raw_mjpeg else 0.0
         period = 1.0 / (fps if fps and fps > 0 else self.config.fps)
-        next_frame = time.monotonic()
+        next_frame = time.perf_counter()
         while not self._stop.is_set():
             ok, frame = cap.read()
-            captured = time.monotonic()
+            captured = time.perf_counter()
             if not ok:
                 self.ended = ("the video ran out" if self._is_file else  # readings go stale from here
                               "the camera stopped delivering frames (unplugged, or its stream ended)")  # fmt: skip
@@ -142,7 +142,7 @@ class CameraSensor:
             self._opened.set()
             if self._is_file:  # a file plays at its frame rate, as the camera that recorded it delivered it
                 next_frame += period
-                self._stop.wait(max(0.0, next_frame - time.monotonic()))
+                self._stop.wait(max(0.0, next_frame - time.perf_counter()))
 
     def read(self, t: float) -> Reading | None:
         """The newest ball found ((x, y) m, capture time on the caller's clock ``t``), or None before the first. A
@@ -155,7 +155,7 @@ class CameraSensor:
         if latest is None:
             return None
         (x_mm, y_mm), captured = latest
-        return (x_mm * 1e-3, y_mm * 1e-3), t - (time.monotonic() - captured)
+        return (x_mm * 1e-3, y_mm * 1e-3), t - (time.perf_counter() - captured)
 
     def plate_pose(self, t: float) -> tuple[tuple[float, ...], float] | None:
         """The newest plate pose seen (:attr:`Detection.plate_pose <stewart_gym.vision.Detection.plate_pose>`: six
@@ -165,7 +165,7 @@ class CameraSensor:
         if plate is None:
             return None
         pose, captured = plate
-        return pose, t - (time.monotonic() - captured)
+        return pose, t - (time.perf_counter() - captured)
 
     def close(self) -> None:
         """Stop the thread and release the camera. A thread still blocked opening a named pipe that no writer

@@ -148,7 +148,7 @@ class ServoController(ABC):
         data = self.frame(pulses)
         out = data
         if self.monitoring:
-            now = time.monotonic()
+            now = time.perf_counter()
             self._watch(now)
             if self._asked_at is None and now - self._last_asked >= ASK_EVERY_S:
                 out = data + self.position_query()
@@ -196,18 +196,18 @@ class ServoController(ABC):
             held = self.held_pulses(timeout_s)
             if held is not None:
                 return held
-        deadline = time.monotonic() + timeout_s
-        while self._asked_at is not None and time.monotonic() < deadline:
-            self._collect(time.monotonic())
+        deadline = time.perf_counter() + timeout_s
+        while self._asked_at is not None and time.perf_counter() < deadline:
+            self._collect(time.perf_counter())
             time.sleep(0.002)
         if self._asked_at is not None:
             self._resync()
             self._asked_at, self._expired = None, False
         self._write(self.position_query())
-        self._asked_at = self._last_asked = time.monotonic()
+        self._asked_at = self._last_asked = time.perf_counter()
         deadline = self._asked_at + timeout_s
-        while time.monotonic() < deadline:
-            got = self._collect(time.monotonic())
+        while time.perf_counter() < deadline:
+            got = self._collect(time.perf_counter())
             if got:
                 return got[-1]
             time.sleep(0.002)
@@ -233,9 +233,9 @@ class ServoController(ABC):
         self._replies = b""
 
     def wait_until(self, deadline: float) -> None:
-        """Sleep until ``deadline`` (:func:`time.monotonic`): what the loop does between ticks. A controller that
+        """Sleep until ``deadline`` (:func:`time.perf_counter`): what the loop does between ticks. A controller that
         reads the board's own reports (:class:`LineController`) reads them as they arrive meanwhile."""
-        remaining = deadline - time.monotonic()
+        remaining = deadline - time.perf_counter()
         if remaining > 0:
             time.sleep(remaining)
 
@@ -317,8 +317,8 @@ class MaestroController(ServoController):
         (:attr:`answer_timeout_s`) to reply, as for any question."""
         self.serial.reset_input_buffer()
         self._write(Maestro.GET_ERRORS)
-        reply, deadline = b"", time.monotonic() + self.answer_timeout_s
-        while len(reply) < 2 and time.monotonic() < deadline:
+        reply, deadline = b"", time.perf_counter() + self.answer_timeout_s
+        while len(reply) < 2 and time.perf_counter() < deadline:
             reply += self.serial.read(2 - len(reply))
         if len(reply) != 2:
             raise DeviceError(f"Maestro on {self.serial.port} did not answer Get Errors")
@@ -398,8 +398,8 @@ class LineController(ServoController):
         """Whether the sketch said ``ready`` within ``ready_timeout`` s, or else answered a ``?``; an ``E`` line
         before that (no PCA9685 on the bus) is a :class:`DeviceError` saying what the board says, and one after the
         ``?`` is kept for the error where no answer comes."""
-        deadline = time.monotonic() + ready_timeout
-        while time.monotonic() < deadline:
+        deadline = time.perf_counter() + ready_timeout
+        while time.perf_counter() < deadline:
             self._pump()
             if self._ready:
                 return True
@@ -408,8 +408,8 @@ class LineController(ServoController):
         # in its buffer: a refusal before the answer is that half line's, not this connection's
         self._write(b"\n" + LineProtocol.QUERY)
         self._asked_first = True
-        deadline = time.monotonic() + self.QUERY_TIMEOUT_S
-        while time.monotonic() < deadline:
+        deadline = time.perf_counter() + self.QUERY_TIMEOUT_S
+        while time.perf_counter() < deadline:
             self._pump()
             if self._ready or self._held:
                 self._held.clear()
@@ -438,7 +438,7 @@ class LineController(ServoController):
             line = raw.decode("ascii", "replace")
             xy = LineProtocol.parse_ball(line)
             if xy is not None:
-                self.last_ball_mm, self.last_ball_time = xy, time.monotonic()
+                self.last_ball_mm, self.last_ball_time = xy, time.perf_counter()
                 continue
             held = LineProtocol.parse_held(line)
             if held is not None:
@@ -482,9 +482,9 @@ class LineController(ServoController):
             fd: int | None = self.serial.fileno()
         except (AttributeError, OSError, ValueError, serial.SerialException):  # not a POSIX port: a URL or a fake
             fd = None
-        while (remaining := deadline - time.monotonic()) > 0:
+        while (remaining := deadline - time.perf_counter()) > 0:
             if fd is None or self._woke_without_bytes(fd, remaining):
-                time.sleep(max(0.0, min(deadline - time.monotonic(), 0.001)))
+                time.sleep(max(0.0, min(deadline - time.perf_counter(), 0.001)))
             self._pump()
 
     def _woke_without_bytes(self, fd: int, timeout: float) -> bool:
