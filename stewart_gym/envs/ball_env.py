@@ -83,14 +83,13 @@ def sensor_model(spec: TouchPanelSpec | CameraSpec | tuple,
 class EpisodeReplay:
     """What a copy of an env replays of its episode (:meth:`StewartBallEnv.__deepcopy__`): the generator's state at
     the reset, the reset's options (a copy), the actions taken since, and the start box and the task as they were at
-    the reset (a copy; None, and why, where the task cannot be copied)."""
+    the reset (a shallow copy: its settings then)."""
 
     draws: dict
     options: Any
     actions: list[np.ndarray]
     start_fraction: float
     task: Any
-    task_error: str | None = None  # why the task could not be copied (then ``task`` is None)
 
 
 def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
@@ -419,7 +418,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         #: what a copy replays (:meth:`__deepcopy__`); None on a backend object (such an env cannot be copied)
         self._episode = None if self._engine is None else EpisodeReplay(
             self.np_random.bit_generator.state, copy.deepcopy(options), [], self.START_FRACTION,
-            *self._task_now(self._own_parts(self)))  # fmt: skip
+            copy.copy(self.task))  # fmt: skip  (its settings now: a copy deepcopies it, never a reset)
         return checked
 
     def _own_parts(self, owner: StewartBallEnv) -> dict[int, Any]:
@@ -432,13 +431,16 @@ class StewartBallEnv(gym.Env, EzPickle):
             memo[id(closed)] = owner.sim
         return memo
 
-    def _task_now(self, memo: dict[int, Any]) -> tuple[Any, str | None]:
-        """A copy of the task as it is now (``memo``: :meth:`_own_parts`), or None and why it cannot be copied (a
-        lock, an open file among a user's task's members): only a copy of the env needs it, and says so then."""
+    @staticmethod
+    def _copied_task(task: Task, memo: dict[int, Any]) -> Task:
+        """A deep copy of ``task`` (``memo``: :meth:`_own_parts`, not filled in); a ``TypeError`` that says why where
+        it cannot be copied (a lock, an open file among a user's task's members)."""
         try:
-            return copy.deepcopy(self.task, memo), None
+            return copy.deepcopy(task, dict(memo))
         except Exception as exc:  # noqa: BLE001  (a user's task: whatever its members raise)
-            return None, f"{type(exc).__name__}: {exc}"
+            raise TypeError(f"copy.deepcopy: this env's task ({type(task).__name__}) cannot be copied "
+                            f"({type(exc).__name__}: {exc}); give the task a __deepcopy__, or make another env "
+                            "with gym.make") from None  # fmt: skip
 
     def keep_params(self, params: EpisodeParams) -> None:
         """:meth:`draw_episode` after the parameters' draws: keep ``params`` and start this env's own count of the
@@ -621,12 +623,6 @@ class StewartBallEnv(gym.Env, EzPickle):
             raise TypeError(f"copy.deepcopy: this env steps the backend object it was given ({type(self.sim).__name__}), "
                             "which a copy would share; make the copy with gym.make(id, backend=...) by name")  # fmt: skip
         replay = self._episode
-        why = replay.task_error if replay is not None else None
-        if why is None:  # (a copy thrown away: said before an engine is made)
-            why = self._task_now(self._own_parts(self))[1]
-        if why is not None:
-            raise TypeError(f"copy.deepcopy: this env's task ({type(self.task).__name__}) cannot be copied ({why}); "
-                            "give the task a __deepcopy__, or make another env with gym.make")  # fmt: skip
         twin = type(self)(*self._ezpickle_args, **self._ezpickle_kwargs)
         memo[id(self)] = twin
         try:
@@ -639,12 +635,12 @@ class StewartBallEnv(gym.Env, EzPickle):
             if replay is not None:
                 twin.np_random.bit_generator.state = replay.draws
                 twin.START_FRACTION = replay.start_fraction
-                twin.task = copy.deepcopy(replay.task, shared)
+                twin.task = self._copied_task(replay.task, shared)
                 twin.reset(options=copy.deepcopy(replay.options))
                 for action in replay.actions:
                     twin.step(action)
             twin.np_random.bit_generator.state = self.np_random.bit_generator.state  # in place: the sensor's too
-            twin.task = copy.deepcopy(self.task, shared)
+            twin.task = self._copied_task(self.task, shared)
             if "START_FRACTION" in vars(self):
                 twin.START_FRACTION = self.START_FRACTION
             else:
