@@ -30,10 +30,17 @@ SIGINT_IGNORED_AT_START = (_threading.current_thread() is _threading.main_thread
 def _as_command() -> bool:
     """Whether this process is the ``stewart-gym`` command: its script, or ``python -m stewart_gym`` (not another
     module of the package run with ``-m``, such as a vector env's worker)."""
-    script = _sys.argv[0] if _sys.argv else ""
-    given = list(getattr(_sys, "orig_argv", []))
+    return is_command(_sys.argv[0] if _sys.argv else "", list(getattr(_sys, "orig_argv", [])))
+
+
+def is_command(script: str, given: list[str]) -> bool:
+    """Whether a process whose ``sys.argv[0]`` is ``script`` and whose ``sys.orig_argv`` is ``given`` is the
+    ``stewart-gym`` command: its script by any path (on Windows ``stewart-gym.exe`` or ``stewart-gym-script.py``,
+    ``\\`` or ``/`` between folders), or ``python -m stewart_gym``."""
+    name = script.replace("\\", "/").rsplit("/", 1)[-1].lower()
     after_m = given[given.index("-m") + 1] if "-m" in given[:-1] else None
-    return script == "stewart-gym" or script.endswith("/stewart-gym") or after_m in ("stewart_gym", "stewart_gym.cli")
+    return (name in ("stewart-gym", "stewart-gym.exe", "stewart-gym-script.py")
+            or after_m in ("stewart_gym", "stewart_gym.cli"))
 
 
 #: Whether this process is the ``stewart-gym`` command (:func:`_as_command`): then a stop signal while it loads is

@@ -37,12 +37,20 @@ __all__ = ["EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "c
 
 
 class SB3Policy:
-    """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with."""
+    """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with.
+
+    A deterministic :meth:`predict` runs the model's deterministic action as one torch module
+    (:func:`deterministic_module`) and clips or rescales it as SB3's ``predict`` does: the same numbers to the last
+    bit, at about a third of the cost of SB3's call, which checks and converts its input each time."""
 
     def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8) -> None:
         self.model, self.obs_rms, self.clip_obs, self.epsilon = model, obs_rms, clip_obs, epsilon
         self.obs_size = int(model.observation_space.shape[0])
         self.action_size = int(model.action_space.shape[0])
+        self._deterministic: Any = None  # the deterministic action's module, made at the first deterministic call
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {**self.__dict__, "_deterministic": None}  # (the module is made again where it is needed)
 
     def normalize(self, obs: np.ndarray) -> np.ndarray:
         if self.obs_rms is None:
@@ -52,7 +60,26 @@ class SB3Policy:
 
     def predict(self, obs: np.ndarray, state: Any = None, episode_start: Any = None,
                 deterministic: bool = True) -> tuple[np.ndarray, Any]:  # fmt: skip
-        return self.model.predict(self.normalize(np.asarray(obs, dtype=np.float32)), deterministic=deterministic)
+        """The action for ``obs`` (one observation, or a row each), normalised as in training; and None (no
+        recurrent state)."""
+        observation = np.asarray(obs, dtype=np.float32)
+        if observation.shape[-1:] != (self.obs_size,) or observation.ndim > 2:
+            raise ValueError(f"expected an observation of shape ({self.obs_size},) or rows of them, got an array of "
+                             f"shape {observation.shape}")  # fmt: skip
+        observation = self.normalize(observation)
+        if not deterministic:
+            return self.model.predict(observation, deterministic=False)
+        import torch
+
+        policy = self.model.policy
+        if self._deterministic is None:
+            self._deterministic = deterministic_module(self.model).eval()
+        with torch.no_grad():
+            rows = torch.from_numpy(np.ascontiguousarray(observation.reshape(-1, self.obs_size)))
+            actions = self._deterministic(rows).numpy().reshape(-1, self.action_size)
+        space = policy.action_space  # as SB3's predict: squashed actions rescaled to the space, others clipped to it
+        actions = policy.unscale_action(actions) if policy.squash_output else np.clip(actions, space.low, space.high)
+        return (actions[0] if observation.ndim == 1 else actions), None
 
 
 def _policy_module(zip_path: Path) -> str:

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 from conftest import Board, FakeDevice, cli
 
+import stewart_gym
 from stewart_gym.calibration import ServoCalibration
 from stewart_gym.hardware.behaviour import DEPLOY_BEHAVIOUR, behaviour_table
 
@@ -544,3 +545,16 @@ def test_only_the_command_itself_notes_stop_signals_while_it_loads(command: list
                           text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.split() == [str(noted), str(not noted)], proc.stdout
+
+
+@pytest.mark.parametrize("script,given,expected", [
+    ("/home/u/.venv/bin/stewart-gym", [], True), ("stewart-gym", [], True),
+    (r"C:\Users\u\venv\Scripts\stewart-gym.exe", [], True), (r"C:\venv\Scripts\STEWART-GYM.EXE", [], True),
+    (r"C:\venv\Scripts\stewart-gym-script.py", [], True), ("-m", ["python", "-m", "stewart_gym", "ik"], True),
+    ("/home/u/bin/not-stewart-gym", [], False), ("/x/stewart-gym.py", [], False),
+    ("-m", ["python", "-m", "stewart_gym.envs.split_vector", "3", "4"], False), ("-c", ["python", "-c", "-m"], False),
+])  # fmt: skip
+def test_the_command_is_known_by_its_script_on_every_system(script: str, given: list[str], expected: bool) -> None:
+    """The command's script is known by its name in any folder, with Windows' separators and its ``.exe`` launcher
+    too, so that a stop while it loads is one line there as well."""
+    assert stewart_gym.is_command(script, given) is expected

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +47,15 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
         reference = load_sb3(folder)
         assert type(reference.model) is algo
         expected = reference.predict(obs, deterministic=True)[0]
+        # SB3Policy's own deterministic pass is SB3's predict to the last bit, for rows and for one observation,
+        # and the policy still pickles after it
+        assert np.array_equal(expected, reference.model.predict(reference.normalize(obs), deterministic=True)[0])
+        one = reference.predict(obs[7], deterministic=True)[0]
+        sb3_one = reference.model.predict(reference.normalize(obs[7]), deterministic=True)[0]
+        assert one.shape == (2,) and np.array_equal(one, sb3_one), algo.__name__
+        assert np.array_equal(pickle.loads(pickle.dumps(reference)).predict(obs)[0], expected)
+        with pytest.raises(ValueError, match=r"shape \(12,\)"):
+            reference.predict(obs[:, :5])
         got = bundle(obs)
         assert np.abs(got - expected).max() <= 1e-5, algo.__name__
         assert not list((tmp_path / f"{algo.__name__}_bundle").glob("*.pkl"))  # no pickle in the bundle
