@@ -161,8 +161,9 @@ def local_sweep(tmp_path: Path, **entries: object) -> tuple[Path, str, list[dict
 
 @pytest.mark.slow
 def test_a_local_rays_trials_run_at_the_sweeps_priority_unless_the_user_sets_another() -> None:
-    """Ray's workers run at nice 15 by default, where any busy process starves them; the Ray a sweep starts runs
-    them at the sweep's own priority, and at the one ``RAY_worker_niceness`` names when the user sets it."""
+    """Ray's workers run 15 nice levels below their raylet by default, where any busy process starves them; the Ray
+    a sweep starts runs them at the sweep's own priority, and ``RAY_worker_niceness`` levels below it when the user
+    sets it (capped at 19: a suite run under ``nice`` gives the same verdict)."""
     code = ("import os, ray\nfrom stewart_gym.sweep import connect\n"
             "nice = ray.remote(lambda: os.nice(0))\n"
             "connect(None)\nprint(os.nice(0), ray.get(nice.remote()))\nray.shutdown()\n"
@@ -171,7 +172,7 @@ def test_a_local_rays_trials_run_at_the_sweeps_priority_unless_the_user_sets_ano
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     own, worker, chosen = map(int, proc.stdout.split()[-3:])
-    assert worker == own and chosen == 7
+    assert worker == own and chosen == min(19, own + 7), (own, worker, chosen)
 
 
 @pytest.mark.slow
