@@ -55,7 +55,7 @@ __all__ = ["ALGOS", "EVALUATION_SECTION", "NOISE_TYPES", "RESIDUAL_WRAPPER", "RU
            "algo_keywords", "check_action_noise", "check_algo_keywords", "check_hyperparameter_values",
            "check_resumed_observer", "check_algo_values", "check_recipe", "check_run_dir", "check_run_env",
            "action_noise", "evaluation_env", "load_hyperparams", "make_env", "planned_timesteps", "rollout_note",
-           "run_hyperparams", "train", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
+           "run_hyperparams", "train", "whole_rollouts_note", "InProcessVecEnv", "VEC_ENVS", "check_vec_env"]
 
 ALGOS: dict[str, type[BaseAlgorithm]] = {"ppo": PPO, "sac": SAC, "td3": TD3, "tqc": TQC}
 HYPERPARAM_DIR = Path(__file__).resolve().parent / "hyperparams"  # package data: works after a non-editable install
@@ -570,6 +570,22 @@ def rollout_note(config: TrainConfig) -> str | None:
     return (f"n_steps {n_steps} × n_envs {n_envs} = a rollout of {rollout:,} samples, which batch_size {batch:,} "
             f"does not divide: each epoch trains on {minibatches}{rollout % batch:,} (for whole minibatches, make "
             f"n_steps × n_envs a multiple of batch_size{recipe})")
+
+
+def whole_rollouts_note(config: TrainConfig) -> str | None:
+    """A line where the timesteps given (``n_timesteps`` of the options: ``--timesteps``) of a new PPO run are not a
+    whole number of rollouts (``n_steps`` × ``n_envs``): PPO collects whole rollouts, so it trains that many more
+    steps; None otherwise (a recipe's own ``n_timesteps`` is taken as whole rollouts, as SB3 and RL Zoo take it)."""
+    if config.algo != "ppo" or config.resume or config.n_timesteps is None:
+        return None
+    hp = run_hyperparams(config)
+    rollout = _ppo_setting(hp, "n_steps") * run_copies(config, hp)
+    planned = planned_timesteps(config)
+    trained = -(-planned // rollout) * rollout
+    if trained == planned:
+        return None
+    return (f"PPO collects whole rollouts of n_steps × n_envs = {rollout:,} steps: {planned:,} timesteps train "
+            f"{trained:,}")
 
 
 def action_noise(hp: dict[str, Any], n_actions: int) -> ActionNoise | None:

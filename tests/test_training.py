@@ -19,7 +19,7 @@ from stewart_gym.errors import ConfigError
 from stewart_gym.evaluation import evaluate, format_table
 from stewart_gym.registry import POLICY_DIR, load_policy
 from stewart_gym.sb3_models import load_sb3
-from stewart_gym.training import TrainConfig, load_hyperparams, rollout_note, train
+from stewart_gym.training import TrainConfig, load_hyperparams, rollout_note, train, whole_rollouts_note
 
 SMOKE = {
     "ppo": {"n_steps": 128, "batch_size": 64, "n_epochs": 2},
@@ -539,6 +539,27 @@ def test_the_rollout_note_counts_the_minibatches(tmp_path: Path) -> None:
     recipe.write_text("StewartBallBalance-v0:\n  n_steps: 48\n  batch_size: 64\n")
     assert note(hyperparams=str(recipe), n_envs=3).endswith("and one of 16 (for whole minibatches, make n_steps × "
                                                             "n_envs a multiple of batch_size; the recipe has n_envs 1)")
+
+
+def test_timesteps_that_are_not_whole_rollouts_are_a_note_saying_what_trains(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """PPO collects whole rollouts: ``--timesteps`` short of one (or between two) says how many steps it trains, and
+    the run does train that many; whole rollouts, a resumed run and off-policy algorithms give no note."""
+    def note(**kw: object) -> str | None:
+        return whole_rollouts_note(TrainConfig(**{"hyperparams": "ppo_batched", "run_dir": "unused", **kw}))
+
+    assert note(n_timesteps=128) == ("PPO collects whole rollouts of n_steps × n_envs = 4,096 steps: 128 timesteps "
+                                     "train 4,096")  # fmt: skip
+    assert note(n_timesteps=5000).endswith("5,000 timesteps train 8,192")
+    assert note(n_timesteps=8192) is None and note(n_timesteps=128, resume=str(POLICY_DIR / "balance")) is None
+    assert note() is None  # the recipe's own 300,000 (not whole rollouts of 4,096 either): as SB3 takes it
+    assert whole_rollouts_note(TrainConfig(algo="sac", run_dir="unused", n_timesteps=7)) is None
+    code, out, err = cli(capfd, "train", "--hyperparams", "ppo_batched", "--run-dir", str(tmp_path / "run"),
+                         "--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "1", "--no-progress",
+                         "--no-tensorboard")  # fmt: skip
+    assert code == 0, err
+    assert "note: PPO collects whole rollouts of n_steps × n_envs = 4,096 steps: 128 timesteps train 4,096" in err
+    assert json.loads(out)["timesteps"] == 4096
 
 
 @pytest.mark.slow

@@ -66,6 +66,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         run_env_kwargs,
         run_hyperparams,
         train,
+        whole_rollouts_note,
     )
 
     cfg = TrainConfig(env_id=args.env, algo=args.algo, hyperparams=args.hyperparams, run_dir=args.run_dir,
@@ -84,8 +85,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     if note:
         print(f"note: {note}", file=sys.stderr)
     uneven = rollout_note(cfg)
-    if uneven:
-        print(f"note: {uneven}", file=sys.stderr)
+    for note in (uneven, whole_rollouts_note(cfg)):
+        if note:
+            print(f"note: {note}", file=sys.stderr)
     total = planned_timesteps(cfg)
     progress = None if args.no_progress else Progress(total, "steps", "train")
     with warnings.catch_warnings():

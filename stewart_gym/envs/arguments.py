@@ -36,6 +36,18 @@ def true_or_false(name: str, value: Any) -> bool:
     return bool(value)
 
 
+def number_range(name: str, value: Any, low: float, high: float) -> tuple[float, float]:
+    """``value`` as a (low, high) pair of Python floats: two finite real numbers, the first at most the second,
+    both within [``low``, ``high``]; else a ConfigError naming ``name``."""
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise ConfigError(f"{name} must be a (low, high) pair of numbers from {low:g} to {high:g}, got {value!r}")
+    first = real_number(f"{name}[0]", value[0], low=low, high=high)
+    second = real_number(f"{name}[1]", value[1], low=low, high=high)
+    if first > second:
+        raise ConfigError(f"{name} must be a (low, high) pair with low ≤ high, got {value!r}")
+    return float(first), float(second)
+
+
 def spec_of(name: str, value: Any, classes: type | tuple[type, ...], what: str) -> Any:
     """``value`` where it is None or of ``classes``; else a ConfigError naming ``name`` and saying ``what`` it
     takes."""

@@ -194,7 +194,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     :class:`~stewart_gym.envs.randomization.RandomizationRanges`; ``randomization`` takes the ranges or a
     mapping of the fields to change),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
-    ``success_radius`` (m), ``success_window_s`` (s), ``physics_hz`` (default
+    ``success_radius`` (m), ``success_window_s`` (s, default 1; a window given is no longer than the
+    episode), ``physics_hz`` (default
     the engine's: PyBullet 150 Hz, trading the simulator's 200 Hz, loop gap ≤ 0.07 mm
     in full-range moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves
     and ≤ 0.042 mm under ±10° bang-bang tilts; MuJoCo 250 Hz), ``control_hz``, ``rate_penalty``,
@@ -231,7 +232,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         *,
         max_tilt: float | None = None,
         success_radius: float | None = None,
-        success_window_s: float = 1.0,
+        success_window_s: float | None = None,
         physics_hz: int | None = None,
         control_hz: int = 50,
         ball: BallSpec | None = None,
@@ -296,13 +297,18 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz),
                          "render_modes": ["human", "rgb_array"] if human else ["rgb_array"] if frames else []}  # fmt: skip
         self.plate_half_extent = tuple(self.sim.plate_half_extent)
-        self.task: Task = load_task(task, success_radius=success_radius, success_window_s=success_window_s,
+        self.task: Task = load_task(task, success_radius=success_radius,
+                                    success_window_s=1.0 if success_window_s is None else success_window_s,
                                     rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),
                                     **task_kwargs) if isinstance(task, str) else task  # fmt: skip
         self.success_radius = float(self.task.success_radius)
         self.success_steps = max(1, int(round(self.task.success_window_s * self.sim.control_hz)))
         #: control steps in an episode: ``episode_s`` at this env's rate (then ``truncated``)
         self.episode_steps = max(1, int(round(float(episode_s) * self.sim.control_hz)))
+        if success_window_s is not None and self.success_steps > self.episode_steps:
+            raise ConfigError(f"success_window_s ({self.task.success_window_s:g} s) is longer than the episode "
+                              f"(episode_s {float(episode_s):g} s): no episode could succeed; give a shorter "
+                              "window or a longer episode")  # fmt: skip
         self._engine = (backend, geometry, physics_hz, control_hz, render_mode) if isinstance(backend, str) else None
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
-from stewart_gym.envs.arguments import real_number
+from stewart_gym.envs.arguments import real_number, true_or_false
 from stewart_gym.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -131,9 +131,7 @@ class BallTask:
                        ("outside_penalty", self.outside_penalty)):  # fmt: skip
             if not (math.isfinite(v) and v >= 0):
                 raise ConfigError(f"{key} must be ≥ 0, got {v!r}")
-        if not isinstance(charge_until_settled, bool):
-            raise ConfigError(f"charge_until_settled must be true or false, got {charge_until_settled!r}")
-        self.charge_until_settled = charge_until_settled
+        self.charge_until_settled = true_or_false("charge_until_settled", charge_until_settled)
         self._steps_inside = 0  # since the ball last entered the success radius (charge_until_settled)
 
     def __setattr__(self, name: str, value: Any) -> None:

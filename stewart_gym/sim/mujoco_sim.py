@@ -14,6 +14,7 @@ runs the same checks on both engines.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any, Literal
 
@@ -118,6 +119,8 @@ class MujocoSim(SimulatorBase):
                     render_size, ("rgb_array",))  # fmt: skip
         self.physics = MujocoPhysics(**{**vars(physics), "physics_hz": physics_hz})
         self._mj = mj
+        # the warnings MuJoCo gives where it finds the simulation unstable, and then resets its state
+        self._instabilities = (mj.mjtWarning.mjWARN_BADQPOS, mj.mjtWarning.mjWARN_BADQVEL, mj.mjtWarning.mjWARN_BADQACC)
         self._plate_friction = 0.6
         self.xml = mechanism_mjcf(self.geometry, self.mechanism, self.servo_spec, self.physics,
                                   ball=self.ball_spec if self.has_ball else None,
@@ -264,9 +267,19 @@ class MujocoSim(SimulatorBase):
         _, rot = self._plate_frame()
         return np.array(self.ball_position()), self.data.qvel[self._ball_v:self._ball_v + 3] @ rot
 
+    def blew_up(self) -> bool:
+        """Whether MuJoCo found the simulation unstable since the last reset (a NaN, infinite or huge position,
+        velocity or acceleration): it then starts its state again from the model's, which no longer follows the
+        episode."""
+        warnings = self.data.warning
+        return any(warnings[int(kind)].number for kind in self._instabilities)
+
     def ball_position(self) -> tuple[float, float, float]:
-        """Ball centre (x, y, z) in the platform frame, m."""
+        """Ball centre (x, y, z) in the platform frame, m; NaN where the simulation blew up (:meth:`blew_up`), as
+        PyBullet's own position is then."""
         self._require_ball()
+        if self.blew_up():
+            return (math.nan, math.nan, math.nan)
         origin, rot = self._plate_frame()
         p = (self.data.qpos[self._ball_q:self._ball_q + 3] - origin) @ rot
         return (float(p[0]), float(p[1]), float(p[2]))

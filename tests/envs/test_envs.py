@@ -253,6 +253,64 @@ def test_reset_options_are_checked(options: dict, match: str) -> None:
         env.close()
 
 
+@pytest.mark.parametrize("env_id,kwargs,match", [
+    ("StewartBallDisturbance-v0", {"last_push_s": math.inf}, "last_push_s must be a finite number"),
+    ("StewartBallDisturbance-v0", {"last_push_s": "7"}, "last_push_s must be a number"),
+    ("StewartBallDisturbance-v0", {"last_push_s": True}, "last_push_s must be a number"),
+    ("StewartBallDisturbance-v0", {"last_push_s": -1.0}, "last_push_s must be a finite number in"),
+    ("StewartBallDisturbance-v0", {"push_impulse": (math.nan, math.nan)}, r"push_impulse\[0\]"),
+    ("StewartBallDisturbance-v0", {"push_impulse": (0.01, 0.003)}, "low ≤ high"),
+    ("StewartBallDisturbance-v0", {"push_impulse": 0.005}, r"push_impulse must be a \(low, high\) pair"),
+    ("StewartBallDisturbance-v0", {"push_impulse": (0.003,)}, r"push_impulse must be a \(low, high\) pair"),
+    ("StewartBallDisturbance-v0", {"push_impulse": "ab"}, r"push_impulse must be a \(low, high\) pair"),
+    ("StewartBallDisturbance-v0", {"push_impulse": (-1.0, -0.5)}, r"push_impulse\[0\]"),
+    ("StewartBallDisturbance-v0", {"push_impulse": (1e6, 1e6)}, r"push_impulse\[0\] must be a finite number in \[0, 1\]"),
+    ("StewartBallDisturbance-v0", {"load_kg": (1, 2, 3)}, r"load_kg must be a \(low, high\) pair"),
+    ("StewartBallDisturbance-v0", {"load_kg": (-50.0, -50.0)}, r"load_kg\[0\]"),
+    ("StewartBallDisturbance-v0", {"load_time_s": (math.inf, math.inf)}, r"load_time_s\[0\]"),
+    ("StewartBallDisturbance-v0", {"load_radius": math.nan}, "load_radius"),
+    ("StewartBallDisturbance-v0", {"load_radius": 10.0}, r"load_radius must be a finite number in \[0, 0.15\]"),
+    ("StewartBallTrack-v0", {"success_window_s": 1e6}, "longer than the episode"),
+    ("StewartBallBalance-v0", {"success_window_s": 11.0}, "longer than the episode"),
+    ("StewartBallTrack-v0", {"charge_until_settled": "yes"}, "charge_until_settled must be true or false"),
+])  # fmt: skip
+def test_task_keywords_are_checked_as_the_env_is_made(env_id: str, kwargs: dict, match: str) -> None:
+    """Each task keyword is checked as the env is made, naming it: a push or load range is a (low, high) pair of
+    finite numbers in its range, the last push within an hour, the load within the plate, a success window no
+    longer than the episode. (An infinite last push used to hang the first reset.)"""
+    from stewart_gym.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=match):
+        gym.make(env_id, backend="batched", **kwargs)
+
+
+def test_a_task_switch_takes_a_numpy_bool_and_the_default_load_stays_on_a_small_plate() -> None:
+    env = gym.make("StewartBallTrack-v0", backend="batched", charge_until_settled=np.True_)
+    assert env.unwrapped.task.charge_until_settled is True
+    env = gym.make("StewartBallDisturbance-v0", backend="batched")
+    assert env.unwrapped.task.load_radius == 0.10 and env.unwrapped.task.push_impulse == (0.003, 0.010)
+    from stewart_gym.envs.tasks.disturbance import DisturbanceTask
+
+    assert DisturbanceTask(plate_half=0.05).load_radius == 0.05
+
+
+def test_mujoco_blowing_up_is_a_physics_error_not_a_ball_put_back() -> None:
+    """MuJoCo starts its state again where it finds the simulation unstable; the env reports that step as a physics
+    error (the ball NaN, the episode terminated), as PyBullet's NaN is, not as a ball back at the centre."""
+    env = gym.make("StewartBallBalance-v0", backend="mujoco")
+    try:
+        env.reset(seed=0)
+        sim = env.unwrapped.sim
+        assert not sim.blew_up()
+        sim.data.qvel[:] = 1e200  # (as a huge push would leave it)
+        _, _, terminated, _, info = env.step(np.zeros(2, dtype=np.float32))
+        assert terminated and info["physics_error"] and np.isnan(info["ball_xy_m"]).all()
+        env.reset(seed=1)
+        assert not sim.blew_up() and np.isfinite(sim.ball_position()).all()
+    finally:
+        env.close()
+
+
 def test_start_distance_draws_the_start_on_a_ring_and_is_checked() -> None:
     """``start_distance=(low, high)`` starts the ball at a distance in that range from the centre, in varied
     directions; without it the start is the usual seeded draw; bad ranges are refused naming the keyword."""

@@ -7,12 +7,22 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from stewart_gym.envs.arguments import number_range, real_number
 from stewart_gym.envs.task import BallTask
 
 if TYPE_CHECKING:
     from stewart_gym.sim.backend import PhysicsBackend
 
 __all__ = ["DisturbanceTask"]
+
+#: N·s: the largest push (1 N·s sends the default ball off at 15 m/s).
+MAX_PUSH_NS = 1.0
+#: kg: the heaviest plate load.
+MAX_LOAD_KG = 2.0
+#: s: the latest push or load time, the longest episode an env takes.
+MAX_EPISODE_S = 3600.0
+#: m: how far from the centre the plate load may land by default (the plate's half-width where that is less).
+LOAD_RADIUS_M = 0.10
 
 
 class DisturbanceTask(BallTask):
@@ -26,8 +36,13 @@ class DisturbanceTask(BallTask):
       default 66.8 g ball) in a uniformly random direction;
     * a **plate load** that appears at a uniform time in ``load_time_s``: a mass
       of ``load_kg`` (uniform) placed uniformly within ``load_radius`` of the
-      centre. It replaces the small load that domain randomisation may have put
-      there, and stays to the end.
+      centre (default 0.10 m, or the plate's half-width where that is less). It
+      replaces the small load that domain randomisation may have put there, and
+      stays to the end.
+
+    ``push_impulse``, ``load_kg`` and ``load_time_s`` are (low, high) pairs: pushes
+    of up to 1 N·s, loads of up to 2 kg, times of up to an hour; ``load_radius`` is
+    within the plate's half-width.
 
     Success: as for balance, within 10 mm of the centre for the last second;
     the pushes stop ``last_push_s`` (7.5 s) into the 10 s episode, so there is
@@ -39,10 +54,14 @@ class DisturbanceTask(BallTask):
 
     def __init__(self, push_impulse: tuple[float, float] = (0.003, 0.010), last_push_s: float = 7.5,
                  load_kg: tuple[float, float] = (0.05, 0.20), load_time_s: tuple[float, float] = (2.0, 6.0),
-                 load_radius: float = 0.10, **kwargs: Any) -> None:  # fmt: skip
+                 load_radius: float | None = None, **kwargs: Any) -> None:  # fmt: skip
         super().__init__(**kwargs)
-        self.push_impulse, self.last_push_s = push_impulse, float(last_push_s)
-        self.load_kg, self.load_time_s, self.load_radius = load_kg, load_time_s, float(load_radius)
+        self.push_impulse = number_range("push_impulse", push_impulse, 0.0, MAX_PUSH_NS)
+        self.last_push_s = float(real_number("last_push_s", last_push_s, low=0.0, high=MAX_EPISODE_S))
+        self.load_kg = number_range("load_kg", load_kg, 0.0, MAX_LOAD_KG)
+        self.load_time_s = number_range("load_time_s", load_time_s, 0.0, MAX_EPISODE_S)
+        self.load_radius = (min(LOAD_RADIUS_M, self.plate_half) if load_radius is None
+                            else float(real_number("load_radius", load_radius, low=0.0, high=self.plate_half)))
         self._pushes: list[tuple[float, tuple[float, float]]] = []
         self._load: tuple[float, float, np.ndarray] | None = None
         self._next = 0
