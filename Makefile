@@ -49,6 +49,7 @@ bench: $(STAMP)
 	$(PY) bench/bench_ik_load.py
 	$(PY) bench/bench_sim.py
 	$(PY) bench/bench_env.py
+	$(PY) bench/bench_batched.py
 	$(PY) bench/bench_deploy.py
 	$(PY) bench/bench_analysis.py
 	$(PY) bench/bench_mujoco.py

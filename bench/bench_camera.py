@@ -23,6 +23,7 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 
 from stewart_gym.camera import CAMERA_PRESETS  # noqa: E402
+from stewart_gym.cli.common import int_at_least
 from stewart_gym.kinematics import inverse_kinematics  # noqa: E402
 from stewart_gym.sim import StewartSim  # noqa: E402
 from stewart_gym.vision import CameraConfig, locate_ball  # noqa: E402
@@ -32,7 +33,7 @@ def main() -> None:
     import cv2
 
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--frames", type=int, default=200)
+    parser.add_argument("--frames", type=int_at_least(2), default=200)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     cv2.setNumThreads(1)

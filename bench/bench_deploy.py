@@ -25,6 +25,7 @@ import numpy as np  # noqa: E402
 
 from stewart_gym.actions import ActionMapper  # noqa: E402
 from stewart_gym.calibration import ServoCalibration  # noqa: E402
+from stewart_gym.cli.common import int_at_least  # noqa: E402
 from stewart_gym.errors import PolicyError  # noqa: E402
 from stewart_gym.hardware.deploy import DeployLoop  # noqa: E402
 from stewart_gym.hardware.export import BundlePolicy  # noqa: E402
@@ -50,7 +51,7 @@ class _NullSerial:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--ticks", type=int, default=20_000)
+    parser.add_argument("--ticks", type=int_at_least(2), default=20_000)
     parser.add_argument("--bundle", default=str(POLICY_DIR / "balance" / "bundle"), help="an exported bundle folder")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()

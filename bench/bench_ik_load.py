@@ -20,6 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_kinematics import hand_vectorised_servo_ik  # noqa: E402
 
+from stewart_gym.cli.common import int_at_least
 from stewart_gym.kinematics import inverse_kinematics  # noqa: E402
 from stewart_gym.presets import load_preset  # noqa: E402
 
@@ -37,7 +38,7 @@ def timings(geo: object, poses: np.ndarray, tries: int = 5) -> dict[str, float]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--poses", type=int, default=100_000)
+    parser.add_argument("--poses", type=int_at_least(1), default=100_000)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     geo = load_preset("servo-hexapod")

@@ -23,6 +23,7 @@ import numpy as np  # noqa: E402
 
 from stewart_gym.actions import ActionMapper  # noqa: E402
 from stewart_gym.calibration import ServoCalibration, servo_pulses_one  # noqa: E402
+from stewart_gym.cli.common import int_at_least  # noqa: E402
 from stewart_gym.geometry import PlatformGeometry  # noqa: E402
 from stewart_gym.kinematics import forward_kinematics, inverse_kinematics  # noqa: E402
 from stewart_gym.presets import load_preset  # noqa: E402
@@ -73,8 +74,8 @@ def best_of(fn, repeats: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--poses", type=int, default=1_000_000)
-    parser.add_argument("--loop-poses", type=int, default=20_000, help="poses timed in the per-pose loops")
+    parser.add_argument("--poses", type=int_at_least(1), default=1_000_000)
+    parser.add_argument("--loop-poses", type=int_at_least(1), default=20_000, help="poses timed in the per-pose loops")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
 

@@ -9,11 +9,14 @@ install has it). Prints one line per library: steps, wall seconds, steps per sec
 from __future__ import annotations
 
 import argparse
+import os
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from stewart_gym.cli.common import int_at_least
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,13 +37,16 @@ def commands(steps: int, folder: str) -> dict[str, list[str]]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=4096, help="env steps per library (whole batches of 2,048)")
+    parser.add_argument("--steps", type=int_at_least(1), default=4096,
+                        help="env steps per library (whole batches of 2,048)")
     args = parser.parse_args()
     steps = max(args.steps // 2048, 1) * 2048
     with tempfile.TemporaryDirectory() as folder:
         for name, command in commands(steps, folder).items():
             start = time.perf_counter()
-            proc = subprocess.run(command, capture_output=True, text=True, cwd=folder)
+            # (SB3's logger folder and Ray's session folder in the temporary folder too, not left in the system's)
+            proc = subprocess.run(command, capture_output=True, text=True, cwd=folder,
+                                  env={**os.environ, "SB3_LOGDIR": folder, "RAY_TMPDIR": folder})  # fmt: skip
             wall = time.perf_counter() - start
             if proc.returncode != 0:
                 sys.exit(f"error: {name} failed (exit {proc.returncode}):\n{proc.stderr[-2000:]}")

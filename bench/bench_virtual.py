@@ -37,11 +37,15 @@ def one_run(seed: int, seconds: float, backend: str, protocol: str, folder: Path
             raise RuntimeError(board.communicate()[1])
         time.sleep(0.05)
     sensor = "panel" if protocol == "line" else "sim"
+    seeded = ["--seed", str(seed)] if sensor == "sim" else []  # (a seed is the simulated plant's: --sensor sim)
     dep = subprocess.run([*SG, "deploy", "--policy", "shipped", "--protocol", protocol, "--sensor", sensor, "--port",
-                          str(link), "--duration", str(seconds), "--log", str(log), "--overwrite", "--seed", str(seed)],
+                          str(link), "--duration", str(seconds), "--log", str(log), "--overwrite", *seeded],
                          capture_output=True, text=True)  # fmt: skip
     board.send_signal(signal.SIGINT)
     out, _ = board.communicate(timeout=60)
+    if not log.exists():  # deploy refused to start: its own line says why
+        lines = (dep.stderr or dep.stdout).strip().splitlines()
+        raise SystemExit(f"error: deploy exited {dep.returncode} before its first tick: {lines[-1] if lines else ''}")
     rows = list(csv.DictReader(log.open()))
     t = np.array([float(r["t_s"]) for r in rows])
     xy = np.array([[float(r["obs0"]), float(r["obs1"])] for r in rows]) * 150.0  # obs × half plate (mm)
@@ -67,6 +71,8 @@ def main() -> None:
     parser.add_argument("--protocol", choices=["line", "maestro", "ssc32"], default="line")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    if args.runs < 1 or not args.seconds >= 6.0:
+        parser.error("--runs must be 1 or more and --seconds at least 6 (the summary reads the last 5 s)")
     with tempfile.TemporaryDirectory() as tmp:
         runs = [one_run(k, args.seconds, args.backend, args.protocol, Path(tmp)) for k in range(args.runs)]
     res = {"backend": args.backend, "protocol": args.protocol, "seconds": args.seconds, "runs": runs,

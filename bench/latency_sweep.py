@@ -1,6 +1,8 @@
 """Success and RMS error against the camera's sensing latency: what camera does a controller need?
 
-Run: ``.venv/bin/python bench/latency_sweep.py [--episodes 50] [--out docs/src/images/latency_sweep.png]``.
+Run: ``.venv/bin/python bench/latency_sweep.py [--episodes 50] [--out out/latency_sweep.png] [--json]`` (the
+camera page's plot: ``--out docs/src/images/latency_sweep.png``). With ``--json`` the table is one JSON list on
+stdout, and the progress lines go to stderr.
 
 For each exposure-to-output latency from 0 to 120 ms (a camera at 60 fps, so a detection is on average another
 8 ms old; the webcam preset's centroid noise and missed detections), the camera-trained shipped policy
@@ -13,7 +15,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
+from pathlib import Path
 
 from stewart_gym.camera import CAMERA_PRESETS
 from stewart_gym.envs.randomization import RandomizationRanges
@@ -27,9 +31,12 @@ CONTROLLERS = {"camera-trained PPO": "shipped-camera", "panel-trained PPO": "shi
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--out", default="docs/src/images/latency_sweep.png")
+    parser.add_argument("--out", default="out/latency_sweep.png", help="the plot (default out/latency_sweep.png)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
+    if args.episodes < 1:
+        parser.error("--episodes must be 1 or more")
+    progress = sys.stderr if args.json else sys.stdout
     fixed_camera = RandomizationRanges(camera_latency_scale=(1.0, 1.0), camera_noise_scale=(1.0, 1.0),
                                        camera_miss_scale=(1.0, 1.0))  # fmt: skip
     rows = []
@@ -42,7 +49,7 @@ def main() -> None:
             rows.append({"controller": name, "latency_ms": ms, "success_rate": m["success_rate"],
                          "fell_rate": m["fell_rate"], "rms_error_mm": round(m["rms_error_mm"], 3)})  # fmt: skip
             print(f"  {name:20s} {ms:>4} ms: success {m['success_rate']:.0%}, fell {m['fell_rate']:.0%}, "
-                  f"RMS {m['rms_error_mm']:.2f} mm", flush=True)  # fmt: skip
+                  f"RMS {m['rms_error_mm']:.2f} mm", file=progress, flush=True)  # fmt: skip
     if args.json:
         print(json.dumps(rows))
     import matplotlib
@@ -64,8 +71,9 @@ def main() -> None:
     ax1.legend(loc="lower left")
     fig.suptitle(f"StewartBallBalance-v0, {args.episodes} randomised episodes per point")
     fig.tight_layout()
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110)
-    print(f"wrote {args.out}")
+    print(f"wrote {args.out}", file=progress)
 
 
 if __name__ == "__main__":
