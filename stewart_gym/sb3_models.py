@@ -33,21 +33,24 @@ from stewart_gym.errors import ConfigError, PolicyError
 from stewart_gym.outputs import ENSEMBLE_FILE, ensemble_members, model_statistics
 
 __all__ = ["EnsemblePolicy", "ResidualAction", "ResidualPolicy", "SB3Policy", "check_residual", "deterministic_module",
-           "load_learned", "load_sb3", "mean_module", "residual_base", "residual_mix"]  # fmt: skip
+           "load_learned", "load_sb3", "mean_module", "own_deterministic_pass", "residual_base", "residual_mix"]  # fmt: skip
 
 
 class SB3Policy:
     """A Stable-Baselines3 model, with the VecNormalize statistics it was trained with.
 
-    A deterministic :meth:`predict` runs the model's deterministic action as one torch module
-    (:func:`deterministic_module`) and clips or rescales it as SB3's ``predict`` does: the same numbers to the last
-    bit, at about a third of the cost of SB3's call, which checks and converts its input each time."""
+    A deterministic :meth:`predict` of a PPO (without gSDE), SAC, TD3 or TQC model runs the model's deterministic
+    action as one torch module (:func:`deterministic_module`) and clips or rescales it as SB3's ``predict`` does:
+    the same numbers to the last bit, at about a third of the cost of SB3's call, which checks and converts its
+    input each time. Any other model predicts through SB3's own ``predict``."""
 
     def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8) -> None:
         self.model, self.obs_rms, self.clip_obs, self.epsilon = model, obs_rms, clip_obs, epsilon
         self.obs_size = int(model.observation_space.shape[0])
         self.action_size = int(model.action_space.shape[0])
         self._deterministic: Any = None  # the deterministic action's module, made at the first deterministic call
+        #: whether a deterministic :meth:`predict` runs :func:`deterministic_module` (else SB3's own ``predict``)
+        self.own_pass = own_deterministic_pass(model)
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_deterministic": None}  # (the module is made again where it is needed)
@@ -67,8 +70,8 @@ class SB3Policy:
             raise ValueError(f"expected an observation of shape ({self.obs_size},) or rows of them, got an array of "
                              f"shape {observation.shape}")  # fmt: skip
         observation = self.normalize(observation)
-        if not deterministic:
-            return self.model.predict(observation, deterministic=False)
+        if not (deterministic and self.own_pass):
+            return self.model.predict(observation, deterministic=deterministic)
         import torch
 
         policy = self.model.policy
@@ -179,6 +182,17 @@ class EnsemblePolicy:
         with torch.no_grad():
             action = self.module(torch.as_tensor(x.reshape(-1, self.obs_size))).numpy()
         return action.reshape(*x.shape[:-1], self.action_size), None
+
+
+def own_deterministic_pass(model: Any) -> bool:
+    """Whether :func:`deterministic_module` gives ``model``'s deterministic action as SB3's ``predict`` does, on
+    this process's CPU tensors: a PPO, SAC, TD3 or TQC on the CPU without gSDE (whose squashing of PPO's action the
+    module leaves out)."""
+    from sb3_contrib import TQC
+    from stable_baselines3 import PPO, SAC, TD3
+
+    return (isinstance(model, (PPO, SAC, TD3, TQC)) and not getattr(model, "use_sde", False)
+            and not (isinstance(model, PPO) and model.policy.squash_output) and model.device.type == "cpu")
 
 
 def deterministic_module(model: Any) -> Any:

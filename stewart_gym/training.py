@@ -573,9 +573,10 @@ def rollout_note(config: TrainConfig) -> str | None:
 
 
 def whole_rollouts_note(config: TrainConfig) -> str | None:
-    """A line where the timesteps given (``n_timesteps`` of the options: ``--timesteps``) of a new PPO run are not a
-    whole number of rollouts (``n_steps`` × ``n_envs``): PPO collects whole rollouts, so it trains that many more
-    steps; None otherwise (a recipe's own ``n_timesteps`` is taken as whole rollouts, as SB3 and RL Zoo take it)."""
+    """A line where the timesteps given on the command line (``n_timesteps`` of the options: ``--timesteps``) of a
+    new PPO run are not a whole number of rollouts (``n_steps`` × ``n_envs``): PPO collects whole rollouts, so it
+    trains up to one rollout more; None otherwise. A recipe's own ``n_timesteps`` trains whole rollouts the same
+    way, without a word (as in RL Zoo): a recipe is written for its rollouts, a number typed is not."""
     if config.algo != "ppo" or config.resume or config.n_timesteps is None:
         return None
     hp = run_hyperparams(config)

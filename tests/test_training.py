@@ -552,7 +552,7 @@ def test_timesteps_that_are_not_whole_rollouts_are_a_note_saying_what_trains(
                                      "train 4,096")  # fmt: skip
     assert note(n_timesteps=5000).endswith("5,000 timesteps train 8,192")
     assert note(n_timesteps=8192) is None and note(n_timesteps=128, resume=str(POLICY_DIR / "balance")) is None
-    assert note() is None  # the recipe's own 300,000 (not whole rollouts of 4,096 either): as SB3 takes it
+    assert note() is None  # the recipe's own 300,000 trains 303,104 too, without a word: the recipe's choice
     assert whole_rollouts_note(TrainConfig(algo="sac", run_dir="unused", n_timesteps=7)) is None
     code, out, err = cli(capfd, "train", "--hyperparams", "ppo_batched", "--run-dir", str(tmp_path / "run"),
                          "--timesteps", "128", "--eval-freq", "100000", "--eval-episodes", "1", "--no-progress",

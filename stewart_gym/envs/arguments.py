@@ -36,11 +36,20 @@ def true_or_false(name: str, value: Any) -> bool:
     return bool(value)
 
 
-def number_range(name: str, value: Any, low: float, high: float) -> tuple[float, float]:
-    """``value`` as a (low, high) pair of Python floats: two finite real numbers, the first at most the second,
-    both within [``low``, ``high``]; else a ConfigError naming ``name``."""
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
-        raise ConfigError(f"{name} must be a (low, high) pair of numbers from {low:g} to {high:g}, got {value!r}")
+#: s: the longest episode an env takes, and the latest time a task may schedule something in one.
+MAX_EPISODE_S = 3600.0
+
+
+def number_range(name: str, value: Any, low: float, high: float, unit: str = "") -> tuple[float, float]:
+    """``value`` as a (low, high) pair of Python floats: a sequence (tuple, list, 1-D array) of two finite real
+    numbers, the first at most the second, both within [``low``, ``high``] (in ``unit``); else a ConfigError
+    naming ``name``."""
+    pair = (f"{name} must be a (low, high) pair of numbers from {low:g} to {high:g}{unit and ' ' + unit}, "
+            f"got {value!r}")  # fmt: skip
+    if isinstance(value, np.ndarray):
+        value = value.tolist() if value.ndim == 1 else None
+    if not isinstance(value, (tuple, list)) or len(value) != 2:
+        raise ConfigError(pair)
     first = real_number(f"{name}[0]", value[0], low=low, high=high)
     second = real_number(f"{name}[1]", value[1], low=low, high=high)
     if first > second:

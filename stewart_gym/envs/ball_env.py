@@ -19,7 +19,14 @@ from gymnasium.utils import EzPickle
 
 from stewart_gym.actions import ActionMapper
 from stewart_gym.camera import CAMERA_PRESETS, CameraSpec, SimulatedCamera
-from stewart_gym.envs.arguments import check_engine_arguments, check_randomization, real_number, true_or_false
+from stewart_gym.envs.arguments import (
+    MAX_EPISODE_S,
+    check_engine_arguments,
+    check_randomization,
+    number_range,
+    real_number,
+    true_or_false,
+)
 from stewart_gym.envs.randomization import EpisodeParams, RandomizationRanges, draw_count, polar
 from stewart_gym.envs.task import Task, load_task, task_keywords
 from stewart_gym.errors import ConfigError
@@ -30,7 +37,7 @@ from stewart_gym.sim.engines import BACKEND_NAMES, make_backend
 from stewart_gym.sim.servo_model import LINEAR_ACTUATOR
 from stewart_gym.sim.twin import Twin, load_twin
 
-__all__ = ["StewartBallEnv", "check_ball_geometry", "settling_start"]
+__all__ = ["DEFAULT_SUCCESS_WINDOW_S", "StewartBallEnv", "check_ball_geometry", "settling_start"]
 
 #: m: where the settling-time test starts (:mod:`stewart_gym.evaluation`) on a plate large enough.
 SETTLING_OFFSET = 0.100
@@ -110,6 +117,10 @@ def check_ball_geometry(geometry: Any, ball: BallSpec | None = None) -> Any:
         raise GeometryError(f"{geo.name!r} tilts its plate by only {math.degrees(tilt):.1f}° from home: too little "
                             "to move a ball")  # fmt: skip
     return geo
+
+
+#: s: the success window of an env made without one (or the whole episode where that is shorter).
+DEFAULT_SUCCESS_WINDOW_S = 1.0
 
 
 class StewartBallEnv(gym.Env, EzPickle):
@@ -194,8 +205,8 @@ class StewartBallEnv(gym.Env, EzPickle):
     :class:`~stewart_gym.envs.randomization.RandomizationRanges`; ``randomization`` takes the ranges or a
     mapping of the fields to change),
     ``render_mode`` (``"rgb_array"`` or ``"human"``), ``max_tilt`` (rad),
-    ``success_radius`` (m), ``success_window_s`` (s, default 1; a window given is no longer than the
-    episode), ``physics_hz`` (default
+    ``success_radius`` (m), ``success_window_s`` (s, no longer than the episode; default 1, or the whole episode
+    where that is shorter), ``physics_hz`` (default
     the engine's: PyBullet 150 Hz, trading the simulator's 200 Hz, loop gap ≤ 0.07 mm
     in full-range moves, for speed; at 150 Hz the gap is ≤ 0.12 mm in full-range moves
     and ≤ 0.042 mm under ±10° bang-bang tilts; MuJoCo 250 Hz), ``control_hz``, ``rate_penalty``,
@@ -259,7 +270,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if unknown:  # a TypeError, as Python's own for a keyword a function does not take (clients probe for it)
             raise TypeError(f"{type(self).__name__}.__init__() got an unexpected keyword argument {unknown[0]!r} "
                             f"(the env and its task take: {', '.join(sorted(env_keywords(task)))})")  # fmt: skip
-        episode_s = real_number("episode_s", episode_s, low=0, high=3600, low_open=True)
+        episode_s = real_number("episode_s", episode_s, low=0, high=MAX_EPISODE_S, low_open=True)
         control_hz, physics_hz = check_engine_arguments(geometry, control_hz, physics_hz, ball, servo)
         max_tilt = real_number("max_tilt", max_tilt, optional=True)  # (its range: the action mapper's)
         check_randomization(randomization)
@@ -297,18 +308,19 @@ class StewartBallEnv(gym.Env, EzPickle):
         self.metadata = {**self.metadata, "render_fps": int(self.sim.control_hz),
                          "render_modes": ["human", "rgb_array"] if human else ["rgb_array"] if frames else []}  # fmt: skip
         self.plate_half_extent = tuple(self.sim.plate_half_extent)
-        self.task: Task = load_task(task, success_radius=success_radius,
-                                    success_window_s=1.0 if success_window_s is None else success_window_s,
+        window = min(DEFAULT_SUCCESS_WINDOW_S, float(episode_s)) if success_window_s is None else success_window_s
+        self.task: Task = load_task(task, success_radius=success_radius, success_window_s=window,
                                     rate_penalty=rate_penalty, plate_half=min(self.plate_half_extent),
                                     **task_kwargs) if isinstance(task, str) else task  # fmt: skip
         self.success_radius = float(self.task.success_radius)
         self.success_steps = max(1, int(round(self.task.success_window_s * self.sim.control_hz)))
         #: control steps in an episode: ``episode_s`` at this env's rate (then ``truncated``)
         self.episode_steps = max(1, int(round(float(episode_s) * self.sim.control_hz)))
-        if success_window_s is not None and self.success_steps > self.episode_steps:
-            raise ConfigError(f"success_window_s ({self.task.success_window_s:g} s) is longer than the episode "
-                              f"(episode_s {float(episode_s):g} s): no episode could succeed; give a shorter "
-                              "window or a longer episode")  # fmt: skip
+        if self.success_steps > self.episode_steps:
+            whose = "success_window_s" if isinstance(task, str) else "the task's success_window_s"
+            raise ConfigError(f"{whose} ({self.task.success_window_s:g} s) is longer than the episode (episode_s "
+                              f"{float(episode_s):g} s): no episode could succeed; give a shorter window or a longer "
+                              "episode")  # fmt: skip
         self._engine = (backend, geometry, physics_hz, control_hz, render_mode) if isinstance(backend, str) else None
         self.mapper = ActionMapper(self.sim.geometry, self.sim.calibration, action_mode, max_tilt=max_tilt)
         self.action_mode = action_mode
@@ -498,14 +510,7 @@ class StewartBallEnv(gym.Env, EzPickle):
         if value is None:
             return None
         reach = self.MAX_START_FRACTION * min(self.plate_half_extent)
-        try:
-            low, high = (float(v) for v in value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"start_distance must be two numbers (low, high) in m, got {value!r}") from None
-        if not (math.isfinite(low) and math.isfinite(high) and 0 <= low <= high <= reach):
-            raise ConfigError(f"start_distance must be (low, high) m with 0 ≤ low ≤ high ≤ {reach:.3f} (on this plate), "
-                              f"got {value!r}")  # fmt: skip
-        return low, high
+        return number_range("start_distance", value, 0.0, reach, "m (on this plate)")
 
     #: The keys ``reset(options=…)`` accepts.
     RESET_OPTIONS = ("ball_position", "ball_velocity")

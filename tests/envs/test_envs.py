@@ -17,6 +17,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv
 import stewart_gym
 from stewart_gym.actions import ACTION_MODES
 from stewart_gym.envs.ball_env import StewartBallEnv
+from stewart_gym.envs.tasks.disturbance import DisturbanceTask
 from stewart_gym.kinematics import inverse_kinematics
 from stewart_gym.sim import BallSpec
 from stewart_gym.sim.engines import BACKEND_NAMES, make_backend
@@ -273,6 +274,9 @@ def test_reset_options_are_checked(options: dict, match: str) -> None:
     ("StewartBallTrack-v0", {"success_window_s": 1e6}, "longer than the episode"),
     ("StewartBallBalance-v0", {"success_window_s": 11.0}, "longer than the episode"),
     ("StewartBallTrack-v0", {"charge_until_settled": "yes"}, "charge_until_settled must be true or false"),
+    ("StewartBallBalance-v0", {"success_window_s": 1.0, "episode_s": 0.5}, "longer than the episode"),
+    ("StewartBallBalance-v0", {"task": DisturbanceTask(success_window_s=20.0)}, "the task's success_window_s"),
+    ("StewartBallDisturbance-v0", {"start_distance": {0.01, 0.02}}, r"start_distance must be a \(low, high\) pair"),
 ])  # fmt: skip
 def test_task_keywords_are_checked_as_the_env_is_made(env_id: str, kwargs: dict, match: str) -> None:
     """Each task keyword is checked as the env is made, naming it: a push or load range is a (low, high) pair of
@@ -284,13 +288,17 @@ def test_task_keywords_are_checked_as_the_env_is_made(env_id: str, kwargs: dict,
         gym.make(env_id, backend="batched", **kwargs)
 
 
+def test_the_default_success_window_is_a_second_or_the_whole_of_a_shorter_episode() -> None:
+    assert gym.make("StewartBallBalance-v0", backend="batched").unwrapped.success_steps == 50
+    short = gym.make("StewartBallBalance-v0", backend="batched", episode_s=0.5).unwrapped
+    assert short.success_steps == short.episode_steps == 25
+
+
 def test_a_task_switch_takes_a_numpy_bool_and_the_default_load_stays_on_a_small_plate() -> None:
     env = gym.make("StewartBallTrack-v0", backend="batched", charge_until_settled=np.True_)
     assert env.unwrapped.task.charge_until_settled is True
     env = gym.make("StewartBallDisturbance-v0", backend="batched")
     assert env.unwrapped.task.load_radius == 0.10 and env.unwrapped.task.push_impulse == (0.003, 0.010)
-    from stewart_gym.envs.tasks.disturbance import DisturbanceTask
-
     assert DisturbanceTask(plate_half=0.05).load_radius == 0.05
 
 

@@ -20,6 +20,27 @@ PULSES = np.array([1500.0, 1400.25, 1600.5, 1100.0, 1900.0, 1234.75])
 
 
 @pytest.mark.slow
+def test_a_model_the_own_pass_does_not_cover_predicts_through_sb3() -> None:
+    """A2C, and PPO with gSDE's squashed actions, predict through SB3's own ``predict``: the same actions, within
+    the action space."""
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import A2C, PPO
+
+    from stewart_gym.sb3_models import SB3Policy
+
+    obs = np.random.default_rng(1).normal(0, 1, (64, 3)).astype(np.float32)
+    for model in (A2C("MlpPolicy", gym.make("Pendulum-v1"), device="cpu", seed=0),
+                  PPO("MlpPolicy", gym.make("Pendulum-v1"), device="cpu", seed=0, use_sde=True,
+                      policy_kwargs={"squash_output": True})):  # fmt: skip
+        with torch.no_grad():
+            model.policy.action_net.weight.mul_(300.0)  # (far outside ±1 before the squashing)
+        policy = SB3Policy(model)
+        assert not policy.own_pass
+        got = policy.predict(obs)[0]
+        assert np.array_equal(got, model.predict(obs, deterministic=True)[0]) and np.abs(got).max() <= 2.0
+
+
 def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
     """Bundle (onnxruntime + numpy) vs SB3 predict(deterministic=True) on 1,000 observations, for PPO, SAC, TD3
     and TQC; each model loads back as the algorithm that trained it."""
@@ -56,6 +77,7 @@ def test_export_parity_with_sb3_predict(tmp_path: Path) -> None:
         assert np.array_equal(pickle.loads(pickle.dumps(reference)).predict(obs)[0], expected)
         with pytest.raises(ValueError, match=r"shape \(12,\)"):
             reference.predict(obs[:, :5])
+        assert reference.own_pass, algo.__name__
         got = bundle(obs)
         assert np.abs(got - expected).max() <= 1e-5, algo.__name__
         assert not list((tmp_path / f"{algo.__name__}_bundle").glob("*.pkl"))  # no pickle in the bundle

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from stewart_gym.envs.arguments import number_range, real_number
+from stewart_gym.envs.arguments import MAX_EPISODE_S, number_range, real_number
 from stewart_gym.envs.task import BallTask
 
 if TYPE_CHECKING:
@@ -19,8 +19,6 @@ __all__ = ["DisturbanceTask"]
 MAX_PUSH_NS = 1.0
 #: kg: the heaviest plate load.
 MAX_LOAD_KG = 2.0
-#: s: the latest push or load time, the longest episode an env takes.
-MAX_EPISODE_S = 3600.0
 #: m: how far from the centre the plate load may land by default (the plate's half-width where that is less).
 LOAD_RADIUS_M = 0.10
 
@@ -42,7 +40,7 @@ class DisturbanceTask(BallTask):
 
     ``push_impulse``, ``load_kg`` and ``load_time_s`` are (low, high) pairs: pushes
     of up to 1 N·s, loads of up to 2 kg, times of up to an hour; ``load_radius`` is
-    within the plate's half-width.
+    within ``plate_half`` (the env gives its plate's half-width).
 
     Success: as for balance, within 10 mm of the centre for the last second;
     the pushes stop ``last_push_s`` (7.5 s) into the 10 s episode, so there is
