@@ -41,8 +41,8 @@ class SB3Policy:
 
     A deterministic :meth:`predict` of a PPO (without gSDE), SAC, TD3 or TQC model runs the model's deterministic
     action as one torch module (:func:`deterministic_module`) and clips or rescales it as SB3's ``predict`` does:
-    the same numbers to the last bit, at about a third of the cost of SB3's call, which checks and converts its
-    input each time. Any other model predicts through SB3's own ``predict``."""
+    the same numbers to the last bit, without the checks and conversions SB3's call makes each time. Any other
+    model predicts through SB3's own ``predict``."""
 
     def __init__(self, model: Any, obs_rms: Any = None, clip_obs: float = 10.0, epsilon: float = 1e-8) -> None:
         self.model, self.obs_rms, self.clip_obs, self.epsilon = model, obs_rms, clip_obs, epsilon

@@ -85,9 +85,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     if note:
         print(f"note: {note}", file=sys.stderr)
     uneven = rollout_note(cfg)
-    for note in (uneven, whole_rollouts_note(cfg)):
-        if note:
-            print(f"note: {note}", file=sys.stderr)
+    for line in (uneven, whole_rollouts_note(cfg)):
+        if line:
+            print(f"note: {line}", file=sys.stderr)
     total = planned_timesteps(cfg)
     progress = None if args.no_progress else Progress(total, "steps", "train")
     with warnings.catch_warnings():

@@ -271,8 +271,8 @@ class MujocoSim(SimulatorBase):
         """Whether MuJoCo found the simulation unstable since the last reset (a NaN, infinite or huge position,
         velocity or acceleration): it then starts its state again from the model's, which no longer follows the
         episode."""
-        warnings = self.data.warning
-        return any(warnings[int(kind)].number for kind in self._instabilities)
+        counts = self.data.warning
+        return any(counts[int(kind)].number for kind in self._instabilities)
 
     def ball_position(self) -> tuple[float, float, float]:
         """Ball centre (x, y, z) in the platform frame, m; NaN where the simulation blew up (:meth:`blew_up`), as
