@@ -254,9 +254,9 @@ class EpisodeParams:
         if isinstance(sensor, TouchPanelSpec):
             sensor_ep = TouchPanelSpec(noise_mm=value("sensor.noise_mm", 0.0, 20.0), rate_hz=sensor.rate_hz,
                                        latency_s=value("sensor.latency_ms", 0.0, 300.0) / 1e3)  # fmt: skip
-        load_kg = value("plate.load_kg", 0.0, 2.0)
+        load_kg = value("plate.load_kg", *TWIN_FIELDS[("plate", "load_kg")][1:3])
         load = (load_kg, np.array([0.0, 0.0, 0.012])) if load_kg > 0 else None
-        return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", 0.05, 2.0), load)
+        return cls(ball_ep, servo_ep, sensor_ep, value("plate.friction", *TWIN_FIELDS[("plate", "friction")][1:3]), load)
 
 
 def polar(radii: np.ndarray, angles: np.ndarray) -> np.ndarray:

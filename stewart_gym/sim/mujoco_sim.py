@@ -120,7 +120,8 @@ class MujocoSim(SimulatorBase):
         self.physics = MujocoPhysics(**{**vars(physics), "physics_hz": physics_hz})
         self._mj = mj
         # the warnings MuJoCo gives where it finds the simulation unstable, and then resets its state
-        self._instabilities = (mj.mjtWarning.mjWARN_BADQPOS, mj.mjtWarning.mjWARN_BADQVEL, mj.mjtWarning.mjWARN_BADQACC)
+        self._instabilities = tuple(int(kind) for kind in (mj.mjtWarning.mjWARN_BADQPOS, mj.mjtWarning.mjWARN_BADQVEL,
+                                                             mj.mjtWarning.mjWARN_BADQACC))  # fmt: skip
         self._plate_friction = 0.6
         self.xml = mechanism_mjcf(self.geometry, self.mechanism, self.servo_spec, self.physics,
                                   ball=self.ball_spec if self.has_ball else None,
@@ -272,7 +273,7 @@ class MujocoSim(SimulatorBase):
         velocity or acceleration): it then starts its state again from the model's, which no longer follows the
         episode."""
         counts = self.data.warning
-        return any(counts[int(kind)].number for kind in self._instabilities)
+        return any(counts[kind].number for kind in self._instabilities)
 
     def ball_position(self) -> tuple[float, float, float]:
         """Ball centre (x, y, z) in the platform frame, m; NaN where the simulation blew up (:meth:`blew_up`), as

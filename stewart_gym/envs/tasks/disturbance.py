@@ -9,6 +9,7 @@ import numpy as np
 
 from stewart_gym.envs.arguments import MAX_EPISODE_S, number_range, real_number
 from stewart_gym.envs.task import BallTask
+from stewart_gym.sim.twin import TWIN_FIELDS
 
 if TYPE_CHECKING:
     from stewart_gym.sim.backend import PhysicsBackend
@@ -17,8 +18,8 @@ __all__ = ["DisturbanceTask"]
 
 #: N·s: the largest push (1 N·s sends the default ball off at 15 m/s).
 MAX_PUSH_NS = 1.0
-#: kg: the heaviest plate load.
-MAX_LOAD_KG = 2.0
+#: kg: the heaviest plate load (a platform's twin's).
+MAX_LOAD_KG = TWIN_FIELDS[("plate", "load_kg")][2]
 #: m: how far from the centre the plate load may land by default (the plate's half-width where that is less).
 LOAD_RADIUS_M = 0.10
 
